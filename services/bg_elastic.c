@@ -1,0 +1,442 @@
+#include "bg_elastic.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct bg_elastic {
+    const bg_mesh_t *mesh;
+    int n;              /* spatial dimension */
+    int m;              /* local dofs per element: (n+1)*n */
+    double mu, lambda;
+    double *dminv;      /* ne*n*n: D_m⁻¹, row-major */
+    double *volume;     /* ne */
+    double *quat;       /* ne*4 (3D): warm-start rotations */
+    double *psi;        /* ne: energy density of the last eval */
+    double total_volume;
+    bg_rotfit_stats_t stats;
+};
+
+/* A pair sum σi + σj of the stretch below this (relative to tr Y) makes
+ * W = (tr Y·I − Y)⁻¹ unbounded: R is not differentiable there, and the
+ * Hessian uses this floor instead of dividing by zero. */
+#define ELASTIC_PAIR_SUM_FLOOR 1e-10
+
+bg_status bg_elastic_new(const bg_mesh_t *mesh, double mu, double lambda, bg_elastic_t **out,
+                         bg_error_t *err)
+{
+    *out = NULL;
+    const bg_mesh_kind kind = bg_mesh_kind_of(mesh);
+    if (kind == BG_MESH_SURFACE)
+        return bg_error_set(err, BG_ERR_UNSUPPORTED,
+                            "the elastic model needs planar triangles or tetrahedra, not a "
+                            "triangle surface in 3D");
+    if (!(mu > 0.0) || !isfinite(mu) || !isfinite(lambda))
+        return bg_error_set(err, BG_ERR_INVALID, "material: mu = %g must be positive", mu);
+    bg_elastic_t *md = calloc(1, sizeof *md);
+    if (!md)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the elastic model");
+    md->mesh = mesh;
+    md->n = mesh->dim;
+    md->m = (md->n + 1) * md->n;
+    md->mu = mu;
+    md->lambda = lambda;
+    const size_t ne = (size_t)mesh->ne, n = (size_t)md->n;
+    md->dminv = malloc(ne * n * n * sizeof *md->dminv + 1);
+    md->volume = malloc(ne * sizeof *md->volume + 1);
+    md->quat = calloc(ne * 4 + 1, sizeof *md->quat);
+    md->psi = calloc(ne + 1, sizeof *md->psi);
+    if (!md->dminv || !md->volume || !md->quat || !md->psi) {
+        bg_elastic_destroy(&md);
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the elastic model");
+    }
+    for (size_t e = 0; e < ne; e++) {
+        const int32_t *el = mesh->elements + e * (n + 1);
+        double D[9];
+        for (size_t j = 0; j < n; j++)
+            for (size_t a = 0; a < n; a++)
+                D[a * n + j] = mesh->x[(size_t)el[j + 1] * n + a] - mesh->x[(size_t)el[0] * n + a];
+        double *Di = md->dminv + e * n * n;
+        double det;
+        if (n == 2) {
+            det = D[0] * D[3] - D[1] * D[2];
+            Di[0] = D[3] / det;
+            Di[1] = -D[1] / det;
+            Di[2] = -D[2] / det;
+            Di[3] = D[0] / det;
+            md->volume[e] = 0.5 * fabs(det);
+        } else {
+            const double c0 = D[4] * D[8] - D[5] * D[7], c1 = D[5] * D[6] - D[3] * D[8],
+                         c2 = D[3] * D[7] - D[4] * D[6];
+            det = D[0] * c0 + D[1] * c1 + D[2] * c2;
+            Di[0] = c0 / det;
+            Di[1] = (D[2] * D[7] - D[1] * D[8]) / det;
+            Di[2] = (D[1] * D[5] - D[2] * D[4]) / det;
+            Di[3] = c1 / det;
+            Di[4] = (D[0] * D[8] - D[2] * D[6]) / det;
+            Di[5] = (D[2] * D[3] - D[0] * D[5]) / det;
+            Di[6] = c2 / det;
+            Di[7] = (D[1] * D[6] - D[0] * D[7]) / det;
+            Di[8] = (D[0] * D[4] - D[1] * D[3]) / det;
+            md->volume[e] = fabs(det) / 6.0;
+        }
+        if (!(det > 0.0) || !isfinite(det)) {
+            bg_elastic_destroy(&md);
+            return bg_error_set(err, BG_ERR_INVALID,
+                                "element %zu has a non-positive rest measure (validate the mesh "
+                                "first)",
+                                e + 1);
+        }
+        md->total_volume += md->volume[e];
+    }
+    *out = md;
+    return BG_OK;
+}
+
+void bg_elastic_destroy(bg_elastic_t **model)
+{
+    if (!model || !*model)
+        return;
+    bg_elastic_t *md = *model;
+    free(md->dminv);
+    free(md->volume);
+    free(md->quat);
+    free(md->psi);
+    free(md);
+    *model = NULL;
+}
+
+int bg_elastic_dim(const bg_elastic_t *model)
+{
+    return model->n;
+}
+
+int bg_elastic_local_size(const bg_elastic_t *model)
+{
+    return model->m;
+}
+
+const bg_mesh_t *bg_elastic_mesh(const bg_elastic_t *model)
+{
+    return model->mesh;
+}
+
+double bg_elastic_volume(const bg_elastic_t *model, int32_t e)
+{
+    return model->volume[e];
+}
+
+double bg_elastic_total_volume(const bg_elastic_t *model)
+{
+    return model->total_volume;
+}
+
+const double *bg_elastic_energy_density(const bg_elastic_t *model)
+{
+    return model->psi;
+}
+
+bg_rotfit_stats_t bg_elastic_rotfit_stats(const bg_elastic_t *model)
+{
+    return model->stats;
+}
+
+void bg_elastic_reset_stats(bg_elastic_t *model)
+{
+    memset(&model->stats, 0, sizeof model->stats);
+}
+
+void bg_elastic_forget_rotations(bg_elastic_t *model)
+{
+    memset(model->quat, 0, (size_t)model->mesh->ne * 4 * sizeof *model->quat);
+}
+
+/*
+ * ∂P/∂F in 3D (DESIGN.md §1.3), written as
+ *   H = 2μ I₉ + G A Gᵀ + λ vec(R) vec(R)ᵀ,   G = [vec(R[e_k]×)]_k,
+ * with A = c W (c = λ(tr Y − 3) − 2μ, W = (tr Y·I − Y)⁻¹) for the exact
+ * Hessian. Since GᵀG = 2I, the twist block in an orthonormal basis is
+ * T = 2μ I + 2A, with eigenvalues 2μ + 2c/(σi + σj); projecting clamps
+ * its negative eigenvalues to zero, A = (T⁺ − 2μ I)/2. Every other
+ * eigenvalue is 2μ or 2μ + 3λ, positive for a valid material.
+ */
+static void dpdf3(double mu, double lambda, const double R[9], const double S[9], double trY,
+                  int project, double H[81])
+{
+    double Ysym[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            Ysym[3 * i + j] = 0.5 * (S[3 * i + j] + S[3 * j + i]);
+    double y[3], V[9];
+    bg_sym3_eigen(Ysym, y, V);
+    const double c = lambda * (trY - 3.0) - 2.0 * mu;
+    const double floor_ = ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY));
+    double a[3];
+    for (int k = 0; k < 3; k++) {
+        double s = trY - y[k];
+        if (s < floor_)
+            s = floor_;
+        double t = 2.0 * mu + 2.0 * c / s;
+        if (project && t < 0.0)
+            t = 0.0;
+        a[k] = 0.5 * (t - 2.0 * mu);
+    }
+    double A[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            A[3 * i + j] = V[3 * i] * a[0] * V[3 * j] + V[3 * i + 1] * a[1] * V[3 * j + 1] +
+                           V[3 * i + 2] * a[2] * V[3 * j + 2];
+    /* G's columns: vec(R [e_k]×). R[e1]× = [0, R_i2, −R_i1] per row i, etc. */
+    double G[9][3];
+    for (int i = 0; i < 3; i++) {
+        const double r0 = R[3 * i], r1 = R[3 * i + 1], r2 = R[3 * i + 2];
+        G[3 * i + 0][0] = 0.0, G[3 * i + 1][0] = r2, G[3 * i + 2][0] = -r1;
+        G[3 * i + 0][1] = -r2, G[3 * i + 1][1] = 0.0, G[3 * i + 2][1] = r0;
+        G[3 * i + 0][2] = r1, G[3 * i + 1][2] = -r0, G[3 * i + 2][2] = 0.0;
+    }
+    double GA[9][3];
+    for (int r = 0; r < 9; r++)
+        for (int k = 0; k < 3; k++)
+            GA[r][k] = G[r][0] * A[k] + G[r][1] * A[3 + k] + G[r][2] * A[6 + k];
+    for (int r = 0; r < 9; r++)
+        for (int s = 0; s < 9; s++)
+            H[9 * r + s] = (r == s ? 2.0 * mu : 0.0) +
+                           GA[r][0] * G[s][0] + GA[r][1] * G[s][1] + GA[r][2] * G[s][2] +
+                           lambda * R[r] * R[s];
+}
+
+/* ∂P/∂F in 2D: the twist space is one-dimensional, G = vec(R J), |G|² = 2,
+ * W = 1/tr Y, twist eigenvalue 2μ + 2c/tr Y. */
+static void dpdf2(double mu, double lambda, const double R[4], double trY, int project,
+                  double H[16])
+{
+    const double G[4] = {R[1], -R[0], R[3], -R[2]}; /* R J with J = [[0, −1], [1, 0]] */
+    const double c = lambda * (trY - 2.0) - 2.0 * mu;
+    const double s = fmax(trY, ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY)));
+    double t = 2.0 * mu + 2.0 * c / s;
+    if (project && t < 0.0)
+        t = 0.0;
+    const double a = 0.5 * (t - 2.0 * mu);
+    for (int r = 0; r < 4; r++)
+        for (int q = 0; q < 4; q++)
+            H[4 * r + q] = (r == q ? 2.0 * mu : 0.0) + a * G[r] * G[q] + lambda * R[r] * R[q];
+}
+
+/*
+ * The material point: fits R, returns ψ, fills P (if non-NULL) and ∂P/∂F
+ * (if non-NULL). Writes R and returns the rotation-fit path via *path.
+ */
+static double material_point(int n, double mu, double lambda, const double *F, double *quat,
+                             double *R, double *P, double *H, int project, int *path)
+{
+    double S[9];
+    double trY = 0.0, dev = 0.0;
+    if (n == 3) {
+        *path = (int)bg_rotfit3(F, quat, R);
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                S[3 * i + j] = R[i] * F[j] + R[3 + i] * F[3 + j] + R[6 + i] * F[6 + j];
+        trY = S[0] + S[4] + S[8];
+    } else {
+        *path = bg_rotfit2(F, R) ? BG_ROTFIT_SVD : BG_ROTFIT_WARM;
+        trY = R[0] * F[0] + R[2] * F[2] + R[1] * F[1] + R[3] * F[3];
+    }
+    const int nn = n * n;
+    for (int i = 0; i < nn; i++) {
+        const double d = F[i] - R[i];
+        dev += d * d;
+    }
+    const double vol = trY - n;
+    if (P)
+        for (int i = 0; i < nn; i++)
+            P[i] = 2.0 * mu * (F[i] - R[i]) + lambda * vol * R[i];
+    if (H) {
+        if (n == 3)
+            dpdf3(mu, lambda, R, S, trY, project, H);
+        else
+            dpdf2(mu, lambda, R, trY, project, H);
+    }
+    return mu * dev + 0.5 * lambda * vol * vol;
+}
+
+double bg_elastic_psi(int n, double mu, double lambda, const double *F, double *quat, double *P,
+                      double *dPdF, int project)
+{
+    double R[9], q0[4] = {0, 0, 0, 0};
+    int path;
+    return material_point(n, mu, lambda, F, quat ? quat : q0, R, P, dPdF, project, &path);
+}
+
+/* F = Σ_j (q_j − q_0) ⊗ (row j−1 of D_m⁻¹). */
+static void deformation_gradient(int n, const int32_t *restrict el, const double *restrict q,
+                                 const double *restrict Di, double *restrict F)
+{
+    double d[3][3];
+    for (int j = 0; j < n; j++)
+        for (int a = 0; a < n; a++)
+            d[j][a] = q[(size_t)el[j + 1] * n + a] - q[(size_t)el[0] * n + a];
+    for (int a = 0; a < n; a++)
+        for (int b = 0; b < n; b++) {
+            double s = 0.0;
+            for (int j = 0; j < n; j++)
+                s += d[j][a] * Di[j * n + b];
+            F[a * n + b] = s;
+        }
+}
+
+static void count_path(bg_rotfit_stats_t *st, int path)
+{
+    st->calls++;
+    if (path == BG_ROTFIT_WARM)
+        st->warm++;
+    else if (path == BG_ROTFIT_POLAR)
+        st->polar++;
+    else
+        st->svd++;
+}
+
+double bg_elastic_eval(bg_elastic_t *md, const double *restrict q, double *restrict grad)
+{
+    const int n = md->n, k = n + 1;
+    const bg_mesh_t *mesh = md->mesh;
+    if (grad)
+        memset(grad, 0, (size_t)mesh->nv * (size_t)n * sizeof *grad);
+    double energy = 0.0;
+    double zero_quat[4];
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        const int32_t *el = mesh->elements + (size_t)e * k;
+        const double *Di = md->dminv + (size_t)e * n * n;
+        double F[9], R[9], P[9];
+        deformation_gradient(n, el, q, Di, F);
+        double *quat = n == 3 ? md->quat + 4 * (size_t)e : zero_quat;
+        int path;
+        const double psi =
+            material_point(n, md->mu, md->lambda, F, quat, R, grad ? P : NULL, NULL, 0, &path);
+        count_path(&md->stats, path);
+        md->psi[e] = psi;
+        energy += md->volume[e] * psi;
+        if (!grad)
+            continue;
+        /* Node j ≥ 1 gets V P D_m⁻ᵀ column j−1; node 0 the negative sum. */
+        const double V = md->volume[e];
+        double f0[3] = {0, 0, 0};
+        for (int j = 0; j < n; j++)
+            for (int a = 0; a < n; a++) {
+                double s = 0.0;
+                for (int b = 0; b < n; b++)
+                    s += P[a * n + b] * Di[j * n + b];
+                s *= V;
+                grad[(size_t)el[j + 1] * n + a] += s;
+                f0[a] += s;
+            }
+        for (int a = 0; a < n; a++)
+            grad[(size_t)el[0] * n + a] -= f0[a];
+    }
+    return energy;
+}
+
+/* Barycentric gradients g[node][b]: rows of D_m⁻¹ for nodes 1..n, and
+ * minus their sum for node 0, so that F_ab = Σ_node q_node,a g[node][b]. */
+static void barycentric_gradients(int n, const double *Di, double g[4][3])
+{
+    for (int b = 0; b < n; b++) {
+        g[0][b] = 0.0;
+        for (int j = 0; j < n; j++) {
+            g[j + 1][b] = Di[j * n + b];
+            g[0][b] -= Di[j * n + b];
+        }
+    }
+}
+
+void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int project,
+                                 double scale, const int32_t *restrict scatter,
+                                 double *restrict values)
+{
+    const int n = md->n, k = n + 1, m = md->m, nn = n * n, T = BG_ELASTIC_TRI_SIZE(m);
+    const bg_mesh_t *mesh = md->mesh;
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        const int32_t *el = mesh->elements + (size_t)e * k;
+        const double *Di = md->dminv + (size_t)e * nn;
+        double F[9], R[9], H[81], g[4][3];
+        double quat[4];
+        if (n == 3)
+            memcpy(quat, md->quat + 4 * (size_t)e, sizeof quat);
+        deformation_gradient(n, el, q, Di, F);
+        int path;
+        material_point(n, md->mu, md->lambda, F, quat, R, NULL, H, project, &path);
+        barycentric_gradients(n, Di, g);
+        /* HB[(c,b)][(j,d)] = Σ_e' H[(c,b),(d,e')] g[j][e'], then
+         * K[(i,c),(j,d)] = V Σ_b g[i][b] HB[(c,b)][(j,d)]. */
+        double HB[9][BG_ELASTIC_MAX_LOCAL];
+        for (int r = 0; r < nn; r++)
+            for (int j = 0; j < k; j++)
+                for (int d = 0; d < n; d++) {
+                    double s = 0.0;
+                    for (int ep = 0; ep < n; ep++)
+                        s += H[r * nn + d * n + ep] * g[j][ep];
+                    HB[r][j * n + d] = s;
+                }
+        const double w = scale * md->volume[e];
+        const int32_t *sc = scatter + (size_t)e * T;
+        for (int a = 0; a < m; a++) {
+            const int i = a / n, c = a % n;
+            for (int bcol = a; bcol < m; bcol++) {
+                const int32_t pos = sc[BG_ELASTIC_TRI_INDEX(m, a, bcol)];
+                if (pos < 0)
+                    continue;
+                double s = 0.0;
+                for (int b = 0; b < n; b++)
+                    s += g[i][b] * HB[c * n + b][bcol];
+                values[pos] += w * s;
+            }
+        }
+    }
+}
+
+void bg_elastic_assemble_laplacian(const bg_elastic_t *md, double scale,
+                                   const int32_t *restrict scatter, double *restrict values)
+{
+    const int n = md->n, m = md->m, T = BG_ELASTIC_TRI_SIZE(m);
+    const bg_mesh_t *mesh = md->mesh;
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        double g[4][3];
+        barycentric_gradients(n, md->dminv + (size_t)e * n * n, g);
+        const double w = scale * md->volume[e];
+        const int32_t *sc = scatter + (size_t)e * T;
+        for (int a = 0; a < m; a++)
+            for (int bcol = a; bcol < m; bcol++) {
+                if (a % n != bcol % n)
+                    continue;
+                const int32_t pos = sc[BG_ELASTIC_TRI_INDEX(m, a, bcol)];
+                if (pos < 0)
+                    continue;
+                const int i = a / n, j = bcol / n;
+                double s = 0.0;
+                for (int b = 0; b < n; b++)
+                    s += g[i][b] * g[j][b];
+                values[pos] += w * s;
+            }
+    }
+}
+
+void bg_elastic_apply_laplacian(const bg_elastic_t *md, const double *restrict u,
+                                double *restrict out)
+{
+    const int n = md->n, k = n + 1;
+    const bg_mesh_t *mesh = md->mesh;
+    memset(out, 0, (size_t)mesh->nv * n * sizeof *out);
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        const int32_t *el = mesh->elements + (size_t)e * k;
+        double g[4][3];
+        barycentric_gradients(n, md->dminv + (size_t)e * n * n, g);
+        for (int i = 0; i < k; i++)
+            for (int j = 0; j < k; j++) {
+                double s = 0.0;
+                for (int b = 0; b < n; b++)
+                    s += g[i][b] * g[j][b];
+                s *= md->volume[e];
+                for (int c = 0; c < n; c++)
+                    out[(size_t)el[i] * n + c] += s * u[(size_t)el[j] * n + c];
+            }
+    }
+}

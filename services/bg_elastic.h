@@ -1,0 +1,99 @@
+/*
+ * bg_elastic — the geometric elastic energy of Chao et al. 2010 on a mesh:
+ *
+ *   E(q) = Σ_e V_e ψ(F_e),  ψ(F) = μ|F − R|² + (λ/2)(tr Y − n)²,  F = R Y,
+ *
+ * its gradient (first Piola stress P = 2μ(F − R) + λ(tr Y − n)R, scattered
+ * through D_m⁻ᵀ) and its exact Hessian, including the derivative of R
+ * (DESIGN.md §1.3), optionally made positive semi-definite by clamping the
+ * twist eigenvalues in closed form.
+ *
+ * Unknowns are the vertex positions q (nv*n doubles, vertex-major, n = 2
+ * for planar triangles, 3 for tetrahedra). Element-local degrees of freedom
+ * are ordered node-major: a = node*n + component, node ∈ [0, n].
+ */
+#ifndef BG_ELASTIC_H
+#define BG_ELASTIC_H
+
+#include <stdint.h>
+
+#include "bg_error.h"
+#include "bg_mesh.h"
+#include "bg_rotfit.h"
+
+typedef struct bg_elastic bg_elastic_t;
+
+/* Size of an element's local dof block: (n+1)*n, 6 for triangles, 12 for tets. */
+#define BG_ELASTIC_MAX_LOCAL 12
+/* Entries of the upper triangle (with diagonal) of a local block: 21 or 78. */
+#define BG_ELASTIC_TRI_SIZE(m) ((m) * ((m) + 1) / 2)
+/* Index of local entry (a, b), a ≤ b, in the packed upper triangle. */
+#define BG_ELASTIC_TRI_INDEX(m, a, b) ((a) * (m) - ((a) * ((a)-1)) / 2 + ((b) - (a)))
+
+/*
+ * Precomputes D_m⁻¹ and V_e for a planar or volume rest mesh (which must
+ * have passed bg_mesh_validate). The mesh is borrowed: it must outlive the
+ * model. Caller owns *out.
+ */
+bg_status bg_elastic_new(const bg_mesh_t *mesh, double mu, double lambda, bg_elastic_t **out,
+                         bg_error_t *err);
+void bg_elastic_destroy(bg_elastic_t **model);
+
+int bg_elastic_dim(const bg_elastic_t *model);
+int bg_elastic_local_size(const bg_elastic_t *model);
+const bg_mesh_t *bg_elastic_mesh(const bg_elastic_t *model);
+/* Rest measure (area/volume) of element e; the sum over all elements. */
+double bg_elastic_volume(const bg_elastic_t *model, int32_t e);
+double bg_elastic_total_volume(const bg_elastic_t *model);
+
+/*
+ * Fits every element's rotation at positions q (warm-started from the
+ * previous call), and returns the energy; if grad is non-NULL it is
+ * overwritten with ∇E (nv*n). Rotation-fitting counts accumulate in the
+ * model's statistics. Per-element energy densities ψ_e of this call are
+ * kept and readable with bg_elastic_energy_density. Allocates nothing.
+ */
+double bg_elastic_eval(bg_elastic_t *model, const double *q, double *grad);
+
+/*
+ * Element stiffness matrices at q: for each element, V_e Bᵀ (∂²ψ/∂F²) B,
+ * PSD-projected when `project` is non-zero, accumulated into `values` at
+ * positions scatter[e * T + t] for the t-th packed upper-triangle entry
+ * (T = BG_ELASTIC_TRI_SIZE(local size)); entries with scatter < 0 are
+ * skipped (constrained dofs). Call after bg_elastic_eval at the same q (it
+ * reuses the fitted rotations). `scale` multiplies every contribution.
+ */
+void bg_elastic_assemble_hessian(const bg_elastic_t *model, const double *q, int project,
+                                 double scale, const int32_t *scatter, double *values);
+
+/*
+ * The same scatter with the element blocks scale·V_e (G Gᵀ ⊗ I_n), G the
+ * (n+1)×n barycentric gradients: the Hessian of (scale/2)·Σ_e V_e |F_e|²,
+ * i.e. the cotan Laplacian per coordinate. It does not depend on q, so
+ * local/global factors it once.
+ */
+void bg_elastic_assemble_laplacian(const bg_elastic_t *model, double scale,
+                                   const int32_t *scatter, double *values);
+
+/* out = K u with K = Σ_e V_e (G Gᵀ ⊗ I_n) over all dofs (u, out: nv*n). */
+void bg_elastic_apply_laplacian(const bg_elastic_t *model, const double *u, double *out);
+
+/* Per-element ψ of the last bg_elastic_eval (ne values, borrowed). */
+const double *bg_elastic_energy_density(const bg_elastic_t *model);
+
+/* Rotation-fitting statistics since creation or the last reset. */
+bg_rotfit_stats_t bg_elastic_rotfit_stats(const bg_elastic_t *model);
+void bg_elastic_reset_stats(bg_elastic_t *model);
+/* Forgets the warm starts (the next eval fits every rotation cold). */
+void bg_elastic_forget_rotations(bg_elastic_t *model);
+
+/*
+ * Single-element kernel, for tests and other services: ψ(F) and, when the
+ * pointers are non-NULL, P (n*n) and ∂P/∂F ((n*n)², row-major over
+ * row-major vec(F)), PSD-projected when `project`. quat is the 3D warm
+ * start (in/out, may be all zero; unused in 2D). Returns ψ.
+ */
+double bg_elastic_psi(int n, double mu, double lambda, const double *F, double *quat, double *P,
+                      double *dPdF, int project);
+
+#endif

@@ -1,0 +1,116 @@
+#include "bg_initial.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bg_elastic.h"
+#include "bg_sparse.h"
+
+/* Rotation by angle about a unit axis (Rodrigues), row-major. */
+static void axis_angle(const double k[3], double angle, double R[9])
+{
+    const double c = cos(angle), s = sin(angle);
+    const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            R[3 * i + j] = (i == j ? c : 0.0) + s * K[3 * i + j] + (1.0 - c) * k[i] * k[j];
+}
+
+bg_status bg_initial_interpolate(const bg_scene_t *scene, double *out, bg_error_t *err)
+{
+    const bg_mesh_t *mesh = scene->mesh;
+    const int d = mesh->dim;
+    const int32_t nv = mesh->nv;
+    const size_t ndof = (size_t)nv * d;
+    bg_status st = BG_OK;
+    bg_elastic_t *model = NULL;
+    bg_sparse_t *sys = NULL;
+    int32_t *free_index = malloc(ndof * sizeof *free_index + 1);
+    uint8_t *held = calloc((size_t)nv + 1, 1);
+    double *w = calloc(ndof + 1, sizeof *w), *rhs = calloc(ndof + 1, sizeof *rhs);
+    double *sol = calloc(ndof + 1, sizeof *sol);
+    if (!free_index || !held || !w || !rhs || !sol) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "initial guess: out of memory");
+        goto out;
+    }
+    memcpy(out, mesh->x, ndof * sizeof *out);
+    /* The weight problem is scalar; it is solved in the first coordinate
+     * of the d-coordinate Laplacian system, whose other coordinates carry
+     * zero data. A vertex with any constrained coordinate is a boundary
+     * vertex of the weight problem. */
+    for (int32_t v = 0; v < nv; v++)
+        for (int c = 0; c < d; c++)
+            held[v] |= scene->constrained[(size_t)v * d + c];
+    int32_t nfree = 0;
+    for (int32_t v = 0; v < nv; v++)
+        for (int c = 0; c < d; c++)
+            free_index[(size_t)v * d + c] = held[v] ? -1 : nfree++;
+    int moving = 0;
+    for (int32_t h = 0; h < scene->handle_count; h++)
+        moving |= scene->motions[h].kind != BG_MOTION_FIXED;
+    if (nfree > 0 && moving) {
+        st = bg_elastic_new(mesh, 1.0, 0.0, &model, err);
+        if (st == BG_OK)
+            st = bg_sparse_new(mesh, d, free_index, nfree, &sys, err);
+        if (st != BG_OK)
+            goto out;
+        bg_sparse_zero(sys);
+        bg_elastic_assemble_laplacian(model, 1.0, bg_sparse_scatter(sys), bg_sparse_values(sys));
+        st = bg_sparse_factorize(sys, 0.0, err);
+        if (st != BG_OK)
+            goto out;
+    }
+    for (int32_t h = 0; h < scene->handle_count && sys; h++) {
+        const bg_scene_motion_t *m = &scene->motions[h];
+        if (m->kind == BG_MOTION_FIXED)
+            continue;
+        /* Dirichlet data: 1 on this handle, 0 elsewhere; rhs = −(K w_b)_free. */
+        memset(w, 0, ndof * sizeof *w);
+        for (int32_t i = 0; i < m->count; i++)
+            w[(size_t)m->vertices[i] * d] = 1.0;
+        bg_elastic_apply_laplacian(model, w, rhs);
+        for (size_t k = 0; k < ndof; k++)
+            if (free_index[k] >= 0)
+                sol[free_index[k]] = k % (size_t)d == 0 ? -rhs[k] : 0.0;
+        st = bg_sparse_solve(sys, sol, sol, err);
+        if (st != BG_OK)
+            goto out;
+        for (int32_t v = 0; v < nv; v++) {
+            const size_t k = (size_t)v * d;
+            const double weight = free_index[k] >= 0 ? sol[free_index[k]] : w[k];
+            if (weight == 0.0)
+                continue;
+            const double *x = mesh->x + k;
+            double moved[3];
+            if (m->kind == BG_MOTION_RIGID) {
+                double R[9], rel[3] = {0, 0, 0};
+                axis_angle(m->axis, weight * m->radians, R);
+                for (int c = 0; c < d; c++)
+                    rel[c] = x[c] - m->center[c];
+                for (int r = 0; r < d; r++) {
+                    moved[r] = m->center[r] + weight * m->translate[r];
+                    for (int c = 0; c < d; c++)
+                        moved[r] += R[3 * r + c] * rel[c];
+                }
+            } else {
+                for (int c = 0; c < d; c++)
+                    moved[c] = x[c] + weight * m->mean_displacement[c];
+            }
+            for (int c = 0; c < d; c++)
+                out[k + c] += moved[c] - x[c];
+        }
+    }
+    for (size_t k = 0; k < ndof; k++)
+        if (scene->constrained[k])
+            out[k] = scene->target[k];
+out:
+    bg_sparse_destroy(&sys);
+    bg_elastic_destroy(&model);
+    free(free_index);
+    free(held);
+    free(w);
+    free(rhs);
+    free(sol);
+    return st;
+}

@@ -1,0 +1,49 @@
+#include "bg_plan.h"
+
+#include <stdio.h>
+
+static void add(bg_plan_item_t *items, int *count, const char *service, const char *detail)
+{
+    if (*count >= BG_PLAN_MAX_ITEMS)
+        return;
+    items[*count].service = service;
+    snprintf(items[*count].detail, sizeof items[*count].detail, "%s", detail);
+    (*count)++;
+}
+
+void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int method_count,
+                       bg_plan_t *plan)
+{
+    plan->service_count = 0;
+    plan->left_out_count = 0;
+    const int planar = scene->mesh->dim == 2;
+    int newton = 0, local_global = 0;
+    for (int i = 0; i < method_count; i++) {
+        newton |= methods[i] == BG_METHOD_NEWTON;
+        local_global |= methods[i] == BG_METHOD_LOCAL_GLOBAL;
+    }
+    add(plan->services, &plan->service_count, "rotation-fit",
+        planar ? "closed-form 2D rotation per triangle"
+               : "polar decomposition per tetrahedron (Newton on SO(3), warm-started), "
+                 "rotation-variant SVD where det F <= eps");
+    char detail[160];
+    snprintf(detail, sizeof detail, "%s%s%s", newton ? "CHOLMOD: one symbolic analysis, a numeric "
+                                                       "factorization per Newton iteration" : "",
+             newton && local_global ? "; " : "",
+             local_global ? "CHOLMOD: the Laplacian factored once, two triangular solves per "
+                            "iteration" : "");
+    add(plan->services, &plan->service_count, "sparse-solve", detail);
+
+    add(plan->left_out, &plan->left_out_count, "integration-step",
+        "static scene: no time integration");
+    if (planar)
+        add(plan->left_out, &plan->left_out_count, "rotation-fit/svd",
+            "planar scene: the 2D closed form covers inverted triangles, no 3D SVD path");
+    if (scene->material.lambda == 0.0)
+        add(plan->left_out, &plan->left_out_count, "volume-term",
+            "lambda = 0: no (tr Y - n)^2 term (the plain as-rigid-as-possible energy)");
+    const double *g = scene->gravity;
+    if (g[0] == 0.0 && g[1] == 0.0 && g[2] == 0.0)
+        add(plan->left_out, &plan->left_out_count, "mass-matrix",
+            "no gravity: the lumped mass matrix is not built");
+}

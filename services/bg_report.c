@@ -1,0 +1,198 @@
+#include "bg_report.h"
+
+#include <cjson/cJSON.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bg_svg.h"
+
+static cJSON *number_or_null(double x)
+{
+    return isfinite(x) ? cJSON_CreateNumber(x) : cJSON_CreateNull();
+}
+
+static cJSON *run_json(const bg_solve_result_t *r)
+{
+    cJSON *o = cJSON_CreateObject();
+    if (!o)
+        return NULL;
+    cJSON_AddStringToObject(o, "method", bg_method_name(r->method));
+    cJSON_AddBoolToObject(o, "converged", r->converged);
+    cJSON_AddStringToObject(o, "stop_reason", r->stop_reason ? r->stop_reason : "");
+    cJSON_AddNumberToObject(o, "iterations", r->iterations);
+    cJSON_AddNumberToObject(o, "wall_seconds", r->wall_seconds);
+    cJSON_AddItemToObject(o, "energy", number_or_null(r->energy));
+    cJSON_AddItemToObject(o, "gradient_norm", number_or_null(r->gradient_norm));
+    cJSON_AddItemToObject(o, "relative_gradient", number_or_null(r->relative_gradient));
+    cJSON_AddNumberToObject(o, "svd_fallbacks", (double)r->rotfit.svd);
+    cJSON *fits = cJSON_AddObjectToObject(o, "rotation_fits");
+    if (fits) {
+        cJSON_AddNumberToObject(fits, "calls", (double)r->rotfit.calls);
+        cJSON_AddNumberToObject(fits, "warm", (double)r->rotfit.warm);
+        cJSON_AddNumberToObject(fits, "polar", (double)r->rotfit.polar);
+        cJSON_AddNumberToObject(fits, "svd", (double)r->rotfit.svd);
+    }
+    cJSON *split = cJSON_AddObjectToObject(o, "time_split");
+    if (split) {
+        cJSON_AddNumberToObject(split, "rotation_fit_seconds", r->rotfit_seconds);
+        cJSON_AddNumberToObject(split, "assembly_seconds", r->assembly_seconds);
+        cJSON_AddNumberToObject(split, "analyze_seconds", r->analyze_seconds);
+        cJSON_AddNumberToObject(split, "factor_seconds", r->factor_seconds);
+        cJSON_AddNumberToObject(split, "solve_seconds", r->solve_seconds);
+        cJSON_AddNumberToObject(split, "factorizations", (double)r->factorizations);
+    }
+    cJSON *trace = cJSON_AddArrayToObject(o, "trace");
+    for (int i = 0; trace && i < r->trace_count; i++) {
+        const bg_trace_point_t *p = &r->trace[i];
+        cJSON *t = cJSON_CreateObject();
+        if (!t)
+            break;
+        cJSON_AddNumberToObject(t, "seconds", p->seconds);
+        cJSON_AddNumberToObject(t, "iteration", p->iteration);
+        cJSON_AddItemToObject(t, "energy", number_or_null(p->energy));
+        cJSON_AddItemToObject(t, "gradient_norm", number_or_null(p->gradient_norm));
+        cJSON_AddItemToObject(t, "relative_gradient", number_or_null(p->relative_gradient));
+        cJSON_AddItemToObject(t, "error", number_or_null(p->error));
+        cJSON_AddItemToArray(trace, t);
+    }
+    return o;
+}
+
+bg_status bg_report_render(const bg_scene_t *scene, const bg_plan_t *plan,
+                           const bg_solve_result_t *runs, int run_count, char **json,
+                           bg_error_t *err)
+{
+    *json = NULL;
+    cJSON *root = cJSON_CreateObject();
+    if (!root)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory writing the report");
+    cJSON_AddStringToObject(root, "scene", scene->name);
+    cJSON_AddStringToObject(root, "scene_file", scene->path);
+    cJSON *mesh = cJSON_AddObjectToObject(root, "mesh");
+    if (mesh) {
+        cJSON_AddNumberToObject(mesh, "dimension", scene->mesh->dim);
+        cJSON_AddNumberToObject(mesh, "vertices", scene->mesh->nv);
+        cJSON_AddNumberToObject(mesh, "elements", scene->mesh->ne);
+        cJSON_AddStringToObject(mesh, "kind", bg_mesh_kind_name(bg_mesh_kind_of(scene->mesh)));
+        cJSON_AddStringToObject(mesh, "source", scene->mesh_source);
+        cJSON_AddNumberToObject(mesh, "reoriented_elements", scene->reoriented);
+    }
+    cJSON *pj = cJSON_AddObjectToObject(root, "plan");
+    if (pj) {
+        cJSON *s = cJSON_AddArrayToObject(pj, "services");
+        for (int i = 0; s && i < plan->service_count; i++) {
+            cJSON *it = cJSON_CreateObject();
+            cJSON_AddStringToObject(it, "name", plan->services[i].service);
+            cJSON_AddStringToObject(it, "detail", plan->services[i].detail);
+            cJSON_AddItemToArray(s, it);
+        }
+        cJSON *l = cJSON_AddArrayToObject(pj, "left_out");
+        for (int i = 0; l && i < plan->left_out_count; i++) {
+            cJSON *it = cJSON_CreateObject();
+            cJSON_AddStringToObject(it, "name", plan->left_out[i].service);
+            cJSON_AddStringToObject(it, "reason", plan->left_out[i].detail);
+            cJSON_AddItemToArray(l, it);
+        }
+    }
+    const char *ref = scene->reference_kind == BG_REFERENCE_POSITIONS ? "given positions"
+                      : scene->reference_kind == BG_REFERENCE_NEWTON  ? "tight Newton solve"
+                                                                      : NULL;
+    if (ref)
+        cJSON_AddStringToObject(root, "reference", ref);
+    else
+        cJSON_AddNullToObject(root, "reference");
+    cJSON *rj = cJSON_AddArrayToObject(root, "runs");
+    for (int i = 0; rj && i < run_count; i++)
+        cJSON_AddItemToArray(rj, run_json(&runs[i]));
+    *json = cJSON_Print(root);
+    cJSON_Delete(root);
+    if (!*json)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory writing the report");
+    return BG_OK;
+}
+
+bg_status bg_report_write(const char *path, const bg_scene_t *scene, const bg_plan_t *plan,
+                          const bg_solve_result_t *runs, int run_count, bg_error_t *err)
+{
+    char *json = NULL;
+    bg_status st = bg_report_render(scene, plan, runs, run_count, &json, err);
+    if (st != BG_OK)
+        return st;
+    FILE *f = fopen(path, "w");
+    if (!f) {
+        free(json);
+        return bg_error_set(err, BG_ERR_IO, "%s: cannot write the report", path);
+    }
+    int bad = fputs(json, f) < 0 || fputc('\n', f) == EOF;
+    bad |= fclose(f) != 0;
+    free(json);
+    if (bad)
+        return bg_error_set(err, BG_ERR_IO, "%s: write failed", path);
+    return BG_OK;
+}
+
+bg_status bg_report_write_plot(const char *path, const bg_scene_t *scene,
+                               const bg_solve_result_t *runs, int run_count, bg_error_t *err)
+{
+    bg_status st = BG_OK;
+    const int with_reference = scene->reference_kind != BG_REFERENCE_NONE;
+    bg_svg_series_t series[8];
+    double *buffers[16] = {0};
+    int count = run_count < 8 ? run_count : 8;
+    for (int i = 0; i < count; i++) {
+        const bg_solve_result_t *r = &runs[i];
+        double *x = malloc(sizeof *x * ((size_t)r->trace_count + 1));
+        double *y = malloc(sizeof *y * ((size_t)r->trace_count + 1));
+        buffers[2 * i] = x;
+        buffers[2 * i + 1] = y;
+        if (!x || !y) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the plot");
+            goto out;
+        }
+        for (int j = 0; j < r->trace_count; j++) {
+            x[j] = r->trace[j].seconds;
+            y[j] = with_reference ? r->trace[j].error : r->trace[j].relative_gradient;
+        }
+        series[i].label = bg_method_name(r->method);
+        series[i].x = x;
+        series[i].y = y;
+        series[i].count = (size_t)r->trace_count;
+    }
+    char title[256];
+    snprintf(title, sizeof title, "%s: error against run time", scene->name);
+    const bg_svg_plot_t plot = {title, "wall time (s)",
+                                with_reference ? "relative error |q - q_ref| / |q_ref|"
+                                               : "relative gradient |grad W| / |grad W(q0)|",
+                                0, 1};
+    st = bg_svg_write(path, &plot, series, count, err);
+out:
+    for (int i = 0; i < 16; i++)
+        free(buffers[i]);
+    return st;
+}
+
+static void print_row(FILE *out, const char *method, const bg_trace_point_t *p)
+{
+    char error[32];
+    if (isfinite(p->error))
+        snprintf(error, sizeof error, "%.3e", p->error);
+    else
+        snprintf(error, sizeof error, "-");
+    fprintf(out, "%-13s %6d %10.4f %22.15e %12.3e %12s\n", method, p->iteration, p->seconds,
+            p->energy, p->relative_gradient, error);
+}
+
+void bg_report_print_table(FILE *out, const bg_solve_result_t *runs, int run_count, int max_rows)
+{
+    fprintf(out, "%-13s %6s %10s %22s %12s %12s\n", "method", "iter", "seconds", "energy",
+            "rel.gradient", "error");
+    for (int i = 0; i < run_count; i++) {
+        const bg_solve_result_t *r = &runs[i];
+        const int n = r->trace_count;
+        const int stride = n > max_rows && max_rows > 1 ? (n + max_rows - 2) / (max_rows - 1) : 1;
+        for (int j = 0; j < n; j++)
+            if (j % stride == 0 || j == n - 1)
+                print_row(out, bg_method_name(r->method), &r->trace[j]);
+    }
+}

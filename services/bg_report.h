@@ -1,0 +1,40 @@
+/*
+ * bg_report — the solve report (report.json) and the error-against-run-time
+ * plot and table.
+ *
+ * report.json: { "scene", "mesh": {"dimension", "vertices", "elements",
+ * "kind", "source"}, "plan": {"services": [{"name", "detail"}], "left_out":
+ * [{"name", "reason"}]}, "reference", "runs": [ {"method", "converged",
+ * "stop_reason", "iterations", "wall_seconds", "energy", "gradient_norm",
+ * "relative_gradient", "svd_fallbacks", "rotation_fits", "time_split":
+ * {...}, "trace": [{"seconds", "iteration", "energy", "gradient_norm",
+ * "relative_gradient", "error"}]} ] }. "error" is null without a reference.
+ */
+#ifndef BG_REPORT_H
+#define BG_REPORT_H
+
+#include <stdio.h>
+
+#include "bg_error.h"
+#include "bg_plan.h"
+#include "bg_scene.h"
+#include "bg_static.h"
+
+/* Serialises the report; caller frees *json. */
+bg_status bg_report_render(const bg_scene_t *scene, const bg_plan_t *plan,
+                           const bg_solve_result_t *runs, int run_count, char **json,
+                           bg_error_t *err);
+
+bg_status bg_report_write(const char *path, const bg_scene_t *scene, const bg_plan_t *plan,
+                          const bg_solve_result_t *runs, int run_count, bg_error_t *err);
+
+/* error-vs-time.svg: log error (or relative gradient without a reference)
+ * against seconds, one curve per run. */
+bg_status bg_report_write_plot(const char *path, const bg_scene_t *scene,
+                               const bg_solve_result_t *runs, int run_count, bg_error_t *err);
+
+/* The error-against-run-time table, at most max_rows rows per run (evenly
+ * spaced, always with the first and the last iteration). */
+void bg_report_print_table(FILE *out, const bg_solve_result_t *runs, int run_count, int max_rows);
+
+#endif

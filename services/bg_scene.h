@@ -1,0 +1,122 @@
+/*
+ * bg_scene — scene files: what to deform, how, and how to solve it.
+ *
+ * A scene is a JSON object (documented in README.md, "Scene format"). The
+ * parser resolves it fully: it loads or generates the mesh, converts the
+ * material to (mu, lambda), selects handle vertices and computes their
+ * prescribed positions, builds the initial and reference positions. The
+ * result is a plain record the solvers read directly.
+ *
+ * Errors name the scene file and the field path ("bar.json: handles[1]
+ * .transform.rotate.axis: expected 3 numbers"), reject unknown keys, wrong
+ * types, NaN/Inf, negative or zero sizes, and anything out of range.
+ */
+#ifndef BG_SCENE_H
+#define BG_SCENE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "bg_error.h"
+#include "bg_mesh.h"
+#include "bg_mesh_io.h"
+
+/* Scene files larger than this are refused. */
+#define BG_SCENE_MAX_BYTES ((size_t)16 << 20)
+
+typedef enum bg_method {
+    BG_METHOD_NEWTON = 0,
+    BG_METHOD_LOCAL_GLOBAL = 1,
+} bg_method;
+
+/* "newton", "local-global". */
+const char *bg_method_name(bg_method method);
+/* Parses a method name; BG_ERR_INVALID naming the accepted names otherwise. */
+bg_status bg_method_parse(const char *name, bg_method *out, bg_error_t *err);
+
+typedef enum bg_task_kind {
+    BG_TASK_STATIC = 0,
+} bg_task_kind;
+
+/* Lamé parameters of ψ = mu |F − R|² + (lambda/2)(tr Y − n)², and the mass
+ * density (needed only for gravity). */
+typedef struct bg_material {
+    double mu;
+    double lambda;
+    double density;
+} bg_material_t;
+
+typedef enum bg_reference_kind {
+    BG_REFERENCE_NONE = 0,
+    BG_REFERENCE_POSITIONS, /* given in the scene: reference[] filled */
+    BG_REFERENCE_NEWTON,    /* a tight Newton solve computes it at run time */
+} bg_reference_kind;
+
+/* How a handle moves its vertices, kept so that the initial guess can
+ * interpolate the motion into the body (bg_initial). */
+typedef enum bg_motion_kind {
+    BG_MOTION_FIXED = 0,     /* held at rest */
+    BG_MOTION_RIGID = 1,     /* p ↦ R(axis, angle)(p − center) + center + translate */
+    BG_MOTION_POSITIONS = 2, /* given positions: mean_displacement summarises them */
+} bg_motion_kind;
+
+typedef struct bg_scene_motion {
+    bg_motion_kind kind;
+    int32_t count;          /* selected vertices */
+    int32_t *vertices;      /* count indices, increasing; owned */
+    double axis[3];         /* unit axis (planar: (0, 0, 1)) */
+    double radians;         /* rotation angle, right-handed about axis */
+    double center[3];
+    double translate[3];
+    double mean_displacement[3];
+} bg_scene_motion_t;
+
+typedef enum bg_initial_kind {
+    BG_INITIAL_REST = 0,
+    BG_INITIAL_GIVEN = 1,       /* scale, positions or random: initial[] as parsed */
+    BG_INITIAL_INTERPOLATE = 2, /* the handles' motions interpolated into the body */
+} bg_initial_kind;
+
+typedef struct bg_scene {
+    char *path;        /* the scene file as given ("<memory>" when parsed from text) */
+    char *name;        /* the "name" field, else the file's stem */
+    char *mesh_source; /* resolved mesh path, or "generated box 40x8x8" */
+    bg_mesh_format mesh_format; /* format of a file mesh; MEDIT for generated volume
+                                   meshes, OBJ for generated planar ones */
+    bg_mesh_t *mesh;            /* validated rest mesh */
+    int32_t reoriented;         /* elements the validator reoriented */
+    bg_material_t material;
+    double gravity[3];          /* acceleration (m/s²); all zero when absent */
+    uint8_t *constrained;       /* nv*dim: 1 where the coordinate is prescribed */
+    double *target;             /* nv*dim: prescribed value where constrained, rest value elsewhere */
+    double *initial;            /* nv*dim: start positions; constrained coordinates = target */
+    bg_reference_kind reference_kind;
+    double *reference;          /* nv*dim when reference_kind == POSITIONS, else NULL */
+    int32_t handle_count;       /* handles in the scene */
+    bg_scene_motion_t *motions; /* handle_count motions; owned */
+    bg_initial_kind initial_kind;
+    int32_t constrained_vertices; /* vertices with at least one constrained coordinate */
+    bg_task_kind task;
+    bg_method method;           /* solver.method, default newton */
+    double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
+    int max_iterations;         /* solver.max_iterations, default 200 */
+} bg_scene_t;
+
+#define BG_SCENE_DEFAULT_TOLERANCE 1e-8
+#define BG_SCENE_DEFAULT_MAX_ITERATIONS 200
+
+/*
+ * Parses a scene from JSON text. `path` names the scene in messages and
+ * its directory is the base for relative paths inside it (NULL: "<memory>"
+ * and the current directory). Caller owns *out.
+ */
+bg_status bg_scene_parse(const char *json, size_t length, const char *path, bg_scene_t **out,
+                         bg_error_t *err);
+
+/* Reads and parses a scene file (at most BG_SCENE_MAX_BYTES). */
+bg_status bg_scene_load(const char *path, bg_scene_t **out, bg_error_t *err);
+
+/* Frees the scene and everything it owns; sets *scene to NULL; accepts NULL. */
+void bg_scene_destroy(bg_scene_t **scene);
+
+#endif

@@ -1,0 +1,319 @@
+#include "bg_sparse.h"
+
+#include <cholmod.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bg_clock.h"
+#include "bg_elastic.h"
+
+struct bg_sparse {
+    int32_t nfree;
+    size_t nnz;
+    int32_t *scatter; /* ne * T */
+    cholmod_common common;
+    cholmod_sparse *A;
+    cholmod_factor *L;
+    cholmod_dense *B, *X, *Y, *E;
+    int analyzed;
+    bg_sparse_timing_t timing;
+};
+
+static int cmp_int32(const void *a, const void *b)
+{
+    int32_t x = *(const int32_t *)a, y = *(const int32_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* Vertex → incident elements, CSR. */
+static bg_status incidence(const bg_mesh_t *mesh, int32_t **start_out, int32_t **list_out)
+{
+    const int k = mesh->nodes_per_element;
+    int32_t *start = calloc((size_t)mesh->nv + 1, sizeof *start);
+    int32_t *list = malloc((size_t)mesh->ne * k * sizeof *list + 1);
+    if (!start || !list) {
+        free(start);
+        free(list);
+        return BG_ERR_NOMEM;
+    }
+    for (size_t i = 0; i < (size_t)mesh->ne * k; i++)
+        start[mesh->elements[i] + 1]++;
+    for (int32_t v = 0; v < mesh->nv; v++)
+        start[v + 1] += start[v];
+    int32_t *fill = malloc((size_t)mesh->nv * sizeof *fill + 1);
+    if (!fill) {
+        free(start);
+        free(list);
+        return BG_ERR_NOMEM;
+    }
+    memcpy(fill, start, (size_t)mesh->nv * sizeof *fill);
+    for (int32_t e = 0; e < mesh->ne; e++)
+        for (int i = 0; i < k; i++)
+            list[fill[mesh->elements[(size_t)e * k + i]]++] = e;
+    free(fill);
+    *start_out = start;
+    *list_out = list;
+    return BG_OK;
+}
+
+/*
+ * Lower-triangular pattern over free dofs: column f = free (v, c) holds
+ * rows free (u, d) with u a neighbour of v (or v itself) and dof(u, d) ≥
+ * dof(v, c). Because unknown numbers increase with dof numbers, iterating
+ * neighbours in increasing order yields sorted rows.
+ */
+static bg_status build_pattern(bg_sparse_t *sys, const bg_mesh_t *mesh, int n,
+                               const int32_t *free_index, bg_error_t *err)
+{
+    bg_status st = BG_OK;
+    int32_t *start = NULL, *list = NULL, *nbr = NULL, *mark = NULL;
+    const int k = mesh->nodes_per_element;
+    if (incidence(mesh, &start, &list) != BG_OK) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory building the sparse pattern");
+        goto out;
+    }
+    /* Pass 1 counts, pass 2 fills: neighbour lists are rebuilt per vertex
+     * rather than stored, keeping peak memory to the final pattern. */
+    int32_t max_deg = 0;
+    for (int32_t v = 0; v < mesh->nv; v++)
+        if (start[v + 1] - start[v] > max_deg)
+            max_deg = start[v + 1] - start[v];
+    nbr = malloc(((size_t)max_deg * k + 1) * sizeof *nbr);
+    mark = malloc(((size_t)mesh->nv + 1) * sizeof *mark);
+    if (!nbr || !mark) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory building the sparse pattern");
+        goto out;
+    }
+    for (int32_t v = 0; v < mesh->nv; v++)
+        mark[v] = -1;
+    for (int pass = 0; pass < 2; pass++) {
+        int *Ap = sys->A ? (int *)sys->A->p : NULL, *Ai = sys->A ? (int *)sys->A->i : NULL;
+        size_t count = 0;
+        for (int32_t v = 0; v < mesh->nv; v++) {
+            int32_t deg = 0;
+            for (int32_t t = start[v]; t < start[v + 1]; t++) {
+                const int32_t *el = mesh->elements + (size_t)list[t] * k;
+                for (int i = 0; i < k; i++)
+                    if (el[i] >= v && mark[el[i]] != v) {
+                        mark[el[i]] = v;
+                        nbr[deg++] = el[i];
+                    }
+            }
+            qsort(nbr, (size_t)deg, sizeof *nbr, cmp_int32);
+            for (int c = 0; c < n; c++) {
+                const int32_t col = free_index[(size_t)v * n + c];
+                if (col < 0)
+                    continue;
+                if (pass == 1)
+                    Ap[col] = (int)count;
+                for (int32_t t = 0; t < deg; t++)
+                    for (int d = 0; d < n; d++) {
+                        const int32_t row = free_index[(size_t)nbr[t] * n + d];
+                        if (row < col)
+                            continue;
+                        if (pass == 1)
+                            Ai[count] = row;
+                        count++;
+                    }
+            }
+        }
+        if (pass == 0) {
+            if (count > (size_t)INT32_MAX) {
+                st = bg_error_set(err, BG_ERR_LIMIT, "the sparse system has %zu nonzeros, over "
+                                  "the 2^31 limit", count);
+                goto out;
+            }
+            sys->nnz = count;
+            sys->A = cholmod_allocate_sparse((size_t)sys->nfree, (size_t)sys->nfree, count, 1, 1,
+                                             -1, CHOLMOD_REAL, &sys->common);
+            if (!sys->A) {
+                st = bg_error_set(err, BG_ERR_NOMEM, "out of memory allocating a %d x %d sparse "
+                                  "matrix with %zu nonzeros", (int)sys->nfree, (int)sys->nfree,
+                                  count);
+                goto out;
+            }
+            for (int32_t v = 0; v < mesh->nv; v++)
+                mark[v] = -1;
+        } else {
+            Ap[sys->nfree] = (int)count;
+        }
+    }
+out:
+    free(start);
+    free(list);
+    free(nbr);
+    free(mark);
+    return st;
+}
+
+static int32_t find_row(const int *Ap, const int *Ai, int32_t col, int32_t row)
+{
+    int lo = Ap[col], hi = Ap[col + 1] - 1;
+    while (lo <= hi) {
+        int mid = lo + (hi - lo) / 2;
+        if (Ai[mid] == row)
+            return mid;
+        if (Ai[mid] < row)
+            lo = mid + 1;
+        else
+            hi = mid - 1;
+    }
+    return -1;
+}
+
+bg_status bg_sparse_new(const bg_mesh_t *mesh, int n, const int32_t *free_index, int32_t nfree,
+                        bg_sparse_t **out, bg_error_t *err)
+{
+    *out = NULL;
+    bg_sparse_t *sys = calloc(1, sizeof *sys);
+    if (!sys)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating a sparse system");
+    cholmod_start(&sys->common);
+    sys->common.print = 0; /* failures are reported through our messages */
+    sys->nfree = nfree;
+    bg_status st = BG_OK;
+    if (nfree <= 0) {
+        st = bg_error_set(err, BG_ERR_INVALID, "every coordinate is constrained: nothing to solve");
+        goto fail;
+    }
+    st = build_pattern(sys, mesh, n, free_index, err);
+    if (st != BG_OK)
+        goto fail;
+    const int k = mesh->nodes_per_element, m = k * n, T = BG_ELASTIC_TRI_SIZE(m);
+    sys->scatter = malloc((size_t)mesh->ne * T * sizeof *sys->scatter + 1);
+    if (!sys->scatter) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the assembly map");
+        goto fail;
+    }
+    const int *Ap = sys->A->p, *Ai = sys->A->i;
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        const int32_t *el = mesh->elements + (size_t)e * k;
+        int32_t *sc = sys->scatter + (size_t)e * T;
+        for (int a = 0; a < m; a++)
+            for (int b = a; b < m; b++) {
+                const int32_t fa = free_index[(size_t)el[a / n] * n + a % n];
+                const int32_t fb = free_index[(size_t)el[b / n] * n + b % n];
+                int32_t pos = -1;
+                if (fa >= 0 && fb >= 0)
+                    pos = fa > fb ? find_row(Ap, Ai, fb, fa) : find_row(Ap, Ai, fa, fb);
+                sc[BG_ELASTIC_TRI_INDEX(m, a, b)] = pos;
+            }
+    }
+    sys->B = cholmod_zeros((size_t)nfree, 1, CHOLMOD_REAL, &sys->common);
+    if (!sys->B) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the right-hand side");
+        goto fail;
+    }
+    *out = sys;
+    return BG_OK;
+fail:
+    bg_sparse_destroy(&sys);
+    return st;
+}
+
+void bg_sparse_destroy(bg_sparse_t **psys)
+{
+    if (!psys || !*psys)
+        return;
+    bg_sparse_t *sys = *psys;
+    cholmod_free_sparse(&sys->A, &sys->common);
+    cholmod_free_factor(&sys->L, &sys->common);
+    cholmod_free_dense(&sys->B, &sys->common);
+    cholmod_free_dense(&sys->X, &sys->common);
+    cholmod_free_dense(&sys->Y, &sys->common);
+    cholmod_free_dense(&sys->E, &sys->common);
+    cholmod_finish(&sys->common);
+    free(sys->scatter);
+    free(sys);
+    *psys = NULL;
+}
+
+int32_t bg_sparse_size(const bg_sparse_t *sys)
+{
+    return sys->nfree;
+}
+
+size_t bg_sparse_nonzeros(const bg_sparse_t *sys)
+{
+    return sys->nnz;
+}
+
+const int32_t *bg_sparse_scatter(const bg_sparse_t *sys)
+{
+    return sys->scatter;
+}
+
+double *bg_sparse_values(bg_sparse_t *sys)
+{
+    return sys->A->x;
+}
+
+void bg_sparse_zero(bg_sparse_t *sys)
+{
+    memset(sys->A->x, 0, sys->nnz * sizeof(double));
+}
+
+bg_status bg_sparse_factorize(bg_sparse_t *sys, double shift, bg_error_t *err)
+{
+    cholmod_common *c = &sys->common;
+    if (!sys->analyzed) {
+        const double t0 = bg_clock_now();
+        sys->L = cholmod_analyze(sys->A, c);
+        sys->timing.analyze_seconds += bg_clock_now() - t0;
+        if (!sys->L)
+            return bg_error_set(err, c->status == CHOLMOD_OUT_OF_MEMORY ? BG_ERR_NOMEM
+                                                                        : BG_ERR_NUMERIC,
+                                "CHOLMOD analysis failed (status %d)", c->status);
+        sys->analyzed = 1;
+    }
+    const double t0 = bg_clock_now();
+    double beta[2] = {shift, 0.0};
+    int ok = cholmod_factorize_p(sys->A, beta, NULL, 0, sys->L, c);
+    sys->timing.factor_seconds += bg_clock_now() - t0;
+    sys->timing.factorizations++;
+    if (!ok || c->status == CHOLMOD_OUT_OF_MEMORY)
+        return bg_error_set(err, BG_ERR_NOMEM, "CHOLMOD factorization failed (status %d)",
+                            c->status);
+    if (c->status == CHOLMOD_NOT_POSDEF || sys->L->minor < sys->L->n)
+        return bg_error_set(err, BG_ERR_NUMERIC,
+                            "the matrix is not positive definite (CHOLMOD stopped at column %zu "
+                            "of %zu)",
+                            (size_t)sys->L->minor, (size_t)sys->L->n);
+    return BG_OK;
+}
+
+bg_status bg_sparse_solve(bg_sparse_t *sys, const double *rhs, double *x, bg_error_t *err)
+{
+    if (!sys->L)
+        return bg_error_set(err, BG_ERR_INVALID, "bg_sparse_solve before a factorization");
+    const double t0 = bg_clock_now();
+    memcpy(sys->B->x, rhs, (size_t)sys->nfree * sizeof(double));
+    int ok = cholmod_solve2(CHOLMOD_A, sys->L, sys->B, NULL, &sys->X, NULL, &sys->Y, &sys->E,
+                            &sys->common);
+    sys->timing.solve_seconds += bg_clock_now() - t0;
+    sys->timing.solves++;
+    if (!ok)
+        return bg_error_set(err, BG_ERR_NUMERIC, "CHOLMOD solve failed (status %d)",
+                            sys->common.status);
+    memcpy(x, sys->X->x, (size_t)sys->nfree * sizeof(double));
+    return BG_OK;
+}
+
+void bg_sparse_multiply(const bg_sparse_t *sys, const double *x, double *y)
+{
+    const int *Ap = sys->A->p, *Ai = sys->A->i;
+    const double *Ax = sys->A->x;
+    memset(y, 0, (size_t)sys->nfree * sizeof *y);
+    for (int32_t col = 0; col < sys->nfree; col++)
+        for (int p = Ap[col]; p < Ap[col + 1]; p++) {
+            const int row = Ai[p];
+            y[row] += Ax[p] * x[col];
+            if (row != col)
+                y[col] += Ax[p] * x[row];
+        }
+}
+
+bg_sparse_timing_t bg_sparse_timing(const bg_sparse_t *sys)
+{
+    return sys->timing;
+}

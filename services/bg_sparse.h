@@ -1,0 +1,70 @@
+/*
+ * bg_sparse — the "sparse-solve" basic service: a symmetric positive
+ * definite system over the free degrees of freedom of a mesh, assembled on
+ * a fixed pattern and solved with CHOLMOD.
+ *
+ * The pattern (lower triangle, CSC, rows sorted) and, for every element,
+ * where each of its packed upper-triangle local entries lands in the value
+ * array are computed once (bg_sparse_new). Each Newton iteration then only
+ * zeroes the values, scatters element matrices (bg_elastic_assemble_*),
+ * and calls bg_sparse_factorize: the symbolic analysis (fill-reducing
+ * ordering, supernodes) runs on the first call only; later calls do the
+ * numeric factorization alone. bg_sparse_solve reuses CHOLMOD workspace
+ * (cholmod_solve2), so a solve allocates nothing after the first.
+ */
+#ifndef BG_SPARSE_H
+#define BG_SPARSE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "bg_error.h"
+#include "bg_mesh.h"
+
+typedef struct bg_sparse bg_sparse_t;
+
+typedef struct bg_sparse_timing {
+    double analyze_seconds;
+    double factor_seconds;
+    double solve_seconds;
+    int64_t factorizations;
+    int64_t solves;
+} bg_sparse_timing_t;
+
+/*
+ * A system on the mesh's element graph with n unknowns per vertex.
+ * free_index maps each dof (vertex*n + component) to its unknown number
+ * (increasing with the dof number) or to −1 if the dof is constrained;
+ * nfree unknowns in all. Both are copied. Caller owns *out.
+ */
+bg_status bg_sparse_new(const bg_mesh_t *mesh, int n, const int32_t *free_index, int32_t nfree,
+                        bg_sparse_t **out, bg_error_t *err);
+void bg_sparse_destroy(bg_sparse_t **sys);
+
+int32_t bg_sparse_size(const bg_sparse_t *sys);
+size_t bg_sparse_nonzeros(const bg_sparse_t *sys);
+
+/* Per element, BG_ELASTIC_TRI_SIZE(local size) positions (or −1); borrowed. */
+const int32_t *bg_sparse_scatter(const bg_sparse_t *sys);
+
+/* The value array (nonzeros entries), to be filled through the scatter. */
+double *bg_sparse_values(bg_sparse_t *sys);
+void bg_sparse_zero(bg_sparse_t *sys);
+
+/*
+ * Factors A + shift·I. BG_ERR_NUMERIC when the matrix is not positive
+ * definite (the message gives the failing column), so a caller can retry
+ * with a larger shift.
+ */
+bg_status bg_sparse_factorize(bg_sparse_t *sys, double shift, bg_error_t *err);
+
+/* x = A⁻¹ rhs with the last factorization; rhs and x hold size() values
+ * and may alias. */
+bg_status bg_sparse_solve(bg_sparse_t *sys, const double *rhs, double *x, bg_error_t *err);
+
+/* y = A x with the current values (symmetric, from the stored lower half). */
+void bg_sparse_multiply(const bg_sparse_t *sys, const double *x, double *y);
+
+bg_sparse_timing_t bg_sparse_timing(const bg_sparse_t *sys);
+
+#endif

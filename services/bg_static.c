@@ -1,0 +1,379 @@
+#include "bg_static.h"
+
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bg_clock.h"
+#include "bg_elastic.h"
+#include "bg_sparse.h"
+
+/* Armijo sufficient-decrease constant and the backtracking budget. */
+#define STATIC_ARMIJO 1e-4
+#define STATIC_MAX_BACKTRACKS 40
+/* Energy differences below this many ulps of the energy's magnitude are
+ * round-off: there a step is judged by the gradient norm instead. */
+#define STATIC_ENERGY_NOISE_ULPS 64.0
+/* Shifts tried when a Hessian fails to factor (relative to its mean diagonal). */
+#define STATIC_FIRST_SHIFT 1e-10
+#define STATIC_SHIFT_GROWTH 100.0
+#define STATIC_MAX_SHIFTS 8
+/* Newton tries the exact (unprojected) Hessian once the relative gradient
+ * is below this and the last step was a full one: clamping element twist
+ * modes that the assembled system does not need clamped would make the
+ * method only linearly convergent. After the exact matrix fails to factor,
+ * it is tried again only when the gradient has fallen by this factor. */
+#define STATIC_EXACT_HESSIAN_BELOW 1e-1
+#define STATIC_EXACT_RETRY_FACTOR 0.5
+
+typedef struct problem {
+    const bg_scene_t *scene;
+    const bg_mesh_t *mesh;
+    int n;
+    size_t ndof;
+    int32_t *free_index;
+    int32_t nfree;
+    double *gravity_force; /* ndof: m_v g, or NULL without gravity */
+    bg_elastic_t *model;
+    bg_sparse_t *sys;
+    double *q, *q_trial, *grad, *grad_trial, *rhs, *step;
+    double last_magnitude; /* |elastic| + |gravity work| of the last evaluation */
+    double rotfit_seconds;
+} problem_t;
+
+void bg_static_lumped_mass(const bg_mesh_t *mesh, double density, double *mass)
+{
+    const int k = mesh->nodes_per_element;
+    memset(mass, 0, (size_t)mesh->nv * sizeof *mass);
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        const double share = density * fabs(bg_mesh_element_measure(mesh, mesh->x, e)) / k;
+        for (int i = 0; i < k; i++)
+            mass[mesh->elements[(size_t)e * k + i]] += share;
+    }
+}
+
+static void problem_release(problem_t *p)
+{
+    free(p->free_index);
+    free(p->gravity_force);
+    bg_elastic_destroy(&p->model);
+    bg_sparse_destroy(&p->sys);
+    free(p->q);
+    free(p->q_trial);
+    free(p->grad);
+    free(p->grad_trial);
+    free(p->rhs);
+    free(p->step);
+}
+
+static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
+{
+    memset(p, 0, sizeof *p);
+    p->scene = scene;
+    p->mesh = scene->mesh;
+    p->n = scene->mesh->dim;
+    p->ndof = (size_t)scene->mesh->nv * (size_t)p->n;
+    p->free_index = malloc(p->ndof * sizeof *p->free_index + 1);
+    p->q = malloc(p->ndof * sizeof *p->q + 1);
+    p->q_trial = malloc(p->ndof * sizeof *p->q + 1);
+    p->grad = malloc(p->ndof * sizeof *p->q + 1);
+    p->grad_trial = malloc(p->ndof * sizeof *p->q + 1);
+    p->rhs = malloc(p->ndof * sizeof *p->q + 1);
+    p->step = malloc(p->ndof * sizeof *p->q + 1);
+    if (!p->free_index || !p->q || !p->q_trial || !p->grad || !p->grad_trial || !p->rhs ||
+        !p->step)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory setting up the solve");
+    for (size_t i = 0; i < p->ndof; i++)
+        p->free_index[i] = scene->constrained[i] ? -1 : p->nfree++;
+    if (p->nfree == 0)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "%s: every coordinate is constrained by the handles: nothing to solve",
+                            scene->path);
+    const double *gv = scene->gravity;
+    if (gv[0] != 0.0 || gv[1] != 0.0 || (p->n == 3 && gv[2] != 0.0)) {
+        p->gravity_force = malloc(p->ndof * sizeof *p->gravity_force + 1);
+        double *mass = malloc((size_t)p->mesh->nv * sizeof *mass + 1);
+        if (!p->gravity_force || !mass) {
+            free(mass);
+            return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the mass matrix");
+        }
+        bg_static_lumped_mass(p->mesh, scene->material.density, mass);
+        for (int32_t v = 0; v < p->mesh->nv; v++)
+            for (int c = 0; c < p->n; c++)
+                p->gravity_force[(size_t)v * p->n + c] = mass[v] * gv[c];
+        free(mass);
+    }
+    bg_status st = bg_elastic_new(p->mesh, scene->material.mu, scene->material.lambda, &p->model,
+                                  err);
+    if (st != BG_OK)
+        return st;
+    return bg_sparse_new(p->mesh, p->n, p->free_index, p->nfree, &p->sys, err);
+}
+
+/* W(q) and its full gradient into grad. */
+static double potential(problem_t *p, const double *q, double *grad)
+{
+    const double t0 = bg_clock_now();
+    const double elastic = bg_elastic_eval(p->model, q, grad);
+    double work = 0.0, magnitude = fabs(elastic);
+    if (p->gravity_force) {
+        for (size_t i = 0; i < p->ndof; i++) {
+            work += p->gravity_force[i] * q[i];
+            grad[i] -= p->gravity_force[i];
+            magnitude += fabs(p->gravity_force[i] * q[i]);
+        }
+    }
+    p->last_magnitude = magnitude;
+    p->rotfit_seconds += bg_clock_now() - t0;
+    return elastic - work;
+}
+
+static double free_norm(const problem_t *p, const double *grad)
+{
+    double s = 0.0;
+    for (size_t i = 0; i < p->ndof; i++)
+        if (p->free_index[i] >= 0)
+            s += grad[i] * grad[i];
+    return sqrt(s);
+}
+
+static double relative_error(const double *q, const double *ref, size_t ndof)
+{
+    if (!ref)
+        return NAN;
+    double num = 0.0, den = 0.0;
+    for (size_t i = 0; i < ndof; i++) {
+        num += (q[i] - ref[i]) * (q[i] - ref[i]);
+        den += ref[i] * ref[i];
+    }
+    return den > 0.0 ? sqrt(num / den) : sqrt(num);
+}
+
+static bg_status push_trace(bg_solve_result_t *r, int *cap, const bg_trace_point_t *pt)
+{
+    if (r->trace_count == *cap) {
+        int grown = *cap ? 2 * *cap : 64;
+        bg_trace_point_t *t = realloc(r->trace, (size_t)grown * sizeof *t);
+        if (!t)
+            return BG_ERR_NOMEM;
+        r->trace = t;
+        *cap = grown;
+    }
+    r->trace[r->trace_count++] = *pt;
+    return BG_OK;
+}
+
+/* Factors the assembled matrix, adding a growing diagonal shift if it is
+ * not numerically positive definite (a PSD-projected Hessian of a body
+ * with unconstrained rigid modes, or round-off at a singular point). */
+static bg_status factor_with_shift(problem_t *p, bg_error_t *err)
+{
+    bg_error_t local = BG_ERROR_INIT;
+    bg_status st = bg_sparse_factorize(p->sys, 0.0, &local);
+    if (st != BG_ERR_NUMERIC)
+        return st == BG_OK ? BG_OK : bg_error_set(err, st, "%s", local.message);
+    /* The shift is relative to the matrix's largest entry. */
+    const double *values = bg_sparse_values(p->sys);
+    double diag = 0.0;
+    size_t nnz = bg_sparse_nonzeros(p->sys);
+    for (size_t i = 0; i < nnz; i++)
+        diag = fmax(diag, fabs(values[i]));
+    double shift = STATIC_FIRST_SHIFT * (diag > 0.0 ? diag : 1.0);
+    for (int attempt = 0; attempt < STATIC_MAX_SHIFTS; attempt++, shift *= STATIC_SHIFT_GROWTH) {
+        bg_error_clear(&local);
+        st = bg_sparse_factorize(p->sys, shift, &local);
+        if (st != BG_ERR_NUMERIC)
+            return st == BG_OK ? BG_OK : bg_error_set(err, st, "%s", local.message);
+    }
+    return bg_error_set(err, BG_ERR_NUMERIC, "%s (even with a diagonal shift of %.3g)",
+                        local.message, shift / STATIC_SHIFT_GROWTH);
+}
+
+bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt,
+                          bg_solve_result_t *res, bg_error_t *err)
+{
+    memset(res, 0, sizeof *res);
+    res->method = opt->method;
+    const double t_start = bg_clock_now();
+    problem_t p;
+    int trace_cap = 0;
+    bg_status st = problem_init(&p, scene, err);
+    if (st != BG_OK)
+        goto out;
+    const size_t ndof = p.ndof;
+    const double *start = opt->start ? opt->start : scene->initial;
+    for (size_t i = 0; i < ndof; i++)
+        p.q[i] = scene->constrained[i] ? scene->target[i] : start[i];
+
+    double W = potential(&p, p.q, p.grad);
+    double gnorm = free_norm(&p, p.grad);
+    if (!isfinite(W) || !isfinite(gnorm)) {
+        st = bg_error_set(err, BG_ERR_NUMERIC, "%s: the energy at the initial positions is not "
+                          "finite", scene->path);
+        goto out;
+    }
+    const double g0 = gnorm;
+    bg_trace_point_t pt = {bg_clock_now() - t_start, 0, W, gnorm, g0 > 0.0 ? 1.0 : 0.0,
+                           relative_error(p.q, opt->reference, ndof)};
+    if (push_trace(res, &trace_cap, &pt) != BG_OK) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
+        goto out;
+    }
+    if (opt->progress)
+        opt->progress(opt->progress_ctx, opt->method, &pt);
+
+    if (opt->method == BG_METHOD_LOCAL_GLOBAL) {
+        const double t0 = bg_clock_now();
+        bg_sparse_zero(p.sys);
+        bg_elastic_assemble_laplacian(p.model, 2.0 * scene->material.mu + scene->material.lambda,
+                                      bg_sparse_scatter(p.sys), bg_sparse_values(p.sys));
+        res->assembly_seconds += bg_clock_now() - t0;
+        st = factor_with_shift(&p, err);
+        if (st != BG_OK)
+            goto out;
+    }
+
+    res->stop_reason = "iteration limit";
+    int it = 0;
+    int last_full_step = 0;
+    double exact_failed_at = INFINITY; /* gradient norm when the exact Hessian last failed */
+    for (;;) {
+        const double rel = g0 > 0.0 ? gnorm / g0 : 0.0;
+        if (rel <= opt->tolerance) {
+            res->converged = 1;
+            res->stop_reason = "converged";
+            break;
+        }
+        if (it >= opt->max_iterations)
+            break;
+        it++;
+        if (opt->method == BG_METHOD_NEWTON) {
+            int factored = 0;
+            if (last_full_step && rel < STATIC_EXACT_HESSIAN_BELOW &&
+                gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at) {
+                const double t0 = bg_clock_now();
+                bg_sparse_zero(p.sys);
+                bg_elastic_assemble_hessian(p.model, p.q, 0, 1.0, bg_sparse_scatter(p.sys),
+                                            bg_sparse_values(p.sys));
+                res->assembly_seconds += bg_clock_now() - t0;
+                bg_error_t ignored = BG_ERROR_INIT;
+                st = bg_sparse_factorize(p.sys, 0.0, &ignored);
+                if (st == BG_OK)
+                    factored = 1;
+                else if (st == BG_ERR_NUMERIC)
+                    exact_failed_at = gnorm;
+                else {
+                    bg_error_set(err, st, "%s", ignored.message);
+                    goto out;
+                }
+            }
+            if (!factored) {
+                const double t0 = bg_clock_now();
+                bg_sparse_zero(p.sys);
+                bg_elastic_assemble_hessian(p.model, p.q, 1, 1.0, bg_sparse_scatter(p.sys),
+                                            bg_sparse_values(p.sys));
+                res->assembly_seconds += bg_clock_now() - t0;
+                st = factor_with_shift(&p, err);
+                if (st != BG_OK)
+                    goto out;
+            }
+        }
+        for (size_t i = 0; i < ndof; i++)
+            if (p.free_index[i] >= 0)
+                p.rhs[p.free_index[i]] = -p.grad[i];
+        st = bg_sparse_solve(p.sys, p.rhs, p.step, err);
+        if (st != BG_OK)
+            goto out;
+        double slope = 0.0;
+        for (int32_t i = 0; i < p.nfree; i++)
+            slope -= p.rhs[i] * p.step[i];
+        if (!(slope < 0.0)) {
+            res->stop_reason = "no descent direction";
+            break;
+        }
+        double alpha = 1.0, W_trial = NAN, g_trial = NAN;
+        int accepted = 0;
+        for (int bt = 0; bt <= STATIC_MAX_BACKTRACKS; bt++, alpha *= 0.5) {
+            for (size_t i = 0; i < ndof; i++) {
+                const int32_t f = p.free_index[i];
+                p.q_trial[i] = f >= 0 ? p.q[i] + alpha * p.step[f] : p.q[i];
+            }
+            W_trial = potential(&p, p.q_trial, p.grad_trial);
+            if (!isfinite(W_trial))
+                continue;
+            g_trial = free_norm(&p, p.grad_trial);
+            const double noise = STATIC_ENERGY_NOISE_ULPS * DBL_EPSILON *
+                                 fmax(p.last_magnitude, fabs(W));
+            if (W_trial <= W + STATIC_ARMIJO * alpha * slope ||
+                (W_trial <= W + noise && g_trial < gnorm)) {
+                accepted = 1;
+                break;
+            }
+        }
+        if (!accepted) {
+            res->stop_reason = "no step decreases the energy beyond round-off";
+            /* The last evaluation was at a rejected trial: restore the
+             * rotations of the current iterate. */
+            W = potential(&p, p.q, p.grad);
+            break;
+        }
+        last_full_step = alpha == 1.0;
+        double *swap = p.q;
+        p.q = p.q_trial;
+        p.q_trial = swap;
+        swap = p.grad;
+        p.grad = p.grad_trial;
+        p.grad_trial = swap;
+        W = W_trial;
+        gnorm = g_trial;
+        pt.seconds = bg_clock_now() - t_start;
+        pt.iteration = it;
+        pt.energy = W;
+        pt.gradient_norm = gnorm;
+        pt.relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
+        pt.error = relative_error(p.q, opt->reference, ndof);
+        if (push_trace(res, &trace_cap, &pt) != BG_OK) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
+            goto out;
+        }
+        if (opt->progress)
+            opt->progress(opt->progress_ctx, opt->method, &pt);
+    }
+    res->iterations = it;
+    res->energy = W;
+    res->gradient_norm = gnorm;
+    res->relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
+    res->rotfit = bg_elastic_rotfit_stats(p.model);
+    res->rotfit_seconds = p.rotfit_seconds;
+    const bg_sparse_timing_t tm = bg_sparse_timing(p.sys);
+    res->analyze_seconds = tm.analyze_seconds;
+    res->factor_seconds = tm.factor_seconds;
+    res->solve_seconds = tm.solve_seconds;
+    res->factorizations = tm.factorizations;
+    res->q = p.q;
+    p.q = NULL;
+    res->energy_density = malloc((size_t)scene->mesh->ne * sizeof *res->energy_density + 1);
+    if (!res->energy_density) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the result");
+        goto out;
+    }
+    memcpy(res->energy_density, bg_elastic_energy_density(p.model),
+           (size_t)scene->mesh->ne * sizeof *res->energy_density);
+    res->wall_seconds = bg_clock_now() - t_start;
+out:
+    problem_release(&p);
+    if (st != BG_OK)
+        bg_solve_result_release(res);
+    return st;
+}
+
+void bg_solve_result_release(bg_solve_result_t *r)
+{
+    if (!r)
+        return;
+    free(r->q);
+    free(r->energy_density);
+    free(r->trace);
+    memset(r, 0, sizeof *r);
+}

@@ -1,0 +1,90 @@
+/*
+ * bg_static — static equilibrium of a scene: minimise
+ *   W(q) = E(q) − Σ_v m_v g·q_v
+ * over the free coordinates, the constrained ones held at their targets.
+ *
+ * Methods:
+ *   newton        exact Hessian with the twist eigenvalues clamped (PSD),
+ *                 CHOLMOD with one symbolic analysis and a numeric
+ *                 factorization per iteration, backtracking line search.
+ *                 Quadratic convergence near the solution.
+ *   local-global  the prefactored method: the matrix c·L (L the cotan
+ *                 Laplacian per coordinate, c = 2μ + λ) is factored once,
+ *                 and each iteration fits rotations (local step) and
+ *                 solves with it (global step), d = −(cL)⁻¹ ∇W. For λ = 0
+ *                 this is exactly Sorkine–Alexa / Liu et al. (the step lands
+ *                 on L⁻¹ b(R)); for λ > 0 the same fixed matrix serves as a
+ *                 preconditioner under the same line search. Linear
+ *                 convergence.
+ * Both stop when ‖∇W‖/‖∇W(q₀)‖ ≤ tolerance (free coordinates), at the
+ * iteration cap, or when no step decreases the energy beyond round-off;
+ * they never produce NaN: a non-finite energy is a rejected step.
+ */
+#ifndef BG_STATIC_H
+#define BG_STATIC_H
+
+#include <stdint.h>
+
+#include "bg_error.h"
+#include "bg_rotfit.h"
+#include "bg_scene.h"
+
+typedef struct bg_trace_point {
+    double seconds;           /* wall time since the solve started */
+    int iteration;
+    double energy;
+    double gradient_norm;
+    double relative_gradient;
+    double error;             /* ‖q − q_ref‖/‖q_ref‖, NAN without a reference */
+} bg_trace_point_t;
+
+typedef void (*bg_progress_fn)(void *ctx, bg_method method, const bg_trace_point_t *point);
+
+typedef struct bg_solve_options {
+    bg_method method;
+    double tolerance;
+    int max_iterations;
+    const double *reference;  /* nv*n reference positions for the error column, or NULL */
+    const double *start;      /* nv*n start positions, or NULL for scene->initial */
+    bg_progress_fn progress;  /* called after every iteration (may be NULL) */
+    void *progress_ctx;
+} bg_solve_options_t;
+
+typedef struct bg_solve_result {
+    bg_method method;
+    int converged;
+    const char *stop_reason;  /* static text: "converged", "iteration limit", ... */
+    int iterations;
+    double wall_seconds;
+    double energy;
+    double gradient_norm;
+    double relative_gradient;
+    bg_rotfit_stats_t rotfit;
+    /* Time split (seconds): rotation fitting with energy and gradient,
+     * Hessian/matrix assembly, CHOLMOD symbolic analysis, numeric
+     * factorization, triangular solves. */
+    double rotfit_seconds, assembly_seconds, analyze_seconds, factor_seconds, solve_seconds;
+    int64_t factorizations;
+    double *q;                /* final positions, nv*n; owned */
+    double *energy_density;   /* final ψ per element, ne; owned */
+    bg_trace_point_t *trace;  /* one point per iteration from 0; owned */
+    int trace_count;
+} bg_solve_result_t;
+
+#define BG_SOLVE_RESULT_INIT {0}
+
+/*
+ * Solves the scene's static problem. On BG_OK the result is filled
+ * (converged or not: see converged and stop_reason); release it with
+ * bg_solve_result_release. Errors are setup failures (out of memory, a
+ * scene with nothing free).
+ */
+bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *options,
+                          bg_solve_result_t *result, bg_error_t *err);
+
+void bg_solve_result_release(bg_solve_result_t *result);
+
+/* Lumped vertex masses ρ Σ V_e/(n+1) of the scene's mesh into mass[nv]. */
+void bg_static_lumped_mass(const bg_mesh_t *mesh, double density, double *mass);
+
+#endif

@@ -1,0 +1,347 @@
+/*
+ * The elastic model against independent computations: central finite
+ * differences of ψ and P, the closed-form eigenvalues of ∂P/∂F at
+ * F = diag(σ), rigid motions, uniform scaling, and the rotation fit against
+ * the SVD.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+
+#include <cmocka.h>
+
+#include "bg_elastic.h"
+#include "bg_mesh.h"
+#include "bg_rotfit.h"
+#include "test_support.h"
+
+/* A random F = I + amplitude·noise with det F > 0.2 (well away from the
+ * SVD region, where R is smooth and finite differences are meaningful). */
+static void random_F(int n, uint64_t *rng, double amplitude, double *F)
+{
+    for (;;) {
+        for (int i = 0; i < n * n; i++)
+            F[i] = (i % (n + 1) == 0 ? 1.0 : 0.0) + amplitude * (2.0 * test_uniform(rng) - 1.0);
+        double det = n == 2 ? F[0] * F[3] - F[1] * F[2]
+                            : F[0] * (F[4] * F[8] - F[5] * F[7]) -
+                                  F[1] * (F[3] * F[8] - F[5] * F[6]) +
+                                  F[2] * (F[3] * F[7] - F[4] * F[6]);
+        if (det > 0.2)
+            return;
+    }
+}
+
+/* Central differences with h = 1e-6 on O(1) entries: truncation O(h²) ≈
+ * 1e-12 and round-off O(ε/h) ≈ 1e-10 relative, so 1e-7 leaves a wide margin
+ * while any wrong term (a missing dR/dF, a factor 2) shows at O(1). */
+#define FD_STEP 1e-6
+#define FD_TOL 1e-7
+
+static void check_gradient(int n, double mu, double lambda, uint64_t seed)
+{
+    uint64_t rng = seed;
+    for (int trial = 0; trial < 50; trial++) {
+        double F[9], P[9], Fp[9], Fm[9];
+        random_F(n, &rng, 0.6, F);
+        bg_elastic_psi(n, mu, lambda, F, NULL, P, NULL, 0);
+        for (int i = 0; i < n * n; i++) {
+            memcpy(Fp, F, sizeof F);
+            memcpy(Fm, F, sizeof F);
+            Fp[i] += FD_STEP;
+            Fm[i] -= FD_STEP;
+            double fd = (bg_elastic_psi(n, mu, lambda, Fp, NULL, NULL, NULL, 0) -
+                         bg_elastic_psi(n, mu, lambda, Fm, NULL, NULL, NULL, 0)) /
+                        (2 * FD_STEP);
+            assert_true(fabs(fd - P[i]) <= FD_TOL * (1.0 + fabs(P[i])) * (1.0 + lambda));
+        }
+    }
+}
+
+static void check_hessian(int n, double mu, double lambda, uint64_t seed)
+{
+    uint64_t rng = seed;
+    const int nn = n * n;
+    for (int trial = 0; trial < 50; trial++) {
+        double F[9], H[81], Fp[9], Fm[9], Pp[9], Pm[9];
+        random_F(n, &rng, 0.6, F);
+        bg_elastic_psi(n, mu, lambda, F, NULL, NULL, H, 0);
+        for (int j = 0; j < nn; j++) {
+            memcpy(Fp, F, sizeof F);
+            memcpy(Fm, F, sizeof F);
+            Fp[j] += FD_STEP;
+            Fm[j] -= FD_STEP;
+            bg_elastic_psi(n, mu, lambda, Fp, NULL, Pp, NULL, 0);
+            bg_elastic_psi(n, mu, lambda, Fm, NULL, Pm, NULL, 0);
+            for (int i = 0; i < nn; i++) {
+                double fd = (Pp[i] - Pm[i]) / (2 * FD_STEP);
+                assert_true(fabs(fd - H[i * nn + j]) <= 1e-6 * (1.0 + fabs(H[i * nn + j])) *
+                                                             (1.0 + lambda));
+            }
+        }
+        /* Symmetric, as a Hessian must be. */
+        for (int i = 0; i < nn; i++)
+            for (int j = 0; j < nn; j++)
+                assert_true(fabs(H[i * nn + j] - H[j * nn + i]) <= 1e-12 * (1.0 + lambda));
+    }
+}
+
+static void gradient_2d(void **state)
+{
+    check_gradient(2, 0.5, 0.0, 1);
+    check_gradient(2, 1.3, 4.0, 2);
+}
+
+static void gradient_3d(void **state)
+{
+    check_gradient(3, 0.5, 0.0, 3);
+    check_gradient(3, 1.3, 4.0, 4);
+}
+
+static void hessian_2d(void **state)
+{
+    check_hessian(2, 0.5, 0.0, 5);
+    check_hessian(2, 0.7, 3.0, 6);
+}
+
+static void hessian_3d(void **state)
+{
+    check_hessian(3, 0.5, 0.0, 7);
+    check_hessian(3, 0.7, 3.0, 8);
+}
+
+/* At F = diag(σ) (R = I), ∂P/∂F has: twist eigenvalues
+ * 2μ + 2(λ(tr Y − n) − 2μ)/(σi + σj), flips 2μ, and the scaling block
+ * 2μ I + λ 11ᵀ (eigenvalues 2μ + nλ once and 2μ n−1 times). */
+static void hessian_eigenvalues_diag(void **state)
+{
+    const double mu = 0.8, lambda = 2.5;
+    const double cases[4][3] = {{1.2, 0.9, 1.1}, {0.5, 0.6, 0.7}, {2.0, 1.5, 0.3}, {1, 1, 1}};
+    for (int c = 0; c < 4; c++) {
+        for (int n = 2; n <= 3; n++) {
+            const double *s = cases[c];
+            double F[9] = {0}, H[81], w[9], expect[9];
+            for (int i = 0; i < n; i++)
+                F[i * n + i] = s[i];
+            bg_elastic_psi(n, mu, lambda, F, NULL, NULL, H, 0);
+            test_sym_eigenvalues(n * n, H, w);
+            double tr = 0;
+            for (int i = 0; i < n; i++)
+                tr += s[i];
+            int k = 0;
+            for (int i = 0; i < n; i++)
+                for (int j = i + 1; j < n; j++) {
+                    expect[k++] = 2 * mu + 2 * (lambda * (tr - n) - 2 * mu) / (s[i] + s[j]);
+                    expect[k++] = 2 * mu; /* flip partner of the twist pair */
+                }
+            expect[k++] = 2 * mu + n * lambda;
+            for (int i = 1; i < n; i++)
+                expect[k++] = 2 * mu;
+            assert_int_equal(k, n * n);
+            for (int i = 0; i < k; i++)
+                for (int j = i + 1; j < k; j++)
+                    if (expect[j] < expect[i]) {
+                        double t = expect[i];
+                        expect[i] = expect[j];
+                        expect[j] = t;
+                    }
+            for (int i = 0; i < k; i++)
+                assert_true(fabs(w[i] - expect[i]) <= 1e-10 * (1 + fabs(expect[i])));
+        }
+    }
+}
+
+/* The projected Hessian is PSD for any F, compressed and inverted ones
+ * included, and equals the exact one where that is already PSD. */
+static void projected_hessian_psd(void **state)
+{
+    uint64_t rng = 11;
+    for (int n = 2; n <= 3; n++)
+        for (int trial = 0; trial < 300; trial++) {
+            double F[9], H[81], Hx[81], w[9];
+            for (int i = 0; i < n * n; i++)
+                F[i] = 2.0 * test_uniform(&rng) - 1.0 + (i % (n + 1) == 0 ? 0.3 : 0.0);
+            const double lambda = trial % 2 ? 0.0 : 5.0;
+            bg_elastic_psi(n, 1.0, lambda, F, NULL, NULL, H, 1);
+            test_sym_eigenvalues(n * n, H, w);
+            assert_true(w[0] >= -1e-9 * (1.0 + fabs(w[n * n - 1])));
+            bg_elastic_psi(n, 1.0, lambda, F, NULL, NULL, Hx, 0);
+            double wx[9];
+            test_sym_eigenvalues(n * n, Hx, wx);
+            if (wx[0] > 1e-9)
+                for (int i = 0; i < n * n * n * n; i++)
+                    assert_true(fabs(H[i] - Hx[i]) <= 1e-9 * (1 + fabs(Hx[i])));
+        }
+}
+
+static void uniform_scale_energy(void **state)
+{
+    const double mu = 0.9, lambda = 3.0;
+    const double scales[] = {0.5, 0.9, 1.0, 1.3, 2.0};
+    for (int n = 2; n <= 3; n++)
+        for (size_t k = 0; k < sizeof scales / sizeof *scales; k++) {
+            const double s = scales[k];
+            double F[9] = {0};
+            for (int i = 0; i < n; i++)
+                F[i * n + i] = s;
+            double psi = bg_elastic_psi(n, mu, lambda, F, NULL, NULL, NULL, 0);
+            double expect = 0.5 * n * (2 * mu + n * lambda) * (s - 1) * (s - 1);
+            assert_true(fabs(psi - expect) <= 1e-13 * (1 + expect));
+        }
+}
+
+/* The fitted rotation equals U Vᵀ of the SVD, whichever path ran, and the
+ * warm start from a nearby rotation converges to the same answer. */
+static void rotation_fit_paths(void **state)
+{
+    uint64_t rng = 21;
+    int svd_seen = 0;
+    for (int trial = 0; trial < 500; trial++) {
+        double F[9], U[9], s[3], V[9], Rsvd[9], R[9], q[4] = {0, 0, 0, 0};
+        for (int i = 0; i < 9; i++)
+            F[i] = 2.0 * test_uniform(&rng) - 1.0;
+        bg_svd3(F, U, s, V);
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                Rsvd[3 * i + j] = U[3 * i] * V[3 * j] + U[3 * i + 1] * V[3 * j + 1] +
+                                  U[3 * i + 2] * V[3 * j + 2];
+        /* U Σ Vᵀ reproduces F. */
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) {
+                double f = 0;
+                for (int k = 0; k < 3; k++)
+                    f += U[3 * i + k] * s[k] * V[3 * j + k];
+                assert_true(fabs(f - F[3 * i + j]) <= 1e-12);
+            }
+        bg_rotfit_path path = bg_rotfit3(F, q, R);
+        svd_seen += path == BG_ROTFIT_SVD;
+        /* Where σ2 + σ3 is tiny the closest rotation is ill-conditioned;
+         * compare only where it is well defined. */
+        if (s[1] + s[2] > 1e-3)
+            for (int i = 0; i < 9; i++)
+                assert_true(fabs(R[i] - Rsvd[i]) <= 1e-9);
+        /* Warm start from a slightly perturbed rotation. */
+        double qw[4] = {q[0] + 0.05, q[1] - 0.03, q[2] + 0.02, q[3]}, Rw[9];
+        bg_rotfit3(F, qw, Rw);
+        if (s[1] + s[2] > 1e-3)
+            for (int i = 0; i < 9; i++)
+                assert_true(fabs(Rw[i] - Rsvd[i]) <= 1e-9);
+    }
+    /* Random F have det < 0 half the time: the SVD path must have run. */
+    assert_true(svd_seen > 100);
+}
+
+static bg_mesh_t *small_box(void)
+{
+    bg_mesh_t *m = NULL;
+    const int32_t cells[3] = {3, 2, 2};
+    const double origin[3] = {0.1, -0.2, 0.3}, size[3] = {1.5, 1.0, 0.8};
+    assert_int_equal(bg_mesh_generate_box(cells, origin, size, &m, NULL), BG_OK);
+    return m;
+}
+
+static void rigid_motion_zero(void **state)
+{
+    bg_mesh_t *m = small_box();
+    bg_elastic_t *md = NULL;
+    assert_int_equal(bg_elastic_new(m, 1.0, 2.0, &md, NULL), BG_OK);
+    double q4[4] = {0.8, 0.3, -0.4, 0.2}, R[9];
+    double len = sqrt(q4[0] * q4[0] + q4[1] * q4[1] + q4[2] * q4[2] + q4[3] * q4[3]);
+    for (int i = 0; i < 4; i++)
+        q4[i] /= len;
+    bg_quat_to_matrix(q4, R);
+    double *q = malloc(sizeof(double) * 3 * m->nv), *g = malloc(sizeof(double) * 3 * m->nv);
+    for (int32_t v = 0; v < m->nv; v++)
+        for (int i = 0; i < 3; i++)
+            q[3 * v + i] = R[3 * i] * m->x[3 * v] + R[3 * i + 1] * m->x[3 * v + 1] +
+                           R[3 * i + 2] * m->x[3 * v + 2] + (i + 1) * 0.7;
+    double E = bg_elastic_eval(md, q, g);
+    assert_true(fabs(E) <= 1e-26);
+    for (int32_t i = 0; i < 3 * m->nv; i++)
+        assert_true(fabs(g[i]) <= 1e-13);
+    free(q);
+    free(g);
+    bg_elastic_destroy(&md);
+    bg_mesh_destroy(&m);
+    assert_null(md);
+}
+
+/* The mesh-level gradient and the assembled Hessian against central
+ * differences of the mesh energy at a random deformed state; a dense
+ * scatter map (every local entry to its dense position) makes the check
+ * independent of the sparse module. */
+static void mesh_gradient_and_hessian(void **state)
+{
+    for (int n = 2; n <= 3; n++) {
+        bg_mesh_t *m = NULL;
+        if (n == 3) {
+            m = small_box();
+        } else {
+            const int32_t cells[2] = {3, 2};
+            const double origin[2] = {0, 0}, size[2] = {1.2, 0.9};
+            assert_int_equal(bg_mesh_generate_rectangle(cells, origin, size, &m, NULL), BG_OK);
+        }
+        bg_elastic_t *md = NULL;
+        assert_int_equal(bg_elastic_new(m, 0.7, 1.9, &md, NULL), BG_OK);
+        const int N = n * m->nv, loc = (n + 1) * n, T = BG_ELASTIC_TRI_SIZE(loc);
+        double *q = malloc(sizeof(double) * N), *g = malloc(sizeof(double) * N);
+        double *gp = malloc(sizeof(double) * N), *gm = malloc(sizeof(double) * N);
+        double *H = calloc((size_t)N * N, sizeof(double));
+        int32_t *scatter = malloc(sizeof(int32_t) * T * m->ne);
+        uint64_t rng = 99 + n;
+        for (int i = 0; i < N; i++)
+            q[i] = m->x[i] + 0.08 * (2 * test_uniform(&rng) - 1);
+        for (int32_t e = 0; e < m->ne; e++)
+            for (int a = 0; a < loc; a++)
+                for (int b = a; b < loc; b++) {
+                    int ga = m->elements[e * (n + 1) + a / n] * n + a % n;
+                    int gb = m->elements[e * (n + 1) + b / n] * n + b % n;
+                    /* upper-triangle entries land in row-major dense (min, max) */
+                    int lo = ga < gb ? ga : gb, hi = ga < gb ? gb : ga;
+                    scatter[(size_t)e * T + BG_ELASTIC_TRI_INDEX(loc, a, b)] = lo * N + hi;
+                }
+        bg_elastic_eval(md, q, g);
+        bg_elastic_assemble_hessian(md, q, 0, 1.0, scatter, H);
+        for (int j = 0; j < N; j++) {
+            const double qj = q[j];
+            q[j] = qj + FD_STEP;
+            double Ep = bg_elastic_eval(md, q, gp);
+            q[j] = qj - FD_STEP;
+            double Em = bg_elastic_eval(md, q, gm);
+            q[j] = qj;
+            assert_true(fabs((Ep - Em) / (2 * FD_STEP) - g[j]) <= 1e-6 * (1 + fabs(g[j])));
+            for (int i = 0; i < N; i++) {
+                double fd = (gp[i] - gm[i]) / (2 * FD_STEP);
+                int lo = i < j ? i : j, hi = i < j ? j : i;
+                double h = H[lo * N + hi];
+                assert_true(fabs(fd - h) <= 1e-5 * (1 + fabs(h)));
+            }
+        }
+        free(q);
+        free(g);
+        free(gp);
+        free(gm);
+        free(H);
+        free(scatter);
+        bg_elastic_destroy(&md);
+        bg_mesh_destroy(&m);
+    }
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(gradient_2d),
+        cmocka_unit_test(gradient_3d),
+        cmocka_unit_test(hessian_2d),
+        cmocka_unit_test(hessian_3d),
+        cmocka_unit_test(hessian_eigenvalues_diag),
+        cmocka_unit_test(projected_hessian_psd),
+        cmocka_unit_test(uniform_scale_energy),
+        cmocka_unit_test(rotation_fit_paths),
+        cmocka_unit_test(rigid_motion_zero),
+        cmocka_unit_test(mesh_gradient_and_hessian),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
