@@ -190,6 +190,85 @@ static bg_status factor_with_shift(problem_t *p, bg_error_t *err)
                         local.message, shift / STATIC_SHIFT_GROWTH);
 }
 
+/* d = A⁻¹ rhs with the current factorization; *slope = ∇Wᵀd (= −rhsᵀd),
+ * NaN if d is not finite. */
+static bg_status solve_direction(problem_t *p, double *slope, bg_error_t *err)
+{
+    bg_status st = bg_sparse_solve(p->sys, p->rhs, p->step, err);
+    if (st != BG_OK)
+        return st;
+    double s = 0.0;
+    for (int32_t i = 0; i < p->nfree; i++)
+        s -= p->rhs[i] * p->step[i];
+    *slope = isfinite(s) ? s : NAN;
+    return BG_OK;
+}
+
+static double assemble_newton(problem_t *p, int project)
+{
+    const double t0 = bg_clock_now();
+    bg_sparse_zero(p->sys);
+    bg_elastic_assemble_hessian(p->model, p->q, project, 1.0, bg_sparse_scatter(p->sys),
+                                bg_sparse_values(p->sys));
+    return bg_clock_now() - t0;
+}
+
+/*
+ * A Newton direction, most accurate first: the exact Hessian (when asked:
+ * near the solution, where it gives quadratic convergence), else the
+ * PSD-projected one, else the projected one with a growing diagonal shift.
+ * The first factorization that succeeds and yields a finite descent
+ * direction wins; at collapsed or random states the exact matrix can factor
+ * yet give garbage, which the descent test catches.
+ */
+static bg_status newton_direction(problem_t *p, int try_exact, bg_solve_result_t *res,
+                                  double *slope, bg_error_t *err)
+{
+    bg_error_t local = BG_ERROR_INIT;
+    bg_status st;
+    *slope = NAN;
+    if (try_exact) {
+        res->assembly_seconds += assemble_newton(p, 0);
+        st = bg_sparse_factorize(p->sys, 0.0, &local);
+        if (st == BG_OK) {
+            st = solve_direction(p, slope, err);
+            if (st != BG_OK)
+                return st;
+            if (*slope < 0.0) {
+                res->last_direction = BG_DIRECTION_EXACT;
+                return BG_OK;
+            }
+        } else if (st != BG_ERR_NUMERIC) {
+            return bg_error_set(err, st, "%s", local.message);
+        }
+    }
+    res->assembly_seconds += assemble_newton(p, 1);
+    const double *values = bg_sparse_values(p->sys);
+    double largest = 0.0;
+    for (size_t i = 0; i < bg_sparse_nonzeros(p->sys); i++)
+        largest = fmax(largest, fabs(values[i]));
+    double shift = 0.0;
+    for (int attempt = 0; attempt <= STATIC_MAX_SHIFTS; attempt++) {
+        bg_error_clear(&local);
+        st = bg_sparse_factorize(p->sys, shift, &local);
+        if (st == BG_OK) {
+            st = solve_direction(p, slope, err);
+            if (st != BG_OK)
+                return st;
+            if (*slope < 0.0) {
+                res->last_direction = shift > 0.0 ? BG_DIRECTION_SHIFTED : BG_DIRECTION_PROJECTED;
+                return BG_OK;
+            }
+        } else if (st != BG_ERR_NUMERIC) {
+            return bg_error_set(err, st, "%s", local.message);
+        }
+        shift = shift == 0.0 ? STATIC_FIRST_SHIFT * (largest > 0.0 ? largest : 1.0)
+                             : shift * STATIC_SHIFT_GROWTH;
+    }
+    res->last_direction = BG_DIRECTION_NONE;
+    return BG_OK;
+}
+
 bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt,
                           bg_solve_result_t *res, bg_error_t *err)
 {
@@ -248,46 +327,21 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
         if (it >= opt->max_iterations)
             break;
         it++;
-        if (opt->method == BG_METHOD_NEWTON) {
-            int factored = 0;
-            if (last_full_step && rel < STATIC_EXACT_HESSIAN_BELOW &&
-                gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at) {
-                const double t0 = bg_clock_now();
-                bg_sparse_zero(p.sys);
-                bg_elastic_assemble_hessian(p.model, p.q, 0, 1.0, bg_sparse_scatter(p.sys),
-                                            bg_sparse_values(p.sys));
-                res->assembly_seconds += bg_clock_now() - t0;
-                bg_error_t ignored = BG_ERROR_INIT;
-                st = bg_sparse_factorize(p.sys, 0.0, &ignored);
-                if (st == BG_OK)
-                    factored = 1;
-                else if (st == BG_ERR_NUMERIC)
-                    exact_failed_at = gnorm;
-                else {
-                    bg_error_set(err, st, "%s", ignored.message);
-                    goto out;
-                }
-            }
-            if (!factored) {
-                const double t0 = bg_clock_now();
-                bg_sparse_zero(p.sys);
-                bg_elastic_assemble_hessian(p.model, p.q, 1, 1.0, bg_sparse_scatter(p.sys),
-                                            bg_sparse_values(p.sys));
-                res->assembly_seconds += bg_clock_now() - t0;
-                st = factor_with_shift(&p, err);
-                if (st != BG_OK)
-                    goto out;
-            }
-        }
         for (size_t i = 0; i < ndof; i++)
             if (p.free_index[i] >= 0)
                 p.rhs[p.free_index[i]] = -p.grad[i];
-        st = bg_sparse_solve(p.sys, p.rhs, p.step, err);
+        double slope = NAN;
+        if (opt->method == BG_METHOD_NEWTON) {
+            const int try_exact = last_full_step && rel < STATIC_EXACT_HESSIAN_BELOW &&
+                                  gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at;
+            st = newton_direction(&p, try_exact, res, &slope, err);
+            if (try_exact && res->last_direction != BG_DIRECTION_EXACT)
+                exact_failed_at = gnorm;
+        } else {
+            st = solve_direction(&p, &slope, err);
+        }
         if (st != BG_OK)
             goto out;
-        double slope = 0.0;
-        for (int32_t i = 0; i < p.nfree; i++)
-            slope -= p.rhs[i] * p.step[i];
         if (!(slope < 0.0)) {
             res->stop_reason = "no descent direction";
             break;

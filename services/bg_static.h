@@ -50,6 +50,14 @@ typedef struct bg_solve_options {
     void *progress_ctx;
 } bg_solve_options_t;
 
+/* Which matrix gave the last Newton direction. */
+typedef enum bg_direction {
+    BG_DIRECTION_NONE = 0,
+    BG_DIRECTION_EXACT,     /* exact Hessian */
+    BG_DIRECTION_PROJECTED, /* twist eigenvalues clamped */
+    BG_DIRECTION_SHIFTED,   /* projected plus a diagonal shift */
+} bg_direction;
+
 typedef struct bg_solve_result {
     bg_method method;
     int converged;
@@ -65,6 +73,7 @@ typedef struct bg_solve_result {
      * factorization, triangular solves. */
     double rotfit_seconds, assembly_seconds, analyze_seconds, factor_seconds, solve_seconds;
     int64_t factorizations;
+    bg_direction last_direction;
     double *q;                /* final positions, nv*n; owned */
     double *energy_density;   /* final ψ per element, ne; owned */
     bg_trace_point_t *trace;  /* one point per iteration from 0; owned */

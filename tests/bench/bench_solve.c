@@ -1,0 +1,453 @@
+/*
+ * bench_solve — where the static solvers spend their time, and how fast
+ * they reach a given accuracy.
+ *
+ *   OPENBLAS_NUM_THREADS=1 ./tests/bench/bench_solve [--smoke]
+ *
+ * (OpenBLAS reads the variable when the library loads, so it must be set
+ * in the environment: a setenv in main would be too late.)
+ *
+ * Part 1, per iteration: Newton and local/global with a capped iteration
+ * count (the tolerance is set out of reach so that every run does exactly
+ * the cap, unless it converges first) on the bunny-edit scene and a box of
+ * 201,600 tets; the time split into rotation fit + energy + gradient,
+ * assembly, CHOLMOD analysis, factorization and solves; and Newton's time
+ * per iteration against CHOLMOD factorize + solve alone on the same
+ * matrix (the PSD-projected Hessian at the start positions).
+ *
+ * Part 2, error against run time: on bar-twist and stiff-bar, the wall
+ * time until Newton's relative gradient first reaches 1e-8 and until
+ * local/global's first reaches 1e-4, read from the solvers' traces.
+ *
+ * --smoke: a tiny box for part 1, and part 2 with capped local/global.
+ */
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bench_common.h"
+#include "bg_clock.h"
+#include "bg_elastic.h"
+#include "bg_scene.h"
+#include "bg_sparse.h"
+#include "bg_static.h"
+
+/* A tolerance no run reaches within its cap: part 1 times whole iterations. */
+#define UNREACHABLE_TOLERANCE 1e-300
+/* Newton's per-iteration time over CHOLMOD factorize + solve alone. */
+#define TARGET_NEWTON_OVER_CHOLMOD 1.3
+/* Part 2 thresholds on the relative gradient. */
+#define NEWTON_THRESHOLD 1e-8
+#define LOCAL_GLOBAL_THRESHOLD 1e-4
+/* Part 2 iteration caps. */
+#define NEWTON_MAX_ITERATIONS 500
+#define LOCAL_GLOBAL_MAX_ITERATIONS_FULL 20000
+#define LOCAL_GLOBAL_MAX_ITERATIONS_SMOKE 2000
+/* Repetitions of the stand-alone factorization and solve. */
+#define CHOLMOD_REPS_FULL 3
+#define CHOLMOD_REPS_SMOKE 3
+#define SOLVE_REPS 10
+/* First diagonal shift, relative to the largest entry, if the stand-alone
+ * factorization finds the matrix not numerically positive definite (the
+ * solver does the same). */
+#define CHOLMOD_RETRY_SHIFT 1e-8
+
+/* The large box: 40x40x21 cells x 6 = 201,600 tets, bottom clamped, top
+ * moved sideways and down. */
+static const char BOX_SCENE_FULL[] =
+    "{\"name\": \"box-201600\","
+    " \"mesh\": {\"generate\": \"box\", \"cells\": [40, 40, 21], \"size\": [2, 2, 1.05]},"
+    " \"material\": {\"mu\": 1, \"lambda\": 1},"
+    " \"handles\": ["
+    "  {\"select\": {\"box_fraction\": {\"min\": [0, 0, 0], \"max\": [1, 1, 0]}}},"
+    "  {\"select\": {\"box_fraction\": {\"min\": [0, 0, 1], \"max\": [1, 1, 1]}},"
+    "   \"transform\": {\"translate\": [0.1, 0, -0.1]}}]}";
+static const char BOX_SCENE_SMOKE[] =
+    "{\"name\": \"box-864\","
+    " \"mesh\": {\"generate\": \"box\", \"cells\": [6, 6, 4], \"size\": [1.5, 1.5, 1]},"
+    " \"material\": {\"mu\": 1, \"lambda\": 1},"
+    " \"handles\": ["
+    "  {\"select\": {\"box_fraction\": {\"min\": [0, 0, 0], \"max\": [1, 1, 0]}}},"
+    "  {\"select\": {\"box_fraction\": {\"min\": [0, 0, 1], \"max\": [1, 1, 1]}},"
+    "   \"transform\": {\"translate\": [0.1, 0, -0.1]}}]}";
+
+typedef struct iteration_case {
+    const char *label;
+    const char *file;  /* scene file under BG_SOURCE_DIR, or NULL */
+    const char *json;  /* inline scene when file is NULL */
+    int newton_cap;
+    int local_global_cap;
+} iteration_case_t;
+
+/* Per-iteration split of one capped solve (seconds). */
+typedef struct split {
+    int iterations;
+    int converged;
+    double relative_gradient;
+    double setup;          /* until the first trace point: setup + first evaluation */
+    double once;           /* in the loop but paid once: analysis (+ prefactor) */
+    double per_iteration;  /* (loop time − once) / iterations */
+    double rotfit, assembly, factor, solve, other; /* per iteration */
+    int64_t factorizations;
+    double evaluations;    /* energy + gradient evaluations in all */
+} split_t;
+
+static bg_status load_scene(const iteration_case_t *c, bg_scene_t **scene, bg_error_t *err)
+{
+    if (c->file) {
+        char path[1024];
+        snprintf(path, sizeof path, "%s/%s", BG_SOURCE_DIR, c->file);
+        return bg_scene_load(path, scene, err);
+    }
+    return bg_scene_parse(c->json, strlen(c->json), c->label, scene, err);
+}
+
+static bg_status run_solver(const bg_scene_t *scene, bg_method method, double tolerance, int cap,
+                            bg_solve_result_t *result, bg_error_t *err)
+{
+    bg_solve_options_t opts;
+    memset(&opts, 0, sizeof opts);
+    opts.method = method;
+    opts.tolerance = tolerance;
+    opts.max_iterations = cap;
+    return bg_static_solve(scene, &opts, result, err);
+}
+
+/* Splits a capped solve's time per iteration. The solver accumulates the
+ * rotation-fit time over every evaluation, including the one before the
+ * loop; that one is taken out at the average cost of an evaluation. */
+static split_t split_of(const bg_scene_t *scene, const bg_solve_result_t *r)
+{
+    split_t s;
+    memset(&s, 0, sizeof s);
+    s.iterations = r->iterations;
+    s.converged = r->converged;
+    s.relative_gradient = r->relative_gradient;
+    s.factorizations = r->factorizations;
+    if (r->trace_count < 1 || r->iterations < 1)
+        return s;
+    const double its = r->iterations;
+    s.setup = r->trace[0].seconds;
+    const double loop = r->trace[r->trace_count - 1].seconds - r->trace[0].seconds;
+    s.evaluations = (double)r->rotfit.calls / scene->mesh->ne;
+    const double per_eval = s.evaluations > 0.0 ? r->rotfit_seconds / s.evaluations : 0.0;
+    s.rotfit = per_eval * (s.evaluations - 1.0) / its;
+    s.solve = r->solve_seconds / its;
+    if (r->method == BG_METHOD_NEWTON) {
+        s.once = r->analyze_seconds;
+        s.assembly = r->assembly_seconds / its;
+        s.factor = r->factor_seconds / its;
+    } else {
+        /* Local/global assembles and factors its matrix once. */
+        s.once = r->analyze_seconds + r->factor_seconds + r->assembly_seconds;
+    }
+    s.per_iteration = (loop - s.once) / its;
+    s.other = s.per_iteration - s.rotfit - s.assembly - s.factor - s.solve;
+    return s;
+}
+
+/* CHOLMOD alone on the Newton matrix at the scene's start positions:
+ * analysis once, then median numeric factorization and median solve. */
+typedef struct cholmod_alone {
+    int32_t size;
+    size_t nonzeros;
+    double analyze, factor, solve;
+} cholmod_alone_t;
+
+static bg_status time_cholmod_alone(const bg_scene_t *scene, int reps, cholmod_alone_t *out,
+                                    bg_error_t *err)
+{
+    memset(out, 0, sizeof *out);
+    const bg_mesh_t *mesh = scene->mesh;
+    const int n = mesh->dim;
+    const size_t ndof = (size_t)mesh->nv * (size_t)n;
+    bg_elastic_t *model = NULL;
+    bg_sparse_t *sys = NULL;
+    int32_t *free_index = malloc(ndof * sizeof *free_index);
+    double *grad = malloc(ndof * sizeof *grad);
+    double *rhs = malloc(ndof * sizeof *rhs);
+    double samples[BENCH_MAX_REPS];
+    bg_status st = BG_OK;
+    if (!free_index || !grad || !rhs) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory");
+        goto done;
+    }
+    int32_t nfree = 0;
+    for (size_t i = 0; i < ndof; i++)
+        free_index[i] = scene->constrained[i] ? -1 : nfree++;
+    st = bg_elastic_new(mesh, scene->material.mu, scene->material.lambda, &model, err);
+    if (st != BG_OK)
+        goto done;
+    st = bg_sparse_new(mesh, n, free_index, nfree, &sys, err);
+    if (st != BG_OK)
+        goto done;
+    bg_elastic_eval(model, scene->initial, grad);
+    bg_sparse_zero(sys);
+    bg_elastic_assemble_hessian(model, scene->initial, 1, 1.0, bg_sparse_scatter(sys),
+                                bg_sparse_values(sys));
+    out->size = bg_sparse_size(sys);
+    out->nonzeros = bg_sparse_nonzeros(sys);
+    double shift = 0.0;
+    bg_error_t local = BG_ERROR_INIT;
+    st = bg_sparse_factorize(sys, shift, &local);
+    if (st == BG_ERR_NUMERIC) {
+        const double *values = bg_sparse_values(sys);
+        double largest = 0.0;
+        for (size_t i = 0; i < out->nonzeros; i++)
+            largest = fmax(largest, fabs(values[i]));
+        shift = CHOLMOD_RETRY_SHIFT * largest;
+        bg_error_clear(&local);
+        st = bg_sparse_factorize(sys, shift, &local);
+    }
+    if (st != BG_OK) {
+        st = bg_error_set(err, st, "%s", local.message);
+        goto done;
+    }
+    /* The first call did the analysis and one factorization. */
+    out->analyze = bg_sparse_timing(sys).analyze_seconds;
+    for (int r = 0; r < reps; r++) {
+        const double t0 = bg_clock_now();
+        st = bg_sparse_factorize(sys, shift, err);
+        samples[r] = bg_clock_now() - t0;
+        if (st != BG_OK)
+            goto done;
+    }
+    out->factor = bench_median(samples, reps);
+    for (size_t i = 0; i < ndof; i++)
+        if (free_index[i] >= 0)
+            rhs[free_index[i]] = -grad[i];
+    for (int r = 0; r < SOLVE_REPS; r++) {
+        const double t0 = bg_clock_now();
+        st = bg_sparse_solve(sys, rhs, grad, err);
+        samples[r] = bg_clock_now() - t0;
+        if (st != BG_OK)
+            goto done;
+    }
+    out->solve = bench_median(samples, SOLVE_REPS);
+done:
+    bg_sparse_destroy(&sys);
+    bg_elastic_destroy(&model);
+    free(free_index);
+    free(grad);
+    free(rhs);
+    return st;
+}
+
+static void print_split_row(const char *label, const char *method, const split_t *s)
+{
+    printf("%-11s %-12s %5d %4s %9.3g %9.2f %9.2f %10.2f %9.2f %9.2f %9.2f %9.2f %9.2f %6.2f\n",
+           label, method, s->iterations, s->converged ? "yes" : "no", s->relative_gradient,
+           1e3 * s->setup, 1e3 * s->once, 1e3 * s->per_iteration, 1e3 * s->rotfit,
+           1e3 * s->assembly, 1e3 * s->factor, 1e3 * s->solve, 1e3 * s->other,
+           s->iterations > 0 ? (double)s->factorizations / s->iterations : 0.0);
+}
+
+static void record_split(const char *label, const char *method, const split_t *s)
+{
+    char name[BENCH_NAME_MAX];
+    const struct {
+        const char *key;
+        double value;
+    } parts[] = {{"per_iteration", s->per_iteration}, {"rotfit_per_iteration", s->rotfit},
+                 {"assembly_per_iteration", s->assembly}, {"factor_per_iteration", s->factor},
+                 {"solve_per_iteration", s->solve}, {"one_time", s->once}};
+    for (size_t i = 0; i < sizeof parts / sizeof parts[0]; i++) {
+        snprintf(name, sizeof name, "solve.%s.%s.%s", label, method, parts[i].key);
+        bench_record(name, 1e3 * parts[i].value, "ms");
+    }
+}
+
+static int bench_iterations(const iteration_case_t *c, int cholmod_reps)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    bg_scene_t *scene = NULL;
+    if (load_scene(c, &scene, &err) != BG_OK) {
+        fprintf(stderr, "bench_solve: %s\n", err.message);
+        bench_fail("scene failed to load");
+        return -1;
+    }
+    const bg_method methods[2] = {BG_METHOD_NEWTON, BG_METHOD_LOCAL_GLOBAL};
+    const int caps[2] = {c->newton_cap, c->local_global_cap};
+    double newton_per_iteration = NAN;
+    for (int m = 0; m < 2; m++) {
+        bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
+        if (run_solver(scene, methods[m], UNREACHABLE_TOLERANCE, caps[m], &r, &err) != BG_OK) {
+            fprintf(stderr, "bench_solve: %s: %s\n", c->label, err.message);
+            bench_fail("solver setup failed");
+            bg_scene_destroy(&scene);
+            return -1;
+        }
+        const split_t s = split_of(scene, &r);
+        const char *name = bg_method_name(methods[m]);
+        print_split_row(c->label, name, &s);
+        record_split(c->label, name, &s);
+        char what[160];
+        snprintf(what, sizeof what, "%s %s time per iteration", c->label, name);
+        bench_check_positive(what, s.per_iteration);
+        if (!(s.relative_gradient < 1.0)) {
+            snprintf(what, sizeof what, "%s %s did not reduce the gradient", c->label, name);
+            bench_fail(what);
+        }
+        if (methods[m] == BG_METHOD_NEWTON)
+            newton_per_iteration = s.per_iteration;
+        bg_solve_result_release(&r);
+    }
+    cholmod_alone_t alone;
+    if (time_cholmod_alone(scene, cholmod_reps, &alone, &err) != BG_OK) {
+        fprintf(stderr, "bench_solve: %s: CHOLMOD alone: %s\n", c->label, err.message);
+        bench_fail("stand-alone factorization failed");
+        bg_scene_destroy(&scene);
+        return -1;
+    }
+    const double alone_total = alone.factor + alone.solve;
+    const double ratio = newton_per_iteration / alone_total;
+    printf("%-11s CHOLMOD alone on the Newton matrix (n = %d, nnz(lower) = %zu): analysis %.2f "
+           "ms, factorize %.2f ms, solve %.2f ms; Newton per iteration / (factorize + solve) = "
+           "%.3f (target <= %.1f)\n",
+           c->label, alone.size, alone.nonzeros, 1e3 * alone.analyze, 1e3 * alone.factor,
+           1e3 * alone.solve, ratio, TARGET_NEWTON_OVER_CHOLMOD);
+    char name[BENCH_NAME_MAX];
+    snprintf(name, sizeof name, "solve.%s.cholmod.analyze", c->label);
+    bench_record(name, 1e3 * alone.analyze, "ms");
+    snprintf(name, sizeof name, "solve.%s.cholmod.factorize", c->label);
+    bench_record(name, 1e3 * alone.factor, "ms");
+    snprintf(name, sizeof name, "solve.%s.cholmod.solve", c->label);
+    bench_record(name, 1e3 * alone.solve, "ms");
+    snprintf(name, sizeof name, "solve.%s.newton_over_cholmod", c->label);
+    bench_record(name, ratio, "ratio");
+    bench_check_positive(name, ratio);
+    bg_scene_destroy(&scene);
+    return 0;
+}
+
+/* Wall time at the first trace point at or below the threshold; NAN if
+ * the run never got there. */
+static double time_to_reach(const bg_solve_result_t *r, double threshold, int *iteration)
+{
+    for (int i = 0; i < r->trace_count; i++)
+        if (r->trace[i].relative_gradient <= threshold) {
+            *iteration = r->trace[i].iteration;
+            return r->trace[i].seconds;
+        }
+    *iteration = -1;
+    return NAN;
+}
+
+static int bench_accuracy(const char *file, const char *label, int local_global_cap)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    bg_scene_t *scene = NULL;
+    char path[1024];
+    snprintf(path, sizeof path, "%s/%s", BG_SOURCE_DIR, file);
+    if (bg_scene_load(path, &scene, &err) != BG_OK) {
+        fprintf(stderr, "bench_solve: %s\n", err.message);
+        bench_fail("scene failed to load");
+        return -1;
+    }
+    const bg_method methods[2] = {BG_METHOD_NEWTON, BG_METHOD_LOCAL_GLOBAL};
+    const double thresholds[2] = {NEWTON_THRESHOLD, LOCAL_GLOBAL_THRESHOLD};
+    const int caps[2] = {NEWTON_MAX_ITERATIONS, local_global_cap};
+    double reached[2] = {NAN, NAN};
+    for (int m = 0; m < 2; m++) {
+        bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
+        if (run_solver(scene, methods[m], thresholds[m], caps[m], &r, &err) != BG_OK) {
+            fprintf(stderr, "bench_solve: %s: %s\n", label, err.message);
+            bench_fail("solver setup failed");
+            bg_scene_destroy(&scene);
+            return -1;
+        }
+        int at = -1;
+        reached[m] = time_to_reach(&r, thresholds[m], &at);
+        const char *name = bg_method_name(methods[m]);
+        if (isfinite(reached[m]))
+            printf("%-10s %-12s %9.0e %10.4f %10d %10d %12.3g  %s\n", label, name,
+                   thresholds[m], reached[m], at, r.iterations, r.relative_gradient,
+                   r.stop_reason);
+        else
+            printf("%-10s %-12s %9.0e %10s %10s %10d %12.3g  NOT REACHED in %d iterations "
+                   "(%.3f s, %s)\n",
+                   label, name, thresholds[m], "-", "-", r.iterations, r.relative_gradient,
+                   caps[m], r.wall_seconds, r.stop_reason);
+        char fig[BENCH_NAME_MAX];
+        snprintf(fig, sizeof fig, "accuracy.%s.%s.seconds_to_threshold", label, name);
+        if (isfinite(reached[m]))
+            bench_record(fig, reached[m], "s");
+        if (methods[m] == BG_METHOD_NEWTON && !isfinite(reached[m])) {
+            char what[160];
+            snprintf(what, sizeof what, "%s: Newton did not converge to %.0e (%s)", label,
+                     NEWTON_THRESHOLD, r.stop_reason);
+            bench_fail(what);
+        }
+        bg_solve_result_release(&r);
+    }
+    if (isfinite(reached[0]) && isfinite(reached[1])) {
+        const double ratio = reached[0] / reached[1];
+        printf("%-10s newton(1e-8) / local-global(1e-4) time ratio = %.3f\n", label, ratio);
+        char fig[BENCH_NAME_MAX];
+        snprintf(fig, sizeof fig, "accuracy.%s.newton_over_local_global", label);
+        bench_record(fig, ratio, "ratio");
+        bench_check_positive(fig, ratio);
+    } else {
+        printf("%-10s newton(1e-8) / local-global(1e-4) time ratio: n/a (a threshold was not "
+               "reached)\n",
+               label);
+    }
+    bg_scene_destroy(&scene);
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    int smoke = 0;
+    for (int i = 1; i < argc; i++) {
+        if (strcmp(argv[i], "--smoke") == 0) {
+            smoke = 1;
+        } else {
+            fprintf(stderr, "usage: OPENBLAS_NUM_THREADS=1 bench_solve [--smoke]\n");
+            return 2;
+        }
+    }
+    bench_header("bench_solve: static solvers, time per iteration and time to accuracy", smoke);
+
+    static const iteration_case_t FULL_CASES[] = {
+        {"bunny-edit", "configs/scenes/bunny-edit.json", NULL, 5, 50},
+        {"box-201600", NULL, BOX_SCENE_FULL, 3, 20},
+    };
+    static const iteration_case_t SMOKE_CASES[] = {
+        {"box-864", NULL, BOX_SCENE_SMOKE, 2, 5},
+    };
+    const iteration_case_t *cases = smoke ? SMOKE_CASES : FULL_CASES;
+    const size_t case_count = smoke ? sizeof SMOKE_CASES / sizeof SMOKE_CASES[0]
+                                    : sizeof FULL_CASES / sizeof FULL_CASES[0];
+
+    printf("Part 1: time per iteration (ms). Iterations capped (newton / local-global): ");
+    for (size_t i = 0; i < case_count; i++)
+        printf("%s %d / %d%s", cases[i].label, cases[i].newton_cap, cases[i].local_global_cap,
+               i + 1 < case_count ? ", " : "\n");
+    printf("setup = scene to first trace point (model, pattern, first evaluation); once = "
+           "CHOLMOD analysis,\nplus for local-global the Laplacian assembly and its single "
+           "factorization; per_it excludes both.\nrotfit = rotation fit + energy + gradient "
+           "(all line-search evaluations); fact/it = factorizations per iteration.\n\n");
+    printf("%-11s %-12s %5s %4s %9s %9s %9s %10s %9s %9s %9s %9s %9s %6s\n", "scene", "method",
+           "iters", "conv", "rel_grad", "setup", "once", "per_it", "rotfit", "assembly",
+           "factor", "solve", "other", "fact/it");
+    for (size_t i = 0; i < case_count; i++)
+        bench_iterations(&cases[i], smoke ? CHOLMOD_REPS_SMOKE : CHOLMOD_REPS_FULL);
+
+    printf("\nPart 2: error against run time (seconds from the start of the solve, setup "
+           "included)\n");
+    printf("%-10s %-12s %9s %10s %10s %10s %12s  %s\n", "scene", "method", "threshold",
+           "seconds", "at_iter", "iters", "final_rel_g", "stop reason");
+    const int lg_cap = smoke ? LOCAL_GLOBAL_MAX_ITERATIONS_SMOKE : LOCAL_GLOBAL_MAX_ITERATIONS_FULL;
+    bench_accuracy("configs/scenes/bar-twist.json", "bar-twist", lg_cap);
+    bench_accuracy("configs/scenes/stiff-bar.json", "stiff-bar", lg_cap);
+
+    bench_print_figures();
+    if (bench_failures > 0) {
+        printf("\n%d sanity check(s) failed\n", bench_failures);
+        return 1;
+    }
+    return 0;
+}

@@ -1,0 +1,22 @@
+#!/bin/sh
+# The project's test command: installs the Debian packages, builds twice
+# (optimised, and with AddressSanitizer + UndefinedBehaviorSanitizer) and
+# runs the whole CTest suite on both builds. Run from the repository root
+# as root on Debian 12; .ci/run calls exactly this.
+set -eu
+cd "$(dirname "$0")/.."
+if [ "$(id -u)" = 0 ]; then
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq
+    xargs -a configs/debian-packages.txt apt-get install -y -qq --no-install-recommends >/dev/null
+fi
+jobs=$(nproc)
+# One OpenBLAS thread: the suite runs tests in parallel, and threaded BLAS
+# inside parallel tests only adds contention.
+export OPENBLAS_NUM_THREADS=1
+cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo -DBIOTGRID_WERROR=ON
+cmake --build build -j "$jobs"
+ctest --test-dir build --output-on-failure -j "$jobs"
+cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DBIOTGRID_SANITIZE=ON -DBIOTGRID_WERROR=ON
+cmake --build build-asan -j "$jobs"
+ctest --test-dir build-asan --output-on-failure -j "$jobs"

@@ -1,0 +1,314 @@
+/*
+ * Static solves against analytic answers and against each other: the
+ * uniaxial bar (lateral contraction −ν(s − 1)), the patch test, Newton and
+ * local/global reaching the same minimizer, quadratic convergence read from
+ * the trace, and the stiff and extreme cases (inverted start, λ/μ = 10⁴,
+ * random initial positions): always finite, energy never increasing.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "bg_scene.h"
+#include "bg_static.h"
+#include "test_support.h"
+
+#define SCENES BG_SOURCE_DIR "/configs/scenes/"
+
+static bg_scene_t *load(const char *path)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    bg_scene_t *s = NULL;
+    if (bg_scene_load(path, &s, &err) != BG_OK)
+        fail_msg("%s", err.message);
+    return s;
+}
+
+static bg_scene_t *parse(const char *json)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    bg_scene_t *s = NULL;
+    if (bg_scene_parse(json, strlen(json), "inline.json", &s, &err) != BG_OK)
+        fail_msg("%s", err.message);
+    return s;
+}
+
+static void solve(const bg_scene_t *s, bg_method method, double tol, int max_it,
+                  bg_solve_result_t *r)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    bg_solve_options_t o = {method, tol, max_it, NULL, NULL, NULL, NULL};
+    if (bg_static_solve(s, &o, r, &err) != BG_OK)
+        fail_msg("%s", err.message);
+}
+
+/* Every trace point finite, the energy never increasing beyond round-off
+ * (the line search accepts a non-Armijo step only within 64 ulps of the
+ * energy's magnitude, and only if the gradient shrinks). */
+static void assert_stable(const bg_scene_t *s, const bg_solve_result_t *r)
+{
+    for (int i = 0; i < r->trace_count; i++) {
+        assert_true(isfinite(r->trace[i].energy));
+        assert_true(isfinite(r->trace[i].gradient_norm));
+        if (i > 0)
+            assert_true(r->trace[i].energy <=
+                        r->trace[i - 1].energy + 1e-13 * fabs(r->trace[0].energy) + 1e-300);
+    }
+    for (size_t k = 0; k < (size_t)s->mesh->nv * s->mesh->dim; k++)
+        assert_true(isfinite(r->q[k]));
+}
+
+static double relative_distance(const double *a, const double *b, size_t n)
+{
+    double num = 0, den = 0;
+    for (size_t i = 0; i < n; i++) {
+        num += (a[i] - b[i]) * (a[i] - b[i]);
+        den += b[i] * b[i];
+    }
+    return sqrt(num / den);
+}
+
+/* Uniaxial stretch by s = 1.2 with rollers and symmetry planes: the exact
+ * minimizer is homogeneous, lateral stretch t with t − 1 = −ν(s − 1),
+ * ν = λ/(2(λ + μ)). Checked on every vertex, to 1e-6 as the issue asks
+ * (Newton lands on it to round-off). */
+static void uniaxial_bar(void **state)
+{
+    bg_scene_t *s = load(SCENES "stretch-bar.json");
+    bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
+    solve(s, BG_METHOD_NEWTON, 1e-12, 50, &r);
+    assert_true(r.converged);
+    const double mu = s->material.mu, lambda = s->material.lambda;
+    const double nu = lambda / (2 * (lambda + mu)), t = 1.0 - nu * 0.2;
+    for (int32_t v = 0; v < s->mesh->nv; v++) {
+        const double *x = s->mesh->x + 3 * (size_t)v, *q = r.q + 3 * (size_t)v;
+        assert_true(fabs(q[0] - 1.2 * x[0]) <= 1e-6);
+        assert_true(fabs(q[1] - t * x[1]) <= 1e-6);
+        assert_true(fabs(q[2] - t * x[2]) <= 1e-6);
+    }
+    assert_stable(s, &r);
+    bg_solve_result_release(&r);
+    bg_scene_destroy(&s);
+}
+
+/* Patch test: the boundary moved by an affine map x ↦ A x + b; the
+ * minimizer is that map everywhere (every element has the same F, so the
+ * interior forces Σ V_e P ∇φ cancel). Written as a positions file so the
+ * test exercises the handle path users take. */
+static void patch_test_dim(int d)
+{
+    char dir[] = "/tmp/bg-patch-XXXXXX";
+    assert_non_null(mkdtemp(dir));
+    char positions[256], json[8192];
+    snprintf(positions, sizeof positions, "%s/affine.txt", dir);
+    const double A[3][3] = {{1.1, 0.2, 0.0}, {-0.1, 0.9, 0.15}, {0.05, 0.0, 1.2}};
+    const double b[3] = {0.3, -0.2, 0.1};
+    const int cells = 4;
+    /* Vertex order of the generators: x fastest, then y, then z. */
+    FILE *f = fopen(positions, "w");
+    assert_non_null(f);
+    const int nz = d == 3 ? cells : 0;
+    int boundary[4096], nb = 0;
+    for (int k = 0; k <= nz; k++)
+        for (int j = 0; j <= cells; j++)
+            for (int i = 0; i <= cells; i++) {
+                double x[3] = {(double)i / cells, (double)j / cells, (double)k / cells};
+                for (int r = 0; r < d; r++) {
+                    double y = b[r];
+                    for (int c = 0; c < d; c++)
+                        y += A[r][c] * x[c];
+                    fprintf(f, "%.17g ", y);
+                }
+                fputc('\n', f);
+                int on = i == 0 || i == cells || j == 0 || j == cells ||
+                         (d == 3 && (k == 0 || k == cells));
+                if (on)
+                    boundary[nb++] = (k * (cells + 1) + j) * (cells + 1) + i;
+            }
+    fclose(f);
+    int len = snprintf(json, sizeof json,
+                       "{\"mesh\": {\"generate\": \"%s\", \"cells\": %s, \"size\": %s},"
+                       "\"material\": {\"mu\": 1, \"lambda\": 3},"
+                       "\"handles\": [{\"select\": {\"vertices\": [",
+                       d == 3 ? "box" : "rectangle", d == 3 ? "[4, 4, 4]" : "[4, 4]",
+                       d == 3 ? "[1, 1, 1]" : "[1, 1]");
+    for (int i = 0; i < nb; i++)
+        len += snprintf(json + len, sizeof json - (size_t)len, "%s%d", i ? ", " : "", boundary[i]);
+    snprintf(json + len, sizeof json - (size_t)len, "]}, \"positions\": \"%s\"}]}", positions);
+    bg_scene_t *s = parse(json);
+    bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
+    solve(s, BG_METHOD_NEWTON, 1e-12, 50, &r);
+    assert_true(r.converged);
+    for (int32_t v = 0; v < s->mesh->nv; v++)
+        for (int row = 0; row < d; row++) {
+            double y = b[row];
+            for (int c = 0; c < d; c++)
+                y += A[row][c] * s->mesh->x[(size_t)v * d + c];
+            assert_true(fabs(r.q[(size_t)v * d + row] - y) <= 1e-9);
+        }
+    bg_solve_result_release(&r);
+    bg_scene_destroy(&s);
+    remove(positions);
+    rmdir(dir);
+}
+
+static void patch_test(void **state)
+{
+    patch_test_dim(2);
+    patch_test_dim(3);
+}
+
+/*
+ * Quadratic convergence read from the trace, above the round-off floor
+ * (r > 1e-13): with r_{k+1} ≈ C r_k², the contraction q_k = r_{k+1}/r_k
+ * itself shrinks like r_k, so near the end it collapses from one step to
+ * the next. Linear convergence keeps q constant (projected-only Newton
+ * ≈ 0.13 on plate-bend, local/global ≈ 0.95). Required: some step below
+ * 1e-2 whose next contraction is ≤ 1e-2 and ≤ a tenth of its own.
+ */
+static int converges_quadratically(const bg_solve_result_t *r)
+{
+    for (int i = 1; i + 2 < r->trace_count; i++) {
+        const double a = r->trace[i].relative_gradient, b = r->trace[i + 1].relative_gradient,
+                     c = r->trace[i + 2].relative_gradient;
+        if (a < 1e-2 && c > 1e-13 && a > 0 && b > 0 && c / b <= 1e-2 && c / b <= 0.1 * (b / a))
+            return 1;
+    }
+    return 0;
+}
+
+static void methods_agree(const char *scene, double lg_tol, int lg_max, double agree)
+{
+    bg_scene_t *s = load(scene);
+    bg_solve_result_t rn = BG_SOLVE_RESULT_INIT, rl = BG_SOLVE_RESULT_INIT;
+    solve(s, BG_METHOD_NEWTON, 1e-10, 200, &rn);
+    solve(s, BG_METHOD_LOCAL_GLOBAL, lg_tol, lg_max, &rl);
+    assert_true(rn.converged);
+    assert_stable(s, &rn);
+    assert_stable(s, &rl);
+    const size_t n = (size_t)s->mesh->nv * s->mesh->dim;
+    double d = relative_distance(rl.q, rn.q, n);
+    if (!(d <= agree))
+        fail_msg("%s: methods differ by %g (> %g)", scene, d, agree);
+    if (!converges_quadratically(&rn))
+        fail_msg("%s: Newton's trace shows no quadratic convergence", scene);
+    bg_solve_result_release(&rn);
+    bg_solve_result_release(&rl);
+    bg_scene_destroy(&s);
+}
+
+static void bar_twist_same_minimizer(void **state)
+{
+    methods_agree(SCENES "bar-twist.json", 1e-11, 3000, 1e-7);
+}
+
+/* Local/global converges linearly on the bunny: 500 iterations bring it to
+ * about 1e-6 of Newton's answer (measured 2.7e-6 at 400); 2e-5 allows for
+ * platform rounding without admitting a different minimizer (those differ
+ * at O(1e-2)). */
+static void bunny_edit_same_minimizer(void **state)
+{
+    methods_agree(SCENES "bunny-edit.json", 1e-12, 500, 2e-5);
+}
+
+/* Every tetrahedron inverted at the start; the solve must come back to the
+ * rest shape up to a rigid motion: energy to round-off, every element's
+ * edge lengths restored. */
+static void inverted_bunny_recovers(void **state)
+{
+    bg_scene_t *s = load(SCENES "inverted-bunny.json");
+    bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
+    solve(s, BG_METHOD_NEWTON, 1e-9, 300, &r);
+    assert_true(r.converged);
+    assert_stable(s, &r);
+    assert_true(r.rotfit.svd > 0); /* the inverted start went through the SVD path */
+    assert_true(r.energy <= 1e-14 * r.trace[0].energy);
+    const bg_mesh_t *m = s->mesh;
+    for (int32_t e = 0; e < m->ne; e++)
+        for (int i = 0; i < 4; i++)
+            for (int j = i + 1; j < 4; j++) {
+                const int32_t a = m->elements[4 * e + i], b = m->elements[4 * e + j];
+                double l0 = 0, l1 = 0;
+                for (int c = 0; c < 3; c++) {
+                    double u = m->x[3 * a + c] - m->x[3 * b + c];
+                    double w = r.q[3 * a + c] - r.q[3 * b + c];
+                    l0 += u * u;
+                    l1 += w * w;
+                }
+                assert_true(fabs(sqrt(l1) - sqrt(l0)) <= 1e-6 * sqrt(l0));
+            }
+    bg_solve_result_release(&r);
+    bg_scene_destroy(&s);
+}
+
+static void stiff_bar_converges(void **state)
+{
+    bg_scene_t *s = load(SCENES "stiff-bar.json");
+    assert_true(s->material.lambda / s->material.mu >= 1e4);
+    bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
+    solve(s, BG_METHOD_NEWTON, 1e-8, 500, &r);
+    assert_true(r.converged);
+    assert_stable(s, &r);
+    bg_solve_result_release(&r);
+    bg_scene_destroy(&s);
+}
+
+/* Random positions in the bounding box (scrambled, many elements inverted
+ * or collapsed) must converge with both methods to the same state. */
+static void random_start_converges(void **state)
+{
+    const char *json = "{\"mesh\": {\"generate\": \"box\", \"cells\": [8, 2, 2], \"size\": [4, 1, 1]},"
+                       "\"material\": {\"mu\": 1, \"lambda\": 1},"
+                       "\"handles\": [{\"select\": {\"box\": {\"min\": [0,0,0], \"max\": [0,1,1]}}},"
+                       "{\"select\": {\"box\": {\"min\": [4,0,0], \"max\": [4,1,1]}},"
+                       " \"transform\": {\"translate\": [0.5, 0, 0]}}],"
+                       "\"initial\": {\"random\": {\"seed\": 7}}}";
+    bg_scene_t *s = parse(json);
+    bg_solve_result_t rn = BG_SOLVE_RESULT_INIT, rl = BG_SOLVE_RESULT_INIT;
+    solve(s, BG_METHOD_NEWTON, 1e-10, 500, &rn);
+    solve(s, BG_METHOD_LOCAL_GLOBAL, 1e-10, 5000, &rl);
+    assert_true(rn.converged);
+    assert_true(rl.converged);
+    assert_stable(s, &rn);
+    assert_stable(s, &rl);
+    assert_true(relative_distance(rl.q, rn.q, (size_t)s->mesh->nv * 3) <= 1e-6);
+    bg_solve_result_release(&rn);
+    bg_solve_result_release(&rl);
+    bg_scene_destroy(&s);
+}
+
+/* A handle moving every vertex leaves nothing to solve: a clear error. */
+static void nothing_free_is_an_error(void **state)
+{
+    bg_scene_t *s = parse("{\"mesh\": {\"generate\": \"rectangle\", \"cells\": [2, 2], \"size\": "
+                          "[1, 1]}, \"material\": {\"mu\": 1, \"lambda\": 0}, \"handles\": "
+                          "[{\"select\": {\"box_fraction\": {\"min\": [0, 0], \"max\": [1, 1]}}}]}");
+    bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
+    bg_error_t err = BG_ERROR_INIT;
+    bg_solve_options_t o = {BG_METHOD_NEWTON, 1e-8, 10, NULL, NULL, NULL, NULL};
+    assert_int_equal(bg_static_solve(s, &o, &r, &err), BG_ERR_INVALID);
+    assert_non_null(strstr(err.message, "nothing to solve"));
+    bg_scene_destroy(&s);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(uniaxial_bar),
+        cmocka_unit_test(patch_test),
+        cmocka_unit_test(bar_twist_same_minimizer),
+        cmocka_unit_test(bunny_edit_same_minimizer),
+        cmocka_unit_test(inverted_bunny_recovers),
+        cmocka_unit_test(stiff_bar_converges),
+        cmocka_unit_test(random_start_converges),
+        cmocka_unit_test(nothing_free_is_an_error),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
