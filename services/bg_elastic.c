@@ -295,12 +295,220 @@ static void count_path(bg_rotfit_stats_t *st, int path)
         st->svd++;
 }
 
+/*
+ * The 3D fast path works on blocks of elements in structure-of-arrays form,
+ * so that the compiler vectorises across elements (one lane per element)
+ * and target_clones picks AVX-512, AVX2+FMA or baseline code at run time
+ * from one portable binary. Each block runs a fixed number of
+ * warm-started Newton steps on SO(3) without branches; a lane that has no
+ * warm start, a Newton matrix that is not positive definite, det F ≤ ε or
+ * a skew residual above tolerance afterwards is redone by the scalar
+ * bg_rotfit3 (polar iteration or SVD), so results equal the scalar path.
+ */
+#define ELASTIC_BLOCK 8
+#define ELASTIC_BLOCK_STEPS 3
+#define ELASTIC_DET_EPS 1e-6
+#define ELASTIC_SKEW_TOL 1e-14
+
+typedef struct block3 {
+    double F[9][ELASTIC_BLOCK];
+    double q[4][ELASTIC_BLOCK];
+    double R[9][ELASTIC_BLOCK];
+    double P[9][ELASTIC_BLOCK];
+    double psi[ELASTIC_BLOCK];
+    double ok[ELASTIC_BLOCK]; /* 1.0: the lane's result is final */
+} block3_t;
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_ADDRESS__)
+#define ELASTIC_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#else
+#define ELASTIC_CLONES
+#endif
+
+static inline void quat_rows(const double *restrict q0, const double *restrict q1,
+                             const double *restrict q2, const double *restrict q3, int b,
+                             double R[9])
+{
+    const double w = q0[b], x = q1[b], y = q2[b], z = q3[b];
+    R[0] = 1 - 2 * (y * y + z * z);
+    R[1] = 2 * (x * y - w * z);
+    R[2] = 2 * (x * z + w * y);
+    R[3] = 2 * (x * y + w * z);
+    R[4] = 1 - 2 * (x * x + z * z);
+    R[5] = 2 * (y * z - w * x);
+    R[6] = 2 * (x * z - w * y);
+    R[7] = 2 * (y * z + w * x);
+    R[8] = 1 - 2 * (x * x + y * y);
+}
+
+ELASTIC_CLONES
+static void block3_fit(block3_t *restrict blk, double mu, double lambda)
+{
+    double ok[ELASTIC_BLOCK], tol2[ELASTIC_BLOCK];
+    for (int b = 0; b < ELASTIC_BLOCK; b++) {
+        double f2 = 0.0;
+        for (int i = 0; i < 9; i++)
+            f2 += blk->F[i][b] * blk->F[i][b];
+        tol2[b] = ELASTIC_SKEW_TOL * ELASTIC_SKEW_TOL * f2;
+        const double det = blk->F[0][b] * (blk->F[4][b] * blk->F[8][b] - blk->F[5][b] * blk->F[7][b]) -
+                           blk->F[1][b] * (blk->F[3][b] * blk->F[8][b] - blk->F[5][b] * blk->F[6][b]) +
+                           blk->F[2][b] * (blk->F[3][b] * blk->F[7][b] - blk->F[4][b] * blk->F[6][b]);
+        const double scale = f2 / 3.0;
+        const double qn = blk->q[0][b] * blk->q[0][b] + blk->q[1][b] * blk->q[1][b] +
+                          blk->q[2][b] * blk->q[2][b] + blk->q[3][b] * blk->q[3][b];
+        ok[b] = (det > ELASTIC_DET_EPS * scale * sqrt(scale) && qn > 0.5) ? 1.0 : 0.0;
+    }
+    for (int step = 0; step < ELASTIC_BLOCK_STEPS; step++) {
+        double settled[ELASTIC_BLOCK];
+        for (int b = 0; b < ELASTIC_BLOCK; b++) {
+            double R[9], S[9];
+            quat_rows(blk->q[0], blk->q[1], blk->q[2], blk->q[3], b, R);
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++)
+                    S[3 * i + j] = R[i] * blk->F[j][b] + R[3 + i] * blk->F[3 + j][b] +
+                                   R[6 + i] * blk->F[6 + j][b];
+            const double a0 = S[7] - S[5], a1 = S[2] - S[6], a2 = S[3] - S[1];
+            settled[b] = a0 * a0 + a1 * a1 + a2 * a2 <= tol2[b] ? 1.0 : 0.0;
+            const double tr = S[0] + S[4] + S[8];
+            const double m00 = tr - S[0], m11 = tr - S[4], m22 = tr - S[8];
+            const double m01 = -0.5 * (S[1] + S[3]), m02 = -0.5 * (S[2] + S[6]),
+                         m12 = -0.5 * (S[5] + S[7]);
+            const double c00 = m11 * m22 - m12 * m12, c01 = m02 * m12 - m01 * m22,
+                         c02 = m01 * m12 - m02 * m11;
+            const double c11 = m00 * m22 - m02 * m02, c12 = m01 * m02 - m00 * m12,
+                         c22 = m00 * m11 - m01 * m01;
+            const double det = m00 * c00 + m01 * c01 + m02 * c02;
+            const int pd = m00 > 0.0 && c22 > 0.0 && det > 0.0;
+            ok[b] = pd ? ok[b] : 0.0;
+            /* q ← q ⊗ (1, ω/2), renormalised (a Cayley step on SO(3));
+             * a settled lane's step is zero to rounding. */
+            const double inv = pd ? 0.5 / det : 0.0;
+            const double dx = inv * (c00 * a0 + c01 * a1 + c02 * a2);
+            const double dy = inv * (c01 * a0 + c11 * a1 + c12 * a2);
+            const double dz = inv * (c02 * a0 + c12 * a1 + c22 * a2);
+            const double w = blk->q[0][b], x = blk->q[1][b], y = blk->q[2][b], z = blk->q[3][b];
+            const double nw = w - x * dx - y * dy - z * dz;
+            const double nx = w * dx + x + y * dz - z * dy;
+            const double ny = w * dy - x * dz + y + z * dx;
+            const double nz = w * dz + x * dy - y * dx + z;
+            const double len = 1.0 / sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
+            blk->q[0][b] = nw * len;
+            blk->q[1][b] = nx * len;
+            blk->q[2][b] = ny * len;
+            blk->q[3][b] = nz * len;
+        }
+        /* Every lane was settled (or is going to the scalar path) before
+         * this step: further steps cannot change anything. */
+        double all = 1.0;
+        for (int b = 0; b < ELASTIC_BLOCK; b++)
+            all = fmin(all, fmax(settled[b], 1.0 - ok[b]));
+        if (all == 1.0)
+            break;
+    }
+    for (int b = 0; b < ELASTIC_BLOCK; b++) {
+        double R[9], S[9], f2 = 0.0, dev = 0.0;
+        quat_rows(blk->q[0], blk->q[1], blk->q[2], blk->q[3], b, R);
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                S[3 * i + j] = R[i] * blk->F[j][b] + R[3 + i] * blk->F[3 + j][b] +
+                               R[6 + i] * blk->F[6 + j][b];
+        const double a0 = S[7] - S[5], a1 = S[2] - S[6], a2 = S[3] - S[1];
+        for (int i = 0; i < 9; i++) {
+            const double d = blk->F[i][b] - R[i];
+            f2 += blk->F[i][b] * blk->F[i][b];
+            dev += d * d;
+        }
+        const double skew2 = a0 * a0 + a1 * a1 + a2 * a2;
+        ok[b] = skew2 <= ELASTIC_SKEW_TOL * ELASTIC_SKEW_TOL * f2 ? ok[b] : 0.0;
+        const double vol = S[0] + S[4] + S[8] - 3.0;
+        for (int i = 0; i < 9; i++) {
+            blk->R[i][b] = R[i];
+            blk->P[i][b] = 2.0 * mu * (blk->F[i][b] - R[i]) + lambda * vol * R[i];
+        }
+        blk->psi[b] = mu * dev + 0.5 * lambda * vol * vol;
+        blk->ok[b] = ok[b];
+    }
+}
+
+/* V P D_m⁻ᵀ into the element's nodes (node 0 gets minus the sum). */
+static void scatter_force(int n, const int32_t *el, const double *Di, double V, const double *P,
+                          double *grad)
+{
+    double f0[3] = {0, 0, 0};
+    for (int j = 0; j < n; j++)
+        for (int a = 0; a < n; a++) {
+            double s = 0.0;
+            for (int b = 0; b < n; b++)
+                s += P[a * n + b] * Di[j * n + b];
+            s *= V;
+            grad[(size_t)el[j + 1] * n + a] += s;
+            f0[a] += s;
+        }
+    for (int a = 0; a < n; a++)
+        grad[(size_t)el[0] * n + a] -= f0[a];
+}
+
+static double eval3(bg_elastic_t *md, const double *restrict q, double *restrict grad)
+{
+    const bg_mesh_t *mesh = md->mesh;
+    double energy = 0.0;
+    block3_t blk;
+    for (int32_t e0 = 0; e0 < mesh->ne; e0 += ELASTIC_BLOCK) {
+        const int count = mesh->ne - e0 < ELASTIC_BLOCK ? (int)(mesh->ne - e0) : ELASTIC_BLOCK;
+        for (int b = 0; b < ELASTIC_BLOCK; b++) {
+            if (b >= count) { /* padding lanes: identity, never read back */
+                for (int i = 0; i < 9; i++)
+                    blk.F[i][b] = i % 4 == 0 ? 1.0 : 0.0;
+                blk.q[0][b] = 1.0, blk.q[1][b] = blk.q[2][b] = blk.q[3][b] = 0.0;
+                continue;
+            }
+            const size_t e = (size_t)(e0 + b);
+            double F[9];
+            deformation_gradient(3, mesh->elements + e * 4, q, md->dminv + e * 9, F);
+            for (int i = 0; i < 9; i++)
+                blk.F[i][b] = F[i];
+            for (int i = 0; i < 4; i++)
+                blk.q[i][b] = md->quat[4 * e + i];
+        }
+        block3_fit(&blk, md->mu, md->lambda);
+        for (int b = 0; b < count; b++) {
+            const size_t e = (size_t)(e0 + b);
+            double P[9], psi;
+            if (blk.ok[b] != 0.0) {
+                for (int i = 0; i < 4; i++)
+                    md->quat[4 * e + i] = blk.q[i][b];
+                for (int i = 0; i < 9; i++)
+                    P[i] = blk.P[i][b];
+                psi = blk.psi[b];
+                md->stats.calls++;
+                md->stats.warm++;
+            } else {
+                double F[9], R[9];
+                int path;
+                for (int i = 0; i < 9; i++)
+                    F[i] = blk.F[i][b];
+                psi = material_point(3, md->mu, md->lambda, F, md->quat + 4 * e, R, P, NULL, 0,
+                                     &path);
+                count_path(&md->stats, path);
+            }
+            md->psi[e] = psi;
+            energy += md->volume[e] * psi;
+            if (grad)
+                scatter_force(3, mesh->elements + e * 4, md->dminv + e * 9, md->volume[e], P,
+                              grad);
+        }
+    }
+    return energy;
+}
+
 double bg_elastic_eval(bg_elastic_t *md, const double *restrict q, double *restrict grad)
 {
     const int n = md->n, k = n + 1;
     const bg_mesh_t *mesh = md->mesh;
     if (grad)
         memset(grad, 0, (size_t)mesh->nv * (size_t)n * sizeof *grad);
+    if (n == 3)
+        return eval3(md, q, grad);
     double energy = 0.0;
     double zero_quat[4];
     for (int32_t e = 0; e < mesh->ne; e++) {
@@ -308,29 +516,14 @@ double bg_elastic_eval(bg_elastic_t *md, const double *restrict q, double *restr
         const double *Di = md->dminv + (size_t)e * n * n;
         double F[9], R[9], P[9];
         deformation_gradient(n, el, q, Di, F);
-        double *quat = n == 3 ? md->quat + 4 * (size_t)e : zero_quat;
         int path;
-        const double psi =
-            material_point(n, md->mu, md->lambda, F, quat, R, grad ? P : NULL, NULL, 0, &path);
+        const double psi = material_point(n, md->mu, md->lambda, F, zero_quat, R,
+                                          grad ? P : NULL, NULL, 0, &path);
         count_path(&md->stats, path);
         md->psi[e] = psi;
         energy += md->volume[e] * psi;
-        if (!grad)
-            continue;
-        /* Node j ≥ 1 gets V P D_m⁻ᵀ column j−1; node 0 the negative sum. */
-        const double V = md->volume[e];
-        double f0[3] = {0, 0, 0};
-        for (int j = 0; j < n; j++)
-            for (int a = 0; a < n; a++) {
-                double s = 0.0;
-                for (int b = 0; b < n; b++)
-                    s += P[a * n + b] * Di[j * n + b];
-                s *= V;
-                grad[(size_t)el[j + 1] * n + a] += s;
-                f0[a] += s;
-            }
-        for (int a = 0; a < n; a++)
-            grad[(size_t)el[0] * n + a] -= f0[a];
+        if (grad)
+            scatter_force(n, el, Di, md->volume[e], P, grad);
     }
     return energy;
 }
