@@ -160,32 +160,72 @@ void bg_elastic_forget_rotations(bg_elastic_t *model)
  * its negative eigenvalues to zero, A = (T⁺ − 2μ I)/2. Every other
  * eigenvalue is 2μ or 2μ + 3λ, positive for a valid material.
  */
-static void dpdf3(double mu, double lambda, const double R[9], const double S[9], double trY,
-                  int project, double H[81])
+/* M − θI positive definite (Sylvester's criterion, strict). */
+static int pd3_shifted(const double M[9], double theta)
 {
+    const double a = M[0] - theta, b = M[4] - theta, c = M[8] - theta;
+    const double minor2 = a * b - M[1] * M[1];
+    const double det = a * (b * c - M[5] * M[5]) - M[1] * (M[1] * c - M[5] * M[2]) +
+                       M[2] * (M[1] * M[5] - b * M[2]);
+    return a > 0.0 && minor2 > 0.0 && det > 0.0;
+}
+
+/*
+ * The twist block A of ∂P/∂F = 2μ I₉ + G A Gᵀ + λ vec(R) vec(R)ᵀ (see
+ * dpdf3): A = c W, c = λ(tr Y − 3) − 2μ, W = M⁻¹, M = tr Y·I − Y. Its
+ * eigenvalues in an orthonormal twist basis are t_k = 2μ + 2c/s_k with s_k
+ * the eigenvalues of M (pair sums σi + σj). When M is safely positive
+ * definite and, for a projection with c < 0, s_k > −c/μ (so every t_k > 0),
+ * A = c M⁻¹ directly; otherwise an eigen-decomposition floors s_k and, when
+ * projecting, clamps negative t_k to zero.
+ */
+static void twist_block3(double mu, double lambda, const double S[9], double trY, int project,
+                         double A[9])
+{
+    double M[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            M[3 * i + j] = (i == j ? trY : 0.0) - 0.5 * (S[3 * i + j] + S[3 * j + i]);
+    const double c = lambda * (trY - 3.0) - 2.0 * mu;
+    const double floor_ = ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY));
+    const double theta = project && c < 0.0 ? fmax(floor_, -c / mu) : floor_;
+    if (pd3_shifted(M, theta)) {
+        const double c00 = M[4] * M[8] - M[5] * M[7], c01 = M[2] * M[7] - M[1] * M[8],
+                     c02 = M[1] * M[5] - M[2] * M[4], c11 = M[0] * M[8] - M[2] * M[6],
+                     c12 = M[2] * M[3] - M[0] * M[5], c22 = M[0] * M[4] - M[1] * M[3];
+        const double f = c / (M[0] * c00 + M[1] * c01 + M[2] * c02);
+        A[0] = f * c00, A[1] = f * c01, A[2] = f * c02;
+        A[3] = f * c01, A[4] = f * c11, A[5] = f * c12;
+        A[6] = f * c02, A[7] = f * c12, A[8] = f * c22;
+        return;
+    }
     double Ysym[9];
     for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++)
             Ysym[3 * i + j] = 0.5 * (S[3 * i + j] + S[3 * j + i]);
     double y[3], V[9];
     bg_sym3_eigen(Ysym, y, V);
-    const double c = lambda * (trY - 3.0) - 2.0 * mu;
-    const double floor_ = ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY));
     double a[3];
     for (int k = 0; k < 3; k++) {
-        double s = trY - y[k];
-        if (s < floor_)
-            s = floor_;
-        double t = 2.0 * mu + 2.0 * c / s;
+        double sk = trY - y[k];
+        if (sk < floor_)
+            sk = floor_;
+        double t = 2.0 * mu + 2.0 * c / sk;
         if (project && t < 0.0)
             t = 0.0;
         a[k] = 0.5 * (t - 2.0 * mu);
     }
-    double A[9];
     for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++)
             A[3 * i + j] = V[3 * i] * a[0] * V[3 * j] + V[3 * i + 1] * a[1] * V[3 * j + 1] +
                            V[3 * i + 2] * a[2] * V[3 * j + 2];
+}
+
+static void dpdf3(double mu, double lambda, const double R[9], const double S[9], double trY,
+                  int project, double H[81])
+{
+    double A[9];
+    twist_block3(mu, lambda, S, trY, project, A);
     /* G's columns: vec(R [e_k]×). R[e1]× = [0, R_i2, −R_i1] per row i, etc. */
     double G[9][3];
     for (int i = 0; i < 3; i++) {
@@ -541,12 +581,75 @@ static void barycentric_gradients(int n, const double *Di, double g[4][3])
     }
 }
 
+/*
+ * K_e = V Bᵀ (2μ I₉ + G A Gᵀ + λ vec R vec Rᵀ) B without forming ∂P/∂F:
+ * Bᵀ vec(M) for node i is M g_i, so Bᵀ vec(R) is h_i = R g_i, and the
+ * twist columns are R[e_k]× g_i = r_k × h_i (r_k the k-th column of R; a
+ * rotation preserves cross products). Then
+ *   K[(i,c),(j,d)] = V (2μ δ_cd g_i·g_j + Σ_kl BG_(i,c)k A_kl BG_(j,d)l + λ h_ic h_jd).
+ */
+static void assemble3(const bg_elastic_t *md, const double *q, int project, double scale,
+                      const int32_t *restrict scatter, double *restrict values)
+{
+    const int m = 12, T = BG_ELASTIC_TRI_SIZE(12);
+    const bg_mesh_t *mesh = md->mesh;
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        const int32_t *el = mesh->elements + (size_t)e * 4;
+        const double *Di = md->dminv + (size_t)e * 9;
+        double F[9], R[9], S[9], A[9], g[4][3], quat[4];
+        memcpy(quat, md->quat + 4 * (size_t)e, sizeof quat);
+        deformation_gradient(3, el, q, Di, F);
+        bg_rotfit3(F, quat, R);
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                S[3 * i + j] = R[i] * F[j] + R[3 + i] * F[3 + j] + R[6 + i] * F[6 + j];
+        twist_block3(md->mu, md->lambda, S, S[0] + S[4] + S[8], project, A);
+        barycentric_gradients(3, Di, g);
+        double h[12], BG[12][3], BA[12][3];
+        for (int i = 0; i < 4; i++) {
+            double *hi = h + 3 * i;
+            for (int c = 0; c < 3; c++)
+                hi[c] = R[3 * c] * g[i][0] + R[3 * c + 1] * g[i][1] + R[3 * c + 2] * g[i][2];
+            for (int k = 0; k < 3; k++) {
+                const double r0 = R[k], r1 = R[3 + k], r2 = R[6 + k];
+                BG[3 * i + 0][k] = r1 * hi[2] - r2 * hi[1];
+                BG[3 * i + 1][k] = r2 * hi[0] - r0 * hi[2];
+                BG[3 * i + 2][k] = r0 * hi[1] - r1 * hi[0];
+            }
+        }
+        for (int a = 0; a < m; a++)
+            for (int l = 0; l < 3; l++)
+                BA[a][l] = BG[a][0] * A[l] + BG[a][1] * A[3 + l] + BG[a][2] * A[6 + l];
+        const double w = scale * md->volume[e];
+        const double two_mu = 2.0 * md->mu, lambda = md->lambda;
+        const int32_t *sc = scatter + (size_t)e * T;
+        for (int a = 0; a < m; a++) {
+            const int i = a / 3, c = a % 3;
+            for (int b = a; b < m; b++) {
+                const int32_t pos = sc[BG_ELASTIC_TRI_INDEX(m, a, b)];
+                if (pos < 0)
+                    continue;
+                const int j = b / 3;
+                double v = BA[a][0] * BG[b][0] + BA[a][1] * BG[b][1] + BA[a][2] * BG[b][2] +
+                           lambda * h[a] * h[b];
+                if (c == b % 3)
+                    v += two_mu * (g[i][0] * g[j][0] + g[i][1] * g[j][1] + g[i][2] * g[j][2]);
+                values[pos] += w * v;
+            }
+        }
+    }
+}
+
 void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int project,
                                  double scale, const int32_t *restrict scatter,
                                  double *restrict values)
 {
     const int n = md->n, k = n + 1, m = md->m, nn = n * n, T = BG_ELASTIC_TRI_SIZE(m);
     const bg_mesh_t *mesh = md->mesh;
+    if (n == 3) {
+        assemble3(md, q, project, scale, scatter, values);
+        return;
+    }
     for (int32_t e = 0; e < mesh->ne; e++) {
         const int32_t *el = mesh->elements + (size_t)e * k;
         const double *Di = md->dminv + (size_t)e * nn;
@@ -630,6 +733,28 @@ void bg_elastic_apply_laplacian(const bg_elastic_t *md, const double *restrict u
                 s *= md->volume[e];
                 for (int c = 0; c < n; c++)
                     out[(size_t)el[i] * n + c] += s * u[(size_t)el[j] * n + c];
+            }
+    }
+}
+
+void bg_elastic_assemble_scalar_laplacian(const bg_elastic_t *md, double scale,
+                                          const int32_t *restrict scatter, double *restrict values)
+{
+    const int n = md->n, k = n + 1, T = BG_ELASTIC_TRI_SIZE(k);
+    for (int32_t e = 0; e < md->mesh->ne; e++) {
+        double g[4][3];
+        barycentric_gradients(n, md->dminv + (size_t)e * n * n, g);
+        const double w = scale * md->volume[e];
+        const int32_t *sc = scatter + (size_t)e * T;
+        for (int i = 0; i < k; i++)
+            for (int j = i; j < k; j++) {
+                const int32_t pos = sc[BG_ELASTIC_TRI_INDEX(k, i, j)];
+                if (pos < 0)
+                    continue;
+                double s = 0.0;
+                for (int b = 0; b < n; b++)
+                    s += g[i][b] * g[j][b];
+                values[pos] += w * s;
             }
     }
 }

@@ -75,6 +75,15 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *model, const double *q, int
 void bg_elastic_assemble_laplacian(const bg_elastic_t *model, double scale,
                                    const int32_t *scatter, double *values);
 
+/*
+ * The scalar cotan Laplacian scale·V_e G Gᵀ ((n+1)×(n+1) per element),
+ * scattered like the other assemblies but with local entries numbered by
+ * node only: positions scatter[e * T + t], T = BG_ELASTIC_TRI_SIZE(n+1).
+ * Local/global solves one such system per coordinate.
+ */
+void bg_elastic_assemble_scalar_laplacian(const bg_elastic_t *model, double scale,
+                                          const int32_t *scatter, double *values);
+
 /* out = K u with K = Σ_e V_e (G Gᵀ ⊗ I_n) over all dofs (u, out: nv*n). */
 void bg_elastic_apply_laplacian(const bg_elastic_t *model, const double *u, double *out);
 

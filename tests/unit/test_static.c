@@ -16,6 +16,7 @@
 
 #include <cmocka.h>
 
+#include "bg_elastic.h"
 #include "bg_scene.h"
 #include "bg_static.h"
 #include "test_support.h"
@@ -284,6 +285,59 @@ static void random_start_converges(void **state)
     bg_scene_destroy(&s);
 }
 
+/*
+ * Gravity: at equilibrium the free coordinates carry no net force, and the
+ * elastic forces of a translation-invariant energy sum to zero, so the
+ * reaction at the held coordinates equals the weight of the free vertices:
+ * Σ_held ∂E/∂q = −Σ_free m_v g (per component). An independent check of the
+ * mass matrix and the gravity term, whatever the deformed shape.
+ */
+static void gravity_reaction_balances_weight(void **state)
+{
+    const char *json = "{\"mesh\": {\"generate\": \"box\", \"cells\": [12, 3, 3], \"size\": [3, 0.5, 0.5]},"
+                       "\"material\": {\"E\": 2e5, \"nu\": 0.3, \"density\": 1000},"
+                       "\"gravity\": [0, 0, -9.81],"
+                       "\"handles\": [{\"select\": {\"box\": {\"min\": [0,0,0], \"max\": [0,0.5,0.5]}}}]}";
+    bg_scene_t *s = parse(json);
+    bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
+    solve(s, BG_METHOD_NEWTON, 1e-11, 100, &r);
+    assert_true(r.converged);
+    assert_stable(s, &r);
+    const bg_mesh_t *m = s->mesh;
+    /* The beam sags: the free end moved down by a visible amount. */
+    double tip = 0.0;
+    for (int32_t v = 0; v < m->nv; v++)
+        tip = fmin(tip, r.q[3 * (size_t)v + 2] - m->x[3 * (size_t)v + 2]);
+    assert_true(tip < -1e-3);
+    double *mass = malloc(sizeof(double) * (size_t)m->nv);
+    double *grad = malloc(sizeof(double) * 3 * (size_t)m->nv);
+    bg_static_lumped_mass(m, s->material.density, mass);
+    bg_elastic_t *md = NULL;
+    assert_int_equal(bg_elastic_new(m, s->material.mu, s->material.lambda, &md, NULL), BG_OK);
+    bg_elastic_eval(md, r.q, grad);
+    double total_mass = 0.0;
+    for (int32_t v = 0; v < m->nv; v++)
+        total_mass += mass[v];
+    /* Lumped mass sums to density × volume. */
+    assert_true(fabs(total_mass - 1000.0 * 3 * 0.5 * 0.5) <= 1e-9 * total_mass);
+    for (int c = 0; c < 3; c++) {
+        double reaction = 0.0, weight = 0.0;
+        for (int32_t v = 0; v < m->nv; v++) {
+            const size_t k = 3 * (size_t)v + c;
+            if (s->constrained[k])
+                reaction += grad[k];
+            else
+                weight += mass[v] * s->gravity[c];
+        }
+        assert_true(fabs(reaction + weight) <= 1e-7 * (fabs(weight) + 1e-3 * total_mass * 9.81));
+    }
+    free(mass);
+    free(grad);
+    bg_elastic_destroy(&md);
+    bg_solve_result_release(&r);
+    bg_scene_destroy(&s);
+}
+
 /* A handle moving every vertex leaves nothing to solve: a clear error. */
 static void nothing_free_is_an_error(void **state)
 {
@@ -308,6 +362,7 @@ int main(void)
         cmocka_unit_test(inverted_bunny_recovers),
         cmocka_unit_test(stiff_bar_converges),
         cmocka_unit_test(random_start_converges),
+        cmocka_unit_test(gravity_reaction_balances_weight),
         cmocka_unit_test(nothing_free_is_an_error),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
