@@ -273,9 +273,7 @@ static double material_point(int n, double mu, double lambda, const double *F, d
     double trY = 0.0, dev = 0.0;
     if (n == 3) {
         *path = (int)bg_rotfit3(F, quat, R);
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++)
-                S[3 * i + j] = R[i] * F[j] + R[3 + i] * F[3 + j] + R[6 + i] * F[6 + j];
+        bg_mul_tn3(R, F, S);
         trY = S[0] + S[4] + S[8];
     } else {
         *path = bg_rotfit2(F, R) ? BG_ROTFIT_SVD : BG_ROTFIT_WARM;
@@ -347,8 +345,6 @@ static void count_path(bg_rotfit_stats_t *st, int path)
  */
 #define ELASTIC_BLOCK 8
 #define ELASTIC_BLOCK_STEPS 3
-#define ELASTIC_DET_EPS 1e-6
-#define ELASTIC_SKEW_TOL 1e-14
 
 typedef struct block3 {
     double F[9][ELASTIC_BLOCK];
@@ -365,20 +361,17 @@ typedef struct block3 {
 #define ELASTIC_CLONES
 #endif
 
-static inline void quat_rows(const double *restrict q0, const double *restrict q1,
-                             const double *restrict q2, const double *restrict q3, int b,
-                             double R[9])
+
+/* Lane b's F and q, its current rotation R = R(q) and S = Rᵀ F. */
+static inline void lane_rotation(const block3_t *restrict blk, int b, double F[9], double q[4],
+                                 double R[9], double S[9])
 {
-    const double w = q0[b], x = q1[b], y = q2[b], z = q3[b];
-    R[0] = 1 - 2 * (y * y + z * z);
-    R[1] = 2 * (x * y - w * z);
-    R[2] = 2 * (x * z + w * y);
-    R[3] = 2 * (x * y + w * z);
-    R[4] = 1 - 2 * (x * x + z * z);
-    R[5] = 2 * (y * z - w * x);
-    R[6] = 2 * (x * z - w * y);
-    R[7] = 2 * (y * z + w * x);
-    R[8] = 1 - 2 * (x * x + y * y);
+    for (int i = 0; i < 9; i++)
+        F[i] = blk->F[i][b];
+    for (int i = 0; i < 4; i++)
+        q[i] = blk->q[i][b];
+    bg_quat_rotation(q, R);
+    bg_mul_tn3(R, F, S);
 }
 
 ELASTIC_CLONES
@@ -389,53 +382,25 @@ static void block3_fit(block3_t *restrict blk, double mu, double lambda)
         double f2 = 0.0;
         for (int i = 0; i < 9; i++)
             f2 += blk->F[i][b] * blk->F[i][b];
-        tol2[b] = ELASTIC_SKEW_TOL * ELASTIC_SKEW_TOL * f2;
+        tol2[b] = BG_ROTFIT_SKEW_TOL * BG_ROTFIT_SKEW_TOL * f2;
         const double det = blk->F[0][b] * (blk->F[4][b] * blk->F[8][b] - blk->F[5][b] * blk->F[7][b]) -
                            blk->F[1][b] * (blk->F[3][b] * blk->F[8][b] - blk->F[5][b] * blk->F[6][b]) +
                            blk->F[2][b] * (blk->F[3][b] * blk->F[7][b] - blk->F[4][b] * blk->F[6][b]);
         const double scale = f2 / 3.0;
         const double qn = blk->q[0][b] * blk->q[0][b] + blk->q[1][b] * blk->q[1][b] +
                           blk->q[2][b] * blk->q[2][b] + blk->q[3][b] * blk->q[3][b];
-        ok[b] = (det > ELASTIC_DET_EPS * scale * sqrt(scale) && qn > 0.5) ? 1.0 : 0.0;
+        ok[b] = (det > BG_ROTFIT_DET_EPS * scale * sqrt(scale) && qn > 0.5) ? 1.0 : 0.0;
     }
     for (int step = 0; step < ELASTIC_BLOCK_STEPS; step++) {
         double settled[ELASTIC_BLOCK];
         for (int b = 0; b < ELASTIC_BLOCK; b++) {
-            double R[9], S[9];
-            quat_rows(blk->q[0], blk->q[1], blk->q[2], blk->q[3], b, R);
-            for (int i = 0; i < 3; i++)
-                for (int j = 0; j < 3; j++)
-                    S[3 * i + j] = R[i] * blk->F[j][b] + R[3 + i] * blk->F[3 + j][b] +
-                                   R[6 + i] * blk->F[6 + j][b];
-            const double a0 = S[7] - S[5], a1 = S[2] - S[6], a2 = S[3] - S[1];
-            settled[b] = a0 * a0 + a1 * a1 + a2 * a2 <= tol2[b] ? 1.0 : 0.0;
-            const double tr = S[0] + S[4] + S[8];
-            const double m00 = tr - S[0], m11 = tr - S[4], m22 = tr - S[8];
-            const double m01 = -0.5 * (S[1] + S[3]), m02 = -0.5 * (S[2] + S[6]),
-                         m12 = -0.5 * (S[5] + S[7]);
-            const double c00 = m11 * m22 - m12 * m12, c01 = m02 * m12 - m01 * m22,
-                         c02 = m01 * m12 - m02 * m11;
-            const double c11 = m00 * m22 - m02 * m02, c12 = m01 * m02 - m00 * m12,
-                         c22 = m00 * m11 - m01 * m01;
-            const double det = m00 * c00 + m01 * c01 + m02 * c02;
-            const int pd = m00 > 0.0 && c22 > 0.0 && det > 0.0;
-            ok[b] = pd ? ok[b] : 0.0;
-            /* q ← q ⊗ (1, ω/2), renormalised (a Cayley step on SO(3));
-             * a settled lane's step is zero to rounding. */
-            const double inv = pd ? 0.5 / det : 0.0;
-            const double dx = inv * (c00 * a0 + c01 * a1 + c02 * a2);
-            const double dy = inv * (c01 * a0 + c11 * a1 + c12 * a2);
-            const double dz = inv * (c02 * a0 + c12 * a1 + c22 * a2);
-            const double w = blk->q[0][b], x = blk->q[1][b], y = blk->q[2][b], z = blk->q[3][b];
-            const double nw = w - x * dx - y * dy - z * dz;
-            const double nx = w * dx + x + y * dz - z * dy;
-            const double ny = w * dy - x * dz + y + z * dx;
-            const double nz = w * dz + x * dy - y * dx + z;
-            const double len = 1.0 / sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
-            blk->q[0][b] = nw * len;
-            blk->q[1][b] = nx * len;
-            blk->q[2][b] = ny * len;
-            blk->q[3][b] = nz * len;
+            double F[9], q[4], R[9], S[9];
+            lane_rotation(blk, b, F, q, R, S);
+            settled[b] = bg_rotfit_skew2(S) <= tol2[b] ? 1.0 : 0.0;
+            /* A settled lane's step is zero to rounding. */
+            ok[b] = bg_rotfit_step(S, q) ? ok[b] : 0.0;
+            for (int i = 0; i < 4; i++)
+                blk->q[i][b] = q[i];
         }
         /* Every lane was settled (or is going to the scalar path) before
          * this step: further steps cannot change anything. */
@@ -446,20 +411,13 @@ static void block3_fit(block3_t *restrict blk, double mu, double lambda)
             break;
     }
     for (int b = 0; b < ELASTIC_BLOCK; b++) {
-        double R[9], S[9], f2 = 0.0, dev = 0.0;
-        quat_rows(blk->q[0], blk->q[1], blk->q[2], blk->q[3], b, R);
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++)
-                S[3 * i + j] = R[i] * blk->F[j][b] + R[3 + i] * blk->F[3 + j][b] +
-                               R[6 + i] * blk->F[6 + j][b];
-        const double a0 = S[7] - S[5], a1 = S[2] - S[6], a2 = S[3] - S[1];
+        double F[9], q[4], R[9], S[9], dev = 0.0;
+        lane_rotation(blk, b, F, q, R, S);
         for (int i = 0; i < 9; i++) {
-            const double d = blk->F[i][b] - R[i];
-            f2 += blk->F[i][b] * blk->F[i][b];
+            const double d = F[i] - R[i];
             dev += d * d;
         }
-        const double skew2 = a0 * a0 + a1 * a1 + a2 * a2;
-        ok[b] = skew2 <= ELASTIC_SKEW_TOL * ELASTIC_SKEW_TOL * f2 ? ok[b] : 0.0;
+        ok[b] = bg_rotfit_skew2(S) <= tol2[b] ? ok[b] : 0.0;
         const double vol = S[0] + S[4] + S[8] - 3.0;
         for (int i = 0; i < 9; i++) {
             blk->R[i][b] = R[i];
@@ -600,9 +558,7 @@ static void assemble3(const bg_elastic_t *md, const double *q, int project, doub
         memcpy(quat, md->quat + 4 * (size_t)e, sizeof quat);
         deformation_gradient(3, el, q, Di, F);
         bg_rotfit3(F, quat, R);
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++)
-                S[3 * i + j] = R[i] * F[j] + R[3 + i] * F[3 + j] + R[6 + i] * F[6 + j];
+        bg_mul_tn3(R, F, S);
         twist_block3(md->mu, md->lambda, S, S[0] + S[4] + S[8], project, A);
         barycentric_gradients(3, Di, g);
         double h[12], BG[12][3], BA[12][3];

@@ -3,14 +3,6 @@
 #include <math.h>
 #include <string.h>
 
-/* det F below this multiple of (‖F‖_F/√3)³ — the determinant of a matrix of
- * that size with equal singular values — sends a call to the SVD: the
- * element is inverted, flat or collapsed and the polar factor is either
- * not the closest rotation or ill-conditioned. */
-#define ROTFIT_DET_EPS 1e-6
-/* The warm Newton stops when the skew part of Qᵀ F is this small relative
- * to ‖F‖: below that, rounding dominates. */
-#define ROTFIT_SKEW_TOL 1e-14
 #define ROTFIT_WARM_MAX_STEPS 8
 #define ROTFIT_POLAR_TOL 1e-10
 #define ROTFIT_POLAR_MAX_STEPS 40
@@ -30,13 +22,6 @@ static double frob2_3(const double A[9])
     return s;
 }
 
-/* C = Aᵀ B */
-static void mul_tn3(const double A[9], const double B[9], double C[9])
-{
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++)
-            C[3 * i + j] = A[i] * B[j] + A[3 + i] * B[3 + j] + A[6 + i] * B[6 + j];
-}
 
 /* C = A Bᵀ */
 static void mul_nt3(const double A[9], const double B[9], double C[9])
@@ -49,16 +34,7 @@ static void mul_nt3(const double A[9], const double B[9], double C[9])
 
 void bg_quat_to_matrix(const double q[4], double R[9])
 {
-    const double w = q[0], x = q[1], y = q[2], z = q[3];
-    R[0] = 1 - 2 * (y * y + z * z);
-    R[1] = 2 * (x * y - w * z);
-    R[2] = 2 * (x * z + w * y);
-    R[3] = 2 * (x * y + w * z);
-    R[4] = 1 - 2 * (x * x + z * z);
-    R[5] = 2 * (y * z - w * x);
-    R[6] = 2 * (x * z - w * y);
-    R[7] = 2 * (y * z + w * x);
-    R[8] = 1 - 2 * (x * x + y * y);
+    bg_quat_rotation(q, R);
 }
 
 /* Shepperd's method: divide by the largest of the four candidate
@@ -100,57 +76,25 @@ void bg_matrix_to_quat(const double R[9], double q[4])
 }
 
 /*
- * Newton's method for max_Q tr(Qᵀ F) over rotations, from the rotation in
- * quat. With S = Qᵀ F, the optimality condition is skew(S) = 0; linearising
- * Q ← Q exp([ω]×) gives (tr S · I − sym S) ω = a, a = 2 axial(skew S). The
- * step is applied as a Cayley rotation (a unit quaternion (1, ω/2)), exact
- * to second order, so convergence stays quadratic. Returns 1 on
- * convergence with R and quat updated, 0 when the Newton matrix is not
- * positive definite (the start is on the wrong side of a stationary point)
- * or the steps do not settle.
+ * Newton's method on SO(3) (bg_rotfit_step) from the rotation in quat.
+ * Returns 1 on convergence with R and quat updated, 0 when the Newton
+ * matrix is not positive definite or the steps do not settle.
  */
 static int rotfit3_warm(const double F[9], double quat[4], double R[9])
 {
-    const double fnorm = sqrt(frob2_3(F));
+    const double tol2 = BG_ROTFIT_SKEW_TOL * BG_ROTFIT_SKEW_TOL * frob2_3(F);
     double q[4];
     memcpy(q, quat, sizeof q);
     for (int step = 0; step <= ROTFIT_WARM_MAX_STEPS; step++) {
         double S[9];
-        bg_quat_to_matrix(q, R);
-        mul_tn3(R, F, S);
-        const double a0 = S[7] - S[5], a1 = S[2] - S[6], a2 = S[3] - S[1];
-        if (sqrt(a0 * a0 + a1 * a1 + a2 * a2) <= ROTFIT_SKEW_TOL * fnorm) {
+        bg_quat_rotation(q, R);
+        bg_mul_tn3(R, F, S);
+        if (bg_rotfit_skew2(S) <= tol2) {
             memcpy(quat, q, sizeof q);
             return 1;
         }
-        if (step == ROTFIT_WARM_MAX_STEPS)
+        if (step == ROTFIT_WARM_MAX_STEPS || !bg_rotfit_step(S, q))
             break;
-        const double tr = S[0] + S[4] + S[8];
-        const double m00 = tr - S[0], m11 = tr - S[4], m22 = tr - S[8];
-        const double m01 = -0.5 * (S[1] + S[3]), m02 = -0.5 * (S[2] + S[6]),
-                     m12 = -0.5 * (S[5] + S[7]);
-        /* Sylvester's criterion: positive leading minors ⇔ positive definite. */
-        const double c00 = m11 * m22 - m12 * m12, c01 = m02 * m12 - m01 * m22,
-                     c02 = m01 * m12 - m02 * m11;
-        const double det = m00 * c00 + m01 * c01 + m02 * c02;
-        if (!(m00 > 0.0) || !(m00 * m11 - m01 * m01 > 0.0) || !(det > 0.0))
-            return 0;
-        const double c11 = m00 * m22 - m02 * m02, c12 = m01 * m02 - m00 * m12,
-                     c22 = m00 * m11 - m01 * m01;
-        const double w0 = (c00 * a0 + c01 * a1 + c02 * a2) / det;
-        const double w1 = (c01 * a0 + c11 * a1 + c12 * a2) / det;
-        const double w2 = (c02 * a0 + c12 * a1 + c22 * a2) / det;
-        /* q ← q ⊗ (1, ω/2), renormalised. */
-        const double dw = 1.0, dx = 0.5 * w0, dy = 0.5 * w1, dz = 0.5 * w2;
-        double n[4] = {
-            q[0] * dw - q[1] * dx - q[2] * dy - q[3] * dz,
-            q[0] * dx + q[1] * dw + q[2] * dz - q[3] * dy,
-            q[0] * dy - q[1] * dz + q[2] * dw + q[3] * dx,
-            q[0] * dz + q[1] * dy - q[2] * dx + q[3] * dw,
-        };
-        const double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2] + n[3] * n[3]);
-        for (int i = 0; i < 4; i++)
-            q[i] = n[i] / len;
     }
     return 0;
 }
@@ -364,7 +308,7 @@ bg_rotfit_path bg_rotfit3(const double F[9], double quat[4], double R[9])
     const double f2 = frob2_3(F);
     const double scale = f2 / 3.0;
     const double det = det3(F);
-    if (det > ROTFIT_DET_EPS * scale * sqrt(scale)) {
+    if (det > BG_ROTFIT_DET_EPS * scale * sqrt(scale)) {
         const int have_warm = quat[0] != 0.0 || quat[1] != 0.0 || quat[2] != 0.0 || quat[3] != 0.0;
         if (have_warm && rotfit3_warm(F, quat, R))
             return BG_ROTFIT_WARM;
