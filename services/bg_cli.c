@@ -291,8 +291,9 @@ int bg_cli_solve(int argc, char **argv)
     if (scene->reference_kind == BG_REFERENCE_NEWTON) {
         if (!o.quiet)
             fprintf(stderr, "computing the reference solution (Newton to its round-off floor)\n");
-        bg_solve_options_t ro = {BG_METHOD_NEWTON, CLI_REFERENCE_TOLERANCE,
-                                 CLI_REFERENCE_MAX_ITERATIONS, NULL, NULL, NULL, NULL};
+        const bg_solve_options_t ro = {.method = BG_METHOD_NEWTON,
+                                       .tolerance = CLI_REFERENCE_TOLERANCE,
+                                       .max_iterations = CLI_REFERENCE_MAX_ITERATIONS};
         if (bg_static_solve(scene, &ro, &reference, &err) != BG_OK) {
             fprintf(stderr, "biotgrid solve: reference solve: %s\n", err.message);
             exit_code = BG_EXIT_NOT_CONVERGED;
@@ -303,8 +304,12 @@ int bg_cli_solve(int argc, char **argv)
 
     int all_converged = 1;
     for (int i = 0; i < o.method_count; i++) {
-        bg_solve_options_t so = {o.methods[i], tolerance, max_iterations, ref, NULL, on_progress,
-                                 &pr};
+        const bg_solve_options_t so = {.method = o.methods[i],
+                                       .tolerance = tolerance,
+                                       .max_iterations = max_iterations,
+                                       .reference = ref,
+                                       .progress = on_progress,
+                                       .progress_ctx = &pr};
         if (bg_static_solve(scene, &so, &runs[i], &err) != BG_OK) {
             if (pr.tty && !o.quiet)
                 fputc('\n', stderr);

@@ -253,6 +253,15 @@ void bg_sparse_zero(bg_sparse_t *sys)
     memset(sys->A->x, 0, sys->nnz * sizeof(double));
 }
 
+void bg_sparse_add_diagonal(bg_sparse_t *sys, const double *d)
+{
+    /* Rows are sorted and the lower triangle starts at the diagonal. */
+    const int *Ap = sys->A->p;
+    double *Ax = sys->A->x;
+    for (int32_t col = 0; col < sys->nfree; col++)
+        Ax[Ap[col]] += d[col];
+}
+
 bg_status bg_sparse_factorize(bg_sparse_t *sys, double shift, bg_error_t *err)
 {
     cholmod_common *c = &sys->common;

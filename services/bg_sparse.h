@@ -51,6 +51,9 @@ const int32_t *bg_sparse_scatter(const bg_sparse_t *sys);
 double *bg_sparse_values(bg_sparse_t *sys);
 void bg_sparse_zero(bg_sparse_t *sys);
 
+/* Adds d[i] to diagonal entry i (d holds size() values). */
+void bg_sparse_add_diagonal(bg_sparse_t *sys, const double *d);
+
 /*
  * Factors A + shift·I. BG_ERR_NUMERIC when the matrix is not positive
  * definite (the message gives the failing column), so a caller can retry

@@ -27,7 +27,7 @@
 #define STATIC_EXACT_HESSIAN_BELOW 1e-1
 #define STATIC_EXACT_RETRY_FACTOR 0.5
 
-typedef struct problem {
+struct bg_solver {
     const bg_scene_t *scene;
     const bg_mesh_t *mesh;
     int n;
@@ -42,9 +42,14 @@ typedef struct problem {
     int lg_system[3];              /* which lg[] serves coordinate c (equal free sets share) */
     double *lg_rhs, *lg_x;
     double *q, *q_trial, *grad, *grad_trial, *rhs, *step;
-    double last_magnitude; /* |elastic| + |gravity work| of the last evaluation */
+    double *mass;          /* nv lumped masses */
+    double *inertia_diag;  /* nfree: c·m on the diagonal, while an inertia term is active */
+    const bg_inertia_t *inertia; /* the active inertia term, or NULL */
+    bg_method method;
+    double last_magnitude; /* |elastic| + |gravity work| + inertia of the last evaluation */
     double rotfit_seconds;
-} problem_t;
+};
+typedef struct bg_solver problem_t;
 
 void bg_static_lumped_mass(const bg_mesh_t *mesh, double density, double *mass)
 {
@@ -69,6 +74,8 @@ static void problem_release(problem_t *p)
     }
     free(p->lg_rhs);
     free(p->lg_x);
+    free(p->mass);
+    free(p->inertia_diag);
     free(p->q);
     free(p->q_trial);
     free(p->grad);
@@ -142,19 +149,19 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
         return bg_error_set(err, BG_ERR_INVALID,
                             "%s: every coordinate is constrained by the handles: nothing to solve",
                             scene->path);
+    p->mass = malloc((size_t)p->mesh->nv * sizeof *p->mass + 1);
+    p->inertia_diag = malloc((size_t)p->nfree * sizeof *p->inertia_diag + 1);
+    if (!p->mass || !p->inertia_diag)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the mass matrix");
+    bg_static_lumped_mass(p->mesh, scene->material.density, p->mass);
     const double *gv = scene->gravity;
     if (gv[0] != 0.0 || gv[1] != 0.0 || (p->n == 3 && gv[2] != 0.0)) {
         p->gravity_force = malloc(p->ndof * sizeof *p->gravity_force + 1);
-        double *mass = malloc((size_t)p->mesh->nv * sizeof *mass + 1);
-        if (!p->gravity_force || !mass) {
-            free(mass);
-            return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the mass matrix");
-        }
-        bg_static_lumped_mass(p->mesh, scene->material.density, mass);
+        if (!p->gravity_force)
+            return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the gravity load");
         for (int32_t v = 0; v < p->mesh->nv; v++)
             for (int c = 0; c < p->n; c++)
-                p->gravity_force[(size_t)v * p->n + c] = mass[v] * gv[c];
-        free(mass);
+                p->gravity_force[(size_t)v * p->n + c] = p->mass[v] * gv[c];
     }
     bg_status st = bg_elastic_new(p->mesh, scene->material.mu, scene->material.lambda, &p->model,
                                   err);
@@ -178,9 +185,21 @@ static double potential(problem_t *p, const double *q, double *grad)
             magnitude += fabs(p->gravity_force[i] * q[i]);
         }
     }
+    double kinetic = 0.0;
+    if (p->inertia) {
+        const bg_inertia_t *in = p->inertia;
+        for (int32_t v = 0; v < p->mesh->nv; v++)
+            for (int c = 0; c < p->n; c++) {
+                const size_t i = (size_t)v * p->n + c;
+                const double d = q[i] - in->y[i], f = in->c * p->mass[v] * d;
+                kinetic += 0.5 * f * d;
+                grad[i] += f;
+            }
+        magnitude += kinetic;
+    }
     p->last_magnitude = magnitude;
     p->rotfit_seconds += bg_clock_now() - t0;
-    return elastic - work;
+    return elastic - work + kinetic;
 }
 
 static double free_norm(const problem_t *p, const double *grad)
@@ -296,6 +315,8 @@ static double assemble_newton(problem_t *p, int project)
     bg_sparse_zero(p->sys);
     bg_elastic_assemble_hessian(p->model, p->q, project, 1.0, bg_sparse_scatter(p->sys),
                                 bg_sparse_values(p->sys));
+    if (p->inertia)
+        bg_sparse_add_diagonal(p->sys, p->inertia_diag);
     return bg_clock_now() - t0;
 }
 
@@ -350,21 +371,98 @@ static bg_status newton_direction(problem_t *p, int try_exact, bg_solve_result_t
     return BG_OK;
 }
 
-bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt,
-                          bg_solve_result_t *res, bg_error_t *err)
+bg_status bg_solver_new(const bg_scene_t *scene, bg_method method, bg_solver_t **out,
+                        bg_error_t *err)
+{
+    *out = NULL;
+    if (method != BG_METHOD_NEWTON && method != BG_METHOD_LOCAL_GLOBAL)
+        return bg_error_set(err, BG_ERR_INVALID, "%s is not a static solver method",
+                            bg_method_name(method));
+    problem_t *p = malloc(sizeof *p);
+    if (!p)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating a solver");
+    bg_status st = problem_init(p, scene, method, err);
+    for (int c = 0; st == BG_OK && c < 3; c++)
+        if (p->lg[c])
+            st = factor_with_shift(p->lg[c], err);
+    if (st != BG_OK) {
+        bg_solver_destroy(&p);
+        return st;
+    }
+    p->method = method;
+    *out = p;
+    return BG_OK;
+}
+
+void bg_solver_destroy(bg_solver_t **solver)
+{
+    if (!solver || !*solver)
+        return;
+    problem_release(*solver);
+    free(*solver);
+    *solver = NULL;
+}
+
+const double *bg_solver_mass(const bg_solver_t *solver)
+{
+    return solver->mass;
+}
+
+double bg_solver_potential(bg_solver_t *p, const double *q, double *grad)
+{
+    const bg_inertia_t *saved = p->inertia;
+    p->inertia = NULL;
+    const double W = potential(p, q, grad);
+    p->inertia = saved;
+    return W;
+}
+
+static bg_sparse_timing_t total_timing(const problem_t *p)
+{
+    bg_sparse_timing_t sum = {0};
+    const bg_sparse_t *systems[4] = {p->sys, p->lg[0], p->lg[1], p->lg[2]};
+    for (int i = 0; i < 4; i++)
+        if (systems[i]) {
+            const bg_sparse_timing_t tm = bg_sparse_timing(systems[i]);
+            sum.analyze_seconds += tm.analyze_seconds;
+            sum.factor_seconds += tm.factor_seconds;
+            sum.solve_seconds += tm.solve_seconds;
+            sum.factorizations += tm.factorizations;
+        }
+    return sum;
+}
+
+bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
+                             bg_solve_result_t *res, bg_error_t *err)
 {
     memset(res, 0, sizeof *res);
-    res->method = opt->method;
+    res->method = solver->method;
     const double t_start = bg_clock_now();
-    problem_t p;
+    problem_t *pp = solver;
+#define p (*pp)
+    const bg_scene_t *scene = p.scene;
     int trace_cap = 0;
-    bg_status st = problem_init(&p, scene, opt->method, err);
-    if (st != BG_OK)
-        goto out;
+    bg_status st = BG_OK;
     const size_t ndof = p.ndof;
+    if (opt->inertia && solver->method != BG_METHOD_NEWTON) {
+        st = bg_error_set(err, BG_ERR_UNSUPPORTED, "an inertia term needs the newton method");
+        goto out;
+    }
+    p.inertia = opt->inertia;
+    if (p.inertia)
+        for (int32_t v = 0; v < p.mesh->nv; v++)
+            for (int c = 0; c < p.n; c++) {
+                const int32_t f = p.free_index[(size_t)v * p.n + c];
+                if (f >= 0)
+                    p.inertia_diag[f] = p.inertia->c * p.mass[v];
+            }
+    bg_elastic_reset_stats(p.model);
+    p.rotfit_seconds = 0.0;
+    const bg_sparse_timing_t timing0 = total_timing(&p);
     const double *start = opt->start ? opt->start : scene->initial;
+    const double *targets = opt->targets ? opt->targets : scene->target;
     for (size_t i = 0; i < ndof; i++)
-        p.q[i] = scene->constrained[i] ? scene->target[i] : start[i];
+        p.q[i] = scene->constrained[i] ? targets[i] : start[i];
 
     double W = potential(&p, p.q, p.grad);
     double gnorm = free_norm(&p, p.grad);
@@ -381,14 +479,7 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
         goto out;
     }
     if (opt->progress)
-        opt->progress(opt->progress_ctx, opt->method, &pt);
-
-    for (int c = 0; c < 3; c++)
-        if (p.lg[c]) {
-            st = factor_with_shift(p.lg[c], err);
-            if (st != BG_OK)
-                goto out;
-        }
+        opt->progress(opt->progress_ctx, solver->method, &pt);
 
     res->stop_reason = "iteration limit";
     int it = 0;
@@ -396,7 +487,7 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
     double exact_failed_at = INFINITY; /* gradient norm when the exact Hessian last failed */
     for (;;) {
         const double rel = g0 > 0.0 ? gnorm / g0 : 0.0;
-        if (rel <= opt->tolerance) {
+        if (rel <= opt->tolerance || gnorm <= opt->absolute_tolerance) {
             res->converged = 1;
             res->stop_reason = "converged";
             break;
@@ -408,7 +499,7 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
             if (p.free_index[i] >= 0)
                 p.rhs[p.free_index[i]] = -p.grad[i];
         double slope = NAN;
-        if (opt->method == BG_METHOD_NEWTON) {
+        if (solver->method == BG_METHOD_NEWTON) {
             const int try_exact = last_full_step && rel < STATIC_EXACT_HESSIAN_BELOW &&
                                   gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at;
             st = newton_direction(&p, try_exact, res, &slope, err);
@@ -469,7 +560,7 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
             goto out;
         }
         if (opt->progress)
-            opt->progress(opt->progress_ctx, opt->method, &pt);
+            opt->progress(opt->progress_ctx, solver->method, &pt);
     }
     res->iterations = it;
     res->energy = W;
@@ -477,29 +568,42 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
     res->relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
     res->rotfit = bg_elastic_rotfit_stats(p.model);
     res->rotfit_seconds = p.rotfit_seconds;
-    bg_sparse_t *systems[4] = {p.sys, p.lg[0], p.lg[1], p.lg[2]};
-    for (int i = 0; i < 4; i++)
-        if (systems[i]) {
-            const bg_sparse_timing_t tm = bg_sparse_timing(systems[i]);
-            res->analyze_seconds += tm.analyze_seconds;
-            res->factor_seconds += tm.factor_seconds;
-            res->solve_seconds += tm.solve_seconds;
-            res->factorizations += tm.factorizations;
-        }
-    res->q = p.q;
-    p.q = NULL;
+    const bg_sparse_timing_t timing1 = total_timing(&p);
+    res->analyze_seconds = timing1.analyze_seconds - timing0.analyze_seconds;
+    res->factor_seconds = timing1.factor_seconds - timing0.factor_seconds;
+    res->solve_seconds = timing1.solve_seconds - timing0.solve_seconds;
+    res->factorizations = timing1.factorizations - timing0.factorizations;
+    res->q = malloc(ndof * sizeof *res->q + 1);
     res->energy_density = malloc((size_t)scene->mesh->ne * sizeof *res->energy_density + 1);
-    if (!res->energy_density) {
+    if (!res->q || !res->energy_density) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the result");
         goto out;
     }
+    memcpy(res->q, p.q, ndof * sizeof *res->q);
     memcpy(res->energy_density, bg_elastic_energy_density(p.model),
            (size_t)scene->mesh->ne * sizeof *res->energy_density);
     res->wall_seconds = bg_clock_now() - t_start;
 out:
-    problem_release(&p);
+    p.inertia = NULL;
+#undef p
     if (st != BG_OK)
         bg_solve_result_release(res);
+    return st;
+}
+
+bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt,
+                          bg_solve_result_t *res, bg_error_t *err)
+{
+    bg_solver_t *solver = NULL;
+    memset(res, 0, sizeof *res);
+    const double t_start = bg_clock_now();
+    bg_status st = bg_solver_new(scene, opt->method, &solver, err);
+    if (st == BG_OK)
+        st = bg_solver_minimize(solver, opt, res, err);
+    bg_solver_destroy(&solver);
+    /* Setup (pattern, analysis, factoring local/global's Laplacian) counts. */
+    if (st == BG_OK)
+        res->wall_seconds = bg_clock_now() - t_start;
     return st;
 }
 

@@ -40,10 +40,20 @@ typedef struct bg_trace_point {
 
 typedef void (*bg_progress_fn)(void *ctx, bg_method method, const bg_trace_point_t *point);
 
+/* An inertia term (c/2) Σ_v m_v |q_v − y_v|² added to W: a time step of an
+ * implicit integrator minimises W plus this (bg_dynamics). */
+typedef struct bg_inertia {
+    double c;          /* 4/h² for the variational midpoint, 1/h² for backward Euler */
+    const double *y;   /* nv*n: the inertial prediction */
+} bg_inertia_t;
+
 typedef struct bg_solve_options {
     bg_method method;
     double tolerance;
     int max_iterations;
+    double absolute_tolerance; /* also stop when ‖∇‖ ≤ this (0: unused) */
+    const double *targets;    /* nv*n values of the constrained coordinates, or NULL for scene->target */
+    const bg_inertia_t *inertia; /* NULL for a static solve */
     const double *reference;  /* nv*n reference positions for the error column, or NULL */
     const double *start;      /* nv*n start positions, or NULL for scene->initial */
     bg_progress_fn progress;  /* called after every iteration (may be NULL) */
@@ -92,6 +102,29 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
                           bg_solve_result_t *result, bg_error_t *err);
 
 void bg_solve_result_release(bg_solve_result_t *result);
+
+/*
+ * A solver kept across many minimisations of the same scene (the steps of a
+ * time integration): the elastic model, the sparse pattern, CHOLMOD's
+ * symbolic analysis, local/global's factorization and the warm-start
+ * rotations persist. The scene is borrowed and must outlive the solver.
+ */
+typedef struct bg_solver bg_solver_t;
+
+bg_status bg_solver_new(const bg_scene_t *scene, bg_method method, bg_solver_t **out,
+                        bg_error_t *err);
+void bg_solver_destroy(bg_solver_t **solver);
+
+/* One minimisation from options->start (or the scene's initial positions);
+ * options->method is ignored (the solver's method is used). */
+bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *options,
+                             bg_solve_result_t *result, bg_error_t *err);
+
+/* W(q) = E(q) − gravity work, without any inertia term; grad (nv*n) filled. */
+double bg_solver_potential(bg_solver_t *solver, const double *q, double *grad);
+
+/* The lumped vertex masses (nv), borrowed. */
+const double *bg_solver_mass(const bg_solver_t *solver);
 
 /* Lumped vertex masses ρ Σ V_e/(n+1) of the scene's mesh into mass[nv]. */
 void bg_static_lumped_mass(const bg_mesh_t *mesh, double density, double *mass);

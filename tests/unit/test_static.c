@@ -45,7 +45,7 @@ static void solve(const bg_scene_t *s, bg_method method, double tol, int max_it,
                   bg_solve_result_t *r)
 {
     bg_error_t err = BG_ERROR_INIT;
-    bg_solve_options_t o = {method, tol, max_it, NULL, NULL, NULL, NULL};
+    const bg_solve_options_t o = {.method = method, .tolerance = tol, .max_iterations = max_it};
     if (bg_static_solve(s, &o, r, &err) != BG_OK)
         fail_msg("%s", err.message);
 }
@@ -346,7 +346,8 @@ static void nothing_free_is_an_error(void **state)
                           "[{\"select\": {\"box_fraction\": {\"min\": [0, 0], \"max\": [1, 1]}}}]}");
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     bg_error_t err = BG_ERROR_INIT;
-    bg_solve_options_t o = {BG_METHOD_NEWTON, 1e-8, 10, NULL, NULL, NULL, NULL};
+    const bg_solve_options_t o = {.method = BG_METHOD_NEWTON, .tolerance = 1e-8,
+                                  .max_iterations = 10};
     assert_int_equal(bg_static_solve(s, &o, &r, &err), BG_ERR_INVALID);
     assert_non_null(strstr(err.message, "nothing to solve"));
     bg_scene_destroy(&s);
