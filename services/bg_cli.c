@@ -8,6 +8,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "bg_dynamics.h"
 #include "bg_mesh_io.h"
 #include "bg_plan.h"
 #include "bg_report.h"
@@ -248,6 +249,103 @@ out:
     return st;
 }
 
+/* Frames of a dynamic run: DIR/frames/<method>-<step>.vtu and the
+ * collection DIR/<method>.pvd that ParaView plays as a time series. */
+typedef struct frames {
+    const bg_scene_t *scene;
+    const char *dir;
+    const char *method;
+    double *displacement;
+    int *steps;
+    double *times;
+    int count, cap;
+} frames_t;
+
+static bg_status write_frame(void *ctx, int step, double time, const double *q, bg_error_t *err)
+{
+    frames_t *f = ctx;
+    const bg_mesh_t *mesh = f->scene->mesh;
+    const int n = mesh->dim;
+    if (f->count == f->cap) {
+        int grown = f->cap ? 2 * f->cap : 64;
+        int *steps = realloc(f->steps, (size_t)grown * sizeof *steps);
+        if (steps)
+            f->steps = steps;
+        double *times = realloc(f->times, (size_t)grown * sizeof *times);
+        if (times)
+            f->times = times;
+        if (!steps || !times)
+            return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the frame list");
+        f->cap = grown;
+    }
+    for (int32_t v = 0; v < mesh->nv; v++)
+        for (int c = 0; c < n; c++)
+            f->displacement[3 * (size_t)v + c] = q[(size_t)v * n + c] - mesh->x[(size_t)v * n + c];
+    char name[96], path[4400];
+    snprintf(name, sizeof name, "frames/%s-%06d.vtu", f->method, step);
+    if (join_path(path, sizeof path, f->dir, name) != 0)
+        return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
+    const bg_vtu_array_t point_data[1] = {{"displacement", 3, f->displacement}};
+    bg_status st = bg_mesh_write_vtu(mesh, q, point_data, 1, NULL, 0, path, err);
+    if (st != BG_OK)
+        return st;
+    f->steps[f->count] = step;
+    f->times[f->count] = time;
+    f->count++;
+    return BG_OK;
+}
+
+static bg_status write_pvd(const frames_t *f, bg_error_t *err)
+{
+    char name[96], path[4400];
+    snprintf(name, sizeof name, "%s.pvd", f->method);
+    if (join_path(path, sizeof path, f->dir, name) != 0)
+        return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
+    FILE *out = fopen(path, "w");
+    if (!out)
+        return bg_error_set(err, BG_ERR_IO, "%s: cannot write: %s", path, strerror(errno));
+    fprintf(out, "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\">\n"
+                 "  <Collection>\n");
+    for (int i = 0; i < f->count; i++)
+        fprintf(out, "    <DataSet timestep=\"%.17g\" file=\"frames/%s-%06d.vtu\"/>\n", f->times[i],
+                f->method, f->steps[i]);
+    fprintf(out, "  </Collection>\n</VTKFile>\n");
+    if (fclose(out) != 0)
+        return bg_error_set(err, BG_ERR_IO, "%s: write failed", path);
+    return BG_OK;
+}
+
+static bg_status run_dynamic(const bg_scene_t *scene, bg_method method, const char *dir,
+                             progress_t *pr, bg_solve_result_t *run, bg_error_t *err)
+{
+    frames_t f = {scene, dir, bg_method_name(method), NULL, NULL, NULL, 0, 0};
+    char frames_dir[4200];
+    bg_status st = BG_OK;
+    f.displacement = calloc((size_t)scene->mesh->nv * 3 + 1, sizeof *f.displacement);
+    if (!f.displacement) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for frames");
+        goto out;
+    }
+    if (join_path(frames_dir, sizeof frames_dir, dir, "frames") != 0 ||
+        bg_cli_make_directories(frames_dir) != 0) {
+        st = bg_error_set(err, BG_ERR_IO, "cannot create %s/frames", dir);
+        goto out;
+    }
+    const bg_dynamic_options_t opt = {.method = method,
+                                      .frame = write_frame,
+                                      .frame_ctx = &f,
+                                      .progress = on_progress,
+                                      .progress_ctx = pr};
+    st = bg_dynamic_solve(scene, &opt, run, err);
+    if (st == BG_OK)
+        st = write_pvd(&f, err);
+out:
+    free(f.displacement);
+    free(f.steps);
+    free(f.times);
+    return st;
+}
+
 int bg_cli_solve(int argc, char **argv)
 {
     cli_options_t o;
@@ -270,6 +368,14 @@ int bg_cli_solve(int argc, char **argv)
         o.methods[0] = scene->method;
         o.method_count = 1;
     }
+    const int dynamic = scene->task == BG_TASK_DYNAMIC;
+    for (int i = 0; i < o.method_count; i++)
+        if (bg_method_is_dynamic(o.methods[i]) != dynamic) {
+            fprintf(stderr, "biotgrid solve: %s: method %s does not fit a %s scene (use %s)\n",
+                    o.scene_path, bg_method_name(o.methods[i]), dynamic ? "dynamic" : "static",
+                    dynamic ? "variational or backward-euler" : "newton or local-global");
+            goto out;
+        }
     const double tolerance = o.tolerance > 0 ? o.tolerance : scene->tolerance;
     const int max_iterations = o.max_iterations > 0 ? o.max_iterations : scene->max_iterations;
     char out_dir[4096];
@@ -288,7 +394,7 @@ int bg_cli_solve(int argc, char **argv)
             (int)scene->mesh->ne, scene->mesh_source);
 
     const double *ref = scene->reference;
-    if (scene->reference_kind == BG_REFERENCE_NEWTON) {
+    if (scene->reference_kind == BG_REFERENCE_NEWTON && !dynamic) {
         if (!o.quiet)
             fprintf(stderr, "computing the reference solution (Newton to its round-off floor)\n");
         const bg_solve_options_t ro = {.method = BG_METHOD_NEWTON,
@@ -304,13 +410,19 @@ int bg_cli_solve(int argc, char **argv)
 
     int all_converged = 1;
     for (int i = 0; i < o.method_count; i++) {
-        const bg_solve_options_t so = {.method = o.methods[i],
-                                       .tolerance = tolerance,
-                                       .max_iterations = max_iterations,
-                                       .reference = ref,
-                                       .progress = on_progress,
-                                       .progress_ctx = &pr};
-        if (bg_static_solve(scene, &so, &runs[i], &err) != BG_OK) {
+        bg_status st;
+        if (dynamic) {
+            st = run_dynamic(scene, o.methods[i], out_dir, &pr, &runs[i], &err);
+        } else {
+            const bg_solve_options_t so = {.method = o.methods[i],
+                                           .tolerance = tolerance,
+                                           .max_iterations = max_iterations,
+                                           .reference = ref,
+                                           .progress = on_progress,
+                                           .progress_ctx = &pr};
+            st = bg_static_solve(scene, &so, &runs[i], &err);
+        }
+        if (st != BG_OK) {
             if (pr.tty && !o.quiet)
                 fputc('\n', stderr);
             fprintf(stderr, "biotgrid solve: %s: %s\n", bg_method_name(o.methods[i]),
@@ -321,9 +433,16 @@ int bg_cli_solve(int argc, char **argv)
         run_count++;
         if (pr.tty && !o.quiet)
             fputc('\n', stderr);
-        fprintf(stderr, "%s: %s after %d iterations, %.3f s (relative gradient %.3e)\n",
-                bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].iterations,
-                runs[i].wall_seconds, runs[i].relative_gradient);
+        if (dynamic)
+            fprintf(stderr, "%s: %s, %d steps, %d Newton iterations, %.3f s (energy drift "
+                            "%.3e)\n",
+                    bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].step_count - 1,
+                    runs[i].iterations, runs[i].wall_seconds,
+                    runs[i].trace[runs[i].trace_count - 1].error);
+        else
+            fprintf(stderr, "%s: %s after %d iterations, %.3f s (relative gradient %.3e)\n",
+                    bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].iterations,
+                    runs[i].wall_seconds, runs[i].relative_gradient);
         all_converged &= runs[i].converged;
     }
 
@@ -343,9 +462,10 @@ int bg_cli_solve(int argc, char **argv)
         exit_code = BG_EXIT_NOT_CONVERGED;
         goto out;
     }
-    printf("\nerror against run time (%s)\n", scene->reference_kind == BG_REFERENCE_NONE
-                                                  ? "no reference: error column empty"
-                                                  : "error = |q - q_ref| / |q_ref|");
+    printf("\nerror against run time (%s)\n",
+           dynamic ? "per step: energy = total energy, error = |E - E0| / |E0|"
+           : scene->reference_kind == BG_REFERENCE_NONE ? "no reference: error column empty"
+                                                        : "error = |q - q_ref| / |q_ref|");
     bg_report_print_table(stdout, runs, run_count, CLI_TABLE_ROWS);
     printf("\nresults:\n  %s\n  %s\n  %s\n", report_path, plot_path, result_paths);
     exit_code = all_converged ? BG_EXIT_CONVERGED : BG_EXIT_NOT_CONVERGED;

@@ -1,21 +1,11 @@
 #include "bg_initial.h"
 
-#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "bg_elastic.h"
 #include "bg_sparse.h"
 
-/* Rotation by angle about a unit axis (Rodrigues), row-major. */
-static void axis_angle(const double k[3], double angle, double R[9])
-{
-    const double c = cos(angle), s = sin(angle);
-    const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++)
-            R[3 * i + j] = (i == j ? c : 0.0) + s * K[3 * i + j] + (1.0 - c) * k[i] * k[j];
-}
 
 bg_status bg_initial_interpolate(const bg_scene_t *scene, double *out, bg_error_t *err)
 {
@@ -84,15 +74,7 @@ bg_status bg_initial_interpolate(const bg_scene_t *scene, double *out, bg_error_
             const double *x = mesh->x + k;
             double moved[3];
             if (m->kind == BG_MOTION_RIGID) {
-                double R[9], rel[3] = {0, 0, 0};
-                axis_angle(m->axis, weight * m->radians, R);
-                for (int c = 0; c < d; c++)
-                    rel[c] = x[c] - m->center[c];
-                for (int r = 0; r < d; r++) {
-                    moved[r] = m->center[r] + weight * m->translate[r];
-                    for (int c = 0; c < d; c++)
-                        moved[r] += R[3 * r + c] * rel[c];
-                }
+                bg_motion_screw(m, d, weight, x, moved);
             } else {
                 for (int c = 0; c < d; c++)
                     moved[c] = x[c] + weight * m->mean_displacement[c];

@@ -18,8 +18,9 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
     plan->left_out_count = 0;
     const int planar = scene->mesh->dim == 2;
     int newton = 0, local_global = 0;
+    const int dynamic = scene->task == BG_TASK_DYNAMIC;
     for (int i = 0; i < method_count; i++) {
-        newton |= methods[i] == BG_METHOD_NEWTON;
+        newton |= methods[i] == BG_METHOD_NEWTON || bg_method_is_dynamic(methods[i]);
         local_global |= methods[i] == BG_METHOD_LOCAL_GLOBAL;
     }
     add(plan->services, &plan->service_count, "rotation-fit",
@@ -34,8 +35,17 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
                             "iteration" : "");
     add(plan->services, &plan->service_count, "sparse-solve", detail);
 
-    add(plan->left_out, &plan->left_out_count, "integration-step",
-        "static scene: no time integration");
+    if (dynamic) {
+        snprintf(detail, sizeof detail, "%d steps of h = %g s, each a Newton solve with the "
+                 "inertia term (%s)", scene->dynamic.steps, scene->dynamic.dt,
+                 method_count > 1 ? "variational midpoint and backward Euler"
+                 : methods[0] == BG_METHOD_BACKWARD_EULER ? "backward Euler"
+                                                          : "variational midpoint");
+        add(plan->services, &plan->service_count, "integration-step", detail);
+    } else {
+        add(plan->left_out, &plan->left_out_count, "integration-step",
+            "static scene: no time integration");
+    }
     if (planar)
         add(plan->left_out, &plan->left_out_count, "rotation-fit/svd",
             "planar scene: the 2D closed form covers inverted triangles, no 3D SVD path");
@@ -43,7 +53,7 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
         add(plan->left_out, &plan->left_out_count, "volume-term",
             "lambda = 0: no (tr Y - n)^2 term (the plain as-rigid-as-possible energy)");
     const double *g = scene->gravity;
-    if (g[0] == 0.0 && g[1] == 0.0 && g[2] == 0.0)
+    if (!dynamic && g[0] == 0.0 && g[1] == 0.0 && g[2] == 0.0)
         add(plan->left_out, &plan->left_out_count, "mass-matrix",
             "no gravity: the lumped mass matrix is not built");
 }

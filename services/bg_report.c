@@ -42,6 +42,26 @@ static cJSON *run_json(const bg_solve_result_t *r)
         cJSON_AddNumberToObject(split, "solve_seconds", r->solve_seconds);
         cJSON_AddNumberToObject(split, "factorizations", (double)r->factorizations);
     }
+    if (r->steps) {
+        cJSON *steps = cJSON_AddArrayToObject(o, "steps");
+        for (int i = 0; steps && i < r->step_count; i++) {
+            const bg_step_record_t *st = &r->steps[i];
+            cJSON *t = cJSON_CreateObject();
+            if (!t)
+                break;
+            cJSON_AddNumberToObject(t, "time", st->time);
+            cJSON_AddItemToObject(t, "kinetic", number_or_null(st->kinetic));
+            cJSON_AddItemToObject(t, "potential", number_or_null(st->potential));
+            cJSON_AddItemToObject(t, "total_energy", number_or_null(st->total_energy));
+            cJSON_AddItemToObject(t, "linear_momentum",
+                                  cJSON_CreateDoubleArray(st->linear_momentum, 3));
+            cJSON_AddItemToObject(t, "angular_momentum",
+                                  cJSON_CreateDoubleArray(st->angular_momentum, 3));
+            cJSON_AddNumberToObject(t, "iterations", st->iterations);
+            cJSON_AddNumberToObject(t, "seconds", st->seconds);
+            cJSON_AddItemToArray(steps, t);
+        }
+    }
     cJSON *trace = cJSON_AddArrayToObject(o, "trace");
     for (int i = 0; trace && i < r->trace_count; i++) {
         const bg_trace_point_t *p = &r->trace[i];
@@ -136,7 +156,8 @@ bg_status bg_report_write_plot(const char *path, const bg_scene_t *scene,
                                const bg_solve_result_t *runs, int run_count, bg_error_t *err)
 {
     bg_status st = BG_OK;
-    const int with_reference = scene->reference_kind != BG_REFERENCE_NONE;
+    const int dynamic = scene->task == BG_TASK_DYNAMIC;
+    const int with_reference = dynamic || scene->reference_kind != BG_REFERENCE_NONE;
     bg_svg_series_t series[8];
     double *buffers[16] = {0};
     int count = run_count < 8 ? run_count : 8;
@@ -162,8 +183,9 @@ bg_status bg_report_write_plot(const char *path, const bg_scene_t *scene,
     char title[256];
     snprintf(title, sizeof title, "%s: error against run time", scene->name);
     const bg_svg_plot_t plot = {title, "wall time (s)",
-                                with_reference ? "relative error |q - q_ref| / |q_ref|"
-                                               : "relative gradient |grad W| / |grad W(q0)|",
+                                dynamic          ? "relative energy drift |E - E0| / |E0|"
+                                : with_reference ? "relative error |q - q_ref| / |q_ref|"
+                                                 : "relative gradient |grad W| / |grad W(q0)|",
                                 0, 1};
     st = bg_svg_write(path, &plot, series, count, err);
 out:

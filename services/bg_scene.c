@@ -36,6 +36,9 @@
 #define TWO_POW_MINUS_53 (1.0 / 9007199254740992.0)
 
 static const char AXIS_NAMES[] = "xyz";
+/* Caps and defaults of dynamic tasks. */
+#define MAX_STEPS 10000000
+#define DEFAULT_FRAMES 100
 
 typedef struct parser {
     const char *file; /* the scene as named in messages */
@@ -1018,8 +1021,8 @@ static void describe_handle(char *out, int index, const char *name)
 
 static bg_status parse_handle(parser_t *p, const cJSON *spec, int index, const char **names)
 {
-    static const char *const keys[] = {"name",      "select",     "transform",
-                                       "positions", "components", NULL};
+    static const char *const keys[] = {"name",       "select",   "transform", "positions",
+                                       "components", "duration", NULL};
     bg_scene_t *s = p->scene;
     const int d = p->dim;
     char field[FIELD_MAX], sub[FIELD_MAX], who[FIELD_MAX];
@@ -1076,6 +1079,18 @@ static bg_status parse_handle(parser_t *p, const cJSON *spec, int index, const c
     }
     bg_scene_motion_t *motion = &s->motions[index];
     motion->axis[2] = 1.0; /* planar rotations turn about z */
+    if (member(spec, "duration")) {
+        field_key(sub, field, "duration");
+        if (s->task != BG_TASK_DYNAMIC || (!transform && !positions)) {
+            st = fail(p, BG_ERR_INVALID, sub, "a duration needs a dynamic task and a motion");
+            goto out;
+        }
+        st = read_number(p, member(spec, "duration"), sub, &motion->duration);
+        if (st == BG_OK && !(motion->duration > 0.0))
+            st = fail(p, BG_ERR_INVALID, sub, "must be positive, got %g", motion->duration);
+        if (st != BG_OK)
+            goto out;
+    }
     if (transform) {
         field_key(sub, field, "transform");
         motion->kind = BG_MOTION_RIGID;
@@ -1172,7 +1187,7 @@ static bg_status parse_handles(parser_t *p, const cJSON *item)
             any |= s->constrained[(size_t)v * p->dim + c];
         s->constrained_vertices += any;
     }
-    if (s->constrained_vertices == 0)
+    if (s->constrained_vertices == 0 && s->task == BG_TASK_STATIC)
         st = fail(p, BG_ERR_INVALID, "handles",
                   "a static solve needs handles that hold the body in place (add a fixed handle "
                   "or {\"select\": \"rigid-mount\"})");
@@ -1227,7 +1242,7 @@ static bg_status parse_initial(parser_t *p, const cJSON *item)
     for (int32_t h = 0; h < s->handle_count; h++)
         moving |= s->motions[h].kind != BG_MOTION_FIXED;
     const int interpolate =
-        (!item && moving) || (cJSON_IsString(item) && strcmp(item->valuestring, "interpolate") == 0);
+        (!item && moving && s->task == BG_TASK_STATIC) || (cJSON_IsString(item) && strcmp(item->valuestring, "interpolate") == 0);
     if (interpolate) {
         s->initial_kind = BG_INITIAL_INTERPOLATE;
         st = bg_initial_interpolate(s, s->initial, p->err);
@@ -1310,8 +1325,9 @@ static bg_status parse_initial(parser_t *p, const cJSON *item)
 
 static bg_status parse_task(parser_t *p, const cJSON *item)
 {
-    static const char *const keys[] = {"kind", NULL};
-    p->scene->task = BG_TASK_STATIC;
+    static const char *const keys[] = {"kind", "dt", "steps", "output_every", "damping", NULL};
+    bg_scene_t *s = p->scene;
+    s->task = BG_TASK_STATIC;
     if (!item)
         return BG_OK;
     bg_status st = expect_object(p, item, "task");
@@ -1323,9 +1339,103 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
     st = read_string(p, member(item, "kind"), "task.kind", &kind);
     if (st != BG_OK)
         return st;
-    if (strcmp(kind, "static") != 0)
+    if (strcmp(kind, "static") == 0) {
+        static const char *const dynamic_only[] = {"dt", "steps", "output_every", "damping", NULL};
+        for (int i = 0; dynamic_only[i]; i++)
+            if (member(item, dynamic_only[i]))
+                return fail(p, BG_ERR_INVALID, "task", "'%s' belongs to dynamic tasks",
+                            dynamic_only[i]);
+        return BG_OK;
+    }
+    if (strcmp(kind, "dynamic") != 0)
         return fail(p, BG_ERR_UNSUPPORTED, "task.kind",
-                    "task kind '%s' is not supported (supported: static)", kind);
+                    "task kind '%s' is not supported (supported: static, dynamic)", kind);
+    s->task = BG_TASK_DYNAMIC;
+    bg_dynamic_task_t *d = &s->dynamic;
+    if (!member(item, "dt"))
+        return fail(p, BG_ERR_INVALID, "task.dt", "missing (required for a dynamic task)");
+    if (!member(item, "steps"))
+        return fail(p, BG_ERR_INVALID, "task.steps", "missing (required for a dynamic task)");
+    st = read_number(p, member(item, "dt"), "task.dt", &d->dt);
+    if (st != BG_OK)
+        return st;
+    if (!(d->dt > 0.0))
+        return fail(p, BG_ERR_INVALID, "task.dt", "must be positive, got %g", d->dt);
+    int64_t steps = 0, every = 0;
+    st = read_integer(p, member(item, "steps"), "task.steps", 1.0, (double)MAX_STEPS, &steps);
+    if (st != BG_OK)
+        return st;
+    d->steps = (int)steps;
+    d->output_every = d->steps / DEFAULT_FRAMES > 0 ? d->steps / DEFAULT_FRAMES : 1;
+    if (member(item, "output_every")) {
+        st = read_integer(p, member(item, "output_every"), "task.output_every", 1.0,
+                          (double)MAX_STEPS, &every);
+        if (st != BG_OK)
+            return st;
+        d->output_every = (int)every;
+    }
+    if (member(item, "damping")) {
+        st = read_number(p, member(item, "damping"), "task.damping", &d->damping);
+        if (st != BG_OK)
+            return st;
+        if (!(d->damping >= 0.0))
+            return fail(p, BG_ERR_INVALID, "task.damping", "must be >= 0, got %g", d->damping);
+    }
+    return BG_OK;
+}
+
+/* "velocity": {"linear": [..], "angular": [3] (planar: a number), "center": [..]}:
+ * v(x) = linear + ω × (x − center), center defaulting to the centroid. */
+static bg_status parse_velocity(parser_t *p, const cJSON *item)
+{
+    static const char *const keys[] = {"linear", "angular", "center", NULL};
+    bg_scene_t *s = p->scene;
+    if (!item)
+        return BG_OK;
+    if (s->task != BG_TASK_DYNAMIC)
+        return fail(p, BG_ERR_INVALID, "velocity", "an initial velocity needs a dynamic task");
+    bg_status st = expect_object(p, item, "velocity");
+    if (st == BG_OK)
+        st = check_keys(p, item, "velocity", keys);
+    if (st != BG_OK)
+        return st;
+    const int d = p->dim;
+    const int32_t nv = s->mesh->nv;
+    double linear[3] = {0, 0, 0}, omega[3] = {0, 0, 0}, center[3] = {0, 0, 0};
+    if (member(item, "linear")) {
+        st = read_vector(p, member(item, "linear"), "velocity.linear", d, linear);
+        if (st != BG_OK)
+            return st;
+    }
+    if (member(item, "angular")) {
+        if (d == 2)
+            st = read_number(p, member(item, "angular"), "velocity.angular", &omega[2]);
+        else
+            st = read_vector(p, member(item, "angular"), "velocity.angular", 3, omega);
+        if (st != BG_OK)
+            return st;
+    }
+    if (member(item, "center")) {
+        st = read_vector(p, member(item, "center"), "velocity.center", d, center);
+        if (st != BG_OK)
+            return st;
+    } else {
+        for (int32_t v = 0; v < nv; v++)
+            for (int c = 0; c < d; c++)
+                center[c] += s->mesh->x[(size_t)v * d + c] / nv;
+    }
+    s->velocity = malloc(((size_t)nv * d + 1) * sizeof *s->velocity);
+    if (!s->velocity)
+        return fail(p, BG_ERR_NOMEM, "velocity", "out of memory");
+    for (int32_t v = 0; v < nv; v++) {
+        double r[3] = {0, 0, 0};
+        for (int c = 0; c < d; c++)
+            r[c] = s->mesh->x[(size_t)v * d + c] - center[c];
+        const double w[3] = {omega[1] * r[2] - omega[2] * r[1], omega[2] * r[0] - omega[0] * r[2],
+                             omega[0] * r[1] - omega[1] * r[0]};
+        for (int c = 0; c < d; c++)
+            s->velocity[(size_t)v * d + c] = linear[c] + w[c];
+    }
     return BG_OK;
 }
 
@@ -1333,7 +1443,8 @@ static bg_status parse_solver(parser_t *p, const cJSON *item)
 {
     static const char *const keys[] = {"method", "tolerance", "max_iterations", NULL};
     bg_scene_t *s = p->scene;
-    s->method = BG_METHOD_NEWTON;
+    const int dynamic = s->task == BG_TASK_DYNAMIC;
+    s->method = dynamic ? BG_METHOD_VARIATIONAL : BG_METHOD_NEWTON;
     s->tolerance = BG_SCENE_DEFAULT_TOLERANCE;
     s->max_iterations = BG_SCENE_DEFAULT_MAX_ITERATIONS;
     if (!item)
@@ -1351,6 +1462,11 @@ static bg_status parse_solver(parser_t *p, const cJSON *item)
             return st;
         if (bg_method_parse(name, &s->method, &inner) != BG_OK)
             return relay(p, "solver.method", &inner);
+        if (bg_method_is_dynamic(s->method) != dynamic)
+            return fail(p, BG_ERR_INVALID, "solver.method",
+                        "'%s' does not fit a %s task (use %s)", name,
+                        dynamic ? "dynamic" : "static",
+                        dynamic ? "variational or backward-euler" : "newton or local-global");
     }
     if (member(item, "tolerance")) {
         st = read_number(p, member(item, "tolerance"), "solver.tolerance", &s->tolerance);
@@ -1523,7 +1639,7 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
 {
     static const char *const keys[] = {"name",    "description", "mesh",    "material",
                                        "gravity", "handles",     "initial", "task",
-                                       "solver",  "reference",   NULL};
+                                       "solver",  "reference",   "velocity", NULL};
     bg_scene_t *s = p->scene;
     if (!cJSON_IsObject(root))
         return fail(p, BG_ERR_INVALID, NULL, "a scene is a JSON object, got %s",
@@ -1570,6 +1686,8 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
         st = parse_handles(p, member(root, "handles"));
     if (st == BG_OK)
         st = parse_initial(p, member(root, "initial"));
+    if (st == BG_OK)
+        st = parse_velocity(p, member(root, "velocity"));
     if (st == BG_OK)
         st = parse_solver(p, member(root, "solver"));
     if (st == BG_OK)
@@ -1660,6 +1778,7 @@ void bg_scene_destroy(bg_scene_t **scene)
     free(s->target);
     free(s->initial);
     free(s->reference);
+    free(s->velocity);
     for (int32_t h = 0; s->motions && h < s->handle_count; h++)
         free(s->motions[h].vertices);
     free(s->motions);
@@ -1674,19 +1793,79 @@ const char *bg_method_name(bg_method method)
         return "newton";
     case BG_METHOD_LOCAL_GLOBAL:
         return "local-global";
+    case BG_METHOD_VARIATIONAL:
+        return "variational";
+    case BG_METHOD_BACKWARD_EULER:
+        return "backward-euler";
     }
     return "unknown";
 }
 
 bg_status bg_method_parse(const char *name, bg_method *out, bg_error_t *err)
 {
-    static const bg_method methods[] = {BG_METHOD_NEWTON, BG_METHOD_LOCAL_GLOBAL};
+    static const bg_method methods[] = {BG_METHOD_NEWTON, BG_METHOD_LOCAL_GLOBAL,
+                                        BG_METHOD_VARIATIONAL, BG_METHOD_BACKWARD_EULER};
     for (size_t i = 0; i < sizeof methods / sizeof methods[0]; i++)
         if (name && strcmp(name, bg_method_name(methods[i])) == 0) {
             *out = methods[i];
             return BG_OK;
         }
     return bg_error_set(err, BG_ERR_INVALID,
-                        "unknown method '%s' (expected newton or local-global)",
+                        "unknown method '%s' (expected newton, local-global, variational or "
+                        "backward-euler)",
                         name ? name : "(null)");
+}
+
+int bg_method_is_dynamic(bg_method method)
+{
+    return method == BG_METHOD_VARIATIONAL || method == BG_METHOD_BACKWARD_EULER;
+}
+
+/* Rotation by angle about a unit axis (Rodrigues), row-major. */
+static void axis_rotation(const double k[3], double angle, double R[9])
+{
+    const double c = cos(angle), s = sin(angle);
+    const double K[9] = {0, -k[2], k[1], k[2], 0, -k[0], -k[1], k[0], 0};
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            R[3 * i + j] = (i == j ? c : 0.0) + s * K[3 * i + j] + (1.0 - c) * k[i] * k[j];
+}
+
+void bg_motion_screw(const bg_scene_motion_t *mo, int d, double f, const double *x, double *out)
+{
+    double R[9];
+    axis_rotation(mo->axis, f * mo->radians, R);
+    for (int r = 0; r < d; r++) {
+        double v = mo->center[r] + f * mo->translate[r];
+        for (int c = 0; c < d; c++)
+            v += R[3 * r + c] * (x[c] - mo->center[c]);
+        out[r] = v;
+    }
+}
+
+void bg_scene_targets_at(const bg_scene_t *s, double t, double *out)
+{
+    const bg_mesh_t *m = s->mesh;
+    const int d = m->dim;
+    const size_t n = (size_t)m->nv * d;
+    memcpy(out, s->target, n * sizeof *out);
+    for (int32_t h = 0; h < s->handle_count; h++) {
+        const bg_scene_motion_t *mo = &s->motions[h];
+        if (mo->duration <= 0.0 || mo->kind == BG_MOTION_FIXED)
+            continue;
+        const double f = t >= mo->duration ? 1.0 : t / mo->duration;
+        for (int32_t i = 0; i < mo->count; i++) {
+            const size_t k = (size_t)mo->vertices[i] * d;
+            const double *x = m->x + k;
+            double moved[3];
+            if (mo->kind == BG_MOTION_RIGID)
+                bg_motion_screw(mo, d, f, x, moved);
+            else
+                for (int r = 0; r < d; r++)
+                    moved[r] = x[r] + f * (s->target[k + r] - x[r]);
+            for (int r = 0; r < d; r++)
+                if (s->constrained[k + r])
+                    out[k + r] = moved[r];
+        }
+    }
 }

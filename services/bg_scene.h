@@ -25,18 +25,32 @@
 #define BG_SCENE_MAX_BYTES ((size_t)16 << 20)
 
 typedef enum bg_method {
-    BG_METHOD_NEWTON = 0,
-    BG_METHOD_LOCAL_GLOBAL = 1,
+    BG_METHOD_NEWTON = 0,         /* static */
+    BG_METHOD_LOCAL_GLOBAL = 1,   /* static */
+    BG_METHOD_VARIATIONAL = 2,    /* dynamic: the variational implicit midpoint rule */
+    BG_METHOD_BACKWARD_EULER = 3, /* dynamic: the dissipative baseline */
 } bg_method;
 
-/* "newton", "local-global". */
+/* Whether a method integrates in time (variational, backward-euler). */
+int bg_method_is_dynamic(bg_method method);
+
+/* "newton", "local-global", "variational", "backward-euler". */
 const char *bg_method_name(bg_method method);
 /* Parses a method name; BG_ERR_INVALID naming the accepted names otherwise. */
 bg_status bg_method_parse(const char *name, bg_method *out, bg_error_t *err);
 
 typedef enum bg_task_kind {
     BG_TASK_STATIC = 0,
+    BG_TASK_DYNAMIC = 1,
 } bg_task_kind;
+
+/* task {"kind": "dynamic", "dt", "steps", "output_every", "damping"}. */
+typedef struct bg_dynamic_task {
+    double dt;          /* time step h (s) */
+    int steps;          /* number of steps */
+    int output_every;   /* a frame every this many steps (default: steps/100, at least 1) */
+    double damping;     /* momentum decays as exp(−damping·t), independent of h (1/s) */
+} bg_dynamic_task_t;
 
 /* Lamé parameters of ψ = mu |F − R|² + (lambda/2)(tr Y − n)², and the mass
  * density (needed only for gravity). */
@@ -69,6 +83,8 @@ typedef struct bg_scene_motion {
     double center[3];
     double translate[3];
     double mean_displacement[3];
+    double duration;        /* > 0: the motion is reached progressively over this time
+                               (dynamic scenes); 0: in place from the start */
 } bg_scene_motion_t;
 
 typedef enum bg_initial_kind {
@@ -97,6 +113,8 @@ typedef struct bg_scene {
     bg_initial_kind initial_kind;
     int32_t constrained_vertices; /* vertices with at least one constrained coordinate */
     bg_task_kind task;
+    bg_dynamic_task_t dynamic;  /* when task == BG_TASK_DYNAMIC */
+    double *velocity;           /* nv*dim initial velocities ("velocity"), or NULL (at rest) */
     bg_method method;           /* solver.method, default newton */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
     int max_iterations;         /* solver.max_iterations, default 200 */
@@ -115,6 +133,23 @@ bg_status bg_scene_parse(const char *json, size_t length, const char *path, bg_s
 
 /* Reads and parses a scene file (at most BG_SCENE_MAX_BYTES). */
 bg_status bg_scene_load(const char *path, bg_scene_t **out, bg_error_t *err);
+
+/*
+ * A fraction f of a rigid motion applied to point x (dim coordinates):
+ * rotate by f·radians about the axis through the centre, translate by
+ * f·translate (a screw motion: no collapse at half turns, unlike blending
+ * positions). f = 1 is the handle's full motion.
+ */
+void bg_motion_screw(const bg_scene_motion_t *motion, int dim, double f, const double *x,
+                     double *out);
+
+/*
+ * Prescribed values at time t (dynamic scenes: handles with a duration
+ * move a fraction min(t/duration, 1) of their motion, screw-interpolated
+ * for rigid motions). Writes nv*dim values; only constrained coordinates
+ * are meaningful, the others hold rest positions.
+ */
+void bg_scene_targets_at(const bg_scene_t *scene, double t, double *out);
 
 /* Frees the scene and everything it owns; sets *scene to NULL; accepts NULL. */
 void bg_scene_destroy(bg_scene_t **scene);

@@ -26,6 +26,13 @@
  * it is tried again only when the gradient has fallen by this factor. */
 #define STATIC_EXACT_HESSIAN_BELOW 1e-1
 #define STATIC_EXACT_RETRY_FACTOR 0.5
+/* The gradient has hit its round-off floor when an accepted step changes
+ * the energy by no more than round-off and the gradient by less than 1 %
+ * (a linearly converging method still shrinks it by more), or when a full
+ * exact-Newton step fails to halve a gradient already below 1e-6 relative
+ * (quadratic convergence would otherwise have gone on): stop there. */
+#define STATIC_NO_PROGRESS 0.99
+#define STATIC_STAGNATION_BELOW 1e-6
 
 struct bg_solver {
     const bg_scene_t *scene;
@@ -403,6 +410,11 @@ void bg_solver_destroy(bg_solver_t **solver)
     *solver = NULL;
 }
 
+const double *bg_solver_energy_density(const bg_solver_t *solver)
+{
+    return bg_elastic_energy_density(solver->model);
+}
+
 const double *bg_solver_mass(const bg_solver_t *solver)
 {
     return solver->mass;
@@ -500,8 +512,10 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                 p.rhs[p.free_index[i]] = -p.grad[i];
         double slope = NAN;
         if (solver->method == BG_METHOD_NEWTON) {
-            const int try_exact = last_full_step && rel < STATIC_EXACT_HESSIAN_BELOW &&
-                                  gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at;
+            /* With an inertia term (4/h²)M the exact Hessian is almost
+             * always positive definite: try it from the first iteration. */
+            const int near = p.inertia || (last_full_step && rel < STATIC_EXACT_HESSIAN_BELOW);
+            const int try_exact = near && gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at;
             st = newton_direction(&p, try_exact, res, &slope, err);
             if (try_exact && res->last_direction != BG_DIRECTION_EXACT)
                 exact_failed_at = gnorm;
@@ -511,7 +525,11 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         if (st != BG_OK)
             goto out;
         if (!(slope < 0.0)) {
-            res->stop_reason = "no descent direction";
+            /* Every matrix tried was positive definite or shifted to be, and
+             * −A⁻¹∇ is then a descent direction unless the gradient is
+             * round-off noise: progress has reached its floor. */
+            res->stop_reason = "no descent direction (gradient at round-off)";
+            res->roundoff_floor = 1;
             break;
         }
         double alpha = 1.0, W_trial = NAN, g_trial = NAN;
@@ -535,11 +553,18 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         }
         if (!accepted) {
             res->stop_reason = "no step decreases the energy beyond round-off";
+            res->roundoff_floor = 1;
             /* The last evaluation was at a rejected trial: restore the
              * rotations of the current iterate. */
             W = potential(&p, p.q, p.grad);
             break;
         }
+        const double noise = STATIC_ENERGY_NOISE_ULPS * DBL_EPSILON *
+                             fmax(p.last_magnitude, fabs(W));
+        const int stagnated =
+            (fabs(W_trial - W) <= noise && g_trial > STATIC_NO_PROGRESS * gnorm) ||
+            (alpha == 1.0 && res->last_direction == BG_DIRECTION_EXACT &&
+             rel < STATIC_STAGNATION_BELOW && g_trial > 0.5 * gnorm);
         last_full_step = alpha == 1.0;
         double *swap = p.q;
         p.q = p.q_trial;
@@ -561,6 +586,11 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         }
         if (opt->progress)
             opt->progress(opt->progress_ctx, solver->method, &pt);
+        if (stagnated && !(pt.relative_gradient <= opt->tolerance)) {
+            res->stop_reason = "the gradient reached its round-off floor";
+            res->roundoff_floor = 1;
+            break;
+        }
     }
     res->iterations = it;
     res->energy = W;
@@ -614,5 +644,6 @@ void bg_solve_result_release(bg_solve_result_t *r)
     free(r->q);
     free(r->energy_density);
     free(r->trace);
+    free(r->steps);
     memset(r, 0, sizeof *r);
 }

@@ -68,6 +68,19 @@ typedef enum bg_direction {
     BG_DIRECTION_SHIFTED,   /* projected plus a diagonal shift */
 } bg_direction;
 
+/* One time step of a dynamic run (bg_dynamics). Momenta are Σ_v p_v and
+ * Σ_v q_v × p_v over all vertices (planar: the angular momentum is along z). */
+typedef struct bg_step_record {
+    double time;
+    double kinetic;
+    double potential;         /* W = E − gravity work */
+    double total_energy;
+    double linear_momentum[3];
+    double angular_momentum[3];
+    int iterations;           /* Newton iterations of the step */
+    double seconds;           /* wall time of the step */
+} bg_step_record_t;
+
 typedef struct bg_solve_result {
     bg_method method;
     int converged;
@@ -84,10 +97,13 @@ typedef struct bg_solve_result {
     double rotfit_seconds, assembly_seconds, analyze_seconds, factor_seconds, solve_seconds;
     int64_t factorizations;
     bg_direction last_direction;
+    int roundoff_floor;       /* stopped where round-off, not the method, limits progress */
     double *q;                /* final positions, nv*n; owned */
     double *energy_density;   /* final ψ per element, ne; owned */
-    bg_trace_point_t *trace;  /* one point per iteration from 0; owned */
+    bg_trace_point_t *trace;  /* one point per iteration from 0 (dynamic: per step); owned */
     int trace_count;
+    bg_step_record_t *steps;  /* dynamic runs: steps[0] is the initial state; owned */
+    int step_count;
 } bg_solve_result_t;
 
 #define BG_SOLVE_RESULT_INIT {0}
@@ -122,6 +138,9 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opti
 
 /* W(q) = E(q) − gravity work, without any inertia term; grad (nv*n) filled. */
 double bg_solver_potential(bg_solver_t *solver, const double *q, double *grad);
+
+/* ψ per element at the last evaluated positions (ne values), borrowed. */
+const double *bg_solver_energy_density(const bg_solver_t *solver);
 
 /* The lumped vertex masses (nv), borrowed. */
 const double *bg_solver_mass(const bg_solver_t *solver);

@@ -783,7 +783,11 @@ static void test_method_names(void **state)
     assert_string_equal(bg_method_name(BG_METHOD_NEWTON), "newton");
     bg_error_t err = BG_ERROR_INIT;
     assert_int_equal(bg_method_parse("Newton", &m, &err), BG_ERR_INVALID);
-    assert_non_null(strstr(err.message, "newton or local-global"));
+    assert_non_null(strstr(err.message, "newton, local-global, variational or backward-euler"));
+    assert_int_equal(bg_method_parse("backward-euler", &m, NULL), BG_OK);
+    assert_int_equal(m, BG_METHOD_BACKWARD_EULER);
+    assert_true(bg_method_is_dynamic(m));
+    assert_false(bg_method_is_dynamic(BG_METHOD_NEWTON));
     bg_scene_destroy(NULL);
 }
 

@@ -9,6 +9,10 @@
 #include <stdint.h>
 #include <string.h>
 
+#ifndef M_PI
+#define M_PI 3.14159265358979323846
+#endif
+
 /* splitmix64: deterministic, seeded per test. */
 static inline double test_uniform(uint64_t *state)
 {
