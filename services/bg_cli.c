@@ -10,6 +10,7 @@
 
 #include "bg_dynamics.h"
 #include "bg_mesh_io.h"
+#include "bg_morph.h"
 #include "bg_plan.h"
 #include "bg_report.h"
 #include "bg_scene.h"
@@ -315,8 +316,9 @@ static bg_status write_pvd(const frames_t *f, bg_error_t *err)
     return BG_OK;
 }
 
-static bg_status run_dynamic(const bg_scene_t *scene, bg_method method, const char *dir,
-                             progress_t *pr, bg_solve_result_t *run, bg_error_t *err)
+/* A dynamic run or a morph: a series of frames written as it goes. */
+static bg_status run_series(const bg_scene_t *scene, bg_method method, const char *dir,
+                            progress_t *pr, bg_solve_result_t *run, bg_error_t *err)
 {
     frames_t f = {scene, dir, bg_method_name(method), NULL, NULL, NULL, 0, 0};
     char frames_dir[4200];
@@ -331,12 +333,21 @@ static bg_status run_dynamic(const bg_scene_t *scene, bg_method method, const ch
         st = bg_error_set(err, BG_ERR_IO, "cannot create %s/frames", dir);
         goto out;
     }
-    const bg_dynamic_options_t opt = {.method = method,
-                                      .frame = write_frame,
-                                      .frame_ctx = &f,
-                                      .progress = on_progress,
-                                      .progress_ctx = pr};
-    st = bg_dynamic_solve(scene, &opt, run, err);
+    if (scene->task == BG_TASK_DYNAMIC) {
+        const bg_dynamic_options_t opt = {.method = method,
+                                          .frame = write_frame,
+                                          .frame_ctx = &f,
+                                          .progress = on_progress,
+                                          .progress_ctx = pr};
+        st = bg_dynamic_solve(scene, &opt, run, err);
+    } else {
+        const bg_morph_options_t opt = {.method = method,
+                                        .frame = write_frame,
+                                        .frame_ctx = &f,
+                                        .progress = on_progress,
+                                        .progress_ctx = pr};
+        st = bg_morph_solve(scene, &opt, run, err);
+    }
     if (st == BG_OK)
         st = write_pvd(&f, err);
 out:
@@ -394,7 +405,7 @@ int bg_cli_solve(int argc, char **argv)
             (int)scene->mesh->ne, scene->mesh_source);
 
     const double *ref = scene->reference;
-    if (scene->reference_kind == BG_REFERENCE_NEWTON && !dynamic) {
+    if (scene->reference_kind == BG_REFERENCE_NEWTON && scene->task == BG_TASK_STATIC) {
         if (!o.quiet)
             fprintf(stderr, "computing the reference solution (Newton to its round-off floor)\n");
         const bg_solve_options_t ro = {.method = BG_METHOD_NEWTON,
@@ -411,8 +422,8 @@ int bg_cli_solve(int argc, char **argv)
     int all_converged = 1;
     for (int i = 0; i < o.method_count; i++) {
         bg_status st;
-        if (dynamic) {
-            st = run_dynamic(scene, o.methods[i], out_dir, &pr, &runs[i], &err);
+        if (dynamic || scene->task == BG_TASK_MORPH) {
+            st = run_series(scene, o.methods[i], out_dir, &pr, &runs[i], &err);
         } else {
             const bg_solve_options_t so = {.method = o.methods[i],
                                            .tolerance = tolerance,
@@ -433,7 +444,11 @@ int bg_cli_solve(int argc, char **argv)
         run_count++;
         if (pr.tty && !o.quiet)
             fputc('\n', stderr);
-        if (dynamic)
+        if (scene->task == BG_TASK_MORPH)
+            fprintf(stderr, "%s: %s, %d frames, %d iterations, %.3f s\n",
+                    bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].step_count,
+                    runs[i].iterations, runs[i].wall_seconds);
+        else if (dynamic)
             fprintf(stderr, "%s: %s, %d steps, %d Newton iterations, %.3f s (energy drift "
                             "%.3e)\n",
                     bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].step_count - 1,
@@ -464,6 +479,7 @@ int bg_cli_solve(int argc, char **argv)
     }
     printf("\nerror against run time (%s)\n",
            dynamic ? "per step: energy = total energy, error = |E - E0| / |E0|"
+           : scene->task == BG_TASK_MORPH ? "per frame: energy and relative gradient at M_t"
            : scene->reference_kind == BG_REFERENCE_NONE ? "no reference: error column empty"
                                                         : "error = |q - q_ref| / |q_ref|");
     bg_report_print_table(stdout, runs, run_count, CLI_TABLE_ROWS);

@@ -21,10 +21,6 @@
 #include "bg_scene.h"
 #include "bg_static.h"
 
-/* Called with the positions of every output frame (step 0 included). */
-typedef bg_status (*bg_frame_fn)(void *ctx, int step, double time, const double *q,
-                                 bg_error_t *err);
-
 typedef struct bg_dynamic_options {
     bg_method method;         /* BG_METHOD_VARIATIONAL or BG_METHOD_BACKWARD_EULER */
     double dt;                /* 0: the scene's */

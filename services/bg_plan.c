@@ -44,8 +44,13 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
         add(plan->services, &plan->service_count, "integration-step", detail);
     } else {
         add(plan->left_out, &plan->left_out_count, "integration-step",
-            "static scene: no time integration");
+            scene->task == BG_TASK_MORPH ? "morph: a sequence of static solves, no time "
+                                           "integration"
+                                         : "static scene: no time integration");
     }
+    if (scene->task == BG_TASK_MORPH)
+        add(plan->services, &plan->service_count, "rotation-fit/target",
+            "rotations fitted against the target rest shape too: E(M0 -> x) and E(M1 -> x)");
     if (planar)
         add(plan->left_out, &plan->left_out_count, "rotation-fit/svd",
             "planar scene: the 2D closed form covers inverted triangles, no 3D SVD path");

@@ -12,7 +12,7 @@ static cJSON *number_or_null(double x)
     return isfinite(x) ? cJSON_CreateNumber(x) : cJSON_CreateNull();
 }
 
-static cJSON *run_json(const bg_solve_result_t *r)
+static cJSON *run_json(const bg_solve_result_t *r, int morph)
 {
     cJSON *o = cJSON_CreateObject();
     if (!o)
@@ -42,7 +42,20 @@ static cJSON *run_json(const bg_solve_result_t *r)
         cJSON_AddNumberToObject(split, "solve_seconds", r->solve_seconds);
         cJSON_AddNumberToObject(split, "factorizations", (double)r->factorizations);
     }
-    if (r->steps) {
+    if (r->steps && morph) {
+        cJSON *frames = cJSON_AddArrayToObject(o, "frames");
+        for (int i = 0; frames && i < r->step_count; i++) {
+            const bg_step_record_t *st = &r->steps[i];
+            cJSON *t = cJSON_CreateObject();
+            if (!t)
+                break;
+            cJSON_AddNumberToObject(t, "t", st->time);
+            cJSON_AddItemToObject(t, "energy", number_or_null(st->total_energy));
+            cJSON_AddNumberToObject(t, "iterations", st->iterations);
+            cJSON_AddNumberToObject(t, "seconds", st->seconds);
+            cJSON_AddItemToArray(frames, t);
+        }
+    } else if (r->steps) {
         cJSON *steps = cJSON_AddArrayToObject(o, "steps");
         for (int i = 0; steps && i < r->step_count; i++) {
             const bg_step_record_t *st = &r->steps[i];
@@ -124,7 +137,7 @@ bg_status bg_report_render(const bg_scene_t *scene, const bg_plan_t *plan,
         cJSON_AddNullToObject(root, "reference");
     cJSON *rj = cJSON_AddArrayToObject(root, "runs");
     for (int i = 0; rj && i < run_count; i++)
-        cJSON_AddItemToArray(rj, run_json(&runs[i]));
+        cJSON_AddItemToArray(rj, run_json(&runs[i], scene->task == BG_TASK_MORPH));
     *json = cJSON_Print(root);
     cJSON_Delete(root);
     if (!*json)

@@ -39,6 +39,7 @@ static const char AXIS_NAMES[] = "xyz";
 /* Caps and defaults of dynamic tasks. */
 #define MAX_STEPS 10000000
 #define DEFAULT_FRAMES 100
+#define DEFAULT_MORPH_FRAMES 11
 
 typedef struct parser {
     const char *file; /* the scene as named in messages */
@@ -50,6 +51,7 @@ typedef struct parser {
     double extent;  /* largest side of the bounding box */
     int32_t *owner; /* nv*dim: index of the handle prescribing a coordinate, or -1 */
     uint8_t *flag;  /* nv: scratch marks for selections */
+    const char *morph_target; /* task.target, read once the mesh is known */
 } parser_t;
 
 /* A handle's selected vertices in increasing order, with the coordinates
@@ -1213,13 +1215,12 @@ static uint64_t splitmix64(uint64_t *state)
     return z ^ (z >> 31);
 }
 
-static bg_status read_all_positions(parser_t *p, const cJSON *item, const char *field, double *out)
+/* A positions file (one line per mesh vertex) named relative to the scene. */
+static bg_status read_positions_file(parser_t *p, const char *field, const char *relative,
+                                     double *out)
 {
-    const char *relative = NULL;
     char *path = NULL;
-    bg_status st = read_string(p, item, field, &relative);
-    if (st == BG_OK)
-        st = resolve_path(p, field, relative, &path);
+    bg_status st = resolve_path(p, field, relative, &path);
     if (st != BG_OK)
         return st;
     bg_error_t inner = BG_ERROR_INIT;
@@ -1227,6 +1228,13 @@ static bg_status read_all_positions(parser_t *p, const cJSON *item, const char *
         st = relay(p, field, &inner);
     free(path);
     return st;
+}
+
+static bg_status read_all_positions(parser_t *p, const cJSON *item, const char *field, double *out)
+{
+    const char *relative = NULL;
+    bg_status st = read_string(p, item, field, &relative);
+    return st == BG_OK ? read_positions_file(p, field, relative, out) : st;
 }
 
 static bg_status parse_initial(parser_t *p, const cJSON *item)
@@ -1325,7 +1333,8 @@ static bg_status parse_initial(parser_t *p, const cJSON *item)
 
 static bg_status parse_task(parser_t *p, const cJSON *item)
 {
-    static const char *const keys[] = {"kind", "dt", "steps", "output_every", "damping", NULL};
+    static const char *const keys[] = {"kind",    "dt",     "steps", "output_every",
+                                       "damping", "target", "frames", NULL};
     bg_scene_t *s = p->scene;
     s->task = BG_TASK_STATIC;
     if (!item)
@@ -1340,16 +1349,36 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
     if (st != BG_OK)
         return st;
     if (strcmp(kind, "static") == 0) {
-        static const char *const dynamic_only[] = {"dt", "steps", "output_every", "damping", NULL};
+        static const char *const dynamic_only[] = {"dt",     "steps",  "output_every",
+                                                   "damping", "target", "frames", NULL};
         for (int i = 0; dynamic_only[i]; i++)
             if (member(item, dynamic_only[i]))
-                return fail(p, BG_ERR_INVALID, "task", "'%s' belongs to dynamic tasks",
+                return fail(p, BG_ERR_INVALID, "task", "'%s' does not belong to static tasks",
                             dynamic_only[i]);
         return BG_OK;
     }
+    if (strcmp(kind, "morph") == 0) {
+        s->task = BG_TASK_MORPH;
+        if (!member(item, "target"))
+            return fail(p, BG_ERR_INVALID, "task.target", "missing (a positions file)");
+        st = read_string(p, member(item, "target"), "task.target", &p->morph_target);
+        if (st != BG_OK)
+            return st;
+        int64_t frames = DEFAULT_MORPH_FRAMES;
+        if (member(item, "frames")) {
+            st = read_integer(p, member(item, "frames"), "task.frames", 2.0, (double)MAX_STEPS,
+                              &frames);
+            if (st != BG_OK)
+                return st;
+        }
+        s->morph_frames = (int)frames;
+        return BG_OK;
+    }
+    if (member(item, "target") || member(item, "frames"))
+        return fail(p, BG_ERR_INVALID, "task", "'target' and 'frames' belong to morph tasks");
     if (strcmp(kind, "dynamic") != 0)
         return fail(p, BG_ERR_UNSUPPORTED, "task.kind",
-                    "task kind '%s' is not supported (supported: static, dynamic)", kind);
+                    "task kind '%s' is not supported (supported: static, dynamic, morph)", kind);
     s->task = BG_TASK_DYNAMIC;
     bg_dynamic_task_t *d = &s->dynamic;
     if (!member(item, "dt"))
@@ -1686,6 +1715,12 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
         st = parse_handles(p, member(root, "handles"));
     if (st == BG_OK)
         st = parse_initial(p, member(root, "initial"));
+    if (st == BG_OK && s->task == BG_TASK_MORPH) {
+        s->morph_target = malloc((n + 1) * sizeof *s->morph_target);
+        if (!s->morph_target)
+            return fail(p, BG_ERR_NOMEM, "task.target", "out of memory");
+        st = read_positions_file(p, "task.target", p->morph_target, s->morph_target);
+    }
     if (st == BG_OK)
         st = parse_velocity(p, member(root, "velocity"));
     if (st == BG_OK)
@@ -1779,6 +1814,7 @@ void bg_scene_destroy(bg_scene_t **scene)
     free(s->initial);
     free(s->reference);
     free(s->velocity);
+    free(s->morph_target);
     for (int32_t h = 0; s->motions && h < s->handle_count; h++)
         free(s->motions[h].vertices);
     free(s->motions);

@@ -42,6 +42,7 @@ bg_status bg_method_parse(const char *name, bg_method *out, bg_error_t *err);
 typedef enum bg_task_kind {
     BG_TASK_STATIC = 0,
     BG_TASK_DYNAMIC = 1,
+    BG_TASK_MORPH = 2,
 } bg_task_kind;
 
 /* task {"kind": "dynamic", "dt", "steps", "output_every", "damping"}. */
@@ -115,6 +116,8 @@ typedef struct bg_scene {
     bg_task_kind task;
     bg_dynamic_task_t dynamic;  /* when task == BG_TASK_DYNAMIC */
     double *velocity;           /* nv*dim initial velocities ("velocity"), or NULL (at rest) */
+    double *morph_target;       /* morph: nv*dim target positions (same connectivity) */
+    int morph_frames;           /* morph: frames from t = 0 to t = 1, at least 2 */
     bg_method method;           /* solver.method, default newton */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
     int max_iterations;         /* solver.max_iterations, default 200 */

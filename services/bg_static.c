@@ -43,11 +43,16 @@ struct bg_solver {
     int32_t nfree;
     double *gravity_force; /* ndof: m_v g, or NULL without gravity */
     bg_elastic_t *model;
+    bg_mesh_t *target_mesh;        /* morphing: the second rest shape, or NULL */
+    bg_elastic_t *target_model;    /* E(M1 → q) */
+    double blend;                  /* W uses (1 − blend) E0 + blend E1 */
+    double *grad_target;           /* ndof scratch for ∇E1 */
     bg_sparse_t *sys;              /* Newton: the free×free Hessian system */
     bg_sparse_t *lg[3];            /* local/global: one scalar Laplacian per coordinate */
     int32_t *lg_index[3];          /* per vertex: unknown of coordinate c, or −1 */
     int lg_system[3];              /* which lg[] serves coordinate c (equal free sets share) */
     double *lg_rhs, *lg_x;
+    double lg_scale;               /* 2μ + λ */
     double *q, *q_trial, *grad, *grad_trial, *rhs, *step;
     double *mass;          /* nv lumped masses */
     double *inertia_diag;  /* nfree: c·m on the diagonal, while an inertia term is active */
@@ -74,6 +79,9 @@ static void problem_release(problem_t *p)
     free(p->free_index);
     free(p->gravity_force);
     bg_elastic_destroy(&p->model);
+    bg_elastic_destroy(&p->target_model);
+    bg_mesh_destroy(&p->target_mesh);
+    free(p->grad_target);
     bg_sparse_destroy(&p->sys);
     for (int c = 0; c < 3; c++) {
         bg_sparse_destroy(&p->lg[c]);
@@ -98,6 +106,59 @@ static void problem_release(problem_t *p)
  * costs far less than one interleaved n-times-larger one (whose fill grows
  * with the square of the block size), and is done once per solve.
  */
+/* Diagonal shifts tried when a matrix fails to factor: 0, then a small
+ * multiple of its largest entry, growing geometrically. */
+static double next_shift(const bg_sparse_t *sys, double shift)
+{
+    if (shift > 0.0)
+        return shift * STATIC_SHIFT_GROWTH;
+    const double *values = bg_sparse_values((bg_sparse_t *)sys);
+    double largest = 0.0;
+    for (size_t i = 0; i < bg_sparse_nonzeros(sys); i++)
+        largest = fmax(largest, fabs(values[i]));
+    return STATIC_FIRST_SHIFT * (largest > 0.0 ? largest : 1.0);
+}
+
+/* Factors the assembled matrix, adding a growing diagonal shift while it is
+ * not numerically positive definite (a coordinate held nowhere leaves the
+ * Laplacian singular). */
+static bg_status factor_with_shift(bg_sparse_t *sys, bg_error_t *err)
+{
+    bg_error_t local = BG_ERROR_INIT;
+    double shift = 0.0;
+    for (int attempt = 0; attempt <= STATIC_MAX_SHIFTS; attempt++) {
+        bg_error_clear(&local);
+        bg_status st = bg_sparse_factorize(sys, shift, &local);
+        if (st != BG_ERR_NUMERIC)
+            return st == BG_OK ? BG_OK : bg_error_set(err, st, "%s", local.message);
+        shift = next_shift(sys, shift);
+    }
+    return bg_error_set(err, BG_ERR_NUMERIC, "%s (even with a diagonal shift)", local.message);
+}
+
+/* Assembles and factors local/global's Laplacians for the current blend
+ * of rest shapes: (1 − b) c L0 + b c L1. */
+static bg_status lg_factor(problem_t *p, bg_error_t *err)
+{
+    const double b = p->target_model ? p->blend : 0.0;
+    for (int c = 0; c < 3; c++) {
+        if (!p->lg[c])
+            continue;
+        bg_sparse_zero(p->lg[c]);
+        bg_elastic_assemble_scalar_laplacian(p->model, (1.0 - b) * p->lg_scale,
+                                             bg_sparse_scatter(p->lg[c]),
+                                             bg_sparse_values(p->lg[c]));
+        if (p->target_model)
+            bg_elastic_assemble_scalar_laplacian(p->target_model, b * p->lg_scale,
+                                                 bg_sparse_scatter(p->lg[c]),
+                                                 bg_sparse_values(p->lg[c]));
+        bg_status st = factor_with_shift(p->lg[c], err);
+        if (st != BG_OK)
+            return st;
+    }
+    return BG_OK;
+}
+
 static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
 {
     const int32_t nv = p->mesh->nv;
@@ -125,11 +186,9 @@ static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
         bg_status st = bg_sparse_new(p->mesh, 1, p->lg_index[c], count, &p->lg[c], err);
         if (st != BG_OK)
             return st;
-        bg_sparse_zero(p->lg[c]);
-        bg_elastic_assemble_scalar_laplacian(p->model, scale, bg_sparse_scatter(p->lg[c]),
-                                             bg_sparse_values(p->lg[c]));
     }
-    return BG_OK;
+    p->lg_scale = scale;
+    return lg_factor(p, err);
 }
 
 static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method method,
@@ -183,7 +242,13 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
 static double potential(problem_t *p, const double *q, double *grad)
 {
     const double t0 = bg_clock_now();
-    const double elastic = bg_elastic_eval(p->model, q, grad);
+    double elastic = bg_elastic_eval(p->model, q, grad);
+    if (p->target_model) {
+        const double b = p->blend, e1 = bg_elastic_eval(p->target_model, q, p->grad_target);
+        elastic = (1.0 - b) * elastic + b * e1;
+        for (size_t i = 0; i < p->ndof; i++)
+            grad[i] = (1.0 - b) * grad[i] + b * p->grad_target[i];
+    }
     double work = 0.0, magnitude = fabs(elastic);
     if (p->gravity_force) {
         for (size_t i = 0; i < p->ndof; i++) {
@@ -244,36 +309,6 @@ static bg_status push_trace(bg_solve_result_t *r, int *cap, const bg_trace_point
     return BG_OK;
 }
 
-/* Diagonal shifts tried when a matrix fails to factor: 0, then a small
- * multiple of its largest entry, growing geometrically. */
-static double next_shift(const bg_sparse_t *sys, double shift)
-{
-    if (shift > 0.0)
-        return shift * STATIC_SHIFT_GROWTH;
-    const double *values = bg_sparse_values((bg_sparse_t *)sys);
-    double largest = 0.0;
-    for (size_t i = 0; i < bg_sparse_nonzeros(sys); i++)
-        largest = fmax(largest, fabs(values[i]));
-    return STATIC_FIRST_SHIFT * (largest > 0.0 ? largest : 1.0);
-}
-
-/* Factors the assembled matrix, adding a growing diagonal shift while it is
- * not numerically positive definite (a coordinate held nowhere leaves the
- * Laplacian singular). */
-static bg_status factor_with_shift(bg_sparse_t *sys, bg_error_t *err)
-{
-    bg_error_t local = BG_ERROR_INIT;
-    double shift = 0.0;
-    for (int attempt = 0; attempt <= STATIC_MAX_SHIFTS; attempt++) {
-        bg_error_clear(&local);
-        bg_status st = bg_sparse_factorize(sys, shift, &local);
-        if (st != BG_ERR_NUMERIC)
-            return st == BG_OK ? BG_OK : bg_error_set(err, st, "%s", local.message);
-        shift = next_shift(sys, shift);
-    }
-    return bg_error_set(err, BG_ERR_NUMERIC, "%s (even with a diagonal shift)", local.message);
-}
-
 /* Local/global direction: each coordinate's block solved with its own
  * prefactored Laplacian; *slope as for solve_direction. */
 static bg_status lg_direction(problem_t *p, double *slope, bg_error_t *err)
@@ -320,8 +355,12 @@ static double assemble_newton(problem_t *p, int project)
 {
     const double t0 = bg_clock_now();
     bg_sparse_zero(p->sys);
-    bg_elastic_assemble_hessian(p->model, p->q, project, 1.0, bg_sparse_scatter(p->sys),
+    const double b = p->target_model ? p->blend : 0.0;
+    bg_elastic_assemble_hessian(p->model, p->q, project, 1.0 - b, bg_sparse_scatter(p->sys),
                                 bg_sparse_values(p->sys));
+    if (p->target_model)
+        bg_elastic_assemble_hessian(p->target_model, p->q, project, b, bg_sparse_scatter(p->sys),
+                                    bg_sparse_values(p->sys));
     if (p->inertia)
         bg_sparse_add_diagonal(p->sys, p->inertia_diag);
     return bg_clock_now() - t0;
@@ -389,9 +428,6 @@ bg_status bg_solver_new(const bg_scene_t *scene, bg_method method, bg_solver_t *
     if (!p)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating a solver");
     bg_status st = problem_init(p, scene, method, err);
-    for (int c = 0; st == BG_OK && c < 3; c++)
-        if (p->lg[c])
-            st = factor_with_shift(p->lg[c], err);
     if (st != BG_OK) {
         bg_solver_destroy(&p);
         return st;
@@ -408,6 +444,33 @@ void bg_solver_destroy(bg_solver_t **solver)
     problem_release(*solver);
     free(*solver);
     *solver = NULL;
+}
+
+bg_status bg_solver_set_blend(bg_solver_t *p, const double *target, double blend,
+                              bg_error_t *err)
+{
+    if (!(blend >= 0.0 && blend <= 1.0))
+        return bg_error_set(err, BG_ERR_INVALID, "blend %g outside [0, 1]", blend);
+    if (!p->target_model) {
+        bg_status st = bg_mesh_clone(p->mesh, &p->target_mesh, err);
+        if (st != BG_OK)
+            return st;
+        memcpy(p->target_mesh->x, target, p->ndof * sizeof *target);
+        for (int32_t e = 0; e < p->mesh->ne; e++)
+            if (!(bg_mesh_element_measure(p->target_mesh, target, e) > 0.0))
+                return bg_error_set(err, BG_ERR_INVALID,
+                                    "%s: element %d is inverted or flat in the morph target",
+                                    p->scene->path, (int)e + 1);
+        p->grad_target = malloc(p->ndof * sizeof *p->grad_target + 1);
+        if (!p->grad_target)
+            return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the morph target");
+        st = bg_elastic_new(p->target_mesh, p->scene->material.mu, p->scene->material.lambda,
+                            &p->target_model, err);
+        if (st != BG_OK)
+            return st;
+    }
+    p->blend = blend;
+    return p->method == BG_METHOD_LOCAL_GLOBAL ? lg_factor(p, err) : BG_OK;
 }
 
 const double *bg_solver_energy_density(const bg_solver_t *solver)

@@ -40,6 +40,11 @@ typedef struct bg_trace_point {
 
 typedef void (*bg_progress_fn)(void *ctx, bg_method method, const bg_trace_point_t *point);
 
+/* Called with the positions of every output frame of a series (a dynamic
+ * run's steps, a morph's frames), the first included. */
+typedef bg_status (*bg_frame_fn)(void *ctx, int index, double time, const double *q,
+                                 bg_error_t *err);
+
 /* An inertia term (c/2) Σ_v m_v |q_v − y_v|² added to W: a time step of an
  * implicit integrator minimises W plus this (bg_dynamics). */
 typedef struct bg_inertia {
@@ -135,6 +140,15 @@ void bg_solver_destroy(bg_solver_t **solver);
  * options->method is ignored (the solver's method is used). */
 bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *options,
                              bg_solve_result_t *result, bg_error_t *err);
+
+/*
+ * Morphing: from now on W uses (1 − blend)·E(M0 → q) + blend·E(M1 → q),
+ * with M1 the same connectivity at the target positions (nv*n, copied on
+ * the first call; later calls only change the blend, in [0, 1]). Fails
+ * naming the element if the target inverts or flattens one.
+ */
+bg_status bg_solver_set_blend(bg_solver_t *solver, const double *target, double blend,
+                              bg_error_t *err);
 
 /* W(q) = E(q) − gravity work, without any inertia term; grad (nv*n) filled. */
 double bg_solver_potential(bg_solver_t *solver, const double *q, double *grad);
