@@ -11,6 +11,7 @@
 #include "bg_dynamics.h"
 #include "bg_mesh_io.h"
 #include "bg_morph.h"
+#include "bg_param.h"
 #include "bg_plan.h"
 #include "bg_report.h"
 #include "bg_scene.h"
@@ -316,6 +317,18 @@ static bg_status write_pvd(const frames_t *f, bg_error_t *err)
     return BG_OK;
 }
 
+/* The surface with its UVs (DIR/<method>-uv.obj) and the map's quality. */
+static bg_status write_parameterization(const bg_scene_t *scene, bg_solve_result_t *run,
+                                        const char *dir, bg_error_t *err)
+{
+    char name[96], path[4400];
+    bg_param_quality(scene, run->q, &run->map);
+    snprintf(name, sizeof name, "%s-uv.obj", bg_method_name(run->method));
+    if (join_path(path, sizeof path, dir, name) != 0)
+        return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
+    return bg_param_write_obj(scene, run->q, path, err);
+}
+
 /* A dynamic run or a morph: a series of frames written as it goes. */
 static bg_status run_series(const bg_scene_t *scene, bg_method method, const char *dir,
                             progress_t *pr, bg_solve_result_t *run, bg_error_t *err)
@@ -430,8 +443,12 @@ int bg_cli_solve(int argc, char **argv)
                                            .max_iterations = max_iterations,
                                            .reference = ref,
                                            .progress = on_progress,
-                                           .progress_ctx = &pr};
+                                           .progress_ctx = &pr,
+                                           .keep_orientation =
+                                               scene->task == BG_TASK_PARAMETERIZE};
             st = bg_static_solve(scene, &so, &runs[i], &err);
+            if (st == BG_OK && scene->task == BG_TASK_PARAMETERIZE)
+                st = write_parameterization(scene, &runs[i], out_dir, &err);
         }
         if (st != BG_OK) {
             if (pr.tty && !o.quiet)

@@ -22,22 +22,20 @@ struct bg_elastic {
  * Hessian uses this floor instead of dividing by zero. */
 #define ELASTIC_PAIR_SUM_FLOOR 1e-10
 
-bg_status bg_elastic_new(const bg_mesh_t *mesh, double mu, double lambda, bg_elastic_t **out,
-                         bg_error_t *err)
+/* The model over mesh's connectivity with n-dimensional unknowns; rest
+ * edge matrices from rest_edges (ne·n·n, row-major, column j = edge j) or,
+ * when NULL, from the mesh's positions. */
+static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest_edges, double mu,
+                              double lambda, bg_elastic_t **out, bg_error_t *err)
 {
     *out = NULL;
-    const bg_mesh_kind kind = bg_mesh_kind_of(mesh);
-    if (kind == BG_MESH_SURFACE)
-        return bg_error_set(err, BG_ERR_UNSUPPORTED,
-                            "the elastic model needs planar triangles or tetrahedra, not a "
-                            "triangle surface in 3D");
     if (!(mu > 0.0) || !isfinite(mu) || !isfinite(lambda))
         return bg_error_set(err, BG_ERR_INVALID, "material: mu = %g must be positive", mu);
     bg_elastic_t *md = calloc(1, sizeof *md);
     if (!md)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the elastic model");
     md->mesh = mesh;
-    md->n = mesh->dim;
+    md->n = dim;
     md->m = (md->n + 1) * md->n;
     md->mu = mu;
     md->lambda = lambda;
@@ -53,9 +51,13 @@ bg_status bg_elastic_new(const bg_mesh_t *mesh, double mu, double lambda, bg_ela
     for (size_t e = 0; e < ne; e++) {
         const int32_t *el = mesh->elements + e * (n + 1);
         double D[9];
-        for (size_t j = 0; j < n; j++)
-            for (size_t a = 0; a < n; a++)
-                D[a * n + j] = mesh->x[(size_t)el[j + 1] * n + a] - mesh->x[(size_t)el[0] * n + a];
+        if (rest_edges)
+            memcpy(D, rest_edges + e * n * n, n * n * sizeof *D);
+        else
+            for (size_t j = 0; j < n; j++)
+                for (size_t a = 0; a < n; a++)
+                    D[a * n + j] =
+                        mesh->x[(size_t)el[j + 1] * n + a] - mesh->x[(size_t)el[0] * n + a];
         double *Di = md->dminv + e * n * n;
         double det;
         if (n == 2) {
@@ -91,6 +93,29 @@ bg_status bg_elastic_new(const bg_mesh_t *mesh, double mu, double lambda, bg_ela
     }
     *out = md;
     return BG_OK;
+}
+
+bg_status bg_elastic_new(const bg_mesh_t *mesh, double mu, double lambda, bg_elastic_t **out,
+                         bg_error_t *err)
+{
+    if (bg_mesh_kind_of(mesh) == BG_MESH_SURFACE) {
+        *out = NULL;
+        return bg_error_set(err, BG_ERR_UNSUPPORTED,
+                            "the elastic model needs planar triangles or tetrahedra, not a "
+                            "triangle surface in 3D");
+    }
+    return elastic_init(mesh, mesh->dim, NULL, mu, lambda, out, err);
+}
+
+bg_status bg_elastic_new_from_rest(const bg_mesh_t *mesh, int dim, const double *rest_edges,
+                                   double mu, double lambda, bg_elastic_t **out, bg_error_t *err)
+{
+    if (dim + 1 != mesh->nodes_per_element) {
+        *out = NULL;
+        return bg_error_set(err, BG_ERR_INVALID, "rest frames of dimension %d need elements of "
+                            "%d nodes", dim, dim + 1);
+    }
+    return elastic_init(mesh, dim, rest_edges, mu, lambda, out, err);
 }
 
 void bg_elastic_destroy(bg_elastic_t **model)

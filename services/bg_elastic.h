@@ -39,6 +39,17 @@ bg_status bg_elastic_new(const bg_mesh_t *mesh, double mu, double lambda, bg_ela
                          bg_error_t *err);
 void bg_elastic_destroy(bg_elastic_t **model);
 
+/*
+ * A model whose rest shape is given per element rather than by positions:
+ * rest_edges holds, for each element, the dim×dim edge matrix D_m
+ * (row-major, column j = edge from node 0 to node j+1), with positive
+ * determinant. Unknowns are dim-dimensional. Used for parameterization,
+ * where each surface triangle's rest frame is its own isometric 2D copy.
+ * mesh (connectivity only) is borrowed; rest_edges is copied into D_m⁻¹.
+ */
+bg_status bg_elastic_new_from_rest(const bg_mesh_t *mesh, int dim, const double *rest_edges,
+                                   double mu, double lambda, bg_elastic_t **out, bg_error_t *err);
+
 int bg_elastic_dim(const bg_elastic_t *model);
 int bg_elastic_local_size(const bg_elastic_t *model);
 const bg_mesh_t *bg_elastic_mesh(const bg_elastic_t *model);

@@ -51,6 +51,9 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
     if (scene->task == BG_TASK_MORPH)
         add(plan->services, &plan->service_count, "rotation-fit/target",
             "rotations fitted against the target rest shape too: E(M0 -> x) and E(M1 -> x)");
+    if (planar && scene->task == BG_TASK_PARAMETERIZE)
+        add(plan->left_out, &plan->left_out_count, "mass-matrix",
+            "parameterization: a static map of the surface to the plane");
     if (planar)
         add(plan->left_out, &plan->left_out_count, "rotation-fit/svd",
             "planar scene: the 2D closed form covers inverted triangles, no 3D SVD path");
@@ -58,7 +61,8 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
         add(plan->left_out, &plan->left_out_count, "volume-term",
             "lambda = 0: no (tr Y - n)^2 term (the plain as-rigid-as-possible energy)");
     const double *g = scene->gravity;
-    if (!dynamic && g[0] == 0.0 && g[1] == 0.0 && g[2] == 0.0)
+    if (!dynamic && scene->task != BG_TASK_PARAMETERIZE && g[0] == 0.0 && g[1] == 0.0 &&
+        g[2] == 0.0)
         add(plan->left_out, &plan->left_out_count, "mass-matrix",
             "no gravity: the lumped mass matrix is not built");
 }

@@ -42,6 +42,17 @@ static cJSON *run_json(const bg_solve_result_t *r, int morph)
         cJSON_AddNumberToObject(split, "solve_seconds", r->solve_seconds);
         cJSON_AddNumberToObject(split, "factorizations", (double)r->factorizations);
     }
+    if (r->map.valid) {
+        cJSON_AddNumberToObject(o, "flipped_triangles", (double)r->map.flipped_triangles);
+        cJSON *area = cJSON_AddObjectToObject(o, "area_distortion");
+        cJSON *angle = cJSON_AddObjectToObject(o, "angle_distortion");
+        if (area && angle) {
+            cJSON_AddNumberToObject(area, "mean", r->map.area_mean);
+            cJSON_AddNumberToObject(area, "max", r->map.area_max);
+            cJSON_AddNumberToObject(angle, "mean", r->map.angle_mean);
+            cJSON_AddNumberToObject(angle, "max", r->map.angle_max);
+        }
+    }
     if (r->steps && morph) {
         cJSON *frames = cJSON_AddArrayToObject(o, "frames");
         for (int i = 0; frames && i < r->step_count; i++) {

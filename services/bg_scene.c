@@ -1,6 +1,7 @@
 #include "bg_scene.h"
 
 #include "bg_initial.h"
+#include "bg_param.h"
 
 #include <cJSON.h>
 #include <math.h>
@@ -282,7 +283,7 @@ static bg_status finish_mesh(parser_t *p, bg_mesh_t *mesh)
      * for file meshes); generators do not, so validate here in all cases. */
     if (bg_mesh_validate(mesh, s->mesh_source, &s->reoriented, &inner) != BG_OK)
         return relay(p, "mesh", &inner);
-    if (bg_mesh_kind_of(mesh) == BG_MESH_SURFACE)
+    if (bg_mesh_kind_of(mesh) == BG_MESH_SURFACE && s->task != BG_TASK_PARAMETERIZE)
         return fail(p, BG_ERR_INVALID, "mesh",
                     "%s is a triangle surface; static elasticity needs tetrahedra or planar "
                     "triangles (set mesh.planar for a flat triangle mesh)",
@@ -1333,8 +1334,8 @@ static bg_status parse_initial(parser_t *p, const cJSON *item)
 
 static bg_status parse_task(parser_t *p, const cJSON *item)
 {
-    static const char *const keys[] = {"kind",    "dt",     "steps", "output_every",
-                                       "damping", "target", "frames", NULL};
+    static const char *const keys[] = {"kind",   "dt",     "steps", "output_every", "damping",
+                                       "target", "frames", "alpha", "beta",         NULL};
     bg_scene_t *s = p->scene;
     s->task = BG_TASK_STATIC;
     if (!item)
@@ -1349,15 +1350,32 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
     if (st != BG_OK)
         return st;
     if (strcmp(kind, "static") == 0) {
-        static const char *const dynamic_only[] = {"dt",     "steps",  "output_every",
-                                                   "damping", "target", "frames", NULL};
-        for (int i = 0; dynamic_only[i]; i++)
-            if (member(item, dynamic_only[i]))
-                return fail(p, BG_ERR_INVALID, "task", "'%s' does not belong to static tasks",
-                            dynamic_only[i]);
+        static const char *const static_keys[] = {"kind", NULL};
+        return check_keys(p, item, "task", static_keys);
+    }
+    if (strcmp(kind, "parameterize") == 0) {
+        static const char *const param_keys[] = {"kind", "alpha", "beta", NULL};
+        st = check_keys(p, item, "task", param_keys);
+        if (st != BG_OK)
+            return st;
+        s->task = BG_TASK_PARAMETERIZE;
+        s->alpha = s->beta = 1.0;
+        if (member(item, "alpha"))
+            st = read_number(p, member(item, "alpha"), "task.alpha", &s->alpha);
+        if (st == BG_OK && member(item, "beta"))
+            st = read_number(p, member(item, "beta"), "task.beta", &s->beta);
+        if (st != BG_OK)
+            return st;
+        if (!(s->alpha >= 0.0) || !(s->beta > 0.0))
+            return fail(p, BG_ERR_INVALID, "task",
+                        "alpha = %g must be >= 0 and beta = %g positive", s->alpha, s->beta);
         return BG_OK;
     }
     if (strcmp(kind, "morph") == 0) {
+        static const char *const morph_keys[] = {"kind", "target", "frames", NULL};
+        st = check_keys(p, item, "task", morph_keys);
+        if (st != BG_OK)
+            return st;
         s->task = BG_TASK_MORPH;
         if (!member(item, "target"))
             return fail(p, BG_ERR_INVALID, "task.target", "missing (a positions file)");
@@ -1374,11 +1392,16 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
         s->morph_frames = (int)frames;
         return BG_OK;
     }
-    if (member(item, "target") || member(item, "frames"))
-        return fail(p, BG_ERR_INVALID, "task", "'target' and 'frames' belong to morph tasks");
     if (strcmp(kind, "dynamic") != 0)
         return fail(p, BG_ERR_UNSUPPORTED, "task.kind",
-                    "task kind '%s' is not supported (supported: static, dynamic, morph)", kind);
+                    "task kind '%s' is not supported (supported: static, dynamic, morph, "
+                    "parameterize)",
+                    kind);
+    static const char *const dynamic_keys[] = {"kind", "dt", "steps", "output_every", "damping",
+                                               NULL};
+    st = check_keys(p, item, "task", dynamic_keys);
+    if (st != BG_OK)
+        return st;
     s->task = BG_TASK_DYNAMIC;
     bg_dynamic_task_t *d = &s->dynamic;
     if (!member(item, "dt"))
@@ -1708,6 +1731,21 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
     if (!s->constrained || !s->target || !s->initial)
         return fail(p, BG_ERR_NOMEM, NULL, "out of memory for %d vertices", (int)s->mesh->nv);
     memcpy(s->target, s->mesh->x, n * sizeof *s->target);
+    if (s->task == BG_TASK_PARAMETERIZE) {
+        /* The material comes from alpha and beta, the rigid modes are
+         * removed by the setup, the start is a Tutte embedding. */
+        static const char *const unused[] = {"material", "gravity", "handles", "initial",
+                                             "reference", "velocity", NULL};
+        for (int i = 0; unused[i]; i++)
+            if (member(root, unused[i]))
+                return fail(p, BG_ERR_INVALID, unused[i], "not used by a parameterize task");
+        st = parse_solver(p, member(root, "solver"));
+        if (st == BG_OK)
+            st = bg_param_setup(s, p->err);
+        if (st == BG_OK)
+            s->mesh_format = BG_FORMAT_OBJ;
+        return st;
+    }
     st = parse_material(p, member(root, "material"));
     if (st == BG_OK)
         st = parse_gravity(p, member(root, "gravity"));
@@ -1815,6 +1853,8 @@ void bg_scene_destroy(bg_scene_t **scene)
     free(s->reference);
     free(s->velocity);
     free(s->morph_target);
+    bg_mesh_destroy(&s->surface);
+    free(s->rest_edges);
     for (int32_t h = 0; s->motions && h < s->handle_count; h++)
         free(s->motions[h].vertices);
     free(s->motions);

@@ -43,6 +43,7 @@ typedef enum bg_task_kind {
     BG_TASK_STATIC = 0,
     BG_TASK_DYNAMIC = 1,
     BG_TASK_MORPH = 2,
+    BG_TASK_PARAMETERIZE = 3,
 } bg_task_kind;
 
 /* task {"kind": "dynamic", "dt", "steps", "output_every", "damping"}. */
@@ -118,6 +119,12 @@ typedef struct bg_scene {
     double *velocity;           /* nv*dim initial velocities ("velocity"), or NULL (at rest) */
     double *morph_target;       /* morph: nv*dim target positions (same connectivity) */
     int morph_frames;           /* morph: frames from t = 0 to t = 1, at least 2 */
+    /* parameterize: `mesh` is the planar UV mesh (same connectivity, x = the
+     * Tutte start), `surface` the 3D input, `rest_edges` each triangle's
+     * isometric 2D rest frame (ne·4, see bg_elastic_new_from_rest). */
+    bg_mesh_t *surface;
+    double *rest_edges;
+    double alpha, beta;
     bg_method method;           /* solver.method, default newton */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
     int max_iterations;         /* solver.max_iterations, default 200 */

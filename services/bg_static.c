@@ -32,6 +32,12 @@
  * exact-Newton step fails to halve a gradient already below 1e-6 relative
  * (quadratic convergence would otherwise have gone on): stop there. */
 #define STATIC_NO_PROGRESS 0.99
+/* The absolute floor of the stopping test (DESIGN.md §1.5): a gradient this
+ * small relative to the scene's force scale — (2μ + |λ|)·V/L for elastic
+ * forces over a body of volume V and size L, plus the weight — is
+ * converged whatever the relative test says (a start already at the
+ * solution has a relative gradient of pure round-off). */
+#define STATIC_ABSOLUTE_FLOOR 1e-11
 #define STATIC_STAGNATION_BELOW 1e-6
 
 struct bg_solver {
@@ -60,6 +66,7 @@ struct bg_solver {
     bg_method method;
     double last_magnitude; /* |elastic| + |gravity work| + inertia of the last evaluation */
     double rotfit_seconds;
+    double force_floor;    /* absolute gradient floor */
 };
 typedef struct bg_solver problem_t;
 
@@ -229,10 +236,24 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
             for (int c = 0; c < p->n; c++)
                 p->gravity_force[(size_t)v * p->n + c] = p->mass[v] * gv[c];
     }
-    bg_status st = bg_elastic_new(p->mesh, scene->material.mu, scene->material.lambda, &p->model,
-                                  err);
+    double lo[3], hi[3], diagonal = 0.0, weight = 0.0;
+    bg_mesh_bounds(p->mesh, lo, hi);
+    for (int c = 0; c < p->n; c++)
+        diagonal += (hi[c] - lo[c]) * (hi[c] - lo[c]);
+    if (p->gravity_force)
+        for (size_t i = 0; i < p->ndof; i++)
+            weight += p->gravity_force[i] * p->gravity_force[i];
+    const double modulus = 2.0 * scene->material.mu + fabs(scene->material.lambda);
+    bg_status st =
+        scene->rest_edges
+            ? bg_elastic_new_from_rest(p->mesh, p->n, scene->rest_edges, scene->material.mu,
+                                       scene->material.lambda, &p->model, err)
+            : bg_elastic_new(p->mesh, scene->material.mu, scene->material.lambda, &p->model, err);
     if (st != BG_OK)
         return st;
+    p->force_floor = STATIC_ABSOLUTE_FLOOR *
+                     (modulus * bg_elastic_total_volume(p->model) / fmax(sqrt(diagonal), 1e-300) +
+                      sqrt(weight));
     if (method == BG_METHOD_NEWTON)
         return bg_sparse_new(p->mesh, p->n, p->free_index, p->nfree, &p->sys, err);
     return lg_init(p, scene, err);
@@ -272,6 +293,15 @@ static double potential(problem_t *p, const double *q, double *grad)
     p->last_magnitude = magnitude;
     p->rotfit_seconds += bg_clock_now() - t0;
     return elastic - work + kinetic;
+}
+
+/* Whether positions q invert (or flatten) any element. */
+static int inverts(const problem_t *p, const double *q)
+{
+    for (int32_t e = 0; e < p->mesh->ne; e++)
+        if (!(bg_mesh_element_measure(p->mesh, q, e) > 0.0))
+            return 1;
+    return 0;
 }
 
 static double free_norm(const problem_t *p, const double *grad)
@@ -562,7 +592,8 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     double exact_failed_at = INFINITY; /* gradient norm when the exact Hessian last failed */
     for (;;) {
         const double rel = g0 > 0.0 ? gnorm / g0 : 0.0;
-        if (rel <= opt->tolerance || gnorm <= opt->absolute_tolerance) {
+        if (rel <= opt->tolerance || gnorm <= opt->absolute_tolerance ||
+            gnorm <= p.force_floor) {
             res->converged = 1;
             res->stop_reason = "converged";
             break;
@@ -602,6 +633,8 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                 const int32_t f = p.free_index[i];
                 p.q_trial[i] = f >= 0 ? p.q[i] + alpha * p.step[f] : p.q[i];
             }
+            if (opt->keep_orientation && inverts(&p, p.q_trial))
+                continue;
             W_trial = potential(&p, p.q_trial, p.grad_trial);
             if (!isfinite(W_trial))
                 continue;

@@ -59,6 +59,8 @@ typedef struct bg_solve_options {
     double absolute_tolerance; /* also stop when ‖∇‖ ≤ this (0: unused) */
     const double *targets;    /* nv*n values of the constrained coordinates, or NULL for scene->target */
     const bg_inertia_t *inertia; /* NULL for a static solve */
+    int keep_orientation;     /* reject steps that invert an element (from a start
+                                 without inverted elements: the result has none) */
     const double *reference;  /* nv*n reference positions for the error column, or NULL */
     const double *start;      /* nv*n start positions, or NULL for scene->initial */
     bg_progress_fn progress;  /* called after every iteration (may be NULL) */
@@ -86,6 +88,17 @@ typedef struct bg_step_record {
     double seconds;           /* wall time of the step */
 } bg_step_record_t;
 
+/* Quality of a 2D map of a surface (parameterization): per triangle the
+ * singular values σ1 ≥ σ2 of the map from its rest frame; angle distortion
+ * |log σ1/σ2| (0 for conformal), area distortion |log(σ1σ2/s)| with s the
+ * global area ratio (0 for area-preserving up to a uniform scale). */
+typedef struct bg_map_quality {
+    int valid;
+    int64_t flipped_triangles;
+    double area_mean, area_max;
+    double angle_mean, angle_max;
+} bg_map_quality_t;
+
 typedef struct bg_solve_result {
     bg_method method;
     int converged;
@@ -107,6 +120,7 @@ typedef struct bg_solve_result {
     double *energy_density;   /* final ψ per element, ne; owned */
     bg_trace_point_t *trace;  /* one point per iteration from 0 (dynamic: per step); owned */
     int trace_count;
+    bg_map_quality_t map;     /* parameterize runs */
     bg_step_record_t *steps;  /* dynamic runs: steps[0] is the initial state; owned */
     int step_count;
 } bg_solve_result_t;
