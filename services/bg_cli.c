@@ -12,6 +12,7 @@
 #include "bg_mesh_io.h"
 #include "bg_morph.h"
 #include "bg_param.h"
+#include "bg_surface_arap.h"
 #include "bg_plan.h"
 #include "bg_report.h"
 #include "bg_scene.h"
@@ -446,7 +447,9 @@ int bg_cli_solve(int argc, char **argv)
                                            .progress_ctx = &pr,
                                            .keep_orientation =
                                                scene->task == BG_TASK_PARAMETERIZE};
-            st = bg_static_solve(scene, &so, &runs[i], &err);
+            st = scene->task == BG_TASK_SURFACE_EDIT
+                     ? bg_surface_arap_solve(scene, &so, &runs[i], &err)
+                     : bg_static_solve(scene, &so, &runs[i], &err);
             if (st == BG_OK && scene->task == BG_TASK_PARAMETERIZE)
                 st = write_parameterization(scene, &runs[i], out_dir, &err);
         }

@@ -23,6 +23,11 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
         newton |= methods[i] == BG_METHOD_NEWTON || bg_method_is_dynamic(methods[i]);
         local_global |= methods[i] == BG_METHOD_LOCAL_GLOBAL;
     }
+    if (scene->task == BG_TASK_SURFACE_EDIT)
+        add(plan->services, &plan->service_count, "rotation-fit",
+            "one rotation per vertex over its spokes and rims (polar decomposition, "
+            "warm-started)");
+    else
     add(plan->services, &plan->service_count, "rotation-fit",
         planar ? "closed-form 2D rotation per triangle"
                : "polar decomposition per tetrahedron (Newton on SO(3), warm-started), "

@@ -283,7 +283,11 @@ static bg_status finish_mesh(parser_t *p, bg_mesh_t *mesh)
      * for file meshes); generators do not, so validate here in all cases. */
     if (bg_mesh_validate(mesh, s->mesh_source, &s->reoriented, &inner) != BG_OK)
         return relay(p, "mesh", &inner);
-    if (bg_mesh_kind_of(mesh) == BG_MESH_SURFACE && s->task != BG_TASK_PARAMETERIZE)
+    const int surface_task = s->task == BG_TASK_PARAMETERIZE || s->task == BG_TASK_SURFACE_EDIT;
+    if ((bg_mesh_kind_of(mesh) == BG_MESH_SURFACE) != surface_task && s->task == BG_TASK_SURFACE_EDIT)
+        return fail(p, BG_ERR_INVALID, "mesh", "%s holds %s; a surface-edit task needs a triangle "
+                    "surface in 3D", s->mesh_source, bg_mesh_kind_name(bg_mesh_kind_of(mesh)));
+    if (bg_mesh_kind_of(mesh) == BG_MESH_SURFACE && !surface_task)
         return fail(p, BG_ERR_INVALID, "mesh",
                     "%s is a triangle surface; static elasticity needs tetrahedra or planar "
                     "triangles (set mesh.planar for a flat triangle mesh)",
@@ -1190,7 +1194,8 @@ static bg_status parse_handles(parser_t *p, const cJSON *item)
             any |= s->constrained[(size_t)v * p->dim + c];
         s->constrained_vertices += any;
     }
-    if (s->constrained_vertices == 0 && s->task == BG_TASK_STATIC)
+    if (s->constrained_vertices == 0 &&
+        (s->task == BG_TASK_STATIC || s->task == BG_TASK_SURFACE_EDIT))
         st = fail(p, BG_ERR_INVALID, "handles",
                   "a static solve needs handles that hold the body in place (add a fixed handle "
                   "or {\"select\": \"rigid-mount\"})");
@@ -1353,6 +1358,13 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
         static const char *const static_keys[] = {"kind", NULL};
         return check_keys(p, item, "task", static_keys);
     }
+    if (strcmp(kind, "surface-edit") == 0) {
+        static const char *const edit_keys[] = {"kind", NULL};
+        st = check_keys(p, item, "task", edit_keys);
+        if (st == BG_OK)
+            s->task = BG_TASK_SURFACE_EDIT;
+        return st;
+    }
     if (strcmp(kind, "parameterize") == 0) {
         static const char *const param_keys[] = {"kind", "alpha", "beta", NULL};
         st = check_keys(p, item, "task", param_keys);
@@ -1395,7 +1407,7 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
     if (strcmp(kind, "dynamic") != 0)
         return fail(p, BG_ERR_UNSUPPORTED, "task.kind",
                     "task kind '%s' is not supported (supported: static, dynamic, morph, "
-                    "parameterize)",
+                    "parameterize, surface-edit)",
                     kind);
     static const char *const dynamic_keys[] = {"kind", "dt", "steps", "output_every", "damping",
                                                NULL};
@@ -1496,7 +1508,9 @@ static bg_status parse_solver(parser_t *p, const cJSON *item)
     static const char *const keys[] = {"method", "tolerance", "max_iterations", NULL};
     bg_scene_t *s = p->scene;
     const int dynamic = s->task == BG_TASK_DYNAMIC;
-    s->method = dynamic ? BG_METHOD_VARIATIONAL : BG_METHOD_NEWTON;
+    s->method = dynamic                               ? BG_METHOD_VARIATIONAL
+                : s->task == BG_TASK_SURFACE_EDIT ? BG_METHOD_LOCAL_GLOBAL
+                                                  : BG_METHOD_NEWTON;
     s->tolerance = BG_SCENE_DEFAULT_TOLERANCE;
     s->max_iterations = BG_SCENE_DEFAULT_MAX_ITERATIONS;
     if (!item)
@@ -1746,7 +1760,17 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
             s->mesh_format = BG_FORMAT_OBJ;
         return st;
     }
-    st = parse_material(p, member(root, "material"));
+    if (s->task == BG_TASK_SURFACE_EDIT) {
+        /* The spokes-and-rims energy has no material parameters. */
+        static const char *const unused[] = {"material", "gravity", "velocity", NULL};
+        for (int i = 0; unused[i]; i++)
+            if (member(root, unused[i]))
+                return fail(p, BG_ERR_INVALID, unused[i], "not used by a surface-edit task");
+        s->material.mu = 1.0;
+        s->material.density = 1.0;
+    } else {
+        st = parse_material(p, member(root, "material"));
+    }
     if (st == BG_OK)
         st = parse_gravity(p, member(root, "gravity"));
     if (st == BG_OK)

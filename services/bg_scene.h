@@ -44,6 +44,7 @@ typedef enum bg_task_kind {
     BG_TASK_DYNAMIC = 1,
     BG_TASK_MORPH = 2,
     BG_TASK_PARAMETERIZE = 3,
+    BG_TASK_SURFACE_EDIT = 4, /* spokes-and-rims ARAP on a triangle surface */
 } bg_task_kind;
 
 /* task {"kind": "dynamic", "dt", "steps", "output_every", "damping"}. */
