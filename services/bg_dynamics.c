@@ -209,17 +209,7 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
             res->converged = 0;
             res->stop_reason = "an inner solve did not converge";
         }
-        res->iterations += inner.iterations;
-        res->rotfit.calls += inner.rotfit.calls;
-        res->rotfit.warm += inner.rotfit.warm;
-        res->rotfit.polar += inner.rotfit.polar;
-        res->rotfit.svd += inner.rotfit.svd;
-        res->rotfit_seconds += inner.rotfit_seconds;
-        res->assembly_seconds += inner.assembly_seconds;
-        res->analyze_seconds += inner.analyze_seconds;
-        res->factor_seconds += inner.factor_seconds;
-        res->solve_seconds += inner.solve_seconds;
-        res->factorizations += inner.factorizations;
+        bg_solve_result_accumulate(res, &inner);
         memcpy(s.v_prev, s.v, s.ndof * sizeof *s.v);
         const double *qs = inner.q;
         if (variational) {

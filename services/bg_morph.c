@@ -51,17 +51,7 @@ bg_status bg_morph_solve(const bg_scene_t *scene, const bg_morph_options_t *opt,
             res->stop_reason = "a frame did not converge";
         }
         memcpy(q, inner.q, ndof * sizeof *q);
-        res->iterations += inner.iterations;
-        res->rotfit.calls += inner.rotfit.calls;
-        res->rotfit.warm += inner.rotfit.warm;
-        res->rotfit.polar += inner.rotfit.polar;
-        res->rotfit.svd += inner.rotfit.svd;
-        res->rotfit_seconds += inner.rotfit_seconds;
-        res->assembly_seconds += inner.assembly_seconds;
-        res->analyze_seconds += inner.analyze_seconds;
-        res->factor_seconds += inner.factor_seconds;
-        res->solve_seconds += inner.solve_seconds;
-        res->factorizations += inner.factorizations;
+        bg_solve_result_accumulate(res, &inner);
         bg_step_record_t *rec = &res->steps[res->step_count++];
         rec->time = t;
         rec->potential = rec->total_energy = inner.energy;

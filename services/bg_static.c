@@ -733,6 +733,21 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
     return st;
 }
 
+void bg_solve_result_accumulate(bg_solve_result_t *total, const bg_solve_result_t *part)
+{
+    total->iterations += part->iterations;
+    total->rotfit.calls += part->rotfit.calls;
+    total->rotfit.warm += part->rotfit.warm;
+    total->rotfit.polar += part->rotfit.polar;
+    total->rotfit.svd += part->rotfit.svd;
+    total->rotfit_seconds += part->rotfit_seconds;
+    total->assembly_seconds += part->assembly_seconds;
+    total->analyze_seconds += part->analyze_seconds;
+    total->factor_seconds += part->factor_seconds;
+    total->solve_seconds += part->solve_seconds;
+    total->factorizations += part->factorizations;
+}
+
 void bg_solve_result_release(bg_solve_result_t *r)
 {
     if (!r)

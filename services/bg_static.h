@@ -138,6 +138,10 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
 
 void bg_solve_result_release(bg_solve_result_t *result);
 
+/* Adds part's iterations, rotation-fit counts and time split to total: a
+ * series of solves (time steps, morph frames) reports their sum. */
+void bg_solve_result_accumulate(bg_solve_result_t *total, const bg_solve_result_t *part);
+
 /*
  * A solver kept across many minimisations of the same scene (the steps of a
  * time integration): the elastic model, the sparse pattern, CHOLMOD's

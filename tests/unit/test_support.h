@@ -70,4 +70,32 @@ static inline void test_sym_eigenvalues(int n, const double *A_in, double *w)
             }
 }
 
+/*
+ * Largest relative change of an edge length between positions a and b (dim
+ * coordinates per vertex) over every pair of nodes of every element (k
+ * nodes each): zero exactly when b is a rigid motion of a on each element,
+ * the check for "the same shape up to a rigid motion".
+ */
+static inline double test_max_edge_change(const int32_t *elements, int32_t ne, int k, int dim,
+                                          const double *a, const double *b)
+{
+    double worst = 0.0;
+    for (int32_t e = 0; e < ne; e++)
+        for (int i = 0; i < k; i++)
+            for (int j = i + 1; j < k; j++) {
+                const int32_t u = elements[(size_t)e * k + i], v = elements[(size_t)e * k + j];
+                double la = 0.0, lb = 0.0;
+                for (int c = 0; c < dim; c++) {
+                    const double da = a[(size_t)u * dim + c] - a[(size_t)v * dim + c];
+                    const double db = b[(size_t)u * dim + c] - b[(size_t)v * dim + c];
+                    la += da * da;
+                    lb += db * db;
+                }
+                const double change = fabs(sqrt(lb) - sqrt(la)) / sqrt(la);
+                if (change > worst)
+                    worst = change;
+            }
+    return worst;
+}
+
 #endif
