@@ -295,6 +295,13 @@ static double potential(problem_t *p, const double *q, double *grad)
     return elastic - work + kinetic;
 }
 
+/* Round-off in an energy value W: a few ulps of the magnitude of the terms
+ * it was summed from (the last evaluation's). */
+static double energy_noise(const problem_t *p, double W)
+{
+    return STATIC_ENERGY_NOISE_ULPS * DBL_EPSILON * fmax(p->last_magnitude, fabs(W));
+}
+
 /* Whether positions q invert (or flatten) any element. */
 static int inverts(const problem_t *p, const double *q)
 {
@@ -543,34 +550,33 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     memset(res, 0, sizeof *res);
     res->method = solver->method;
     const double t_start = bg_clock_now();
-    problem_t *pp = solver;
-#define p (*pp)
-    const bg_scene_t *scene = p.scene;
+    problem_t *p = solver;
+    const bg_scene_t *scene = p->scene;
     int trace_cap = 0;
     bg_status st = BG_OK;
-    const size_t ndof = p.ndof;
+    const size_t ndof = p->ndof;
     if (opt->inertia && solver->method != BG_METHOD_NEWTON) {
         st = bg_error_set(err, BG_ERR_UNSUPPORTED, "an inertia term needs the newton method");
         goto out;
     }
-    p.inertia = opt->inertia;
-    if (p.inertia)
-        for (int32_t v = 0; v < p.mesh->nv; v++)
-            for (int c = 0; c < p.n; c++) {
-                const int32_t f = p.free_index[(size_t)v * p.n + c];
+    p->inertia = opt->inertia;
+    if (p->inertia)
+        for (int32_t v = 0; v < p->mesh->nv; v++)
+            for (int c = 0; c < p->n; c++) {
+                const int32_t f = p->free_index[(size_t)v * p->n + c];
                 if (f >= 0)
-                    p.inertia_diag[f] = p.inertia->c * p.mass[v];
+                    p->inertia_diag[f] = p->inertia->c * p->mass[v];
             }
-    bg_elastic_reset_stats(p.model);
-    p.rotfit_seconds = 0.0;
-    const bg_sparse_timing_t timing0 = total_timing(&p);
+    bg_elastic_reset_stats(p->model);
+    p->rotfit_seconds = 0.0;
+    const bg_sparse_timing_t timing0 = total_timing(p);
     const double *start = opt->start ? opt->start : scene->initial;
     const double *targets = opt->targets ? opt->targets : scene->target;
     for (size_t i = 0; i < ndof; i++)
-        p.q[i] = scene->constrained[i] ? targets[i] : start[i];
+        p->q[i] = scene->constrained[i] ? targets[i] : start[i];
 
-    double W = potential(&p, p.q, p.grad);
-    double gnorm = free_norm(&p, p.grad);
+    double W = potential(p, p->q, p->grad);
+    double gnorm = free_norm(p, p->grad);
     if (!isfinite(W) || !isfinite(gnorm)) {
         st = bg_error_set(err, BG_ERR_NUMERIC, "%s: the energy at the initial positions is not "
                           "finite", scene->path);
@@ -578,7 +584,7 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     }
     const double g0 = gnorm;
     bg_trace_point_t pt = {bg_clock_now() - t_start, 0, W, gnorm, g0 > 0.0 ? 1.0 : 0.0,
-                           relative_error(p.q, opt->reference, ndof)};
+                           relative_error(p->q, opt->reference, ndof)};
     if (push_trace(res, &trace_cap, &pt) != BG_OK) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
         goto out;
@@ -593,7 +599,7 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     for (;;) {
         const double rel = g0 > 0.0 ? gnorm / g0 : 0.0;
         if (rel <= opt->tolerance || gnorm <= opt->absolute_tolerance ||
-            gnorm <= p.force_floor) {
+            gnorm <= p->force_floor) {
             res->converged = 1;
             res->stop_reason = "converged";
             break;
@@ -602,19 +608,19 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
             break;
         it++;
         for (size_t i = 0; i < ndof; i++)
-            if (p.free_index[i] >= 0)
-                p.rhs[p.free_index[i]] = -p.grad[i];
+            if (p->free_index[i] >= 0)
+                p->rhs[p->free_index[i]] = -p->grad[i];
         double slope = NAN;
         if (solver->method == BG_METHOD_NEWTON) {
             /* With an inertia term (4/h²)M the exact Hessian is almost
              * always positive definite: try it from the first iteration. */
-            const int near = p.inertia || (last_full_step && rel < STATIC_EXACT_HESSIAN_BELOW);
+            const int near = p->inertia || (last_full_step && rel < STATIC_EXACT_HESSIAN_BELOW);
             const int try_exact = near && gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at;
-            st = newton_direction(&p, try_exact, res, &slope, err);
+            st = newton_direction(p, try_exact, res, &slope, err);
             if (try_exact && res->last_direction != BG_DIRECTION_EXACT)
                 exact_failed_at = gnorm;
         } else {
-            st = lg_direction(&p, &slope, err);
+            st = lg_direction(p, &slope, err);
         }
         if (st != BG_OK)
             goto out;
@@ -630,19 +636,17 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         int accepted = 0;
         for (int bt = 0; bt <= STATIC_MAX_BACKTRACKS; bt++, alpha *= 0.5) {
             for (size_t i = 0; i < ndof; i++) {
-                const int32_t f = p.free_index[i];
-                p.q_trial[i] = f >= 0 ? p.q[i] + alpha * p.step[f] : p.q[i];
+                const int32_t f = p->free_index[i];
+                p->q_trial[i] = f >= 0 ? p->q[i] + alpha * p->step[f] : p->q[i];
             }
-            if (opt->keep_orientation && inverts(&p, p.q_trial))
+            if (opt->keep_orientation && inverts(p, p->q_trial))
                 continue;
-            W_trial = potential(&p, p.q_trial, p.grad_trial);
+            W_trial = potential(p, p->q_trial, p->grad_trial);
             if (!isfinite(W_trial))
                 continue;
-            g_trial = free_norm(&p, p.grad_trial);
-            const double noise = STATIC_ENERGY_NOISE_ULPS * DBL_EPSILON *
-                                 fmax(p.last_magnitude, fabs(W));
+            g_trial = free_norm(p, p->grad_trial);
             if (W_trial <= W + STATIC_ARMIJO * alpha * slope ||
-                (W_trial <= W + noise && g_trial < gnorm)) {
+                (W_trial <= W + energy_noise(p, W) && g_trial < gnorm)) {
                 accepted = 1;
                 break;
             }
@@ -652,22 +656,20 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
             res->roundoff_floor = 1;
             /* The last evaluation was at a rejected trial: restore the
              * rotations of the current iterate. */
-            W = potential(&p, p.q, p.grad);
+            W = potential(p, p->q, p->grad);
             break;
         }
-        const double noise = STATIC_ENERGY_NOISE_ULPS * DBL_EPSILON *
-                             fmax(p.last_magnitude, fabs(W));
         const int stagnated =
-            (fabs(W_trial - W) <= noise && g_trial > STATIC_NO_PROGRESS * gnorm) ||
+            (fabs(W_trial - W) <= energy_noise(p, W) && g_trial > STATIC_NO_PROGRESS * gnorm) ||
             (alpha == 1.0 && res->last_direction == BG_DIRECTION_EXACT &&
              rel < STATIC_STAGNATION_BELOW && g_trial > 0.5 * gnorm);
         last_full_step = alpha == 1.0;
-        double *swap = p.q;
-        p.q = p.q_trial;
-        p.q_trial = swap;
-        swap = p.grad;
-        p.grad = p.grad_trial;
-        p.grad_trial = swap;
+        double *swap = p->q;
+        p->q = p->q_trial;
+        p->q_trial = swap;
+        swap = p->grad;
+        p->grad = p->grad_trial;
+        p->grad_trial = swap;
         W = W_trial;
         gnorm = g_trial;
         pt.seconds = bg_clock_now() - t_start;
@@ -675,7 +677,7 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         pt.energy = W;
         pt.gradient_norm = gnorm;
         pt.relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
-        pt.error = relative_error(p.q, opt->reference, ndof);
+        pt.error = relative_error(p->q, opt->reference, ndof);
         if (push_trace(res, &trace_cap, &pt) != BG_OK) {
             st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
             goto out;
@@ -692,9 +694,9 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     res->energy = W;
     res->gradient_norm = gnorm;
     res->relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
-    res->rotfit = bg_elastic_rotfit_stats(p.model);
-    res->rotfit_seconds = p.rotfit_seconds;
-    const bg_sparse_timing_t timing1 = total_timing(&p);
+    res->rotfit = bg_elastic_rotfit_stats(p->model);
+    res->rotfit_seconds = p->rotfit_seconds;
+    const bg_sparse_timing_t timing1 = total_timing(p);
     res->analyze_seconds = timing1.analyze_seconds - timing0.analyze_seconds;
     res->factor_seconds = timing1.factor_seconds - timing0.factor_seconds;
     res->solve_seconds = timing1.solve_seconds - timing0.solve_seconds;
@@ -705,13 +707,12 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the result");
         goto out;
     }
-    memcpy(res->q, p.q, ndof * sizeof *res->q);
-    memcpy(res->energy_density, bg_elastic_energy_density(p.model),
+    memcpy(res->q, p->q, ndof * sizeof *res->q);
+    memcpy(res->energy_density, bg_elastic_energy_density(p->model),
            (size_t)scene->mesh->ne * sizeof *res->energy_density);
     res->wall_seconds = bg_clock_now() - t_start;
 out:
-    p.inertia = NULL;
-#undef p
+    p->inertia = NULL;
     if (st != BG_OK)
         bg_solve_result_release(res);
     return st;
