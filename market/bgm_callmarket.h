@@ -1,0 +1,73 @@
+/*
+ * bgm_callmarket — a periodic call market (double auction) for one good.
+ *
+ * Orders accumulate in a book; bgm_callmarket_clear matches the highest
+ * bids with the lowest asks while bid >= ask and prices every trade at one
+ * uniform price set by k-pricing on the marginal matched pair:
+ *     p = a_m + k (b_m - a_m),   k in [0, 1],
+ * where b_m is the lowest matched bid and a_m the highest matched ask.
+ * Because every matched bid is >= b_m and every matched ask is <= a_m, p
+ * lies within every matched trader's limit: no buyer pays above its bid,
+ * no seller receives below its ask. Ties break by the order reference, so
+ * clearing is deterministic. Pure: no I/O, no clock, no randomness.
+ */
+#ifndef BGM_CALLMARKET_H
+#define BGM_CALLMARKET_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "bg_error.h"
+
+typedef struct bgm_order {
+    uint64_t ref;   /* caller's reference (request id, agent id) */
+    uint32_t owner; /* agent id */
+    int quantity;   /* units, > 0 */
+    double price;   /* limit price per unit */
+} bgm_order_t;
+
+typedef struct bgm_fill {
+    size_t bid; /* index into the book's bids at clearing time */
+    size_t ask; /* index into the book's asks at clearing time */
+    int quantity;
+} bgm_fill_t;
+
+typedef struct bgm_clearing {
+    int volume;       /* units traded */
+    double price;     /* uniform price; meaningless when volume == 0 */
+    double bid_limit; /* marginal bid b_m */
+    double ask_limit; /* marginal ask a_m */
+    size_t fill_count;
+} bgm_clearing_t;
+
+typedef struct bgm_callmarket bgm_callmarket_t;
+
+/* max_orders caps each side of the book. */
+bgm_callmarket_t *bgm_callmarket_new(size_t max_orders);
+void bgm_callmarket_destroy(bgm_callmarket_t **cm);
+
+bg_status bgm_callmarket_bid(bgm_callmarket_t *cm, const bgm_order_t *order);
+bg_status bgm_callmarket_ask(bgm_callmarket_t *cm, const bgm_order_t *order);
+size_t bgm_callmarket_bid_count(const bgm_callmarket_t *cm);
+size_t bgm_callmarket_ask_count(const bgm_callmarket_t *cm);
+/* Borrowed views, valid until the next call that changes the book. */
+const bgm_order_t *bgm_callmarket_bids(const bgm_callmarket_t *cm);
+const bgm_order_t *bgm_callmarket_asks(const bgm_callmarket_t *cm);
+
+/*
+ * Clears the book at k-pricing parameter k. Fills are written to fills
+ * (caller-allocated, at most max_fills; a fill never spans two orders so
+ * bids + asks fills always suffice). The book is not modified: the caller
+ * decides what to do with filled and unfilled orders (see _remove_filled).
+ */
+bg_status bgm_callmarket_clear(bgm_callmarket_t *cm, double k, bgm_clearing_t *result,
+                               bgm_fill_t *fills, size_t max_fills);
+
+/* Removes filled quantities (from the last clearing's fills) from the book. */
+void bgm_callmarket_remove_filled(bgm_callmarket_t *cm, const bgm_fill_t *fills, size_t count);
+
+/* Removes every order whose (owner, ref) pass keep() == 0. */
+void bgm_callmarket_filter(bgm_callmarket_t *cm, int (*keep)(const bgm_order_t *, int is_bid, void *),
+                           void *ctx);
+
+#endif

@@ -1,0 +1,560 @@
+#include "bgm_config.h"
+
+#include <cjson/cJSON.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+const char *const bgm_service_names[BGM_SERVICE_TYPES] = {"rotation-fit", "sparse-solve",
+                                                          "integration-step"};
+const char *const bgm_mechanism_names[BGM_MAX_MECHANISMS] = {"central", "catallactic",
+                                                             "baseline"};
+static const char *const topology_names[] = {"star", "cluster", "random"};
+
+typedef enum ftype { F_INT, F_LONG, F_NUM, F_STR, F_U64 } ftype;
+
+/* One scalar field of a JSON object: where it goes and what it may hold. */
+typedef struct field {
+    const char *name;
+    ftype type;
+    void *dst;
+    double min, max;
+    int required;
+    size_t str_cap;
+} field_t;
+
+#define FIELD_END {NULL, F_INT, NULL, 0, 0, 0, 0}
+
+/* Rejects keys not listed in names (NULL-terminated), with the path. */
+static bg_status check_keys(const cJSON *obj, const char *path, const char *const *names,
+                            bg_error_t *err)
+{
+    for (const cJSON *c = obj->child; c; c = c->next) {
+        int ok = 0;
+        for (const char *const *n = names; *n; n++)
+            if (strcmp(c->string, *n) == 0)
+                ok = 1;
+        if (!ok)
+            return bg_error_set(err, BG_ERR_INVALID, "unknown key '%s%s%s'", path,
+                                *path ? "." : "", c->string);
+    }
+    return BG_OK;
+}
+
+static bg_status get_number(const cJSON *item, const char *path, double min, double max,
+                            int integral, double *out, bg_error_t *err)
+{
+    if (!cJSON_IsNumber(item))
+        return bg_error_set(err, BG_ERR_INVALID, "field '%s' must be a number", path);
+    double v = item->valuedouble;
+    if (!isfinite(v) || v < min || v > max)
+        return bg_error_set(err, BG_ERR_INVALID, "field '%s' must be in [%g, %g], got %g", path,
+                            min, max, v);
+    if (integral && v != floor(v))
+        return bg_error_set(err, BG_ERR_INVALID, "field '%s' must be an integer, got %g", path, v);
+    *out = v;
+    return BG_OK;
+}
+
+/* Parses the listed scalar fields of obj; other keys are the caller's
+ * (extra) or unknown. */
+static bg_status parse_fields(const cJSON *obj, const char *path, const field_t *f,
+                              const char *const *extra, bg_error_t *err)
+{
+    const char *names[48];
+    size_t n = 0;
+    for (const field_t *p = f; p->name; p++)
+        names[n++] = p->name;
+    for (const char *const *e = extra; e && *e; e++)
+        names[n++] = *e;
+    names[n] = NULL;
+    if (!cJSON_IsObject(obj))
+        return bg_error_set(err, BG_ERR_INVALID, "field '%s' must be an object", path);
+    bg_status st = check_keys(obj, path, names, err);
+    if (st)
+        return st;
+    for (const field_t *p = f; p->name; p++) {
+        char fp[256];
+        snprintf(fp, sizeof fp, "%s%s%s", path, *path ? "." : "", p->name);
+        const cJSON *it = cJSON_GetObjectItemCaseSensitive(obj, p->name);
+        if (!it) {
+            if (p->required)
+                return bg_error_set(err, BG_ERR_INVALID, "missing required field '%s'", fp);
+            continue;
+        }
+        double v = 0.0;
+        switch (p->type) {
+        case F_STR:
+            if (!cJSON_IsString(it) || strlen(it->valuestring) >= p->str_cap ||
+                it->valuestring[0] == '\0')
+                return bg_error_set(err, BG_ERR_INVALID,
+                                    "field '%s' must be a non-empty string shorter than %zu", fp,
+                                    p->str_cap);
+            memcpy(p->dst, it->valuestring, strlen(it->valuestring) + 1);
+            continue;
+        case F_INT:
+        case F_LONG:
+        case F_U64:
+            st = get_number(it, fp, p->min, p->max, 1, &v, err);
+            break;
+        case F_NUM:
+            st = get_number(it, fp, p->min, p->max, 0, &v, err);
+            break;
+        }
+        if (st)
+            return st;
+        if (p->type == F_INT)
+            *(int *)p->dst = (int)v;
+        else if (p->type == F_LONG)
+            *(long *)p->dst = (long)v;
+        else if (p->type == F_U64)
+            *(uint64_t *)p->dst = (uint64_t)v;
+        else
+            *(double *)p->dst = v;
+    }
+    return BG_OK;
+}
+
+static void set_defaults(bgm_config_t *c)
+{
+    memset(c, 0, sizeof *c);
+    c->drain = 60.0;
+    c->dynamics_count = 1;
+    snprintf(c->dynamics[0].name, BGM_NAME_MAX, "static");
+    c->dynamics[0].node_repair_mean = 30.0;
+    c->dynamics[0].link_repair_mean = 10.0;
+    c->network.topology = BGM_TOPO_STAR;
+    c->network.latency = 0.005;
+    c->network.bandwidth = 1.25e8;
+    c->network.speed = 1e9;
+    c->network.speed_spread = 0.5;
+    c->network.degree = 4;
+    c->network.message_bytes = 256;
+    c->agents.complex_per_node = 1.0;
+    c->agents.service_slots = 2;
+    c->agents.services_per_agent = 2;
+    c->agents.resource_cores = 4;
+    c->agents.resource_memory = 8.0;
+    c->agents.overlay_degree = 6;
+    c->demand.interarrival_mean = 60.0;
+    c->demand.work_min = 1;
+    c->demand.work_max = 8;
+    c->demand.valuation_mean = 3.0;
+    c->demand.valuation_spread = 0.5;
+    c->demand.deadline = 60.0;
+    c->demand.plan_count = 2;
+    c->demand.plans[0] = (bgm_plan_cfg_t){{1, 1, 0}, 0.5};
+    c->demand.plans[1] = (bgm_plan_cfg_t){{1, 1, 1}, 0.5};
+    c->demand.shock_time = -1.0;
+    c->demand.shock_factor = 1.0;
+    static const bgm_service_cfg_t svc[BGM_SERVICE_TYPES] = {
+        {2e9, 1, 1.0, 0.4}, {5e9, 2, 4.0, 0.8}, {3e9, 1, 2.0, 0.6}};
+    memcpy(c->services, svc, sizeof svc);
+    c->resources.core_cost = 0.1;
+    c->resources.memory_cost = 0.02;
+    c->resources.cost_spread = 0.5;
+    c->central.period = 1.0;
+    c->central.k = 0.5;
+    c->central.exact_limit = 400;
+    c->central.greedy_budget = 1000000;
+    c->central.optimum_limit = 3000;
+    c->catallactic.hops = 2;
+    c->catallactic.discovery_timeout = 0.5;
+    c->catallactic.reply_timeout = 0.5;
+    c->catallactic.max_rounds = 12;
+    c->catallactic.learning_period = 30.0;
+    c->catallactic.imitation = 0.3;
+    c->catallactic.mutation = 0.05;
+    c->catallactic.mutation_sigma = 0.1;
+    c->catallactic.retry_backoff = 2.0;
+    c->baseline.markup = 0.3;
+    c->baseline.candidates = 8;
+    c->baseline.retry_backoff = 2.0;
+    c->metrics.convergence_tolerance = 0.1;
+    c->metrics.price_bucket = 10.0;
+}
+
+static int name_index(const char *s, const char *const *names, int n)
+{
+    for (int i = 0; i < n; i++)
+        if (strcmp(s, names[i]) == 0)
+            return i;
+    return -1;
+}
+
+static bg_status parse_array(const cJSON *obj, const char *key, const char *path, int max,
+                             const cJSON **arr, int *count, bg_error_t *err)
+{
+    *arr = cJSON_GetObjectItemCaseSensitive(obj, key);
+    if (!*arr)
+        return bg_error_set(err, BG_ERR_INVALID, "missing required field '%s'", path);
+    if (!cJSON_IsArray(*arr) || cJSON_GetArraySize(*arr) < 1 || cJSON_GetArraySize(*arr) > max)
+        return bg_error_set(err, BG_ERR_INVALID, "field '%s' must be an array of 1 to %d items",
+                            path, max);
+    *count = cJSON_GetArraySize(*arr);
+    return BG_OK;
+}
+
+static bg_status parse_dynamics(const cJSON *obj, bgm_config_t *c, bg_error_t *err)
+{
+    if (!cJSON_IsObject(obj))
+        return bg_error_set(err, BG_ERR_INVALID, "field 'dynamics' must be an object");
+    c->dynamics_count = 0;
+    for (const cJSON *d = obj->child; d; d = d->next) {
+        if (c->dynamics_count >= BGM_MAX_DYNAMICS)
+            return bg_error_set(err, BG_ERR_LIMIT, "field 'dynamics' has more than %d entries",
+                                BGM_MAX_DYNAMICS);
+        bgm_dynamics_t *dy = &c->dynamics[c->dynamics_count];
+        char path[128];
+        snprintf(path, sizeof path, "dynamics.%s", d->string);
+        if (strlen(d->string) == 0 || strlen(d->string) >= BGM_NAME_MAX)
+            return bg_error_set(err, BG_ERR_INVALID, "field '%s': bad name length", path);
+        snprintf(dy->name, BGM_NAME_MAX, "%s", d->string);
+        dy->node_repair_mean = 30.0;
+        dy->link_repair_mean = 10.0;
+        field_t f[] = {{"node_failure_rate", F_NUM, &dy->node_failure_rate, 0, 1, 0, 0},
+                       {"node_repair_mean", F_NUM, &dy->node_repair_mean, 1e-3, 1e6, 0, 0},
+                       {"link_failure_rate", F_NUM, &dy->link_failure_rate, 0, 1, 0, 0},
+                       {"link_repair_mean", F_NUM, &dy->link_repair_mean, 1e-3, 1e6, 0, 0},
+                       FIELD_END};
+        bg_status st = parse_fields(d, path, f, NULL, err);
+        if (st)
+            return st;
+        c->dynamics_count++;
+    }
+    return BG_OK;
+}
+
+static bg_status parse_plans(const cJSON *arr, bgm_config_t *c, bg_error_t *err)
+{
+    if (!cJSON_IsArray(arr) || cJSON_GetArraySize(arr) < 1 ||
+        cJSON_GetArraySize(arr) > BGM_MAX_PLANS)
+        return bg_error_set(err, BG_ERR_INVALID, "field 'demand.plans' must be an array of 1 to %d plans",
+                            BGM_MAX_PLANS);
+    c->demand.plan_count = 0;
+    for (const cJSON *p = arr->child; p; p = p->next) {
+        char path[96];
+        int i = c->demand.plan_count;
+        snprintf(path, sizeof path, "demand.plans[%d]", i);
+        bgm_plan_cfg_t *pl = &c->demand.plans[i];
+        memset(pl, 0, sizeof *pl);
+        field_t f[] = {{"weight", F_NUM, &pl->weight, 1e-9, 1e9, 1, 0}, FIELD_END};
+        static const char *const extra[] = {"services", NULL};
+        bg_status st = parse_fields(p, path, f, extra, err);
+        if (st)
+            return st;
+        const cJSON *sv = cJSON_GetObjectItemCaseSensitive(p, "services");
+        if (!cJSON_IsArray(sv) || cJSON_GetArraySize(sv) < 1)
+            return bg_error_set(err, BG_ERR_INVALID,
+                                "field '%s.services' must be a non-empty array of service names",
+                                path);
+        int k = 0;
+        for (const cJSON *s = sv->child; s; s = s->next, k++) {
+            int t = cJSON_IsString(s) ? name_index(s->valuestring, bgm_service_names,
+                                                   BGM_SERVICE_TYPES)
+                                      : -1;
+            if (t < 0)
+                return bg_error_set(err, BG_ERR_INVALID,
+                                    "field '%s.services[%d]' must be one of rotation-fit, "
+                                    "sparse-solve, integration-step",
+                                    path, k);
+            pl->services[t] = 1;
+        }
+        c->demand.plan_count++;
+    }
+    return BG_OK;
+}
+
+static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
+{
+    bg_status st;
+    static const char *const extra[] = {"mechanisms", "factors",  "dynamics",  "network",
+                                        "agents",     "demand",   "services",  "resources",
+                                        "central",    "catallactic", "baseline", "metrics",
+                                        "description", NULL};
+    field_t top[] = {{"name", F_STR, c->name, 0, 0, 1, BGM_NAME_MAX},
+                     {"seed", F_U64, &c->seed, 0, 9007199254740992.0, 1, 0},
+                     {"replications", F_INT, &c->replications, 1, BGM_MAX_REPLICATIONS, 1, 0},
+                     {"duration", F_NUM, &c->duration, 1e-3, 1e7, 1, 0},
+                     {"drain", F_NUM, &c->drain, 0, 1e7, 0, 0},
+                     FIELD_END};
+    if ((st = parse_fields(root, "", top, extra, err)))
+        return st;
+    const cJSON *d = cJSON_GetObjectItemCaseSensitive(root, "description");
+    if (d && !cJSON_IsString(d))
+        return bg_error_set(err, BG_ERR_INVALID, "field 'description' must be a string");
+
+    const cJSON *arr;
+    int n;
+    if ((st = parse_array(root, "mechanisms", "mechanisms", BGM_MAX_MECHANISMS, &arr, &n, err)))
+        return st;
+    c->mechanism_count = 0;
+    for (const cJSON *m = arr->child; m; m = m->next) {
+        int k = cJSON_IsString(m) ? name_index(m->valuestring, bgm_mechanism_names,
+                                               BGM_MAX_MECHANISMS)
+                                  : -1;
+        if (k < 0)
+            return bg_error_set(err, BG_ERR_INVALID,
+                                "field 'mechanisms[%d]' must be central, catallactic or baseline",
+                                c->mechanism_count);
+        for (int j = 0; j < c->mechanism_count; j++)
+            if (c->mechanisms[j] == k)
+                return bg_error_set(err, BG_ERR_INVALID, "field 'mechanisms[%d]' repeats '%s'",
+                                    c->mechanism_count, bgm_mechanism_names[k]);
+        c->mechanisms[c->mechanism_count++] = k;
+    }
+
+    const cJSON *dyn = cJSON_GetObjectItemCaseSensitive(root, "dynamics");
+    if (dyn && (st = parse_dynamics(dyn, c, err)))
+        return st;
+
+    const cJSON *fac = cJSON_GetObjectItemCaseSensitive(root, "factors");
+    if (!fac)
+        return bg_error_set(err, BG_ERR_INVALID, "missing required field 'factors'");
+    if (!cJSON_IsObject(fac))
+        return bg_error_set(err, BG_ERR_INVALID, "field 'factors' must be an object");
+    static const char *const fnames[] = {"nodes", "density", "dynamics", NULL};
+    if ((st = check_keys(fac, "factors", fnames, err)))
+        return st;
+    if ((st = parse_array(fac, "nodes", "factors.nodes", BGM_MAX_LEVELS, &arr, &c->node_levels, err)))
+        return st;
+    int i = 0;
+    for (const cJSON *x = arr->child; x; x = x->next, i++) {
+        char p[64];
+        double v;
+        snprintf(p, sizeof p, "factors.nodes[%d]", i);
+        if ((st = get_number(x, p, 1, BGM_MAX_NODES, 1, &v, err)))
+            return st;
+        c->nodes[i] = (int)v;
+    }
+    if ((st = parse_array(fac, "density", "factors.density", BGM_MAX_LEVELS, &arr,
+                          &c->density_levels, err)))
+        return st;
+    i = 0;
+    for (const cJSON *x = arr->child; x; x = x->next, i++) {
+        char p[64];
+        snprintf(p, sizeof p, "factors.density[%d]", i);
+        if ((st = get_number(x, p, 0.01, 64, 0, &c->density[i], err)))
+            return st;
+    }
+    const cJSON *fd = cJSON_GetObjectItemCaseSensitive(fac, "dynamics");
+    if (!fd) {
+        c->dynamics_levels = 1;
+        c->dynamics_index[0] = 0;
+    } else {
+        if ((st = parse_array(fac, "dynamics", "factors.dynamics", BGM_MAX_LEVELS, &arr,
+                              &c->dynamics_levels, err)))
+            return st;
+        i = 0;
+        for (const cJSON *x = arr->child; x; x = x->next, i++) {
+            int k = -1;
+            for (int j = 0; cJSON_IsString(x) && j < c->dynamics_count; j++)
+                if (strcmp(x->valuestring, c->dynamics[j].name) == 0)
+                    k = j;
+            if (k < 0)
+                return bg_error_set(err, BG_ERR_INVALID,
+                                    "field 'factors.dynamics[%d]' must name an entry of 'dynamics'",
+                                    i);
+            c->dynamics_index[i] = k;
+        }
+    }
+
+    const cJSON *o;
+    if ((o = cJSON_GetObjectItemCaseSensitive(root, "network"))) {
+        char topo[16] = "star";
+        field_t f[] = {{"topology", F_STR, topo, 0, 0, 0, sizeof topo},
+                       {"platform", F_STR, c->network.platform, 0, 0, 0, BGM_PATH_MAX},
+                       {"latency", F_NUM, &c->network.latency, 0, 10, 0, 0},
+                       {"bandwidth", F_NUM, &c->network.bandwidth, 1e3, 1e12, 0, 0},
+                       {"speed", F_NUM, &c->network.speed, 1e6, 1e15, 0, 0},
+                       {"speed_spread", F_NUM, &c->network.speed_spread, 0, 0.95, 0, 0},
+                       {"degree", F_INT, &c->network.degree, 1, 64, 0, 0},
+                       {"message_bytes", F_INT, &c->network.message_bytes, 1, 1 << 24, 0, 0},
+                       FIELD_END};
+        if ((st = parse_fields(o, "network", f, NULL, err)))
+            return st;
+        c->network.topology = name_index(topo, topology_names, 3);
+        if (c->network.topology < 0)
+            return bg_error_set(err, BG_ERR_INVALID,
+                                "field 'network.topology' must be star, cluster or random");
+    }
+    if ((o = cJSON_GetObjectItemCaseSensitive(root, "agents"))) {
+        field_t f[] = {{"complex_per_node", F_NUM, &c->agents.complex_per_node, 0.01, 64, 0, 0},
+                       {"service_slots", F_INT, &c->agents.service_slots, 1, 1024, 0, 0},
+                       {"services_per_agent", F_INT, &c->agents.services_per_agent, 1, 3, 0, 0},
+                       {"resource_cores", F_INT, &c->agents.resource_cores, 1, 4096, 0, 0},
+                       {"resource_memory", F_NUM, &c->agents.resource_memory, 0.1, 1e6, 0, 0},
+                       {"overlay_degree", F_INT, &c->agents.overlay_degree, 1, 32, 0, 0},
+                       FIELD_END};
+        if ((st = parse_fields(o, "agents", f, NULL, err)))
+            return st;
+    }
+    if ((o = cJSON_GetObjectItemCaseSensitive(root, "demand"))) {
+        static const char *const dx[] = {"plans", "shock", NULL};
+        field_t f[] = {{"interarrival_mean", F_NUM, &c->demand.interarrival_mean, 1e-3, 1e9, 0, 0},
+                       {"work_min", F_INT, &c->demand.work_min, 1, 1e6, 0, 0},
+                       {"work_max", F_INT, &c->demand.work_max, 1, 1e6, 0, 0},
+                       {"valuation_mean", F_NUM, &c->demand.valuation_mean, 1e-6, 1e9, 0, 0},
+                       {"valuation_spread", F_NUM, &c->demand.valuation_spread, 0, 0.95, 0, 0},
+                       {"deadline", F_NUM, &c->demand.deadline, 1e-3, 1e9, 0, 0},
+                       FIELD_END};
+        if ((st = parse_fields(o, "demand", f, dx, err)))
+            return st;
+        if (c->demand.work_max < c->demand.work_min)
+            return bg_error_set(err, BG_ERR_INVALID,
+                                "field 'demand.work_max' must be >= demand.work_min");
+        const cJSON *pl = cJSON_GetObjectItemCaseSensitive(o, "plans");
+        if (pl && (st = parse_plans(pl, c, err)))
+            return st;
+        const cJSON *sh = cJSON_GetObjectItemCaseSensitive(o, "shock");
+        if (sh) {
+            field_t fs[] = {{"time", F_NUM, &c->demand.shock_time, 0, 1e9, 1, 0},
+                            {"factor", F_NUM, &c->demand.shock_factor, 0.01, 100, 1, 0},
+                            FIELD_END};
+            if ((st = parse_fields(sh, "demand.shock", fs, NULL, err)))
+                return st;
+        }
+    }
+    if ((o = cJSON_GetObjectItemCaseSensitive(root, "services"))) {
+        static const char *const sn[] = {"rotation-fit", "sparse-solve", "integration-step", NULL};
+        if (!cJSON_IsObject(o))
+            return bg_error_set(err, BG_ERR_INVALID, "field 'services' must be an object");
+        if ((st = check_keys(o, "services", sn, err)))
+            return st;
+        for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
+            const cJSON *s = cJSON_GetObjectItemCaseSensitive(o, bgm_service_names[t]);
+            if (!s)
+                continue;
+            char p[64];
+            snprintf(p, sizeof p, "services.%s", bgm_service_names[t]);
+            bgm_service_cfg_t *sv = &c->services[t];
+            field_t f[] = {{"flops_per_unit", F_NUM, &sv->flops_per_unit, 1, 1e18, 0, 0},
+                           {"cores", F_INT, &sv->cores, 1, 4096, 0, 0},
+                           {"memory", F_NUM, &sv->memory, 0, 1e6, 0, 0},
+                           {"cost_per_unit", F_NUM, &sv->cost_per_unit, 0, 1e9, 0, 0},
+                           FIELD_END};
+            if ((st = parse_fields(s, p, f, NULL, err)))
+                return st;
+        }
+    }
+    if ((o = cJSON_GetObjectItemCaseSensitive(root, "resources"))) {
+        field_t f[] = {{"core_cost", F_NUM, &c->resources.core_cost, 0, 1e9, 0, 0},
+                       {"memory_cost", F_NUM, &c->resources.memory_cost, 0, 1e9, 0, 0},
+                       {"cost_spread", F_NUM, &c->resources.cost_spread, 0, 0.95, 0, 0},
+                       FIELD_END};
+        if ((st = parse_fields(o, "resources", f, NULL, err)))
+            return st;
+    }
+    if ((o = cJSON_GetObjectItemCaseSensitive(root, "central"))) {
+        field_t f[] = {{"period", F_NUM, &c->central.period, 1e-3, 1e6, 0, 0},
+                       {"k", F_NUM, &c->central.k, 0, 1, 0, 0},
+                       {"exact_limit", F_INT, &c->central.exact_limit, 0, 1e6, 0, 0},
+                       {"greedy_budget", F_LONG, &c->central.greedy_budget, 0, 1e12, 0, 0},
+                       {"optimum_limit", F_INT, &c->central.optimum_limit, 0, 1e7, 0, 0},
+                       FIELD_END};
+        if ((st = parse_fields(o, "central", f, NULL, err)))
+            return st;
+    }
+    if ((o = cJSON_GetObjectItemCaseSensitive(root, "catallactic"))) {
+        field_t f[] = {{"hops", F_INT, &c->catallactic.hops, 1, 8, 0, 0},
+                       {"discovery_timeout", F_NUM, &c->catallactic.discovery_timeout, 1e-4, 1e6, 0, 0},
+                       {"reply_timeout", F_NUM, &c->catallactic.reply_timeout, 1e-4, 1e6, 0, 0},
+                       {"max_rounds", F_INT, &c->catallactic.max_rounds, 1, 1000, 0, 0},
+                       {"learning_period", F_NUM, &c->catallactic.learning_period, 1e-3, 1e9, 0, 0},
+                       {"imitation", F_NUM, &c->catallactic.imitation, 0, 1, 0, 0},
+                       {"mutation", F_NUM, &c->catallactic.mutation, 0, 1, 0, 0},
+                       {"mutation_sigma", F_NUM, &c->catallactic.mutation_sigma, 0, 1, 0, 0},
+                       {"retry_backoff", F_NUM, &c->catallactic.retry_backoff, 1e-4, 1e6, 0, 0},
+                       FIELD_END};
+        if ((st = parse_fields(o, "catallactic", f, NULL, err)))
+            return st;
+    }
+    if ((o = cJSON_GetObjectItemCaseSensitive(root, "baseline"))) {
+        field_t f[] = {{"markup", F_NUM, &c->baseline.markup, 0, 10, 0, 0},
+                       {"candidates", F_INT, &c->baseline.candidates, 1, 64, 0, 0},
+                       {"retry_backoff", F_NUM, &c->baseline.retry_backoff, 1e-4, 1e6, 0, 0},
+                       FIELD_END};
+        if ((st = parse_fields(o, "baseline", f, NULL, err)))
+            return st;
+    }
+    if ((o = cJSON_GetObjectItemCaseSensitive(root, "metrics"))) {
+        field_t f[] = {{"convergence_tolerance", F_NUM, &c->metrics.convergence_tolerance, 1e-4, 1, 0, 0},
+                       {"price_bucket", F_NUM, &c->metrics.price_bucket, 1e-3, 1e9, 0, 0},
+                       FIELD_END};
+        if ((st = parse_fields(o, "metrics", f, NULL, err)))
+            return st;
+    }
+    return BG_OK;
+}
+
+bg_status bgm_config_parse(const char *text, size_t length, bgm_config_t *cfg, bg_error_t *err)
+{
+    if (length > BGM_CONFIG_MAX_BYTES)
+        return bg_error_set(err, BG_ERR_LIMIT, "experiment config exceeds %d bytes",
+                            BGM_CONFIG_MAX_BYTES);
+    set_defaults(cfg);
+    cJSON *root = cJSON_ParseWithLength(text, length);
+    if (!root)
+        return bg_error_set(err, BG_ERR_PARSE, "experiment config is not valid JSON");
+    bg_status st = BG_OK;
+    if (!cJSON_IsObject(root)) {
+        st = bg_error_set(err, BG_ERR_INVALID, "experiment config must be a JSON object");
+        goto out;
+    }
+    st = parse_root(root, cfg, err);
+out:
+    cJSON_Delete(root);
+    return st;
+}
+
+bg_status bgm_config_load(const char *path, bgm_config_t *cfg, bg_error_t *err)
+{
+    bg_status st = BG_OK;
+    char *buf = NULL;
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return bg_error_set(err, BG_ERR_IO, "%s: cannot open experiment config", path);
+    buf = malloc(BGM_CONFIG_MAX_BYTES + 1);
+    if (!buf) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory");
+        goto out;
+    }
+    size_t n = fread(buf, 1, BGM_CONFIG_MAX_BYTES + 1, f);
+    if (ferror(f)) {
+        st = bg_error_set(err, BG_ERR_IO, "%s: read error", path);
+        goto out;
+    }
+    st = bgm_config_parse(buf, n, cfg, err);
+out:
+    free(buf);
+    fclose(f);
+    return st;
+}
+
+int bgm_config_scenario_count(const bgm_config_t *c)
+{
+    return c->node_levels * c->density_levels * c->dynamics_levels;
+}
+
+void bgm_config_scenario(const bgm_config_t *c, int s, int *nodes, double *density,
+                         const bgm_dynamics_t **dynamics)
+{
+    int dy = s % c->dynamics_levels;
+    int de = (s / c->dynamics_levels) % c->density_levels;
+    int no = s / (c->dynamics_levels * c->density_levels);
+    *nodes = c->nodes[no];
+    *density = c->density[de];
+    *dynamics = &c->dynamics[c->dynamics_index[dy]];
+}
+
+int bgm_config_agent_count(const bgm_config_t *c, int nodes, double density)
+{
+    int cx = (int)lround(nodes * c->agents.complex_per_node);
+    int per = (int)lround(nodes * density);
+    if (cx < 1)
+        cx = 1;
+    if (per < 1)
+        per = 1;
+    return cx + 2 * per;
+}

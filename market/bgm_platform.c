@@ -1,0 +1,124 @@
+#include "bgm_platform.h"
+
+#include <stdlib.h>
+
+/* The market host sits on a fat link next to the core router: the
+ * auctioneer should not be the bottleneck by construction. */
+#define BGM_MARKET_BW_FACTOR 10.0
+#define BGM_CORE_BW_FACTOR 10.0
+#define BGM_MAX_CHORDS 32
+
+static void link_to(FILE *f, const char *id, double bw, double lat)
+{
+    fprintf(f, "  <link id=\"%s\" bandwidth=\"%.6gBps\" latency=\"%.9gs\"/>\n", id, bw, lat);
+}
+
+static void route(FILE *f, const char *src, const char *dst, const char *link)
+{
+    fprintf(f, "  <route src=\"%s\" dst=\"%s\"><link_ctn id=\"%s\"/></route>\n", src, dst, link);
+}
+
+bg_status bgm_platform_write(FILE *f, const bgm_config_t *c, int nodes, bgm_rng_t *rng,
+                             double *speed)
+{
+    /* The DTD wants every link before the first route: routes go to a
+     * memory stream first and are appended at the end. */
+    char *routes_text = NULL;
+    size_t routes_len = 0;
+    FILE *rt = open_memstream(&routes_text, &routes_len);
+    if (!rt)
+        return BG_ERR_NOMEM;
+    bg_status st = BG_OK;
+    double bw = c->network.bandwidth, lat = c->network.latency;
+    fprintf(f, "<?xml version='1.0'?>\n"
+               "<!DOCTYPE platform SYSTEM \"https://simgrid.org/simgrid.dtd\">\n"
+               "<platform version=\"4.1\">\n<zone id=\"grid\" routing=\"DijkstraCache\">\n");
+    for (int i = 0; i < nodes; i++) {
+        speed[i] = c->network.speed *
+                   (1.0 + c->network.speed_spread * (2.0 * bgm_rng_uniform(rng) - 1.0));
+        fprintf(f, "  <host id=\"h%d\" speed=\"%.9gf\"/>\n", i, speed[i]);
+    }
+    speed[nodes] = c->network.speed;
+    fprintf(f, "  <host id=\"market\" speed=\"%.9gf\"/>\n", speed[nodes]);
+    fprintf(f, "  <router id=\"core\"/>\n");
+    char a[64], b[64], l[64];
+    switch (c->network.topology) {
+    case BGM_TOPO_STAR:
+        for (int i = 0; i < nodes; i++) {
+            snprintf(l, sizeof l, "l%d", i);
+            snprintf(a, sizeof a, "h%d", i);
+            link_to(f, l, bw, lat);
+            route(rt, a, "core", l);
+        }
+        break;
+    case BGM_TOPO_CLUSTER: {
+        int racks = (nodes + BGM_RACK_SIZE - 1) / BGM_RACK_SIZE;
+        for (int r = 0; r < racks; r++) {
+            snprintf(a, sizeof a, "rack%d", r);
+            snprintf(l, sizeof l, "up%d", r);
+            fprintf(f, "  <router id=\"%s\"/>\n", a);
+            link_to(f, l, bw * BGM_CORE_BW_FACTOR, lat);
+            route(rt, a, "core", l);
+        }
+        for (int i = 0; i < nodes; i++) {
+            snprintf(l, sizeof l, "l%d", i);
+            snprintf(a, sizeof a, "h%d", i);
+            snprintf(b, sizeof b, "rack%d", i / BGM_RACK_SIZE);
+            link_to(f, l, bw, lat / 10.0);
+            route(rt, a, b, l);
+        }
+        break;
+    }
+    default: {
+        /* A ring for connectivity plus degree/2 random chords per host;
+         * the core router joins host 0 so the market reaches everyone. */
+        int extra = c->network.degree / 2;
+        int nl = 0;
+        for (int i = 0; i < nodes && nodes > 1; i++) {
+            int j = (i + 1) % nodes;
+            if (nodes == 2 && i == 1)
+                break;
+            snprintf(l, sizeof l, "e%d", nl++);
+            snprintf(a, sizeof a, "h%d", i);
+            snprintf(b, sizeof b, "h%d", j);
+            link_to(f, l, bw, lat);
+            route(rt, a, b, l);
+        }
+        for (int i = 0; i < nodes && nodes > 3; i++) {
+            int chosen[BGM_MAX_CHORDS];
+            int nc = 0;
+            for (int k = 0; k < extra && k < BGM_MAX_CHORDS; k++) {
+                /* Chords go to higher indices only, so a pair is listed once. */
+                int j = (int)bgm_rng_below(rng, (uint32_t)nodes);
+                int dup = 0;
+                for (int q = 0; q < nc; q++)
+                    dup |= chosen[q] == j;
+                if (dup || j <= i + 1 || (i == 0 && j == nodes - 1))
+                    continue;
+                chosen[nc++] = j;
+                snprintf(l, sizeof l, "e%d", nl++);
+                snprintf(a, sizeof a, "h%d", i);
+                snprintf(b, sizeof b, "h%d", j);
+                link_to(f, l, bw, lat);
+                route(rt, a, b, l);
+            }
+        }
+        link_to(f, "l0", bw * BGM_CORE_BW_FACTOR, lat);
+        route(rt, "h0", "core", "l0");
+        break;
+    }
+    }
+    link_to(f, "lmarket", bw * BGM_MARKET_BW_FACTOR, lat);
+    route(rt, "market", "core", "lmarket");
+    if (fclose(rt) != 0) {
+        st = BG_ERR_NOMEM;
+        goto out;
+    }
+    fwrite(routes_text, 1, routes_len, f);
+    fprintf(f, "</zone>\n</platform>\n");
+    if (ferror(f))
+        st = BG_ERR_IO;
+out:
+    free(routes_text);
+    return st;
+}

@@ -1,0 +1,28 @@
+/*
+ * bgm_platform — generated SimGrid platforms (star, cluster of racks,
+ * random graph) as platform XML, with per-host speeds drawn from the
+ * experiment's seed. Hosts are "h0".."h{nodes-1}" plus "market" for the
+ * auctioneer/directory; routing is Dijkstra over hosts, routers and links,
+ * so one generator serves the three topologies. Pure except for writing
+ * the file it is given.
+ */
+#ifndef BGM_PLATFORM_H
+#define BGM_PLATFORM_H
+
+#include <stdio.h>
+
+#include "bg_error.h"
+#include "bgm_config.h"
+#include "bgm_rng.h"
+
+#define BGM_RACK_SIZE 16
+
+/*
+ * Writes the platform for `nodes` hosts to f; speed (caller-allocated,
+ * nodes + 1 entries) receives each host's speed in flops, the market host
+ * last.
+ */
+bg_status bgm_platform_write(FILE *f, const bgm_config_t *cfg, int nodes, bgm_rng_t *rng,
+                             double *speed);
+
+#endif

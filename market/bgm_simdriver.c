@@ -1,0 +1,289 @@
+#include "bgm_simdriver.h"
+
+#include <math.h>
+#include <simgrid/actor.h>
+#include <simgrid/comm.h>
+#include <simgrid/cond.h>
+#include <simgrid/engine.h>
+#include <simgrid/host.h>
+#include <simgrid/mailbox.h>
+#include <simgrid/mutex.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bgm_heap.h"
+
+#define BGM_NODE_MAX_TIMERS ((size_t)1 << 22)
+#define BGM_HOST_NAME_MAX 32
+#define BGM_MARKET_STACK_BYTES (1u << 20)
+
+typedef struct node {
+    sg_host_t host;
+    sg_mailbox_t mailbox;
+    bgm_heap_t *timers;
+    sg_cond_t cond;
+    sg_mutex_t mutex;
+    double waiting_until; /* timer actor sleeps until this (inf: no timer) */
+} node_t;
+
+/* Effects a world handler emits, held back until the handler returns: a
+ * SimGrid call yields to other actors, and the world must never be
+ * re-entered in the middle of a handler. */
+typedef struct outbox {
+    bgm_msg_t *msg;
+    long *bytes;
+    size_t nmsg, capmsg;
+    uint32_t *notify;
+    size_t nnotify, capnotify;
+} outbox_t;
+
+typedef struct driver {
+    outbox_t out;
+    bgm_world_t *w;
+    node_t *nodes;
+    uint32_t nnodes; /* world nodes + market */
+    double horizon;
+    bg_status status;
+    long messages, timers;
+} driver_t;
+
+/* SimGrid actors take (argc, argv); the driver is process-global for the
+ * one run this process makes. */
+static driver_t *g_driver;
+
+static node_t *node_of(driver_t *d, uint32_t agent)
+{
+    return &d->nodes[bgm_world_agent_node(d->w, agent)];
+}
+
+static void drv_send(void *ctx, const bgm_msg_t *m, long bytes)
+{
+    driver_t *d = ctx;
+    outbox_t *o = &d->out;
+    if (o->nmsg == o->capmsg) {
+        size_t n = o->capmsg ? 2 * o->capmsg : 64;
+        bgm_msg_t *pm = realloc(o->msg, n * sizeof *pm);
+        if (pm)
+            o->msg = pm;
+        long *pb = realloc(o->bytes, n * sizeof *pb);
+        if (pb)
+            o->bytes = pb;
+        if (!pm || !pb) {
+            d->status = BG_ERR_NOMEM;
+            return;
+        }
+        o->capmsg = n;
+    }
+    o->msg[o->nmsg] = *m;
+    o->bytes[o->nmsg++] = bytes;
+}
+
+/* Performs the held-back effects. The outbox is detached first, so a
+ * handler that runs while this one yields fills a fresh outbox. */
+static void flush(driver_t *d)
+{
+    outbox_t o = d->out;
+    memset(&d->out, 0, sizeof d->out);
+    for (size_t i = 0; i < o.nmsg; i++) {
+        bgm_msg_t *copy = malloc(sizeof *copy);
+        if (!copy) {
+            d->status = BG_ERR_NOMEM;
+            break;
+        }
+        *copy = o.msg[i];
+        d->messages++;
+        sg_comm_t c = sg_mailbox_put_init(node_of(d, copy->to)->mailbox, copy, o.bytes[i]);
+        sg_comm_detach(c, free);
+    }
+    for (size_t i = 0; i < o.nnotify; i++)
+        sg_cond_notify_one(d->nodes[o.notify[i]].cond);
+    free(o.msg);
+    free(o.bytes);
+    free(o.notify);
+}
+
+static void drv_timer(void *ctx, uint32_t agent, double at, int kind, uint64_t arg)
+{
+    driver_t *d = ctx;
+    node_t *n = node_of(d, agent);
+    bgm_event_t ev = {at, 0, agent, (uint32_t)kind, arg, NULL};
+    bg_status st = bgm_heap_push(n->timers, &ev);
+    if (st && !d->status)
+        d->status = st;
+    if (at < n->waiting_until) {
+        outbox_t *o = &d->out;
+        if (o->nnotify == o->capnotify) {
+            size_t c = o->capnotify ? 2 * o->capnotify : 16;
+            uint32_t *p = realloc(o->notify, c * sizeof *p);
+            if (!p) {
+                d->status = BG_ERR_NOMEM;
+                return;
+            }
+            o->notify = p;
+            o->capnotify = c;
+        }
+        o->notify[o->nnotify++] = (uint32_t)(n - d->nodes);
+    }
+}
+
+static void receiver(int argc, char **argv)
+{
+    driver_t *d = g_driver;
+    node_t *n = &d->nodes[atoi(argv[1])];
+    sg_mailbox_set_receiver(sg_mailbox_get_name(n->mailbox));
+    for (;;) {
+        bgm_msg_t *m = sg_mailbox_get(n->mailbox);
+        bg_status st = bgm_world_on_message(d->w, m, simgrid_get_clock());
+        free(m);
+        if (st && !d->status)
+            d->status = st;
+        flush(d);
+    }
+}
+
+static void timer_actor(int argc, char **argv)
+{
+    driver_t *d = g_driver;
+    node_t *n = &d->nodes[atoi(argv[1])];
+    sg_mutex_lock(n->mutex);
+    for (;;) {
+        double now = simgrid_get_clock();
+        double next = bgm_heap_peek_time(n->timers);
+        if (next > d->horizon) {
+            n->waiting_until = INFINITY;
+            sg_cond_wait(n->cond, n->mutex);
+            continue;
+        }
+        if (next > now) {
+            n->waiting_until = next;
+            sg_cond_wait_for(n->cond, n->mutex, next - now);
+            n->waiting_until = INFINITY;
+            continue;
+        }
+        bgm_event_t ev;
+        bgm_heap_pop(n->timers, &ev);
+        d->timers++;
+        bg_status st = bgm_world_on_timer(d->w, ev.agent, (int)ev.kind, ev.arg, now);
+        if (st && !d->status)
+            d->status = st;
+        flush(d);
+    }
+}
+
+static void controller(int argc, char **argv)
+{
+    driver_t *d = g_driver;
+    bgm_sink_t sink = {d, drv_send, drv_timer};
+    bg_status st = bgm_world_start(d->w, &sink, 0.0);
+    if (st && !d->status)
+        d->status = st;
+    flush(d);
+    sg_actor_sleep_until(d->horizon);
+}
+
+void bgm_simdriver_init(void)
+{
+    char arg0[] = "biotgrid-sim";
+    char arg1[] = "--log=root.thres:critical";
+    char arg2[64];
+    snprintf(arg2, sizeof arg2, "--cfg=contexts/stack-size:%d", BGM_ACTOR_STACK_KIB);
+    char arg3[] = "--log=root.app:stdout";
+    char *argv[] = {arg0, arg1, arg2, arg3, NULL};
+    int argc = 3;
+    simgrid_init(&argc, argv);
+}
+
+static int cmp_host(const void *a, const void *b)
+{
+    return strcmp(sg_host_get_name(*(const sg_host_t *)a), sg_host_get_name(*(const sg_host_t *)b));
+}
+
+static void start_actor(const char *name, sg_host_t host, void (*code)(int, char **), int index,
+                        int daemon, unsigned stack_bytes)
+{
+    char idx[16];
+    snprintf(idx, sizeof idx, "%d", index);
+    const char *argv[] = {name, idx};
+    sg_actor_t a = sg_actor_init(name, host);
+    if (stack_bytes)
+        sg_actor_set_stacksize(a, stack_bytes);
+    if (daemon)
+        sg_actor_daemonize(a);
+    sg_actor_start_(a, code, 2, argv);
+}
+
+bg_status bgm_simdriver_run(bgm_world_t *w, const char *platform_xml, int user_platform,
+                            bgm_sim_stats_t *stats, bg_error_t *err)
+{
+    bg_status st = BG_OK;
+    driver_t d;
+    memset(&d, 0, sizeof d);
+    d.w = w;
+    d.horizon = bgm_world_horizon(w);
+    g_driver = &d;
+    simgrid_load_platform(platform_xml);
+    uint32_t nworld = bgm_world_agent_node(w, 0); /* the market's node = world node count */
+    d.nnodes = nworld + 1;
+    d.nodes = calloc(d.nnodes, sizeof *d.nodes);
+    sg_host_t *hosts = sg_host_list();
+    size_t nhosts = sg_host_count();
+    if (!d.nodes || !hosts || nhosts == 0) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u nodes", d.nnodes);
+        goto out;
+    }
+    qsort(hosts, nhosts, sizeof *hosts, cmp_host);
+    for (uint32_t i = 0; i < d.nnodes; i++) {
+        node_t *n = &d.nodes[i];
+        char name[BGM_HOST_NAME_MAX];
+        if (user_platform) {
+            /* Market on the first host by name, nodes round-robin after it. */
+            n->host = i == nworld ? hosts[0] : hosts[(1 + i) % nhosts];
+        } else {
+            if (i == nworld)
+                snprintf(name, sizeof name, "market");
+            else
+                snprintf(name, sizeof name, "h%u", i);
+            n->host = sg_host_by_name(name);
+        }
+        if (!n->host) {
+            st = bg_error_set(err, BG_ERR_INVALID, "platform has no host for node %u", i);
+            goto out;
+        }
+        char mb[BGM_HOST_NAME_MAX];
+        snprintf(mb, sizeof mb, "n%u", i);
+        n->mailbox = sg_mailbox_by_name(mb);
+        n->timers = bgm_heap_new(BGM_NODE_MAX_TIMERS);
+        n->cond = sg_cond_init();
+        n->mutex = sg_mutex_init();
+        n->waiting_until = INFINITY;
+        if (!n->timers) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for node timers");
+            goto out;
+        }
+    }
+    /* Agents' actors get small stacks (contexts/stack-size); the market's
+     * actors run the clearing, GLPK included, and get a full-size stack. */
+    for (uint32_t i = 0; i < d.nnodes; i++) {
+        unsigned stack = i == nworld ? BGM_MARKET_STACK_BYTES : 0;
+        start_actor("recv", d.nodes[i].host, receiver, (int)i, 1, stack);
+        start_actor("timer", d.nodes[i].host, timer_actor, (int)i, 1, stack);
+    }
+    start_actor("ctl", d.nodes[nworld].host, controller, 0, 0, BGM_MARKET_STACK_BYTES);
+    simgrid_run();
+    if (d.status)
+        st = bg_error_set(err, d.status, "simulation failed: %s", bg_strerror(d.status));
+    if (stats) {
+        stats->messages = d.messages;
+        stats->timers = d.timers;
+        stats->end_time = simgrid_get_clock();
+    }
+out:
+    free(hosts);
+    if (d.nodes)
+        for (uint32_t i = 0; i < d.nnodes; i++)
+            bgm_heap_destroy(&d.nodes[i].timers);
+    free(d.nodes);
+    g_driver = NULL;
+    return st;
+}

@@ -1,0 +1,41 @@
+/*
+ * bgm_simdriver — runs one bgm_world_t on SimGrid (C API, 3.32).
+ *
+ * One SimGrid host per node plus "market"; per host two small actors: a
+ * receiver blocked on the host's mailbox (a permanent receiver, so
+ * transfers start when sent, like an asynchronous network) and a timer
+ * actor sleeping on a condition variable until the host's next timer.
+ * Messages are copied into detached communications whose simulated size
+ * the world gives, so latency, bandwidth and contention on the generated
+ * (or user) platform decide when they arrive. The world is single-threaded
+ * state: SimGrid runs actors one at a time, so no locking is needed.
+ *
+ * SimGrid's engine is initialised once per process: call this in a fresh
+ * (forked) process, once.
+ */
+#ifndef BGM_SIMDRIVER_H
+#define BGM_SIMDRIVER_H
+
+#include "bg_error.h"
+#include "bgm_world.h"
+
+#define BGM_ACTOR_STACK_KIB 32
+
+typedef struct bgm_sim_stats {
+    long messages;
+    long timers;
+    double end_time;
+} bgm_sim_stats_t;
+
+/* Initialises SimGrid (silenced, small actor stacks). Once per process. */
+void bgm_simdriver_init(void);
+
+/*
+ * Loads platform_xml (whose hosts must include h0..h{nodes-1} and
+ * "market", or any hosts for a user platform: nodes map onto them in name
+ * order) and runs the world to its horizon.
+ */
+bg_status bgm_simdriver_run(bgm_world_t *w, const char *platform_xml, int user_platform,
+                            bgm_sim_stats_t *stats, bg_error_t *err);
+
+#endif

@@ -1,0 +1,1948 @@
+#include "bgm_world.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bgm_callmarket.h"
+#include "bgm_catallactic.h"
+#include "bgm_combex.h"
+#include "bgm_posted.h"
+#include "bgm_rng.h"
+#include "bgm_strategy.h"
+
+const char *const bgm_metric_names[BGM_M_COUNT] = {
+    "allocation_rate",      "access_time_median",   "access_time_p99",
+    "resource_access_time_median", "resource_access_time_p99", "messages_per_allocation",
+    "bytes_per_allocation", "welfare",              "welfare_ratio",
+    "price_mean",           "price_variance",       "price_convergence_time",
+    "utilization",          "job_completion_time",  "job_completion_rate",
+    "resource_allocation_rate", "requests",         "contracts",
+    "messages",             "bytes",                "combex_exact",
+    "combex_greedy",        "timeouts"};
+const char *const bgm_good_names[5] = {"rotation-fit", "sparse-solve", "integration-step", "cores",
+                                       "memory"};
+const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"};
+
+/* Hard caps (growable tables never exceed these). */
+#define BGM_MAX_AGENTS 200000
+#define BGM_DEMAND_STREAM (1ULL << 40)
+/* Offline optimum: accepted relative gap and branch-and-bound budget. */
+#define BGM_OPTIMUM_GAP 1e-3
+#define BGM_OPTIMUM_NODES 2000
+#define BGM_MAX_REQS (1u << 22)
+#define BGM_MAX_CONTRACTS (1u << 23)
+#define BGM_MAX_NEIGHBOURS 64
+#define BGM_MAX_PROPOSALS 8
+#define BGM_SEEN_RING 16
+#define BGM_BOOK_MAX 100000
+#define BGM_GOOD_CORES 3
+#define BGM_GOOD_MEMORY 4
+#define BGM_GOOD_BUNDLE (-1)
+/* Extra simulated bytes for the variable parts of messages. */
+#define BGM_CAND_BYTES 20
+#define BGM_GENES_BYTES 48
+/* Fitness smoothing and the step of the opening-price markup. */
+#define BGM_FITNESS_DECAY 0.9
+#define BGM_MARKUP_STEP 0.1
+#define BGM_MARKUP_INIT 0.2
+/* A basic agent re-announces its ask when its reservation moves this much. */
+#define BGM_ASK_REFRESH 0.1
+/* Buyer waits this long past its deadline for a committed seller. */
+#define BGM_COMMIT_GRACE 30.0
+
+/* Message types. a/b/c meanings are given per type. */
+enum {
+    M_BID = 1,   /* C->A service bid: good, price=valuation/unit, a=work, b=deadline */
+    M_ASK,       /* B->A: good, price=reservation/unit, a=slots (registration/refresh) */
+    M_FREE,      /* B->A: one slot free again */
+    M_MATCH,     /* A->B: req, good, price, a=work, b=deadline, c=buyer valuation; origin=buyer */
+    M_RBID,      /* B->A resource bid: req, a=cores, b=memory, c=flops, price=limit total */
+    M_RASK,      /* R->A registration: a=cores, b=memory, c=speed, price=cost rate/core */
+    M_RFREE,     /* R->A: a=cores, b=memory freed */
+    M_RAWARD,    /* A->R: req, price=rate, origin=buyer, a=cores, b=memory, c=flops; cand[0]=seller-limit */
+    M_RFAIL,     /* A->B or R->B: resource request failed */
+    M_RCONFIRM,  /* R->B: req, price=rate, a=start, b=end, c=seller limit rate */
+    M_CONFIRM,   /* B->C: req, price/unit, a=start, b=end */
+    M_CANCEL,    /* B->C: the agreed service could not get resources */
+    M_CFP,       /* call for proposals: req, good, hops, origin, a=work|cores, b=memory, c=flops */
+    M_PROPOSE,   /* seller->buyer: price=opening, a=speed */
+    M_OFFER,     /* either way: price */
+    M_ACCEPT,    /* either way: price agreed */
+    M_REJECT,    /* either way */
+    M_GENES,     /* learning: cand_price[0..4]=genes, price=fitness, a=1 request, 0 reply */
+    M_QUERY,     /* baseline: buyer->A: good (or bundle), price=limit */
+    M_LIST,      /* A->buyer: candidates */
+    M_ORDER,     /* buyer->seller at posted price: price, a=work|cores, b=memory, c=flops */
+    M_AVAIL      /* baseline seller->directory: a=free slots|cores, b=free memory */
+};
+
+/* Timer kinds. */
+enum {
+    T_ARRIVAL = 1, /* complex agent: next job */
+    T_CLEAR,       /* market: clearing period */
+    T_REQ,         /* request phase timeout: arg = req | tseq << 32 */
+    T_DEADLINE,    /* request deadline: arg = req */
+    T_RETRY,       /* retry acquisition: arg = req | attempt << 32 */
+    T_RELEASE,     /* seller capacity release at contract end: arg = req */
+    T_LEARN,       /* catallactic learning meeting */
+    T_NODE_FAIL,   /* agent = first agent of node; arg = node */
+    T_NODE_REPAIR,
+    T_LINK_FAIL,
+    T_LINK_REPAIR
+};
+
+enum { RQ_IDLE, RQ_DISCOVER, RQ_NEGOTIATE, RQ_WAIT, RQ_COMMITTED, RQ_DONE, RQ_FAILED };
+
+typedef struct proposal {
+    uint32_t seller;
+    double price, speed;
+} proposal_t;
+
+/* A purchase in progress: a service item of a job (layer 0, buyer C) or a
+ * resource bundle for an agreed service (layer 1, buyer B). Owned by its
+ * buyer; the seller-side bargaining state rides along for the seller. */
+typedef struct req {
+    int layer, good, state;
+    uint32_t buyer, seller, job, parent; /* parent: service req of a resource req */
+    uint32_t attempt;
+    uint32_t tseq; /* phase timer generation: only the latest T_REQ counts */
+    double work, cores, memory, flops;
+    double limit;        /* service: valuation/unit; resource: revenue total */
+    double created, deadline;
+    double price;        /* agreed price (service: per unit; resource: rate) */
+    double seller_limit; /* seller's reservation at agreement */
+    double start, end;
+    proposal_t prop[BGM_MAX_PROPOSALS];
+    int nprop, next_prop;
+    bgm_nego_t buyer_nego, seller_nego;
+    int seller_open;
+} req_t;
+
+typedef struct job {
+    uint32_t agent;
+    double arrival, last_end;
+    int items, done, failed;
+} job_t;
+
+typedef struct agent {
+    int role;
+    uint32_t node;
+    bgm_rng_t rng;  /* strategy draws: bargaining, learning */
+    bgm_rng_t drng; /* demand and endowment draws, independent of the
+                     * mechanism, so every mechanism faces the same jobs */
+    bgm_genes_t genes;
+    double fitness, markup;
+    double memory[4]; /* remembered price per service good; [3]: resource price/cost ratio */
+    uint32_t *nbr;
+    int ndeg;
+    uint64_t seen[BGM_SEEN_RING];
+    int seen_pos;
+    /* basic-service seller */
+    int sells[BGM_SERVICE_TYPES];
+    int slots, used;
+    double cost[BGM_SERVICE_TYPES];      /* own cost per unit */
+    double est_res[BGM_SERVICE_TYPES];   /* estimated resource cost per unit */
+    double announced[BGM_SERVICE_TYPES]; /* last reservation sent to the market */
+    double posted[BGM_SERVICE_TYPES];    /* baseline posted price */
+    /* resource seller */
+    double cores, mem, used_cores, used_mem, core_cost, mem_cost, speed;
+    /* complex buyer */
+    double requested[BGM_SERVICE_TYPES], valuation_sum[BGM_SERVICE_TYPES];
+    double paid[2], received[2];
+} agent_t;
+
+/* The auctioneer's view of sellers (central) and pending orders. */
+typedef struct mkt_seller {
+    uint32_t agent;
+    double free_a, free_b, price, speed, mem_cost;
+    double reservation[BGM_SERVICE_TYPES];
+} mkt_seller_t;
+
+struct bgm_world {
+    bgm_config_t cfg;
+    bgm_world_params_t p;
+    bgm_sink_t sink;
+    bgm_rng_t rng;
+    double horizon, arrival_end;
+    uint32_t nagents, ncomplex, nbasic, nresource, first_basic, first_resource;
+    agent_t *agents;
+    uint32_t *nbr_pool;
+    int *node_up, *link_up;
+    uint32_t nodes;
+    double *speed;
+    req_t *reqs;
+    uint32_t nreq, req_cap;
+    job_t *jobs;
+    uint32_t njob, job_cap;
+    bgm_contract_t *log;
+    size_t nlog, log_cap;
+    /* central */
+    uint32_t *pend_bid, *pend_rbid;
+    size_t npend_bid, npend_rbid, pend_cap;
+    mkt_seller_t *mb, *mr; /* basic and resource sellers as the market sees them */
+    uint32_t nmb, nmr;
+    bgm_callmarket_t *cm;
+    bgm_combex_t *cx;
+    bgm_fill_t *fills;
+    int *assign;
+    bgm_posted_t *dir;
+    /* accounting */
+    double msgs, bytes, timeouts, combex_exact, combex_greedy;
+    double service_requests, resource_requests;
+    double *acc_s, *acc_r;
+    size_t nacc_s, nacc_r;
+    double welfare, core_seconds;
+    double min_cost[BGM_SERVICE_TYPES];
+    bg_status failure; /* first failure inside a handler */
+};
+
+/* ---------------------------------------------------------------- helpers */
+
+static void fail(bgm_world_t *w, bg_status st)
+{
+    if (w->failure == BG_OK)
+        w->failure = st;
+}
+
+static int agent_alive(const bgm_world_t *w, uint32_t a)
+{
+    uint32_t n = w->agents[a].node;
+    return n >= w->nodes || w->node_up[n];
+}
+
+static int agent_reachable(const bgm_world_t *w, uint32_t a)
+{
+    uint32_t n = w->agents[a].node;
+    return n >= w->nodes || (w->node_up[n] && w->link_up[n]);
+}
+
+static void send(bgm_world_t *w, bgm_msg_t *m)
+{
+    long bytes = w->cfg.network.message_bytes;
+    if (m->type == M_LIST)
+        bytes += BGM_CAND_BYTES * m->ncand;
+    if (m->type == M_GENES)
+        bytes += BGM_GENES_BYTES;
+    w->msgs += 1.0;
+    w->bytes += (double)bytes;
+    /* A sender whose node or access link is down loses the message. */
+    if (!agent_reachable(w, m->from))
+        return;
+    w->sink.send(w->sink.ctx, m, bytes);
+}
+
+static void timer(bgm_world_t *w, uint32_t agent, double at, int kind, uint64_t arg)
+{
+    w->sink.timer(w->sink.ctx, agent, at, kind, arg);
+}
+
+static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt);
+
+/* Baseline: a seller tells the directory its free capacity whenever it
+ * changes, as a plain scheduler's resource registry would learn it. */
+static void announce(bgm_world_t *w, uint32_t seller)
+{
+    if (w->p.mechanism != BGM_MECH_BASELINE)
+        return;
+    const agent_t *a = &w->agents[seller];
+    bgm_msg_t m = msg(M_AVAIL, seller, 0, 0, 0);
+    m.a = a->role == BGM_ROLE_BASIC ? (double)(a->slots - a->used) : a->cores - a->used_cores;
+    m.b = a->role == BGM_ROLE_BASIC ? 0.0 : a->mem - a->used_mem;
+    send(w, &m);
+}
+
+static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
+{
+    bgm_msg_t m;
+    memset(&m, 0, sizeof m);
+    m.type = (uint16_t)type;
+    m.from = from;
+    m.to = to;
+    m.req = req;
+    m.attempt = attempt;
+    return m;
+}
+
+static uint64_t req_arg(const req_t *r, uint32_t id)
+{
+    return (uint64_t)id | ((uint64_t)r->attempt << 32);
+}
+
+static bg_status log_contract(bgm_world_t *w, const bgm_contract_t *c)
+{
+    if (w->nlog == w->log_cap) {
+        size_t n = w->log_cap ? w->log_cap * 2 : 1024;
+        if (n > BGM_MAX_CONTRACTS)
+            return BG_ERR_LIMIT;
+        bgm_contract_t *p = realloc(w->log, n * sizeof *p);
+        if (!p)
+            return BG_ERR_NOMEM;
+        w->log = p;
+        w->log_cap = n;
+    }
+    w->log[w->nlog++] = *c;
+    return BG_OK;
+}
+
+static bg_status push_double(double **arr, size_t *n, double v)
+{
+    /* Doubling growth; the array length is bounded by the request cap. */
+    if ((*n & (*n - 1)) == 0 || *n == 0) {
+        size_t cap = *n ? *n * 2 : 256;
+        double *p = realloc(*arr, cap * sizeof *p);
+        if (!p)
+            return BG_ERR_NOMEM;
+        *arr = p;
+    }
+    (*arr)[(*n)++] = v;
+    return BG_OK;
+}
+
+static uint32_t new_req(bgm_world_t *w)
+{
+    if (w->nreq == w->req_cap) {
+        uint32_t n = w->req_cap ? w->req_cap * 2 : 1024;
+        if (n > BGM_MAX_REQS) {
+            fail(w, BG_ERR_LIMIT);
+            return UINT32_MAX;
+        }
+        req_t *p = realloc(w->reqs, (size_t)n * sizeof *p);
+        if (!p) {
+            fail(w, BG_ERR_NOMEM);
+            return UINT32_MAX;
+        }
+        w->reqs = p;
+        w->req_cap = n;
+    }
+    memset(&w->reqs[w->nreq], 0, sizeof w->reqs[0]);
+    return w->nreq++;
+}
+
+static double resource_cost_rate(const agent_t *r, double cores, double mem)
+{
+    return r->core_cost * cores + r->mem_cost * mem;
+}
+
+/* Normaliser for remembered resource prices: the mean cost rate. */
+static double mean_rate(const bgm_world_t *w, double cores, double mem)
+{
+    return w->cfg.resources.core_cost * cores + w->cfg.resources.memory_cost * mem;
+}
+
+static double reservation(const agent_t *b, int good)
+{
+    return b->cost[good] + b->est_res[good];
+}
+
+static void learn_outcome(agent_t *a, int success, double surplus_share)
+{
+    if (success) {
+        a->fitness = BGM_FITNESS_DECAY * a->fitness + (1.0 - BGM_FITNESS_DECAY) * surplus_share;
+        a->markup += a->genes.price_next * BGM_MARKUP_STEP * (1.0 - a->markup);
+    } else {
+        a->fitness *= BGM_FITNESS_DECAY;
+        a->markup -= a->genes.price_next * BGM_MARKUP_STEP * a->markup;
+    }
+}
+
+/* ------------------------------------------------------------ construction */
+
+static bg_status build_overlay(bgm_world_t *w)
+{
+    /* Random overlay among all non-market agents: each agent opens
+     * degree/2 links to uniformly drawn others (both directions stored),
+     * capped per agent; isolated agents get one link. */
+    uint32_t n = w->nagents - 1;
+    int half = w->cfg.agents.overlay_degree / 2 > 0 ? w->cfg.agents.overlay_degree / 2 : 1;
+    w->nbr_pool = calloc((size_t)w->nagents * BGM_MAX_NEIGHBOURS, sizeof *w->nbr_pool);
+    if (!w->nbr_pool)
+        return BG_ERR_NOMEM;
+    for (uint32_t a = 0; a < w->nagents; a++)
+        w->agents[a].nbr = w->nbr_pool + (size_t)a * BGM_MAX_NEIGHBOURS;
+    if (n < 2)
+        return BG_OK;
+    for (uint32_t a = 1; a < w->nagents; a++) {
+        for (int k = 0; k < half; k++) {
+            uint32_t b = 1 + bgm_rng_below(&w->rng, n);
+            agent_t *x = &w->agents[a], *y = &w->agents[b];
+            if (b == a || x->ndeg >= BGM_MAX_NEIGHBOURS || y->ndeg >= BGM_MAX_NEIGHBOURS)
+                continue;
+            int dup = 0;
+            for (int j = 0; j < x->ndeg; j++)
+                dup |= x->nbr[j] == b;
+            if (dup)
+                continue;
+            x->nbr[x->ndeg++] = b;
+            y->nbr[y->ndeg++] = a;
+        }
+    }
+    return BG_OK;
+}
+
+bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
+{
+    bg_status st = BG_OK;
+    bgm_world_t *w = calloc(1, sizeof *w);
+    if (!w) {
+        bg_error_set(err, BG_ERR_NOMEM, "out of memory");
+        return NULL;
+    }
+    w->cfg = *p->cfg;
+    w->p = *p;
+    w->p.cfg = &w->cfg;
+    const bgm_config_t *c = &w->cfg;
+    bgm_rng_derive(&w->rng, c->seed, (uint64_t)p->scenario, (uint64_t)p->replication, 0);
+    w->nodes = (uint32_t)p->nodes;
+    w->arrival_end = c->duration;
+    w->horizon = c->duration + c->drain;
+    int per = (int)lround(p->nodes * p->density);
+    int cx = (int)lround(p->nodes * c->agents.complex_per_node);
+    w->ncomplex = (uint32_t)(cx < 1 ? 1 : cx);
+    w->nbasic = w->nresource = (uint32_t)(per < 1 ? 1 : per);
+    w->nagents = 1 + w->ncomplex + w->nbasic + w->nresource;
+    if (w->nagents > BGM_MAX_AGENTS) {
+        st = bg_error_set(err, BG_ERR_LIMIT, "scenario has %u agents, above the cap of %d",
+                          w->nagents, BGM_MAX_AGENTS);
+        goto out;
+    }
+    w->first_basic = 1 + w->ncomplex;
+    w->first_resource = w->first_basic + w->nbasic;
+    w->agents = calloc(w->nagents, sizeof *w->agents);
+    w->node_up = malloc((w->nodes + 1) * sizeof *w->node_up);
+    w->link_up = malloc((w->nodes + 1) * sizeof *w->link_up);
+    w->speed = malloc((w->nodes + 1) * sizeof *w->speed);
+    if (!w->agents || !w->node_up || !w->link_up || !w->speed) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u agents", w->nagents);
+        goto out;
+    }
+    for (uint32_t i = 0; i <= w->nodes; i++) {
+        w->node_up[i] = w->link_up[i] = 1;
+        w->speed[i] = p->node_speed ? p->node_speed[i < w->nodes ? i : 0] : c->network.speed;
+    }
+    for (int t = 0; t < BGM_SERVICE_TYPES; t++)
+        w->min_cost[t] = INFINITY;
+    double spread = c->resources.cost_spread;
+    for (uint32_t a = 0; a < w->nagents; a++) {
+        agent_t *ag = &w->agents[a];
+        bgm_rng_derive(&ag->rng, c->seed, (uint64_t)p->scenario, (uint64_t)p->replication,
+                       (uint64_t)a + 1);
+        bgm_rng_derive(&ag->drng, c->seed, (uint64_t)p->scenario, (uint64_t)p->replication,
+                       BGM_DEMAND_STREAM + (uint64_t)a);
+        bgm_genes_random(&ag->genes, &ag->rng);
+        ag->markup = BGM_MARKUP_INIT;
+        if (a == 0) {
+            ag->role = BGM_ROLE_MARKET;
+            ag->node = w->nodes;
+        } else if (a < w->first_basic) {
+            ag->role = BGM_ROLE_COMPLEX;
+            ag->node = (a - 1) % w->nodes;
+        } else if (a < w->first_resource) {
+            ag->role = BGM_ROLE_BASIC;
+            ag->node = (a - w->first_basic) % w->nodes;
+            ag->slots = c->agents.service_slots;
+            /* Each basic agent sells services_per_agent consecutive types
+             * starting at a random one, so every type has sellers. */
+            int first = (int)bgm_rng_below(&ag->drng, BGM_SERVICE_TYPES);
+            for (int k = 0; k < c->agents.services_per_agent; k++)
+                ag->sells[(first + k) % BGM_SERVICE_TYPES] = 1;
+            for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
+                const bgm_service_cfg_t *s = &c->services[t];
+                ag->cost[t] = s->cost_per_unit * (1.0 + spread * (2.0 * bgm_rng_uniform(&ag->drng) - 1.0));
+                ag->est_res[t] = mean_rate(w, s->cores, s->memory) * s->flops_per_unit /
+                                 (c->network.speed * s->cores);
+                if (ag->sells[t] && ag->cost[t] < w->min_cost[t])
+                    w->min_cost[t] = ag->cost[t];
+                ag->posted[t] = reservation(ag, t) * (1.0 + c->baseline.markup);
+            }
+        } else {
+            ag->role = BGM_ROLE_RESOURCE;
+            ag->node = (a - w->first_resource) % w->nodes;
+            ag->cores = c->agents.resource_cores;
+            ag->mem = c->agents.resource_memory;
+            ag->core_cost = c->resources.core_cost * (1.0 + spread * (2.0 * bgm_rng_uniform(&ag->drng) - 1.0));
+            ag->mem_cost = c->resources.memory_cost * (1.0 + spread * (2.0 * bgm_rng_uniform(&ag->drng) - 1.0));
+            ag->speed = w->speed[ag->node];
+        }
+    }
+    if ((st = build_overlay(w))) {
+        bg_error_set(err, st, "out of memory for the overlay");
+        goto out;
+    }
+    w->pend_cap = BGM_BOOK_MAX;
+    w->pend_bid = malloc(w->pend_cap * sizeof *w->pend_bid);
+    w->pend_rbid = malloc(w->pend_cap * sizeof *w->pend_rbid);
+    w->mb = calloc(w->nbasic, sizeof *w->mb);
+    w->mr = calloc(w->nresource, sizeof *w->mr);
+    w->cm = bgm_callmarket_new(BGM_BOOK_MAX);
+    w->fills = malloc(2 * BGM_BOOK_MAX * sizeof *w->fills);
+    w->assign = malloc(BGM_BOOK_MAX * sizeof *w->assign);
+    w->cx = bgm_combex_new(BGM_BOOK_MAX, (int)w->nresource, 4u * BGM_BOOK_MAX);
+    w->dir = bgm_posted_new((size_t)(w->nbasic * BGM_SERVICE_TYPES + w->nresource));
+    if (!w->pend_bid || !w->pend_rbid || !w->mb || !w->mr || !w->cm || !w->fills || !w->assign ||
+        !w->cx || !w->dir) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the market books");
+        goto out;
+    }
+out:
+    if (st)
+        bgm_world_destroy(&w);
+    return w;
+}
+
+void bgm_world_destroy(bgm_world_t **pw)
+{
+    if (!pw || !*pw)
+        return;
+    bgm_world_t *w = *pw;
+    free(w->agents);
+    free(w->nbr_pool);
+    free(w->node_up);
+    free(w->link_up);
+    free(w->speed);
+    free(w->reqs);
+    free(w->jobs);
+    free(w->log);
+    free(w->pend_bid);
+    free(w->pend_rbid);
+    free(w->mb);
+    free(w->mr);
+    bgm_callmarket_destroy(&w->cm);
+    free(w->fills);
+    free(w->assign);
+    bgm_combex_destroy(&w->cx);
+    bgm_posted_destroy(&w->dir);
+    free(w->acc_s);
+    free(w->acc_r);
+    free(w);
+    *pw = NULL;
+}
+
+uint32_t bgm_world_agent_count(const bgm_world_t *w) { return w->nagents; }
+uint32_t bgm_world_agent_node(const bgm_world_t *w, uint32_t a) { return w->agents[a].node; }
+double bgm_world_horizon(const bgm_world_t *w) { return w->horizon; }
+size_t bgm_world_contract_count(const bgm_world_t *w) { return w->nlog; }
+const bgm_contract_t *bgm_world_contracts(const bgm_world_t *w) { return w->log; }
+
+void bgm_world_money(const bgm_world_t *w, double paid[2], double received[2])
+{
+    paid[0] = paid[1] = received[0] = received[1] = 0.0;
+    for (uint32_t a = 0; a < w->nagents; a++)
+        for (int l = 0; l < 2; l++) {
+            paid[l] += w->agents[a].paid[l];
+            received[l] += w->agents[a].received[l];
+        }
+}
+
+/* ------------------------------------------------------------ acquisition */
+
+static void start_acquire(bgm_world_t *w, uint32_t rid, double now);
+
+static void final_fail(bgm_world_t *w, uint32_t rid, double now)
+{
+    req_t *r = &w->reqs[rid];
+    if (r->state == RQ_DONE || r->state == RQ_FAILED)
+        return;
+    r->state = RQ_FAILED;
+    agent_t *buyer = &w->agents[r->buyer];
+    learn_outcome(buyer, 0, 0.0);
+    if (r->layer == 0) {
+        w->jobs[r->job].failed++;
+        return;
+    }
+    /* A resource request failed: the basic agent gives the slot back and
+     * tells its job buyer that the agreed service is off. */
+    req_t *s = &w->reqs[r->parent];
+    if (buyer->used > 0)
+        buyer->used--;
+    announce(w, r->buyer);
+    if (w->p.mechanism == BGM_MECH_CENTRAL) {
+        bgm_msg_t m = msg(M_FREE, r->buyer, 0, rid, 0);
+        send(w, &m);
+    }
+    bgm_msg_t m = msg(M_CANCEL, r->buyer, s->buyer, r->parent, s->attempt);
+    send(w, &m);
+    (void)now;
+}
+
+/* One attempt failed: retry after a backoff while the deadline allows. */
+static void attempt_failed(bgm_world_t *w, uint32_t rid, double now)
+{
+    req_t *r = &w->reqs[rid];
+    double backoff = w->p.mechanism == BGM_MECH_BASELINE ? w->cfg.baseline.retry_backoff
+                                                          : w->cfg.catallactic.retry_backoff;
+    learn_outcome(&w->agents[r->buyer], 0, 0.0);
+    r->attempt++;
+    if (now + backoff >= r->deadline) {
+        final_fail(w, rid, now);
+        return;
+    }
+    r->state = RQ_IDLE;
+    timer(w, r->buyer, now + backoff, T_RETRY, req_arg(r, rid));
+}
+
+static double req_duration(const req_t *r, double speed)
+{
+    return r->flops / (speed * (r->cores > 0 ? r->cores : 1.0));
+}
+
+/* Arms the request's phase timer; earlier phase timers become stale. */
+static void arm(bgm_world_t *w, uint32_t rid, double at)
+{
+    req_t *r = &w->reqs[rid];
+    r->tseq++;
+    timer(w, r->buyer, at, T_REQ, (uint64_t)rid | ((uint64_t)r->tseq << 32));
+}
+
+static void cfp_send(bgm_world_t *w, uint32_t from, const bgm_msg_t *proto, uint32_t except)
+{
+    const agent_t *a = &w->agents[from];
+    for (int i = 0; i < a->ndeg; i++) {
+        if (a->nbr[i] == except || a->nbr[i] == proto->origin)
+            continue;
+        bgm_msg_t m = *proto;
+        m.from = from;
+        m.to = a->nbr[i];
+        send(w, &m);
+    }
+}
+
+static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
+{
+    req_t *r = &w->reqs[rid];
+    if (!agent_alive(w, r->buyer)) {
+        final_fail(w, rid, now);
+        return;
+    }
+    r->nprop = r->next_prop = 0;
+    r->seller_open = 0;
+    switch (w->p.mechanism) {
+    case BGM_MECH_CENTRAL: {
+        bgm_msg_t m = msg(r->layer == 0 ? M_BID : M_RBID, r->buyer, 0, rid, r->attempt);
+        m.good = (int16_t)r->good;
+        m.price = r->limit;
+        m.a = r->layer == 0 ? r->work : r->cores;
+        m.b = r->layer == 0 ? r->deadline : r->memory;
+        m.c = r->layer == 0 ? 0.0 : r->flops;
+        m.cand_price[0] = r->deadline;
+        r->state = RQ_WAIT;
+        send(w, &m);
+        break;
+    }
+    case BGM_MECH_CATALLACTIC: {
+        bgm_msg_t m = msg(M_CFP, r->buyer, 0, rid, r->attempt);
+        m.good = (int16_t)r->good;
+        m.hops = (uint16_t)w->cfg.catallactic.hops;
+        m.origin = r->buyer;
+        m.a = r->layer == 0 ? r->work : r->cores;
+        m.b = r->memory;
+        m.c = r->flops;
+        r->state = RQ_DISCOVER;
+        cfp_send(w, r->buyer, &m, UINT32_MAX);
+        arm(w, rid, now + w->cfg.catallactic.discovery_timeout);
+        break;
+    }
+    default: {
+        bgm_msg_t m = msg(M_QUERY, r->buyer, 0, rid, r->attempt);
+        m.good = (int16_t)(r->layer == 0 ? r->good : BGM_GOOD_CORES);
+        m.price = r->layer == 0 ? r->limit : INFINITY;
+        m.a = r->cores;
+        m.b = r->memory;
+        r->state = RQ_WAIT;
+        send(w, &m);
+        arm(w, rid, now + 4.0 * w->cfg.catallactic.reply_timeout);
+        break;
+    }
+    }
+}
+
+/* The basic agent has agreed to serve service request sid at `price` per
+ * unit: it reserves a slot and starts buying the resources. Returns 0
+ * (and changes nothing) when it has no free slot. */
+static int service_agreed(bgm_world_t *w, uint32_t b, uint32_t sid, double price, double limit,
+                          double now)
+{
+    agent_t *ag = &w->agents[b];
+    if (ag->used >= ag->slots || !agent_alive(w, b))
+        return 0;
+    req_t *s = &w->reqs[sid];
+    ag->used++;
+    announce(w, b);
+    s->seller = b;
+    s->price = price;
+    s->seller_limit = limit;
+    uint32_t rid = new_req(w);
+    if (rid == UINT32_MAX)
+        return 0;
+    s = &w->reqs[sid];
+    req_t *r = &w->reqs[rid];
+    const bgm_service_cfg_t *sc = &w->cfg.services[s->good];
+    r->layer = 1;
+    r->good = BGM_GOOD_BUNDLE;
+    r->buyer = b;
+    r->parent = sid;
+    r->job = s->job;
+    r->cores = sc->cores;
+    r->memory = sc->memory;
+    r->flops = sc->flops_per_unit * s->work;
+    r->limit = price * s->work;
+    r->created = now;
+    r->deadline = s->deadline > now ? s->deadline : now + w->cfg.catallactic.reply_timeout;
+    w->resource_requests += 1.0;
+    timer(w, b, r->deadline, T_DEADLINE, rid);
+    start_acquire(w, rid, now);
+    return 1;
+}
+
+static void log_resource(bgm_world_t *w, const req_t *r, uint32_t seller, double rate,
+                         double now, double end)
+{
+    const agent_t *ra = &w->agents[seller];
+    double cost = resource_cost_rate(ra, r->cores, r->memory);
+    double dur = end - now;
+    double lim = r->limit / dur;
+    double share_c = cost > 0.0 ? ra->core_cost * r->cores / cost : 1.0;
+    bgm_contract_t c = {now, now, end, r->buyer, seller, 1, BGM_GOOD_CORES, r->cores,
+                        rate * share_c / r->cores, lim * share_c / r->cores, ra->core_cost};
+    bg_status st = log_contract(w, &c);
+    if (!st && r->memory > 0.0) {
+        double share_m = 1.0 - share_c;
+        bgm_contract_t m = {now, now, end, r->buyer, seller, 1, BGM_GOOD_MEMORY, r->memory,
+                            rate * share_m / r->memory, lim * share_m / r->memory, ra->mem_cost};
+        st = log_contract(w, &m);
+    }
+    if (st)
+        fail(w, st);
+}
+
+/* The resource agent has agreed to rent bundle rid at `rate` per second:
+ * it checks capacity now (all its contracts start when agreed, so free
+ * capacity now is free capacity for the whole interval), logs the
+ * contract, moves the money and confirms. Returns 0 when it cannot. */
+static int resource_agreed(bgm_world_t *w, uint32_t ra_id, uint32_t rid, double rate, double now)
+{
+    agent_t *ra = &w->agents[ra_id];
+    req_t *r = &w->reqs[rid];
+    if (!agent_alive(w, ra_id) || ra->used_cores + r->cores > ra->cores + 1e-9 ||
+        ra->used_mem + r->memory > ra->mem + 1e-9)
+        return 0;
+    double dur = req_duration(r, ra->speed);
+    double cost = resource_cost_rate(ra, r->cores, r->memory);
+    if (rate < cost || rate * dur > r->limit * (1.0 + 1e-12))
+        return 0;
+    ra->used_cores += r->cores;
+    ra->used_mem += r->memory;
+    announce(w, ra_id);
+    log_resource(w, r, ra_id, rate, now, now + dur);
+    w->agents[r->buyer].paid[1] += rate * dur;
+    ra->received[1] += rate * dur;
+    w->core_seconds += r->cores * dur;
+    w->welfare -= cost * dur;
+    if (push_double(&w->acc_r, &w->nacc_r, now - r->created))
+        fail(w, BG_ERR_NOMEM);
+    ra->memory[3] = bgm_memory_update(ra->memory[3], rate / mean_rate(w, r->cores, r->memory),
+                                      ra->genes.weight_memory);
+    learn_outcome(ra, 1, (rate - cost) / rate);
+    timer(w, ra_id, now + dur, T_RELEASE, rid);
+    bgm_msg_t m = msg(M_RCONFIRM, ra_id, r->buyer, rid, r->attempt);
+    m.price = rate;
+    m.a = now;
+    m.b = now + dur;
+    m.c = cost;
+    send(w, &m);
+    return 1;
+}
+
+/* Basic agent b learns that its bundle is rented: the service contract
+ * becomes final. */
+static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double now)
+{
+    req_t *r = &w->reqs[m->req];
+    if (r->state == RQ_DONE || r->state == RQ_FAILED)
+        return; /* late confirm after giving up: the rental still stands */
+    r->state = RQ_DONE;
+    r->seller = m->from;
+    r->price = m->price;
+    r->start = m->a;
+    r->end = m->b;
+    req_t *s = &w->reqs[r->parent];
+    agent_t *ba = &w->agents[b];
+    agent_t *ca = &w->agents[s->buyer];
+    bgm_contract_t c = {now, m->a, m->b, s->buyer, b, 0, s->good, s->work, s->price, s->limit,
+                        s->seller_limit};
+    bg_status st = log_contract(w, &c);
+    if (st)
+        fail(w, st);
+    ca->paid[0] += s->price * s->work;
+    ba->received[0] += s->price * s->work;
+    w->welfare += (s->limit - ba->cost[s->good]) * s->work;
+    if (push_double(&w->acc_s, &w->nacc_s, now - s->created))
+        fail(w, BG_ERR_NOMEM);
+    /* Remember what resources really cost per unit of this service. */
+    double per_unit = m->price * (m->b - m->a) / s->work;
+    ba->est_res[s->good] = bgm_memory_update(ba->est_res[s->good], per_unit, ba->genes.weight_memory);
+    ba->memory[3] = bgm_memory_update(ba->memory[3], m->price / mean_rate(w, r->cores, r->memory),
+                                      ba->genes.weight_memory);
+    ba->memory[s->good] = bgm_memory_update(ba->memory[s->good], s->price, ba->genes.weight_memory);
+    learn_outcome(ba, 1, (s->price - s->seller_limit) / s->price);
+    timer(w, b, m->b, T_RELEASE, r->parent);
+    if (w->p.mechanism == BGM_MECH_CENTRAL) {
+        double res = reservation(ba, s->good);
+        if (fabs(res - ba->announced[s->good]) > BGM_ASK_REFRESH * ba->announced[s->good]) {
+            bgm_msg_t a = msg(M_ASK, b, 0, 0, 0);
+            a.good = (int16_t)s->good;
+            a.price = res;
+            a.a = -1.0;
+            ba->announced[s->good] = res;
+            send(w, &a);
+        }
+    }
+    bgm_msg_t cm = msg(M_CONFIRM, b, s->buyer, r->parent, s->attempt);
+    cm.price = s->price;
+    cm.a = m->a;
+    cm.b = m->b;
+    send(w, &cm);
+}
+
+/* ---------------------------------------------------------------- market */
+
+static bg_status push_pending(bgm_world_t *w, uint32_t *arr, size_t *n, uint32_t rid)
+{
+    if (*n >= w->pend_cap)
+        return BG_ERR_LIMIT;
+    arr[(*n)++] = rid;
+    return BG_OK;
+}
+
+/* The auctioneer keeps only what messages told it: pending bids (by
+ * request id, with the numbers the bid carried, read back from the
+ * request record which the bid mirrors) and sellers' announced state. */
+static void clear_services(bgm_world_t *w, double now)
+{
+    /* Drop expired bids first. */
+    size_t keep = 0;
+    for (size_t i = 0; i < w->npend_bid; i++) {
+        const req_t *r = &w->reqs[w->pend_bid[i]];
+        if (r->deadline > now && r->state == RQ_WAIT)
+            w->pend_bid[keep++] = w->pend_bid[i];
+    }
+    w->npend_bid = keep;
+    for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
+        bgm_callmarket_destroy(&w->cm);
+        w->cm = bgm_callmarket_new(BGM_BOOK_MAX);
+        if (!w->cm) {
+            fail(w, BG_ERR_NOMEM);
+            return;
+        }
+        for (size_t i = 0; i < w->npend_bid; i++) {
+            const req_t *r = &w->reqs[w->pend_bid[i]];
+            if (r->good != t)
+                continue;
+            bgm_order_t o = {w->pend_bid[i], r->buyer, 1, r->limit};
+            if (bgm_callmarket_bid(w->cm, &o))
+                break;
+        }
+        for (uint32_t k = 0; k < w->nmb; k++) {
+            const mkt_seller_t *s = &w->mb[k];
+            if (!w->agents[s->agent].sells[t] || s->free_a < 1.0)
+                continue;
+            bgm_order_t o = {k, s->agent, (int)s->free_a, s->reservation[t]};
+            if (bgm_callmarket_ask(w->cm, &o))
+                break;
+        }
+        bgm_clearing_t res;
+        if (bgm_callmarket_clear(w->cm, w->cfg.central.k, &res, w->fills, 2 * BGM_BOOK_MAX)) {
+            fail(w, BG_ERR_LIMIT);
+            return;
+        }
+        const bgm_order_t *bids = bgm_callmarket_bids(w->cm), *asks = bgm_callmarket_asks(w->cm);
+        for (size_t f = 0; f < res.fill_count; f++) {
+            uint32_t rid = (uint32_t)bids[w->fills[f].bid].ref;
+            mkt_seller_t *s = &w->mb[asks[w->fills[f].ask].ref];
+            req_t *r = &w->reqs[rid];
+            s->free_a -= 1.0;
+            r->state = RQ_COMMITTED; /* removed from the pending list below */
+            bgm_msg_t m = msg(M_MATCH, 0, s->agent, rid, r->attempt);
+            m.good = (int16_t)t;
+            m.price = res.price;
+            m.a = r->work;
+            m.b = asks[w->fills[f].ask].price;
+            m.origin = r->buyer;
+            send(w, &m);
+            bgm_msg_t c = msg(M_ACCEPT, 0, r->buyer, rid, r->attempt);
+            c.price = res.price;
+            send(w, &c);
+        }
+    }
+    keep = 0;
+    for (size_t i = 0; i < w->npend_bid; i++)
+        if (w->reqs[w->pend_bid[i]].state == RQ_WAIT)
+            w->pend_bid[keep++] = w->pend_bid[i];
+    w->npend_bid = keep;
+}
+
+static void clear_resources(bgm_world_t *w, double now)
+{
+    size_t keep = 0;
+    for (size_t i = 0; i < w->npend_rbid; i++) {
+        uint32_t rid = w->pend_rbid[i];
+        const req_t *r = &w->reqs[rid];
+        if (r->deadline > now && r->state == RQ_WAIT) {
+            w->pend_rbid[keep++] = rid;
+        } else if (r->state == RQ_WAIT) {
+            bgm_msg_t m = msg(M_RFAIL, 0, r->buyer, rid, r->attempt);
+            send(w, &m);
+        }
+    }
+    w->npend_rbid = keep;
+    if (keep == 0)
+        return;
+    bgm_combex_reset(w->cx);
+    int *seller_of = malloc(w->nmr * sizeof *seller_of);
+    uint32_t *mr_of = malloc(w->nmr * sizeof *mr_of);
+    if (!seller_of || !mr_of) {
+        fail(w, BG_ERR_NOMEM);
+        goto out;
+    }
+    for (size_t i = 0; i < w->npend_rbid; i++)
+        bgm_combex_add_bid(w->cx);
+    for (uint32_t k = 0; k < w->nmr; k++) {
+        seller_of[k] = -1;
+        if (w->mr[k].free_a <= 0.0)
+            continue;
+        double cap[BGM_COMBEX_DIMS] = {w->mr[k].free_a, w->mr[k].free_b};
+        int s = bgm_combex_add_seller(w->cx, cap);
+        seller_of[k] = s;
+        mr_of[s] = k;
+    }
+    for (size_t i = 0; i < w->npend_rbid; i++) {
+        const req_t *r = &w->reqs[w->pend_rbid[i]];
+        for (uint32_t k = 0; k < w->nmr; k++) {
+            const mkt_seller_t *s = &w->mr[k];
+            if (seller_of[k] < 0 || r->cores > s->free_a || r->memory > s->free_b)
+                continue;
+            double dur = req_duration(r, s->speed);
+            double cost = (s->price * r->cores + s->mem_cost * r->memory) * dur;
+            if (cost >= r->limit)
+                continue;
+            bgm_combex_pair_t p = {(int)i, seller_of[k], r->limit - cost, {r->cores, r->memory}};
+            if (bgm_combex_add_pair(w->cx, &p))
+                break;
+        }
+    }
+    bgm_combex_result_t res;
+    if (bgm_combex_solve(w->cx, BGM_COMBEX_AUTO, (size_t)w->cfg.central.exact_limit,
+                         w->cfg.central.greedy_budget, w->assign, &res)) {
+        fail(w, BG_ERR_NOMEM);
+        goto out;
+    }
+    if (res.method == BGM_COMBEX_EXACT)
+        w->combex_exact += 1.0;
+    else
+        w->combex_greedy += 1.0;
+    const bgm_combex_pair_t *pairs = bgm_combex_pairs(w->cx);
+    for (size_t i = 0; i < w->npend_rbid; i++) {
+        if (w->assign[i] < 0)
+            continue;
+        const bgm_combex_pair_t *p = &pairs[w->assign[i]];
+        uint32_t rid = w->pend_rbid[i];
+        req_t *r = &w->reqs[rid];
+        mkt_seller_t *s = &w->mr[mr_of[p->seller]];
+        double dur = req_duration(r, s->speed);
+        double cost = r->limit - p->surplus;
+        double total = cost + w->cfg.central.k * p->surplus;
+        s->free_a -= r->cores;
+        s->free_b -= r->memory;
+        r->state = RQ_COMMITTED;
+        bgm_msg_t m = msg(M_RAWARD, 0, s->agent, rid, r->attempt);
+        m.price = total / dur;
+        m.origin = r->buyer;
+        send(w, &m);
+    }
+    keep = 0;
+    for (size_t i = 0; i < w->npend_rbid; i++)
+        if (w->reqs[w->pend_rbid[i]].state == RQ_WAIT)
+            w->pend_rbid[keep++] = w->pend_rbid[i];
+    w->npend_rbid = keep;
+out:
+    free(seller_of);
+    free(mr_of);
+}
+
+typedef struct room_ctx {
+    const bgm_world_t *w;
+    const bgm_msg_t *query;
+} room_ctx_t;
+
+static int has_room(void *ctx, const bgm_posting_t *p)
+{
+    const room_ctx_t *rc = ctx;
+    const bgm_world_t *w = rc->w;
+    if (rc->query->good == BGM_GOOD_CORES) {
+        const mkt_seller_t *s = &w->mr[p->seller - w->first_resource];
+        return s->free_a >= rc->query->a && s->free_b >= rc->query->b;
+    }
+    return w->mb[p->seller - w->first_basic].free_a >= 1.0;
+}
+
+static void market_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
+{
+    switch (m->type) {
+    case M_BID:
+        if (push_pending(w, w->pend_bid, &w->npend_bid, m->req))
+            fail(w, BG_ERR_LIMIT);
+        break;
+    case M_RBID:
+        if (push_pending(w, w->pend_rbid, &w->npend_rbid, m->req))
+            fail(w, BG_ERR_LIMIT);
+        break;
+    case M_ASK: {
+        mkt_seller_t *s = &w->mb[m->from - w->first_basic];
+        s->agent = m->from;
+        s->reservation[m->good] = m->price;
+        if (m->a >= 0.0)
+            s->free_a = m->a;
+        if (m->from - w->first_basic + 1 > w->nmb)
+            w->nmb = m->from - w->first_basic + 1;
+        if (w->p.mechanism == BGM_MECH_BASELINE &&
+            bgm_posted_post(w->dir, m->from, m->good, m->price))
+            fail(w, BG_ERR_LIMIT);
+        break;
+    }
+    case M_FREE:
+        w->mb[m->from - w->first_basic].free_a += 1.0;
+        break;
+    case M_RASK: {
+        mkt_seller_t *s = &w->mr[m->from - w->first_resource];
+        s->agent = m->from;
+        s->free_a = m->a;
+        s->free_b = m->b;
+        s->speed = m->c;
+        s->price = m->price;
+        s->mem_cost = m->cand_price[0];
+        if (m->from - w->first_resource + 1 > w->nmr)
+            w->nmr = m->from - w->first_resource + 1;
+        if (w->p.mechanism == BGM_MECH_BASELINE &&
+            bgm_posted_post(w->dir, m->from, BGM_GOOD_CORES, m->price))
+            fail(w, BG_ERR_LIMIT);
+        break;
+    }
+    case M_RFREE: {
+        mkt_seller_t *s = &w->mr[m->from - w->first_resource];
+        s->free_a += m->a;
+        s->free_b += m->b;
+        break;
+    }
+    case M_AVAIL:
+        if (w->agents[m->from].role == BGM_ROLE_BASIC) {
+            w->mb[m->from - w->first_basic].free_a = m->a;
+        } else {
+            w->mr[m->from - w->first_resource].free_a = m->a;
+            w->mr[m->from - w->first_resource].free_b = m->b;
+        }
+        break;
+    case M_QUERY: {
+        /* First fit over the sellers the directory believes have room, in
+         * registration order, up to the candidate cap. */
+        bgm_posting_t out[BGM_MSG_CANDIDATES];
+        int cap = w->cfg.baseline.candidates < BGM_MSG_CANDIDATES ? w->cfg.baseline.candidates
+                                                                   : BGM_MSG_CANDIDATES;
+        room_ctx_t rc = {w, m};
+        size_t n = bgm_posted_query_if(w->dir, m->good, m->price, has_room, &rc, out, (size_t)cap);
+        bgm_msg_t l = msg(M_LIST, 0, m->from, m->req, m->attempt);
+        l.good = m->good;
+        l.ncand = (uint16_t)n;
+        for (size_t i = 0; i < n; i++) {
+            l.cand[i] = out[i].seller;
+            l.cand_price[i] = out[i].price;
+            if (m->good == BGM_GOOD_CORES) {
+                /* A posted bundle rate: the seller's cost rate for the
+                 * bundle, marked up like every posted price. */
+                const mkt_seller_t *s = &w->mr[out[i].seller - w->first_resource];
+                l.cand_price[i] = (1.0 + w->cfg.baseline.markup) *
+                                  (s->price * m->a + s->mem_cost * m->b);
+                l.cand_speed[i] = s->speed;
+            }
+        }
+        send(w, &l);
+        break;
+    }
+    default:
+        break;
+    }
+    (void)now;
+}
+
+/* ------------------------------------------------------------ catallactic */
+
+static int seen_before(agent_t *a, uint64_t key)
+{
+    for (int i = 0; i < BGM_SEEN_RING; i++)
+        if (a->seen[i] == key)
+            return 1;
+    a->seen[a->seen_pos] = key;
+    a->seen_pos = (a->seen_pos + 1) % BGM_SEEN_RING;
+    return 0;
+}
+
+/* Seller's reservation and opening for request r (layer-dependent). */
+static double seller_limit_for(const bgm_world_t *w, const agent_t *s, const req_t *r)
+{
+    (void)w;
+    if (r->layer == 0)
+        return reservation(s, r->good);
+    return resource_cost_rate(s, r->cores, r->memory);
+}
+
+static double seller_opening(const bgm_world_t *w, const agent_t *s, const req_t *r)
+{
+    double lim = seller_limit_for(w, s, r);
+    double mem = r->layer == 0 ? s->memory[r->good]
+                               : s->memory[3] * mean_rate(w, r->cores, r->memory);
+    return bgm_nego_opening(BGM_SIDE_SELLER, lim, mem, s->markup);
+}
+
+static int can_sell(const bgm_world_t *w, const agent_t *s, const req_t *r)
+{
+    if (r->layer == 0)
+        return s->role == BGM_ROLE_BASIC && s->sells[r->good] && s->used < s->slots;
+    (void)w;
+    return s->role == BGM_ROLE_RESOURCE && s->used_cores + r->cores <= s->cores &&
+           s->used_mem + r->memory <= s->mem;
+}
+
+static void on_cfp(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
+{
+    agent_t *a = &w->agents[me];
+    uint64_t key = ((uint64_t)m->req << 20) ^ m->attempt ^ ((uint64_t)m->origin << 44);
+    if (seen_before(a, key))
+        return;
+    const req_t *r = &w->reqs[m->req];
+    if (can_sell(w, a, r)) {
+        bgm_msg_t p = msg(M_PROPOSE, me, m->origin, m->req, m->attempt);
+        p.price = seller_opening(w, a, r);
+        p.a = a->speed;
+        send(w, &p);
+    }
+    if (m->hops > 1) {
+        bgm_msg_t f = *m;
+        f.hops--;
+        cfp_send(w, me, &f, m->from);
+    }
+}
+
+static double buyer_limit_for(const req_t *r, const proposal_t *p)
+{
+    if (r->layer == 0)
+        return r->limit;
+    return r->limit / req_duration(r, p->speed);
+}
+
+static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
+{
+    req_t *r = &w->reqs[rid];
+    agent_t *b = &w->agents[r->buyer];
+    while (r->next_prop < r->nprop) {
+        const proposal_t *p = &r->prop[r->next_prop];
+        double lim = buyer_limit_for(r, p);
+        double mem = r->layer == 0 ? b->memory[r->good]
+                                   : b->memory[3] * mean_rate(w, r->cores, r->memory);
+        bgm_msg_t o;
+        if (w->p.mechanism == BGM_MECH_BASELINE) {
+            if (p->price > lim) {
+                r->next_prop++;
+                continue;
+            }
+            o = msg(M_ORDER, r->buyer, p->seller, rid, r->attempt);
+            o.price = p->price;
+        } else {
+            bgm_nego_open(&r->buyer_nego, BGM_SIDE_BUYER, lim,
+                          bgm_nego_opening(BGM_SIDE_BUYER, lim, mem, b->markup), &b->genes,
+                          w->cfg.catallactic.max_rounds);
+            o = msg(M_OFFER, r->buyer, p->seller, rid, r->attempt);
+            o.price = r->buyer_nego.current;
+        }
+        r->seller = p->seller;
+        r->seller_open = 0;
+        r->state = RQ_NEGOTIATE;
+        send(w, &o);
+        arm(w, rid, now + w->cfg.catallactic.reply_timeout);
+        return;
+    }
+    attempt_failed(w, rid, now);
+}
+
+static void next_proposal(bgm_world_t *w, uint32_t rid, double now)
+{
+    w->reqs[rid].next_prop++;
+    begin_nego(w, rid, now);
+}
+
+static int cmp_prop(const void *pa, const void *pb)
+{
+    const proposal_t *a = pa, *b = pb;
+    if (a->price != b->price)
+        return a->price < b->price ? -1 : 1;
+    return (a->seller > b->seller) - (a->seller < b->seller);
+}
+
+/* Agreement reached at the seller: commit on the seller's side. For a
+ * service the buyer is told ACCEPT (resources follow); for a bundle the
+ * RCONFIRM from resource_agreed is the acceptance. */
+static void seller_commit(bgm_world_t *w, uint32_t me, uint32_t rid, double price, double limit,
+                          double now)
+{
+    req_t *r = &w->reqs[rid];
+    if (r->layer == 0) {
+        uint32_t attempt = r->attempt;
+        uint32_t buyer = r->buyer;
+        if (!service_agreed(w, me, rid, price, limit, now)) {
+            bgm_msg_t x = msg(M_REJECT, me, buyer, rid, attempt);
+            send(w, &x);
+            return;
+        }
+        agent_t *s = &w->agents[me];
+        s->memory[w->reqs[rid].good] =
+            bgm_memory_update(s->memory[w->reqs[rid].good], price, s->genes.weight_memory);
+        bgm_msg_t a = msg(M_ACCEPT, me, buyer, rid, attempt);
+        a.price = price;
+        send(w, &a);
+    } else if (!resource_agreed(w, me, rid, price, now)) {
+        bgm_msg_t x = msg(M_REJECT, me, r->buyer, rid, r->attempt);
+        send(w, &x);
+    }
+}
+
+static void seller_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
+{
+    req_t *r = &w->reqs[m->req];
+    agent_t *s = &w->agents[me];
+    if (m->attempt != r->attempt || r->seller != me || r->state != RQ_NEGOTIATE)
+        return;
+    if (!r->seller_open) {
+        bgm_nego_open(&r->seller_nego, BGM_SIDE_SELLER, seller_limit_for(w, s, r),
+                      seller_opening(w, s, r), &s->genes, w->cfg.catallactic.max_rounds);
+        r->seller_open = 1;
+    }
+    double reply = 0.0;
+    bgm_nego_action act = bgm_nego_respond(&r->seller_nego, m->price, &s->rng, &reply);
+    if (act == BGM_NEGO_ACCEPT) {
+        seller_commit(w, me, m->req, reply, r->seller_nego.limit, now);
+    } else if (act == BGM_NEGO_COUNTER) {
+        bgm_msg_t o = msg(M_OFFER, me, r->buyer, m->req, m->attempt);
+        o.price = reply;
+        send(w, &o);
+    } else {
+        learn_outcome(s, 0, 0.0);
+        bgm_msg_t x = msg(M_REJECT, me, r->buyer, m->req, m->attempt);
+        send(w, &x);
+    }
+}
+
+static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
+{
+    req_t *r = &w->reqs[m->req];
+    agent_t *b = &w->agents[me];
+    if (m->attempt != r->attempt || r->state != RQ_NEGOTIATE || m->from != r->seller)
+        return;
+    double reply = 0.0;
+    bgm_nego_action act = bgm_nego_respond(&r->buyer_nego, m->price, &b->rng, &reply);
+    if (act == BGM_NEGO_ACCEPT) {
+        bgm_msg_t a = msg(M_ACCEPT, me, m->from, m->req, m->attempt);
+        a.price = reply;
+        r->state = RQ_COMMITTED;
+        r->price = reply;
+        send(w, &a);
+        /* A bundle seller answers at once; a service seller must first buy
+         * resources, which the deadline covers. */
+        if (r->layer == 1)
+            arm(w, m->req, now + w->cfg.catallactic.reply_timeout);
+    } else if (act == BGM_NEGO_COUNTER) {
+        bgm_msg_t o = msg(M_OFFER, me, m->from, m->req, m->attempt);
+        o.price = reply;
+        send(w, &o);
+        arm(w, m->req, now + w->cfg.catallactic.reply_timeout);
+    } else {
+        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
+        send(w, &x);
+        next_proposal(w, m->req, now);
+    }
+}
+
+static void learn_meet(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
+{
+    agent_t *a = &w->agents[me];
+    if (a->role != w->agents[m->from].role)
+        return;
+    if (m->a > 0.0) {
+        bgm_msg_t r = msg(M_GENES, me, m->from, 0, 0);
+        double g[BGM_GENE_COUNT];
+        bgm_genes_pack(&a->genes, g);
+        memcpy(r.cand_price, g, sizeof g);
+        r.price = a->fitness;
+        send(w, &r);
+    }
+    bgm_genes_t other;
+    double g[BGM_GENE_COUNT];
+    memcpy(g, m->cand_price, sizeof g);
+    bgm_genes_unpack(&other, g);
+    bgm_learning_t lp = {w->cfg.catallactic.imitation, w->cfg.catallactic.mutation,
+                         w->cfg.catallactic.mutation_sigma};
+    bgm_genes_learn(&a->genes, a->fitness, &other, m->price, &lp, &a->rng);
+}
+
+/* --------------------------------------------------------------- dispatch */
+
+static void buyer_committed(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
+{
+    req_t *r = &w->reqs[m->req];
+    if (m->attempt != r->attempt || r->buyer != me)
+        return;
+    if (r->state == RQ_NEGOTIATE || r->state == RQ_WAIT || r->state == RQ_COMMITTED) {
+        r->state = RQ_COMMITTED;
+        r->price = m->price;
+        r->tseq++; /* no phase timeout while committed: the deadline rules */
+    }
+}
+
+static void on_confirm(bgm_world_t *w, const bgm_msg_t *m)
+{
+    req_t *r = &w->reqs[m->req];
+    if (r->state == RQ_DONE || r->state == RQ_FAILED)
+        return;
+    r->state = RQ_DONE;
+    r->start = m->a;
+    r->end = m->b;
+    job_t *j = &w->jobs[r->job];
+    j->done++;
+    if (m->b > j->last_end)
+        j->last_end = m->b;
+    agent_t *c = &w->agents[r->buyer];
+    c->memory[r->good] = bgm_memory_update(c->memory[r->good], m->price, c->genes.weight_memory);
+    learn_outcome(c, 1, (r->limit - m->price) / r->limit);
+}
+
+bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
+{
+    uint32_t me = m->to;
+    if (me >= w->nagents)
+        return BG_ERR_INVALID;
+    if (!agent_reachable(w, me))
+        return BG_OK; /* lost on a failed node or link */
+    if (me == 0) {
+        market_on_message(w, m, now);
+        return w->failure;
+    }
+    if (m->type != M_GENES && m->type != M_CFP && m->req >= w->nreq)
+        return BG_ERR_INVALID;
+    req_t *r = m->type == M_GENES ? NULL : &w->reqs[m->req];
+    switch (m->type) {
+    case M_MATCH:
+        if (!service_agreed(w, me, m->req, m->price, m->b, now)) {
+            bgm_msg_t c = msg(M_CANCEL, me, m->origin, m->req, m->attempt);
+            send(w, &c);
+        }
+        break;
+    case M_RAWARD:
+        if (!resource_agreed(w, me, m->req, m->price, now)) {
+            bgm_msg_t f = msg(M_RFAIL, me, m->origin, m->req, m->attempt);
+            send(w, &f);
+            bgm_msg_t g = msg(M_RFREE, me, 0, m->req, 0);
+            g.a = r->cores;
+            g.b = r->memory;
+            send(w, &g);
+        }
+        break;
+    case M_RFAIL:
+        if (r->state != RQ_DONE && r->state != RQ_FAILED)
+            final_fail(w, m->req, now);
+        break;
+    case M_RCONFIRM:
+        on_rconfirm(w, me, m, now);
+        break;
+    case M_CONFIRM:
+        on_confirm(w, m);
+        break;
+    case M_CANCEL:
+        if (m->attempt == r->attempt && r->state == RQ_COMMITTED)
+            attempt_failed(w, m->req, now);
+        break;
+    case M_CFP:
+        on_cfp(w, me, m);
+        break;
+    case M_PROPOSE:
+        if (m->attempt == r->attempt && r->state == RQ_DISCOVER && r->nprop < BGM_MAX_PROPOSALS)
+            r->prop[r->nprop++] = (proposal_t){m->from, m->price, m->a};
+        break;
+    case M_OFFER:
+        if (r->buyer == me)
+            buyer_on_offer(w, me, m, now);
+        else
+            seller_on_offer(w, me, m, now);
+        break;
+    case M_ACCEPT:
+        if (r->buyer == me) {
+            buyer_committed(w, me, m);
+        } else if (m->attempt == r->attempt && r->seller == me && r->state == RQ_COMMITTED) {
+            const agent_t *s = &w->agents[me];
+            double lim = r->seller_open ? r->seller_nego.limit : seller_limit_for(w, s, r);
+            if (r->seller_open)
+                learn_outcome(&w->agents[me], 1, (m->price - lim) / m->price);
+            seller_commit(w, me, m->req, m->price, lim, now);
+        }
+        break;
+    case M_REJECT:
+        if (r->buyer == me && m->attempt == r->attempt && m->from == r->seller &&
+            (r->state == RQ_NEGOTIATE || r->state == RQ_COMMITTED))
+            next_proposal(w, m->req, now);
+        break;
+    case M_GENES:
+        learn_meet(w, me, m);
+        break;
+    case M_LIST:
+        if (m->attempt == r->attempt && r->state == RQ_WAIT) {
+            r->nprop = m->ncand;
+            for (int i = 0; i < m->ncand; i++)
+                r->prop[i] = (proposal_t){m->cand[i], m->cand_price[i], m->cand_speed[i]};
+            r->next_prop = 0;
+            begin_nego(w, m->req, now);
+        }
+        break;
+    case M_ORDER:
+        if (m->attempt == r->attempt && r->seller == me && r->state == RQ_NEGOTIATE) {
+            const agent_t *s = &w->agents[me];
+            double lim = r->layer == 0 ? s->posted[r->good] / (1.0 + w->cfg.baseline.markup)
+                                       : seller_limit_for(w, s, r);
+            if (r->layer == 1)
+                r->state = RQ_COMMITTED;
+            seller_commit(w, me, m->req, m->price, lim, now);
+        }
+        break;
+    default:
+        return BG_ERR_INVALID;
+    }
+    return w->failure;
+}
+
+static void new_job(bgm_world_t *w, uint32_t me, double now)
+{
+    agent_t *c = &w->agents[me];
+    const bgm_config_t *cfg = &w->cfg;
+    if (w->njob == w->job_cap) {
+        uint32_t n = w->job_cap ? w->job_cap * 2 : 1024;
+        job_t *p = n <= BGM_MAX_REQS ? realloc(w->jobs, (size_t)n * sizeof *p) : NULL;
+        if (!p) {
+            fail(w, BG_ERR_LIMIT);
+            return;
+        }
+        w->jobs = p;
+        w->job_cap = n;
+    }
+    uint32_t jid = w->njob++;
+    job_t *j = &w->jobs[jid];
+    memset(j, 0, sizeof *j);
+    j->agent = me;
+    j->arrival = now;
+    double total = 0.0;
+    for (int i = 0; i < cfg->demand.plan_count; i++)
+        total += cfg->demand.plans[i].weight;
+    double u = bgm_rng_uniform(&c->drng) * total;
+    int plan = 0;
+    while (plan < cfg->demand.plan_count - 1 && u >= cfg->demand.plans[plan].weight)
+        u -= cfg->demand.plans[plan++].weight;
+    for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
+        if (!cfg->demand.plans[plan].services[t])
+            continue;
+        uint32_t rid = new_req(w);
+        if (rid == UINT32_MAX)
+            return;
+        req_t *r = &w->reqs[rid];
+        r->layer = 0;
+        r->good = t;
+        r->buyer = me;
+        r->job = jid;
+        int span = cfg->demand.work_max - cfg->demand.work_min + 1;
+        r->work = cfg->demand.work_min + (int)bgm_rng_below(&c->drng, (uint32_t)span);
+        r->limit = cfg->demand.valuation_mean *
+                   (1.0 + cfg->demand.valuation_spread * (2.0 * bgm_rng_uniform(&c->drng) - 1.0));
+        r->created = now;
+        r->deadline = now + cfg->demand.deadline;
+        w->jobs[jid].items++;
+        w->service_requests += 1.0;
+        c->requested[t] += 1.0;
+        c->valuation_sum[t] += r->limit;
+        timer(w, me, r->deadline, T_DEADLINE, rid);
+        start_acquire(w, rid, now);
+    }
+}
+
+static double next_arrival(bgm_world_t *w, agent_t *c, double now)
+{
+    double mean = w->cfg.demand.interarrival_mean;
+    if (w->cfg.demand.shock_time >= 0.0 && now >= w->cfg.demand.shock_time)
+        mean /= w->cfg.demand.shock_factor;
+    return now + bgm_rng_exponential(&c->drng, mean);
+}
+
+bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg, double now)
+{
+    if (me >= w->nagents)
+        return BG_ERR_INVALID;
+    agent_t *a = &w->agents[me];
+    uint32_t rid = (uint32_t)(arg & 0xffffffffu);
+    uint32_t hi = (uint32_t)(arg >> 32);
+    int alive = agent_alive(w, me);
+    const bgm_dynamics_t *dy = w->p.dynamics;
+    switch (kind) {
+    case T_ARRIVAL: {
+        if (alive)
+            new_job(w, me, now);
+        double t = next_arrival(w, a, now);
+        if (t < w->arrival_end)
+            timer(w, me, t, T_ARRIVAL, 0);
+        break;
+    }
+    case T_CLEAR:
+        clear_services(w, now);
+        clear_resources(w, now);
+        if (now + w->cfg.central.period <= w->horizon)
+            timer(w, 0, now + w->cfg.central.period, T_CLEAR, 0);
+        break;
+    case T_REQ: {
+        req_t *r = &w->reqs[rid];
+        if (hi != r->tseq || r->state == RQ_DONE || r->state == RQ_FAILED)
+            break;
+        if (!alive) {
+            final_fail(w, rid, now);
+        } else if (r->state == RQ_DISCOVER) {
+            if (r->nprop == 0)
+                w->timeouts += 1.0; /* nobody answered the call for proposals */
+            qsort(r->prop, (size_t)r->nprop, sizeof r->prop[0], cmp_prop);
+            r->next_prop = 0;
+            begin_nego(w, rid, now);
+        } else if (r->state == RQ_NEGOTIATE || r->state == RQ_COMMITTED) {
+            w->timeouts += 1.0;
+            r->state = RQ_NEGOTIATE;
+            r->attempt++; /* late answers from that seller are now stale */
+            next_proposal(w, rid, now);
+        } else if (r->state == RQ_WAIT) {
+            w->timeouts += 1.0;
+            attempt_failed(w, rid, now);
+        }
+        break;
+    }
+    case T_DEADLINE: {
+        uint32_t id = (uint32_t)(arg & 0x7fffffffffffffffULL);
+        int grace = (arg >> 63) != 0;
+        req_t *r = &w->reqs[id];
+        if (r->state == RQ_DONE || r->state == RQ_FAILED)
+            break;
+        if (r->state == RQ_COMMITTED && !grace && alive) {
+            timer(w, me, now + BGM_COMMIT_GRACE, T_DEADLINE, (uint64_t)id | (1ULL << 63));
+            break;
+        }
+        w->timeouts += 1.0;
+        r->attempt++;
+        final_fail(w, id, now);
+        break;
+    }
+    case T_RETRY: {
+        req_t *r = &w->reqs[rid];
+        if (hi == r->attempt && r->state == RQ_IDLE)
+            start_acquire(w, rid, now);
+        break;
+    }
+    case T_RELEASE: {
+        req_t *r = &w->reqs[rid];
+        if (a->role == BGM_ROLE_BASIC) {
+            if (a->used > 0)
+                a->used--;
+            announce(w, me);
+            if (w->p.mechanism == BGM_MECH_CENTRAL) {
+                bgm_msg_t m = msg(M_FREE, me, 0, rid, 0);
+                send(w, &m);
+            }
+        } else {
+            a->used_cores -= r->cores;
+            a->used_mem -= r->memory;
+            announce(w, me);
+            if (w->p.mechanism == BGM_MECH_CENTRAL) {
+                bgm_msg_t m = msg(M_RFREE, me, 0, rid, 0);
+                m.a = r->cores;
+                m.b = r->memory;
+                send(w, &m);
+            }
+        }
+        break;
+    }
+    case T_LEARN: {
+        if (alive && a->ndeg > 0) {
+            uint32_t other = a->nbr[bgm_rng_below(&a->rng, (uint32_t)a->ndeg)];
+            if (w->agents[other].role == a->role) {
+                bgm_msg_t m = msg(M_GENES, me, other, 0, 0);
+                double g[BGM_GENE_COUNT];
+                bgm_genes_pack(&a->genes, g);
+                memcpy(m.cand_price, g, sizeof g);
+                m.price = a->fitness;
+                m.a = 1.0;
+                send(w, &m);
+            }
+        }
+        double t = now + w->cfg.catallactic.learning_period * (0.5 + bgm_rng_uniform(&a->rng));
+        if (t < w->horizon)
+            timer(w, me, t, T_LEARN, 0);
+        break;
+    }
+    case T_NODE_FAIL:
+        w->node_up[arg] = 0;
+        timer(w, 0, now + bgm_rng_exponential(&w->rng, dy->node_repair_mean), T_NODE_REPAIR, arg);
+        break;
+    case T_NODE_REPAIR: {
+        w->node_up[arg] = 1;
+        double t = now + bgm_rng_exponential(&w->rng, 1.0 / dy->node_failure_rate);
+        if (t < w->horizon)
+            timer(w, 0, t, T_NODE_FAIL, arg);
+        break;
+    }
+    case T_LINK_FAIL:
+        w->link_up[arg] = 0;
+        timer(w, 0, now + bgm_rng_exponential(&w->rng, dy->link_repair_mean), T_LINK_REPAIR, arg);
+        break;
+    case T_LINK_REPAIR: {
+        w->link_up[arg] = 1;
+        double t = now + bgm_rng_exponential(&w->rng, 1.0 / dy->link_failure_rate);
+        if (t < w->horizon)
+            timer(w, 0, t, T_LINK_FAIL, arg);
+        break;
+    }
+    default:
+        return BG_ERR_INVALID;
+    }
+    return w->failure;
+}
+
+bg_status bgm_world_start(bgm_world_t *w, const bgm_sink_t *sink, double now)
+{
+    w->sink = *sink;
+    const bgm_config_t *c = &w->cfg;
+    int mech = w->p.mechanism;
+    if (mech == BGM_MECH_CENTRAL)
+        timer(w, 0, now + c->central.period, T_CLEAR, 0);
+    for (uint32_t i = 1; i < w->nagents; i++) {
+        agent_t *a = &w->agents[i];
+        if (a->role == BGM_ROLE_COMPLEX) {
+            timer(w, i, next_arrival(w, a, now), T_ARRIVAL, 0);
+        } else if (a->role == BGM_ROLE_BASIC && mech != BGM_MECH_CATALLACTIC) {
+            for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
+                if (!a->sells[t])
+                    continue;
+                bgm_msg_t m = msg(M_ASK, i, 0, 0, 0);
+                m.good = (int16_t)t;
+                m.price = mech == BGM_MECH_BASELINE ? a->posted[t] : reservation(a, t);
+                m.a = a->slots;
+                a->announced[t] = reservation(a, t);
+                send(w, &m);
+            }
+        } else if (a->role == BGM_ROLE_RESOURCE && mech != BGM_MECH_CATALLACTIC) {
+            bgm_msg_t m = msg(M_RASK, i, 0, 0, 0);
+            m.a = a->cores;
+            m.b = a->mem;
+            m.c = a->speed;
+            m.price = a->core_cost;
+            m.cand_price[0] = a->mem_cost;
+            send(w, &m);
+        }
+        if (mech == BGM_MECH_CATALLACTIC)
+            timer(w, i, now + c->catallactic.learning_period * bgm_rng_uniform(&a->rng), T_LEARN, 0);
+    }
+    const bgm_dynamics_t *dy = w->p.dynamics;
+    for (uint32_t n = 0; n < w->nodes; n++) {
+        if (dy->node_failure_rate > 0.0) {
+            double t = now + bgm_rng_exponential(&w->rng, 1.0 / dy->node_failure_rate);
+            if (t < w->horizon)
+                timer(w, 0, t, T_NODE_FAIL, n);
+        }
+        if (dy->link_failure_rate > 0.0) {
+            double t = now + bgm_rng_exponential(&w->rng, 1.0 / dy->link_failure_rate);
+            if (t < w->horizon)
+                timer(w, 0, t, T_LINK_FAIL, n);
+        }
+    }
+    return w->failure;
+}
+
+/* ---------------------------------------------------------------- metrics */
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* Quantile by the nearest-rank method on a sorted copy; NaN when empty. */
+static double quantile(const double *v, size_t n, double q)
+{
+    if (n == 0)
+        return NAN;
+    double *s = malloc(n * sizeof *s);
+    if (!s)
+        return NAN;
+    memcpy(s, v, n * sizeof *s);
+    qsort(s, n, sizeof *s, cmp_double);
+    size_t k = (size_t)ceil(q * (double)n);
+    double r = s[k == 0 ? 0 : k - 1];
+    free(s);
+    return r;
+}
+
+/*
+ * Offline optimum of the same demand and supply: every service request of
+ * the run, every resource agent with its capacity over the whole horizon
+ * (core-seconds, GiB-seconds), each request served by the cheapest basic
+ * seller of its type. It drops the basic agents' slot limits, deadlines
+ * and the ordering in time, so it bounds the achievable welfare from
+ * above; welfare_ratio <= 1 up to that relaxation. Exact IP only.
+ */
+static double offline_optimum(const bgm_world_t *w)
+{
+    size_t pairs = 0;
+    for (uint32_t i = 0; i < w->nreq; i++)
+        if (w->reqs[i].layer == 0)
+            pairs += w->nresource;
+    if (pairs == 0 || pairs > (size_t)w->cfg.central.optimum_limit)
+        return NAN;
+    double opt = NAN;
+    int *assign = NULL;
+    int nbids = 0;
+    for (uint32_t i = 0; i < w->nreq; i++)
+        nbids += w->reqs[i].layer == 0;
+    bgm_combex_t *cx = bgm_combex_new(nbids, (int)w->nresource, pairs);
+    assign = malloc((size_t)nbids * sizeof *assign);
+    if (!cx || !assign)
+        goto out;
+    bgm_combex_set_exact(cx, BGM_OPTIMUM_GAP, BGM_OPTIMUM_NODES);
+    for (uint32_t k = 0; k < w->nresource; k++) {
+        const agent_t *r = &w->agents[w->first_resource + k];
+        double cap[BGM_COMBEX_DIMS] = {r->cores * w->horizon, r->mem * w->horizon};
+        bgm_combex_add_seller(cx, cap);
+    }
+    int b = 0;
+    for (uint32_t i = 0; i < w->nreq; i++) {
+        const req_t *q = &w->reqs[i];
+        if (q->layer != 0)
+            continue;
+        bgm_combex_add_bid(cx);
+        const bgm_service_cfg_t *sc = &w->cfg.services[q->good];
+        double value = (q->limit - w->min_cost[q->good]) * q->work;
+        for (uint32_t k = 0; k < w->nresource; k++) {
+            const agent_t *r = &w->agents[w->first_resource + k];
+            double dur = sc->flops_per_unit * q->work / (r->speed * sc->cores);
+            double s = value - resource_cost_rate(r, sc->cores, sc->memory) * dur;
+            if (!(s > 0.0))
+                continue;
+            bgm_combex_pair_t p = {b, (int)k, s, {sc->cores * dur, sc->memory * dur}};
+            bgm_combex_add_pair(cx, &p);
+        }
+        b++;
+    }
+    bgm_combex_result_t res;
+    if (bgm_combex_solve(cx, BGM_COMBEX_EXACT, pairs, 0, assign, &res) == BG_OK &&
+        res.method == BGM_COMBEX_EXACT)
+        opt = res.objective;
+out:
+    free(assign);
+    bgm_combex_destroy(&cx);
+    return opt;
+}
+
+static double convergence_time(const bgm_world_t *w)
+{
+    double shock = w->cfg.demand.shock_time;
+    if (shock < 0.0)
+        return NAN;
+    /* Service-layer prices after the shock, in log (time) order. */
+    size_t n = 0;
+    for (size_t i = 0; i < w->nlog; i++)
+        n += w->log[i].layer == 0 && w->log[i].time >= shock;
+    const size_t window = 10;
+    if (n < 4 * window)
+        return NAN;
+    double *p = malloc(n * sizeof *p), *t = malloc(n * sizeof *t);
+    double result = NAN;
+    if (!p || !t)
+        goto out;
+    size_t k = 0;
+    for (size_t i = 0; i < w->nlog; i++)
+        if (w->log[i].layer == 0 && w->log[i].time >= shock) {
+            p[k] = w->log[i].price;
+            t[k++] = w->log[i].time;
+        }
+    double target = 0.0;
+    size_t tail = n / 4;
+    for (size_t i = n - tail; i < n; i++)
+        target += p[i];
+    target /= (double)tail;
+    double tol = w->cfg.metrics.convergence_tolerance * target;
+    /* Earliest window end after which every moving average stays in band. */
+    size_t last_out = 0;
+    int any_out = 0;
+    double sum = 0.0;
+    for (size_t i = 0; i < n; i++) {
+        sum += p[i];
+        if (i >= window)
+            sum -= p[i - window];
+        if (i + 1 >= window && fabs(sum / (double)window - target) > tol) {
+            last_out = i;
+            any_out = 1;
+        }
+    }
+    size_t first_in = any_out ? last_out + 1 : window - 1;
+    if (first_in < n)
+        result = t[first_in] - shock;
+out:
+    free(p);
+    free(t);
+    return result;
+}
+
+bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
+{
+    for (int i = 0; i < BGM_M_COUNT; i++)
+        m[i] = NAN;
+    double svc = 0.0, bundles = 0.0, psum = 0.0, psq = 0.0;
+    for (size_t i = 0; i < w->nlog; i++) {
+        if (w->log[i].layer == 0) {
+            svc += 1.0;
+            psum += w->log[i].price;
+            psq += w->log[i].price * w->log[i].price;
+        } else if (w->log[i].good == BGM_GOOD_CORES) {
+            bundles += 1.0;
+        }
+    }
+    m[BGM_M_REQUESTS] = w->service_requests;
+    m[BGM_M_CONTRACTS] = svc;
+    m[BGM_M_MESSAGES] = w->msgs;
+    m[BGM_M_BYTES] = w->bytes;
+    m[BGM_M_COMBEX_EXACT] = w->combex_exact;
+    m[BGM_M_COMBEX_GREEDY] = w->combex_greedy;
+    m[BGM_M_TIMEOUTS] = w->timeouts;
+    if (w->service_requests > 0)
+        m[BGM_M_ALLOCATION_RATE] = svc / w->service_requests;
+    if (w->resource_requests > 0)
+        m[BGM_M_RESOURCE_ALLOCATION_RATE] = bundles / w->resource_requests;
+    m[BGM_M_ACCESS_TIME_MEDIAN] = quantile(w->acc_s, w->nacc_s, 0.5);
+    m[BGM_M_ACCESS_TIME_P99] = quantile(w->acc_s, w->nacc_s, 0.99);
+    m[BGM_M_RESOURCE_ACCESS_TIME_MEDIAN] = quantile(w->acc_r, w->nacc_r, 0.5);
+    m[BGM_M_RESOURCE_ACCESS_TIME_P99] = quantile(w->acc_r, w->nacc_r, 0.99);
+    if (svc > 0) {
+        m[BGM_M_MESSAGES_PER_ALLOCATION] = w->msgs / svc;
+        m[BGM_M_BYTES_PER_ALLOCATION] = w->bytes / svc;
+        m[BGM_M_PRICE_MEAN] = psum / svc;
+        double var = psq / svc - (psum / svc) * (psum / svc);
+        m[BGM_M_PRICE_VARIANCE] = var > 0.0 ? var : 0.0;
+    }
+    m[BGM_M_WELFARE] = w->welfare;
+    double opt = offline_optimum(w);
+    if (isfinite(opt) && opt > 0.0)
+        m[BGM_M_WELFARE_RATIO] = w->welfare / opt;
+    m[BGM_M_PRICE_CONVERGENCE_TIME] = convergence_time(w);
+    double cores = 0.0;
+    for (uint32_t k = 0; k < w->nresource; k++)
+        cores += w->agents[w->first_resource + k].cores;
+    m[BGM_M_UTILIZATION] = w->core_seconds / (cores * w->horizon);
+    double done = 0.0, ct = 0.0;
+    for (uint32_t j = 0; j < w->njob; j++) {
+        if (w->jobs[j].done == w->jobs[j].items && w->jobs[j].items > 0) {
+            done += 1.0;
+            ct += w->jobs[j].last_end - w->jobs[j].arrival;
+        }
+    }
+    if (done > 0)
+        m[BGM_M_JOB_COMPLETION_TIME] = ct / done;
+    if (w->njob > 0)
+        m[BGM_M_JOB_COMPLETION_RATE] = done / (double)w->njob;
+    return w->failure;
+}
+
+static void scenario_label(const bgm_world_t *w, char *buf, size_t n)
+{
+    snprintf(buf, n, "n%d_d%g_%s", w->p.nodes, w->p.density, w->p.dynamics->name);
+}
+
+bg_status bgm_world_write_contracts(const bgm_world_t *w, FILE *f)
+{
+    char sc[BGM_NAME_MAX * 2];
+    scenario_label(w, sc, sizeof sc);
+    for (size_t i = 0; i < w->nlog; i++) {
+        const bgm_contract_t *c = &w->log[i];
+        fprintf(f, "%s,%d,%s,%s,%.6f,%.6f,%.6f,%u,%u,%s,%.6f,%.9g,%.9g,%.9g\n", sc,
+                w->p.replication, bgm_mechanism_names[w->p.mechanism],
+                c->layer == 0 ? "service" : "resource", c->time, c->start, c->end, c->buyer,
+                c->seller, bgm_good_names[c->good], c->quantity, c->price, c->buyer_limit,
+                c->seller_limit);
+    }
+    return ferror(f) ? BG_ERR_IO : BG_OK;
+}
+
+bg_status bgm_world_write_agents(const bgm_world_t *w, FILE *f)
+{
+    char sc[BGM_NAME_MAX * 2];
+    scenario_label(w, sc, sizeof sc);
+    const char *mech = bgm_mechanism_names[w->p.mechanism];
+    for (uint32_t i = 1; i < w->nagents; i++) {
+        const agent_t *a = &w->agents[i];
+        const char *role = bgm_role_names[a->role];
+        if (a->role == BGM_ROLE_COMPLEX) {
+            for (int t = 0; t < BGM_SERVICE_TYPES; t++)
+                if (a->requested[t] > 0)
+                    fprintf(f, "%s,%d,%s,%u,%s,%s,%.0f,%.9g\n", sc, w->p.replication, mech, i,
+                            role, bgm_good_names[t], a->requested[t],
+                            a->valuation_sum[t] / a->requested[t]);
+        } else if (a->role == BGM_ROLE_BASIC) {
+            for (int t = 0; t < BGM_SERVICE_TYPES; t++)
+                if (a->sells[t])
+                    fprintf(f, "%s,%d,%s,%u,%s,%s,%d,%.9g\n", sc, w->p.replication, mech, i, role,
+                            bgm_good_names[t], a->slots, a->cost[t]);
+        } else {
+            fprintf(f, "%s,%d,%s,%u,%s,%s,%.0f,%.9g\n", sc, w->p.replication, mech, i, role,
+                    bgm_good_names[BGM_GOOD_CORES], a->cores, a->core_cost);
+            fprintf(f, "%s,%d,%s,%u,%s,%s,%.6g,%.9g\n", sc, w->p.replication, mech, i, role,
+                    bgm_good_names[BGM_GOOD_MEMORY], a->mem, a->mem_cost);
+        }
+    }
+    return ferror(f) ? BG_ERR_IO : BG_OK;
+}
+
+bg_status bgm_world_write_prices(const bgm_world_t *w, FILE *f)
+{
+    double bucket = w->cfg.metrics.price_bucket;
+    size_t nb = (size_t)ceil(w->horizon / bucket) + 1;
+    double *sum = calloc(nb * BGM_SERVICE_TYPES, sizeof *sum);
+    double *cnt = calloc(nb * BGM_SERVICE_TYPES, sizeof *cnt);
+    bg_status st = BG_OK;
+    if (!sum || !cnt) {
+        st = BG_ERR_NOMEM;
+        goto out;
+    }
+    for (size_t i = 0; i < w->nlog; i++) {
+        const bgm_contract_t *c = &w->log[i];
+        if (c->layer != 0)
+            continue;
+        size_t b = (size_t)(c->time / bucket);
+        if (b >= nb)
+            b = nb - 1;
+        sum[(size_t)c->good * nb + b] += c->price;
+        cnt[(size_t)c->good * nb + b] += 1.0;
+    }
+    for (int g = 0; g < BGM_SERVICE_TYPES; g++)
+        for (size_t b = 0; b < nb; b++)
+            if (cnt[(size_t)g * nb + b] > 0)
+                fprintf(f, "%d,%.6f,%.9g\n", g, (double)b * bucket,
+                        sum[(size_t)g * nb + b] / cnt[(size_t)g * nb + b]);
+    if (ferror(f))
+        st = BG_ERR_IO;
+out:
+    free(sum);
+    free(cnt);
+    return st;
+}

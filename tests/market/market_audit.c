@@ -1,0 +1,255 @@
+/*
+ * market_audit DIR — checks the invariants of a finished experiment from
+ * its output files alone (the audit log is meant for exactly this):
+ *   1. every contract's price lies in [seller_limit, buyer_limit];
+ *   2. no seller is over capacity at any time (sweep over delivery
+ *      intervals; a basic service counts instances against its slots);
+ *   3. money is conserved per layer (sum paid by buyers = sum received by
+ *      sellers) and flows job -> basic service -> resource: no basic agent
+ *      pays more for resources than its services earned;
+ *   4. every replication's allocation_rate equals its service contracts
+ *      in contracts.csv over its requests.
+ * Prints the first violation and exits 1; exits 0 when all hold.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Keys and messages are built with snprintf into fixed buffers; names are
+ * length-checked on input, so truncation can only shorten a diagnostic. */
+#pragma GCC diagnostic ignored "-Wformat-truncation"
+
+#define LINE_MAX_LEN 1024
+#define FIELDS_MAX 64
+#define KEY_MAX 512
+#define REL_TOL 1e-7
+
+typedef struct contract {
+    char key[KEY_MAX / 2]; /* scenario|rep|mechanism */
+    char skey[KEY_MAX]; /* key|seller|good */
+    int layer;
+    double start, end, quantity, price, blim, slim;
+    long buyer, seller;
+} contract_t;
+
+typedef struct cap {
+    char skey[KEY_MAX];
+    double capacity;
+} cap_t;
+
+static int split(char *line, char **f)
+{
+    int n = 0;
+    line[strcspn(line, "\r\n")] = '\0';
+    for (char *p = line; n < FIELDS_MAX;) {
+        f[n++] = p;
+        char *c = strchr(p, ',');
+        if (!c)
+            break;
+        *c = '\0';
+        p = c + 1;
+    }
+    return n;
+}
+
+static int cmp_contract(const void *a, const void *b)
+{
+    return strcmp(((const contract_t *)a)->skey, ((const contract_t *)b)->skey);
+}
+
+static int cmp_cap(const void *a, const void *b)
+{
+    return strcmp(((const cap_t *)a)->skey, ((const cap_t *)b)->skey);
+}
+
+typedef struct ev {
+    double t, d;
+} ev_t;
+
+static int cmp_ev(const void *a, const void *b)
+{
+    const ev_t *x = a, *y = b;
+    if (x->t != y->t)
+        return x->t < y->t ? -1 : 1;
+    return (x->d > y->d) - (x->d < y->d); /* releases before new starts */
+}
+
+static int fail(const char *what)
+{
+    fprintf(stderr, "market_audit: %s\n", what);
+    return 1;
+}
+
+int main(int argc, char **argv)
+{
+    if (argc != 2)
+        return fail("usage: market_audit DIR");
+    char path[4096], line[LINE_MAX_LEN], *f[FIELDS_MAX], msg[512];
+    size_t n = 0, alloc = 1024, ncap = 0, capalloc = 1024;
+    contract_t *c = malloc(alloc * sizeof *c);
+    cap_t *caps = malloc(capalloc * sizeof *caps);
+    int rc = 0;
+
+    snprintf(path, sizeof path, "%s/contracts.csv", argv[1]);
+    FILE *fp = fopen(path, "r");
+    if (!fp || !fgets(line, sizeof line, fp))
+        return fail("cannot read contracts.csv");
+    if (strcmp(line, "scenario,replication,mechanism,layer,time,start,end,buyer,seller,good,"
+                     "quantity,price,buyer_limit,seller_limit\n") != 0)
+        return fail("contracts.csv header differs from the documented one");
+    while (fgets(line, sizeof line, fp)) {
+        if (split(line, f) != 14)
+            return fail("contracts.csv: row without 14 fields");
+        if (n == alloc)
+            c = realloc(c, (alloc *= 2) * sizeof *c);
+        contract_t *x = &c[n++];
+        if (strlen(f[0]) + strlen(f[2]) > KEY_MAX / 4)
+            return fail("contracts.csv: scenario or mechanism name too long");
+        snprintf(x->key, KEY_MAX / 2, "%s|%s|%s", f[0], f[1], f[2]);
+        /* A basic agent's slots serve all its service types together. */
+        snprintf(x->skey, KEY_MAX, "%s|%s|%s|%s", x->key, f[8],
+                 strcmp(f[3], "service") == 0 ? "*" : f[9], f[3]);
+        x->layer = strcmp(f[3], "service") == 0 ? 0 : 1;
+        x->start = atof(f[5]);
+        x->end = atof(f[6]);
+        x->buyer = atol(f[7]);
+        x->seller = atol(f[8]);
+        x->quantity = atof(f[10]);
+        x->price = atof(f[11]);
+        x->blim = atof(f[12]);
+        x->slim = atof(f[13]);
+        if (x->price < x->slim * (1 - REL_TOL) || x->price > x->blim * (1 + REL_TOL)) {
+            snprintf(msg, sizeof msg, "price %g outside [%g, %g] (%s)", x->price, x->slim,
+                     x->blim, x->skey);
+            return fail(msg);
+        }
+    }
+    fclose(fp);
+
+    snprintf(path, sizeof path, "%s/agents.csv", argv[1]);
+    fp = fopen(path, "r");
+    if (!fp || !fgets(line, sizeof line, fp))
+        return fail("cannot read agents.csv");
+    if (strcmp(line, "scenario,replication,mechanism,agent,role,good,capacity,limit\n") != 0)
+        return fail("agents.csv header differs from the documented one");
+    while (fgets(line, sizeof line, fp)) {
+        if (split(line, f) != 8)
+            return fail("agents.csv: row without 8 fields");
+        if (strcmp(f[4], "complex") == 0)
+            continue;
+        if (ncap == capalloc)
+            caps = realloc(caps, (capalloc *= 2) * sizeof *caps);
+        int basic = strcmp(f[4], "basic") == 0;
+        snprintf(caps[ncap].skey, KEY_MAX, "%s|%s|%s|%s|%s|%s", f[0], f[1], f[2], f[3],
+                 basic ? "*" : f[5], basic ? "service" : "resource");
+        caps[ncap++].capacity = atof(f[6]);
+    }
+    fclose(fp);
+
+    /* 2. capacity sweep per (run, seller, good). */
+    qsort(c, n, sizeof *c, cmp_contract);
+    qsort(caps, ncap, sizeof *caps, cmp_cap);
+    ev_t *ev = malloc((2 * n + 1) * sizeof *ev);
+    for (size_t i = 0; i < n;) {
+        size_t j = i, k = 0;
+        while (j < n && strcmp(c[j].skey, c[i].skey) == 0) {
+            double q = c[j].layer == 0 ? 1.0 : c[j].quantity;
+            ev[k++] = (ev_t){c[j].start, q};
+            ev[k++] = (ev_t){c[j].end, -q};
+            j++;
+        }
+        cap_t probe;
+        snprintf(probe.skey, KEY_MAX, "%s", c[i].skey);
+        cap_t *cp = bsearch(&probe, caps, ncap, sizeof *caps, cmp_cap);
+        if (!cp) {
+            snprintf(msg, sizeof msg, "seller without an agents.csv row: %s", c[i].skey);
+            return fail(msg);
+        }
+        qsort(ev, k, sizeof *ev, cmp_ev);
+        double load = 0.0;
+        for (size_t e = 0; e < k; e++) {
+            load += ev[e].d;
+            if (load > cp->capacity + 1e-6) {
+                snprintf(msg, sizeof msg, "seller over capacity (%g > %g) at t=%g: %s", load,
+                         cp->capacity, ev[e].t, c[i].skey);
+                return fail(msg);
+            }
+        }
+        i = j;
+    }
+
+    /* 3. money per run and layer, and no basic agent pays more for
+     * resources than it earned. Contracts are grouped by seller now, so
+     * tally per run with small linear maps. */
+    double paid[2] = {0, 0}, received[2] = {0, 0};
+    for (size_t i = 0; i < n; i++) {
+        double money = c[i].layer == 0 ? c[i].price * c[i].quantity
+                                       : c[i].price * c[i].quantity * (c[i].end - c[i].start);
+        paid[c[i].layer] += money;
+        received[c[i].layer] += money;
+    }
+    for (int l = 0; l < 2; l++)
+        if (fabs(paid[l] - received[l]) > 1e-6 * (1 + paid[l]))
+            return fail("money not conserved");
+    for (size_t i = 0; i < n; i++) {
+        if (c[i].layer != 0)
+            continue;
+        /* Basic agent c[i].seller in run c[i].key: earnings vs spending. */
+        if (i > 0 && c[i - 1].layer == 0 && c[i - 1].seller == c[i].seller &&
+            strcmp(c[i - 1].key, c[i].key) == 0)
+            continue;
+        double earned = 0, spent = 0;
+        for (size_t j = 0; j < n; j++) {
+            if (strcmp(c[j].key, c[i].key) != 0)
+                continue;
+            if (c[j].layer == 0 && c[j].seller == c[i].seller)
+                earned += c[j].price * c[j].quantity;
+            if (c[j].layer == 1 && c[j].buyer == c[i].seller)
+                spent += c[j].price * c[j].quantity * (c[j].end - c[j].start);
+        }
+        if (spent > earned * (1 + 1e-6) + 1e-6) {
+            snprintf(msg, sizeof msg, "basic agent %ld spent %g on resources, earned %g (%s)",
+                     c[i].seller, spent, earned, c[i].key);
+            return fail(msg);
+        }
+    }
+
+    /* 4. allocation rate = service contracts / requests. */
+    snprintf(path, sizeof path, "%s/replications.csv", argv[1]);
+    fp = fopen(path, "r");
+    if (!fp || !fgets(line, sizeof line, fp))
+        return fail("cannot read replications.csv");
+    int nf = split(line, f), col_rate = -1, col_req = -1;
+    for (int i = 0; i < nf; i++) {
+        if (strcmp(f[i], "allocation_rate") == 0)
+            col_rate = i;
+        if (strcmp(f[i], "requests") == 0)
+            col_req = i;
+    }
+    if (col_rate < 0 || col_req < 0)
+        return fail("replications.csv lacks allocation_rate or requests");
+    int rows = 0;
+    while (fgets(line, sizeof line, fp)) {
+        split(line, f);
+        char key[KEY_MAX];
+        snprintf(key, sizeof key, "%s|%s|%s", f[0], f[6], f[5]);
+        double svc = 0;
+        for (size_t i = 0; i < n; i++)
+            svc += c[i].layer == 0 && strcmp(c[i].key, key) == 0;
+        double req = atof(f[col_req]), rate = atof(f[col_rate]);
+        if (req <= 0 || fabs(rate - svc / req) > 1e-8) {
+            snprintf(msg, sizeof msg, "%s: allocation_rate %g but %g contracts / %g requests", key,
+                     rate, svc, req);
+            return fail(msg);
+        }
+        rows++;
+    }
+    fclose(fp);
+    printf("market_audit: %zu contracts, %zu capacities, %d replications: all invariants hold\n",
+           n, ncap, rows);
+    free(c);
+    free(caps);
+    free(ev);
+    return rc;
+}

@@ -1,0 +1,574 @@
+/*
+ * Unit tests of the market mechanisms, driven without SimGrid: the call
+ * market and the combinatorial exchange on hand-made books, alternating
+ * offers through the deterministic event queue, timeouts, config
+ * validation, and the audit invariants over whole in-process runs.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cmocka.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bgm_callmarket.h"
+#include "bgm_catallactic.h"
+#include "bgm_combex.h"
+#include "bgm_config.h"
+#include "bgm_evq.h"
+#include "bgm_heap.h"
+#include "bgm_posted.h"
+#include "bgm_rng.h"
+#include "bgm_world.h"
+
+#define EPS 1e-9
+
+/* ------------------------------------------------------------ call market */
+
+static void add_bid(bgm_callmarket_t *cm, uint64_t ref, int q, double p)
+{
+    bgm_order_t o = {ref, (uint32_t)ref, q, p};
+    assert_int_equal(bgm_callmarket_bid(cm, &o), BG_OK);
+}
+
+static void add_ask(bgm_callmarket_t *cm, uint64_t ref, int q, double p)
+{
+    bgm_order_t o = {ref, (uint32_t)ref, q, p};
+    assert_int_equal(bgm_callmarket_ask(cm, &o), BG_OK);
+}
+
+static void test_callmarket_uniform_price(void **state)
+{
+    (void)state;
+    bgm_callmarket_t *cm = bgm_callmarket_new(16);
+    assert_non_null(cm);
+    add_bid(cm, 1, 1, 10.0);
+    add_bid(cm, 2, 1, 6.0);
+    add_bid(cm, 3, 1, 8.0);
+    add_bid(cm, 4, 1, 4.0);
+    add_ask(cm, 11, 1, 9.0);
+    add_ask(cm, 12, 1, 3.0);
+    add_ask(cm, 13, 1, 7.0);
+    add_ask(cm, 14, 1, 5.0);
+    bgm_fill_t fills[8];
+    bgm_clearing_t res;
+    /* Matches 10/3 and 8/5; 6 < 7 stops. Marginal pair (8, 5). */
+    const double ks[3] = {0.0, 0.5, 1.0}, expect[3] = {5.0, 6.5, 8.0};
+    for (int i = 0; i < 3; i++) {
+        assert_int_equal(bgm_callmarket_clear(cm, ks[i], &res, fills, 8), BG_OK);
+        assert_int_equal(res.volume, 2);
+        assert_float_equal(res.bid_limit, 8.0, EPS);
+        assert_float_equal(res.ask_limit, 5.0, EPS);
+        assert_float_equal(res.price, expect[i], EPS);
+    }
+    /* The high bid trades with the low ask. */
+    const bgm_order_t *bids = bgm_callmarket_bids(cm), *asks = bgm_callmarket_asks(cm);
+    assert_int_equal(bids[fills[0].bid].ref, 1);
+    assert_int_equal(asks[fills[0].ask].ref, 12);
+    bgm_callmarket_remove_filled(cm, fills, res.fill_count);
+    assert_int_equal(bgm_callmarket_bid_count(cm), 2);
+    assert_int_equal(bgm_callmarket_ask_count(cm), 2);
+    assert_int_equal(bgm_callmarket_clear(cm, 0.5, &res, fills, 8), BG_OK);
+    assert_int_equal(res.volume, 0);
+    bgm_callmarket_destroy(&cm);
+    assert_null(cm);
+    bgm_callmarket_destroy(&cm); /* accepts NULL */
+}
+
+static void test_callmarket_multi_unit(void **state)
+{
+    (void)state;
+    bgm_callmarket_t *cm = bgm_callmarket_new(16);
+    add_bid(cm, 1, 3, 10.0);
+    add_ask(cm, 11, 1, 2.0);
+    add_ask(cm, 12, 1, 4.0);
+    add_ask(cm, 13, 2, 12.0);
+    bgm_fill_t fills[8];
+    bgm_clearing_t res;
+    assert_int_equal(bgm_callmarket_clear(cm, 0.25, &res, fills, 8), BG_OK);
+    assert_int_equal(res.volume, 2);
+    assert_float_equal(res.price, 4.0 + 0.25 * (10.0 - 4.0), EPS);
+    /* Every matched trader is within its limit at the uniform price. */
+    for (size_t i = 0; i < res.fill_count; i++) {
+        assert_true(res.price <= bgm_callmarket_bids(cm)[fills[i].bid].price + EPS);
+        assert_true(res.price >= bgm_callmarket_asks(cm)[fills[i].ask].price - EPS);
+    }
+    /* Invalid input is refused, not stored. */
+    bgm_order_t bad = {99, 99, 0, 1.0};
+    assert_int_equal(bgm_callmarket_bid(cm, &bad), BG_ERR_INVALID);
+    assert_int_equal(bgm_callmarket_clear(cm, 1.5, &res, fills, 8), BG_ERR_INVALID);
+    bgm_callmarket_destroy(&cm);
+}
+
+static void test_callmarket_cap(void **state)
+{
+    (void)state;
+    bgm_callmarket_t *cm = bgm_callmarket_new(2);
+    add_bid(cm, 1, 1, 1.0);
+    add_bid(cm, 2, 1, 1.0);
+    bgm_order_t o = {3, 3, 1, 1.0};
+    assert_int_equal(bgm_callmarket_bid(cm, &o), BG_ERR_LIMIT);
+    bgm_callmarket_destroy(&cm);
+}
+
+/* ------------------------------------------------- combinatorial exchange */
+
+static void test_combex_known_optimum(void **state)
+{
+    (void)state;
+    /* One seller with 2 cores. Bid 0 wants 2 cores (surplus 5); bids 1
+     * and 2 want 1 core each (surplus 3 each). Optimum 6 (bids 1 + 2);
+     * the greedy by surplus takes bid 0 and stops at 5. */
+    bgm_combex_t *cx = bgm_combex_new(8, 4, 64);
+    assert_non_null(cx);
+    for (int i = 0; i < 3; i++)
+        assert_int_equal(bgm_combex_add_bid(cx), i);
+    double cap[BGM_COMBEX_DIMS] = {2.0, 100.0};
+    assert_int_equal(bgm_combex_add_seller(cx, cap), 0);
+    bgm_combex_pair_t p0 = {0, 0, 5.0, {2.0, 1.0}};
+    bgm_combex_pair_t p1 = {1, 0, 3.0, {1.0, 1.0}};
+    bgm_combex_pair_t p2 = {2, 0, 3.0, {1.0, 1.0}};
+    assert_int_equal(bgm_combex_add_pair(cx, &p0), BG_OK);
+    assert_int_equal(bgm_combex_add_pair(cx, &p1), BG_OK);
+    assert_int_equal(bgm_combex_add_pair(cx, &p2), BG_OK);
+    int assign[3];
+    bgm_combex_result_t ex, gr;
+    assert_int_equal(bgm_combex_solve(cx, BGM_COMBEX_EXACT, 100, 0, assign, &ex), BG_OK);
+    assert_int_equal(ex.method, BGM_COMBEX_EXACT);
+    assert_true(ex.optimal);
+    assert_float_equal(ex.objective, 6.0, EPS);
+    assert_int_equal(assign[0], -1);
+    assert_int_equal(assign[1], 1);
+    assert_int_equal(assign[2], 2);
+    assert_int_equal(bgm_combex_solve(cx, BGM_COMBEX_GREEDY, 100, 0, assign, &gr), BG_OK);
+    assert_int_equal(gr.method, BGM_COMBEX_GREEDY);
+    assert_float_equal(gr.objective, 5.0, EPS);
+    /* AUTO picks the greedy above the exact limit and says so. */
+    assert_int_equal(bgm_combex_solve(cx, BGM_COMBEX_AUTO, 2, 0, assign, &gr), BG_OK);
+    assert_int_equal(gr.method, BGM_COMBEX_GREEDY);
+    bgm_combex_destroy(&cx);
+    assert_null(cx);
+}
+
+/* Brute force over every assignment of a tiny instance. */
+static double brute(const bgm_combex_pair_t *pairs, int np, int nbid, int nsel,
+                    const double cap[][BGM_COMBEX_DIMS], int b, double used[][BGM_COMBEX_DIMS])
+{
+    if (b == nbid)
+        return 0.0;
+    double best = brute(pairs, np, nbid, nsel, cap, b + 1, used);
+    for (int i = 0; i < np; i++) {
+        const bgm_combex_pair_t *p = &pairs[i];
+        if (p->bid != b)
+            continue;
+        int ok = 1;
+        for (int d = 0; d < BGM_COMBEX_DIMS; d++)
+            ok &= used[p->seller][d] + p->use[d] <= cap[p->seller][d] + EPS;
+        if (!ok)
+            continue;
+        for (int d = 0; d < BGM_COMBEX_DIMS; d++)
+            used[p->seller][d] += p->use[d];
+        double v = p->surplus + brute(pairs, np, nbid, nsel, cap, b + 1, used);
+        for (int d = 0; d < BGM_COMBEX_DIMS; d++)
+            used[p->seller][d] -= p->use[d];
+        if (v > best)
+            best = v;
+    }
+    return best;
+}
+
+static void test_combex_random_instances(void **state)
+{
+    (void)state;
+    bgm_rng_t rng;
+    bgm_rng_seed(&rng, 7);
+    for (int inst = 0; inst < 60; inst++) {
+        int nbid = 2 + (int)bgm_rng_below(&rng, 5), nsel = 1 + (int)bgm_rng_below(&rng, 3);
+        bgm_combex_t *cx = bgm_combex_new(nbid, nsel, 64);
+        double cap[4][BGM_COMBEX_DIMS];
+        bgm_combex_pair_t pairs[64];
+        int np = 0;
+        for (int b = 0; b < nbid; b++)
+            bgm_combex_add_bid(cx);
+        for (int s = 0; s < nsel; s++) {
+            cap[s][0] = 1 + bgm_rng_below(&rng, 4);
+            cap[s][1] = 1 + bgm_rng_below(&rng, 8);
+            bgm_combex_add_seller(cx, cap[s]);
+        }
+        for (int b = 0; b < nbid; b++)
+            for (int s = 0; s < nsel; s++) {
+                if (bgm_rng_uniform(&rng) < 0.3)
+                    continue;
+                bgm_combex_pair_t p = {b, s, 0.5 + 10.0 * bgm_rng_uniform(&rng),
+                                       {1.0 + bgm_rng_below(&rng, 3), 1.0 + bgm_rng_below(&rng, 4)}};
+                pairs[np++] = p;
+                assert_int_equal(bgm_combex_add_pair(cx, &p), BG_OK);
+            }
+        double used[4][BGM_COMBEX_DIMS] = {{0}};
+        double opt = brute(pairs, np, nbid, nsel, (const double(*)[BGM_COMBEX_DIMS])cap, 0, used);
+        int assign[8];
+        bgm_combex_result_t ex, gr;
+        assert_int_equal(bgm_combex_solve(cx, BGM_COMBEX_EXACT, 1000, 0, assign, &ex), BG_OK);
+        assert_int_equal(ex.method, BGM_COMBEX_EXACT);
+        assert_float_equal(ex.objective, opt, 1e-6);
+        assert_int_equal(bgm_combex_solve(cx, BGM_COMBEX_GREEDY, 1000, 0, assign, &gr), BG_OK);
+        assert_true(gr.objective <= ex.objective + 1e-9);
+        bgm_combex_destroy(&cx);
+    }
+}
+
+/* ------------------------------------------------------ alternating offers */
+
+/* Two bargaining sides talking through the deterministic event queue,
+ * each message delayed by 10 ms. Returns the action that ended it. */
+static bgm_nego_action bargain(double buyer_limit, double seller_limit, double *price,
+                               int *rounds)
+{
+    bgm_genes_t g = {0.0, 0.3, 0.2, 0.8, 1.0};
+    bgm_nego_t side[2];
+    bgm_nego_open(&side[0], BGM_SIDE_BUYER, buyer_limit, buyer_limit * 0.5, &g, 40);
+    bgm_nego_open(&side[1], BGM_SIDE_SELLER, seller_limit, seller_limit * 1.5, &g, 40);
+    bgm_rng_t rng;
+    bgm_rng_seed(&rng, 3);
+    bgm_evq_queue_t q = {bgm_heap_new(64), 0.0, 0.01, BG_OK};
+    bgm_sink_t sink = bgm_evq_sink(&q);
+    bgm_msg_t m;
+    memset(&m, 0, sizeof m);
+    m.from = 0;
+    m.to = 1;
+    m.price = side[0].current;
+    sink.send(sink.ctx, &m, 100);
+    bgm_nego_action last = BGM_NEGO_COUNTER;
+    bgm_event_t ev;
+    *rounds = 0;
+    while (bgm_heap_pop(q.heap, &ev)) {
+        q.now = ev.time;
+        bgm_msg_t *in = ev.msg;
+        bgm_nego_t *me = &side[in->to];
+        double reply = 0.0;
+        last = bgm_nego_respond(me, in->price, &rng, &reply);
+        (*rounds)++;
+        /* Hard limits on every offer either side makes. */
+        if (last == BGM_NEGO_COUNTER) {
+            if (me->side == BGM_SIDE_BUYER)
+                assert_true(reply <= buyer_limit + EPS);
+            else
+                assert_true(reply >= seller_limit - EPS);
+            bgm_msg_t out = *in;
+            out.from = in->to;
+            out.to = in->from;
+            out.price = reply;
+            sink.send(sink.ctx, &out, 100);
+        } else {
+            *price = reply;
+        }
+        free(in);
+        if (last != BGM_NEGO_COUNTER)
+            break;
+    }
+    assert_true(q.now > 0.0);
+    bgm_heap_destroy(&q.heap);
+    return last;
+}
+
+static void test_alternating_offers_converge(void **state)
+{
+    (void)state;
+    double price = 0.0;
+    int rounds = 0;
+    assert_int_equal(bargain(10.0, 6.0, &price, &rounds), BGM_NEGO_ACCEPT);
+    assert_true(price >= 6.0 - EPS && price <= 10.0 + EPS);
+    assert_true(rounds < 40);
+}
+
+static void test_alternating_offers_no_overlap(void **state)
+{
+    (void)state;
+    double price = -1.0;
+    int rounds = 0;
+    assert_int_equal(bargain(5.0, 6.0, &price, &rounds), BGM_NEGO_REJECT);
+    /* Clean failure: stops once both sit at their limits, well before the
+     * round cap. */
+    assert_true(rounds < 40);
+}
+
+static void test_timer_queue_fires_in_order(void **state)
+{
+    (void)state;
+    bgm_evq_queue_t q = {bgm_heap_new(16), 0.0, 0.0, BG_OK};
+    bgm_sink_t sink = bgm_evq_sink(&q);
+    sink.timer(sink.ctx, 1, 2.5, 7, 70);
+    sink.timer(sink.ctx, 1, 0.5, 5, 50);
+    sink.timer(sink.ctx, 2, 2.5, 8, 80); /* same time: insertion order */
+    bgm_event_t ev;
+    assert_true(bgm_heap_pop(q.heap, &ev));
+    assert_float_equal(ev.time, 0.5, EPS);
+    assert_int_equal(ev.kind, 5);
+    assert_true(bgm_heap_pop(q.heap, &ev));
+    assert_int_equal(ev.kind, 7);
+    assert_true(bgm_heap_pop(q.heap, &ev));
+    assert_int_equal(ev.kind, 8);
+    assert_false(bgm_heap_pop(q.heap, &ev));
+    bgm_heap_destroy(&q.heap);
+}
+
+static void test_posted_first_fit(void **state)
+{
+    (void)state;
+    bgm_posted_t *d = bgm_posted_new(8);
+    assert_int_equal(bgm_posted_post(d, 5, 0, 3.0), BG_OK);
+    assert_int_equal(bgm_posted_post(d, 6, 0, 1.0), BG_OK);
+    assert_int_equal(bgm_posted_post(d, 7, 1, 1.0), BG_OK);
+    assert_int_equal(bgm_posted_post(d, 8, 0, 2.0), BG_OK);
+    bgm_posting_t out[4];
+    size_t n = bgm_posted_query(d, 0, 2.5, 0, out, 4);
+    /* Registration order, not price order; the 3.0 posting is over limit. */
+    assert_int_equal(n, 2);
+    assert_int_equal(out[0].seller, 6);
+    assert_int_equal(out[1].seller, 8);
+    bgm_posted_withdraw(d, 6);
+    n = bgm_posted_query(d, 0, 2.5, 0, out, 4);
+    assert_int_equal(n, 1);
+    bgm_posted_destroy(&d);
+    assert_null(d);
+}
+
+static void test_rng_streams(void **state)
+{
+    (void)state;
+    bgm_rng_t a, b, c;
+    bgm_rng_derive(&a, 42, 1, 2, 3);
+    bgm_rng_derive(&b, 42, 1, 2, 3);
+    bgm_rng_derive(&c, 42, 1, 2, 4);
+    int differ = 0;
+    for (int i = 0; i < 100; i++) {
+        uint64_t x = bgm_rng_next(&a), y = bgm_rng_next(&b), z = bgm_rng_next(&c);
+        assert_true(x == y);
+        differ |= x != z;
+    }
+    assert_true(differ);
+    for (int i = 0; i < 1000; i++) {
+        double u = bgm_rng_uniform(&a);
+        assert_true(u >= 0.0 && u < 1.0);
+        assert_true(bgm_rng_below(&a, 7) < 7);
+    }
+}
+
+/* --------------------------------------------------------------- configs */
+
+static const char *good_config =
+    "{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+    "\"mechanisms\":[\"central\",\"catallactic\",\"baseline\"],"
+    "\"factors\":{\"nodes\":[6],\"density\":[1]}}";
+
+static void expect_reject(const char *json, const char *field)
+{
+    bgm_config_t cfg;
+    bg_error_t err = BG_ERROR_INIT;
+    bg_status st = bgm_config_parse(json, strlen(json), &cfg, &err);
+    assert_int_not_equal(st, BG_OK);
+    if (!strstr(err.message, field))
+        fail_msg("message '%s' does not name '%s'", err.message, field);
+}
+
+static void test_config_validation(void **state)
+{
+    (void)state;
+    bgm_config_t cfg;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgm_config_parse(good_config, strlen(good_config), &cfg, &err), BG_OK);
+    assert_int_equal(bgm_config_scenario_count(&cfg), 1);
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,\"bogus\":1,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[6],\"density\":[1]}}",
+                  "bogus");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[-4],\"density\":[1]}}",
+                  "factors.nodes[0]");
+    expect_reject("{\"name\":\"t\",\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]}}",
+                  "seed");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"auction\"],\"factors\":{\"nodes\":[4],\"density\":[1]}}",
+                  "mechanisms[0]");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
+                  "\"network\":{\"latencyy\":1}}",
+                  "network.latencyy");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[-1]}}",
+                  "factors.density[0]");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":0,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]}}",
+                  "replications");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1],"
+                  "\"dynamics\":[\"storm\"]}}",
+                  "factors.dynamics[0]");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
+                  "\"services\":{\"rotation-fit\":{\"cores\":-2}}}",
+                  "services.rotation-fit.cores");
+    expect_reject("not json", "JSON");
+}
+
+/* ---------------------------------------------- invariants of whole runs */
+
+static bgm_config_t load_cfg(const char *json)
+{
+    bgm_config_t cfg;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgm_config_parse(json, strlen(json), &cfg, &err))
+        fail_msg("config: %s", err.message);
+    return cfg;
+}
+
+static const char *run_config =
+    "{\"name\":\"inv\",\"seed\":99,\"replications\":1,\"duration\":150,\"drain\":40,"
+    "\"mechanisms\":[\"central\",\"catallactic\",\"baseline\"],"
+    "\"factors\":{\"nodes\":[10],\"density\":[1.5],\"dynamics\":[\"churn\"]},"
+    "\"dynamics\":{\"churn\":{\"node_failure_rate\":0.003,\"node_repair_mean\":15,"
+    "\"link_failure_rate\":0.003,\"link_repair_mean\":4}},"
+    "\"demand\":{\"interarrival_mean\":15,\"deadline\":25}}";
+
+/* Checks one finished world: limits, capacity over time, money, rate. */
+static void check_invariants(bgm_world_t *w, const bgm_config_t *cfg)
+{
+    size_t n = bgm_world_contract_count(w);
+    const bgm_contract_t *c = bgm_world_contracts(w);
+    assert_true(n > 0);
+    double log_paid[2] = {0, 0};
+    for (size_t i = 0; i < n; i++) {
+        assert_true(c[i].price >= c[i].seller_limit * (1 - 1e-9) - 1e-12);
+        assert_true(c[i].price <= c[i].buyer_limit * (1 + 1e-9) + 1e-12);
+        assert_true(c[i].end >= c[i].start);
+        double money = c[i].layer == 0 ? c[i].price * c[i].quantity
+                                       : c[i].price * c[i].quantity * (c[i].end - c[i].start);
+        log_paid[c[i].layer] += money;
+        /* Capacity: at this contract's start, what its seller has running. */
+        double load = 0.0;
+        for (size_t j = 0; j < n; j++) {
+            if (c[j].seller != c[i].seller || c[j].good != c[i].good || c[j].layer != c[i].layer)
+                continue;
+            if (c[j].start <= c[i].start && c[i].start < c[j].end)
+                load += c[i].layer == 0 ? 1.0 : c[j].quantity;
+        }
+        double cap = c[i].layer == 0 ? cfg->agents.service_slots
+                     : c[i].good == 3 ? cfg->agents.resource_cores
+                                      : cfg->agents.resource_memory;
+        assert_true(load <= cap + 1e-9);
+    }
+    double paid[2], received[2];
+    bgm_world_money(w, paid, received);
+    for (int l = 0; l < 2; l++) {
+        assert_float_equal(paid[l], received[l], 1e-6 * (1 + paid[l]));
+        assert_float_equal(paid[l], log_paid[l], 1e-6 * (1 + paid[l]));
+    }
+    double m[BGM_M_COUNT];
+    assert_int_equal(bgm_world_metrics(w, m), BG_OK);
+    double svc = 0;
+    for (size_t i = 0; i < n; i++)
+        svc += c[i].layer == 0;
+    assert_float_equal(m[BGM_M_ALLOCATION_RATE], svc / m[BGM_M_REQUESTS], 1e-12);
+    assert_true(m[BGM_M_ALLOCATION_RATE] > 0.3);
+}
+
+static void test_invariants_inprocess(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = load_cfg(run_config);
+    for (int mech = 0; mech < 3; mech++) {
+        int nodes;
+        double density;
+        const bgm_dynamics_t *dy;
+        bgm_config_scenario(&cfg, 0, &nodes, &density, &dy);
+        bgm_world_params_t p = {&cfg, 0, mech, 0, nodes, density, dy, NULL};
+        bg_error_t err = BG_ERROR_INIT;
+        bgm_world_t *w = bgm_world_new(&p, &err);
+        assert_non_null(w);
+        bgm_evq_stats_t st;
+        assert_int_equal(bgm_evq_run_world(w, 0.01, 1.25e8, &st), BG_OK);
+        check_invariants(w, &cfg);
+        bgm_world_destroy(&w);
+        assert_null(w);
+    }
+}
+
+/* Every message is lost (access links down almost always): buyers must
+ * give up through their timeouts, with nothing contracted. */
+static void test_timeouts_fire(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = load_cfg(
+        "{\"name\":\"lossy\",\"seed\":5,\"replications\":1,\"duration\":60,\"drain\":40,"
+        "\"mechanisms\":[\"catallactic\"],"
+        "\"factors\":{\"nodes\":[6],\"density\":[1],\"dynamics\":[\"dark\"]},"
+        "\"dynamics\":{\"dark\":{\"link_failure_rate\":1,\"link_repair_mean\":100000}},"
+        "\"demand\":{\"interarrival_mean\":10,\"deadline\":10}}");
+    for (int mech = 0; mech < 3; mech++) {
+        int nodes;
+        double density;
+        const bgm_dynamics_t *dy;
+        bgm_config_scenario(&cfg, 0, &nodes, &density, &dy);
+        bgm_world_params_t p = {&cfg, 0, mech, 0, nodes, density, dy, NULL};
+        bg_error_t err = BG_ERROR_INIT;
+        bgm_world_t *w = bgm_world_new(&p, &err);
+        assert_non_null(w);
+        assert_int_equal(bgm_evq_run_world(w, 0.01, 1.25e8, NULL), BG_OK);
+        double m[BGM_M_COUNT];
+        assert_int_equal(bgm_world_metrics(w, m), BG_OK);
+        assert_true(m[BGM_M_REQUESTS] > 0);
+        assert_true(m[BGM_M_TIMEOUTS] > 0);
+        assert_true(m[BGM_M_ALLOCATION_RATE] < 0.2);
+        bgm_world_destroy(&w);
+    }
+}
+
+static void test_world_deterministic(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = load_cfg(run_config);
+    double first[BGM_M_COUNT];
+    for (int rep = 0; rep < 2; rep++) {
+        int nodes;
+        double density;
+        const bgm_dynamics_t *dy;
+        bgm_config_scenario(&cfg, 0, &nodes, &density, &dy);
+        bgm_world_params_t p = {&cfg, 0, BGM_MECH_CATALLACTIC, 0, nodes, density, dy, NULL};
+        bg_error_t err = BG_ERROR_INIT;
+        bgm_world_t *w = bgm_world_new(&p, &err);
+        assert_int_equal(bgm_evq_run_world(w, 0.01, 1.25e8, NULL), BG_OK);
+        double m[BGM_M_COUNT];
+        bgm_world_metrics(w, m);
+        if (rep == 0)
+            memcpy(first, m, sizeof m);
+        else
+            for (int k = 0; k < BGM_M_COUNT; k++)
+                assert_true((isnan(first[k]) && isnan(m[k])) || first[k] == m[k]);
+        bgm_world_destroy(&w);
+    }
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_callmarket_uniform_price),
+        cmocka_unit_test(test_callmarket_multi_unit),
+        cmocka_unit_test(test_callmarket_cap),
+        cmocka_unit_test(test_combex_known_optimum),
+        cmocka_unit_test(test_combex_random_instances),
+        cmocka_unit_test(test_alternating_offers_converge),
+        cmocka_unit_test(test_alternating_offers_no_overlap),
+        cmocka_unit_test(test_timer_queue_fires_in_order),
+        cmocka_unit_test(test_posted_first_fit),
+        cmocka_unit_test(test_rng_streams),
+        cmocka_unit_test(test_config_validation),
+        cmocka_unit_test(test_invariants_inprocess),
+        cmocka_unit_test(test_timeouts_fire),
+        cmocka_unit_test(test_world_deterministic),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
