@@ -31,6 +31,11 @@ void bgm_callmarket_destroy(bgm_callmarket_t **cm)
     *cm = NULL;
 }
 
+void bgm_callmarket_reset(bgm_callmarket_t *cm)
+{
+    cm->nbid = cm->nask = 0;
+}
+
 static bg_status add(bgm_order_t *side, size_t *n, size_t max, const bgm_order_t *o)
 {
     if (o->quantity <= 0 || !(o->price >= 0.0))

@@ -45,6 +45,9 @@ typedef struct bgm_callmarket bgm_callmarket_t;
 /* max_orders caps each side of the book. */
 bgm_callmarket_t *bgm_callmarket_new(size_t max_orders);
 void bgm_callmarket_destroy(bgm_callmarket_t **cm);
+/* Empties both books for the next call, keeping their storage: a fresh
+ * market per call would allocate and clear the full capacity each time. */
+void bgm_callmarket_reset(bgm_callmarket_t *cm);
 
 bg_status bgm_callmarket_bid(bgm_callmarket_t *cm, const bgm_order_t *order);
 bg_status bgm_callmarket_ask(bgm_callmarket_t *cm, const bgm_order_t *order);

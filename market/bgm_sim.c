@@ -2,6 +2,7 @@
 
 #include <cjson/cJSON.h>
 #include <errno.h>
+#include <malloc.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -28,6 +29,8 @@
 #define BGM_EXIT_USAGE 2
 #define BGM_MAX_JOBS 256
 #define BGM_MAX_RUNS 100000
+/* Blocks at least this large are mapped on their own (see run_child). */
+#define BGM_MMAP_THRESHOLD (128 * 1024)
 #define BGM_PLATFORM_STREAM 0xfffffff1ULL
 #define BGM_COPY_CHUNK 65536
 #define BGM_BAR_WIDTH 30
@@ -144,6 +147,10 @@ static int run_child(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_
     int nodes;
     double density;
     const bgm_dynamics_t *dyn;
+    /* A fixed mmap threshold: glibc otherwise raises it to the size of the
+     * largest block freed, after which the market's large temporary books
+     * stay resident in the heap instead of going back to the system. */
+    mallopt(M_MMAP_THRESHOLD, BGM_MMAP_THRESHOLD);
     bgm_config_scenario(cfg, id->scenario, &nodes, &density, &dyn);
     speed = malloc(((size_t)nodes + 1) * sizeof *speed);
     if (!speed) {

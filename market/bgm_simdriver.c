@@ -17,6 +17,32 @@
 #define BGM_NODE_MAX_TIMERS ((size_t)1 << 22)
 #define BGM_HOST_NAME_MAX 32
 #define BGM_MARKET_STACK_BYTES (1u << 20)
+/* Envelopes are allocated in chunks that never move: SimGrid holds a
+ * pointer to each one until it is delivered. */
+#define BGM_ENV_CHUNK_BITS 12
+#define BGM_ENV_CHUNK ((uint32_t)1 << BGM_ENV_CHUNK_BITS)
+#define BGM_ENV_MAX_CHUNKS 4096
+#define BGM_ENV_NONE UINT32_MAX
+
+/* A message in flight: the copy SimGrid carries and the communication
+ * that carries it. Communications are not detached: SimGrid 3.32 keeps
+ * every detached communication in one global list and scans it linearly
+ * when each one completes, which made the cost of a message grow with
+ * the number of messages in flight. Instead the sending actor keeps its
+ * own short list and reaps a communication (a wait that returns at once)
+ * after the receiver has handled the message. */
+typedef struct envelope {
+    bgm_msg_t msg;
+    sg_comm_t comm;
+    uint32_t next_free;
+    int delivered;
+} envelope_t;
+
+/* The envelopes one actor has sent and not yet reaped. */
+typedef struct pending {
+    uint32_t *env;
+    size_t n, cap;
+} pending_t;
 
 typedef struct node {
     sg_host_t host;
@@ -25,6 +51,7 @@ typedef struct node {
     sg_cond_t cond;
     sg_mutex_t mutex;
     double waiting_until; /* timer actor sleeps until this (inf: no timer) */
+    pending_t sent_by_receiver, sent_by_timer;
 } node_t;
 
 /* Effects a world handler emits, held back until the handler returns: a
@@ -40,6 +67,11 @@ typedef struct outbox {
 
 typedef struct driver {
     outbox_t out;
+    outbox_t spare; /* an emptied outbox whose arrays are reused */
+    envelope_t *env_chunk[BGM_ENV_MAX_CHUNKS];
+    uint32_t nenv_chunks;
+    uint32_t env_free; /* head of the free list */
+    pending_t sent_by_controller;
     bgm_world_t *w;
     node_t *nodes;
     uint32_t nnodes; /* world nodes + market */
@@ -79,28 +111,123 @@ static void drv_send(void *ctx, const bgm_msg_t *m, long bytes)
     o->bytes[o->nmsg++] = bytes;
 }
 
-/* Performs the held-back effects. The outbox is detached first, so a
- * handler that runs while this one yields fills a fresh outbox. */
-static void flush(driver_t *d)
+static envelope_t *env_at(driver_t *d, uint32_t id)
+{
+    return &d->env_chunk[id >> BGM_ENV_CHUNK_BITS][id & (BGM_ENV_CHUNK - 1)];
+}
+
+/* Takes an envelope from the free list, adding a chunk when it is empty. */
+static uint32_t env_alloc(driver_t *d)
+{
+    if (d->env_free == BGM_ENV_NONE) {
+        if (d->nenv_chunks == BGM_ENV_MAX_CHUNKS)
+            return BGM_ENV_NONE;
+        envelope_t *c = malloc(BGM_ENV_CHUNK * sizeof *c);
+        if (!c)
+            return BGM_ENV_NONE;
+        uint32_t base = d->nenv_chunks << BGM_ENV_CHUNK_BITS;
+        d->env_chunk[d->nenv_chunks++] = c;
+        for (uint32_t i = 0; i < BGM_ENV_CHUNK; i++)
+            c[i].next_free = i + 1 < BGM_ENV_CHUNK ? base + i + 1 : BGM_ENV_NONE;
+        d->env_free = base;
+    }
+    uint32_t id = d->env_free;
+    d->env_free = env_at(d, id)->next_free;
+    return id;
+}
+
+static void env_release(driver_t *d, uint32_t id)
+{
+    env_at(d, id)->next_free = d->env_free;
+    d->env_free = id;
+}
+
+static bg_status pending_push(pending_t *p, uint32_t id)
+{
+    if (p->n == p->cap) {
+        size_t c = p->cap ? 2 * p->cap : 16;
+        uint32_t *q = realloc(p->env, c * sizeof *q);
+        if (!q)
+            return BG_ERR_NOMEM;
+        p->env = q;
+        p->cap = c;
+    }
+    p->env[p->n++] = id;
+    return BG_OK;
+}
+
+/* Reaps the sender's communications whose message has been handled: their
+ * waits return at once, in the order they were sent. */
+static void reap(driver_t *d, pending_t *p)
+{
+    size_t keep = 0;
+    for (size_t i = 0; i < p->n; i++) {
+        uint32_t id = p->env[i];
+        envelope_t *e = env_at(d, id);
+        if (!e->delivered) {
+            p->env[keep++] = id;
+            continue;
+        }
+        sg_comm_wait(e->comm);
+        env_release(d, id);
+    }
+    p->n = keep;
+}
+
+/* Waits for every communication the sender still has out (end of an
+ * actor that sends once and then only sleeps). A communication to a
+ * permanent receiver completes when its bytes arrive, possibly before the
+ * receiver has read the envelope: such an envelope is not reused but kept
+ * until the run ends. */
+static void reap_all(driver_t *d, pending_t *p)
+{
+    size_t keep = 0;
+    for (size_t i = 0; i < p->n; i++) {
+        uint32_t id = p->env[i];
+        envelope_t *e = env_at(d, id);
+        sg_comm_wait(e->comm);
+        if (e->delivered)
+            env_release(d, id);
+        else
+            p->env[keep++] = id;
+    }
+    p->n = keep;
+}
+
+/* Performs the held-back effects, then reaps what the sender may reap.
+ * The outbox is detached first, so a handler that runs while this one
+ * yields fills a fresh outbox. */
+static void flush(driver_t *d, pending_t *sent)
 {
     outbox_t o = d->out;
-    memset(&d->out, 0, sizeof d->out);
+    d->out = d->spare;
+    memset(&d->spare, 0, sizeof d->spare);
     for (size_t i = 0; i < o.nmsg; i++) {
-        bgm_msg_t *copy = malloc(sizeof *copy);
-        if (!copy) {
+        uint32_t id = env_alloc(d);
+        if (id == BGM_ENV_NONE || pending_push(sent, id)) {
+            if (id != BGM_ENV_NONE)
+                env_release(d, id);
             d->status = BG_ERR_NOMEM;
             break;
         }
-        *copy = o.msg[i];
+        envelope_t *e = env_at(d, id);
+        e->msg = o.msg[i];
+        e->delivered = 0;
         d->messages++;
-        sg_comm_t c = sg_mailbox_put_init(node_of(d, copy->to)->mailbox, copy, o.bytes[i]);
-        sg_comm_detach(c, free);
+        e->comm = sg_mailbox_put_async(node_of(d, e->msg.to)->mailbox, e, o.bytes[i]);
     }
     for (size_t i = 0; i < o.nnotify; i++)
         sg_cond_notify_one(d->nodes[o.notify[i]].cond);
-    free(o.msg);
-    free(o.bytes);
-    free(o.notify);
+    reap(d, sent);
+    /* Keep the arrays for the next handler rather than reallocating them. */
+    o.nmsg = o.nnotify = 0;
+    if (d->spare.capmsg == 0 && d->spare.capnotify == 0) {
+        d->spare = o;
+    } else {
+        free(o.msg);
+        free(o.bytes);
+        free(o.notify);
+    }
 }
 
 static void drv_timer(void *ctx, uint32_t agent, double at, int kind, uint64_t arg)
@@ -133,12 +260,12 @@ static void receiver(int argc, char **argv)
     node_t *n = &d->nodes[atoi(argv[1])];
     sg_mailbox_set_receiver(sg_mailbox_get_name(n->mailbox));
     for (;;) {
-        bgm_msg_t *m = sg_mailbox_get(n->mailbox);
-        bg_status st = bgm_world_on_message(d->w, m, simgrid_get_clock());
-        free(m);
+        envelope_t *e = sg_mailbox_get(n->mailbox);
+        bg_status st = bgm_world_on_message(d->w, &e->msg, simgrid_get_clock());
+        e->delivered = 1; /* its sender may now reap the communication */
         if (st && !d->status)
             d->status = st;
-        flush(d);
+        flush(d, &n->sent_by_receiver);
     }
 }
 
@@ -167,7 +294,7 @@ static void timer_actor(int argc, char **argv)
         bg_status st = bgm_world_on_timer(d->w, ev.agent, (int)ev.kind, ev.arg, now);
         if (st && !d->status)
             d->status = st;
-        flush(d);
+        flush(d, &n->sent_by_timer);
     }
 }
 
@@ -178,7 +305,8 @@ static void controller(int argc, char **argv)
     bg_status st = bgm_world_start(d->w, &sink, 0.0);
     if (st && !d->status)
         d->status = st;
-    flush(d);
+    flush(d, &d->sent_by_controller);
+    reap_all(d, &d->sent_by_controller);
     sg_actor_sleep_until(d->horizon);
 }
 
@@ -220,6 +348,7 @@ bg_status bgm_simdriver_run(bgm_world_t *w, const char *platform_xml, int user_p
     driver_t d;
     memset(&d, 0, sizeof d);
     d.w = w;
+    d.env_free = BGM_ENV_NONE;
     d.horizon = bgm_world_horizon(w);
     g_driver = &d;
     simgrid_load_platform(platform_xml);
@@ -281,9 +410,23 @@ bg_status bgm_simdriver_run(bgm_world_t *w, const char *platform_xml, int user_p
 out:
     free(hosts);
     if (d.nodes)
-        for (uint32_t i = 0; i < d.nnodes; i++)
+        for (uint32_t i = 0; i < d.nnodes; i++) {
             bgm_heap_destroy(&d.nodes[i].timers);
+            free(d.nodes[i].sent_by_receiver.env);
+            free(d.nodes[i].sent_by_timer.env);
+        }
     free(d.nodes);
+    free(d.sent_by_controller.env);
+    free(d.out.msg);
+    free(d.out.bytes);
+    free(d.out.notify);
+    free(d.spare.msg);
+    free(d.spare.bytes);
+    free(d.spare.notify);
+    /* Envelopes still out belong to communications SimGrid tears down
+     * with the engine at exit; the chunks go only after the run. */
+    for (uint32_t i = 0; i < d.nenv_chunks; i++)
+        free(d.env_chunk[i]);
     g_driver = NULL;
     return st;
 }

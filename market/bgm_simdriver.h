@@ -5,9 +5,12 @@
  * receiver blocked on the host's mailbox (a permanent receiver, so
  * transfers start when sent, like an asynchronous network) and a timer
  * actor sleeping on a condition variable until the host's next timer.
- * Messages are copied into detached communications whose simulated size
- * the world gives, so latency, bandwidth and contention on the generated
- * (or user) platform decide when they arrive. The world is single-threaded
+ * Messages are copied into pooled envelopes carried by asynchronous
+ * communications whose simulated size the world gives, so latency,
+ * bandwidth and contention on the generated (or user) platform decide
+ * when they arrive. The sending actor reaps each communication once the
+ * receiver has handled it (not detached: SimGrid 3.32 scans one global
+ * list of detached communications each time one completes). The world is single-threaded
  * state: SimGrid runs actors one at a time, so no locking is needed.
  *
  * SimGrid's engine is initialised once per process: call this in a fresh

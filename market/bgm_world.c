@@ -99,9 +99,24 @@ typedef struct proposal {
     double price, speed;
 } proposal_t;
 
+/* The bargaining state of a request while it is being acquired by
+ * proposals (catallactic) or candidate lists (baseline): kept apart from
+ * the request and given back when the request ends, because only a few
+ * hundred requests bargain at once while tens of thousands are recorded.
+ * The seller-side state rides along for the seller. */
+typedef struct nego_state {
+    proposal_t prop[BGM_MAX_PROPOSALS];
+    int nprop, next_prop;
+    bgm_nego_t buyer_nego, seller_nego;
+    int seller_open;
+    uint32_t next_free;
+} nego_state_t;
+
+#define BGM_NEGO_NONE UINT32_MAX
+
 /* A purchase in progress: a service item of a job (layer 0, buyer C) or a
  * resource bundle for an agreed service (layer 1, buyer B). Owned by its
- * buyer; the seller-side bargaining state rides along for the seller. */
+ * buyer. */
 typedef struct req {
     int layer, good, state;
     uint32_t buyer, seller, job, parent; /* parent: service req of a resource req */
@@ -113,10 +128,7 @@ typedef struct req {
     double price;        /* agreed price (service: per unit; resource: rate) */
     double seller_limit; /* seller's reservation at agreement */
     double start, end;
-    proposal_t prop[BGM_MAX_PROPOSALS];
-    int nprop, next_prop;
-    bgm_nego_t buyer_nego, seller_nego;
-    int seller_open;
+    uint32_t nego; /* bargaining state (BGM_NEGO_NONE: none) */
 } req_t;
 
 typedef struct job {
@@ -173,6 +185,8 @@ struct bgm_world {
     double *speed;
     req_t *reqs;
     uint32_t nreq, req_cap;
+    nego_state_t *negos; /* pool; a free list threads the unused ones */
+    uint32_t nnego, nego_cap, nego_free;
     job_t *jobs;
     uint32_t njob, job_cap;
     bgm_contract_t *log;
@@ -316,7 +330,53 @@ static uint32_t new_req(bgm_world_t *w)
         w->req_cap = n;
     }
     memset(&w->reqs[w->nreq], 0, sizeof w->reqs[0]);
+    w->reqs[w->nreq].nego = BGM_NEGO_NONE;
     return w->nreq++;
+}
+
+/* The request's bargaining state. Only valid while it has one, that is
+ * between its first acquisition and its end; the pool may move when a
+ * state is taken, so callers fetch it again after anything that starts
+ * an acquisition. */
+static nego_state_t *ng(bgm_world_t *w, const req_t *r)
+{
+    return &w->negos[r->nego];
+}
+
+/* Gives request r a bargaining state if it has none. Returns 0 when out
+ * of memory. */
+static int nego_take(bgm_world_t *w, req_t *r)
+{
+    if (r->nego != BGM_NEGO_NONE)
+        return 1;
+    if (w->nego_free == BGM_NEGO_NONE) {
+        if (w->nnego == w->nego_cap) {
+            uint32_t n = w->nego_cap ? w->nego_cap * 2 : 256;
+            nego_state_t *p = n <= BGM_MAX_REQS ? realloc(w->negos, (size_t)n * sizeof *p) : NULL;
+            if (!p)
+                return 0;
+            w->negos = p;
+            w->nego_cap = n;
+        }
+        w->negos[w->nnego].next_free = BGM_NEGO_NONE;
+        w->nego_free = w->nnego++;
+    }
+    r->nego = w->nego_free;
+    w->nego_free = w->negos[r->nego].next_free;
+    memset(&w->negos[r->nego], 0, sizeof w->negos[0]);
+    return 1;
+}
+
+/* Request r has ended (done or failed): no message about it reads its
+ * bargaining state any more (every handler checks the state first). */
+static void req_end(bgm_world_t *w, req_t *r, int state)
+{
+    r->state = state;
+    if (r->nego == BGM_NEGO_NONE)
+        return;
+    w->negos[r->nego].next_free = w->nego_free;
+    w->nego_free = r->nego;
+    r->nego = BGM_NEGO_NONE;
 }
 
 static double resource_cost_rate(const agent_t *r, double cores, double mem)
@@ -394,6 +454,7 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
     const bgm_config_t *c = &w->cfg;
     bgm_rng_derive(&w->rng, c->seed, (uint64_t)p->scenario, (uint64_t)p->replication, 0);
     w->nodes = (uint32_t)p->nodes;
+    w->nego_free = BGM_NEGO_NONE;
     w->arrival_end = c->duration;
     w->horizon = c->duration + c->drain;
     int per = (int)lround(p->nodes * p->density);
@@ -501,6 +562,7 @@ void bgm_world_destroy(bgm_world_t **pw)
     free(w->link_up);
     free(w->speed);
     free(w->reqs);
+    free(w->negos);
     free(w->jobs);
     free(w->log);
     free(w->pend_bid);
@@ -543,7 +605,7 @@ static void final_fail(bgm_world_t *w, uint32_t rid, double now)
     req_t *r = &w->reqs[rid];
     if (r->state == RQ_DONE || r->state == RQ_FAILED)
         return;
-    r->state = RQ_FAILED;
+    req_end(w, r, RQ_FAILED);
     agent_t *buyer = &w->agents[r->buyer];
     learn_outcome(buyer, 0, 0.0);
     if (r->layer == 0) {
@@ -614,8 +676,15 @@ static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
         final_fail(w, rid, now);
         return;
     }
-    r->nprop = r->next_prop = 0;
-    r->seller_open = 0;
+    if (w->p.mechanism != BGM_MECH_CENTRAL) {
+        if (!nego_take(w, r)) {
+            fail(w, BG_ERR_NOMEM);
+            return;
+        }
+        nego_state_t *g = ng(w, r);
+        g->nprop = g->next_prop = 0;
+        g->seller_open = 0;
+    }
     switch (w->p.mechanism) {
     case BGM_MECH_CENTRAL: {
         bgm_msg_t m = msg(r->layer == 0 ? M_BID : M_RBID, r->buyer, 0, rid, r->attempt);
@@ -760,7 +829,7 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
     req_t *r = &w->reqs[m->req];
     if (r->state == RQ_DONE || r->state == RQ_FAILED)
         return; /* late confirm after giving up: the rental still stands */
-    r->state = RQ_DONE;
+    req_end(w, r, RQ_DONE);
     r->seller = m->from;
     r->price = m->price;
     r->start = m->a;
@@ -828,12 +897,7 @@ static void clear_services(bgm_world_t *w, double now)
     }
     w->npend_bid = keep;
     for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
-        bgm_callmarket_destroy(&w->cm);
-        w->cm = bgm_callmarket_new(BGM_BOOK_MAX);
-        if (!w->cm) {
-            fail(w, BG_ERR_NOMEM);
-            return;
-        }
+        bgm_callmarket_reset(w->cm);
         for (size_t i = 0; i < w->npend_bid; i++) {
             const req_t *r = &w->reqs[w->pend_bid[i]];
             if (r->good != t)
@@ -1142,28 +1206,29 @@ static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
 {
     req_t *r = &w->reqs[rid];
     agent_t *b = &w->agents[r->buyer];
-    while (r->next_prop < r->nprop) {
-        const proposal_t *p = &r->prop[r->next_prop];
+    nego_state_t *g = ng(w, r);
+    while (g->next_prop < g->nprop) {
+        const proposal_t *p = &g->prop[g->next_prop];
         double lim = buyer_limit_for(r, p);
         double mem = r->layer == 0 ? b->memory[r->good]
                                    : b->memory[3] * mean_rate(w, r->cores, r->memory);
         bgm_msg_t o;
         if (w->p.mechanism == BGM_MECH_BASELINE) {
             if (p->price > lim) {
-                r->next_prop++;
+                g->next_prop++;
                 continue;
             }
             o = msg(M_ORDER, r->buyer, p->seller, rid, r->attempt);
             o.price = p->price;
         } else {
-            bgm_nego_open(&r->buyer_nego, BGM_SIDE_BUYER, lim,
+            bgm_nego_open(&g->buyer_nego, BGM_SIDE_BUYER, lim,
                           bgm_nego_opening(BGM_SIDE_BUYER, lim, mem, b->markup), &b->genes,
                           w->cfg.catallactic.max_rounds);
             o = msg(M_OFFER, r->buyer, p->seller, rid, r->attempt);
-            o.price = r->buyer_nego.current;
+            o.price = g->buyer_nego.current;
         }
         r->seller = p->seller;
-        r->seller_open = 0;
+        g->seller_open = 0;
         r->state = RQ_NEGOTIATE;
         send(w, &o);
         arm(w, rid, now + w->cfg.catallactic.reply_timeout);
@@ -1174,7 +1239,7 @@ static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
 
 static void next_proposal(bgm_world_t *w, uint32_t rid, double now)
 {
-    w->reqs[rid].next_prop++;
+    ng(w, &w->reqs[rid])->next_prop++;
     begin_nego(w, rid, now);
 }
 
@@ -1219,15 +1284,16 @@ static void seller_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, dou
     agent_t *s = &w->agents[me];
     if (m->attempt != r->attempt || r->seller != me || r->state != RQ_NEGOTIATE)
         return;
-    if (!r->seller_open) {
-        bgm_nego_open(&r->seller_nego, BGM_SIDE_SELLER, seller_limit_for(w, s, r),
+    nego_state_t *g = ng(w, r);
+    if (!g->seller_open) {
+        bgm_nego_open(&g->seller_nego, BGM_SIDE_SELLER, seller_limit_for(w, s, r),
                       seller_opening(w, s, r), &s->genes, w->cfg.catallactic.max_rounds);
-        r->seller_open = 1;
+        g->seller_open = 1;
     }
     double reply = 0.0;
-    bgm_nego_action act = bgm_nego_respond(&r->seller_nego, m->price, &s->rng, &reply);
+    bgm_nego_action act = bgm_nego_respond(&g->seller_nego, m->price, &s->rng, &reply);
     if (act == BGM_NEGO_ACCEPT) {
-        seller_commit(w, me, m->req, reply, r->seller_nego.limit, now);
+        seller_commit(w, me, m->req, reply, g->seller_nego.limit, now);
     } else if (act == BGM_NEGO_COUNTER) {
         bgm_msg_t o = msg(M_OFFER, me, r->buyer, m->req, m->attempt);
         o.price = reply;
@@ -1246,7 +1312,7 @@ static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, doub
     if (m->attempt != r->attempt || r->state != RQ_NEGOTIATE || m->from != r->seller)
         return;
     double reply = 0.0;
-    bgm_nego_action act = bgm_nego_respond(&r->buyer_nego, m->price, &b->rng, &reply);
+    bgm_nego_action act = bgm_nego_respond(&ng(w, r)->buyer_nego, m->price, &b->rng, &reply);
     if (act == BGM_NEGO_ACCEPT) {
         bgm_msg_t a = msg(M_ACCEPT, me, m->from, m->req, m->attempt);
         a.price = reply;
@@ -1310,7 +1376,7 @@ static void on_confirm(bgm_world_t *w, const bgm_msg_t *m)
     req_t *r = &w->reqs[m->req];
     if (r->state == RQ_DONE || r->state == RQ_FAILED)
         return;
-    r->state = RQ_DONE;
+    req_end(w, r, RQ_DONE);
     r->start = m->a;
     r->end = m->b;
     job_t *j = &w->jobs[r->job];
@@ -1371,8 +1437,11 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         on_cfp(w, me, m);
         break;
     case M_PROPOSE:
-        if (m->attempt == r->attempt && r->state == RQ_DISCOVER && r->nprop < BGM_MAX_PROPOSALS)
-            r->prop[r->nprop++] = (proposal_t){m->from, m->price, m->a};
+        if (m->attempt == r->attempt && r->state == RQ_DISCOVER) {
+            nego_state_t *g = ng(w, r);
+            if (g->nprop < BGM_MAX_PROPOSALS)
+                g->prop[g->nprop++] = (proposal_t){m->from, m->price, m->a};
+        }
         break;
     case M_OFFER:
         if (r->buyer == me)
@@ -1385,8 +1454,9 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
             buyer_committed(w, me, m);
         } else if (m->attempt == r->attempt && r->seller == me && r->state == RQ_COMMITTED) {
             const agent_t *s = &w->agents[me];
-            double lim = r->seller_open ? r->seller_nego.limit : seller_limit_for(w, s, r);
-            if (r->seller_open)
+            const nego_state_t *g = ng(w, r);
+            double lim = g->seller_open ? g->seller_nego.limit : seller_limit_for(w, s, r);
+            if (g->seller_open)
                 learn_outcome(&w->agents[me], 1, (m->price - lim) / m->price);
             seller_commit(w, me, m->req, m->price, lim, now);
         }
@@ -1401,10 +1471,11 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         break;
     case M_LIST:
         if (m->attempt == r->attempt && r->state == RQ_WAIT) {
-            r->nprop = m->ncand;
+            nego_state_t *g = ng(w, r);
+            g->nprop = m->ncand;
             for (int i = 0; i < m->ncand; i++)
-                r->prop[i] = (proposal_t){m->cand[i], m->cand_price[i], m->cand_speed[i]};
-            r->next_prop = 0;
+                g->prop[i] = (proposal_t){m->cand[i], m->cand_price[i], m->cand_speed[i]};
+            g->next_prop = 0;
             begin_nego(w, m->req, now);
         }
         break;
@@ -1515,10 +1586,11 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
         if (!alive) {
             final_fail(w, rid, now);
         } else if (r->state == RQ_DISCOVER) {
-            if (r->nprop == 0)
+            nego_state_t *g = ng(w, r);
+            if (g->nprop == 0)
                 w->timeouts += 1.0; /* nobody answered the call for proposals */
-            qsort(r->prop, (size_t)r->nprop, sizeof r->prop[0], cmp_prop);
-            r->next_prop = 0;
+            qsort(g->prop, (size_t)g->nprop, sizeof g->prop[0], cmp_prop);
+            g->next_prop = 0;
             begin_nego(w, rid, now);
         } else if (r->state == RQ_NEGOTIATE || r->state == RQ_COMMITTED) {
             w->timeouts += 1.0;

@@ -115,6 +115,44 @@ static void test_callmarket_cap(void **state)
     bgm_callmarket_destroy(&cm);
 }
 
+/* A reset market is empty, takes orders up to its cap again, and clears
+ * exactly like a fresh one (the world reuses one market for every call). */
+static void test_callmarket_reset(void **state)
+{
+    (void)state;
+    bgm_callmarket_t *cm = bgm_callmarket_new(2);
+    add_bid(cm, 1, 1, 9.0);
+    add_bid(cm, 2, 1, 8.0);
+    add_ask(cm, 11, 1, 1.0);
+    bgm_callmarket_reset(cm);
+    assert_int_equal(bgm_callmarket_bid_count(cm), 0);
+    assert_int_equal(bgm_callmarket_ask_count(cm), 0);
+    bgm_fill_t fills[4];
+    bgm_clearing_t res;
+    assert_int_equal(bgm_callmarket_clear(cm, 0.5, &res, fills, 4), BG_OK);
+    assert_int_equal(res.volume, 0);
+    add_bid(cm, 3, 1, 10.0);
+    add_bid(cm, 4, 1, 6.0);
+    add_ask(cm, 12, 1, 4.0);
+    bgm_order_t o = {5, 5, 1, 1.0};
+    assert_int_equal(bgm_callmarket_bid(cm, &o), BG_ERR_LIMIT);
+
+    bgm_callmarket_t *fresh = bgm_callmarket_new(2);
+    add_bid(fresh, 3, 1, 10.0);
+    add_bid(fresh, 4, 1, 6.0);
+    add_ask(fresh, 12, 1, 4.0);
+    bgm_fill_t ffills[4];
+    bgm_clearing_t fres;
+    assert_int_equal(bgm_callmarket_clear(cm, 0.5, &res, fills, 4), BG_OK);
+    assert_int_equal(bgm_callmarket_clear(fresh, 0.5, &fres, ffills, 4), BG_OK);
+    assert_int_equal(res.volume, 1);
+    assert_int_equal(res.volume, fres.volume);
+    assert_float_equal(res.price, fres.price, EPS);
+    assert_int_equal(bgm_callmarket_bids(cm)[fills[0].bid].ref, 3);
+    bgm_callmarket_destroy(&fresh);
+    bgm_callmarket_destroy(&cm);
+}
+
 /* ------------------------------------------------- combinatorial exchange */
 
 static void test_combex_known_optimum(void **state)
@@ -558,6 +596,7 @@ int main(void)
         cmocka_unit_test(test_callmarket_uniform_price),
         cmocka_unit_test(test_callmarket_multi_unit),
         cmocka_unit_test(test_callmarket_cap),
+        cmocka_unit_test(test_callmarket_reset),
         cmocka_unit_test(test_combex_known_optimum),
         cmocka_unit_test(test_combex_random_instances),
         cmocka_unit_test(test_alternating_offers_converge),
