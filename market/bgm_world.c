@@ -1827,53 +1827,69 @@ out:
     return opt;
 }
 
+/* Buckets needed before the convergence time means anything: the last
+ * quarter defines the settled level and at least as many must precede it. */
+#define BGM_CONVERGENCE_MIN_BUCKETS 8
+
+/*
+ * Time after the demand shock until the service-layer price settles: the
+ * contracts after the shock are averaged per time bucket (metrics
+ * .price_bucket seconds; single contracts are far too noisy), the settled
+ * level is the mean of the last quarter of the non-empty buckets, and the
+ * result is the start of the first bucket after which every bucket stays
+ * within convergence_tolerance of that level, minus the shock time. NaN
+ * (null in the outputs) without a shock, with too few buckets, or when the
+ * price only settles inside the tail that defines the level: the run was
+ * too short to see it settle.
+ */
 static double convergence_time(const bgm_world_t *w)
 {
-    double shock = w->cfg.demand.shock_time;
-    if (shock < 0.0)
+    const double shock = w->cfg.demand.shock_time, width = w->cfg.metrics.price_bucket;
+    if (shock < 0.0 || !(width > 0.0))
         return NAN;
-    /* Service-layer prices after the shock, in log (time) order. */
-    size_t n = 0;
+    double end = shock;
     for (size_t i = 0; i < w->nlog; i++)
-        n += w->log[i].layer == 0 && w->log[i].time >= shock;
-    const size_t window = 10;
-    if (n < 4 * window)
-        return NAN;
-    double *p = malloc(n * sizeof *p), *t = malloc(n * sizeof *t);
+        if (w->log[i].layer == 0 && w->log[i].time > end)
+            end = w->log[i].time;
+    const size_t nb = (size_t)floor((end - shock) / width) + 1;
+    double *sum = calloc(nb + 1, sizeof *sum), *mean = calloc(nb + 1, sizeof *mean);
+    size_t *count = calloc(nb + 1, sizeof *count), *index = calloc(nb + 1, sizeof *index);
     double result = NAN;
-    if (!p || !t)
+    if (!sum || !mean || !count || !index)
         goto out;
-    size_t k = 0;
     for (size_t i = 0; i < w->nlog; i++)
         if (w->log[i].layer == 0 && w->log[i].time >= shock) {
-            p[k] = w->log[i].price;
-            t[k++] = w->log[i].time;
+            size_t b = (size_t)floor((w->log[i].time - shock) / width);
+            if (b >= nb)
+                b = nb - 1;
+            sum[b] += w->log[i].price;
+            count[b]++;
         }
+    size_t n = 0; /* non-empty buckets, in time order */
+    for (size_t b = 0; b < nb; b++)
+        if (count[b] > 0) {
+            mean[n] = sum[b] / (double)count[b];
+            index[n++] = b;
+        }
+    if (n < BGM_CONVERGENCE_MIN_BUCKETS)
+        goto out;
+    const size_t tail = n / 4;
     double target = 0.0;
-    size_t tail = n / 4;
-    for (size_t i = n - tail; i < n; i++)
-        target += p[i];
+    for (size_t k = n - tail; k < n; k++)
+        target += mean[k];
     target /= (double)tail;
-    double tol = w->cfg.metrics.convergence_tolerance * target;
-    /* Earliest window end after which every moving average stays in band. */
-    size_t last_out = 0;
-    int any_out = 0;
-    double sum = 0.0;
-    for (size_t i = 0; i < n; i++) {
-        sum += p[i];
-        if (i >= window)
-            sum -= p[i - window];
-        if (i + 1 >= window && fabs(sum / (double)window - target) > tol) {
-            last_out = i;
-            any_out = 1;
-        }
-    }
-    size_t first_in = any_out ? last_out + 1 : window - 1;
-    if (first_in < n)
-        result = t[first_in] - shock;
+    const double tol = w->cfg.metrics.convergence_tolerance * fabs(target);
+    size_t first_in = 0;
+    for (size_t k = 0; k < n; k++)
+        if (fabs(mean[k] - target) > tol)
+            first_in = k + 1;
+    if (first_in < n - tail)
+        result = (double)index[first_in] * width;
 out:
-    free(p);
-    free(t);
+    free(sum);
+    free(mean);
+    free(count);
+    free(index);
     return result;
 }
 
