@@ -347,16 +347,6 @@ static void deformation_gradient(int n, const int32_t *restrict el, const double
         }
 }
 
-static void count_path(bg_rotfit_stats_t *st, int path)
-{
-    st->calls++;
-    if (path == BG_ROTFIT_WARM)
-        st->warm++;
-    else if (path == BG_ROTFIT_POLAR)
-        st->polar++;
-    else
-        st->svd++;
-}
 
 /*
  * The 3D fast path works on blocks of elements in structure-of-arrays form,
@@ -503,8 +493,7 @@ static double eval3(bg_elastic_t *md, const double *restrict q, double *restrict
                 for (int i = 0; i < 9; i++)
                     P[i] = blk.P[i][b];
                 psi = blk.psi[b];
-                md->stats.calls++;
-                md->stats.warm++;
+                bg_rotfit_stats_count(&md->stats, BG_ROTFIT_WARM);
             } else {
                 double F[9], R[9];
                 int path;
@@ -512,7 +501,7 @@ static double eval3(bg_elastic_t *md, const double *restrict q, double *restrict
                     F[i] = blk.F[i][b];
                 psi = material_point(3, md->mu, md->lambda, F, md->quat + 4 * e, R, P, NULL, 0,
                                      &path);
-                count_path(&md->stats, path);
+                bg_rotfit_stats_count(&md->stats, (bg_rotfit_path)path);
             }
             md->psi[e] = psi;
             energy += md->volume[e] * psi;
@@ -542,7 +531,7 @@ double bg_elastic_eval(bg_elastic_t *md, const double *restrict q, double *restr
         int path;
         const double psi = material_point(n, md->mu, md->lambda, F, zero_quat, R,
                                           grad ? P : NULL, NULL, 0, &path);
-        count_path(&md->stats, path);
+        bg_rotfit_stats_count(&md->stats, (bg_rotfit_path)path);
         md->psi[e] = psi;
         energy += md->volume[e] * psi;
         if (grad)

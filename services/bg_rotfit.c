@@ -329,6 +329,14 @@ bg_rotfit_path bg_rotfit3(const double F[9], double quat[4], double R[9])
     return BG_ROTFIT_SVD;
 }
 
+void bg_rotfit_stats_count(bg_rotfit_stats_t *stats, bg_rotfit_path path)
+{
+    stats->calls++;
+    stats->warm += path == BG_ROTFIT_WARM;
+    stats->polar += path == BG_ROTFIT_POLAR;
+    stats->svd += path == BG_ROTFIT_SVD;
+}
+
 int bg_rotfit2(const double F[4], double R[4])
 {
     const double a = F[0] + F[3], b = F[2] - F[1];

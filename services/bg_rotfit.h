@@ -44,6 +44,9 @@ typedef struct bg_rotfit_stats {
     int64_t svd;        /* SVD fallbacks (3D) / degenerate closed forms (2D) */
 } bg_rotfit_stats_t;
 
+/* Counts one fit that took `path` in stats. */
+void bg_rotfit_stats_count(bg_rotfit_stats_t *stats, bg_rotfit_path path);
+
 /*
  * Closest rotation to the 3×3 F. quat holds a unit quaternion (w, x, y, z):
  * on entry the warm start (all zero: none), on exit the fitted rotation.

@@ -12,6 +12,7 @@
 typedef struct model {
     const bg_mesh_t *mesh;
     double *weight;     /* ne·3: weight of the edge opposite corner c */
+    double *rest_edge;  /* ne·3·3: rest vector p_j − p_k of the edge opposite corner c */
     int32_t *start;     /* nv+1: vertex → incident triangles (CSR) */
     int32_t *triangles;
     double *quat;       /* nv·4 warm starts */
@@ -21,6 +22,7 @@ typedef struct model {
 static void model_release(model_t *m)
 {
     free(m->weight);
+    free(m->rest_edge);
     free(m->start);
     free(m->triangles);
     free(m->quat);
@@ -33,11 +35,12 @@ static bg_status model_init(model_t *m, const bg_mesh_t *mesh, bg_error_t *err)
     m->mesh = mesh;
     const int32_t nv = mesh->nv, ne = mesh->ne;
     m->weight = malloc(((size_t)ne * 3 + 1) * sizeof *m->weight);
+    m->rest_edge = malloc(((size_t)ne * 9 + 1) * sizeof *m->rest_edge);
     m->start = calloc((size_t)nv + 1, sizeof *m->start);
     m->triangles = malloc(((size_t)ne * 3 + 1) * sizeof *m->triangles);
     m->quat = calloc((size_t)nv * 4 + 1, sizeof *m->quat);
     m->rotation = malloc(((size_t)nv * 9 + 1) * sizeof *m->rotation);
-    if (!m->weight || !m->start || !m->triangles || !m->quat || !m->rotation)
+    if (!m->weight || !m->rest_edge || !m->start || !m->triangles || !m->quat || !m->rotation)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the surface model");
     for (int32_t e = 0; e < ne; e++) {
         const int32_t *el = mesh->elements + 3 * (size_t)e;
@@ -54,6 +57,8 @@ static bg_status model_init(model_t *m, const bg_mesh_t *mesh, bg_error_t *err)
             const double cx = u[1] * v[2] - u[2] * v[1], cy = u[2] * v[0] - u[0] * v[2],
                          cz = u[0] * v[1] - u[1] * v[0];
             m->weight[3 * (size_t)e + c] = 0.5 * dot / sqrt(cx * cx + cy * cy + cz * cz);
+            for (int k = 0; k < 3; k++)
+                m->rest_edge[9 * (size_t)e + 3 * c + k] = a[k] - b[k];
         }
         for (int c = 0; c < 3; c++)
             m->start[el[c] + 1]++;
@@ -71,33 +76,40 @@ static bg_status model_init(model_t *m, const bg_mesh_t *mesh, bg_error_t *err)
     return BG_OK;
 }
 
+/*
+ * Edge c of triangle e in a vertex's cell: the edge opposite corner c, from
+ * j to k, its weight, its rest vector (p_j − p_k, precomputed) and its
+ * current vector q_j − q_k. Both passes over the cells read edges this way.
+ */
+static void cell_edge(const model_t *m, const double *q, int32_t e, int c, int32_t *j,
+                      int32_t *k, double *w, const double **rest, double current[3])
+{
+    const int32_t *el = m->mesh->elements + 3 * (size_t)e;
+    *j = el[(c + 1) % 3];
+    *k = el[(c + 2) % 3];
+    *w = m->weight[3 * (size_t)e + c];
+    *rest = m->rest_edge + 9 * (size_t)e + 3 * c;
+    for (int r = 0; r < 3; r++)
+        current[r] = q[3 * (size_t)*j + r] - q[3 * (size_t)*k + r];
+}
+
 /* Local step: R_i closest to M_i = Σ w e'_jk e_jkᵀ over vertex i's cell. */
 static void fit_rotations(model_t *m, const double *q, bg_rotfit_stats_t *stats)
 {
-    const bg_mesh_t *mesh = m->mesh;
-    for (int32_t i = 0; i < mesh->nv; i++) {
+    for (int32_t i = 0; i < m->mesh->nv; i++) {
         double M[9] = {0};
-        for (int32_t t = m->start[i]; t < m->start[i + 1]; t++) {
-            const int32_t e = m->triangles[t];
-            const int32_t *el = mesh->elements + 3 * (size_t)e;
+        for (int32_t t = m->start[i]; t < m->start[i + 1]; t++)
             for (int c = 0; c < 3; c++) {
-                const int32_t j = el[(c + 1) % 3], k = el[(c + 2) % 3];
-                const double w = m->weight[3 * (size_t)e + c];
-                double d[3], dp[3];
-                for (int r = 0; r < 3; r++) {
-                    d[r] = mesh->x[3 * (size_t)j + r] - mesh->x[3 * (size_t)k + r];
-                    dp[r] = q[3 * (size_t)j + r] - q[3 * (size_t)k + r];
-                }
+                int32_t j, k;
+                double w, dp[3];
+                const double *d;
+                cell_edge(m, q, m->triangles[t], c, &j, &k, &w, &d, dp);
                 for (int r = 0; r < 3; r++)
                     for (int s = 0; s < 3; s++)
                         M[3 * r + s] += w * dp[r] * d[s];
             }
-        }
-        const bg_rotfit_path path = bg_rotfit3(M, m->quat + 4 * (size_t)i, m->rotation + 9 * (size_t)i);
-        stats->calls++;
-        stats->warm += path == BG_ROTFIT_WARM;
-        stats->polar += path == BG_ROTFIT_POLAR;
-        stats->svd += path == BG_ROTFIT_SVD;
+        bg_rotfit_stats_count(stats,
+                              bg_rotfit3(M, m->quat + 4 * (size_t)i, m->rotation + 9 * (size_t)i));
     }
 }
 
@@ -111,26 +123,22 @@ static double energy_with_rotations(const model_t *m, const double *q, double *g
         memset(grad, 0, (size_t)mesh->nv * 3 * sizeof *grad);
     for (int32_t i = 0; i < mesh->nv; i++) {
         const double *R = m->rotation + 9 * (size_t)i;
-        for (int32_t t = m->start[i]; t < m->start[i + 1]; t++) {
-            const int32_t e = m->triangles[t];
-            const int32_t *el = mesh->elements + 3 * (size_t)e;
+        for (int32_t t = m->start[i]; t < m->start[i + 1]; t++)
             for (int c = 0; c < 3; c++) {
-                const int32_t j = el[(c + 1) % 3], k = el[(c + 2) % 3];
-                const double w = m->weight[3 * (size_t)e + c];
-                double d[3], r[3];
-                for (int a = 0; a < 3; a++)
-                    d[a] = mesh->x[3 * (size_t)j + a] - mesh->x[3 * (size_t)k + a];
+                int32_t j, k;
+                double w, dp[3];
+                const double *d;
+                cell_edge(m, q, m->triangles[t], c, &j, &k, &w, &d, dp);
                 for (int a = 0; a < 3; a++) {
-                    r[a] = q[3 * (size_t)j + a] - q[3 * (size_t)k + a] -
-                           (R[3 * a] * d[0] + R[3 * a + 1] * d[1] + R[3 * a + 2] * d[2]);
-                    E += w * r[a] * r[a];
+                    const double r =
+                        dp[a] - (R[3 * a] * d[0] + R[3 * a + 1] * d[1] + R[3 * a + 2] * d[2]);
+                    E += w * r * r;
                     if (grad) {
-                        grad[3 * (size_t)j + a] += 2.0 * w * r[a];
-                        grad[3 * (size_t)k + a] -= 2.0 * w * r[a];
+                        grad[3 * (size_t)j + a] += 2.0 * w * r;
+                        grad[3 * (size_t)k + a] -= 2.0 * w * r;
                     }
                 }
             }
-        }
     }
     return E;
 }
