@@ -377,13 +377,19 @@ static bg_status merge_csv(const sim_opts_t *o, const run_id_t *runs, int n, con
     return st;
 }
 
-static void scenario_name(const bgm_config_t *cfg, int s, char *buf, size_t n)
-{
+/* A scenario's factors and its name in the outputs ("n40_d2_static"). */
+typedef struct scenario {
     int nodes;
     double density;
     const bgm_dynamics_t *dyn;
-    bgm_config_scenario(cfg, s, &nodes, &density, &dyn);
-    snprintf(buf, n, "n%d_d%g_%s", nodes, density, dyn->name);
+    char name[BGM_NAME_MAX * 2];
+} scenario_t;
+
+static void scenario_of(const bgm_config_t *cfg, int s, scenario_t *out)
+{
+    bgm_config_scenario(cfg, s, &out->nodes, &out->density, &out->dyn);
+    snprintf(out->name, sizeof out->name, "n%d_d%g_%s", out->nodes, out->density,
+             out->dyn->name);
 }
 
 static void fmt_value(char *buf, size_t n, double v)
@@ -430,12 +436,12 @@ static bg_status write_summary(const bgm_config_t *cfg, const sim_opts_t *o, con
     cJSON_AddStringToObject(root, "confidence", "95% Student-t over replications");
     cJSON *arr = cJSON_AddArrayToObject(root, "results");
     for (int s = 0; s < ns; s++) {
-        int nodes;
-        double density;
-        const bgm_dynamics_t *dyn;
-        bgm_config_scenario(cfg, s, &nodes, &density, &dyn);
-        char name[BGM_NAME_MAX * 2];
-        scenario_name(cfg, s, name, sizeof name);
+        scenario_t sc;
+        scenario_of(cfg, s, &sc);
+        const int nodes = sc.nodes;
+        const double density = sc.density;
+        const bgm_dynamics_t *dyn = sc.dyn;
+        const char *name = sc.name;
         for (int m = 0; m < nm; m++) {
             cJSON *e = cJSON_CreateObject();
             cJSON_AddItemToArray(arr, e);
@@ -506,12 +512,12 @@ static bg_status write_replications(const bgm_config_t *cfg, const sim_opts_t *o
         fprintf(f, ",%s", bgm_metric_names[k]);
     fputc('\n', f);
     for (int s = 0; s < ns; s++) {
-        int nodes;
-        double density;
-        const bgm_dynamics_t *dyn;
-        bgm_config_scenario(cfg, s, &nodes, &density, &dyn);
-        char name[BGM_NAME_MAX * 2];
-        scenario_name(cfg, s, name, sizeof name);
+        scenario_t sc;
+        scenario_of(cfg, s, &sc);
+        const int nodes = sc.nodes;
+        const double density = sc.density;
+        const bgm_dynamics_t *dyn = sc.dyn;
+        const char *name = sc.name;
         for (int m = 0; m < nm; m++)
             for (int r = 0; r < nr; r++) {
                 fprintf(f, "%s,%d,%g,%s,%d,%s,%d,%llu", name, nodes, density, dyn->name,
