@@ -659,32 +659,6 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
     }
 }
 
-void bg_elastic_assemble_laplacian(const bg_elastic_t *md, double scale,
-                                   const int32_t *restrict scatter, double *restrict values)
-{
-    const int n = md->n, m = md->m, T = BG_ELASTIC_TRI_SIZE(m);
-    const bg_mesh_t *mesh = md->mesh;
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        double g[4][3];
-        barycentric_gradients(n, md->dminv + (size_t)e * n * n, g);
-        const double w = scale * md->volume[e];
-        const int32_t *sc = scatter + (size_t)e * T;
-        for (int a = 0; a < m; a++)
-            for (int bcol = a; bcol < m; bcol++) {
-                if (a % n != bcol % n)
-                    continue;
-                const int32_t pos = sc[BG_ELASTIC_TRI_INDEX(m, a, bcol)];
-                if (pos < 0)
-                    continue;
-                const int i = a / n, j = bcol / n;
-                double s = 0.0;
-                for (int b = 0; b < n; b++)
-                    s += g[i][b] * g[j][b];
-                values[pos] += w * s;
-            }
-    }
-}
-
 void bg_elastic_apply_laplacian(const bg_elastic_t *md, const double *restrict u,
                                 double *restrict out)
 {

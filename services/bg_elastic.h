@@ -78,19 +78,11 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *model, const double *q, int
                                  double scale, const int32_t *scatter, double *values);
 
 /*
- * The same scatter with the element blocks scale·V_e (G Gᵀ ⊗ I_n), G the
- * (n+1)×n barycentric gradients: the Hessian of (scale/2)·Σ_e V_e |F_e|²,
- * i.e. the cotan Laplacian per coordinate. It does not depend on q, so
- * local/global factors it once.
- */
-void bg_elastic_assemble_laplacian(const bg_elastic_t *model, double scale,
-                                   const int32_t *scatter, double *values);
-
-/*
  * The scalar cotan Laplacian scale·V_e G Gᵀ ((n+1)×(n+1) per element),
- * scattered like the other assemblies but with local entries numbered by
- * node only: positions scatter[e * T + t], T = BG_ELASTIC_TRI_SIZE(n+1).
- * Local/global solves one such system per coordinate.
+ * scattered like the Hessian but with local entries numbered by node
+ * only: positions scatter[e * T + t], T = BG_ELASTIC_TRI_SIZE(n+1).
+ * Local/global solves one such system per coordinate; the interpolated
+ * starting guess solves its harmonic weights with it.
  */
 void bg_elastic_assemble_scalar_laplacian(const bg_elastic_t *model, double scale,
                                           const int32_t *scatter, double *values);
