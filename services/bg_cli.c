@@ -331,8 +331,9 @@ static bg_status write_parameterization(const bg_scene_t *scene, bg_solve_result
 }
 
 /* A dynamic run or a morph: a series of frames written as it goes. */
-static bg_status run_series(const bg_scene_t *scene, bg_method method, const char *dir,
-                            progress_t *pr, bg_solve_result_t *run, bg_error_t *err)
+static bg_status run_series(const bg_scene_t *scene, bg_method method, double tolerance,
+                            int max_iterations, const char *dir, progress_t *pr,
+                            bg_solve_result_t *run, bg_error_t *err)
 {
     frames_t f = {scene, dir, bg_method_name(method), NULL, NULL, NULL, 0, 0};
     char frames_dir[4200];
@@ -349,6 +350,8 @@ static bg_status run_series(const bg_scene_t *scene, bg_method method, const cha
     }
     if (scene->task == BG_TASK_DYNAMIC) {
         const bg_dynamic_options_t opt = {.method = method,
+                                          .tolerance = tolerance,
+                                          .max_iterations = max_iterations,
                                           .frame = write_frame,
                                           .frame_ctx = &f,
                                           .progress = on_progress,
@@ -356,6 +359,8 @@ static bg_status run_series(const bg_scene_t *scene, bg_method method, const cha
         st = bg_dynamic_solve(scene, &opt, run, err);
     } else {
         const bg_morph_options_t opt = {.method = method,
+                                        .tolerance = tolerance,
+                                        .max_iterations = max_iterations,
                                         .frame = write_frame,
                                         .frame_ctx = &f,
                                         .progress = on_progress,
@@ -437,7 +442,7 @@ int bg_cli_solve(int argc, char **argv)
     for (int i = 0; i < o.method_count; i++) {
         bg_status st;
         if (dynamic || scene->task == BG_TASK_MORPH) {
-            st = run_series(scene, o.methods[i], out_dir, &pr, &runs[i], &err);
+            st = run_series(scene, o.methods[i], tolerance, max_iterations, out_dir, &pr, &runs[i], &err);
         } else {
             const bg_solve_options_t so = {.method = o.methods[i],
                                            .tolerance = tolerance,

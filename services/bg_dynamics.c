@@ -7,13 +7,21 @@
 #include "bg_clock.h"
 
 #define DYNAMICS_DEFAULT_MAX_ITERATIONS 200
+/* The energy limiter's slack: a midpoint step may raise the total energy
+ * above the budget (initial energy plus the handles' work) by this fraction
+ * of the largest mechanical energy (kinetic plus elastic) seen so far. The
+ * midpoint rule's own bounded oscillation is O(h²) and far smaller on every
+ * resolved scene (bar-spin: 5e-5); the nonlinear instability of stiff
+ * modes grows the energy by factors within a few steps. */
+#define DYNAMICS_ENERGY_SLACK 1e-2
 
 typedef struct state {
     size_t ndof;
     int n;
     int32_t nv;
     const double *mass;
-    double *q, *p, *v, *v_prev, *y, *t0, *t1, *targets, *grad, *start, *work;
+    double *q, *p, *v, *v_prev, *y, *t0, *t1, *targets, *grad, *start, *work, *candidate;
+    double *q_next, *p_next, *grad_next; /* a step's result before it is accepted */
 } state_t;
 
 static void state_release(state_t *s)
@@ -29,6 +37,10 @@ static void state_release(state_t *s)
     free(s->grad);
     free(s->start);
     free(s->work);
+    free(s->candidate);
+    free(s->q_next);
+    free(s->p_next);
+    free(s->grad_next);
 }
 
 /* Euclidean norm over free coordinates. */
@@ -101,6 +113,156 @@ static bg_status push(bg_solve_result_t *res, int *trace_cap, int *step_cap,
     return BG_OK;
 }
 
+/* The step's ancillary energy ε(x) = W(x) + (c/2) Σ m |x − y|² (up to a
+ * constant), x's constrained coordinates already at their targets. */
+static double ancillary(const state_t *s, bg_solver_t *solver, double c, const double *x)
+{
+    double e = bg_solver_potential(solver, x, s->work);
+    for (size_t i = 0; i < s->ndof; i++) {
+        const double d = x[i] - s->y[i];
+        e += 0.5 * c * s->mass[i / (size_t)s->n] * d * d;
+    }
+    return e;
+}
+
+/*
+ * The start of a step's solve. Candidates: the last positions q_k; the
+ * inertial prediction y plus the known load (under a constant load the step
+ * lands on y + (h²/4)g for the midpoint rule, y + h²g for Euler); and, from
+ * the second step on, a velocity extrapolation from the last two steps,
+ * which carries every force to second order. Which one is closest depends
+ * on the motion — extrapolation wins on smooth rigid motion, q_k on a soft
+ * body whose finest modes ring (ωh ≫ 1), where extrapolating their
+ * velocities overshoots — so BG_PREDICTOR_BEST evaluates ε at each and
+ * keeps the lowest: a few energy evaluations, against tens of iterations a
+ * poor start costs.
+ */
+static void choose_start(state_t *s, bg_solver_t *solver, const bg_scene_t *scene, double c,
+                         int variational, double h, int k, bg_predictor predictor)
+{
+    static const bg_predictor kinds[3] = {BG_PREDICTOR_EXTRAPOLATE, BG_PREDICTOR_INERTIAL,
+                                          BG_PREDICTOR_LAST};
+    const double reach = variational ? 0.5 * h : h, load = (variational ? 0.25 : 1.0) * h * h;
+    /* The first step has no velocity history: extrapolation is the load. */
+    if (predictor == BG_PREDICTOR_EXTRAPOLATE && k == 0)
+        predictor = BG_PREDICTOR_INERTIAL;
+    double best = INFINITY;
+    int have = 0;
+    for (int j = 0; j < 3; j++) {
+        const bg_predictor kind = kinds[j];
+        if ((predictor != BG_PREDICTOR_BEST && predictor != kind) ||
+            (kind == BG_PREDICTOR_EXTRAPOLATE && k == 0))
+            continue;
+        for (size_t i = 0; i < s->ndof; i++) {
+            double x;
+            if (scene->constrained[i])
+                x = s->targets[i];
+            else if (kind == BG_PREDICTOR_EXTRAPOLATE)
+                x = s->q[i] + reach * (s->v[i] + 0.5 * reach / h * (s->v[i] - s->v_prev[i]) *
+                                                     (variational ? 1.0 : 2.0));
+            else if (kind == BG_PREDICTOR_INERTIAL)
+                x = s->y[i] + load * scene->gravity[i % (size_t)s->n];
+            else
+                x = s->q[i];
+            s->candidate[i] = x;
+        }
+        if (predictor == BG_PREDICTOR_BEST) {
+            const double e = ancillary(s, solver, c, s->candidate);
+            if (have && !(e < best))
+                continue;
+            best = e;
+        }
+        have = 1;
+        double *swap = s->start;
+        s->start = s->candidate;
+        s->candidate = swap;
+    }
+}
+
+/* Σ p²/2m + W(x): the total energy of a state (s->work as scratch). */
+static double total_energy(const state_t *s, bg_solver_t *solver, const double *x,
+                           const double *p)
+{
+    double e = bg_solver_potential(solver, x, s->work);
+    for (size_t i = 0; i < s->ndof; i++)
+        e += 0.5 * p[i] * p[i] / s->mass[i / (size_t)s->n];
+    return e;
+}
+
+/* Σ_v m_v g·x_v: what W subtracts from the elastic energy. */
+static double gravity_work(const state_t *s, const bg_scene_t *scene, const double *x)
+{
+    double w = 0.0;
+    for (size_t i = 0; i < s->ndof; i++)
+        w += s->mass[i / (size_t)s->n] * scene->gravity[i % (size_t)s->n] * x[i];
+    return w;
+}
+
+/*
+ * One step from (q_k, p_k, v_k) = (s->q, s->p, s->v) with targets s->t0 →
+ * s->t1: the variational midpoint rule or backward Euler, into s->q_next
+ * and s->p_next (before damping). *handle_work is the work the handles did
+ * on the body over the step: with R the force they exert, the discrete
+ * balance at a constrained coordinate reads (2/h)(m v̄ − p_k) = −∂W/∂q + R
+ * (midpoint; (1/h)(m v − p_k) for Euler), and the work is R·(q_{k+1} − q_k).
+ */
+static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scene,
+                         const bg_dynamic_options_t *opt, int variational, double h, int k,
+                         bg_solve_result_t *inner, double *handle_work, bg_error_t *err)
+{
+    const double c = variational ? 4.0 / (h * h) : 1.0 / (h * h);
+    /* y is the inertial prediction (the minimiser without forces); the
+     * constrained coordinates sit at the midpoint of their prescribed path
+     * (variational) or at its end (Euler). */
+    for (size_t i = 0; i < s->ndof; i++) {
+        const double m = s->mass[i / (size_t)s->n];
+        s->y[i] = variational ? s->q[i] + 0.5 * h * s->p[i] / m : s->q[i] + h * s->v[i];
+        s->targets[i] = variational ? 0.5 * (s->t0[i] + s->t1[i]) : s->t1[i];
+    }
+    choose_start(s, solver, scene, c, variational, h, k, opt->predictor);
+    const double tau = opt->tolerance > 0.0 ? opt->tolerance : scene->tolerance;
+    const bg_inertia_t inertia = {c, s->y};
+    const bg_solve_options_t so = {
+        .method = BG_METHOD_NEWTON,
+        .tolerance = 0.0, /* the absolute, force-scaled test decides */
+        .max_iterations =
+            opt->max_iterations > 0 ? opt->max_iterations : DYNAMICS_DEFAULT_MAX_ITERATIONS,
+        .absolute_tolerance = tau * force_scale(s, scene, h, s->work),
+        .targets = s->targets,
+        .inertia = &inertia,
+        .start = s->start,
+        .reuse_factor = !opt->fresh_factor,
+    };
+    bg_status st = bg_solver_minimize(solver, &so, inner, err);
+    if (st != BG_OK)
+        return st;
+    const double *qs = inner->q;
+    bg_solver_potential(solver, qs, s->grad_next);
+    double work = 0.0;
+    for (size_t i = 0; i < s->ndof; i++) {
+        const double m = s->mass[i / (size_t)s->n];
+        if (variational) {
+            /* p_{k+1} = M v̄ − (h/2) ∇W(q*) on free coordinates. */
+            const double vbar = 2.0 * (qs[i] - s->q[i]) / h;
+            s->q_next[i] = 2.0 * qs[i] - s->q[i];
+            if (scene->constrained[i]) {
+                s->p_next[i] = m * vbar;
+                work += ((2.0 / h) * (m * vbar - s->p[i]) + s->grad_next[i]) * h * vbar;
+            } else {
+                s->p_next[i] = m * vbar - 0.5 * h * s->grad_next[i];
+            }
+        } else {
+            const double v = (qs[i] - s->q[i]) / h;
+            s->q_next[i] = qs[i];
+            s->p_next[i] = m * v;
+            if (scene->constrained[i])
+                work += ((m * v - s->p[i]) / h + s->grad_next[i]) * h * v;
+        }
+    }
+    *handle_work = work;
+    return BG_OK;
+}
+
 bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *opt,
                            bg_solve_result_t *res, bg_error_t *err)
 {
@@ -126,7 +288,7 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
                       : scene->dynamic.output_every > 0 ? scene->dynamic.output_every
                                                          : 1;
     const double decay = exp(-scene->dynamic.damping * h);
-    const double c = variational ? 4.0 / (h * h) : 1.0 / (h * h);
+    const int limit = variational && scene->dynamic.energy_limit;
 
     st = bg_solver_new(scene, BG_METHOD_NEWTON, &solver, err);
     if (st != BG_OK)
@@ -135,8 +297,9 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     s.nv = scene->mesh->nv;
     s.ndof = (size_t)s.nv * s.n;
     s.mass = bg_solver_mass(solver);
-    double **arrays[] = {&s.q,  &s.p,  &s.v,       &s.v_prev, &s.y,    &s.t0,
-                         &s.t1, &s.targets, &s.grad, &s.start, &s.work};
+    double **arrays[] = {&s.q,    &s.p,       &s.v,      &s.v_prev,    &s.y,
+                         &s.t0,   &s.t1,      &s.targets, &s.grad,     &s.start,
+                         &s.work, &s.candidate, &s.q_next, &s.p_next, &s.grad_next};
     for (size_t i = 0; i < sizeof arrays / sizeof *arrays; i++) {
         *arrays[i] = calloc(s.ndof + 1, sizeof(double));
         if (!*arrays[i]) {
@@ -164,46 +327,40 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
 
     res->converged = 1;
     res->stop_reason = "completed";
-    const bg_inertia_t inertia = {c, s.y};
+    /* The energy budget: the initial energy plus the handles' work. */
+    double budget = E0, scale = rec.kinetic + rec.potential + gravity_work(&s, scene, s.q);
     for (int k = 0; k < steps; k++) {
         const double t_step = bg_clock_now();
         const double t1 = (k + 1) * h;
         bg_scene_targets_at(scene, t1, s.t1);
-        /* The inertial prediction y (the minimiser without forces) starts
-         * the solve; the constrained coordinates sit at the midpoint of
-         * their prescribed path (variational) or at its end (Euler). */
-        for (size_t i = 0; i < s.ndof; i++) {
-            const double m = s.mass[i / (size_t)s.n];
-            s.y[i] = variational ? s.q[i] + 0.5 * h * s.p[i] / m : s.q[i] + h * s.v[i];
-            s.targets[i] = variational ? 0.5 * (s.t0[i] + s.t1[i]) : s.t1[i];
-            /* The starting guess extrapolates the velocity from the last two
-             * steps (a ≈ (v_k − v_{k−1})/h carries every force, elastic ones
-             * included, to second order); the first step knows only gravity:
-             * under a constant load the step lands on y + (h²/4)g (midpoint)
-             * or y + h²g (Euler). */
-            const double reach = variational ? 0.5 * h : h;
-            if (k > 0)
-                s.start[i] = s.q[i] + reach * (s.v[i] + 0.5 * reach / h * (s.v[i] - s.v_prev[i]) *
-                                                             (variational ? 1.0 : 2.0));
-            else
-                s.start[i] = s.y[i] + (variational ? 0.25 : 1.0) * h * h *
-                                          scene->gravity[i % (size_t)s.n];
-        }
-        const double tau = opt->tolerance > 0.0 ? opt->tolerance : scene->tolerance;
-        const bg_solve_options_t so = {
-            .method = BG_METHOD_NEWTON,
-            .tolerance = 0.0, /* the absolute, force-scaled test below decides */
-            .max_iterations =
-                opt->max_iterations > 0 ? opt->max_iterations : DYNAMICS_DEFAULT_MAX_ITERATIONS,
-            .absolute_tolerance = tau * force_scale(&s, scene, h, s.work),
-            .targets = s.targets,
-            .inertia = &inertia,
-            .start = s.start,
-        };
         bg_solve_result_t inner = BG_SOLVE_RESULT_INIT;
-        st = bg_solver_minimize(solver, &so, &inner, err);
+        double work = 0.0;
+        st = advance(&s, solver, scene, opt, variational, h, k, &inner, &work, err);
         if (st != BG_OK)
             goto out;
+        int limited = 0;
+        const double E_next = limit ? total_energy(&s, solver, s.q_next, s.p_next) : 0.0;
+        /* The mechanical energy the step ends with counts in the scale: a
+         * body starting at rest has none before its first step. */
+        const double mechanical = E_next + gravity_work(&s, scene, s.q_next);
+        if (limit && E_next > budget + work + DYNAMICS_ENERGY_SLACK * fmax(scale, mechanical)) {
+            /* The midpoint rule conserves a quadratic energy exactly but can
+             * pump energy into stiff nonlinear modes (Simo and Tarnow 1992):
+             * this step would have created energy, so it is redone with
+             * backward Euler from the same state, which dissipates. */
+            bg_solve_result_accumulate(res, &inner);
+            bg_solve_result_release(&inner);
+            st = advance(&s, solver, scene, opt, 0, h, k, &inner, &work, err);
+            if (st != BG_OK)
+                goto out;
+            limited = 1;
+            res->limited_steps++;
+        }
+        budget += work;
+        /* Energy the limiter removed stays removed: the budget ratchets
+         * down to the energy after a dissipative step. */
+        if (limited)
+            budget = fmin(budget, total_energy(&s, solver, s.q_next, s.p_next));
         const int settled = inner.converged || inner.roundoff_floor;
         if (!settled && res->converged) {
             res->converged = 0;
@@ -211,28 +368,10 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         }
         bg_solve_result_accumulate(res, &inner);
         memcpy(s.v_prev, s.v, s.ndof * sizeof *s.v);
-        const double *qs = inner.q;
-        if (variational) {
-            /* p_{k+1} = M v − (h/2) ∇W(q*) on free coordinates. */
-            bg_solver_potential(solver, qs, s.grad);
-            for (size_t i = 0; i < s.ndof; i++) {
-                const double m = s.mass[i / (size_t)s.n];
-                s.v[i] = 2.0 * (qs[i] - s.q[i]) / h;
-                s.p[i] = m * s.v[i] - (scene->constrained[i] ? 0.0 : 0.5 * h * s.grad[i]);
-                s.q[i] = 2.0 * qs[i] - s.q[i];
-            }
-        } else {
-            for (size_t i = 0; i < s.ndof; i++) {
-                s.v[i] = (qs[i] - s.q[i]) / h;
-                s.p[i] = s.mass[i / (size_t)s.n] * s.v[i];
-                s.q[i] = qs[i];
-            }
-        }
         for (size_t i = 0; i < s.ndof; i++) {
-            s.p[i] *= decay;
+            s.q[i] = scene->constrained[i] ? s.t1[i] : s.q_next[i];
+            s.p[i] = decay * s.p_next[i];
             s.v[i] = s.p[i] / s.mass[i / (size_t)s.n];
-            if (scene->constrained[i])
-                s.q[i] = s.t1[i];
         }
         memcpy(s.t0, s.t1, s.ndof * sizeof *s.t0);
         const double inner_gradient = inner.gradient_norm, inner_relative = inner.relative_gradient;
@@ -241,7 +380,9 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
 
         record(&s, solver, t1, &rec);
         rec.iterations = inner_iterations;
+        rec.limited = limited;
         rec.seconds = bg_clock_now() - t_step;
+        scale = fmax(scale, rec.kinetic + rec.potential + gravity_work(&s, scene, s.q));
         if (!isfinite(rec.total_energy)) {
             st = bg_error_set(err, BG_ERR_NUMERIC, "%s: the energy is not finite at step %d",
                               scene->path, k + 1);

@@ -21,6 +21,14 @@
 #include "bg_scene.h"
 #include "bg_static.h"
 
+/* Where each step's inner solve starts (see choose_start in bg_dynamics.c). */
+typedef enum bg_predictor {
+    BG_PREDICTOR_BEST = 0,    /* the candidate below with the lowest step energy */
+    BG_PREDICTOR_LAST,        /* q_k */
+    BG_PREDICTOR_INERTIAL,    /* y plus the constant-load displacement */
+    BG_PREDICTOR_EXTRAPOLATE, /* velocity extrapolated from the last two steps */
+} bg_predictor;
+
 typedef struct bg_dynamic_options {
     bg_method method;         /* BG_METHOD_VARIATIONAL or BG_METHOD_BACKWARD_EULER */
     double dt;                /* 0: the scene's */
@@ -30,6 +38,10 @@ typedef struct bg_dynamic_options {
                                  ‖Mg‖ + (2/h)‖p‖ + ‖∇W(q_k)‖ (0: the scene's solver.tolerance) */
     int max_iterations;       /* inner Newton cap per step (0: 200) */
     int output_every;         /* frames every this many steps (0: the scene's) */
+    bg_predictor predictor;   /* start of each step's solve (0: the best candidate) */
+    int fresh_factor;         /* 1: factor the Newton matrix at every inner iteration;
+                                 0: reuse it across iterations and steps with L-BFGS
+                                 corrections (bg_solve_options_t.reuse_factor) */
     bg_frame_fn frame;        /* may be NULL */
     void *frame_ctx;
     bg_progress_fn progress;  /* called after each step with the step's trace point */

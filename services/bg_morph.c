@@ -41,6 +41,7 @@ bg_status bg_morph_solve(const bg_scene_t *scene, const bg_morph_options_t *opt,
             .tolerance = opt->tolerance > 0.0 ? opt->tolerance : scene->tolerance,
             .max_iterations = opt->max_iterations > 0 ? opt->max_iterations : scene->max_iterations,
             .start = q,
+            .reuse_factor = opt->method == BG_METHOD_NEWTON && !opt->fresh_factor,
         };
         bg_solve_result_t inner = BG_SOLVE_RESULT_INIT;
         st = bg_solver_minimize(solver, &so, &inner, err);

@@ -16,6 +16,8 @@ typedef struct bg_morph_options {
     bg_method method;         /* BG_METHOD_NEWTON or BG_METHOD_LOCAL_GLOBAL */
     double tolerance;         /* per frame, relative gradient (0: the scene's) */
     int max_iterations;       /* per frame (0: the scene's) */
+    int fresh_factor;         /* newton: 1 factors at every iteration; 0 reuses the factor
+                                 across iterations and frames with L-BFGS corrections */
     bg_frame_fn frame;        /* every frame, may be NULL */
     void *frame_ctx;
     bg_progress_fn progress;  /* after every frame */

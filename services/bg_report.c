@@ -67,6 +67,7 @@ static cJSON *run_json(const bg_solve_result_t *r, int morph)
             cJSON_AddItemToArray(frames, t);
         }
     } else if (r->steps) {
+        cJSON_AddNumberToObject(o, "limited_steps", r->limited_steps);
         cJSON *steps = cJSON_AddArrayToObject(o, "steps");
         for (int i = 0; steps && i < r->step_count; i++) {
             const bg_step_record_t *st = &r->steps[i];
@@ -82,6 +83,7 @@ static cJSON *run_json(const bg_solve_result_t *r, int morph)
             cJSON_AddItemToObject(t, "angular_momentum",
                                   cJSON_CreateDoubleArray(st->angular_momentum, 3));
             cJSON_AddNumberToObject(t, "iterations", st->iterations);
+            cJSON_AddBoolToObject(t, "limited", st->limited);
             cJSON_AddNumberToObject(t, "seconds", st->seconds);
             cJSON_AddItemToArray(steps, t);
         }

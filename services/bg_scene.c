@@ -194,6 +194,15 @@ static bg_status read_integer(parser_t *p, const cJSON *item, const char *field,
     return BG_OK;
 }
 
+static bg_status read_bool(parser_t *p, const cJSON *item, const char *field, int *out)
+{
+    if (!cJSON_IsBool(item))
+        return fail(p, BG_ERR_INVALID, field, "expected true or false, got %s",
+                    json_type_name(item));
+    *out = cJSON_IsTrue(item);
+    return BG_OK;
+}
+
 static bg_status read_string(parser_t *p, const cJSON *item, const char *field, const char **out)
 {
     if (!cJSON_IsString(item) || !item->valuestring)
@@ -430,13 +439,9 @@ static bg_status parse_mesh(parser_t *p, const cJSON *item)
     if (st != BG_OK)
         return st;
     int planar = 0;
-    const cJSON *flat = member(item, "planar");
-    if (flat) {
-        if (!cJSON_IsBool(flat))
-            return fail(p, BG_ERR_INVALID, "mesh.planar", "expected true or false, got %s",
-                        json_type_name(flat));
-        planar = cJSON_IsTrue(flat);
-    }
+    if (member(item, "planar") &&
+        (st = read_bool(p, member(item, "planar"), "mesh.planar", &planar)) != BG_OK)
+        return st;
     return load_mesh_file(p, "mesh.file", path, planar);
 }
 
@@ -1339,8 +1344,9 @@ static bg_status parse_initial(parser_t *p, const cJSON *item)
 
 static bg_status parse_task(parser_t *p, const cJSON *item)
 {
-    static const char *const keys[] = {"kind",   "dt",     "steps", "output_every", "damping",
-                                       "target", "frames", "alpha", "beta",         NULL};
+    static const char *const keys[] = {"kind",   "dt",     "steps", "output_every",
+                                       "damping", "energy_limit", "target", "frames",
+                                       "alpha",  "beta",   NULL};
     bg_scene_t *s = p->scene;
     s->task = BG_TASK_STATIC;
     if (!item)
@@ -1409,7 +1415,8 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
                     "task kind '%s' is not supported (supported: static, dynamic, morph, "
                     "parameterize, surface-edit)",
                     kind);
-    static const char *const dynamic_keys[] = {"kind", "dt", "steps", "output_every", "damping",
+    static const char *const dynamic_keys[] = {"kind",    "dt",           "steps",
+                                               "output_every", "damping", "energy_limit",
                                                NULL};
     st = check_keys(p, item, "task", dynamic_keys);
     if (st != BG_OK)
@@ -1445,6 +1452,11 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
         if (!(d->damping >= 0.0))
             return fail(p, BG_ERR_INVALID, "task.damping", "must be >= 0, got %g", d->damping);
     }
+    d->energy_limit = 1;
+    if (member(item, "energy_limit") &&
+        (st = read_bool(p, member(item, "energy_limit"), "task.energy_limit", &d->energy_limit)) !=
+            BG_OK)
+        return st;
     return BG_OK;
 }
 

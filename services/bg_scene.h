@@ -47,12 +47,14 @@ typedef enum bg_task_kind {
     BG_TASK_SURFACE_EDIT = 4, /* spokes-and-rims ARAP on a triangle surface */
 } bg_task_kind;
 
-/* task {"kind": "dynamic", "dt", "steps", "output_every", "damping"}. */
+/* task {"kind": "dynamic", "dt", "steps", "output_every", "damping", "energy_limit"}. */
 typedef struct bg_dynamic_task {
     double dt;          /* time step h (s) */
     int steps;          /* number of steps */
     int output_every;   /* a frame every this many steps (default: steps/100, at least 1) */
     double damping;     /* momentum decays as exp(−damping·t), independent of h (1/s) */
+    int energy_limit;   /* variational: a step that would create energy is redone dissipatively
+                           (bg_dynamics.h); default true */
 } bg_dynamic_task_t;
 
 /* Lamé parameters of ψ = mu |F − R|² + (lambda/2)(tr Y − n)², and the mass

@@ -16,6 +16,7 @@ struct bg_sparse {
     cholmod_factor *L;
     cholmod_dense *B, *X, *Y, *E;
     int analyzed;
+    double factor_flops, factor_nonzeros; /* from the analysis */
     bg_sparse_timing_t timing;
 };
 
@@ -274,6 +275,8 @@ bg_status bg_sparse_factorize(bg_sparse_t *sys, double shift, bg_error_t *err)
                                                                         : BG_ERR_NUMERIC,
                                 "CHOLMOD analysis failed (status %d)", c->status);
         sys->analyzed = 1;
+        sys->factor_flops = c->fl;
+        sys->factor_nonzeros = c->lnz;
     }
     const double t0 = bg_clock_now();
     double beta[2] = {shift, 0.0};
@@ -325,4 +328,14 @@ void bg_sparse_multiply(const bg_sparse_t *sys, const double *x, double *y)
 bg_sparse_timing_t bg_sparse_timing(const bg_sparse_t *sys)
 {
     return sys->timing;
+}
+
+double bg_sparse_factor_flops(const bg_sparse_t *sys)
+{
+    return sys->factor_flops;
+}
+
+double bg_sparse_factor_nonzeros(const bg_sparse_t *sys)
+{
+    return sys->factor_nonzeros;
 }

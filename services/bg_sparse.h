@@ -70,4 +70,11 @@ void bg_sparse_multiply(const bg_sparse_t *sys, const double *x, double *y);
 
 bg_sparse_timing_t bg_sparse_timing(const bg_sparse_t *sys);
 
+/* Floating-point operations of one numeric factorization and the nonzeros
+ * of the factor, as CHOLMOD's analysis counts them (0 before the first
+ * factorization): a deterministic cost model for callers choosing between
+ * refactoring and reusing a factor. */
+double bg_sparse_factor_flops(const bg_sparse_t *sys);
+double bg_sparse_factor_nonzeros(const bg_sparse_t *sys);
+
 #endif

@@ -63,6 +63,12 @@ typedef struct bg_solve_options {
                                  without inverted elements: the result has none) */
     const double *reference;  /* nv*n reference positions for the error column, or NULL */
     const double *start;      /* nv*n start positions, or NULL for scene->initial */
+    int reuse_factor;         /* newton: keep the factored matrix across iterations and calls,
+                                 and take L-BFGS steps on it (a few curvature pairs), refactoring
+                                 only when a step shrinks the gradient by less than half. Pays
+                                 when successive problems are close: the steps of a time
+                                 integration, the frames of a morph. Linear momentum stays exact
+                                 (every direction keeps Σ m d = 0 for a free body). */
     bg_progress_fn progress;  /* called after every iteration (may be NULL) */
     void *progress_ctx;
 } bg_solve_options_t;
@@ -73,6 +79,7 @@ typedef enum bg_direction {
     BG_DIRECTION_EXACT,     /* exact Hessian */
     BG_DIRECTION_PROJECTED, /* twist eigenvalues clamped */
     BG_DIRECTION_SHIFTED,   /* projected plus a diagonal shift */
+    BG_DIRECTION_QUASI_NEWTON, /* L-BFGS on a reused factorization (reuse_factor) */
 } bg_direction;
 
 /* One time step of a dynamic run (bg_dynamics). Momenta are Σ_v p_v and
@@ -85,6 +92,7 @@ typedef struct bg_step_record {
     double linear_momentum[3];
     double angular_momentum[3];
     int iterations;           /* Newton iterations of the step */
+    int limited;              /* the energy limiter redid the step with backward Euler */
     double seconds;           /* wall time of the step */
 } bg_step_record_t;
 
@@ -123,6 +131,7 @@ typedef struct bg_solve_result {
     bg_map_quality_t map;     /* parameterize runs */
     bg_step_record_t *steps;  /* dynamic runs: steps[0] is the initial state; owned */
     int step_count;
+    int limited_steps;        /* dynamic runs: steps the energy limiter redid */
 } bg_solve_result_t;
 
 #define BG_SOLVE_RESULT_INIT {0}
