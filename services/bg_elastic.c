@@ -14,6 +14,7 @@ struct bg_elastic {
     double *quat;       /* ne*4 (3D): warm-start rotations */
     double *psi;        /* ne: energy density of the last eval */
     double total_volume;
+    double barrier;     /* 2D: weight of the area barrier (0: none) */
     bg_rotfit_stats_t stats;
 };
 
@@ -330,6 +331,111 @@ double bg_elastic_psi(int n, double mu, double lambda, const double *F, double *
     return material_point(n, mu, lambda, F, quat ? quat : q0, R, P, dPdF, project, &path);
 }
 
+void bg_sym4_project(double A[16])
+{
+    double a[4][4], V[4][4];
+    double scale = 0.0;
+    for (int i = 0; i < 4; i++)
+        for (int j = 0; j < 4; j++) {
+            a[i][j] = 0.5 * (A[4 * i + j] + A[4 * j + i]);
+            V[i][j] = i == j ? 1.0 : 0.0;
+            scale += a[i][j] * a[i][j];
+        }
+    for (int sweep = 0; sweep < 50; sweep++) {
+        double off = 0.0;
+        for (int i = 0; i < 4; i++)
+            for (int j = i + 1; j < 4; j++)
+                off += a[i][j] * a[i][j];
+        if (!(off > 1e-32 * scale))
+            break;
+        for (int p = 0; p < 4; p++)
+            for (int q = p + 1; q < 4; q++) {
+                if (a[p][q] == 0.0)
+                    continue;
+                const double theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+                const double t = (theta >= 0.0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1.0));
+                const double c = 1.0 / sqrt(t * t + 1.0), sn = t * c;
+                for (int k = 0; k < 4; k++) {
+                    const double kp = a[k][p], kq = a[k][q];
+                    a[k][p] = c * kp - sn * kq;
+                    a[k][q] = sn * kp + c * kq;
+                }
+                for (int k = 0; k < 4; k++) {
+                    const double pk = a[p][k], qk = a[q][k];
+                    a[p][k] = c * pk - sn * qk;
+                    a[q][k] = sn * pk + c * qk;
+                }
+                for (int k = 0; k < 4; k++) {
+                    const double kp = V[k][p], kq = V[k][q];
+                    V[k][p] = c * kp - sn * kq;
+                    V[k][q] = sn * kp + c * kq;
+                }
+            }
+    }
+    for (int i = 0; i < 4; i++)
+        for (int j = 0; j < 4; j++) {
+            double sum = 0.0;
+            for (int k = 0; k < 4; k++)
+                sum += V[i][k] * fmax(a[k][k], 0.0) * V[j][k];
+            A[4 * i + j] = sum;
+        }
+}
+
+/*
+ * The 2D area barrier b(J) = −(J − k)² log(J/k) for 0 < J < k, 0 for J ≥ k
+ * (k = BG_ELASTIC_BARRIER_KNEE, J = det F): C² at the knee, +∞ as a
+ * triangle degenerates. Returns b and its first two derivatives in J.
+ */
+static double barrier_value(double J, double *d1, double *d2)
+{
+    const double k = BG_ELASTIC_BARRIER_KNEE;
+    *d1 = *d2 = 0.0;
+    if (!(J > 0.0))
+        return INFINITY;
+    if (J >= k)
+        return 0.0;
+    const double d = J - k, l = log(J / k);
+    *d1 = -2.0 * d * l - d * d / J;
+    *d2 = -2.0 * l - 4.0 * d / J + d * d / (J * J);
+    return -d * d * l;
+}
+
+void bg_elastic_set_barrier(bg_elastic_t *model, double weight)
+{
+    model->barrier = model->n == 2 && weight > 0.0 ? weight : 0.0;
+}
+
+/* Adds the weighted barrier to ψ, P and ∂P/∂F (2D, vec order F00 F01 F10
+ * F11). ∂J/∂F = cof F = (F11, −F10, −F01, F00); ∂²J/∂F² is the constant
+ * K with K[0][3] = K[3][0] = 1, K[1][2] = K[2][1] = −1. The Hessian
+ * w (b'' c cᵀ + b' K) is indefinite (K has eigenvalues ±1); projecting
+ * clamps its negative eigenvalues (it is projected on its own: a sum of
+ * PSD parts is PSD). */
+static double barrier_point(double w, const double *F, double *P, double *H, int project)
+{
+    const double J = F[0] * F[3] - F[1] * F[2];
+    double d1, d2;
+    const double b = barrier_value(J, &d1, &d2);
+    if (!(J < BG_ELASTIC_BARRIER_KNEE))
+        return b;
+    const double c[4] = {F[3], -F[2], -F[1], F[0]};
+    if (P)
+        for (int i = 0; i < 4; i++)
+            P[i] += w * d1 * c[i];
+    if (H) {
+        double B[16];
+        for (int r = 0; r < 4; r++)
+            for (int q = 0; q < 4; q++)
+                B[4 * r + q] = w * d2 * c[r] * c[q];
+        B[3] += w * d1, B[12] += w * d1, B[6] -= w * d1, B[9] -= w * d1;
+        if (project)
+            bg_sym4_project(B);
+        for (int i = 0; i < 16; i++)
+            H[i] += B[i];
+    }
+    return w * b;
+}
+
 /* F = Σ_j (q_j − q_0) ⊗ (row j−1 of D_m⁻¹). */
 static void deformation_gradient(int n, const int32_t *restrict el, const double *restrict q,
                                  const double *restrict Di, double *restrict F)
@@ -529,8 +635,10 @@ double bg_elastic_eval(bg_elastic_t *md, const double *restrict q, double *restr
         double F[9], R[9], P[9];
         deformation_gradient(n, el, q, Di, F);
         int path;
-        const double psi = material_point(n, md->mu, md->lambda, F, zero_quat, R,
-                                          grad ? P : NULL, NULL, 0, &path);
+        double psi = material_point(n, md->mu, md->lambda, F, zero_quat, R,
+                                    grad ? P : NULL, NULL, 0, &path);
+        if (md->barrier > 0.0)
+            psi += barrier_point(md->barrier, F, grad ? P : NULL, NULL, 0);
         bg_rotfit_stats_count(&md->stats, (bg_rotfit_path)path);
         md->psi[e] = psi;
         energy += md->volume[e] * psi;
@@ -630,6 +738,8 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
         deformation_gradient(n, el, q, Di, F);
         int path;
         material_point(n, md->mu, md->lambda, F, quat, R, NULL, H, project, &path);
+        if (md->barrier > 0.0)
+            barrier_point(md->barrier, F, NULL, H, project);
         barycentric_gradients(n, Di, g);
         /* HB[(c,b)][(j,d)] = Σ_e' H[(c,b),(d,e')] g[j][e'], then
          * K[(i,c),(j,d)] = V Σ_b g[i][b] HB[(c,b)][(j,d)]. */

@@ -100,6 +100,23 @@ void bg_elastic_reset_stats(bg_elastic_t *model);
 void bg_elastic_forget_rotations(bg_elastic_t *model);
 
 /*
+ * 2D models only (a no-op in 3D): adds weight·V·b(det F) per element, b
+ * the area barrier −(J − k)² log(J/k) below the knee k =
+ * BG_ELASTIC_BARRIER_KNEE and 0 above it. It leaves every element with at
+ * least k of its rest area untouched and makes a degenerate or flipped one
+ * cost +∞, so a minimiser that starts flip-free converges to a flip-free
+ * stationary point instead of stalling against the boundary of the
+ * flip-free set (parameterization: ARAP's unconstrained optimum can fold).
+ * weight 0 removes it.
+ */
+#define BG_ELASTIC_BARRIER_KNEE 0.1
+void bg_elastic_set_barrier(bg_elastic_t *model, double weight);
+
+/* Projects a symmetric 4×4 matrix (row-major, in place) onto the PSD cone:
+ * negative eigenvalues clamped to zero (cyclic Jacobi). */
+void bg_sym4_project(double A[16]);
+
+/*
  * Single-element kernel, for tests and other services: ψ(F) and, when the
  * pointers are non-NULL, P (n*n) and ∂P/∂F ((n*n)², row-major over
  * row-major vec(F)), PSD-projected when `project`. quat is the 3D warm

@@ -1346,7 +1346,7 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
 {
     static const char *const keys[] = {"kind",   "dt",     "steps", "output_every",
                                        "damping", "energy_limit", "target", "frames",
-                                       "alpha",  "beta",   NULL};
+                                       "alpha",  "beta",   "barrier", NULL};
     bg_scene_t *s = p->scene;
     s->task = BG_TASK_STATIC;
     if (!item)
@@ -1372,12 +1372,21 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
         return st;
     }
     if (strcmp(kind, "parameterize") == 0) {
-        static const char *const param_keys[] = {"kind", "alpha", "beta", NULL};
+        static const char *const param_keys[] = {"kind", "alpha", "beta", "barrier", NULL};
         st = check_keys(p, item, "task", param_keys);
         if (st != BG_OK)
             return st;
         s->task = BG_TASK_PARAMETERIZE;
         s->alpha = s->beta = 1.0;
+        s->barrier = 1.0;
+        if (member(item, "barrier")) {
+            st = read_number(p, member(item, "barrier"), "task.barrier", &s->barrier);
+            if (st != BG_OK)
+                return st;
+            if (!(s->barrier >= 0.0))
+                return fail(p, BG_ERR_INVALID, "task.barrier", "must be >= 0, got %g",
+                            s->barrier);
+        }
         if (member(item, "alpha"))
             st = read_number(p, member(item, "alpha"), "task.alpha", &s->alpha);
         if (st == BG_OK && member(item, "beta"))

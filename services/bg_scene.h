@@ -128,6 +128,8 @@ typedef struct bg_scene {
     bg_mesh_t *surface;
     double *rest_edges;
     double alpha, beta;
+    double barrier;             /* parameterize: area-barrier weight relative to μ (default 1,
+                                   0: none; see bg_elastic_set_barrier) */
     bg_method method;           /* solver.method, default newton */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
     int max_iterations;         /* solver.max_iterations, default 200 */

@@ -289,6 +289,8 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
             : bg_elastic_new(p->mesh, scene->material.mu, scene->material.lambda, &p->model, err);
     if (st != BG_OK)
         return st;
+    if (scene->task == BG_TASK_PARAMETERIZE)
+        bg_elastic_set_barrier(p->model, scene->barrier * scene->material.mu);
     p->force_floor = STATIC_ABSOLUTE_FLOOR *
                      (modulus * bg_elastic_total_volume(p->model) / fmax(sqrt(diagonal), 1e-300) +
                       sqrt(weight));

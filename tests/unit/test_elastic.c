@@ -267,66 +267,156 @@ static void rigid_motion_zero(void **state)
     assert_null(md);
 }
 
-/* The mesh-level gradient and the assembled Hessian against central
- * differences of the mesh energy at a random deformed state; a dense
- * scatter map (every local entry to its dense position) makes the check
- * independent of the sparse module. */
+/* The mesh-level gradient and the assembled Hessian of md at q against
+ * central differences of the mesh energy; a dense scatter map (every local
+ * entry to its dense position) makes the check independent of the sparse
+ * module. */
+static void check_mesh_derivatives(const bg_mesh_t *m, bg_elastic_t *md, double *q)
+{
+    const int n = bg_elastic_dim(md);
+    const int N = n * m->nv, loc = (n + 1) * n, T = BG_ELASTIC_TRI_SIZE(loc);
+    double *g = malloc(sizeof(double) * N);
+    double *gp = malloc(sizeof(double) * N), *gm = malloc(sizeof(double) * N);
+    double *H = calloc((size_t)N * N, sizeof(double));
+    int32_t *scatter = malloc(sizeof(int32_t) * T * m->ne);
+    for (int32_t e = 0; e < m->ne; e++)
+        for (int a = 0; a < loc; a++)
+            for (int b = a; b < loc; b++) {
+                int ga = m->elements[e * (n + 1) + a / n] * n + a % n;
+                int gb = m->elements[e * (n + 1) + b / n] * n + b % n;
+                /* upper-triangle entries land in row-major dense (min, max) */
+                int lo = ga < gb ? ga : gb, hi = ga < gb ? gb : ga;
+                scatter[(size_t)e * T + BG_ELASTIC_TRI_INDEX(loc, a, b)] = lo * N + hi;
+            }
+    bg_elastic_eval(md, q, g);
+    bg_elastic_assemble_hessian(md, q, 0, 1.0, scatter, H);
+    for (int j = 0; j < N; j++) {
+        const double qj = q[j];
+        q[j] = qj + FD_STEP;
+        double Ep = bg_elastic_eval(md, q, gp);
+        q[j] = qj - FD_STEP;
+        double Em = bg_elastic_eval(md, q, gm);
+        q[j] = qj;
+        assert_true(fabs((Ep - Em) / (2 * FD_STEP) - g[j]) <= 1e-6 * (1 + fabs(g[j])));
+        for (int i = 0; i < N; i++) {
+            double fd = (gp[i] - gm[i]) / (2 * FD_STEP);
+            int lo = i < j ? i : j, hi = i < j ? j : i;
+            double h = H[lo * N + hi];
+            assert_true(fabs(fd - h) <= 1e-5 * (1 + fabs(h)));
+        }
+    }
+    free(g);
+    free(gp);
+    free(gm);
+    free(H);
+    free(scatter);
+}
+
+static bg_mesh_t *small_rectangle(void)
+{
+    bg_mesh_t *m = NULL;
+    const int32_t cells[2] = {3, 2};
+    const double origin[2] = {0, 0}, size[2] = {1.2, 0.9};
+    assert_int_equal(bg_mesh_generate_rectangle(cells, origin, size, &m, NULL), BG_OK);
+    return m;
+}
+
+/* At a random deformed state, 2D and 3D. */
 static void mesh_gradient_and_hessian(void **state)
 {
     for (int n = 2; n <= 3; n++) {
-        bg_mesh_t *m = NULL;
-        if (n == 3) {
-            m = small_box();
-        } else {
-            const int32_t cells[2] = {3, 2};
-            const double origin[2] = {0, 0}, size[2] = {1.2, 0.9};
-            assert_int_equal(bg_mesh_generate_rectangle(cells, origin, size, &m, NULL), BG_OK);
-        }
+        bg_mesh_t *m = n == 3 ? small_box() : small_rectangle();
         bg_elastic_t *md = NULL;
         assert_int_equal(bg_elastic_new(m, 0.7, 1.9, &md, NULL), BG_OK);
-        const int N = n * m->nv, loc = (n + 1) * n, T = BG_ELASTIC_TRI_SIZE(loc);
-        double *q = malloc(sizeof(double) * N), *g = malloc(sizeof(double) * N);
-        double *gp = malloc(sizeof(double) * N), *gm = malloc(sizeof(double) * N);
-        double *H = calloc((size_t)N * N, sizeof(double));
-        int32_t *scatter = malloc(sizeof(int32_t) * T * m->ne);
+        const int N = n * m->nv;
+        double *q = malloc(sizeof(double) * N);
         uint64_t rng = 99 + n;
         for (int i = 0; i < N; i++)
             q[i] = m->x[i] + 0.08 * (2 * test_uniform(&rng) - 1);
-        for (int32_t e = 0; e < m->ne; e++)
-            for (int a = 0; a < loc; a++)
-                for (int b = a; b < loc; b++) {
-                    int ga = m->elements[e * (n + 1) + a / n] * n + a % n;
-                    int gb = m->elements[e * (n + 1) + b / n] * n + b % n;
-                    /* upper-triangle entries land in row-major dense (min, max) */
-                    int lo = ga < gb ? ga : gb, hi = ga < gb ? gb : ga;
-                    scatter[(size_t)e * T + BG_ELASTIC_TRI_INDEX(loc, a, b)] = lo * N + hi;
-                }
-        bg_elastic_eval(md, q, g);
-        bg_elastic_assemble_hessian(md, q, 0, 1.0, scatter, H);
-        for (int j = 0; j < N; j++) {
-            const double qj = q[j];
-            q[j] = qj + FD_STEP;
-            double Ep = bg_elastic_eval(md, q, gp);
-            q[j] = qj - FD_STEP;
-            double Em = bg_elastic_eval(md, q, gm);
-            q[j] = qj;
-            assert_true(fabs((Ep - Em) / (2 * FD_STEP) - g[j]) <= 1e-6 * (1 + fabs(g[j])));
-            for (int i = 0; i < N; i++) {
-                double fd = (gp[i] - gm[i]) / (2 * FD_STEP);
-                int lo = i < j ? i : j, hi = i < j ? j : i;
-                double h = H[lo * N + hi];
-                assert_true(fabs(fd - h) <= 1e-5 * (1 + fabs(h)));
-            }
-        }
+        check_mesh_derivatives(m, md, q);
         free(q);
-        free(g);
-        free(gp);
-        free(gm);
-        free(H);
-        free(scatter);
         bg_elastic_destroy(&md);
         bg_mesh_destroy(&m);
     }
+}
+
+/* The 2D area barrier: with the rectangle squashed to 4 % of its height
+ * (every triangle below the knee, J ≈ 0.04), gradient and Hessian match
+ * finite differences; its projected Hessian blocks are PSD; a flipped
+ * triangle costs +∞; above the knee the barrier adds nothing. */
+static void area_barrier(void **state)
+{
+    bg_mesh_t *m = small_rectangle();
+    bg_elastic_t *md = NULL, *plain = NULL;
+    assert_int_equal(bg_elastic_new(m, 0.5, 0.0, &md, NULL), BG_OK);
+    assert_int_equal(bg_elastic_new(m, 0.5, 0.0, &plain, NULL), BG_OK);
+    bg_elastic_set_barrier(md, 2.0);
+    const int N = 2 * m->nv;
+    double *q = malloc(sizeof(double) * N);
+    uint64_t rng = 7;
+    for (int v = 0; v < m->nv; v++) {
+        q[2 * v] = m->x[2 * v] + 0.01 * (2 * test_uniform(&rng) - 1);
+        q[2 * v + 1] = 0.04 * m->x[2 * v + 1] + 0.0005 * (2 * test_uniform(&rng) - 1);
+    }
+    const double squashed = bg_elastic_eval(md, q, NULL), without = bg_elastic_eval(plain, q, NULL);
+    assert_true(squashed > without);
+    check_mesh_derivatives(m, md, q);
+    /* Above the knee (a mild stretch): identical energies. */
+    for (int i = 0; i < N; i++)
+        q[i] = 1.1 * m->x[i];
+    assert_true(bg_elastic_eval(md, q, NULL) == bg_elastic_eval(plain, q, NULL));
+    /* Mirror every y: all triangles flipped. */
+    for (int v = 0; v < m->nv; v++)
+        q[2 * v + 1] = -m->x[2 * v + 1];
+    assert_true(bg_elastic_eval(md, q, NULL) == INFINITY);
+    assert_true(isfinite(bg_elastic_eval(plain, q, NULL)));
+    /* The projection: a random symmetric matrix becomes PSD with the same
+     * eigenvectors; a PSD one stays as it was. */
+    for (int trial = 0; trial < 50; trial++) {
+        double A[16], P[16], S[16];
+        for (int i = 0; i < 4; i++)
+            for (int j = i; j < 4; j++)
+                A[4 * i + j] = A[4 * j + i] = 2 * test_uniform(&rng) - 1;
+        memcpy(P, A, sizeof A);
+        bg_sym4_project(P);
+        /* P − A is PSD-negative part removed: P is PSD (xᵀPx ≥ 0 on random
+         * x) and P = A on A's nonnegative eigenspace, so P·P ≈ P·A. */
+        for (int t = 0; t < 20; t++) {
+            double x[4], Px[4] = {0, 0, 0, 0}, quad = 0.0;
+            for (int i = 0; i < 4; i++)
+                x[i] = 2 * test_uniform(&rng) - 1;
+            for (int i = 0; i < 4; i++)
+                for (int j = 0; j < 4; j++)
+                    Px[i] += P[4 * i + j] * x[j];
+            for (int i = 0; i < 4; i++)
+                quad += x[i] * Px[i];
+            assert_true(quad >= -1e-12);
+        }
+        for (int i = 0; i < 4; i++)
+            for (int j = 0; j < 4; j++) {
+                double pp = 0.0, pa = 0.0;
+                for (int k = 0; k < 4; k++) {
+                    pp += P[4 * i + k] * P[4 * k + j];
+                    pa += P[4 * i + k] * A[4 * k + j];
+                }
+                assert_true(fabs(pp - pa) <= 1e-12);
+            }
+        /* S = PᵀP is PSD: unchanged by the projection. */
+        for (int i = 0; i < 4; i++)
+            for (int j = 0; j < 4; j++) {
+                S[4 * i + j] = 0.0;
+                for (int k = 0; k < 4; k++)
+                    S[4 * i + j] += P[4 * k + i] * P[4 * k + j];
+            }
+        memcpy(P, S, sizeof S);
+        bg_sym4_project(P);
+        for (int i = 0; i < 16; i++)
+            assert_true(fabs(P[i] - S[i]) <= 1e-12 * (1 + fabs(S[i])));
+    }
+    free(q);
+    bg_elastic_destroy(&md);
+    bg_elastic_destroy(&plain);
+    bg_mesh_destroy(&m);
 }
 
 int main(void)
@@ -338,6 +428,7 @@ int main(void)
         cmocka_unit_test(hessian_3d),
         cmocka_unit_test(hessian_eigenvalues_diag),
         cmocka_unit_test(projected_hessian_psd),
+        cmocka_unit_test(area_barrier),
         cmocka_unit_test(uniform_scale_energy),
         cmocka_unit_test(rotation_fit_paths),
         cmocka_unit_test(rigid_motion_zero),
