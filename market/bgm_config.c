@@ -11,6 +11,7 @@ const char *const bgm_service_names[BGM_SERVICE_TYPES] = {"rotation-fit", "spars
 const char *const bgm_mechanism_names[BGM_MAX_MECHANISMS] = {"central", "catallactic",
                                                              "baseline"};
 static const char *const topology_names[] = {"star", "cluster", "random"};
+const char *const bgm_resource_market_names[2] = {"exchange", "call"};
 
 typedef enum ftype { F_INT, F_LONG, F_NUM, F_STR, F_U64 } ftype;
 
@@ -158,7 +159,8 @@ static void set_defaults(bgm_config_t *c)
     c->central.k = 0.5;
     c->central.exact_limit = 400;
     c->central.greedy_budget = 1000000;
-    c->central.optimum_limit = 3000;
+    c->central.optimum_limit = 250000;
+    c->central.resource_market = BGM_RM_EXCHANGE;
     c->catallactic.hops = 2;
     c->catallactic.discovery_timeout = 0.5;
     c->catallactic.reply_timeout = 0.5;
@@ -447,14 +449,20 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
             return st;
     }
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "central"))) {
+        char rm[16] = "exchange";
         field_t f[] = {{"period", F_NUM, &c->central.period, 1e-3, 1e6, 0, 0},
                        {"k", F_NUM, &c->central.k, 0, 1, 0, 0},
                        {"exact_limit", F_INT, &c->central.exact_limit, 0, 1e6, 0, 0},
                        {"greedy_budget", F_LONG, &c->central.greedy_budget, 0, 1e12, 0, 0},
                        {"optimum_limit", F_INT, &c->central.optimum_limit, 0, 1e7, 0, 0},
+                       {"resource_market", F_STR, rm, 0, 0, 0, sizeof rm},
                        FIELD_END};
         if ((st = parse_fields(o, "central", f, NULL, err)))
             return st;
+        c->central.resource_market = name_index(rm, bgm_resource_market_names, 2);
+        if (c->central.resource_market < 0)
+            return bg_error_set(err, BG_ERR_INVALID,
+                                "field 'central.resource_market' must be exchange or call");
     }
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "catallactic"))) {
         field_t f[] = {{"hops", F_INT, &c->catallactic.hops, 1, 8, 0, 0},

@@ -33,6 +33,10 @@ typedef enum bgm_mechanism {
     BGM_MECH_BASELINE = 2
 } bgm_mechanism;
 
+/* How the central market clears the resource layer: the combinatorial
+ * exchange for whole bundles, or a call market per resource type. */
+typedef enum bgm_resource_market { BGM_RM_EXCHANGE = 0, BGM_RM_CALL = 1 } bgm_resource_market;
+
 typedef enum bgm_topology {
     BGM_TOPO_STAR = 0,
     BGM_TOPO_CLUSTER = 1,
@@ -41,6 +45,7 @@ typedef enum bgm_topology {
 
 extern const char *const bgm_service_names[BGM_SERVICE_TYPES];
 extern const char *const bgm_mechanism_names[BGM_MAX_MECHANISMS];
+extern const char *const bgm_resource_market_names[2];
 
 typedef struct bgm_dynamics {
     char name[BGM_NAME_MAX];
@@ -125,7 +130,8 @@ typedef struct bgm_config {
         double k;
         int exact_limit;
         long greedy_budget;
-        int optimum_limit; /* pairs; offline optimum above it is null */
+        int optimum_limit;   /* pairs of the offline optimum's program; null above */
+        int resource_market; /* bgm_resource_market */
     } central;
 
     struct {

@@ -433,6 +433,8 @@ static bg_status write_summary(const bgm_config_t *cfg, const sim_opts_t *o, con
     }
     cJSON_AddNumberToObject(root, "replications", nr);
     cJSON_AddStringToObject(root, "engine", o->inprocess ? "inprocess" : "simgrid");
+    cJSON_AddStringToObject(root, "resource_market",
+                            bgm_resource_market_names[cfg->central.resource_market]);
     cJSON_AddStringToObject(root, "confidence", "95% Student-t over replications");
     cJSON *arr = cJSON_AddArrayToObject(root, "results");
     for (int s = 0; s < ns; s++) {
@@ -457,11 +459,11 @@ static bg_status write_summary(const bgm_config_t *cfg, const sim_opts_t *o, con
                 ex += base[(size_t)r * BGM_M_COUNT + BGM_M_COMBEX_EXACT];
                 gr += base[(size_t)r * BGM_M_COUNT + BGM_M_COMBEX_GREEDY];
             }
-            cJSON_AddStringToObject(e, "winner_determination",
-                                    cfg->mechanisms[m] != BGM_MECH_CENTRAL ? "none"
-                                    : gr == 0                             ? "exact"
-                                    : ex == 0                             ? "greedy"
-                                                                          : "exact+greedy");
+            const char *wd = cfg->mechanisms[m] != BGM_MECH_CENTRAL || ex + gr == 0 ? "none"
+                             : gr == 0                                              ? "exact"
+                             : ex == 0                                              ? "greedy"
+                                       : "exact+greedy";
+            cJSON_AddStringToObject(e, "winner_determination", wd);
             cJSON *mets = cJSON_AddObjectToObject(e, "metrics");
             for (int k = 0; k < BGM_M_COUNT; k++) {
                 bgm_summary_t sm = bgm_summarize(base + k, (size_t)nr, BGM_M_COUNT);

@@ -18,10 +18,13 @@
 #define BGM_HOST_NAME_MAX 32
 #define BGM_MARKET_STACK_BYTES (1u << 20)
 /* Envelopes are allocated in chunks that never move: SimGrid holds a
- * pointer to each one until it is delivered. */
-#define BGM_ENV_CHUNK_BITS 12
+ * pointer to each one until it is delivered. A chunk is written whole
+ * when it is threaded onto the free list, so it is resident at once:
+ * 512 envelopes (120 KiB) keep that close to what is in flight (about
+ * 1,700 messages at 2000 agents) where 4096 made it a fixed 950 KiB. */
+#define BGM_ENV_CHUNK_BITS 9
 #define BGM_ENV_CHUNK ((uint32_t)1 << BGM_ENV_CHUNK_BITS)
-#define BGM_ENV_MAX_CHUNKS 4096
+#define BGM_ENV_MAX_CHUNKS ((uint32_t)1 << 15)
 #define BGM_ENV_NONE UINT32_MAX
 
 /* A message in flight: the copy SimGrid carries and the communication
@@ -68,8 +71,8 @@ typedef struct outbox {
 typedef struct driver {
     outbox_t out;
     outbox_t spare; /* an emptied outbox whose arrays are reused */
-    envelope_t *env_chunk[BGM_ENV_MAX_CHUNKS];
-    uint32_t nenv_chunks;
+    envelope_t **env_chunk; /* grows; the chunks themselves never move */
+    uint32_t nenv_chunks, env_chunk_cap;
     uint32_t env_free; /* head of the free list */
     pending_t sent_by_controller;
     bgm_world_t *w;
@@ -122,6 +125,14 @@ static uint32_t env_alloc(driver_t *d)
     if (d->env_free == BGM_ENV_NONE) {
         if (d->nenv_chunks == BGM_ENV_MAX_CHUNKS)
             return BGM_ENV_NONE;
+        if (d->nenv_chunks == d->env_chunk_cap) {
+            uint32_t cap = d->env_chunk_cap ? 2 * d->env_chunk_cap : 16;
+            envelope_t **p = realloc(d->env_chunk, cap * sizeof *p);
+            if (!p)
+                return BGM_ENV_NONE;
+            d->env_chunk = p;
+            d->env_chunk_cap = cap;
+        }
         envelope_t *c = malloc(BGM_ENV_CHUNK * sizeof *c);
         if (!c)
             return BGM_ENV_NONE;
@@ -427,6 +438,7 @@ out:
      * with the engine at exit; the chunks go only after the run. */
     for (uint32_t i = 0; i < d.nenv_chunks; i++)
         free(d.env_chunk[i]);
+    free(d.env_chunk);
     g_driver = NULL;
     return st;
 }

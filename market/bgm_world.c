@@ -7,6 +7,7 @@
 #include "bgm_callmarket.h"
 #include "bgm_catallactic.h"
 #include "bgm_combex.h"
+#include "bgm_optimum.h"
 #include "bgm_posted.h"
 #include "bgm_rng.h"
 #include "bgm_strategy.h"
@@ -27,9 +28,6 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 /* Hard caps (growable tables never exceed these). */
 #define BGM_MAX_AGENTS 200000
 #define BGM_DEMAND_STREAM (1ULL << 40)
-/* Offline optimum: accepted relative gap and branch-and-bound budget. */
-#define BGM_OPTIMUM_GAP 1e-3
-#define BGM_OPTIMUM_NODES 2000
 #define BGM_MAX_REQS (1u << 22)
 #define BGM_MAX_CONTRACTS (1u << 23)
 #define BGM_MAX_NEIGHBOURS 64
@@ -53,40 +51,47 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 
 /* Message types. a/b/c meanings are given per type. */
 enum {
-    M_BID = 1,   /* C->A service bid: good, price=valuation/unit, a=work, b=deadline */
-    M_ASK,       /* B->A: good, price=reservation/unit, a=slots (registration/refresh) */
-    M_FREE,      /* B->A: one slot free again */
-    M_MATCH,     /* A->B: req, good, price, a=work, b=deadline, c=buyer valuation; origin=buyer */
-    M_RBID,      /* B->A resource bid: req, a=cores, b=memory, c=flops, price=limit total */
-    M_RASK,      /* R->A registration: a=cores, b=memory, c=speed, price=cost rate/core */
-    M_RFREE,     /* R->A: a=cores, b=memory freed */
-    M_RAWARD,    /* A->R: req, price=rate, origin=buyer, a=cores, b=memory, c=flops; cand[0]=seller-limit */
-    M_RFAIL,     /* A->B or R->B: resource request failed */
-    M_RCONFIRM,  /* R->B: req, price=rate, a=start, b=end, c=seller limit rate */
-    M_CONFIRM,   /* B->C: req, price/unit, a=start, b=end */
-    M_CANCEL,    /* B->C: the agreed service could not get resources */
-    M_CFP,       /* call for proposals: req, good, hops, origin, a=work|cores, b=memory, c=flops */
-    M_PROPOSE,   /* seller->buyer: price=opening, a=speed */
-    M_OFFER,     /* either way: price */
-    M_ACCEPT,    /* either way: price agreed */
-    M_REJECT,    /* either way */
-    M_GENES,     /* learning: cand_price[0..4]=genes, price=fitness, a=1 request, 0 reply */
-    M_QUERY,     /* baseline: buyer->A: good (or bundle), price=limit */
-    M_LIST,      /* A->buyer: candidates */
-    M_ORDER,     /* buyer->seller at posted price: price, a=work|cores, b=memory, c=flops */
-    M_AVAIL      /* baseline seller->directory: a=free slots|cores, b=free memory */
+    M_BID = 1,  /* C->A service bid: good, price=valuation/unit, a=work, b=deadline */
+    M_ASK,      /* B->A: good, price=reservation/unit, a=slots (registration/refresh) */
+    M_FREE,     /* B->A: one slot free again */
+    M_MATCH,    /* A->B: req, good, price, a=work, b=deadline, c=buyer valuation; origin=buyer */
+    M_RBID,     /* B->A resource bid: req, a=cores, b=memory, c=flops, price=limit total */
+    M_RASK,     /* R->A registration: a=cores, b=memory, c=speed, price=cost rate/core */
+    M_RFREE,    /* R->A: a=cores, b=memory freed */
+    M_RAWARD,   /* A->R: req, price=rate, origin=buyer, a=cores, b=memory, c=flops;
+                   cand[0]=seller-limit */
+    M_RFAIL,    /* A->B or R->B: resource request failed */
+    M_RCONFIRM, /* R->B: req, price=rate, a=start, b=end, c=seller limit rate; for a part
+                 * (good cores|memory): cand_price[0..2]=quantity, buyer limit and
+                 * seller cost per unit-second, hops=parts of the bundle */
+    M_CONFIRM,  /* B->C: req, price/unit, a=start, b=end */
+    M_CANCEL,   /* B->C: the agreed service could not get resources */
+    M_CFP,      /* call for proposals: req, good, hops, origin, a=work|cores, b=memory, c=flops */
+    M_PROPOSE,  /* seller->buyer: price=opening, a=speed */
+    M_OFFER,    /* either way: price */
+    M_ACCEPT,   /* either way: price agreed */
+    M_REJECT,   /* either way */
+    M_GENES,    /* learning: cand_price[0..4]=genes, price=fitness, a=1 request, 0 reply */
+    M_QUERY,    /* baseline: buyer->A: good (or bundle), price=limit */
+    M_LIST,     /* A->buyer: candidates */
+    M_ORDER,    /* buyer->seller at posted price: price, a=work|cores, b=memory, c=flops */
+    M_AVAIL,    /* baseline seller->directory: a=free slots|cores, b=free memory */
+    M_RPART     /* A->R, call markets: req, good=cores|memory, a=quantity, b=duration,
+                 * price=rate per unit-second, c=buyer limit per unit-second,
+                 * hops=parts of the bundle, origin=buyer */
 };
 
 /* Timer kinds. */
 enum {
-    T_ARRIVAL = 1, /* complex agent: next job */
-    T_CLEAR,       /* market: clearing period */
-    T_REQ,         /* request phase timeout: arg = req | tseq << 32 */
-    T_DEADLINE,    /* request deadline: arg = req */
-    T_RETRY,       /* retry acquisition: arg = req | attempt << 32 */
-    T_RELEASE,     /* seller capacity release at contract end: arg = req */
-    T_LEARN,       /* catallactic learning meeting */
-    T_NODE_FAIL,   /* agent = first agent of node; arg = node */
+    T_ARRIVAL = 1,  /* complex agent: next job */
+    T_CLEAR,        /* market: clearing period */
+    T_REQ,          /* request phase timeout: arg = req | tseq << 32 */
+    T_DEADLINE,     /* request deadline: arg = req */
+    T_RETRY,        /* retry acquisition: arg = req | attempt << 32 */
+    T_RELEASE,      /* seller capacity release at contract end: arg = req */
+    T_RELEASE_PART, /* resource agent frees one part: arg = part_arg(good, quantity) */
+    T_LEARN,        /* catallactic learning meeting */
+    T_NODE_FAIL,    /* agent = first agent of node; arg = node */
     T_NODE_REPAIR,
     T_LINK_FAIL,
     T_LINK_REPAIR
@@ -122,13 +127,14 @@ typedef struct req {
     uint32_t buyer, seller, job, parent; /* parent: service req of a resource req */
     uint32_t attempt;
     uint32_t tseq; /* phase timer generation: only the latest T_REQ counts */
-    double work, cores, memory, flops;
+    double work;   /* service: units (a bundle's size follows from its service) */
     double limit;        /* service: valuation/unit; resource: revenue total */
     double created, deadline;
     double price;        /* agreed price (service: per unit; resource: rate) */
     double seller_limit; /* seller's reservation at agreement */
     double start, end;
-    uint32_t nego; /* bargaining state (BGM_NEGO_NONE: none) */
+    uint32_t nego;  /* bargaining state (BGM_NEGO_NONE: none) */
+    uint32_t parts; /* call markets: parts of the bundle confirmed so far */
 } req_t;
 
 typedef struct job {
@@ -148,8 +154,6 @@ typedef struct agent {
     double memory[4]; /* remembered price per service good; [3]: resource price/cost ratio */
     uint32_t *nbr;
     int ndeg;
-    uint64_t seen[BGM_SEEN_RING];
-    int seen_pos;
     /* basic-service seller */
     int sells[BGM_SERVICE_TYPES];
     int slots, used;
@@ -163,6 +167,14 @@ typedef struct agent {
     double requested[BGM_SERVICE_TYPES], valuation_sum[BGM_SERVICE_TYPES];
     double paid[2], received[2];
 } agent_t;
+
+/* Call markets: one part of a bundle, held by its seller and confirmed
+ * to the buyer, paid for once the whole bundle is. */
+typedef struct part {
+    uint32_t rid, seller;
+    int good;
+    double quantity, start, end, rate, limit, cost;
+} part_t;
 
 /* The auctioneer's view of sellers (central) and pending orders. */
 typedef struct mkt_seller {
@@ -180,6 +192,10 @@ struct bgm_world {
     uint32_t nagents, ncomplex, nbasic, nresource, first_basic, first_resource;
     agent_t *agents;
     uint32_t *nbr_pool;
+    /* Catallactic only: per agent, a ring of the calls for proposals it
+     * has seen (BGM_SEEN_RING keys) and where the next one goes. */
+    uint64_t *seen;
+    uint8_t *seen_pos;
     int *node_up, *link_up;
     uint32_t nodes;
     double *speed;
@@ -191,6 +207,8 @@ struct bgm_world {
     uint32_t njob, job_cap;
     bgm_contract_t *log;
     size_t nlog, log_cap;
+    part_t *parts; /* call markets: parts held for bundles not yet complete */
+    size_t nparts, parts_cap;
     /* central */
     uint32_t *pend_bid, *pend_rbid;
     size_t npend_bid, npend_rbid, pend_cap;
@@ -204,10 +222,10 @@ struct bgm_world {
     /* accounting */
     double msgs, bytes, timeouts, combex_exact, combex_greedy;
     double service_requests, resource_requests;
+    double bundles; /* bundles rented (whole, or every part of one paid) */
     double *acc_s, *acc_r;
     size_t nacc_s, nacc_r;
     double welfare, core_seconds;
-    double min_cost[BGM_SERVICE_TYPES];
     bg_status failure; /* first failure inside a handler */
 };
 
@@ -379,6 +397,32 @@ static void req_end(bgm_world_t *w, req_t *r, int state)
     r->nego = BGM_NEGO_NONE;
 }
 
+/* A resource request's bundle is what its service's type needs, for the
+ * service's work; a service request has none. Derived, not stored: tens
+ * of thousands of requests are recorded at 2000 agents. */
+static const bgm_service_cfg_t *bundle_type(const bgm_world_t *w, const req_t *r)
+{
+    return r->layer == 1 ? &w->cfg.services[w->reqs[r->parent].good] : NULL;
+}
+
+static double req_cores(const bgm_world_t *w, const req_t *r)
+{
+    const bgm_service_cfg_t *s = bundle_type(w, r);
+    return s ? (double)s->cores : 0.0;
+}
+
+static double req_memory(const bgm_world_t *w, const req_t *r)
+{
+    const bgm_service_cfg_t *s = bundle_type(w, r);
+    return s ? s->memory : 0.0;
+}
+
+static double req_flops(const bgm_world_t *w, const req_t *r)
+{
+    const bgm_service_cfg_t *s = bundle_type(w, r);
+    return s ? s->flops_per_unit * w->reqs[r->parent].work : 0.0;
+}
+
 static double resource_cost_rate(const agent_t *r, double cores, double mem)
 {
     return r->core_cost * cores + r->mem_cost * mem;
@@ -412,17 +456,17 @@ static bg_status build_overlay(bgm_world_t *w)
 {
     /* Random overlay among all non-market agents: each agent opens
      * degree/2 links to uniformly drawn others (both directions stored),
-     * capped per agent; isolated agents get one link. */
+     * capped per agent; isolated agents get one link. Built in a
+     * fixed-width table, then packed to each agent's real degree: the
+     * table is 256 bytes an agent, the packed lists about 24. */
     uint32_t n = w->nagents - 1;
     int half = w->cfg.agents.overlay_degree / 2 > 0 ? w->cfg.agents.overlay_degree / 2 : 1;
-    w->nbr_pool = calloc((size_t)w->nagents * BGM_MAX_NEIGHBOURS, sizeof *w->nbr_pool);
-    if (!w->nbr_pool)
+    uint32_t *table = calloc((size_t)w->nagents * BGM_MAX_NEIGHBOURS, sizeof *table);
+    if (!table)
         return BG_ERR_NOMEM;
     for (uint32_t a = 0; a < w->nagents; a++)
-        w->agents[a].nbr = w->nbr_pool + (size_t)a * BGM_MAX_NEIGHBOURS;
-    if (n < 2)
-        return BG_OK;
-    for (uint32_t a = 1; a < w->nagents; a++) {
+        w->agents[a].nbr = table + (size_t)a * BGM_MAX_NEIGHBOURS;
+    for (uint32_t a = 1; a < w->nagents && n >= 2; a++) {
         for (int k = 0; k < half; k++) {
             uint32_t b = 1 + bgm_rng_below(&w->rng, n);
             agent_t *x = &w->agents[a], *y = &w->agents[b];
@@ -437,6 +481,22 @@ static bg_status build_overlay(bgm_world_t *w)
             y->nbr[y->ndeg++] = a;
         }
     }
+    size_t total = 0;
+    for (uint32_t a = 0; a < w->nagents; a++)
+        total += (size_t)w->agents[a].ndeg;
+    w->nbr_pool = malloc((total ? total : 1) * sizeof *w->nbr_pool);
+    if (!w->nbr_pool) {
+        free(table);
+        return BG_ERR_NOMEM;
+    }
+    size_t at = 0;
+    for (uint32_t a = 0; a < w->nagents; a++) {
+        agent_t *x = &w->agents[a];
+        memcpy(w->nbr_pool + at, x->nbr, (size_t)x->ndeg * sizeof *w->nbr_pool);
+        x->nbr = w->nbr_pool + at;
+        at += (size_t)x->ndeg;
+    }
+    free(table);
     return BG_OK;
 }
 
@@ -481,8 +541,6 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
         w->node_up[i] = w->link_up[i] = 1;
         w->speed[i] = p->node_speed ? p->node_speed[i < w->nodes ? i : 0] : c->network.speed;
     }
-    for (int t = 0; t < BGM_SERVICE_TYPES; t++)
-        w->min_cost[t] = INFINITY;
     double spread = c->resources.cost_spread;
     for (uint32_t a = 0; a < w->nagents; a++) {
         agent_t *ag = &w->agents[a];
@@ -512,8 +570,6 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
                 ag->cost[t] = s->cost_per_unit * (1.0 + spread * (2.0 * bgm_rng_uniform(&ag->drng) - 1.0));
                 ag->est_res[t] = mean_rate(w, s->cores, s->memory) * s->flops_per_unit /
                                  (c->network.speed * s->cores);
-                if (ag->sells[t] && ag->cost[t] < w->min_cost[t])
-                    w->min_cost[t] = ag->cost[t];
                 ag->posted[t] = reservation(ag, t) * (1.0 + c->baseline.markup);
             }
         } else {
@@ -524,6 +580,14 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
             ag->core_cost = c->resources.core_cost * (1.0 + spread * (2.0 * bgm_rng_uniform(&ag->drng) - 1.0));
             ag->mem_cost = c->resources.memory_cost * (1.0 + spread * (2.0 * bgm_rng_uniform(&ag->drng) - 1.0));
             ag->speed = w->speed[ag->node];
+        }
+    }
+    if (p->mechanism == BGM_MECH_CATALLACTIC) {
+        w->seen = calloc((size_t)w->nagents * BGM_SEEN_RING, sizeof *w->seen);
+        w->seen_pos = calloc(w->nagents, sizeof *w->seen_pos);
+        if (!w->seen || !w->seen_pos) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u agents", w->nagents);
+            goto out;
         }
     }
     if ((st = build_overlay(w))) {
@@ -558,6 +622,8 @@ void bgm_world_destroy(bgm_world_t **pw)
     bgm_world_t *w = *pw;
     free(w->agents);
     free(w->nbr_pool);
+    free(w->seen);
+    free(w->seen_pos);
     free(w->node_up);
     free(w->link_up);
     free(w->speed);
@@ -565,6 +631,7 @@ void bgm_world_destroy(bgm_world_t **pw)
     free(w->negos);
     free(w->jobs);
     free(w->log);
+    free(w->parts);
     free(w->pend_bid);
     free(w->pend_rbid);
     free(w->mb);
@@ -598,6 +665,16 @@ void bgm_world_money(const bgm_world_t *w, double paid[2], double received[2])
 
 /* ------------------------------------------------------------ acquisition */
 
+/* Forgets the parts held for bundle rid: nobody is paid for them. */
+static void drop_parts(bgm_world_t *w, uint32_t rid)
+{
+    size_t keep = 0;
+    for (size_t i = 0; i < w->nparts; i++)
+        if (w->parts[i].rid != rid)
+            w->parts[keep++] = w->parts[i];
+    w->nparts = keep;
+}
+
 static void start_acquire(bgm_world_t *w, uint32_t rid, double now);
 
 static void final_fail(bgm_world_t *w, uint32_t rid, double now)
@@ -606,6 +683,8 @@ static void final_fail(bgm_world_t *w, uint32_t rid, double now)
     if (r->state == RQ_DONE || r->state == RQ_FAILED)
         return;
     req_end(w, r, RQ_FAILED);
+    if (r->parts > 0)
+        drop_parts(w, rid);
     agent_t *buyer = &w->agents[r->buyer];
     learn_outcome(buyer, 0, 0.0);
     if (r->layer == 0) {
@@ -643,9 +722,9 @@ static void attempt_failed(bgm_world_t *w, uint32_t rid, double now)
     timer(w, r->buyer, now + backoff, T_RETRY, req_arg(r, rid));
 }
 
-static double req_duration(const req_t *r, double speed)
+static double req_duration(const bgm_world_t *w, const req_t *r, double speed)
 {
-    return r->flops / (speed * (r->cores > 0 ? r->cores : 1.0));
+    return req_flops(w, r) / (speed * (req_cores(w, r) > 0 ? req_cores(w, r) : 1.0));
 }
 
 /* Arms the request's phase timer; earlier phase timers become stale. */
@@ -690,9 +769,9 @@ static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
         bgm_msg_t m = msg(r->layer == 0 ? M_BID : M_RBID, r->buyer, 0, rid, r->attempt);
         m.good = (int16_t)r->good;
         m.price = r->limit;
-        m.a = r->layer == 0 ? r->work : r->cores;
-        m.b = r->layer == 0 ? r->deadline : r->memory;
-        m.c = r->layer == 0 ? 0.0 : r->flops;
+        m.a = r->layer == 0 ? r->work : req_cores(w, r);
+        m.b = r->layer == 0 ? r->deadline : req_memory(w, r);
+        m.c = r->layer == 0 ? 0.0 : req_flops(w, r);
         m.cand_price[0] = r->deadline;
         r->state = RQ_WAIT;
         send(w, &m);
@@ -703,9 +782,9 @@ static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
         m.good = (int16_t)r->good;
         m.hops = (uint16_t)w->cfg.catallactic.hops;
         m.origin = r->buyer;
-        m.a = r->layer == 0 ? r->work : r->cores;
-        m.b = r->memory;
-        m.c = r->flops;
+        m.a = r->layer == 0 ? r->work : req_cores(w, r);
+        m.b = req_memory(w, r);
+        m.c = req_flops(w, r);
         r->state = RQ_DISCOVER;
         cfp_send(w, r->buyer, &m, UINT32_MAX);
         arm(w, rid, now + w->cfg.catallactic.discovery_timeout);
@@ -715,8 +794,8 @@ static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
         bgm_msg_t m = msg(M_QUERY, r->buyer, 0, rid, r->attempt);
         m.good = (int16_t)(r->layer == 0 ? r->good : BGM_GOOD_CORES);
         m.price = r->layer == 0 ? r->limit : INFINITY;
-        m.a = r->cores;
-        m.b = r->memory;
+        m.a = req_cores(w, r);
+        m.b = req_memory(w, r);
         r->state = RQ_WAIT;
         send(w, &m);
         arm(w, rid, now + 4.0 * w->cfg.catallactic.reply_timeout);
@@ -745,15 +824,11 @@ static int service_agreed(bgm_world_t *w, uint32_t b, uint32_t sid, double price
         return 0;
     s = &w->reqs[sid];
     req_t *r = &w->reqs[rid];
-    const bgm_service_cfg_t *sc = &w->cfg.services[s->good];
     r->layer = 1;
     r->good = BGM_GOOD_BUNDLE;
     r->buyer = b;
     r->parent = sid;
     r->job = s->job;
-    r->cores = sc->cores;
-    r->memory = sc->memory;
-    r->flops = sc->flops_per_unit * s->work;
     r->limit = price * s->work;
     r->created = now;
     r->deadline = s->deadline > now ? s->deadline : now + w->cfg.catallactic.reply_timeout;
@@ -763,57 +838,84 @@ static int service_agreed(bgm_world_t *w, uint32_t b, uint32_t sid, double price
     return 1;
 }
 
-static void log_resource(bgm_world_t *w, const req_t *r, uint32_t seller, double rate,
-                         double now, double end)
+/* Bundle rid, rented whole from `seller` at `rate` from start to end, is
+ * delivered: it becomes a contract (a cores row and a memory row) and is
+ * paid. */
+static void pay_bundle(bgm_world_t *w, uint32_t rid, uint32_t seller, double rate, double start,
+                       double end, double now)
 {
-    const agent_t *ra = &w->agents[seller];
-    double cost = resource_cost_rate(ra, r->cores, r->memory);
-    double dur = end - now;
+    const req_t *r = &w->reqs[rid];
+    agent_t *ra = &w->agents[seller];
+    double cores = req_cores(w, r), memory = req_memory(w, r);
+    double cost = resource_cost_rate(ra, cores, memory);
+    double dur = end - start;
     double lim = r->limit / dur;
-    double share_c = cost > 0.0 ? ra->core_cost * r->cores / cost : 1.0;
-    bgm_contract_t c = {now, now, end, r->buyer, seller, 1, BGM_GOOD_CORES, r->cores,
-                        rate * share_c / r->cores, lim * share_c / r->cores, ra->core_cost};
+    double share_c = cost > 0.0 ? ra->core_cost * cores / cost : 1.0;
+    bgm_contract_t c = {now,
+                        start,
+                        end,
+                        r->buyer,
+                        seller,
+                        1,
+                        BGM_GOOD_CORES,
+                        cores,
+                        rate * share_c / cores,
+                        lim * share_c / cores,
+                        ra->core_cost};
     bg_status st = log_contract(w, &c);
-    if (!st && r->memory > 0.0) {
+    if (!st && memory > 0.0) {
         double share_m = 1.0 - share_c;
-        bgm_contract_t m = {now, now, end, r->buyer, seller, 1, BGM_GOOD_MEMORY, r->memory,
-                            rate * share_m / r->memory, lim * share_m / r->memory, ra->mem_cost};
+        bgm_contract_t m = {now,
+                            start,
+                            end,
+                            r->buyer,
+                            seller,
+                            1,
+                            BGM_GOOD_MEMORY,
+                            memory,
+                            rate * share_m / memory,
+                            lim * share_m / memory,
+                            ra->mem_cost};
         st = log_contract(w, &m);
     }
     if (st)
         fail(w, st);
+    w->bundles += 1.0;
+    w->agents[r->buyer].paid[1] += rate * dur;
+    ra->received[1] += rate * dur;
+    w->core_seconds += cores * dur;
+    w->welfare -= cost * dur;
 }
 
 /* The resource agent has agreed to rent bundle rid at `rate` per second:
  * it checks capacity now (all its contracts start when agreed, so free
- * capacity now is free capacity for the whole interval), logs the
- * contract, moves the money and confirms. Returns 0 when it cannot. */
+ * capacity now is free capacity for the whole interval), holds the bundle
+ * until its end and confirms. It is paid when the buyer takes delivery
+ * (pay_bundle): a bundle whose buyer has given up by then is held for
+ * nothing. Returns 0 when it cannot. */
 static int resource_agreed(bgm_world_t *w, uint32_t ra_id, uint32_t rid, double rate, double now)
 {
     agent_t *ra = &w->agents[ra_id];
     req_t *r = &w->reqs[rid];
-    if (!agent_alive(w, ra_id) || ra->used_cores + r->cores > ra->cores + 1e-9 ||
-        ra->used_mem + r->memory > ra->mem + 1e-9)
+    if (!agent_alive(w, ra_id) || ra->used_cores + req_cores(w, r) > ra->cores + 1e-9 ||
+        ra->used_mem + req_memory(w, r) > ra->mem + 1e-9)
         return 0;
-    double dur = req_duration(r, ra->speed);
-    double cost = resource_cost_rate(ra, r->cores, r->memory);
+    double dur = req_duration(w, r, ra->speed);
+    double cost = resource_cost_rate(ra, req_cores(w, r), req_memory(w, r));
     if (rate < cost || rate * dur > r->limit * (1.0 + 1e-12))
         return 0;
-    ra->used_cores += r->cores;
-    ra->used_mem += r->memory;
+    ra->used_cores += req_cores(w, r);
+    ra->used_mem += req_memory(w, r);
     announce(w, ra_id);
-    log_resource(w, r, ra_id, rate, now, now + dur);
-    w->agents[r->buyer].paid[1] += rate * dur;
-    ra->received[1] += rate * dur;
-    w->core_seconds += r->cores * dur;
-    w->welfare -= cost * dur;
     if (push_double(&w->acc_r, &w->nacc_r, now - r->created))
         fail(w, BG_ERR_NOMEM);
-    ra->memory[3] = bgm_memory_update(ra->memory[3], rate / mean_rate(w, r->cores, r->memory),
-                                      ra->genes.weight_memory);
+    ra->memory[3] =
+        bgm_memory_update(ra->memory[3], rate / mean_rate(w, req_cores(w, r), req_memory(w, r)),
+                          ra->genes.weight_memory);
     learn_outcome(ra, 1, (rate - cost) / rate);
     timer(w, ra_id, now + dur, T_RELEASE, rid);
     bgm_msg_t m = msg(M_RCONFIRM, ra_id, r->buyer, rid, r->attempt);
+    m.good = BGM_GOOD_BUNDLE;
     m.price = rate;
     m.a = now;
     m.b = now + dur;
@@ -822,23 +924,107 @@ static int resource_agreed(bgm_world_t *w, uint32_t ra_id, uint32_t rid, double 
     return 1;
 }
 
-/* Basic agent b learns that its bundle is rented: the service contract
- * becomes final. */
-static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double now)
+/* Quantities of a part travel in a timer argument as whole MiB (cores
+ * are whole numbers, memory is bought in MiB), next to the good. */
+#define BGM_MIB 1024.0
+
+static uint64_t part_arg(int good, double quantity)
 {
-    req_t *r = &w->reqs[m->req];
-    if (r->state == RQ_DONE || r->state == RQ_FAILED)
-        return; /* late confirm after giving up: the rental still stands */
-    req_end(w, r, RQ_DONE);
-    r->seller = m->from;
-    r->price = m->price;
-    r->start = m->a;
-    r->end = m->b;
+    return ((uint64_t)good << 40) | (uint64_t)llround(quantity * BGM_MIB);
+}
+
+/* The resource agent has been awarded one part of bundle m->req on a call
+ * market: m->a cores or GiB for m->b seconds at m->price per unit-second.
+ * It checks that it is up and has the room now, holds the part until its
+ * end, and confirms to the buyer; it is paid only once the buyer has the
+ * whole bundle (pay_parts). Returns 0 when it cannot. */
+static int part_agreed(bgm_world_t *w, uint32_t ra_id, const bgm_msg_t *m, double now)
+{
+    agent_t *ra = &w->agents[ra_id];
+    const req_t *r = &w->reqs[m->req];
+    int is_cores = m->good == BGM_GOOD_CORES;
+    double qty = m->a, dur = m->b, rate = m->price;
+    double cost = is_cores ? ra->core_cost : ra->mem_cost;
+    double *used = is_cores ? &ra->used_cores : &ra->used_mem;
+    /* The auctioneer converts the uniform price to this seller's rate, so
+     * the rate can sit an ulp below its cost. */
+    if (!agent_alive(w, ra_id) || *used + qty > (is_cores ? ra->cores : ra->mem) + 1e-9 ||
+        rate < cost * (1.0 - 1e-12))
+        return 0;
+    *used += qty;
+    timer(w, ra_id, now + dur, T_RELEASE_PART, part_arg(m->good, qty));
+    bgm_msg_t k = msg(M_RCONFIRM, ra_id, r->buyer, m->req, m->attempt);
+    k.good = m->good;
+    k.hops = m->hops;
+    k.price = rate;
+    k.a = now;
+    k.b = now + dur;
+    k.cand_price[0] = qty;
+    k.cand_price[1] = m->c;
+    k.cand_price[2] = cost;
+    send(w, &k);
+    return 1;
+}
+
+/* Bundle rid is complete: each of its parts becomes a contract and is
+ * paid. Returns the money paid in all. */
+static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
+{
+    const req_t *r = &w->reqs[rid];
+    double total = 0.0;
+    for (size_t i = 0; i < w->nparts; i++) {
+        const part_t *p = &w->parts[i];
+        if (p->rid != rid)
+            continue;
+        double dur = p->end - p->start, money = p->rate * p->quantity * dur;
+        bgm_contract_t c = {now,     p->start,    p->end,  r->buyer, p->seller, 1,
+                            p->good, p->quantity, p->rate, p->limit, p->cost};
+        bg_status st = log_contract(w, &c);
+        if (st)
+            fail(w, st);
+        w->agents[r->buyer].paid[1] += money;
+        w->agents[p->seller].received[1] += money;
+        if (p->good == BGM_GOOD_CORES)
+            w->core_seconds += p->quantity * dur;
+        w->welfare -= p->cost * p->quantity * dur;
+        learn_outcome(&w->agents[p->seller], 1, (p->rate - p->cost) / p->rate);
+        total += money;
+    }
+    drop_parts(w, rid);
+    w->bundles += 1.0;
+    return total;
+}
+
+/* The service that basic agent b's bundle serves is still wanted from b:
+ * the job's agent has not given up on it (deadline passed, or moved to
+ * another seller). */
+static int service_live(const bgm_world_t *w, uint32_t b, const req_t *r)
+{
+    const req_t *s = &w->reqs[r->parent];
+    return s->state != RQ_DONE && s->state != RQ_FAILED && s->seller == b;
+}
+
+/* Basic agent b's bundle rid has arrived but its service is void (the
+ * job's agent has given up on b): nobody pays for the bundle, so no item
+ * is ever bought twice and b never pays for resources it cannot use; its
+ * sellers held it for nothing. b frees its slot when the rental ends. */
+static void bundle_void(bgm_world_t *w, uint32_t b, const req_t *r)
+{
+    learn_outcome(&w->agents[b], 0, 0.0);
+    timer(w, b, r->end, T_RELEASE, r->parent);
+}
+
+/* Basic agent b's bundle rid is rented and paid, from start to end, for
+ * `money` in all: the service contract becomes final. */
+static void bundle_rented(bgm_world_t *w, uint32_t b, uint32_t rid, double start, double end,
+                          double money, double now)
+{
+    req_t *r = &w->reqs[rid];
     req_t *s = &w->reqs[r->parent];
     agent_t *ba = &w->agents[b];
     agent_t *ca = &w->agents[s->buyer];
-    bgm_contract_t c = {now, m->a, m->b, s->buyer, b, 0, s->good, s->work, s->price, s->limit,
-                        s->seller_limit};
+    bgm_contract_t c = {now,     start,    end,      s->buyer,       b, 0, s->good,
+                        s->work, s->price, s->limit, s->seller_limit};
     bg_status st = log_contract(w, &c);
     if (st)
         fail(w, st);
@@ -848,13 +1034,14 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
     if (push_double(&w->acc_s, &w->nacc_s, now - s->created))
         fail(w, BG_ERR_NOMEM);
     /* Remember what resources really cost per unit of this service. */
-    double per_unit = m->price * (m->b - m->a) / s->work;
-    ba->est_res[s->good] = bgm_memory_update(ba->est_res[s->good], per_unit, ba->genes.weight_memory);
-    ba->memory[3] = bgm_memory_update(ba->memory[3], m->price / mean_rate(w, r->cores, r->memory),
-                                      ba->genes.weight_memory);
+    ba->est_res[s->good] =
+        bgm_memory_update(ba->est_res[s->good], money / s->work, ba->genes.weight_memory);
+    ba->memory[3] = bgm_memory_update(
+        ba->memory[3], money / (end - start) / mean_rate(w, req_cores(w, r), req_memory(w, r)),
+        ba->genes.weight_memory);
     ba->memory[s->good] = bgm_memory_update(ba->memory[s->good], s->price, ba->genes.weight_memory);
     learn_outcome(ba, 1, (s->price - s->seller_limit) / s->price);
-    timer(w, b, m->b, T_RELEASE, r->parent);
+    timer(w, b, end, T_RELEASE, r->parent);
     if (w->p.mechanism == BGM_MECH_CENTRAL) {
         double res = reservation(ba, s->good);
         if (fabs(res - ba->announced[s->good]) > BGM_ASK_REFRESH * ba->announced[s->good]) {
@@ -868,9 +1055,63 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
     }
     bgm_msg_t cm = msg(M_CONFIRM, b, s->buyer, r->parent, s->attempt);
     cm.price = s->price;
-    cm.a = m->a;
-    cm.b = m->b;
+    cm.a = start;
+    cm.b = end;
     send(w, &cm);
+}
+
+/* Basic agent b learns that its bundle, or one part of it (call markets),
+ * is rented. A bundle bought in parts is rented once every part is: it
+ * runs from the first part's start to the last part's end. */
+static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double now)
+{
+    req_t *r = &w->reqs[m->req];
+    /* A late confirm after giving up: nobody pays for it; its seller
+     * held it for nothing. */
+    if (r->state == RQ_DONE || r->state == RQ_FAILED)
+        return;
+    if (m->good == BGM_GOOD_CORES || m->good == BGM_GOOD_MEMORY) {
+        if (w->nparts == w->parts_cap) {
+            size_t cap = w->parts_cap ? 2 * w->parts_cap : 64;
+            part_t *p = realloc(w->parts, cap * sizeof *p);
+            if (!p) {
+                fail(w, BG_ERR_NOMEM);
+                return;
+            }
+            w->parts = p;
+            w->parts_cap = cap;
+        }
+        w->parts[w->nparts++] = (part_t){m->req, m->from,  m->good,          m->cand_price[0], m->a,
+                                         m->b,   m->price, m->cand_price[1], m->cand_price[2]};
+        r->start = r->parts == 0 ? m->a : fmin(r->start, m->a);
+        r->end = r->parts == 0 ? m->b : fmax(r->end, m->b);
+        if (++r->parts < m->hops)
+            return;
+        req_end(w, r, RQ_DONE);
+        r->seller = m->from;
+        if (!service_live(w, b, r)) {
+            drop_parts(w, m->req);
+            bundle_void(w, b, r);
+            return;
+        }
+        double money = pay_parts(w, m->req, now);
+        r->price = money / (r->end - r->start);
+        if (push_double(&w->acc_r, &w->nacc_r, r->start - r->created))
+            fail(w, BG_ERR_NOMEM);
+        bundle_rented(w, b, m->req, r->start, r->end, money, now);
+        return;
+    }
+    req_end(w, r, RQ_DONE);
+    r->seller = m->from;
+    r->price = m->price;
+    r->start = m->a;
+    r->end = m->b;
+    if (!service_live(w, b, r)) {
+        bundle_void(w, b, r);
+        return;
+    }
+    pay_bundle(w, m->req, m->from, m->price, m->a, m->b, now);
+    bundle_rented(w, b, m->req, m->a, m->b, m->price * (m->b - m->a), now);
 }
 
 /* ---------------------------------------------------------------- market */
@@ -945,7 +1186,9 @@ static void clear_services(bgm_world_t *w, double now)
     w->npend_bid = keep;
 }
 
-static void clear_resources(bgm_world_t *w, double now)
+/* Drops the resource bids that have expired (telling their buyers) or
+ * been served; returns how many remain. */
+static size_t expire_rbids(bgm_world_t *w, double now)
 {
     size_t keep = 0;
     for (size_t i = 0; i < w->npend_rbid; i++) {
@@ -959,7 +1202,24 @@ static void clear_resources(bgm_world_t *w, double now)
         }
     }
     w->npend_rbid = keep;
-    if (keep == 0)
+    return keep;
+}
+
+/* Keeps only the resource bids still waiting. */
+static void compact_rbids(bgm_world_t *w)
+{
+    size_t keep = 0;
+    for (size_t i = 0; i < w->npend_rbid; i++)
+        if (w->reqs[w->pend_rbid[i]].state == RQ_WAIT)
+            w->pend_rbid[keep++] = w->pend_rbid[i];
+    w->npend_rbid = keep;
+}
+
+/* The resource layer through the combinatorial exchange: whole bundles,
+ * each from one resource agent, winner determination by bgm_combex. */
+static void clear_exchange(bgm_world_t *w, double now)
+{
+    if (expire_rbids(w, now) == 0)
         return;
     bgm_combex_reset(w->cx);
     int *seller_of = malloc(w->nmr * sizeof *seller_of);
@@ -983,13 +1243,14 @@ static void clear_resources(bgm_world_t *w, double now)
         const req_t *r = &w->reqs[w->pend_rbid[i]];
         for (uint32_t k = 0; k < w->nmr; k++) {
             const mkt_seller_t *s = &w->mr[k];
-            if (seller_of[k] < 0 || r->cores > s->free_a || r->memory > s->free_b)
+            if (seller_of[k] < 0 || req_cores(w, r) > s->free_a || req_memory(w, r) > s->free_b)
                 continue;
-            double dur = req_duration(r, s->speed);
-            double cost = (s->price * r->cores + s->mem_cost * r->memory) * dur;
+            double dur = req_duration(w, r, s->speed);
+            double cost = (s->price * req_cores(w, r) + s->mem_cost * req_memory(w, r)) * dur;
             if (cost >= r->limit)
                 continue;
-            bgm_combex_pair_t p = {(int)i, seller_of[k], r->limit - cost, {r->cores, r->memory}};
+            bgm_combex_pair_t p = {
+                (int)i, seller_of[k], r->limit - cost, {req_cores(w, r), req_memory(w, r)}};
             if (bgm_combex_add_pair(w->cx, &p))
                 break;
         }
@@ -1012,25 +1273,214 @@ static void clear_resources(bgm_world_t *w, double now)
         uint32_t rid = w->pend_rbid[i];
         req_t *r = &w->reqs[rid];
         mkt_seller_t *s = &w->mr[mr_of[p->seller]];
-        double dur = req_duration(r, s->speed);
+        double dur = req_duration(w, r, s->speed);
         double cost = r->limit - p->surplus;
         double total = cost + w->cfg.central.k * p->surplus;
-        s->free_a -= r->cores;
-        s->free_b -= r->memory;
+        s->free_a -= req_cores(w, r);
+        s->free_b -= req_memory(w, r);
         r->state = RQ_COMMITTED;
         bgm_msg_t m = msg(M_RAWARD, 0, s->agent, rid, r->attempt);
         m.price = total / dur;
         m.origin = r->buyer;
         send(w, &m);
     }
-    keep = 0;
-    for (size_t i = 0; i < w->npend_rbid; i++)
-        if (w->reqs[w->pend_rbid[i]].state == RQ_WAIT)
-            w->pend_rbid[keep++] = w->pend_rbid[i];
-    w->npend_rbid = keep;
+    compact_rbids(w);
 out:
     free(seller_of);
     free(mr_of);
+}
+
+/* One bundle's bids on the two call markets, as its proxy places them. */
+typedef struct call_bid {
+    double tref;     /* run time at the reference speed */
+    double bid_core; /* limit per reference core-second */
+    double bid_mem;  /* limit per GiB-second */
+    double dur;      /* run time on the cores won: the slowest of them */
+    double spent;    /* paid for the cores */
+    int cores, got_cores;
+    long mib, got_mib;
+} call_bid_t;
+
+/* Copies the fills of the last clearing: the market's book is reused. */
+static bgm_fill_t *copy_fills(const bgm_world_t *w, size_t n)
+{
+    bgm_fill_t *f = malloc((n ? n : 1) * sizeof *f);
+    if (f)
+        memcpy(f, w->fills, n * sizeof *f);
+    return f;
+}
+
+/* Sends seller k its part of bundle i (bid index): q units of `good` for
+ * dur seconds at rate per unit-second. */
+static void award_part(bgm_world_t *w, size_t i, uint32_t k, int good, double q, double dur,
+                       double rate, double limit, int parts)
+{
+    const req_t *r = &w->reqs[w->pend_rbid[i]];
+    mkt_seller_t *s = &w->mr[k];
+    if (good == BGM_GOOD_CORES)
+        s->free_a -= q;
+    else
+        s->free_b -= q;
+    bgm_msg_t m = msg(M_RPART, 0, s->agent, w->pend_rbid[i], r->attempt);
+    m.good = (int16_t)good;
+    m.hops = (uint16_t)parts;
+    m.a = q;
+    m.b = dur;
+    m.price = rate;
+    m.c = limit;
+    m.origin = r->buyer;
+    send(w, &m);
+}
+
+/*
+ * The resource layer through a call market per resource type
+ * (central.resource_market "call"): cores first, then memory, each a
+ * double auction with one uniform k-price. The auctioneer bids for each
+ * basic agent as its proxy, within the budget the agent sent (what its
+ * service pays), and never above it in all.
+ *
+ * Cores are priced per reference core-second: a core of speed s running
+ * t seconds gives t·s/s_ref of them, so every bundle needs the same
+ * amount, flops/s_ref, whoever sells, and a seller asks its cost per
+ * core-second × s_ref/s. The cores bid's limit is the budget's share at
+ * the mean cost rates. A bundle's cores may come from several sellers;
+ * each runs its share of the work at its own speed, so the bundle lasts
+ * as long as its slowest seller's part. Memory is priced per GiB-second
+ * and sold in MiB, held for that whole run; its bid's limit is what the
+ * budget has left after the cores, per GiB-second.
+ *
+ * Complements on separate markets expose a buyer to winning one good and
+ * not the other. A bundle not filled in full on both markets is cancelled
+ * whole before anyone is told: no seller is reserved or paid, and its bid
+ * stays in the book for the next call. A complete bundle's parts go to
+ * their sellers as awards; each seller holds its part from then until the
+ * part's end and confirms to the buyer. With the last confirmation the
+ * bundle is rented: every part becomes a contract and is paid, and the
+ * service becomes final. A bundle that never completes (a seller was
+ * down, a confirmation was lost, the deadline passed) or whose service is
+ * void by then is paid to no one: its sellers held their parts for
+ * nothing, and the basic agent never pays for resources it cannot use.
+ */
+static void clear_calls(bgm_world_t *w, double now)
+{
+    size_t n = expire_rbids(w, now);
+    if (n == 0)
+        return;
+    const double sref = w->cfg.network.speed, k = w->cfg.central.k;
+    call_bid_t *cb = calloc(n, sizeof *cb);
+    int *parts = calloc(n, sizeof *parts);
+    bgm_fill_t *cf = NULL, *mf = NULL;
+    bgm_clearing_t rc, rm;
+    if (!cb || !parts) {
+        fail(w, BG_ERR_NOMEM);
+        goto out;
+    }
+    bgm_callmarket_reset(w->cm);
+    for (size_t i = 0; i < n; i++) {
+        const req_t *r = &w->reqs[w->pend_rbid[i]];
+        double cc = w->cfg.resources.core_cost * req_cores(w, r),
+               mc = w->cfg.resources.memory_cost * req_memory(w, r);
+        double share = cc + mc > 0.0 ? cc / (cc + mc) : 1.0;
+        cb[i].cores = (int)req_cores(w, r);
+        cb[i].tref = req_flops(w, r) / (req_cores(w, r) * sref);
+        cb[i].bid_core = share * r->limit / (req_cores(w, r) * cb[i].tref);
+        cb[i].mib = (long)ceil(req_memory(w, r) * BGM_MIB - 1e-9);
+        bgm_order_t o = {i, r->buyer, cb[i].cores, cb[i].bid_core};
+        if (bgm_callmarket_bid(w->cm, &o))
+            break;
+    }
+    for (uint32_t j = 0; j < w->nmr; j++) {
+        const mkt_seller_t *s = &w->mr[j];
+        int free = (int)floor(s->free_a + 1e-9);
+        bgm_order_t o = {j, s->agent, free, s->price * sref / s->speed};
+        if (free >= 1 && bgm_callmarket_ask(w->cm, &o))
+            break;
+    }
+    if (bgm_callmarket_clear(w->cm, k, &rc, w->fills, 2 * BGM_BOOK_MAX) ||
+        !(cf = copy_fills(w, rc.fill_count))) {
+        fail(w, BG_ERR_NOMEM);
+        goto out;
+    }
+    const bgm_order_t *asks = bgm_callmarket_asks(w->cm);
+    for (size_t f = 0; f < rc.fill_count; f++) {
+        /* From here on a fill names the bundle (index into pend_rbid) and
+         * the seller (index into mr), read from the orders' refs. */
+        size_t i = bgm_callmarket_bids(w->cm)[cf[f].bid].ref;
+        uint32_t j = (uint32_t)asks[cf[f].ask].ref;
+        cf[f].bid = i;
+        cf[f].ask = j;
+        cb[i].got_cores += cf[f].quantity;
+        cb[i].dur = fmax(cb[i].dur, cb[i].tref * sref / w->mr[j].speed);
+    }
+
+    bgm_callmarket_reset(w->cm);
+    for (size_t i = 0; i < n; i++) {
+        if (cb[i].got_cores < cb[i].cores || cb[i].mib == 0)
+            continue;
+        cb[i].spent = rc.price * cb[i].cores * cb[i].tref;
+        double left = w->reqs[w->pend_rbid[i]].limit - cb[i].spent;
+        cb[i].bid_mem = left / ((double)cb[i].mib / BGM_MIB * cb[i].dur);
+        bgm_order_t o = {i, w->reqs[w->pend_rbid[i]].buyer, (int)cb[i].mib, cb[i].bid_mem};
+        if (cb[i].bid_mem > 0.0 && bgm_callmarket_bid(w->cm, &o))
+            break;
+    }
+    for (uint32_t j = 0; j < w->nmr; j++) {
+        const mkt_seller_t *s = &w->mr[j];
+        double free = floor(s->free_b * BGM_MIB + 1e-9);
+        bgm_order_t o = {j, s->agent, free > INT32_MAX ? INT32_MAX : (int)free, s->mem_cost};
+        if (free >= 1.0 && bgm_callmarket_ask(w->cm, &o))
+            break;
+    }
+    if (bgm_callmarket_clear(w->cm, k, &rm, w->fills, 2 * BGM_BOOK_MAX) ||
+        !(mf = copy_fills(w, rm.fill_count))) {
+        fail(w, BG_ERR_NOMEM);
+        goto out;
+    }
+    asks = bgm_callmarket_asks(w->cm);
+    for (size_t f = 0; f < rm.fill_count; f++) {
+        size_t i = bgm_callmarket_bids(w->cm)[mf[f].bid].ref;
+        mf[f].bid = i;
+        mf[f].ask = (uint32_t)asks[mf[f].ask].ref;
+        cb[i].got_mib += mf[f].quantity;
+    }
+
+    /* Award the complete bundles, part by part. */
+    for (size_t f = 0; f < rc.fill_count; f++)
+        parts[cf[f].bid]++;
+    for (size_t f = 0; f < rm.fill_count; f++)
+        parts[mf[f].bid]++;
+    for (size_t f = 0; f < rc.fill_count; f++) {
+        size_t i = cf[f].bid;
+        if (cb[i].got_cores < cb[i].cores || cb[i].got_mib < cb[i].mib)
+            continue;
+        double ratio = w->mr[cf[f].ask].speed / sref;
+        award_part(w, i, (uint32_t)cf[f].ask, BGM_GOOD_CORES, cf[f].quantity, cb[i].tref / ratio,
+                   rc.price * ratio, cb[i].bid_core * ratio, parts[i]);
+    }
+    for (size_t f = 0; f < rm.fill_count; f++) {
+        size_t i = mf[f].bid;
+        if (cb[i].got_cores < cb[i].cores || cb[i].got_mib < cb[i].mib)
+            continue;
+        award_part(w, i, (uint32_t)mf[f].ask, BGM_GOOD_MEMORY, (double)mf[f].quantity / BGM_MIB,
+                   cb[i].dur, rm.price, cb[i].bid_mem, parts[i]);
+    }
+    for (size_t i = 0; i < n; i++)
+        if (cb[i].got_cores >= cb[i].cores && cb[i].got_mib >= cb[i].mib)
+            w->reqs[w->pend_rbid[i]].state = RQ_COMMITTED;
+    compact_rbids(w);
+out:
+    free(cb);
+    free(parts);
+    free(cf);
+    free(mf);
+}
+
+static void clear_resources(bgm_world_t *w, double now)
+{
+    if (w->cfg.central.resource_market == BGM_RM_CALL)
+        clear_calls(w, now);
+    else
+        clear_exchange(w, now);
 }
 
 typedef struct room_ctx {
@@ -1139,30 +1589,30 @@ static void market_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
 
 /* ------------------------------------------------------------ catallactic */
 
-static int seen_before(agent_t *a, uint64_t key)
+static int seen_before(bgm_world_t *w, uint32_t agent, uint64_t key)
 {
+    uint64_t *seen = w->seen + (size_t)agent * BGM_SEEN_RING;
     for (int i = 0; i < BGM_SEEN_RING; i++)
-        if (a->seen[i] == key)
+        if (seen[i] == key)
             return 1;
-    a->seen[a->seen_pos] = key;
-    a->seen_pos = (a->seen_pos + 1) % BGM_SEEN_RING;
+    seen[w->seen_pos[agent]] = key;
+    w->seen_pos[agent] = (uint8_t)((w->seen_pos[agent] + 1) % BGM_SEEN_RING);
     return 0;
 }
 
 /* Seller's reservation and opening for request r (layer-dependent). */
 static double seller_limit_for(const bgm_world_t *w, const agent_t *s, const req_t *r)
 {
-    (void)w;
     if (r->layer == 0)
         return reservation(s, r->good);
-    return resource_cost_rate(s, r->cores, r->memory);
+    return resource_cost_rate(s, req_cores(w, r), req_memory(w, r));
 }
 
 static double seller_opening(const bgm_world_t *w, const agent_t *s, const req_t *r)
 {
     double lim = seller_limit_for(w, s, r);
     double mem = r->layer == 0 ? s->memory[r->good]
-                               : s->memory[3] * mean_rate(w, r->cores, r->memory);
+                               : s->memory[3] * mean_rate(w, req_cores(w, r), req_memory(w, r));
     return bgm_nego_opening(BGM_SIDE_SELLER, lim, mem, s->markup);
 }
 
@@ -1170,16 +1620,15 @@ static int can_sell(const bgm_world_t *w, const agent_t *s, const req_t *r)
 {
     if (r->layer == 0)
         return s->role == BGM_ROLE_BASIC && s->sells[r->good] && s->used < s->slots;
-    (void)w;
-    return s->role == BGM_ROLE_RESOURCE && s->used_cores + r->cores <= s->cores &&
-           s->used_mem + r->memory <= s->mem;
+    return s->role == BGM_ROLE_RESOURCE && s->used_cores + req_cores(w, r) <= s->cores &&
+           s->used_mem + req_memory(w, r) <= s->mem;
 }
 
 static void on_cfp(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
 {
     agent_t *a = &w->agents[me];
     uint64_t key = ((uint64_t)m->req << 20) ^ m->attempt ^ ((uint64_t)m->origin << 44);
-    if (seen_before(a, key))
+    if (seen_before(w, me, key))
         return;
     const req_t *r = &w->reqs[m->req];
     if (can_sell(w, a, r)) {
@@ -1195,11 +1644,11 @@ static void on_cfp(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
     }
 }
 
-static double buyer_limit_for(const req_t *r, const proposal_t *p)
+static double buyer_limit_for(const bgm_world_t *w, const req_t *r, const proposal_t *p)
 {
     if (r->layer == 0)
         return r->limit;
-    return r->limit / req_duration(r, p->speed);
+    return r->limit / req_duration(w, r, p->speed);
 }
 
 static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
@@ -1209,9 +1658,9 @@ static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
     nego_state_t *g = ng(w, r);
     while (g->next_prop < g->nprop) {
         const proposal_t *p = &g->prop[g->next_prop];
-        double lim = buyer_limit_for(r, p);
+        double lim = buyer_limit_for(w, r, p);
         double mem = r->layer == 0 ? b->memory[r->good]
-                                   : b->memory[3] * mean_rate(w, r->cores, r->memory);
+                                   : b->memory[3] * mean_rate(w, req_cores(w, r), req_memory(w, r));
         bgm_msg_t o;
         if (w->p.mechanism == BGM_MECH_BASELINE) {
             if (p->price > lim) {
@@ -1319,10 +1768,14 @@ static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, doub
         r->state = RQ_COMMITTED;
         r->price = reply;
         send(w, &a);
-        /* A bundle seller answers at once; a service seller must first buy
-         * resources, which the deadline covers. */
+        /* A bundle seller answers at once. A service seller commits as
+         * soon as it reads the acceptance and starts buying resources, so
+         * the buyer must not walk away on a phase timeout any more: it
+         * waits for the seller's answer, and the deadline covers the rest. */
         if (r->layer == 1)
             arm(w, m->req, now + w->cfg.catallactic.reply_timeout);
+        else
+            r->tseq++;
     } else if (act == BGM_NEGO_COUNTER) {
         bgm_msg_t o = msg(M_OFFER, me, m->from, m->req, m->attempt);
         o.price = reply;
@@ -1414,8 +1867,18 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
             bgm_msg_t f = msg(M_RFAIL, me, m->origin, m->req, m->attempt);
             send(w, &f);
             bgm_msg_t g = msg(M_RFREE, me, 0, m->req, 0);
-            g.a = r->cores;
-            g.b = r->memory;
+            g.a = req_cores(w, r);
+            g.b = req_memory(w, r);
+            send(w, &g);
+        }
+        break;
+    case M_RPART:
+        if (!part_agreed(w, me, m, now)) {
+            bgm_msg_t f = msg(M_RFAIL, me, m->origin, m->req, m->attempt);
+            send(w, &f);
+            bgm_msg_t g = msg(M_RFREE, me, 0, m->req, 0);
+            g.a = m->good == BGM_GOOD_CORES ? m->a : 0.0;
+            g.b = m->good == BGM_GOOD_MEMORY ? m->a : 0.0;
             send(w, &g);
         }
         break;
@@ -1635,16 +2098,29 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
                 send(w, &m);
             }
         } else {
-            a->used_cores -= r->cores;
-            a->used_mem -= r->memory;
+            a->used_cores -= req_cores(w, r);
+            a->used_mem -= req_memory(w, r);
             announce(w, me);
             if (w->p.mechanism == BGM_MECH_CENTRAL) {
                 bgm_msg_t m = msg(M_RFREE, me, 0, rid, 0);
-                m.a = r->cores;
-                m.b = r->memory;
+                m.a = req_cores(w, r);
+                m.b = req_memory(w, r);
                 send(w, &m);
             }
         }
+        break;
+    }
+    case T_RELEASE_PART: {
+        double q = (double)(arg & ((1ULL << 40) - 1)) / BGM_MIB;
+        int is_cores = (int)(arg >> 40) == BGM_GOOD_CORES;
+        if (is_cores)
+            a->used_cores -= q;
+        else
+            a->used_mem -= q;
+        bgm_msg_t m = msg(M_RFREE, me, 0, 0, 0);
+        m.a = is_cores ? q : 0.0;
+        m.b = is_cores ? 0.0 : q;
+        send(w, &m);
         break;
     }
     case T_LEARN: {
@@ -1768,62 +2244,81 @@ static double quantile(const double *v, size_t n, double q)
 }
 
 /*
- * Offline optimum of the same demand and supply: every service request of
- * the run, every resource agent with its capacity over the whole horizon
- * (core-seconds, GiB-seconds), each request served by the cheapest basic
- * seller of its type. It drops the basic agents' slot limits, deadlines
- * and the ordering in time, so it bounds the achievable welfare from
- * above; welfare_ratio <= 1 up to that relaxation. Exact IP only.
+ * Offline optimum of the same demand and supply (bgm_optimum): every
+ * service request of the run with its delivery window, every basic agent
+ * with its slots and costs, every resource agent with its capacity, cost
+ * and speed, for the whole run (failures ignored: the optimum may use a
+ * node that was down, which only raises it). A delivery can start from
+ * the request's creation until its deadline plus the commitment grace: no
+ * service contract is final later (bundle_rented voids it). When the
+ * config's central market sells resources on per-type call markets,
+ * bundles may split across resource agents, in the optimum too, for every
+ * mechanism of the run alike (the same demand and supply, the same
+ * optimum). NaN (null) when the program has more than
+ * central.optimum_limit variables or the simplex fails.
  */
+static bgm_opt_request_t opt_request(const req_t *x)
+{
+    return (bgm_opt_request_t){x->good, x->work, x->limit, x->created,
+                               x->deadline + BGM_COMMIT_GRACE};
+}
+
 static double offline_optimum(const bgm_world_t *w)
 {
-    size_t pairs = 0;
+    bgm_opt_service_t svc[BGM_SERVICE_TYPES];
+    for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
+        const bgm_service_cfg_t *s = &w->cfg.services[t];
+        svc[t] = (bgm_opt_service_t){s->flops_per_unit, (double)s->cores, s->memory};
+    }
+    double opt = NAN;
+    bgm_opt_request_t *q = NULL;
+    bgm_opt_basic_t *b = malloc(w->nbasic * sizeof *b);
+    bgm_opt_resource_t *r = malloc(w->nresource * sizeof *r);
+    if (!b || !r)
+        goto out;
+    for (uint32_t k = 0; k < w->nbasic; k++) {
+        const agent_t *a = &w->agents[w->first_basic + k];
+        b[k].slots = a->slots;
+        for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
+            b[k].sells[t] = a->sells[t];
+            b[k].cost[t] = a->cost[t];
+        }
+    }
+    for (uint32_t k = 0; k < w->nresource; k++) {
+        const agent_t *a = &w->agents[w->first_resource + k];
+        r[k] = (bgm_opt_resource_t){a->cores, a->mem, a->speed, a->core_cost, a->mem_cost};
+    }
+    bgm_opt_problem_t prob = {
+        svc, NULL, 0, b, w->nbasic, r, w->nresource, w->cfg.central.resource_market == BGM_RM_CALL};
+    /* Too large is found request by request, before the requests are
+     * copied: the copy would be the largest block of the run's last phase
+     * at 2000 agents, and count towards its peak memory. */
+    size_t pairs = 0, nq = 0;
+    for (uint32_t i = 0; i < w->nreq && pairs <= (size_t)w->cfg.central.optimum_limit; i++)
+        if (w->reqs[i].layer == 0) {
+            bgm_opt_request_t x = opt_request(&w->reqs[i]);
+            pairs += bgm_optimum_request_pairs(&prob, &x);
+            nq++;
+        }
+    if (pairs > (size_t)w->cfg.central.optimum_limit)
+        goto out;
+    q = malloc((nq ? nq : 1) * sizeof *q);
+    if (!q)
+        goto out;
+    nq = 0;
     for (uint32_t i = 0; i < w->nreq; i++)
         if (w->reqs[i].layer == 0)
-            pairs += w->nresource;
-    if (pairs == 0 || pairs > (size_t)w->cfg.central.optimum_limit)
-        return NAN;
-    double opt = NAN;
-    int *assign = NULL;
-    int nbids = 0;
-    for (uint32_t i = 0; i < w->nreq; i++)
-        nbids += w->reqs[i].layer == 0;
-    bgm_combex_t *cx = bgm_combex_new(nbids, (int)w->nresource, pairs);
-    assign = malloc((size_t)nbids * sizeof *assign);
-    if (!cx || !assign)
-        goto out;
-    bgm_combex_set_exact(cx, BGM_OPTIMUM_GAP, BGM_OPTIMUM_NODES);
-    for (uint32_t k = 0; k < w->nresource; k++) {
-        const agent_t *r = &w->agents[w->first_resource + k];
-        double cap[BGM_COMBEX_DIMS] = {r->cores * w->horizon, r->mem * w->horizon};
-        bgm_combex_add_seller(cx, cap);
-    }
-    int b = 0;
-    for (uint32_t i = 0; i < w->nreq; i++) {
-        const req_t *q = &w->reqs[i];
-        if (q->layer != 0)
-            continue;
-        bgm_combex_add_bid(cx);
-        const bgm_service_cfg_t *sc = &w->cfg.services[q->good];
-        double value = (q->limit - w->min_cost[q->good]) * q->work;
-        for (uint32_t k = 0; k < w->nresource; k++) {
-            const agent_t *r = &w->agents[w->first_resource + k];
-            double dur = sc->flops_per_unit * q->work / (r->speed * sc->cores);
-            double s = value - resource_cost_rate(r, sc->cores, sc->memory) * dur;
-            if (!(s > 0.0))
-                continue;
-            bgm_combex_pair_t p = {b, (int)k, s, {sc->cores * dur, sc->memory * dur}};
-            bgm_combex_add_pair(cx, &p);
-        }
-        b++;
-    }
-    bgm_combex_result_t res;
-    if (bgm_combex_solve(cx, BGM_COMBEX_EXACT, pairs, 0, assign, &res) == BG_OK &&
-        res.method == BGM_COMBEX_EXACT)
-        opt = res.objective;
+            q[nq++] = opt_request(&w->reqs[i]);
+    prob.requests = q;
+    prob.nrequests = nq;
+    bgm_opt_result_t res;
+    if (bgm_optimum_solve(&prob, (size_t)w->cfg.central.optimum_limit, &res) == BG_OK &&
+        res.status == BGM_OPT_SOLVED)
+        opt = res.value;
 out:
-    free(assign);
-    bgm_combex_destroy(&cx);
+    free(q);
+    free(b);
+    free(r);
     return opt;
 }
 
@@ -1897,14 +2392,12 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
 {
     for (int i = 0; i < BGM_M_COUNT; i++)
         m[i] = NAN;
-    double svc = 0.0, bundles = 0.0, psum = 0.0, psq = 0.0;
+    double svc = 0.0, psum = 0.0, psq = 0.0;
     for (size_t i = 0; i < w->nlog; i++) {
         if (w->log[i].layer == 0) {
             svc += 1.0;
             psum += w->log[i].price;
             psq += w->log[i].price * w->log[i].price;
-        } else if (w->log[i].good == BGM_GOOD_CORES) {
-            bundles += 1.0;
         }
     }
     m[BGM_M_REQUESTS] = w->service_requests;
@@ -1917,7 +2410,7 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
     if (w->service_requests > 0)
         m[BGM_M_ALLOCATION_RATE] = svc / w->service_requests;
     if (w->resource_requests > 0)
-        m[BGM_M_RESOURCE_ALLOCATION_RATE] = bundles / w->resource_requests;
+        m[BGM_M_RESOURCE_ALLOCATION_RATE] = w->bundles / w->resource_requests;
     m[BGM_M_ACCESS_TIME_MEDIAN] = quantile(w->acc_s, w->nacc_s, 0.5);
     m[BGM_M_ACCESS_TIME_P99] = quantile(w->acc_s, w->nacc_s, 0.99);
     m[BGM_M_RESOURCE_ACCESS_TIME_MEDIAN] = quantile(w->acc_r, w->nacc_r, 0.5);

@@ -1,8 +1,11 @@
 #!/bin/sh
-# CLI tests of `biotgrid sim`. Usage: cli.sh BIOTGRID SOURCE_DIR WORK_DIR CASE
+# CLI tests of `biotgrid sim`. Usage: cli.sh BIOTGRID SOURCE_DIR WORK_DIR CASE [AUDIT]
 #   determinism: two runs of smoke.json, same seed -> identical files;
 #                another seed -> different contracts.
 #   bad-config:  broken configs exit 2 with a message naming the field.
+#   call-audit:  smoke.json's central market with per-type call markets for
+#                the resources, on SimGrid; the audit (market_audit, AUDIT)
+#                must hold and bundles must have been rented.
 set -eu
 BIN=$1
 SRC=$2
@@ -44,11 +47,27 @@ bad-config)
     check missing-field "{\"name\":\"x\",\"seed\":1,\"replications\":1,\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]}}" "duration"
     check nested-unknown "{$BASE,\"factors\":{\"nodes\":[4],\"density\":[1]},\"central\":{\"kk\":0.5}}" "central.kk"
     check bad-k "{$BASE,\"factors\":{\"nodes\":[4],\"density\":[1]},\"central\":{\"k\":2}}" "central.k"
+    check bad-market "{$BASE,\"factors\":{\"nodes\":[4],\"density\":[1]},\"central\":{\"resource_market\":\"auction\"}}" "central.resource_market"
     set +e
     "$BIN" sim "$SMOKE" --jobs 0 2>/dev/null; rc=$?
     set -e
     [ "$rc" -eq 2 ] || { echo "FAIL: --jobs 0 exited $rc"; exit 1; }
     echo "bad-config: ok"
+    ;;
+call-audit)
+    AUDIT=$5
+    rm -rf "$WORK/call"
+    sed -e 's/"mechanisms": *\[[^]]*\]/"mechanisms": ["central"]/' \
+        -e 's/"central": *{/"central": {"resource_market": "call", /' "$SMOKE" > "$WORK/call.json"
+    grep -q '"resource_market": "call"' "$WORK/call.json" || { echo "FAIL: could not derive the config"; exit 1; }
+    "$BIN" sim "$WORK/call.json" --out "$WORK/call" --jobs 2 --quiet
+    "$AUDIT" "$WORK/call"
+    grep -q ',resource,.*,memory,' "$WORK/call/contracts.csv" || { echo "FAIL: no memory rented"; exit 1; }
+    grep -q '"resource_market":[[:space:]]*"call"' "$WORK/call/summary.json" || { echo "FAIL: summary does not say call"; exit 1; }
+    if grep -q '"winner_determination":[[:space:]]*"[eg]' "$WORK/call/summary.json"; then
+        echo "FAIL: the combinatorial exchange ran in call mode"; exit 1
+    fi
+    echo "call-audit: ok"
     ;;
 *)
     echo "unknown case $CASE"; exit 2 ;;

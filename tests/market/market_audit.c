@@ -8,7 +8,9 @@
  *      sellers) and flows job -> basic service -> resource: no basic agent
  *      pays more for resources than its services earned;
  *   4. every replication's allocation_rate equals its service contracts
- *      in contracts.csv over its requests.
+ *      in contracts.csv over its requests;
+ *   5. no replication's welfare beats the offline optimum: welfare_ratio
+ *      <= 1 wherever it is not null, and at least one is not null.
  * Prints the first violation and exits 1; exits 0 when all hold.
  */
 #include <math.h>
@@ -220,18 +222,31 @@ int main(int argc, char **argv)
     fp = fopen(path, "r");
     if (!fp || !fgets(line, sizeof line, fp))
         return fail("cannot read replications.csv");
-    int nf = split(line, f), col_rate = -1, col_req = -1;
+    int nf = split(line, f), col_rate = -1, col_req = -1, col_ratio = -1;
     for (int i = 0; i < nf; i++) {
         if (strcmp(f[i], "allocation_rate") == 0)
             col_rate = i;
         if (strcmp(f[i], "requests") == 0)
             col_req = i;
+        if (strcmp(f[i], "welfare_ratio") == 0)
+            col_ratio = i;
     }
-    if (col_rate < 0 || col_req < 0)
-        return fail("replications.csv lacks allocation_rate or requests");
-    int rows = 0;
+    if (col_rate < 0 || col_req < 0 || col_ratio < 0)
+        return fail("replications.csv lacks allocation_rate, requests or welfare_ratio");
+    int rows = 0, ratios = 0;
     while (fgets(line, sizeof line, fp)) {
-        split(line, f);
+        if (split(line, f) != nf)
+            return fail("replications.csv: row with a different field count");
+        /* 5. welfare against the offline optimum (an empty cell is null). */
+        if (f[col_ratio][0] != '\0') {
+            double ratio = atof(f[col_ratio]);
+            if (!(ratio <= 1.0 + 1e-9)) {
+                snprintf(msg, sizeof msg, "%s|%s|%s: welfare_ratio %g above 1", f[0], f[6], f[5],
+                         ratio);
+                return fail(msg);
+            }
+            ratios++;
+        }
         char key[KEY_MAX];
         snprintf(key, sizeof key, "%s|%s|%s", f[0], f[6], f[5]);
         double svc = 0;
@@ -246,8 +261,11 @@ int main(int argc, char **argv)
         rows++;
     }
     fclose(fp);
-    printf("market_audit: %zu contracts, %zu capacities, %d replications: all invariants hold\n",
-           n, ncap, rows);
+    if (ratios == 0)
+        return fail("welfare_ratio is null in every replication");
+    printf("market_audit: %zu contracts, %zu capacities, %d replications (%d welfare ratios): "
+           "all invariants hold\n",
+           n, ncap, rows, ratios);
     free(c);
     free(caps);
     free(ev);
