@@ -732,6 +732,9 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     const int reuse = opt->reuse_factor && solver->method == BG_METHOD_NEWTON;
     if (reuse && (st = qn_alloc(p, err)) != BG_OK)
         goto out;
+    /* From here on qn_push keeps qn_grad equal to the current free gradient. */
+    if (reuse)
+        gather_free(p, p->grad, p->qn_grad);
     int refactor = !p->factor_ready || p->factor_c != (p->inertia ? p->inertia->c : 0.0);
     p->qn_count = p->qn_head = 0;
     double g_best = INFINITY;
@@ -757,7 +760,6 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         double slope = NAN;
         int quasi = 0;
         if (reuse) {
-            gather_free(p, p->grad, p->qn_grad);
             if (!refactor) {
                 quasi = 1;
                 if ((st = qn_direction(p, &slope, err)) != BG_OK)
