@@ -20,18 +20,8 @@
 #include "bg_dynamics.h"
 #include "bg_plan.h"
 #include "bg_scene.h"
+#include "test_scenes.h"
 #include "test_support.h"
-
-#define SCENES BG_SOURCE_DIR "/configs/scenes/"
-
-static bg_scene_t *load(const char *path)
-{
-    bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *s = NULL;
-    if (bg_scene_load(path, &s, &err) != BG_OK)
-        fail_msg("%s", err.message);
-    return s;
-}
 
 static void integrate(const bg_scene_t *s, const bg_dynamic_options_t *o, bg_solve_result_t *r)
 {
@@ -58,7 +48,7 @@ static double mean_energy(const bg_solve_result_t *r, int from, int count)
  * mean over the last 100 steps within 0.5 % of the first 100. */
 static void bar_spin_conserves(void **state)
 {
-    bg_scene_t *s = load(SCENES "bar-spin.json");
+    bg_scene_t *s = test_load_scene(SCENES "bar-spin.json");
     assert_int_equal(s->task, BG_TASK_DYNAMIC);
     assert_int_equal(s->dynamic.steps, 1000);
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
@@ -132,7 +122,7 @@ static void check_order(const bg_scene_t *s, bg_method m, double expected)
 
 static void order_in_time(void **state)
 {
-    bg_scene_t *s = load(SCENES "bar-spin.json");
+    bg_scene_t *s = test_load_scene(SCENES "bar-spin.json");
     check_order(s, BG_METHOD_VARIATIONAL, 4.0);
     check_order(s, BG_METHOD_BACKWARD_EULER, 2.0);
     bg_scene_destroy(&s);
@@ -146,7 +136,7 @@ static void order_in_time(void **state)
  * more than doubles within 30 steps. */
 static void stiff_cantilever_stable(void **state)
 {
-    bg_scene_t *s = load(SCENES "beam-cantilever.json");
+    bg_scene_t *s = test_load_scene(SCENES "beam-cantilever.json");
     assert_true(s->material.lambda >= 1e3 * s->material.mu);
     assert_true(s->dynamic.dt >= 0.1 && s->dynamic.steps >= 500);
     assert_true(s->dynamic.damping == 0.0 && s->dynamic.energy_limit);
@@ -189,10 +179,7 @@ static void inverted_start_recovers(void **state)
                        "\"material\": {\"E\": 1e5, \"nu\": 0.3, \"density\": 1000},"
                        "\"initial\": {\"scale\": -0.75},"
                        "\"task\": {\"kind\": \"dynamic\", \"dt\": 0.01, \"steps\": 400, \"damping\": 10}}";
-    bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *s = NULL;
-    if (bg_scene_parse(json, strlen(json), "inverted.json", &s, &err) != BG_OK)
-        fail_msg("%s", err.message);
+    bg_scene_t *s = test_parse_scene(json, "inverted.json");
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     const bg_dynamic_options_t o = {.method = BG_METHOD_VARIATIONAL};
     integrate(s, &o, &r);
@@ -215,10 +202,7 @@ static void handles_over_time(void **state)
                        " \"transform\": {\"rotate\": {\"axis\": [1, 0, 0], \"degrees\": 90,"
                        " \"center\": [4, 0.5, 0.5]}}, \"duration\": 2}],"
                        "\"task\": {\"kind\": \"dynamic\", \"dt\": 0.1, \"steps\": 5}}";
-    bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *s = NULL;
-    if (bg_scene_parse(json, strlen(json), "turn.json", &s, &err) != BG_OK)
-        fail_msg("%s", err.message);
+    bg_scene_t *s = test_parse_scene(json, "turn.json");
     const size_t n = (size_t)s->mesh->nv * 3;
     double *t = malloc(n * sizeof *t);
     for (int phase = 0; phase < 3; phase++) {
@@ -244,7 +228,7 @@ static void plan_lists_integration_step(void **state)
 {
     const char *files[2] = {SCENES "bar-spin.json", SCENES "bar-twist.json"};
     for (int i = 0; i < 2; i++) {
-        bg_scene_t *s = load(files[i]);
+        bg_scene_t *s = test_load_scene(files[i]);
         bg_plan_t plan;
         bg_plan_for_scene(s, &s->method, 1, &plan);
         int needed = 0, left = 0;

@@ -19,6 +19,7 @@
 #include "bg_param.h"
 #include "bg_scene.h"
 #include "bg_static.h"
+#include "test_scenes.h"
 #include "test_support.h"
 
 static bg_scene_t *param_scene(const char *mesh, double alpha, double barrier)
@@ -28,11 +29,7 @@ static bg_scene_t *param_scene(const char *mesh, double alpha, double barrier)
              "{\"mesh\": \"%s/%s\", \"task\": {\"kind\": \"parameterize\", \"alpha\": %g, "
              "\"beta\": 1, \"barrier\": %g}}",
              BG_SHARED_MESHES, mesh, alpha, barrier);
-    bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *s = NULL;
-    if (bg_scene_parse(json, strlen(json), "param.json", &s, &err) != BG_OK)
-        fail_msg("%s", err.message);
-    return s;
+    return test_parse_scene(json, "param.json");
 }
 
 static void solve_map(const bg_scene_t *s, bg_method method, int max_iterations,

@@ -16,8 +16,8 @@
 #include <cmocka.h>
 
 #include "bg_scene.h"
+#include "test_scenes.h"
 
-#define SCENES_DIR BG_SOURCE_DIR "/configs/scenes/"
 #define FIXTURES_DIR BG_SOURCE_DIR "/tests/fixtures/scenes/"
 #ifndef M_PI
 #define M_PI 3.14159265358979323846
@@ -33,27 +33,6 @@ static void check_close(double a, double b, double tol, const char *expr, const 
 {
     if (!(fabs(a - b) <= tol))
         fail_msg("%s:%d: %s = %.17g, expected %.17g (tolerance %g)", file, line, expr, a, b, tol);
-}
-
-static bg_scene_t *load_or_fail(const char *path)
-{
-    bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *scene = NULL;
-    bg_status st = bg_scene_load(path, &scene, &err);
-    if (st != BG_OK)
-        fail_msg("%s", err.message);
-    assert_non_null(scene);
-    return scene;
-}
-
-static bg_scene_t *parse_or_fail(const char *json)
-{
-    bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *scene = NULL;
-    bg_status st = bg_scene_parse(json, strlen(json), "inline.json", &scene, &err);
-    if (st != BG_OK)
-        fail_msg("inline scene: %s", err.message);
-    return scene;
 }
 
 static int count_constrained(const bg_scene_t *s)
@@ -135,7 +114,7 @@ static void check_twisted_bar(const bg_scene_t *s, int nx, int ny, int nz, int d
 static void test_bar_twist(void **state)
 {
     (void)state;
-    bg_scene_t *s = load_or_fail(SCENES_DIR "bar-twist.json");
+    bg_scene_t *s = test_load_scene(SCENES "bar-twist.json");
     check_twisted_bar(s, 24, 6, 6, 180);
     assert_int_equal(s->constrained_vertices, 98); /* two faces of 7 x 7 */
     assert_string_equal(s->name, "bar-twist");
@@ -164,7 +143,7 @@ static void test_bar_twist(void **state)
 static void test_stiff_bar(void **state)
 {
     (void)state;
-    bg_scene_t *s = load_or_fail(SCENES_DIR "stiff-bar.json");
+    bg_scene_t *s = test_load_scene(SCENES "stiff-bar.json");
     check_twisted_bar(s, 16, 4, 4, 90);
     assert_close(s->material.lambda, 1e4, 0.0);
     assert_int_equal(s->max_iterations, 500);
@@ -174,7 +153,7 @@ static void test_stiff_bar(void **state)
 static void test_stretch_bar(void **state)
 {
     (void)state;
-    bg_scene_t *s = load_or_fail(SCENES_DIR "stretch-bar.json");
+    bg_scene_t *s = test_load_scene(SCENES "stretch-bar.json");
     assert_int_equal(s->mesh->nv, 17 * 5 * 5);
     int per_axis[3] = {0, 0, 0}, vertices = 0;
     for (int32_t v = 0; v < s->mesh->nv; v++) {
@@ -221,7 +200,7 @@ static void test_stretch_bar(void **state)
 static void test_plate_bend(void **state)
 {
     (void)state;
-    bg_scene_t *s = load_or_fail(SCENES_DIR "plate-bend.json");
+    bg_scene_t *s = test_load_scene(SCENES "plate-bend.json");
     assert_int_equal(s->mesh->dim, 2);
     assert_int_equal(s->mesh->nv, 41 * 11);
     assert_int_equal(s->mesh_format, BG_FORMAT_OBJ);
@@ -263,7 +242,7 @@ static void test_plate_bend(void **state)
 static void test_bunny_edit(void **state)
 {
     (void)state;
-    bg_scene_t *s = load_or_fail(SCENES_DIR "bunny-edit.json");
+    bg_scene_t *s = test_load_scene(SCENES "bunny-edit.json");
     assert_int_equal(s->mesh->dim, 3);
     assert_int_equal(s->mesh->nodes_per_element, 4);
     assert_int_equal(s->mesh->nv, 5433);
@@ -386,7 +365,7 @@ static void assert_mount_is_321(const bg_scene_t *s)
 static void test_inverted_bunny(void **state)
 {
     (void)state;
-    bg_scene_t *s = load_or_fail(SCENES_DIR "inverted-bunny.json");
+    bg_scene_t *s = test_load_scene(SCENES "inverted-bunny.json");
     assert_mount_is_321(s);
     assert_int_equal(s->max_iterations, 300);
     assert_int_equal(s->reference_kind, BG_REFERENCE_NONE);
@@ -408,16 +387,16 @@ static void test_inverted_bunny(void **state)
 static void test_rigid_mount_generated(void **state)
 {
     (void)state;
-    bg_scene_t *s = parse_or_fail(
+    bg_scene_t *s = test_parse_scene(
         "{\"mesh\": {\"generate\": \"rectangle\", \"cells\": [6, 3], \"size\": [3, 1.5],"
         " \"origin\": [1, -2]}, \"material\": {\"mu\": 1, \"lambda\": 1},"
-        " \"handles\": [{\"select\": \"rigid-mount\"}]}");
+        " \"handles\": [{\"select\": \"rigid-mount\"}]}", "inline.json");
     assert_mount_is_321(s);
     bg_scene_destroy(&s);
-    s = parse_or_fail(
+    s = test_parse_scene(
         "{\"mesh\": {\"generate\": \"box\", \"cells\": [3, 5, 2], \"size\": [1, 2, 0.5]},"
         " \"material\": {\"mu\": 1, \"lambda\": 1},"
-        " \"handles\": [{\"select\": \"rigid-mount\"}]}");
+        " \"handles\": [{\"select\": \"rigid-mount\"}]}", "inline.json");
     assert_mount_is_321(s);
     bg_scene_destroy(&s);
 }
@@ -431,7 +410,7 @@ static void test_rigid_mount_generated(void **state)
 
 static void check_material(const char *json, double mu, double lambda)
 {
-    bg_scene_t *s = parse_or_fail(json);
+    bg_scene_t *s = test_parse_scene(json, "inline.json");
     assert_close(s->material.mu, mu, EXACT);
     assert_close(s->material.lambda, lambda, EXACT);
     bg_scene_destroy(&s);
@@ -457,9 +436,9 @@ static void test_materials(void **state)
     /* A negative lambda is fine while 3 lambda + 2 mu > 0. */
     check_material("{" BOX_MESH ", " FIX_ALL ", \"material\": {\"mu\": 1, \"lambda\": -0.5}}", 1.0,
                    -0.5);
-    bg_scene_t *s = parse_or_fail("{" BOX_MESH ", " FIX_ALL
+    bg_scene_t *s = test_parse_scene("{" BOX_MESH ", " FIX_ALL
                                   ", \"material\": {\"mu\": 1, \"lambda\": 1, \"density\": 7850},"
-                                  " \"gravity\": [0, -9.81, 0]}");
+                                  " \"gravity\": [0, -9.81, 0]}", "inline.json");
     assert_close(s->material.density, 7850.0, 0.0);
     assert_close(s->gravity[1], -9.81, 0.0);
     assert_close(s->gravity[0], 0.0, 0.0);
@@ -470,9 +449,9 @@ static void test_uniaxial_planar(void **state)
 {
     (void)state;
     /* Plane: nu = lambda / (2 mu + lambda) = 2 / 4; stretch 0.9 about origin [1, 1]. */
-    bg_scene_t *s = parse_or_fail(
+    bg_scene_t *s = test_parse_scene(
         "{" RECT_MESH ", " FIX_ALL_2D ", \"material\": {\"mu\": 1, \"lambda\": 2},"
-        " \"reference\": {\"uniaxial\": {\"axis\": \"y\", \"stretch\": 0.9, \"origin\": [1, 1]}}}");
+        " \"reference\": {\"uniaxial\": {\"axis\": \"y\", \"stretch\": 0.9, \"origin\": [1, 1]}}}", "inline.json");
     const double t = 1.0 - 0.5 * (0.9 - 1.0);
     for (int32_t v = 0; v < s->mesh->nv; v++) {
         const double *p = s->mesh->x + 2 * (size_t)v, *r = s->reference + 2 * (size_t)v;
@@ -488,9 +467,9 @@ static void test_affine_reference_and_defaults(void **state)
 {
     (void)state;
     bg_scene_t *s =
-        parse_or_fail("{" BOX_MESH ", " FIX_ALL ", \"material\": {\"mu\": 1, \"lambda\": 1},"
+        test_parse_scene("{" BOX_MESH ", " FIX_ALL ", \"material\": {\"mu\": 1, \"lambda\": 1},"
                       " \"reference\": {\"affine\": {\"matrix\": [[2, 0, 0], [0, 1, 1], [0, 0, 1]],"
-                      " \"translation\": [1, 2, 3]}}}");
+                      " \"translation\": [1, 2, 3]}}}", "inline.json");
     assert_string_equal(s->name, "inline");
     assert_string_equal(s->path, "inline.json");
     assert_int_equal(s->method, BG_METHOD_NEWTON);
@@ -511,12 +490,12 @@ static void test_agreeing_overlap_and_components(void **state)
     (void)state;
     /* Two fixed faces sharing an edge agree there; a roller and a fixed face
      * on the same coordinates with the same values are accepted too. */
-    bg_scene_t *s = parse_or_fail(
+    bg_scene_t *s = test_parse_scene(
         "{" BOX_MESH ", \"material\": {\"mu\": 1, \"lambda\": 1}, \"handles\": ["
         "{\"select\": {\"box\": {\"min\": [0,0,0], \"max\": [0,1,1]}}},"
         "{\"select\": {\"box\": {\"min\": [0,0,0], \"max\": [1,0,1]}}, \"components\": \"yz\"},"
         "{\"select\": {\"vertices\": [26]}, \"positions\": [[1.5, 1, 1]], \"components\": "
-        "\"x\"}]}");
+        "\"x\"}]}", "inline.json");
     assert_int_equal(s->handle_count, 3);
     assert_int_equal(s->constrained_vertices, 9 + 6 + 1);
     assert_int_equal(count_constrained(s), 27 + 12 + 1);
@@ -533,9 +512,9 @@ static void test_random_initial(void **state)
                       " \"initial\": {\"random\": {\"seed\": %d, \"extent\": 2}}}";
     char json[1024];
     snprintf(json, sizeof json, fmt, 7);
-    bg_scene_t *a = parse_or_fail(json), *b = parse_or_fail(json);
+    bg_scene_t *a = test_parse_scene(json, "inline.json"), *b = test_parse_scene(json, "inline.json");
     snprintf(json, sizeof json, fmt, 8);
-    bg_scene_t *c = parse_or_fail(json);
+    bg_scene_t *c = test_parse_scene(json, "inline.json");
     int differ = 0;
     for (size_t k = 0; k < (size_t)a->mesh->nv * 3; k++) {
         assert_close(a->initial[k], b->initial[k], 0.0);
@@ -556,7 +535,7 @@ static void test_random_initial(void **state)
 static void test_planar_file_fixture(void **state)
 {
     (void)state;
-    bg_scene_t *s = load_or_fail(FIXTURES_DIR "flat-square.json");
+    bg_scene_t *s = test_load_scene(FIXTURES_DIR "flat-square.json");
     assert_string_equal(s->name, "flat-square");
     assert_int_equal(s->mesh->dim, 2);
     assert_int_equal(s->mesh->nv, 4);
@@ -581,14 +560,14 @@ static void test_planar_file_fixture(void **state)
 static void test_whole_mesh_positions_file(void **state)
 {
     (void)state;
-    bg_scene_t *s = parse_or_fail(
+    bg_scene_t *s = test_parse_scene(
         "{\"mesh\": \"" BG_SHARED_MESHES
         "/bar-straight.mesh\", \"material\": {\"mu\": 1, \"lambda\": 1},"
         " \"handles\": [{\"select\": {\"box_fraction\": {\"min\": [0, 0, 0], \"max\": [0.02, 1, "
         "1]}}},"
         " {\"select\": {\"box_fraction\": {\"min\": [0.98, 0, 0], \"max\": [1, 1, 1]}},"
         " \"positions\": \"" BG_SHARED_MESHES "/bar-twisted-positions.txt\"}],"
-        " \"reference\": {\"positions\": \"" BG_SHARED_MESHES "/bar-twisted-positions.txt\"}}");
+        " \"reference\": {\"positions\": \"" BG_SHARED_MESHES "/bar-twisted-positions.txt\"}}", "inline.json");
     assert_int_equal(s->mesh->nv, 750);
     assert_int_equal(s->reference_kind, BG_REFERENCE_POSITIONS);
     double lo = INFINITY, hi = -INFINITY;

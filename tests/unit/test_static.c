@@ -19,27 +19,8 @@
 #include "bg_elastic.h"
 #include "bg_scene.h"
 #include "bg_static.h"
+#include "test_scenes.h"
 #include "test_support.h"
-
-#define SCENES BG_SOURCE_DIR "/configs/scenes/"
-
-static bg_scene_t *load(const char *path)
-{
-    bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *s = NULL;
-    if (bg_scene_load(path, &s, &err) != BG_OK)
-        fail_msg("%s", err.message);
-    return s;
-}
-
-static bg_scene_t *parse(const char *json)
-{
-    bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *s = NULL;
-    if (bg_scene_parse(json, strlen(json), "inline.json", &s, &err) != BG_OK)
-        fail_msg("%s", err.message);
-    return s;
-}
 
 static void solve(const bg_scene_t *s, bg_method method, double tol, int max_it,
                   bg_solve_result_t *r)
@@ -82,7 +63,7 @@ static double relative_distance(const double *a, const double *b, size_t n)
  * (Newton lands on it to round-off). */
 static void uniaxial_bar(void **state)
 {
-    bg_scene_t *s = load(SCENES "stretch-bar.json");
+    bg_scene_t *s = test_load_scene(SCENES "stretch-bar.json");
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     solve(s, BG_METHOD_NEWTON, 1e-12, 50, &r);
     assert_true(r.converged);
@@ -143,7 +124,7 @@ static void patch_test_dim(int d)
     for (int i = 0; i < nb; i++)
         len += snprintf(json + len, sizeof json - (size_t)len, "%s%d", i ? ", " : "", boundary[i]);
     snprintf(json + len, sizeof json - (size_t)len, "]}, \"positions\": \"%s\"}]}", positions);
-    bg_scene_t *s = parse(json);
+    bg_scene_t *s = test_parse_scene(json, "inline.json");
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     solve(s, BG_METHOD_NEWTON, 1e-12, 50, &r);
     assert_true(r.converged);
@@ -187,7 +168,7 @@ static int converges_quadratically(const bg_solve_result_t *r)
 
 static void methods_agree(const char *scene, double lg_tol, int lg_max, double agree)
 {
-    bg_scene_t *s = load(scene);
+    bg_scene_t *s = test_load_scene(scene);
     bg_solve_result_t rn = BG_SOLVE_RESULT_INIT, rl = BG_SOLVE_RESULT_INIT;
     solve(s, BG_METHOD_NEWTON, 1e-10, 200, &rn);
     solve(s, BG_METHOD_LOCAL_GLOBAL, lg_tol, lg_max, &rl);
@@ -224,7 +205,7 @@ static void bunny_edit_same_minimizer(void **state)
  * edge lengths restored. */
 static void inverted_bunny_recovers(void **state)
 {
-    bg_scene_t *s = load(SCENES "inverted-bunny.json");
+    bg_scene_t *s = test_load_scene(SCENES "inverted-bunny.json");
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     solve(s, BG_METHOD_NEWTON, 1e-9, 300, &r);
     assert_true(r.converged);
@@ -239,7 +220,7 @@ static void inverted_bunny_recovers(void **state)
 
 static void stiff_bar_converges(void **state)
 {
-    bg_scene_t *s = load(SCENES "stiff-bar.json");
+    bg_scene_t *s = test_load_scene(SCENES "stiff-bar.json");
     assert_true(s->material.lambda / s->material.mu >= 1e4);
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     solve(s, BG_METHOD_NEWTON, 1e-8, 500, &r);
@@ -259,7 +240,7 @@ static void random_start_converges(void **state)
                        "{\"select\": {\"box\": {\"min\": [4,0,0], \"max\": [4,1,1]}},"
                        " \"transform\": {\"translate\": [0.5, 0, 0]}}],"
                        "\"initial\": {\"random\": {\"seed\": 7}}}";
-    bg_scene_t *s = parse(json);
+    bg_scene_t *s = test_parse_scene(json, "inline.json");
     bg_solve_result_t rn = BG_SOLVE_RESULT_INIT, rl = BG_SOLVE_RESULT_INIT;
     solve(s, BG_METHOD_NEWTON, 1e-10, 500, &rn);
     solve(s, BG_METHOD_LOCAL_GLOBAL, 1e-10, 5000, &rl);
@@ -286,7 +267,7 @@ static void gravity_reaction_balances_weight(void **state)
                        "\"material\": {\"E\": 2e5, \"nu\": 0.3, \"density\": 1000},"
                        "\"gravity\": [0, 0, -9.81],"
                        "\"handles\": [{\"select\": {\"box\": {\"min\": [0,0,0], \"max\": [0,0.5,0.5]}}}]}";
-    bg_scene_t *s = parse(json);
+    bg_scene_t *s = test_parse_scene(json, "inline.json");
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     solve(s, BG_METHOD_NEWTON, 1e-11, 100, &r);
     assert_true(r.converged);
@@ -329,9 +310,10 @@ static void gravity_reaction_balances_weight(void **state)
 /* A handle moving every vertex leaves nothing to solve: a clear error. */
 static void nothing_free_is_an_error(void **state)
 {
-    bg_scene_t *s = parse("{\"mesh\": {\"generate\": \"rectangle\", \"cells\": [2, 2], \"size\": "
+    bg_scene_t *s = test_parse_scene("{\"mesh\": {\"generate\": \"rectangle\", \"cells\": [2, 2], \"size\": "
                           "[1, 1]}, \"material\": {\"mu\": 1, \"lambda\": 0}, \"handles\": "
-                          "[{\"select\": {\"box_fraction\": {\"min\": [0, 0], \"max\": [1, 1]}}}]}");
+                          "[{\"select\": {\"box_fraction\": {\"min\": [0, 0], \"max\": [1, 1]}}}]}",
+                                      "inline.json");
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     bg_error_t err = BG_ERROR_INIT;
     const bg_solve_options_t o = {.method = BG_METHOD_NEWTON, .tolerance = 1e-8,

@@ -17,9 +17,8 @@
 
 #include "bg_scene.h"
 #include "bg_surface_arap.h"
+#include "test_scenes.h"
 #include "test_support.h"
-
-#define SCENES BG_SOURCE_DIR "/configs/scenes/"
 
 static bg_scene_t *knight(const char *head_motion)
 {
@@ -32,11 +31,7 @@ static bg_scene_t *knight(const char *head_motion)
              "{\"select\": {\"file\": \"%s\", \"group\": 0}%s}],"
              "\"initial\": \"rest\", \"solver\": {\"method\": \"local-global\"}}",
              BG_SHARED_MESHES, dmat, head_motion, dmat, head_motion, dmat, head_motion);
-    bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *s = NULL;
-    if (bg_scene_parse(json, strlen(json), "knight.json", &s, &err) != BG_OK)
-        fail_msg("%s", err.message);
-    return s;
+    return test_parse_scene(json, "knight.json");
 }
 
 static void gradient_matches_differences(void **state)
@@ -86,9 +81,7 @@ static void rigid_motion_reproduced(void **state)
 static void knight_edit_monotone(void **state)
 {
     bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *s = NULL;
-    if (bg_scene_load(SCENES "knight-edit.json", &s, &err) != BG_OK)
-        fail_msg("%s", err.message);
+    bg_scene_t *s = test_load_scene(SCENES "knight-edit.json");
     const bg_solve_options_t o = {.method = s->method, .tolerance = s->tolerance,
                                   .max_iterations = s->max_iterations};
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
