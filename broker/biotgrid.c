@@ -1,49 +1,152 @@
 /*
  * biotgrid — the command-line entry point. A thin dispatcher: each
- * subcommand is a library function taking (argc, argv) from the subcommand
- * name on and returning the process exit status.
+ * subcommand is a function taking (argc, argv) from the subcommand name on
+ * and returning the process exit status (cmd.h). `biotgrid help COMMAND`
+ * and the manual page print the same text as `COMMAND --help`.
  */
 #include <stdio.h>
 #include <string.h>
 
-#include "bg_cli.h"
+#include "cmd.h"
+#include "cmd_solve.h"
 #ifdef BIOTGRID_HAVE_MARKET
 #include "bgm_sim.h"
 #endif
+
+#ifndef BIOTGRID_VERSION
+#define BIOTGRID_VERSION "unknown"
+#endif
+
+typedef struct command {
+    const char *name;
+    const char *synopsis;
+    const char *summary;
+    int (*run)(int argc, char **argv);
+    const char *usage; /* the --help text; NULL: the command prints its own */
+} command_t;
+
+static const command_t COMMANDS[] = {
+    {"solve", "solve SCENE.json [options]", "solve an elastic deformation scene locally",
+     bg_cmd_solve, bg_cmd_solve_usage},
+    {"validate", "validate SCENE.json", "check a scene without solving it", bg_cmd_validate,
+     bg_cmd_validate_usage},
+#ifdef BIOTGRID_HAVE_MARKET
+    {"sim", "sim EXPERIMENT.json [options]", "run a market simulation experiment",
+     bgm_sim_command, NULL},
+#endif
+};
+#define COMMAND_COUNT (sizeof COMMANDS / sizeof COMMANDS[0])
 
 static void usage(FILE *out)
 {
     fputs("usage: biotgrid <command> [options]\n"
           "\n"
-          "commands:\n"
-          "  solve SCENE.json   solve an elastic deformation scene locally\n"
-#ifdef BIOTGRID_HAVE_MARKET
-          "  sim EXPERIMENT.json  run a market simulation experiment\n"
-#endif
-          "  help               this text\n"
-          "\n"
-          "Run `biotgrid <command> --help` for a command's options.\n",
+          "commands:\n",
           out);
+    for (size_t i = 0; i < COMMAND_COUNT; i++)
+        fprintf(out, "  %-34s %s\n", COMMANDS[i].synopsis, COMMANDS[i].summary);
+    fputs("  help [COMMAND]                     this text, or a command's options\n"
+          "  --version                          the version\n"
+          "\n"
+          "Run `biotgrid help COMMAND` (or `biotgrid COMMAND --help`) for a command's options.\n",
+          out);
+}
+
+static const command_t *find(const char *name)
+{
+    for (size_t i = 0; i < COMMAND_COUNT; i++)
+        if (strcmp(COMMANDS[i].name, name) == 0)
+            return &COMMANDS[i];
+    return NULL;
+}
+
+static int help(const char *name)
+{
+    const command_t *c = find(name);
+    if (!c) {
+        fprintf(stderr, "biotgrid help: unknown command '%s'\n", name);
+        usage(stderr);
+        return BG_EXIT_BAD_INPUT;
+    }
+    if (c->usage) {
+        fputs(c->usage, stdout);
+        return BG_EXIT_OK;
+    }
+    char *argv[] = {(char *)c->name, (char *)"--help", NULL};
+    return c->run(2, argv);
+}
+
+/* Writes text as roff: a literal block, with backslashes and leading dots escaped. */
+static void roff_literal(FILE *out, const char *text)
+{
+    fputs(".nf\n", out);
+    int line_start = 1;
+    for (const char *p = text; *p; p++) {
+        if (line_start && (*p == '.' || *p == '\''))
+            fputs("\\&", out);
+        if (*p == '\\')
+            fputs("\\e", out);
+        else
+            fputc(*p, out);
+        line_start = *p == '\n';
+    }
+    fputs(".fi\n", out);
+}
+
+/* The manual page, biotgrid(1), built from the commands' --help texts. */
+static int manual(FILE *out)
+{
+    fprintf(out, ".TH BIOTGRID 1 \"\" \"biotgrid %s\" \"User Commands\"\n", BIOTGRID_VERSION);
+    fputs(".SH NAME\nbiotgrid \\- elastic deformation solver and solver-market simulator\n"
+          ".SH SYNOPSIS\n",
+          out);
+    for (size_t i = 0; i < COMMAND_COUNT; i++)
+        fprintf(out, ".B biotgrid\n%s\n.br\n", COMMANDS[i].synopsis);
+    fputs(".SH DESCRIPTION\nbiotgrid solves elastic deformation jobs (editing, simulation, "
+          "morphing, parameterization of triangle and tetrahedral meshes) with the geometric "
+          "model of Chao et al. (2010), and simulates the markets that sell their basic "
+          "services.\n.SH COMMANDS\n",
+          out);
+    for (size_t i = 0; i < COMMAND_COUNT; i++) {
+        fprintf(out, ".SS %s\n", COMMANDS[i].name);
+        if (COMMANDS[i].usage)
+            roff_literal(out, COMMANDS[i].usage);
+        else
+            fprintf(out, "%s; see\n.B biotgrid help %s\n", COMMANDS[i].summary,
+                    COMMANDS[i].name);
+    }
+    fputs(".SH ENVIRONMENT\n.TP\n.B " BG_CMD_MESH_PATH_ENV "\n"
+          "Folders (':'-separated) in which a scene's relative mesh or data file is looked up "
+          "by its file name when it is not found beside the scene.\n"
+          ".SH EXIT STATUS\n0 success, 1 ran but did not reach its goal (a report is still "
+          "written), 2 bad input or usage.\n",
+          out);
+    return BG_EXIT_OK;
 }
 
 int main(int argc, char **argv)
 {
     if (argc < 2) {
         usage(stderr);
-        return 2;
+        return BG_EXIT_BAD_INPUT;
     }
     const char *cmd = argv[1];
-    if (strcmp(cmd, "solve") == 0)
-        return bg_cli_solve(argc - 1, argv + 1);
-#ifdef BIOTGRID_HAVE_MARKET
-    if (strcmp(cmd, "sim") == 0)
-        return bgm_sim_command(argc - 1, argv + 1);
-#endif
+    const command_t *c = find(cmd);
+    if (c)
+        return c->run(argc - 1, argv + 1);
+    if (strcmp(cmd, "--version") == 0 || strcmp(cmd, "version") == 0) {
+        printf("biotgrid %s\n", BIOTGRID_VERSION);
+        return BG_EXIT_OK;
+    }
+    if (strcmp(cmd, "--man") == 0)
+        return manual(stdout);
     if (strcmp(cmd, "help") == 0 || strcmp(cmd, "--help") == 0 || strcmp(cmd, "-h") == 0) {
+        if (argc > 2)
+            return help(argv[2]);
         usage(stdout);
-        return 0;
+        return BG_EXIT_OK;
     }
     fprintf(stderr, "biotgrid: unknown command '%s'\n", cmd);
     usage(stderr);
-    return 2;
+    return BG_EXIT_BAD_INPUT;
 }

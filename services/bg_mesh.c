@@ -1,6 +1,7 @@
 #include "bg_mesh.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -156,12 +157,16 @@ bg_status bg_mesh_validate(bg_mesh_t *mesh, const char *source, int32_t *reorien
         }
         double measure = bg_mesh_element_measure(mesh, mesh->x, e);
         double scale = pow(longest_edge(mesh, e), k - 1);
-        if (!(fabs(measure) > BG_MESH_DEGENERACY_RATIO * scale))
+        if (!(fabs(measure) > BG_MESH_DEGENERACY_RATIO * scale)) {
+            char fourth[16] = "";
+            if (k == 4)
+                snprintf(fourth, sizeof fourth, " %d", (int)el[3] + 1);
             return bg_error_set(err, BG_ERR_INVALID,
                                 "%s: element %d (vertices %d %d %d%s) is degenerate: its %s is "
                                 "%.3g, zero for its size",
                                 source, (int)e + 1, (int)el[0] + 1, (int)el[1] + 1, (int)el[2] + 1,
-                                k == 4 ? " ..." : "", k == 4 ? "volume" : "area", measure);
+                                fourth, k == 4 ? "volume" : "area", measure);
+        }
         if (measure < 0.0 && bg_mesh_kind_of(mesh) != BG_MESH_SURFACE) {
             int32_t t = el[1];
             el[1] = el[2];

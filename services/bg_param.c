@@ -388,3 +388,17 @@ bg_status bg_param_write_obj(const bg_scene_t *s, const double *uv, const char *
         return bg_error_set(err, BG_ERR_IO, "%s: write failed", path);
     return BG_OK;
 }
+
+bg_status bg_param_check(const bg_mesh_t *surface, const char *name, bg_error_t *err)
+{
+    if (bg_mesh_kind_of(surface) != BG_MESH_SURFACE)
+        return bg_error_set(err, BG_ERR_INVALID, "%s: parameterization needs a triangle surface "
+                            "in 3D, got %s", name, bg_mesh_kind_name(bg_mesh_kind_of(surface)));
+    int32_t *loop = malloc(((size_t)surface->nv + 1) * sizeof *loop);
+    int32_t nloop = 0;
+    if (!loop)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory checking the parameterization");
+    bg_status st = boundary_loop(surface, name, loop, &nloop, err);
+    free(loop);
+    return st;
+}

@@ -1,14 +1,17 @@
 #include "bg_scene.h"
 
+#include "bg_clock.h"
 #include "bg_initial.h"
 #include "bg_param.h"
 
 #include <cJSON.h>
+#include <errno.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 /* Field paths in messages ("handles[12].transform.rotate.axis") fit here. */
 #define FIELD_MAX 256
@@ -45,6 +48,7 @@ static const char AXIS_NAMES[] = "xyz";
 typedef struct parser {
     const char *file; /* the scene as named in messages */
     char *dir;        /* base for relative paths: "" (cwd) or "dir/" */
+    const char *search_path; /* ':'-separated folders for files not found beside the scene */
     bg_error_t *err;
     bg_scene_t *scene;
     int dim;
@@ -242,18 +246,76 @@ static char *directory_of(const char *path)
     return dir;
 }
 
-/* A path inside the scene, relative to the scene's directory unless absolute. */
+static int file_exists(const char *path)
+{
+    struct stat st;
+    return stat(path, &st) == 0 && !S_ISDIR(st.st_mode);
+}
+
+/* "dir/name" in a new string (dir without its trailing slashes). */
+static char *join_folder(const char *dir, size_t dir_length, const char *name)
+{
+    while (dir_length > 1 && dir[dir_length - 1] == '/')
+        dir_length--;
+    size_t n = dir_length + 1 + strlen(name) + 1;
+    char *out = malloc(n);
+    if (out)
+        snprintf(out, n, "%.*s/%s", (int)dir_length, dir, name);
+    return out;
+}
+
+/*
+ * A path inside the scene: absolute as given, else relative to the scene's
+ * directory. A relative file that is not there is looked up by its file
+ * name in each folder of the search path, in order, so that scenes written
+ * for one layout of the data (configs/scenes -> ../../../shared/data/meshes)
+ * run wherever a user keeps the public meshes. Not found anywhere:
+ * BG_ERR_NOT_FOUND naming the path tried and the folders searched.
+ */
 static bg_status resolve_path(parser_t *p, const char *field, const char *relative, char **out)
 {
+    *out = NULL;
     if (!relative[0])
         return fail(p, BG_ERR_INVALID, field, "empty path");
     const char *base = relative[0] == '/' ? "" : p->dir;
     size_t n = strlen(base) + strlen(relative) + 1;
-    *out = malloc(n);
-    if (!*out)
+    char *beside = malloc(n);
+    if (!beside)
         return fail(p, BG_ERR_NOMEM, field, "out of memory");
-    snprintf(*out, n, "%s%s", base, relative);
-    return BG_OK;
+    snprintf(beside, n, "%s%s", base, relative);
+    if (relative[0] == '/' || file_exists(beside)) {
+        *out = beside;
+        return BG_OK;
+    }
+    const int why = errno ? errno : ENOENT;
+    const char *slash = strrchr(relative, '/');
+    const char *name = slash ? slash + 1 : relative;
+    const char *folders = p->search_path ? p->search_path : "";
+    for (const char *f = folders; *f;) {
+        size_t length = strcspn(f, ":");
+        if (length > 0 && name[0]) {
+            char *candidate = join_folder(f, length, name);
+            if (!candidate) {
+                free(beside);
+                return fail(p, BG_ERR_NOMEM, field, "out of memory");
+            }
+            if (file_exists(candidate)) {
+                free(beside);
+                *out = candidate;
+                return BG_OK;
+            }
+            free(candidate);
+        }
+        f += length;
+        if (*f == ':')
+            f++;
+    }
+    bg_status st = fail(p, BG_ERR_NOT_FOUND, field,
+                        "%s not found: no file %s (%s), and no %s in the mesh search path (%s)",
+                        relative, beside, strerror(why), name,
+                        folders[0] ? folders : "empty");
+    free(beside);
+    return st;
 }
 
 static char *stem_of(const char *path)
@@ -1263,10 +1325,9 @@ static bg_status parse_initial(parser_t *p, const cJSON *item)
     const int interpolate =
         (!item && moving && s->task == BG_TASK_STATIC) || (cJSON_IsString(item) && strcmp(item->valuestring, "interpolate") == 0);
     if (interpolate) {
+        /* The harmonic guess is a solve: bg_scene_prepare computes it. */
         s->initial_kind = BG_INITIAL_INTERPOLATE;
-        st = bg_initial_interpolate(s, s->initial, p->err);
-        if (st != BG_OK)
-            return st;
+        memcpy(s->initial, s->mesh->x, n * sizeof *s->initial);
     } else if (!item || (cJSON_IsString(item) && strcmp(item->valuestring, "rest") == 0)) {
         s->initial_kind = BG_INITIAL_REST;
         memcpy(s->initial, s->mesh->x, n * sizeof *s->initial);
@@ -1563,15 +1624,44 @@ static bg_status parse_solver(parser_t *p, const cJSON *item)
             return fail(p, BG_ERR_INVALID, "solver.tolerance", "must be in (0, 1), got %g",
                         s->tolerance);
     }
-    if (member(item, "max_iterations")) {
+    const cJSON *cap = member(item, "max_iterations");
+    if (cJSON_IsObject(cap)) {
+        /* One cap per method: Newton and local/global iterations differ in
+         * cost by orders of magnitude, so one number cannot fit both. */
+        static const char *const methods[] = {"newton", "local-global", "variational",
+                                              "backward-euler", NULL};
+        st = check_keys(p, cap, "solver.max_iterations", methods);
+        for (const cJSON *m = cap->child; st == BG_OK && m; m = m->next) {
+            char field[FIELD_MAX];
+            field_key(field, "solver.max_iterations", m->string);
+            bg_method method = BG_METHOD_NEWTON;
+            int64_t n = 0;
+            st = bg_method_parse(m->string, &method, NULL);
+            if (st == BG_OK)
+                st = read_integer(p, m, field, 1.0, (double)MAX_ITERATIONS_LIMIT, &n);
+            if (st == BG_OK)
+                s->method_max_iterations[method] = (int)n;
+        }
+        if (st == BG_OK && s->method_max_iterations[s->method] > 0)
+            s->max_iterations = s->method_max_iterations[s->method];
+        return st;
+    }
+    if (cap) {
         int64_t n = 0;
-        st = read_integer(p, member(item, "max_iterations"), "solver.max_iterations", 1.0,
-                          (double)MAX_ITERATIONS_LIMIT, &n);
+        st = read_integer(p, cap, "solver.max_iterations", 1.0, (double)MAX_ITERATIONS_LIMIT, &n);
         if (st != BG_OK)
             return st;
         s->max_iterations = (int)n;
     }
     return BG_OK;
+}
+
+int bg_scene_max_iterations(const bg_scene_t *scene, bg_method method)
+{
+    const int cap = (int)method >= 0 && (int)method < BG_METHOD_COUNT
+                        ? scene->method_max_iterations[method]
+                        : 0;
+    return cap > 0 ? cap : scene->max_iterations;
 }
 
 static bg_status reference_affine(parser_t *p, const cJSON *spec, double *out)
@@ -1776,7 +1866,7 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
                 return fail(p, BG_ERR_INVALID, unused[i], "not used by a parameterize task");
         st = parse_solver(p, member(root, "solver"));
         if (st == BG_OK)
-            st = bg_param_setup(s, p->err);
+            st = bg_param_check(s->mesh, s->path, p->err);
         if (st == BG_OK)
             s->mesh_format = BG_FORMAT_OBJ;
         return st;
@@ -1813,13 +1903,15 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
     return st;
 }
 
-bg_status bg_scene_parse(const char *json, size_t length, const char *path, bg_scene_t **out,
-                         bg_error_t *err)
+bg_status bg_scene_parse_with(const char *json, size_t length, const char *path,
+                              const bg_scene_options_t *options, bg_scene_t **out,
+                              bg_error_t *err)
 {
     *out = NULL;
     parser_t p = {0};
     p.file = path ? path : MEMORY_NAME;
     p.err = err;
+    p.search_path = options ? options->search_path : NULL;
     cJSON *root = NULL;
     bg_status st = BG_OK;
     if (length > BG_SCENE_MAX_BYTES)
@@ -1834,6 +1926,14 @@ bg_status bg_scene_parse(const char *json, size_t length, const char *path, bg_s
     p.scene->path = copy_string(p.file);
     if (!p.scene->path) {
         st = fail(&p, BG_ERR_NOMEM, NULL, "out of memory");
+        goto out;
+    }
+    size_t blank = 0;
+    while (blank < length && (json[blank] == ' ' || json[blank] == '\t' || json[blank] == '\n' ||
+                              json[blank] == '\r'))
+        blank++;
+    if (blank == length) {
+        st = fail(&p, BG_ERR_PARSE, NULL, length ? "empty file (only white space)" : "empty file");
         goto out;
     }
     const char *end = NULL;
@@ -1870,7 +1970,39 @@ out:
     return st;
 }
 
-bg_status bg_scene_load(const char *path, bg_scene_t **out, bg_error_t *err)
+bg_status bg_scene_prepare(bg_scene_t *s, bg_error_t *err)
+{
+    if (s->prepared)
+        return BG_OK;
+    const double start = bg_clock_now();
+    bg_status st = BG_OK;
+    if (s->task == BG_TASK_PARAMETERIZE) {
+        st = bg_param_setup(s, err);
+    } else if (s->initial_kind == BG_INITIAL_INTERPOLATE) {
+        const size_t n = (size_t)s->mesh->nv * s->mesh->dim;
+        st = bg_initial_interpolate(s, s->initial, err);
+        for (size_t k = 0; st == BG_OK && k < n; k++)
+            if (s->constrained[k])
+                s->initial[k] = s->target[k];
+    }
+    if (st != BG_OK)
+        return st;
+    s->prepare_seconds = bg_clock_now() - start;
+    s->prepared = 1;
+    return BG_OK;
+}
+
+bg_status bg_scene_parse(const char *json, size_t length, const char *path, bg_scene_t **out,
+                         bg_error_t *err)
+{
+    bg_status st = bg_scene_parse_with(json, length, path, NULL, out, err);
+    if (st == BG_OK && (st = bg_scene_prepare(*out, err)) != BG_OK)
+        bg_scene_destroy(out);
+    return st;
+}
+
+bg_status bg_scene_load_with(const char *path, const bg_scene_options_t *options,
+                             bg_scene_t **out, bg_error_t *err)
 {
     *out = NULL;
     char *text = NULL;
@@ -1878,8 +2010,16 @@ bg_status bg_scene_load(const char *path, bg_scene_t **out, bg_error_t *err)
     bg_status st = bg_file_read_all(path, BG_SCENE_MAX_BYTES, &text, &length, err);
     if (st != BG_OK)
         return st;
-    st = bg_scene_parse(text, length, path, out, err);
+    st = bg_scene_parse_with(text, length, path, options, out, err);
     free(text);
+    return st;
+}
+
+bg_status bg_scene_load(const char *path, bg_scene_t **out, bg_error_t *err)
+{
+    bg_status st = bg_scene_load_with(path, NULL, out, err);
+    if (st == BG_OK && (st = bg_scene_prepare(*out, err)) != BG_OK)
+        bg_scene_destroy(out);
     return st;
 }
 

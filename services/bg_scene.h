@@ -31,6 +31,8 @@ typedef enum bg_method {
     BG_METHOD_BACKWARD_EULER = 3, /* dynamic: the dissipative baseline */
 } bg_method;
 
+#define BG_METHOD_COUNT 4
+
 /* Whether a method integrates in time (variational, backward-euler). */
 int bg_method_is_dynamic(bg_method method);
 
@@ -130,23 +132,59 @@ typedef struct bg_scene {
     double alpha, beta;
     double barrier;             /* parameterize: area-barrier weight relative to μ (default 1,
                                    0: none; see bg_elastic_set_barrier) */
+    int prepared;               /* bg_scene_prepare has run: the scene is ready to solve */
+    double prepare_seconds;     /* wall time bg_scene_prepare spent */
     bg_method method;           /* solver.method, default newton */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
-    int max_iterations;         /* solver.max_iterations, default 200 */
+    int max_iterations;         /* solver.max_iterations (or its entry for `method`),
+                                   default 200 */
+    int method_max_iterations[BG_METHOD_COUNT]; /* solver.max_iterations given per method
+                                                   ({"newton": n, ...}); 0 where not given */
 } bg_scene_t;
 
 #define BG_SCENE_DEFAULT_TOLERANCE 1e-8
 #define BG_SCENE_DEFAULT_MAX_ITERATIONS 200
 
+/* How a scene finds the files it names. Zero-initialised = defaults. */
+typedef struct bg_scene_options {
+    /* Folders (separated by ':') where a relative file that is not found
+     * beside the scene is looked up by its file name, in order; NULL or ""
+     * for none. Borrowed for the duration of the call. The `biotgrid`
+     * command fills it from --mesh-path and BIOTGRID_MESH_PATH. */
+    const char *search_path;
+} bg_scene_options_t;
+
 /*
- * Parses a scene from JSON text. `path` names the scene in messages and
+ * Parses and validates a scene from JSON text, running no solve (see
+ * bg_scene_prepare). `path` names the scene in messages and
  * its directory is the base for relative paths inside it (NULL: "<memory>"
- * and the current directory). Caller owns *out.
+ * and the current directory); `options` may be NULL. A file the scene names
+ * that exists nowhere gives BG_ERR_NOT_FOUND. Caller owns *out.
  */
+bg_status bg_scene_parse_with(const char *json, size_t length, const char *path,
+                              const bg_scene_options_t *options, bg_scene_t **out,
+                              bg_error_t *err);
+
+/*
+ * Runs the set-up a parsed scene needs before a solve, which parsing leaves
+ * out so that validation stays cheap: the harmonic starting guess of an
+ * "interpolate" start (a scalar Laplacian factorization) and, for a
+ * parameterize task, the Tutte and conformal start that replaces the 3D
+ * surface by the planar UV mesh (bg_param_setup). Idempotent; records its
+ * time in prepare_seconds. Solvers need a prepared scene.
+ */
+bg_status bg_scene_prepare(bg_scene_t *scene, bg_error_t *err);
+
+/* bg_scene_parse_with followed by bg_scene_prepare. */
 bg_status bg_scene_parse(const char *json, size_t length, const char *path, bg_scene_t **out,
                          bg_error_t *err);
 
-/* Reads and parses a scene file (at most BG_SCENE_MAX_BYTES). */
+/* Reads, parses and validates a scene file (at most BG_SCENE_MAX_BYTES), running no
+ * solve; `options` may be NULL. */
+bg_status bg_scene_load_with(const char *path, const bg_scene_options_t *options,
+                             bg_scene_t **out, bg_error_t *err);
+
+/* bg_scene_load_with followed by bg_scene_prepare: a scene ready to solve. */
 bg_status bg_scene_load(const char *path, bg_scene_t **out, bg_error_t *err);
 
 /*
@@ -165,6 +203,10 @@ void bg_motion_screw(const bg_scene_motion_t *motion, int dim, double f, const d
  * are meaningful, the others hold rest positions.
  */
 void bg_scene_targets_at(const bg_scene_t *scene, double t, double *out);
+
+/* The iteration cap of `method`: its entry in solver.max_iterations when the
+ * scene gives one per method, else solver.max_iterations. */
+int bg_scene_max_iterations(const bg_scene_t *scene, bg_method method);
 
 /* Frees the scene and everything it owns; sets *scene to NULL; accepts NULL. */
 void bg_scene_destroy(bg_scene_t **scene);

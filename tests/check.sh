@@ -1,7 +1,8 @@
 #!/bin/sh
-# The project's test command: installs the Debian packages, builds twice
-# (optimised, and with AddressSanitizer + UndefinedBehaviorSanitizer) and
-# runs the whole CTest suite on both builds. Run from the repository root
+# The project's test command: installs the Debian packages, builds three
+# times with warnings as errors (-O2 with debug info, -O3 Release as users
+# and packagers build it, and AddressSanitizer + UndefinedBehaviorSanitizer)
+# and runs the whole CTest suite on the -O2 and the sanitizer builds. Run from the repository root
 # as root on Debian 12; .ci/run calls exactly this.
 set -eu
 cd "$(dirname "$0")/.."
@@ -17,6 +18,8 @@ export OPENBLAS_NUM_THREADS=1
 cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo -DBIOTGRID_WERROR=ON
 cmake --build build -j "$jobs"
 ctest --test-dir build --output-on-failure -j "$jobs"
+cmake -S . -B build-release -DCMAKE_BUILD_TYPE=Release -DBIOTGRID_WERROR=ON
+cmake --build build-release -j "$jobs"
 cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DBIOTGRID_SANITIZE=ON -DBIOTGRID_WERROR=ON
 cmake --build build-asan -j "$jobs"
 ctest --test-dir build-asan --output-on-failure -j "$jobs"

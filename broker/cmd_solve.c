@@ -1,4 +1,6 @@
-#include "bg_cli.h"
+#include "cmd_solve.h"
+
+#include "cmd.h"
 
 #include <errno.h>
 #include <math.h>
@@ -23,6 +25,10 @@
 /* The reference solve goes this far below the requested tolerance. */
 #define CLI_REFERENCE_TOLERANCE 1e-13
 #define CLI_REFERENCE_MAX_ITERATIONS 200
+/* Room for the ':'-separated mesh folders. */
+#define CLI_MESH_PATH_MAX 8192
+/* Time-to-accuracy rows: decades from 1e-1 down to the tolerance, at most this many. */
+#define CLI_ACCURACY_ROWS 16
 
 typedef struct cli_options {
     const char *scene_path;
@@ -32,6 +38,7 @@ typedef struct cli_options {
     double tolerance;      /* < 0: the scene's */
     int max_iterations;    /* < 0: the scene's */
     int quiet;
+    char mesh_path[CLI_MESH_PATH_MAX];
 } cli_options_t;
 
 typedef struct progress {
@@ -39,64 +46,99 @@ typedef struct progress {
     int quiet;
 } progress_t;
 
-static void usage(FILE *out)
-{
-    fputs("usage: biotgrid solve SCENE.json [options]\n"
-          "\n"
-          "  --method newton|local-global   solver (default: the scene's, else newton)\n"
-          "  --compare M1,M2                run several methods on the same scene\n"
-          "  --tolerance T                  stop at relative gradient T (default 1e-8)\n"
-          "  --max-iterations N             iteration cap (default 200)\n"
-          "  --out DIR                      output directory (default out/<scene name>)\n"
-          "  --quiet                        no per-iteration progress\n"
-          "\n"
-          "Writes DIR/report.json, DIR/result.vtu, DIR/result.<mesh format> and\n"
-          "DIR/error-vs-time.svg. Exit status: 0 converged, 1 not converged, 2 bad input.\n",
-          out);
-}
+const char bg_cmd_solve_usage[] =
+    "usage: biotgrid solve SCENE.json [options]\n"
+    "\n"
+    "Solves an elastic deformation scene in this process and reports error against run time.\n"
+    "\n"
+    "  --method M                 one solver; static, morph and parameterize scenes: newton or\n"
+    "                             local-global; dynamic scenes: variational or backward-euler;\n"
+    "                             surface-edit scenes: local-global (default: the scene's)\n"
+    "  --compare M1,M2            run several methods on the same scene, one curve each\n"
+    "  --tolerance T              stop at relative gradient T, for every method (default: the\n"
+    "                             scene's solver.tolerance, else 1e-8)\n"
+    "  --max-iterations N         iteration cap for every method (default: the scene's\n"
+    "                             solver.max_iterations, which may give one cap per method)\n"
+    "  --mesh-path DIR            a folder to look in for a mesh or data file the scene names\n"
+    "                             but that is not beside it (repeatable; then the folders of\n"
+    "                             $BIOTGRID_MESH_PATH, ':'-separated)\n"
+    "  --out DIR                  output directory (default out/<scene name>)\n"
+    "  --quiet                    no per-iteration progress\n"
+    "\n"
+    "Every compared method gets the same stopping rule: the same tolerance, and its own\n"
+    "iteration cap (the scene's per-method cap, else the common one). The table after the\n"
+    "runs says which method reached each accuracy first, and when.\n"
+    "\n"
+    "Writes DIR/report.json, DIR/error-vs-time.svg, DIR/result.vtu and DIR/result.<mesh\n"
+    "format>; dynamic and morph scenes also DIR/<method>.pvd with DIR/frames/, parameterize\n"
+    "scenes DIR/<method>-uv.obj.\n"
+    "\n"
+    "Exit status: 0 every method met its tolerance, 1 one did not (stopped at its iteration\n"
+    "cap or a round-off floor; the report is still written), 2 bad input.\n";
 
-int bg_cli_make_directories(const char *path)
-{
-    char buf[4096];
-    size_t len = strlen(path);
-    if (len == 0 || len >= sizeof buf)
-        return -1;
-    memcpy(buf, path, len + 1);
-    for (size_t i = 1; i <= len; i++) {
-        if (buf[i] == '/' || buf[i] == '\0') {
-            char saved = buf[i];
-            buf[i] = '\0';
-            if (mkdir(buf, 0755) != 0 && errno != EEXIST)
-                return -1;
-            buf[i] = saved;
-        }
-    }
-    struct stat st;
-    return stat(path, &st) == 0 && S_ISDIR(st.st_mode) ? 0 : -1;
-}
+const char bg_cmd_validate_usage[] =
+    "usage: biotgrid validate SCENE.json [--mesh-path DIR]\n"
+    "\n"
+    "Parses and validates a scene as `biotgrid solve` does (mesh, material, handles, task,\n"
+    "solver, reference) without solving anything, and prints a summary.\n"
+    "\n"
+    "  --mesh-path DIR            as for solve (repeatable; then $BIOTGRID_MESH_PATH)\n"
+    "\n"
+    "Exit status: 0 valid, 2 invalid with the message solve would give.\n";
 
-static int parse_methods(const char *list, cli_options_t *o)
+static int parse_methods(const char *option, const char *list, cli_options_t *o)
 {
     char buf[256];
-    if (strlen(list) >= sizeof buf)
+    if (strlen(list) >= sizeof buf) {
+        fprintf(stderr, "biotgrid solve: %s: list too long\n", option);
         return -1;
+    }
     strcpy(buf, list);
     o->method_count = 0;
     for (char *tok = strtok(buf, ","); tok; tok = strtok(NULL, ",")) {
         bg_error_t err = BG_ERROR_INIT;
         if (o->method_count == CLI_MAX_METHODS) {
-            fprintf(stderr, "biotgrid solve: at most %d methods in --compare\n", CLI_MAX_METHODS);
+            fprintf(stderr, "biotgrid solve: at most %d methods in %s\n", CLI_MAX_METHODS,
+                    option);
             return -1;
         }
         if (bg_method_parse(tok, &o->methods[o->method_count], &err) != BG_OK) {
-            fprintf(stderr, "biotgrid solve: --compare: %s\n", err.message);
+            fprintf(stderr, "biotgrid solve: %s: %s\n", option, err.message);
             return -1;
         }
+        for (int i = 0; i < o->method_count; i++)
+            if (o->methods[i] == o->methods[o->method_count]) {
+                fprintf(stderr, "biotgrid solve: %s: %s is listed twice\n", option, tok);
+                return -1;
+            }
         o->method_count++;
     }
-    return o->method_count > 0 ? 0 : -1;
+    if (o->method_count == 0) {
+        fprintf(stderr, "biotgrid solve: %s: no method given\n", option);
+        return -1;
+    }
+    return 0;
 }
 
+static int add_mesh_path(char *mesh_path, size_t size, const char *command, const char *folder)
+{
+    if (bg_cmd_mesh_path_add(mesh_path, size, folder) != 0) {
+        fprintf(stderr, "biotgrid %s: --mesh-path: too many folders\n", command);
+        return -1;
+    }
+    return 0;
+}
+
+static int finish_mesh_path(char *mesh_path, size_t size, const char *command)
+{
+    if (bg_cmd_mesh_path_finish(mesh_path, size) != 0) {
+        fprintf(stderr, "biotgrid %s: $%s is too long\n", command, BG_CMD_MESH_PATH_ENV);
+        return -1;
+    }
+    return 0;
+}
+
+/* 1: --help was printed, 0: go on, -1: bad usage (message printed). */
 static int parse_args(int argc, char **argv, cli_options_t *o)
 {
     memset(o, 0, sizeof *o);
@@ -106,13 +148,13 @@ static int parse_args(int argc, char **argv, cli_options_t *o)
         const char *a = argv[i];
         const char *value = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
-            usage(stdout);
+            fputs(bg_cmd_solve_usage, stdout);
             return 1;
         } else if (strcmp(a, "--quiet") == 0) {
             o->quiet = 1;
         } else if (strcmp(a, "--method") == 0 || strcmp(a, "--compare") == 0 ||
                    strcmp(a, "--tolerance") == 0 || strcmp(a, "--max-iterations") == 0 ||
-                   strcmp(a, "--out") == 0) {
+                   strcmp(a, "--out") == 0 || strcmp(a, "--mesh-path") == 0) {
             if (!value) {
                 fprintf(stderr, "biotgrid solve: %s needs a value\n", a);
                 return -1;
@@ -125,10 +167,10 @@ static int parse_args(int argc, char **argv, cli_options_t *o)
                                     "for several\n");
                     return -1;
                 }
-                if (parse_methods(value, o) != 0)
+                if (parse_methods(a, value, o) != 0)
                     return -1;
             } else if (strcmp(a, "--compare") == 0) {
-                if (parse_methods(value, o) != 0)
+                if (parse_methods(a, value, o) != 0)
                     return -1;
             } else if (strcmp(a, "--tolerance") == 0) {
                 o->tolerance = strtod(value, &end);
@@ -145,11 +187,15 @@ static int parse_args(int argc, char **argv, cli_options_t *o)
                     return -1;
                 }
                 o->max_iterations = (int)n;
+            } else if (strcmp(a, "--mesh-path") == 0) {
+                if (add_mesh_path(o->mesh_path, sizeof o->mesh_path, "solve", value) != 0)
+                    return -1;
             } else {
                 o->out_dir = value;
             }
         } else if (a[0] == '-') {
-            fprintf(stderr, "biotgrid solve: unknown option '%s'\n", a);
+            fprintf(stderr, "biotgrid solve: unknown option '%s' (see biotgrid solve --help)\n",
+                    a);
             return -1;
         } else if (!o->scene_path) {
             o->scene_path = a;
@@ -160,10 +206,24 @@ static int parse_args(int argc, char **argv, cli_options_t *o)
         }
     }
     if (!o->scene_path) {
-        usage(stderr);
+        fputs(bg_cmd_solve_usage, stderr);
         return -1;
     }
-    return 0;
+    return finish_mesh_path(o->mesh_path, sizeof o->mesh_path, "solve");
+}
+
+/* Parses (and validates) the scene without preparing it; prints the error. */
+static int load_scene(const char *command, const char *path, const char *mesh_path,
+                      bg_scene_t **scene)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    const bg_scene_options_t so = {.search_path = mesh_path};
+    if (bg_scene_load_with(path, &so, scene, &err) == BG_OK)
+        return 0;
+    fprintf(stderr, "biotgrid %s: %s\n", command, err.message);
+    if (err.status == BG_ERR_NOT_FOUND)
+        fputs(BG_CMD_MESH_HINT, stderr);
+    return -1;
 }
 
 static void on_progress(void *ctx, bg_method method, const bg_trace_point_t *p)
@@ -344,7 +404,7 @@ static bg_status run_series(const bg_scene_t *scene, bg_method method, double to
         goto out;
     }
     if (join_path(frames_dir, sizeof frames_dir, dir, "frames") != 0 ||
-        bg_cli_make_directories(frames_dir) != 0) {
+        bg_cmd_make_directories(frames_dir) != 0) {
         st = bg_error_set(err, BG_ERR_IO, "cannot create %s/frames", dir);
         goto out;
     }
@@ -376,12 +436,66 @@ out:
     return st;
 }
 
-int bg_cli_solve(int argc, char **argv)
+/*
+ * For a static comparison: which method reached each accuracy first. Rows
+ * are decades of the relative gradient from 1e-1 down to the tolerance (the
+ * tolerance itself last); a cell is the first trace point at or below it.
+ */
+static void print_time_to_accuracy(FILE *out, const bg_solve_result_t *runs, int count,
+                                   double tolerance)
+{
+    double levels[CLI_ACCURACY_ROWS];
+    int rows = 0;
+    for (double level = 1e-1; level > tolerance * 1.0000001 && rows < CLI_ACCURACY_ROWS - 1;
+         level /= 10.0)
+        levels[rows++] = level;
+    levels[rows++] = tolerance;
+    fprintf(out, "\ntime to accuracy (relative gradient; first trace point at or below it)\n");
+    fprintf(out, "%-12s", "accuracy");
+    for (int m = 0; m < count; m++)
+        fprintf(out, "  %22s", bg_method_name(runs[m].method));
+    fprintf(out, "  first\n");
+    for (int r = 0; r < rows; r++) {
+        fprintf(out, "%-12.0e", levels[r]);
+        int best = -1;
+        double best_seconds = 0.0;
+        for (int m = 0; m < count; m++) {
+            const bg_solve_result_t *run = &runs[m];
+            int hit = -1;
+            for (int k = 0; k < run->trace_count && hit < 0; k++)
+                if (run->trace[k].relative_gradient <= levels[r])
+                    hit = k;
+            if (hit < 0) {
+                fprintf(out, "  %22s", "not reached");
+                continue;
+            }
+            char cell[64];
+            snprintf(cell, sizeof cell, "%.3f s (it %d)", run->trace[hit].seconds,
+                     run->trace[hit].iteration);
+            fprintf(out, "  %22s", cell);
+            if (best < 0 || run->trace[hit].seconds < best_seconds) {
+                best = m;
+                best_seconds = run->trace[hit].seconds;
+            }
+        }
+        fprintf(out, "  %s\n", best < 0 ? "none" : bg_method_name(runs[best].method));
+    }
+}
+
+/* Appends one more output path to the "results:" list in buf. */
+static void list_result(char *buf, size_t size, const char *dir, const char *name)
+{
+    const size_t used = strlen(buf);
+    if (used < size)
+        snprintf(buf + used, size - used, "\n  %s/%s", dir, name);
+}
+
+int bg_cmd_solve(int argc, char **argv)
 {
     cli_options_t o;
     int rc = parse_args(argc, argv, &o);
     if (rc != 0)
-        return rc > 0 ? 0 : BG_EXIT_BAD_INPUT;
+        return rc > 0 ? BG_EXIT_OK : BG_EXIT_BAD_INPUT;
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *scene = NULL;
     bg_solve_result_t runs[CLI_MAX_METHODS];
@@ -390,10 +504,8 @@ int bg_cli_solve(int argc, char **argv)
     int exit_code = BG_EXIT_BAD_INPUT;
     memset(runs, 0, sizeof runs);
 
-    if (bg_scene_load(o.scene_path, &scene, &err) != BG_OK) {
-        fprintf(stderr, "biotgrid solve: %s\n", err.message);
+    if (load_scene("solve", o.scene_path, o.mesh_path, &scene) != 0)
         goto out;
-    }
     if (o.method_count == 0) {
         o.methods[0] = scene->method;
         o.method_count = 1;
@@ -406,14 +518,18 @@ int bg_cli_solve(int argc, char **argv)
                     dynamic ? "variational or backward-euler" : "newton or local-global");
             goto out;
         }
+    if (bg_scene_prepare(scene, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid solve: %s\n", err.message);
+        exit_code = err.status == BG_ERR_INVALID ? BG_EXIT_BAD_INPUT : BG_EXIT_FAILED;
+        goto out;
+    }
     const double tolerance = o.tolerance > 0 ? o.tolerance : scene->tolerance;
-    const int max_iterations = o.max_iterations > 0 ? o.max_iterations : scene->max_iterations;
     char out_dir[4096];
     if (o.out_dir)
         snprintf(out_dir, sizeof out_dir, "%s", o.out_dir);
     else
         snprintf(out_dir, sizeof out_dir, "out/%s", scene->name);
-    if (bg_cli_make_directories(out_dir) != 0) {
+    if (bg_cmd_make_directories(out_dir) != 0) {
         fprintf(stderr, "biotgrid solve: cannot create the output directory %s: %s\n", out_dir,
                 strerror(errno));
         goto out;
@@ -432,7 +548,7 @@ int bg_cli_solve(int argc, char **argv)
                                        .max_iterations = CLI_REFERENCE_MAX_ITERATIONS};
         if (bg_static_solve(scene, &ro, &reference, &err) != BG_OK) {
             fprintf(stderr, "biotgrid solve: reference solve: %s\n", err.message);
-            exit_code = BG_EXIT_NOT_CONVERGED;
+            exit_code = BG_EXIT_FAILED;
             goto out;
         }
         ref = reference.q;
@@ -441,8 +557,12 @@ int bg_cli_solve(int argc, char **argv)
     int all_converged = 1;
     for (int i = 0; i < o.method_count; i++) {
         bg_status st;
+        const int max_iterations = o.max_iterations > 0
+                                       ? o.max_iterations
+                                       : bg_scene_max_iterations(scene, o.methods[i]);
         if (dynamic || scene->task == BG_TASK_MORPH) {
-            st = run_series(scene, o.methods[i], tolerance, max_iterations, out_dir, &pr, &runs[i], &err);
+            st = run_series(scene, o.methods[i], tolerance, max_iterations, out_dir, &pr,
+                            &runs[i], &err);
         } else {
             const bg_solve_options_t so = {.method = o.methods[i],
                                            .tolerance = tolerance,
@@ -463,7 +583,7 @@ int bg_cli_solve(int argc, char **argv)
                 fputc('\n', stderr);
             fprintf(stderr, "biotgrid solve: %s: %s\n", bg_method_name(o.methods[i]),
                     err.message);
-            exit_code = err.status == BG_ERR_INVALID ? BG_EXIT_BAD_INPUT : BG_EXIT_NOT_CONVERGED;
+            exit_code = err.status == BG_ERR_INVALID ? BG_EXIT_BAD_INPUT : BG_EXIT_FAILED;
             goto out;
         }
         run_count++;
@@ -480,9 +600,10 @@ int bg_cli_solve(int argc, char **argv)
                     runs[i].iterations, runs[i].wall_seconds,
                     runs[i].trace[runs[i].trace_count - 1].error);
         else
-            fprintf(stderr, "%s: %s after %d iterations, %.3f s (relative gradient %.3e)\n",
+            fprintf(stderr, "%s: %s after %d iterations (cap %d), %.3f s (relative gradient "
+                            "%.3e, tolerance %.0e)\n",
                     bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].iterations,
-                    runs[i].wall_seconds, runs[i].relative_gradient);
+                    max_iterations, runs[i].wall_seconds, runs[i].relative_gradient, tolerance);
         all_converged &= runs[i].converged;
     }
 
@@ -499,8 +620,19 @@ int bg_cli_solve(int argc, char **argv)
         write_results(out_dir, scene, &runs[0], result_paths, sizeof result_paths, &err) !=
             BG_OK) {
         fprintf(stderr, "biotgrid solve: %s\n", err.message);
-        exit_code = BG_EXIT_NOT_CONVERGED;
+        exit_code = BG_EXIT_FAILED;
         goto out;
+    }
+    for (int i = 0; i < run_count; i++) {
+        char name[96];
+        if (dynamic || scene->task == BG_TASK_MORPH) {
+            snprintf(name, sizeof name, "%s.pvd (frames/%s-*.vtu)", bg_method_name(runs[i].method),
+                     bg_method_name(runs[i].method));
+            list_result(result_paths, sizeof result_paths, out_dir, name);
+        } else if (scene->task == BG_TASK_PARAMETERIZE) {
+            snprintf(name, sizeof name, "%s-uv.obj", bg_method_name(runs[i].method));
+            list_result(result_paths, sizeof result_paths, out_dir, name);
+        }
     }
     printf("\nerror against run time (%s)\n",
            dynamic ? "per step: energy = total energy, error = |E - E0| / |E0|"
@@ -508,12 +640,60 @@ int bg_cli_solve(int argc, char **argv)
            : scene->reference_kind == BG_REFERENCE_NONE ? "no reference: error column empty"
                                                         : "error = |q - q_ref| / |q_ref|");
     bg_report_print_table(stdout, runs, run_count, CLI_TABLE_ROWS);
+    if (run_count > 1 && !dynamic && scene->task != BG_TASK_MORPH)
+        print_time_to_accuracy(stdout, runs, run_count, tolerance);
     printf("\nresults:\n  %s\n  %s\n  %s\n", report_path, plot_path, result_paths);
-    exit_code = all_converged ? BG_EXIT_CONVERGED : BG_EXIT_NOT_CONVERGED;
+    exit_code = all_converged ? BG_EXIT_OK : BG_EXIT_FAILED;
 out:
     for (int i = 0; i < CLI_MAX_METHODS; i++)
         bg_solve_result_release(&runs[i]);
     bg_solve_result_release(&reference);
     bg_scene_destroy(&scene);
     return exit_code;
+}
+
+int bg_cmd_validate(int argc, char **argv)
+{
+    const char *path = NULL;
+    char mesh_path[CLI_MESH_PATH_MAX] = "";
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            fputs(bg_cmd_validate_usage, stdout);
+            return BG_EXIT_OK;
+        } else if (strcmp(a, "--mesh-path") == 0) {
+            if (i + 1 == argc) {
+                fprintf(stderr, "biotgrid validate: --mesh-path needs a value\n");
+                return BG_EXIT_BAD_INPUT;
+            }
+            if (add_mesh_path(mesh_path, sizeof mesh_path, "validate", argv[++i]) != 0)
+                return BG_EXIT_BAD_INPUT;
+        } else if (a[0] == '-') {
+            fprintf(stderr, "biotgrid validate: unknown option '%s' (see biotgrid validate "
+                            "--help)\n", a);
+            return BG_EXIT_BAD_INPUT;
+        } else if (path) {
+            fprintf(stderr, "biotgrid validate: one scene at a time ('%s' and '%s')\n", path, a);
+            return BG_EXIT_BAD_INPUT;
+        } else {
+            path = a;
+        }
+    }
+    if (!path) {
+        fputs(bg_cmd_validate_usage, stderr);
+        return BG_EXIT_BAD_INPUT;
+    }
+    if (finish_mesh_path(mesh_path, sizeof mesh_path, "validate") != 0)
+        return BG_EXIT_BAD_INPUT;
+    bg_scene_t *scene = NULL;
+    if (load_scene("validate", path, mesh_path, &scene) != 0)
+        return BG_EXIT_BAD_INPUT;
+    static const char *const tasks[] = {"static", "dynamic", "morph", "parameterize",
+                                        "surface-edit"};
+    printf("%s: valid: %s task, %s, %d vertices, %d elements (%s), %d handles, method %s\n",
+           path, tasks[scene->task], bg_mesh_kind_name(bg_mesh_kind_of(scene->mesh)),
+           (int)scene->mesh->nv, (int)scene->mesh->ne, scene->mesh_source,
+           (int)scene->handle_count, bg_method_name(scene->method));
+    bg_scene_destroy(&scene);
+    return BG_EXIT_OK;
 }

@@ -1,0 +1,35 @@
+/*
+ * cmd — what every `biotgrid` subcommand shares: exit statuses and the
+ * folders scenes look in for the files they name.
+ */
+#ifndef BG_CMD_H
+#define BG_CMD_H
+
+#include <stddef.h>
+
+/* Exit statuses of every subcommand. */
+#define BG_EXIT_OK 0        /* did what was asked (solve: every run converged) */
+#define BG_EXIT_FAILED 1    /* ran, but did not reach its goal (a report is still written) */
+#define BG_EXIT_BAD_INPUT 2 /* bad input or usage, with a message naming what is wrong */
+
+/* The environment variable holding ':'-separated mesh folders. */
+#define BG_CMD_MESH_PATH_ENV "BIOTGRID_MESH_PATH"
+
+/*
+ * Appends `folder` (a --mesh-path value) to the ':'-separated list in buf;
+ * -1 when it would not fit. The command-line folders come first, then
+ * BIOTGRID_MESH_PATH (bg_cmd_mesh_path_finish).
+ */
+int bg_cmd_mesh_path_add(char *buf, size_t size, const char *folder);
+/* Appends BIOTGRID_MESH_PATH to buf (if set); -1 when it would not fit. */
+int bg_cmd_mesh_path_finish(char *buf, size_t size);
+
+/* The hint printed under a "file not found" error of a scene. */
+#define BG_CMD_MESH_HINT                                                                       \
+    "  The public meshes the shipped scenes use are listed in README.md (\"Meshes\"). Put "    \
+    "them in a folder\n  and pass --mesh-path DIR or set " BG_CMD_MESH_PATH_ENV "=DIR.\n"
+
+/* mkdir -p: creates path and its missing parents (mode 0755); -1 on failure (errno set). */
+int bg_cmd_make_directories(const char *path);
+
+#endif
