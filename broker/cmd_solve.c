@@ -77,12 +77,15 @@ const char bg_cmd_solve_usage[] =
     "cap or a round-off floor; the report is still written), 2 bad input.\n";
 
 const char bg_cmd_validate_usage[] =
-    "usage: biotgrid validate SCENE.json [--mesh-path DIR]\n"
+    "usage: biotgrid validate SCENE.json [--mesh-path DIR] [--max-vertices N]\n"
+    "                         [--max-elements N]\n"
     "\n"
     "Parses and validates a scene as `biotgrid solve` does (mesh, material, handles, task,\n"
     "solver, reference) without solving anything, and prints a summary.\n"
     "\n"
     "  --mesh-path DIR            as for solve (repeatable; then $BIOTGRID_MESH_PATH)\n"
+    "  --max-vertices N           refuse a mesh with more vertices (a generated one before\n"
+    "  --max-elements N           it is built), as a broker does with its job caps\n"
     "\n"
     "Exit status: 0 valid, 2 invalid with the message solve would give.\n";
 
@@ -213,12 +216,11 @@ static int parse_args(int argc, char **argv, cli_options_t *o)
 }
 
 /* Parses (and validates) the scene without preparing it; prints the error. */
-static int load_scene(const char *command, const char *path, const char *mesh_path,
+static int load_scene(const char *command, const char *path, const bg_scene_options_t *so,
                       bg_scene_t **scene)
 {
     bg_error_t err = BG_ERROR_INIT;
-    const bg_scene_options_t so = {.search_path = mesh_path};
-    if (bg_scene_load_with(path, &so, scene, &err) == BG_OK)
+    if (bg_scene_load_with(path, so, scene, &err) == BG_OK)
         return 0;
     fprintf(stderr, "biotgrid %s: %s\n", command, err.message);
     if (err.status == BG_ERR_NOT_FOUND)
@@ -504,7 +506,8 @@ int bg_cmd_solve(int argc, char **argv)
     int exit_code = BG_EXIT_BAD_INPUT;
     memset(runs, 0, sizeof runs);
 
-    if (load_scene("solve", o.scene_path, o.mesh_path, &scene) != 0)
+    const bg_scene_options_t scene_options = {.search_path = o.mesh_path};
+    if (load_scene("solve", o.scene_path, &scene_options, &scene) != 0)
         goto out;
     if (o.method_count == 0) {
         o.methods[0] = scene->method;
@@ -656,18 +659,35 @@ int bg_cmd_validate(int argc, char **argv)
 {
     const char *path = NULL;
     char mesh_path[CLI_MESH_PATH_MAX] = "";
+    bg_scene_options_t so = {0};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             fputs(bg_cmd_validate_usage, stdout);
             return BG_EXIT_OK;
-        } else if (strcmp(a, "--mesh-path") == 0) {
+        } else if (strcmp(a, "--mesh-path") == 0 || strcmp(a, "--max-vertices") == 0 ||
+                   strcmp(a, "--max-elements") == 0) {
             if (i + 1 == argc) {
-                fprintf(stderr, "biotgrid validate: --mesh-path needs a value\n");
+                fprintf(stderr, "biotgrid validate: %s needs a value\n", a);
                 return BG_EXIT_BAD_INPUT;
             }
-            if (add_mesh_path(mesh_path, sizeof mesh_path, "validate", argv[++i]) != 0)
+            const char *value = argv[++i];
+            if (strcmp(a, "--mesh-path") == 0) {
+                if (add_mesh_path(mesh_path, sizeof mesh_path, "validate", value) != 0)
+                    return BG_EXIT_BAD_INPUT;
+                continue;
+            }
+            char *end = NULL;
+            long long n = strtoll(value, &end, 10);
+            if (!end || *end || n < 1) {
+                fprintf(stderr, "biotgrid validate: %s '%s' must be a positive integer\n", a,
+                        value);
                 return BG_EXIT_BAD_INPUT;
+            }
+            if (strcmp(a, "--max-vertices") == 0)
+                so.max_vertices = n;
+            else
+                so.max_elements = n;
         } else if (a[0] == '-') {
             fprintf(stderr, "biotgrid validate: unknown option '%s' (see biotgrid validate "
                             "--help)\n", a);
@@ -686,7 +706,8 @@ int bg_cmd_validate(int argc, char **argv)
     if (finish_mesh_path(mesh_path, sizeof mesh_path, "validate") != 0)
         return BG_EXIT_BAD_INPUT;
     bg_scene_t *scene = NULL;
-    if (load_scene("validate", path, mesh_path, &scene) != 0)
+    so.search_path = mesh_path;
+    if (load_scene("validate", path, &so, &scene) != 0)
         return BG_EXIT_BAD_INPUT;
     static const char *const tasks[] = {"static", "dynamic", "morph", "parameterize",
                                         "surface-edit"};

@@ -49,6 +49,7 @@ typedef struct parser {
     const char *file; /* the scene as named in messages */
     char *dir;        /* base for relative paths: "" (cwd) or "dir/" */
     const char *search_path; /* ':'-separated folders for files not found beside the scene */
+    int64_t max_vertices, max_elements; /* mesh size caps */
     bg_error_t *err;
     bg_scene_t *scene;
     int dim;
@@ -350,6 +351,12 @@ static bg_status finish_mesh(parser_t *p, bg_mesh_t *mesh)
     bg_scene_t *s = p->scene;
     bg_error_t inner = BG_ERROR_INIT;
     s->mesh = mesh;
+    if (mesh->nv > p->max_vertices || mesh->ne > p->max_elements)
+        return fail(p, BG_ERR_LIMIT, "mesh",
+                    "%s has %d vertices and %d elements, over the limits of %lld vertices and "
+                    "%lld elements",
+                    s->mesh_source, (int)mesh->nv, (int)mesh->ne, (long long)p->max_vertices,
+                    (long long)p->max_elements);
     /* Readers validate already (and do not report their count, so it is 0
      * for file meshes); generators do not, so validate here in all cases. */
     if (bg_mesh_validate(mesh, s->mesh_source, &s->reoriented, &inner) != BG_OK)
@@ -458,6 +465,17 @@ static bg_status generate_mesh(parser_t *p, const cJSON *spec)
         if (st != BG_OK)
             return st;
     }
+    /* Checked before the generator allocates: a few bytes of JSON can ask
+     * for billions of elements. */
+    const double vertices = n == 3 ? ((double)cells[0] + 1) * (cells[1] + 1) * (cells[2] + 1)
+                                   : ((double)cells[0] + 1) * (cells[1] + 1),
+                 elements = n == 3 ? 6.0 * cells[0] * cells[1] * cells[2]
+                                   : 2.0 * cells[0] * cells[1];
+    if (vertices > (double)p->max_vertices || elements > (double)p->max_elements)
+        return fail(p, BG_ERR_LIMIT, "mesh.cells",
+                    "the generated mesh would have %.0f vertices and %.0f elements, over the "
+                    "limits of %lld vertices and %lld elements",
+                    vertices, elements, (long long)p->max_vertices, (long long)p->max_elements);
     char source[FIELD_MAX];
     if (n == 3)
         snprintf(source, sizeof source, "generated box %dx%dx%d", (int)cells[0], (int)cells[1],
@@ -1912,6 +1930,10 @@ bg_status bg_scene_parse_with(const char *json, size_t length, const char *path,
     p.file = path ? path : MEMORY_NAME;
     p.err = err;
     p.search_path = options ? options->search_path : NULL;
+    p.max_vertices = options && options->max_vertices > 0 ? options->max_vertices
+                                                           : BG_MESH_MAX_VERTICES;
+    p.max_elements = options && options->max_elements > 0 ? options->max_elements
+                                                           : BG_MESH_MAX_ELEMENTS;
     cJSON *root = NULL;
     bg_status st = BG_OK;
     if (length > BG_SCENE_MAX_BYTES)

@@ -152,6 +152,12 @@ typedef struct bg_scene_options {
      * for none. Borrowed for the duration of the call. The `biotgrid`
      * command fills it from --mesh-path and BIOTGRID_MESH_PATH. */
     const char *search_path;
+    /* Size caps on the mesh (0: the library's own BG_MESH_MAX_*). A
+     * generated mesh over a cap is refused before anything is allocated; a
+     * file mesh is bounded by BG_MESH_FILE_MAX_BYTES while it is read and
+     * checked against the caps right after. A broker sets them per job. */
+    int64_t max_vertices;
+    int64_t max_elements;
 } bg_scene_options_t;
 
 /*
