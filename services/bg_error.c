@@ -14,7 +14,8 @@ const char *bg_strerror(bg_status status)
     case BG_ERR_LIMIT: return "size limit exceeded";
     case BG_ERR_NUMERIC: return "numerical failure";
     case BG_ERR_UNSUPPORTED: return "unsupported";
-    case BG_ERR_NOT_FOUND: return "file not found";
+    case BG_ERR_NOT_FOUND: return "not found";
+    case BG_ERR_CONFLICT: return "conflict";
     }
     return "unknown status";
 }

@@ -21,7 +21,8 @@ typedef enum bg_status {
     BG_ERR_LIMIT = -5,      /* input exceeds a hard size cap */
     BG_ERR_NUMERIC = -6,    /* a numerical failure (factorization, NaN) */
     BG_ERR_UNSUPPORTED = -7, /* a valid request this build cannot serve */
-    BG_ERR_NOT_FOUND = -8    /* a file the input names does not exist where it was looked for */
+    BG_ERR_NOT_FOUND = -8,   /* a file, job or record the input names does not exist */
+    BG_ERR_CONFLICT = -9     /* the request does not fit the current state (a job already ended) */
 } bg_status;
 
 #define BG_ERROR_MESSAGE_MAX 512

@@ -1,0 +1,764 @@
+#include "bgb_store.h"
+
+#include <math.h>
+#include <pthread.h>
+#include <sqlite3.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/random.h>
+#include <time.h>
+
+/* The schema version this code writes and reads (PRAGMA user_version). */
+#define STORE_SCHEMA_VERSION 1
+/* How long a connection waits for another one's lock before failing. */
+#define STORE_BUSY_TIMEOUT_MS 10000
+
+static const char SCHEMA[] =
+    "CREATE TABLE IF NOT EXISTS jobs("
+    "  seq INTEGER PRIMARY KEY AUTOINCREMENT,"
+    "  id TEXT NOT NULL UNIQUE,"
+    "  state INTEGER NOT NULL,"
+    "  mechanism TEXT NOT NULL,"
+    "  budget REAL NOT NULL,"
+    "  created REAL NOT NULL,"
+    "  updated REAL NOT NULL,"
+    "  reason TEXT,"
+    "  idempotency_key TEXT UNIQUE,"
+    "  scene BLOB NOT NULL);"
+    "CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs(state, seq);"
+    "CREATE TABLE IF NOT EXISTS files("
+    "  job TEXT NOT NULL REFERENCES jobs(id),"
+    "  kind TEXT NOT NULL,"
+    "  name TEXT NOT NULL,"
+    "  data BLOB NOT NULL,"
+    "  PRIMARY KEY(job, kind, name));"
+    "CREATE TABLE IF NOT EXISTS events("
+    "  seq INTEGER PRIMARY KEY AUTOINCREMENT,"
+    "  job TEXT NOT NULL REFERENCES jobs(id),"
+    "  time REAL NOT NULL,"
+    "  kind TEXT NOT NULL,"
+    "  data TEXT NOT NULL);"
+    "CREATE INDEX IF NOT EXISTS events_by_job ON events(job, seq);";
+
+static const char *const STATE_NAMES[BGB_JOB_STATE_COUNT] = {
+    "queued", "allocating", "running", "succeeded", "failed", "cancelled"};
+
+/* A submit waiting for the writer; lives on its caller's stack. */
+typedef struct pending {
+    const bgb_submit_t *job;
+    char id[BGB_JOB_ID_SIZE];
+    int created;
+    bg_status status;
+    bg_error_t err;
+    int done;
+    struct pending *next;
+} pending_t;
+
+struct bgb_store {
+    char *path;
+    sqlite3 *writer; /* every write, under write_lock */
+    sqlite3 *reader; /* every read, under read_lock */
+    pthread_mutex_t write_lock, read_lock, queue_lock;
+    pthread_cond_t queue_ready, batch_done;
+    pending_t *queue, *queue_tail;
+    int stopping;
+    int thread_started;
+    pthread_t thread;
+    int64_t commits, submits;
+};
+
+const char *bgb_job_state_name(bgb_job_state state)
+{
+    return (int)state >= 0 && state < BGB_JOB_STATE_COUNT ? STATE_NAMES[state] : "unknown";
+}
+
+int bgb_job_state_parse(const char *name)
+{
+    for (int s = 0; s < BGB_JOB_STATE_COUNT; s++)
+        if (strcmp(name, STATE_NAMES[s]) == 0)
+            return s;
+    return -1;
+}
+
+int bgb_job_state_is_active(bgb_job_state state)
+{
+    return state == BGB_JOB_QUEUED || state == BGB_JOB_ALLOCATING || state == BGB_JOB_RUNNING;
+}
+
+void bgb_job_release(bgb_job_t *job)
+{
+    if (!job)
+        return;
+    free(job->mechanism);
+    free(job->reason);
+    free(job->scene);
+    const bgb_job_t empty = BGB_JOB_INIT;
+    *job = empty;
+}
+
+static double wall_clock(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static bg_status sql_fail(sqlite3 *db, bg_error_t *err, const char *what)
+{
+    return bg_error_set(err, BG_ERR_IO, "job store: %s: %s", what, sqlite3_errmsg(db));
+}
+
+static bg_status exec(sqlite3 *db, const char *sql, bg_error_t *err)
+{
+    char *message = NULL;
+    if (sqlite3_exec(db, sql, NULL, NULL, &message) == SQLITE_OK)
+        return BG_OK;
+    bg_status st = bg_error_set(err, BG_ERR_IO, "job store: %s", message ? message : sql);
+    sqlite3_free(message);
+    return st;
+}
+
+static bg_status open_connection(const char *path, sqlite3 **db, bg_error_t *err)
+{
+    if (sqlite3_open_v2(path, db, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX,
+                        NULL) != SQLITE_OK) {
+        bg_status st = bg_error_set(err, BG_ERR_IO, "job store %s: cannot open: %s", path,
+                                    *db ? sqlite3_errmsg(*db) : "out of memory");
+        sqlite3_close(*db);
+        *db = NULL;
+        return st;
+    }
+    sqlite3_busy_timeout(*db, STORE_BUSY_TIMEOUT_MS);
+    return exec(*db, "PRAGMA journal_mode=WAL; PRAGMA synchronous=FULL; PRAGMA foreign_keys=ON;",
+                err);
+}
+
+/* A readable or writable file name inside the job's folder: no separator, no "." or "..". */
+static bg_status check_file_name(const char *name, bg_error_t *err)
+{
+    const size_t n = name ? strlen(name) : 0;
+    if (n == 0 || n > BGB_STORE_MAX_FILE_NAME)
+        return bg_error_set(err, BG_ERR_INVALID, "files: a file name must have 1 to %d bytes",
+                            BGB_STORE_MAX_FILE_NAME);
+    if (strchr(name, '/') || strcmp(name, ".") == 0 || strcmp(name, "..") == 0)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "files: '%s' is not a plain file name (no '/', '.' or '..')", name);
+    for (size_t i = 0; i < n; i++)
+        if ((unsigned char)name[i] < 0x20)
+            return bg_error_set(err, BG_ERR_INVALID, "files: a file name holds a control byte");
+    return BG_OK;
+}
+
+static bg_status check_submit(const bgb_submit_t *job, bg_error_t *err)
+{
+    static const char *const mechanisms[] = {"central", "catallactic", "posted"};
+    int known = 0;
+    for (int i = 0; job->mechanism && i < 3; i++)
+        known |= strcmp(job->mechanism, mechanisms[i]) == 0;
+    if (!known)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "mechanism: '%s' is not one of central, catallactic, posted",
+                            job->mechanism ? job->mechanism : "(none)");
+    if (!(isfinite(job->budget) && job->budget > 0.0))
+        return bg_error_set(err, BG_ERR_INVALID, "budget: must be a positive number, got %g",
+                            job->budget);
+    if (!job->scene || job->scene_size == 0)
+        return bg_error_set(err, BG_ERR_INVALID, "scene: empty");
+    if (job->idempotency_key && strlen(job->idempotency_key) > BGB_STORE_MAX_KEY)
+        return bg_error_set(err, BG_ERR_LIMIT, "Idempotency-Key: longer than %d bytes",
+                            BGB_STORE_MAX_KEY);
+    if (job->file_count < 0 || job->file_count > BGB_STORE_MAX_FILES)
+        return bg_error_set(err, BG_ERR_LIMIT, "files: %d files, at most %d", job->file_count,
+                            BGB_STORE_MAX_FILES);
+    for (int i = 0; i < job->file_count; i++) {
+        bg_status st = check_file_name(job->files[i].name, err);
+        if (st != BG_OK)
+            return st;
+        for (int j = 0; j < i; j++)
+            if (strcmp(job->files[i].name, job->files[j].name) == 0)
+                return bg_error_set(err, BG_ERR_INVALID, "files: '%s' is given twice",
+                                    job->files[i].name);
+    }
+    return BG_OK;
+}
+
+static bg_status new_id(char id[BGB_JOB_ID_SIZE], bg_error_t *err)
+{
+    unsigned char bytes[8];
+    if (getrandom(bytes, sizeof bytes, 0) != (ssize_t)sizeof bytes)
+        return bg_error_set(err, BG_ERR_IO, "job store: no random bytes for a job id");
+    id[0] = 'j';
+    for (int i = 0; i < 8; i++)
+        snprintf(id + 1 + 2 * i, 3, "%02x", bytes[i]);
+    return BG_OK;
+}
+
+static bg_status prepare(sqlite3 *db, const char *sql, sqlite3_stmt **stmt, bg_error_t *err)
+{
+    if (sqlite3_prepare_v2(db, sql, -1, stmt, NULL) != SQLITE_OK)
+        return sql_fail(db, err, "prepare");
+    return BG_OK;
+}
+
+static bg_status insert_event(sqlite3 *db, const char *id, double time, const char *kind,
+                              const char *json, bg_error_t *err)
+{
+    sqlite3_stmt *s = NULL;
+    bg_status st = prepare(db, "INSERT INTO events(job, time, kind, data) VALUES(?, ?, ?, ?)", &s,
+                           err);
+    if (st != BG_OK)
+        return st;
+    sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+    sqlite3_bind_double(s, 2, time);
+    sqlite3_bind_text(s, 3, kind, -1, SQLITE_STATIC);
+    sqlite3_bind_text(s, 4, json, -1, SQLITE_STATIC);
+    if (sqlite3_step(s) != SQLITE_DONE)
+        st = sql_fail(db, err, "insert event");
+    sqlite3_finalize(s);
+    return st;
+}
+
+static bg_status insert_file(sqlite3 *db, const char *id, const char *kind, const bgb_file_t *f,
+                             bg_error_t *err)
+{
+    sqlite3_stmt *s = NULL;
+    bg_status st = prepare(
+        db, "INSERT OR REPLACE INTO files(job, kind, name, data) VALUES(?, ?, ?, ?)", &s, err);
+    if (st != BG_OK)
+        return st;
+    sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+    sqlite3_bind_text(s, 2, kind, -1, SQLITE_STATIC);
+    sqlite3_bind_text(s, 3, f->name, -1, SQLITE_STATIC);
+    sqlite3_bind_blob64(s, 4, f->size ? (const void *)f->data : (const void *)"", f->size,
+                        SQLITE_STATIC);
+    if (sqlite3_step(s) != SQLITE_DONE)
+        st = sql_fail(db, err, "insert file");
+    sqlite3_finalize(s);
+    return st;
+}
+
+/* Writes one submit inside the writer's open transaction. */
+static bg_status write_submit(sqlite3 *db, pending_t *p)
+{
+    const bgb_submit_t *job = p->job;
+    bg_error_t *err = &p->err;
+    sqlite3_stmt *s = NULL;
+    bg_status st = BG_OK;
+    const int keyed = job->idempotency_key && job->idempotency_key[0];
+    if (keyed) {
+        if ((st = prepare(db, "SELECT id FROM jobs WHERE idempotency_key = ?", &s, err)) != BG_OK)
+            return st;
+        sqlite3_bind_text(s, 1, job->idempotency_key, -1, SQLITE_STATIC);
+        const int rc = sqlite3_step(s);
+        if (rc == SQLITE_ROW) {
+            snprintf(p->id, BGB_JOB_ID_SIZE, "%s", (const char *)sqlite3_column_text(s, 0));
+            p->created = 0;
+        } else if (rc != SQLITE_DONE) {
+            st = sql_fail(db, err, "look up the idempotency key");
+        }
+        sqlite3_finalize(s);
+        s = NULL;
+        if (st != BG_OK || rc == SQLITE_ROW)
+            return st;
+    }
+    if ((st = new_id(p->id, err)) != BG_OK)
+        return st;
+    const double now = wall_clock();
+    if ((st = prepare(db,
+                      "INSERT INTO jobs(id, state, mechanism, budget, created, updated, "
+                      "idempotency_key, scene) VALUES(?, ?, ?, ?, ?, ?, ?, ?)",
+                      &s, err)) != BG_OK)
+        return st;
+    sqlite3_bind_text(s, 1, p->id, -1, SQLITE_STATIC);
+    sqlite3_bind_int(s, 2, BGB_JOB_QUEUED);
+    sqlite3_bind_text(s, 3, job->mechanism, -1, SQLITE_STATIC);
+    sqlite3_bind_double(s, 4, job->budget);
+    sqlite3_bind_double(s, 5, now);
+    sqlite3_bind_double(s, 6, now);
+    if (keyed)
+        sqlite3_bind_text(s, 7, job->idempotency_key, -1, SQLITE_STATIC);
+    else
+        sqlite3_bind_null(s, 7);
+    sqlite3_bind_blob64(s, 8, job->scene, job->scene_size, SQLITE_STATIC);
+    if (sqlite3_step(s) != SQLITE_DONE)
+        st = sql_fail(db, err, "insert job");
+    sqlite3_finalize(s);
+    for (int i = 0; st == BG_OK && i < job->file_count; i++)
+        st = insert_file(db, p->id, "input", &job->files[i], err);
+    if (st == BG_OK)
+        st = insert_event(db, p->id, now, "state", "{\"state\":\"queued\"}", err);
+    p->created = st == BG_OK;
+    return st;
+}
+
+/* Writes a batch of submits in one transaction; each in its own savepoint so
+ * that one failing submit does not take the others with it. */
+static void write_batch(bgb_store_t *store, pending_t *batch)
+{
+    sqlite3 *db = store->writer;
+    bg_error_t begin_err = BG_ERROR_INIT;
+    pthread_mutex_lock(&store->write_lock);
+    bg_status st = exec(db, "BEGIN IMMEDIATE", &begin_err);
+    int64_t written = 0;
+    for (pending_t *p = batch; p; p = p->next) {
+        if (st != BG_OK) {
+            p->status = bg_error_set(&p->err, st, "%s", begin_err.message);
+            continue;
+        }
+        bg_error_t sp = BG_ERROR_INIT;
+        p->status = exec(db, "SAVEPOINT submit", &sp);
+        if (p->status == BG_OK)
+            p->status = write_submit(db, p);
+        else
+            bg_error_set(&p->err, p->status, "%s", sp.message);
+        exec(db, p->status == BG_OK ? "RELEASE submit" : "ROLLBACK TO submit; RELEASE submit",
+             &sp);
+        written += p->status == BG_OK && p->created;
+    }
+    if (st == BG_OK) {
+        bg_error_t commit_err = BG_ERROR_INIT;
+        if (exec(db, "COMMIT", &commit_err) != BG_OK) {
+            exec(db, "ROLLBACK", NULL);
+            for (pending_t *p = batch; p; p = p->next)
+                if (p->status == BG_OK) {
+                    p->status = bg_error_set(&p->err, BG_ERR_IO, "%s", commit_err.message);
+                    p->created = 0;
+                }
+            written = 0;
+        }
+    }
+    store->commits += st == BG_OK;
+    store->submits += written;
+    pthread_mutex_unlock(&store->write_lock);
+}
+
+static void *writer_main(void *arg)
+{
+    bgb_store_t *store = arg;
+    pthread_mutex_lock(&store->queue_lock);
+    for (;;) {
+        while (!store->queue && !store->stopping)
+            pthread_cond_wait(&store->queue_ready, &store->queue_lock);
+        if (!store->queue && store->stopping)
+            break;
+        pending_t *batch = store->queue;
+        store->queue = store->queue_tail = NULL;
+        pthread_mutex_unlock(&store->queue_lock);
+        write_batch(store, batch);
+        pthread_mutex_lock(&store->queue_lock);
+        for (pending_t *p = batch, *next; p; p = next) {
+            next = p->next;
+            p->done = 1;
+        }
+        pthread_cond_broadcast(&store->batch_done);
+    }
+    pthread_mutex_unlock(&store->queue_lock);
+    return NULL;
+}
+
+bg_status bgb_store_open(const char *path, bgb_store_t **out, bg_error_t *err)
+{
+    *out = NULL;
+    bgb_store_t *store = calloc(1, sizeof *store);
+    if (!store)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the job store");
+    pthread_mutex_init(&store->write_lock, NULL);
+    pthread_mutex_init(&store->read_lock, NULL);
+    pthread_mutex_init(&store->queue_lock, NULL);
+    pthread_cond_init(&store->queue_ready, NULL);
+    pthread_cond_init(&store->batch_done, NULL);
+    bg_status st = BG_OK;
+    store->path = strdup(path);
+    if (!store->path) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the job store");
+        goto out;
+    }
+    if ((st = open_connection(path, &store->writer, err)) != BG_OK)
+        goto out;
+    sqlite3_stmt *s = NULL;
+    if ((st = prepare(store->writer, "PRAGMA user_version", &s, err)) != BG_OK)
+        goto out;
+    const int version = sqlite3_step(s) == SQLITE_ROW ? sqlite3_column_int(s, 0) : -1;
+    sqlite3_finalize(s);
+    if (version != 0 && version != STORE_SCHEMA_VERSION) {
+        st = bg_error_set(err, BG_ERR_UNSUPPORTED,
+                          "job store %s: schema version %d, this broker reads version %d", path,
+                          version, STORE_SCHEMA_VERSION);
+        goto out;
+    }
+    char pragma[64];
+    snprintf(pragma, sizeof pragma, "PRAGMA user_version=%d", STORE_SCHEMA_VERSION);
+    if ((st = exec(store->writer, SCHEMA, err)) != BG_OK ||
+        (st = exec(store->writer, pragma, err)) != BG_OK)
+        goto out;
+    if ((st = open_connection(path, &store->reader, err)) != BG_OK)
+        goto out;
+    if (pthread_create(&store->thread, NULL, writer_main, store) != 0) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "job store: cannot start the writer thread");
+        goto out;
+    }
+    store->thread_started = 1;
+out:
+    if (st != BG_OK)
+        bgb_store_destroy(&store);
+    *out = store;
+    return st;
+}
+
+void bgb_store_destroy(bgb_store_t **storep)
+{
+    if (!storep || !*storep)
+        return;
+    bgb_store_t *store = *storep;
+    if (store->thread_started) {
+        pthread_mutex_lock(&store->queue_lock);
+        store->stopping = 1;
+        pthread_cond_signal(&store->queue_ready);
+        pthread_mutex_unlock(&store->queue_lock);
+        pthread_join(store->thread, NULL);
+    }
+    sqlite3_close(store->reader);
+    sqlite3_close(store->writer);
+    pthread_mutex_destroy(&store->write_lock);
+    pthread_mutex_destroy(&store->read_lock);
+    pthread_mutex_destroy(&store->queue_lock);
+    pthread_cond_destroy(&store->queue_ready);
+    pthread_cond_destroy(&store->batch_done);
+    free(store->path);
+    free(store);
+    *storep = NULL;
+}
+
+bg_status bgb_store_submit(bgb_store_t *store, const bgb_submit_t *job,
+                           char id[BGB_JOB_ID_SIZE], int *created, bg_error_t *err)
+{
+    *created = 0;
+    id[0] = '\0';
+    bg_status st = check_submit(job, err);
+    if (st != BG_OK)
+        return st;
+    pending_t p = {.job = job, .status = BG_OK, .err = BG_ERROR_INIT};
+    pthread_mutex_lock(&store->queue_lock);
+    if (store->queue_tail)
+        store->queue_tail->next = &p;
+    else
+        store->queue = &p;
+    store->queue_tail = &p;
+    pthread_cond_signal(&store->queue_ready);
+    while (!p.done)
+        pthread_cond_wait(&store->batch_done, &store->queue_lock);
+    pthread_mutex_unlock(&store->queue_lock);
+    if (p.status != BG_OK)
+        return bg_error_set(err, p.status, "%s", p.err.message);
+    memcpy(id, p.id, BGB_JOB_ID_SIZE);
+    *created = p.created;
+    return BG_OK;
+}
+
+static char *column_copy(sqlite3_stmt *s, int column, size_t *size)
+{
+    const int n = sqlite3_column_bytes(s, column);
+    const void *data = sqlite3_column_blob(s, column);
+    if (!data && sqlite3_column_type(s, column) == SQLITE_NULL)
+        return NULL;
+    char *copy = malloc((size_t)n + 1);
+    if (!copy)
+        return NULL;
+    if (n > 0)
+        memcpy(copy, data, (size_t)n);
+    copy[n] = '\0';
+    if (size)
+        *size = (size_t)n;
+    return copy;
+}
+
+#define JOB_COLUMNS "id, state, mechanism, budget, created, updated, reason, scene, seq"
+
+static bg_status read_job(sqlite3_stmt *s, bgb_job_t *job, bg_error_t *err)
+{
+    snprintf(job->id, BGB_JOB_ID_SIZE, "%s", (const char *)sqlite3_column_text(s, 0));
+    job->state = (bgb_job_state)sqlite3_column_int(s, 1);
+    job->mechanism = column_copy(s, 2, NULL);
+    job->budget = sqlite3_column_double(s, 3);
+    job->created = sqlite3_column_double(s, 4);
+    job->updated = sqlite3_column_double(s, 5);
+    job->reason = column_copy(s, 6, NULL);
+    job->scene = column_copy(s, 7, &job->scene_size);
+    job->sequence = sqlite3_column_int64(s, 8);
+    if (!job->mechanism || !job->scene || (!job->reason && sqlite3_column_type(s, 6) != SQLITE_NULL)) {
+        bgb_job_release(job);
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory reading a job");
+    }
+    return BG_OK;
+}
+
+bg_status bgb_store_get(bgb_store_t *store, const char *id, bgb_job_t *out, bg_error_t *err)
+{
+    const bgb_job_t empty = BGB_JOB_INIT;
+    *out = empty;
+    sqlite3_stmt *s = NULL;
+    pthread_mutex_lock(&store->read_lock);
+    bg_status st = prepare(store->reader, "SELECT " JOB_COLUMNS " FROM jobs WHERE id = ?", &s, err);
+    if (st == BG_OK) {
+        sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+        const int rc = sqlite3_step(s);
+        if (rc == SQLITE_ROW)
+            st = read_job(s, out, err);
+        else if (rc == SQLITE_DONE)
+            st = bg_error_set(err, BG_ERR_NOT_FOUND, "no job '%s'", id);
+        else
+            st = sql_fail(store->reader, err, "read job");
+    }
+    sqlite3_finalize(s);
+    pthread_mutex_unlock(&store->read_lock);
+    return st;
+}
+
+bg_status bgb_store_list(bgb_store_t *store, int state, int64_t after, int limit, bgb_job_t *jobs,
+                         int *count, int64_t *next, bg_error_t *err)
+{
+    *count = 0;
+    *next = 0;
+    if (limit < 1)
+        return bg_error_set(err, BG_ERR_INVALID, "limit: must be at least 1");
+    sqlite3_stmt *s = NULL;
+    pthread_mutex_lock(&store->read_lock);
+    /* One row more than asked tells whether there is a next page. */
+    bg_status st = prepare(store->reader,
+                           state >= 0 ? "SELECT " JOB_COLUMNS " FROM jobs WHERE seq > ? AND "
+                                        "state = ? ORDER BY seq LIMIT ?"
+                                      : "SELECT " JOB_COLUMNS " FROM jobs WHERE seq > ? AND "
+                                        "? < 0 ORDER BY seq LIMIT ?",
+                           &s, err);
+    if (st == BG_OK) {
+        sqlite3_bind_int64(s, 1, after);
+        sqlite3_bind_int(s, 2, state);
+        sqlite3_bind_int(s, 3, limit + 1);
+        int rc;
+        while (st == BG_OK && (rc = sqlite3_step(s)) == SQLITE_ROW) {
+            if (*count == limit) {
+                *next = jobs[limit - 1].sequence;
+                break;
+            }
+            st = read_job(s, &jobs[*count], err);
+            if (st == BG_OK)
+                (*count)++;
+        }
+        if (st == BG_OK && rc != SQLITE_ROW && rc != SQLITE_DONE)
+            st = sql_fail(store->reader, err, "list jobs");
+    }
+    sqlite3_finalize(s);
+    pthread_mutex_unlock(&store->read_lock);
+    if (st != BG_OK) {
+        for (int i = 0; i < *count; i++)
+            bgb_job_release(&jobs[i]);
+        *count = 0;
+        *next = 0;
+    }
+    return st;
+}
+
+bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from_mask,
+                               bgb_job_state to, const char *reason, bg_error_t *err)
+{
+    if ((int)to < 0 || to >= BGB_JOB_STATE_COUNT)
+        return bg_error_set(err, BG_ERR_INVALID, "unknown job state %d", (int)to);
+    sqlite3 *db = store->writer;
+    sqlite3_stmt *s = NULL;
+    pthread_mutex_lock(&store->write_lock);
+    bg_status st = exec(db, "BEGIN IMMEDIATE", err);
+    if (st != BG_OK)
+        goto unlock;
+    if ((st = prepare(db, "SELECT state FROM jobs WHERE id = ?", &s, err)) != BG_OK)
+        goto rollback;
+    sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+    const int rc = sqlite3_step(s);
+    const int current = rc == SQLITE_ROW ? sqlite3_column_int(s, 0) : -1;
+    sqlite3_finalize(s);
+    s = NULL;
+    if (rc == SQLITE_DONE) {
+        st = bg_error_set(err, BG_ERR_NOT_FOUND, "no job '%s'", id);
+        goto rollback;
+    }
+    if (rc != SQLITE_ROW) {
+        st = sql_fail(db, err, "read job state");
+        goto rollback;
+    }
+    if (!(from_mask & (1u << current))) {
+        st = bg_error_set(err, BG_ERR_CONFLICT, "job %s is %s; it cannot become %s", id,
+                          bgb_job_state_name((bgb_job_state)current), bgb_job_state_name(to));
+        goto rollback;
+    }
+    const double now = wall_clock();
+    if ((st = prepare(db, "UPDATE jobs SET state = ?, updated = ?, reason = ? WHERE id = ?", &s,
+                      err)) != BG_OK)
+        goto rollback;
+    sqlite3_bind_int(s, 1, to);
+    sqlite3_bind_double(s, 2, now);
+    if (reason)
+        sqlite3_bind_text(s, 3, reason, -1, SQLITE_STATIC);
+    else
+        sqlite3_bind_null(s, 3);
+    sqlite3_bind_text(s, 4, id, -1, SQLITE_STATIC);
+    if (sqlite3_step(s) != SQLITE_DONE)
+        st = sql_fail(db, err, "update job state");
+    sqlite3_finalize(s);
+    if (st == BG_OK) {
+        char json[128];
+        snprintf(json, sizeof json, "{\"state\":\"%s\"}", bgb_job_state_name(to));
+        st = insert_event(db, id, now, "state", json, err);
+    }
+    if (st == BG_OK) {
+        st = exec(db, "COMMIT", err);
+        if (st == BG_OK)
+            goto unlock;
+    }
+rollback:
+    exec(db, "ROLLBACK", NULL);
+unlock:
+    pthread_mutex_unlock(&store->write_lock);
+    return st;
+}
+
+/* BG_OK if the job exists on this connection, else BG_ERR_NOT_FOUND. */
+static bg_status job_exists(sqlite3 *db, const char *id, bg_error_t *err)
+{
+    sqlite3_stmt *s = NULL;
+    bg_status st = prepare(db, "SELECT 1 FROM jobs WHERE id = ?", &s, err);
+    if (st != BG_OK)
+        return st;
+    sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+    const int rc = sqlite3_step(s);
+    sqlite3_finalize(s);
+    if (rc == SQLITE_ROW)
+        return BG_OK;
+    if (rc == SQLITE_DONE)
+        return bg_error_set(err, BG_ERR_NOT_FOUND, "no job '%s'", id);
+    return sql_fail(db, err, "look up job");
+}
+
+bg_status bgb_store_add_event(bgb_store_t *store, const char *id, const char *kind,
+                              const char *json, bg_error_t *err)
+{
+    pthread_mutex_lock(&store->write_lock);
+    bg_status st = job_exists(store->writer, id, err);
+    if (st == BG_OK)
+        st = insert_event(store->writer, id, wall_clock(), kind, json, err);
+    pthread_mutex_unlock(&store->write_lock);
+    return st;
+}
+
+bg_status bgb_store_events(bgb_store_t *store, const char *id, int64_t after, bgb_event_fn fn,
+                           void *ctx, bg_error_t *err)
+{
+    sqlite3_stmt *s = NULL;
+    pthread_mutex_lock(&store->read_lock);
+    bg_status st = job_exists(store->reader, id, err);
+    if (st == BG_OK)
+        st = prepare(store->reader,
+                     "SELECT seq, time, kind, data FROM events WHERE job = ? AND seq > ? "
+                     "ORDER BY seq",
+                     &s, err);
+    if (st == BG_OK) {
+        sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+        sqlite3_bind_int64(s, 2, after);
+        int rc;
+        while ((rc = sqlite3_step(s)) == SQLITE_ROW)
+            fn(ctx, sqlite3_column_int64(s, 0), sqlite3_column_double(s, 1),
+               (const char *)sqlite3_column_text(s, 2), (const char *)sqlite3_column_text(s, 3));
+        if (rc != SQLITE_DONE)
+            st = sql_fail(store->reader, err, "read events");
+    }
+    sqlite3_finalize(s);
+    pthread_mutex_unlock(&store->read_lock);
+    return st;
+}
+
+static bg_status check_kind(const char *kind, bg_error_t *err)
+{
+    if (kind && (strcmp(kind, "input") == 0 || strcmp(kind, "result") == 0))
+        return BG_OK;
+    return bg_error_set(err, BG_ERR_INVALID, "file kind must be input or result");
+}
+
+bg_status bgb_store_put_file(bgb_store_t *store, const char *id, const char *kind,
+                             const bgb_file_t *file, bg_error_t *err)
+{
+    bg_status st = check_kind(kind, err);
+    if (st == BG_OK)
+        st = check_file_name(file->name, err);
+    if (st != BG_OK)
+        return st;
+    pthread_mutex_lock(&store->write_lock);
+    st = job_exists(store->writer, id, err);
+    if (st == BG_OK)
+        st = insert_file(store->writer, id, kind, file, err);
+    pthread_mutex_unlock(&store->write_lock);
+    return st;
+}
+
+bg_status bgb_store_get_file(bgb_store_t *store, const char *id, const char *kind,
+                             const char *name, uint8_t **data, size_t *size, bg_error_t *err)
+{
+    *data = NULL;
+    *size = 0;
+    bg_status st = check_kind(kind, err);
+    if (st != BG_OK)
+        return st;
+    sqlite3_stmt *s = NULL;
+    pthread_mutex_lock(&store->read_lock);
+    st = prepare(store->reader, "SELECT data FROM files WHERE job = ? AND kind = ? AND name = ?",
+                 &s, err);
+    if (st == BG_OK) {
+        sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+        sqlite3_bind_text(s, 2, kind, -1, SQLITE_STATIC);
+        sqlite3_bind_text(s, 3, name, -1, SQLITE_STATIC);
+        const int rc = sqlite3_step(s);
+        if (rc == SQLITE_ROW) {
+            *data = (uint8_t *)column_copy(s, 0, size);
+            if (!*data)
+                st = bg_error_set(err, BG_ERR_NOMEM, "out of memory reading %s", name);
+        } else if (rc == SQLITE_DONE) {
+            st = bg_error_set(err, BG_ERR_NOT_FOUND, "job %s has no %s file '%s'", id, kind,
+                              name);
+        } else {
+            st = sql_fail(store->reader, err, "read file");
+        }
+    }
+    sqlite3_finalize(s);
+    pthread_mutex_unlock(&store->read_lock);
+    return st;
+}
+
+bg_status bgb_store_count(bgb_store_t *store, int64_t counts[BGB_JOB_STATE_COUNT],
+                          bg_error_t *err)
+{
+    for (int i = 0; i < BGB_JOB_STATE_COUNT; i++)
+        counts[i] = 0;
+    sqlite3_stmt *s = NULL;
+    pthread_mutex_lock(&store->read_lock);
+    bg_status st =
+        prepare(store->reader, "SELECT state, count(*) FROM jobs GROUP BY state", &s, err);
+    if (st == BG_OK) {
+        int rc;
+        while ((rc = sqlite3_step(s)) == SQLITE_ROW) {
+            const int state = sqlite3_column_int(s, 0);
+            if (state >= 0 && state < BGB_JOB_STATE_COUNT)
+                counts[state] = sqlite3_column_int64(s, 1);
+        }
+        if (rc != SQLITE_DONE)
+            st = sql_fail(store->reader, err, "count jobs");
+    }
+    sqlite3_finalize(s);
+    pthread_mutex_unlock(&store->read_lock);
+    return st;
+}
+
+void bgb_store_commit_stats(bgb_store_t *store, int64_t *commits, int64_t *submits)
+{
+    pthread_mutex_lock(&store->write_lock);
+    *commits = store->commits;
+    *submits = store->submits;
+    pthread_mutex_unlock(&store->write_lock);
+}

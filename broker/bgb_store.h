@@ -1,0 +1,150 @@
+/*
+ * bgb_store — the broker's durable job store: one SQLite file in WAL mode,
+ * the source of truth for jobs, the files uploaded with them and written
+ * for them, their events and their market contracts.
+ *
+ * Durability: bgb_store_submit returns only after the transaction holding
+ * the job is committed with synchronous=FULL. Submits from many threads
+ * are group-committed: a single writer thread takes every submit that is
+ * waiting, writes them in one transaction and wakes their callers, so one
+ * fsync serves a whole batch (what bounds throughput is the fsync rate
+ * times the batch size, not one fsync per job).
+ *
+ * Thread safety: every function may be called from any thread; reads use
+ * their own connection, serialised by a mutex (SQLite's WAL lets them run
+ * beside the writer).
+ */
+#ifndef BGB_STORE_H
+#define BGB_STORE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "bg_error.h"
+
+typedef struct bgb_store bgb_store_t;
+
+/* Job ids are "j" followed by 16 lowercase hex digits. */
+#define BGB_JOB_ID_SIZE 18
+/* Caps the store enforces whatever its caller checked. */
+#define BGB_STORE_MAX_FILES 64
+#define BGB_STORE_MAX_FILE_NAME 255
+#define BGB_STORE_MAX_KEY 255
+
+typedef enum bgb_job_state {
+    BGB_JOB_QUEUED = 0,     /* accepted and stored, not yet allocated */
+    BGB_JOB_ALLOCATING = 1, /* its coordinator is buying the plan's services */
+    BGB_JOB_RUNNING = 2,    /* the bought agents compute it */
+    BGB_JOB_SUCCEEDED = 3,
+    BGB_JOB_FAILED = 4,
+    BGB_JOB_CANCELLED = 5,
+} bgb_job_state;
+#define BGB_JOB_STATE_COUNT 6
+
+/* "queued", "allocating", ...; bgb_job_state_parse returns -1 for an unknown name. */
+const char *bgb_job_state_name(bgb_job_state state);
+int bgb_job_state_parse(const char *name);
+/* Whether a job in this state can still change (not succeeded, failed or cancelled). */
+int bgb_job_state_is_active(bgb_job_state state);
+
+typedef struct bgb_file {
+    const char *name;    /* a plain relative name inside the job's folder */
+    const uint8_t *data; /* borrowed */
+    size_t size;
+} bgb_file_t;
+
+typedef struct bgb_submit {
+    const char *idempotency_key; /* NULL or "": none */
+    const char *scene;           /* the scene JSON, borrowed */
+    size_t scene_size;
+    const char *mechanism;       /* "central", "catallactic" or "posted" */
+    double budget;               /* money the job may spend, > 0 */
+    const bgb_file_t *files;     /* the mesh and data files uploaded with the scene */
+    int file_count;
+} bgb_submit_t;
+
+/* A job as stored; strings owned by the record (bgb_job_release). */
+typedef struct bgb_job {
+    char id[BGB_JOB_ID_SIZE];
+    bgb_job_state state;
+    char *mechanism;
+    double budget;
+    double created;   /* seconds since the epoch */
+    double updated;
+    char *reason;     /* why it failed or was cancelled, or NULL */
+    char *scene;      /* the submitted scene JSON (NUL-terminated) */
+    size_t scene_size;
+    int64_t sequence; /* submission order, the pagination cursor */
+} bgb_job_t;
+
+#define BGB_JOB_INIT {{0}, BGB_JOB_QUEUED, NULL, 0.0, 0.0, 0.0, NULL, NULL, 0, 0}
+
+void bgb_job_release(bgb_job_t *job);
+
+/*
+ * Opens (creating if needed) the store at path and starts its writer
+ * thread. Caller owns *out (bgb_store_destroy).
+ */
+bg_status bgb_store_open(const char *path, bgb_store_t **out, bg_error_t *err);
+
+/* Stops the writer (after committing what is queued) and closes; accepts NULL. */
+void bgb_store_destroy(bgb_store_t **store);
+
+/*
+ * Stores a new job in state queued, durably, and writes its id to id. With
+ * an idempotency key already used, stores nothing and returns the earlier
+ * job's id with *created = 0 (a key names one job forever). BG_ERR_INVALID
+ * for a bad field (naming it), BG_ERR_LIMIT over the caps above.
+ */
+bg_status bgb_store_submit(bgb_store_t *store, const bgb_submit_t *job,
+                           char id[BGB_JOB_ID_SIZE], int *created, bg_error_t *err);
+
+/* The job with this id; BG_ERR_NOT_FOUND if there is none. */
+bg_status bgb_store_get(bgb_store_t *store, const char *id, bgb_job_t *out, bg_error_t *err);
+
+/*
+ * Up to `limit` jobs in submission order after the cursor (0: from the
+ * first), only in `state` when state >= 0. Writes them to jobs[] (caller
+ * releases each) and their count to *count; *next is the cursor of the
+ * next page, 0 when there is none.
+ */
+bg_status bgb_store_list(bgb_store_t *store, int state, int64_t after, int limit, bgb_job_t *jobs,
+                         int *count, int64_t *next, bg_error_t *err);
+
+/*
+ * Moves a job to state `to` if it is in one of the states of `from_mask`
+ * (bit s = state s), recording reason (may be NULL) and an event. The job
+ * in another state: BG_ERR_CONFLICT naming its state; no job:
+ * BG_ERR_NOT_FOUND. Committed on return.
+ */
+bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from_mask,
+                               bgb_job_state to, const char *reason, bg_error_t *err);
+
+/* Appends an event (kind, JSON data) to the job's log; committed on return. */
+bg_status bgb_store_add_event(bgb_store_t *store, const char *id, const char *kind,
+                              const char *json, bg_error_t *err);
+
+/* Calls fn for each event of the job with sequence > after, in order. */
+typedef void (*bgb_event_fn)(void *ctx, int64_t sequence, double time, const char *kind,
+                             const char *json);
+bg_status bgb_store_events(bgb_store_t *store, const char *id, int64_t after, bgb_event_fn fn,
+                           void *ctx, bg_error_t *err);
+
+/*
+ * A file of the job: kind "input" (uploaded with it) or "result" (written
+ * for it). put replaces a file of the same kind and name; get returns a
+ * malloc'ed copy (caller frees) or BG_ERR_NOT_FOUND.
+ */
+bg_status bgb_store_put_file(bgb_store_t *store, const char *id, const char *kind,
+                             const bgb_file_t *file, bg_error_t *err);
+bg_status bgb_store_get_file(bgb_store_t *store, const char *id, const char *kind,
+                             const char *name, uint8_t **data, size_t *size, bg_error_t *err);
+
+/* Jobs per state (counts[BGB_JOB_STATE_COUNT]), for /metrics. */
+bg_status bgb_store_count(bgb_store_t *store, int64_t counts[BGB_JOB_STATE_COUNT],
+                          bg_error_t *err);
+
+/* Commits and batches so far: submits per commit measures group commit. */
+void bgb_store_commit_stats(bgb_store_t *store, int64_t *commits, int64_t *submits);
+
+#endif
