@@ -731,6 +731,34 @@ bg_status bgb_store_get_file(bgb_store_t *store, const char *id, const char *kin
     return st;
 }
 
+bg_status bgb_store_list_files(bgb_store_t *store, const char *id, const char *kind,
+                               bgb_file_fn fn, void *ctx, bg_error_t *err)
+{
+    bg_status st = check_kind(kind, err);
+    if (st != BG_OK)
+        return st;
+    sqlite3_stmt *s = NULL;
+    pthread_mutex_lock(&store->read_lock);
+    st = job_exists(store->reader, id, err);
+    if (st == BG_OK)
+        st = prepare(store->reader,
+                     "SELECT name, length(data) FROM files WHERE job = ? AND kind = ? ORDER BY "
+                     "name",
+                     &s, err);
+    if (st == BG_OK) {
+        sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+        sqlite3_bind_text(s, 2, kind, -1, SQLITE_STATIC);
+        int rc;
+        while ((rc = sqlite3_step(s)) == SQLITE_ROW)
+            fn(ctx, (const char *)sqlite3_column_text(s, 0), (size_t)sqlite3_column_int64(s, 1));
+        if (rc != SQLITE_DONE)
+            st = sql_fail(store->reader, err, "list files");
+    }
+    sqlite3_finalize(s);
+    pthread_mutex_unlock(&store->read_lock);
+    return st;
+}
+
 bg_status bgb_store_count(bgb_store_t *store, int64_t counts[BGB_JOB_STATE_COUNT],
                           bg_error_t *err)
 {

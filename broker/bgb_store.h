@@ -140,6 +140,11 @@ bg_status bgb_store_put_file(bgb_store_t *store, const char *id, const char *kin
 bg_status bgb_store_get_file(bgb_store_t *store, const char *id, const char *kind,
                              const char *name, uint8_t **data, size_t *size, bg_error_t *err);
 
+/* Calls fn with each file name of the job's kind ("input" or "result"), by name. */
+typedef void (*bgb_file_fn)(void *ctx, const char *name, size_t size);
+bg_status bgb_store_list_files(bgb_store_t *store, const char *id, const char *kind,
+                               bgb_file_fn fn, void *ctx, bg_error_t *err);
+
 /* Jobs per state (counts[BGB_JOB_STATE_COUNT]), for /metrics. */
 bg_status bgb_store_count(bgb_store_t *store, int64_t counts[BGB_JOB_STATE_COUNT],
                           bg_error_t *err);

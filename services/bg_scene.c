@@ -50,6 +50,7 @@ typedef struct parser {
     char *dir;        /* base for relative paths: "" (cwd) or "dir/" */
     const char *search_path; /* ':'-separated folders for files not found beside the scene */
     int64_t max_vertices, max_elements; /* mesh size caps */
+    int confined;                       /* files only inside the scene's folder */
     bg_error_t *err;
     bg_scene_t *scene;
     int dim;
@@ -278,6 +279,16 @@ static bg_status resolve_path(parser_t *p, const char *field, const char *relati
     *out = NULL;
     if (!relative[0])
         return fail(p, BG_ERR_INVALID, field, "empty path");
+    if (p->confined) {
+        int leaves = relative[0] == '/';
+        for (const char *c = relative; *c && !leaves; c += strcspn(c, "/"), c += *c == '/')
+            leaves = strncmp(c, "..", 2) == 0 && (c[2] == '/' || c[2] == '\0');
+        if (leaves)
+            return fail(p, BG_ERR_INVALID, field,
+                        "'%s' is outside the job's files: name an uploaded file by a relative "
+                        "path inside the job's folder",
+                        relative);
+    }
     const char *base = relative[0] == '/' ? "" : p->dir;
     size_t n = strlen(base) + strlen(relative) + 1;
     char *beside = malloc(n);
@@ -1927,9 +1938,12 @@ bg_status bg_scene_parse_with(const char *json, size_t length, const char *path,
 {
     *out = NULL;
     parser_t p = {0};
-    p.file = path ? path : MEMORY_NAME;
+    p.file = options && options->display_name ? options->display_name
+             : path                            ? path
+                                               : MEMORY_NAME;
     p.err = err;
-    p.search_path = options ? options->search_path : NULL;
+    p.confined = options && options->confined;
+    p.search_path = options && !p.confined ? options->search_path : NULL;
     p.max_vertices = options && options->max_vertices > 0 ? options->max_vertices
                                                            : BG_MESH_MAX_VERTICES;
     p.max_elements = options && options->max_elements > 0 ? options->max_elements

@@ -158,6 +158,13 @@ typedef struct bg_scene_options {
      * checked against the caps right after. A broker sets them per job. */
     int64_t max_vertices;
     int64_t max_elements;
+    /* Non-zero: the scene may name only files inside its own folder — a
+     * relative path without ".." components; an absolute path or one that
+     * leaves the folder is BG_ERR_INVALID, and the search path is not used.
+     * A broker parses submitted scenes so, never reading its own files. */
+    int confined;
+    /* The scene's name in messages instead of `path` (NULL: path). */
+    const char *display_name;
 } bg_scene_options_t;
 
 /*

@@ -1,0 +1,1114 @@
+#include "bgb_rest.h"
+
+#include <arpa/inet.h>
+#include <cJSON.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <microhttpd.h>
+#include <netinet/in.h>
+#include <stdarg.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "bg_plan.h"
+#include "bg_scene.h"
+#include "bgb_base64.h"
+
+#define REST_DEFAULT_CONNECTIONS 256
+#define REST_DEFAULT_BUDGET 1000.0
+#define REST_MAX_LIMIT 500
+#define REST_DEFAULT_LIMIT 50
+/* Server-sent events: how often a stream looks for new events, and how long
+ * it stays silent before sending a keep-alive comment. */
+#define REST_EVENT_POLL_NS 100000000L
+#define REST_KEEPALIVE_POLLS 150
+#define REST_PATH_MAX 4096
+
+struct bgb_rest {
+    struct MHD_Daemon *daemon;
+    bgb_store_t *store;
+    bgb_rest_config_t config;
+    char *address, *work_dir, *name;
+    uint16_t port;
+    atomic_int stopping;
+    atomic_llong responses[6]; /* by status class: index 1..5 */
+};
+
+/* A request's state across MHD's calls: the body as it arrives. */
+typedef struct request {
+    char *body;
+    size_t size, cap;
+    int too_large;
+} request_t;
+
+/* ------------------------------------------------------------ responses */
+
+static enum MHD_Result send_text(bgb_rest_t *rest, struct MHD_Connection *c, unsigned status,
+                                 const char *type, const char *text, size_t length,
+                                 const char *location)
+{
+    struct MHD_Response *r =
+        MHD_create_response_from_buffer(length, (void *)text, MHD_RESPMEM_MUST_COPY);
+    if (!r)
+        return MHD_NO;
+    MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, type);
+    if (location)
+        MHD_add_response_header(r, MHD_HTTP_HEADER_LOCATION, location);
+    const enum MHD_Result ok = MHD_queue_response(c, status, r);
+    MHD_destroy_response(r);
+    if (status / 100 >= 1 && status / 100 <= 5)
+        atomic_fetch_add(&rest->responses[status / 100], 1);
+    return ok;
+}
+
+/* Sends and frees a JSON document. */
+static enum MHD_Result send_json(bgb_rest_t *rest, struct MHD_Connection *c, unsigned status,
+                                 cJSON *doc, const char *type, const char *location)
+{
+    char *text = doc ? cJSON_PrintUnformatted(doc) : NULL;
+    cJSON_Delete(doc);
+    if (!text)
+        return send_text(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "text/plain",
+                         "out of memory\n", 14, NULL);
+    const enum MHD_Result ok = send_text(rest, c, status, type, text, strlen(text), location);
+    free(text);
+    return ok;
+}
+
+/*
+ * An RFC 9457 problem document: type names the kind of problem
+ * (/problems/<slug>), detail says what is wrong, field (when known) the
+ * request field it is about.
+ */
+static enum MHD_Result send_problem(bgb_rest_t *rest, struct MHD_Connection *c, unsigned status,
+                                    const char *slug, const char *title, const char *field,
+                                    const char *fmt, ...) __attribute__((format(printf, 7, 8)));
+
+static enum MHD_Result send_problem(bgb_rest_t *rest, struct MHD_Connection *c, unsigned status,
+                                    const char *slug, const char *title, const char *field,
+                                    const char *fmt, ...)
+{
+    char detail[BG_ERROR_MESSAGE_MAX + 128];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    va_end(ap);
+    char type[128];
+    snprintf(type, sizeof type, "/problems/%s", slug);
+    cJSON *doc = cJSON_CreateObject();
+    if (doc) {
+        cJSON_AddStringToObject(doc, "type", type);
+        cJSON_AddStringToObject(doc, "title", title);
+        cJSON_AddNumberToObject(doc, "status", status);
+        cJSON_AddStringToObject(doc, "detail", detail);
+        if (field)
+            cJSON_AddStringToObject(doc, "field", field);
+    }
+    return send_json(rest, c, status, doc, "application/problem+json", NULL);
+}
+
+/* ------------------------------------------------------------- job JSON */
+
+typedef struct plan_capture {
+    cJSON *plan;
+} plan_capture_t;
+
+static void capture_plan(void *ctx, int64_t sequence, double time, const char *kind,
+                         const char *json)
+{
+    plan_capture_t *pc = ctx;
+    (void)sequence;
+    (void)time;
+    if (strcmp(kind, "plan") != 0)
+        return;
+    cJSON_Delete(pc->plan);
+    pc->plan = cJSON_Parse(json);
+}
+
+static void add_link(cJSON *links, const char *rel, const char *id, const char *suffix)
+{
+    char href[96];
+    snprintf(href, sizeof href, "/v1/jobs/%s%s", id, suffix);
+    cJSON_AddStringToObject(links, rel, href);
+}
+
+/* The job resource; with_plan reads the plan from the job's events. */
+static cJSON *job_json(bgb_rest_t *rest, const bgb_job_t *job, int with_plan)
+{
+    cJSON *o = cJSON_CreateObject();
+    if (!o)
+        return NULL;
+    cJSON_AddStringToObject(o, "id", job->id);
+    cJSON_AddStringToObject(o, "state", bgb_job_state_name(job->state));
+    cJSON_AddStringToObject(o, "mechanism", job->mechanism);
+    cJSON_AddNumberToObject(o, "budget", job->budget);
+    cJSON_AddNumberToObject(o, "created", job->created);
+    cJSON_AddNumberToObject(o, "updated", job->updated);
+    if (job->reason)
+        cJSON_AddStringToObject(o, "reason", job->reason);
+    else
+        cJSON_AddNullToObject(o, "reason");
+    if (with_plan) {
+        plan_capture_t pc = {NULL};
+        bg_error_t err = BG_ERROR_INIT;
+        if (bgb_store_events(rest->store, job->id, 0, capture_plan, &pc, &err) == BG_OK &&
+            pc.plan)
+            cJSON_AddItemToObject(o, "plan", pc.plan);
+        else
+            cJSON_Delete(pc.plan);
+    }
+    cJSON *links = cJSON_AddObjectToObject(o, "links");
+    if (links) {
+        add_link(links, "self", job->id, "");
+        add_link(links, "events", job->id, "/events");
+        add_link(links, "cancel", job->id, "/cancel");
+        add_link(links, "result", job->id, "/result");
+    }
+    return o;
+}
+
+/* ------------------------------------------------------------ submitting */
+
+/* "scene: handles[0].select: ..." -> "scene.handles[0].select"; "scene" otherwise. */
+static void field_of(const char *message, char *field, size_t size)
+{
+    snprintf(field, size, "scene");
+    const char *prefix = "scene: ";
+    if (strncmp(message, prefix, strlen(prefix)) != 0)
+        return;
+    const char *start = message + strlen(prefix);
+    const char *end = strstr(start, ": ");
+    if (!end || end == start)
+        return;
+    for (const char *c = start; c < end; c++)
+        if (*c == ' ')
+            return;
+    snprintf(field, size, "scene.%.*s", (int)(end - start), start);
+}
+
+typedef struct upload {
+    char name[BGB_STORE_MAX_FILE_NAME + 1];
+    uint8_t *data;
+    size_t size;
+} upload_t;
+
+typedef struct submission {
+    char *scene;
+    const char *mechanism;
+    double budget;
+    upload_t files[BGB_STORE_MAX_FILES];
+    int file_count;
+    char dir[REST_PATH_MAX];
+} submission_t;
+
+static void submission_release(submission_t *s)
+{
+    free(s->scene);
+    for (int i = 0; i < s->file_count; i++) {
+        if (s->dir[0]) {
+            char path[REST_PATH_MAX + BGB_STORE_MAX_FILE_NAME + 2];
+            snprintf(path, sizeof path, "%s/%s", s->dir, s->files[i].name);
+            unlink(path);
+        }
+        free(s->files[i].data);
+    }
+    if (s->dir[0])
+        rmdir(s->dir);
+}
+
+static int plain_name(const char *name)
+{
+    const size_t n = strlen(name);
+    if (n == 0 || n > BGB_STORE_MAX_FILE_NAME || strchr(name, '/') || strcmp(name, ".") == 0 ||
+        strcmp(name, "..") == 0)
+        return 0;
+    for (size_t i = 0; i < n; i++)
+        if ((unsigned char)name[i] < 0x20)
+            return 0;
+    return 1;
+}
+
+/* Whether an object repeats a key; the first repeated key in *key. */
+static int repeats_key(const cJSON *object, const char **key)
+{
+    for (const cJSON *a = object->child; a; a = a->next)
+        for (const cJSON *b = a->next; b; b = b->next)
+            if (strcmp(a->string, b->string) == 0) {
+                *key = a->string;
+                return 1;
+            }
+    return 0;
+}
+
+static void locate(const char *text, size_t offset, int *line, int *column)
+{
+    *line = 1;
+    *column = 1;
+    for (size_t i = 0; i < offset; i++) {
+        if (text[i] == '\n') {
+            (*line)++;
+            *column = 1;
+        } else {
+            (*column)++;
+        }
+    }
+}
+
+/* Reads the request document into s; on a problem sends it and returns 0. */
+static int read_submission(bgb_rest_t *rest, struct MHD_Connection *c, const request_t *req,
+                           submission_t *s, enum MHD_Result *sent)
+{
+    static const char *const keys[] = {"scene", "files", "mechanism", "budget"};
+    const char *end = NULL;
+    cJSON *root = cJSON_ParseWithLengthOpts(req->body ? req->body : "", req->size, &end, 0);
+    int ok = 0;
+    if (!root) {
+        int line = 0, column = 0;
+        const size_t offset = end && req->body && end >= req->body && end <= req->body + req->size
+                                  ? (size_t)(end - req->body)
+                                  : req->size;
+        locate(req->body ? req->body : "", offset, &line, &column);
+        *sent = send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "malformed-json", "Malformed JSON",
+                             NULL, "%s at line %d, column %d",
+                             req->size ? "malformed JSON" : "empty body", line, column);
+        return 0;
+    }
+    const char *repeated = NULL;
+    if (!cJSON_IsObject(root)) {
+        *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
+                             "Invalid request", NULL, "the request must be a JSON object");
+        goto out;
+    }
+    if (repeats_key(root, &repeated)) {
+        *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
+                             "Invalid request", repeated, "key '%s' is given twice", repeated);
+        goto out;
+    }
+    for (const cJSON *m = root->child; m; m = m->next) {
+        int known = 0;
+        for (int i = 0; i < 4; i++)
+            known |= strcmp(m->string, keys[i]) == 0;
+        if (!known) {
+            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
+                                 "Invalid request", m->string,
+                                 "unknown key '%s' (expected scene, files, mechanism, budget)",
+                                 m->string);
+            goto out;
+        }
+    }
+    const cJSON *scene = cJSON_GetObjectItemCaseSensitive(root, "scene");
+    if (!cJSON_IsObject(scene)) {
+        *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-scene",
+                             "Invalid scene", "scene",
+                             scene ? "scene: must be a JSON object (the scene file's content)"
+                                   : "scene: missing (required)");
+        goto out;
+    }
+    s->scene = cJSON_PrintUnformatted(scene);
+    const cJSON *mechanism = cJSON_GetObjectItemCaseSensitive(root, "mechanism");
+    s->mechanism = "central";
+    if (mechanism) {
+        if (!cJSON_IsString(mechanism) ||
+            (strcmp(mechanism->valuestring, "central") != 0 &&
+             strcmp(mechanism->valuestring, "catallactic") != 0 &&
+             strcmp(mechanism->valuestring, "posted") != 0)) {
+            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
+                                 "Invalid request", "mechanism",
+                                 "mechanism: expected \"central\", \"catallactic\" or "
+                                 "\"posted\"");
+            goto out;
+        }
+        s->mechanism = strcmp(mechanism->valuestring, "central") == 0       ? "central"
+                       : strcmp(mechanism->valuestring, "catallactic") == 0 ? "catallactic"
+                                                                            : "posted";
+    }
+    const cJSON *budget = cJSON_GetObjectItemCaseSensitive(root, "budget");
+    s->budget = REST_DEFAULT_BUDGET;
+    if (budget) {
+        if (!cJSON_IsNumber(budget) || !isfinite(budget->valuedouble) ||
+            !(budget->valuedouble > 0.0)) {
+            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
+                                 "Invalid request", "budget",
+                                 "budget: expected a positive number");
+            goto out;
+        }
+        s->budget = budget->valuedouble;
+    }
+    const cJSON *files = cJSON_GetObjectItemCaseSensitive(root, "files");
+    if (files && !cJSON_IsArray(files)) {
+        *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
+                             "Invalid request", "files",
+                             "files: expected an array of {\"name\", \"base64\"}");
+        goto out;
+    }
+    if (files && cJSON_GetArraySize(files) > BGB_STORE_MAX_FILES) {
+        *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "too-many-files",
+                             "Too many files", "files", "files: at most %d files",
+                             BGB_STORE_MAX_FILES);
+        goto out;
+    }
+    int index = 0;
+    for (const cJSON *f = files ? files->child : NULL; f; f = f->next, index++) {
+        char field[64];
+        snprintf(field, sizeof field, "files[%d]", index);
+        const cJSON *name = cJSON_GetObjectItemCaseSensitive(f, "name");
+        const cJSON *data = cJSON_GetObjectItemCaseSensitive(f, "base64");
+        if (!cJSON_IsObject(f) || cJSON_GetArraySize(f) != 2 || !cJSON_IsString(name) ||
+            !cJSON_IsString(data)) {
+            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
+                                 "Invalid request", field,
+                                 "%s: expected {\"name\": string, \"base64\": string}", field);
+            goto out;
+        }
+        if (!plain_name(name->valuestring)) {
+            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-file-name",
+                                 "Invalid file name", field,
+                                 "%s.name: '%s' is not a plain file name (no '/', '.' or '..')",
+                                 field, name->valuestring);
+            goto out;
+        }
+        for (int j = 0; j < s->file_count; j++)
+            if (strcmp(s->files[j].name, name->valuestring) == 0) {
+                *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT,
+                                     "invalid-file-name", "Invalid file name", field,
+                                     "%s.name: '%s' is uploaded twice", field,
+                                     name->valuestring);
+                goto out;
+            }
+        upload_t *u = &s->files[s->file_count];
+        bg_error_t err = BG_ERROR_INIT;
+        if (bgb_base64_decode(data->valuestring, strlen(data->valuestring), rest->config.max_body,
+                              &u->data, &u->size, &err) != BG_OK) {
+            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-file",
+                                 "Invalid file", field, "%s.base64: %s", field, err.message);
+            goto out;
+        }
+        snprintf(u->name, sizeof u->name, "%s", name->valuestring);
+        s->file_count++;
+    }
+    ok = s->scene != NULL;
+    if (!ok)
+        *sent = send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal", "Internal error",
+                             NULL, "out of memory");
+out:
+    cJSON_Delete(root);
+    return ok;
+}
+
+/* Writes the uploads to a fresh folder; 0 on failure (errno kept). */
+static int unpack(bgb_rest_t *rest, submission_t *s)
+{
+    snprintf(s->dir, sizeof s->dir, "%s/bgb-job-XXXXXX", rest->work_dir);
+    if (!mkdtemp(s->dir)) {
+        s->dir[0] = '\0';
+        return 0;
+    }
+    for (int i = 0; i < s->file_count; i++) {
+        char path[REST_PATH_MAX + BGB_STORE_MAX_FILE_NAME + 2];
+        snprintf(path, sizeof path, "%s/%s", s->dir, s->files[i].name);
+        const int fd = open(path, O_WRONLY | O_CREAT | O_EXCL, 0600);
+        if (fd < 0)
+            return 0;
+        size_t done = 0;
+        while (done < s->files[i].size) {
+            const ssize_t n = write(fd, s->files[i].data + done, s->files[i].size - done);
+            if (n <= 0) {
+                close(fd);
+                return 0;
+            }
+            done += (size_t)n;
+        }
+        if (close(fd) != 0)
+            return 0;
+    }
+    return 1;
+}
+
+static cJSON *plan_json(const bg_scene_t *scene)
+{
+    bg_plan_t plan;
+    bg_plan_for_scene(scene, &scene->method, 1, &plan);
+    cJSON *o = cJSON_CreateObject();
+    cJSON *services = cJSON_AddArrayToObject(o, "services");
+    cJSON *left_out = cJSON_AddArrayToObject(o, "left_out");
+    for (int i = 0; services && i < plan.service_count; i++) {
+        cJSON *item = cJSON_CreateObject();
+        cJSON_AddStringToObject(item, "service", plan.services[i].service);
+        cJSON_AddStringToObject(item, "detail", plan.services[i].detail);
+        cJSON_AddItemToArray(services, item);
+    }
+    for (int i = 0; left_out && i < plan.left_out_count; i++) {
+        cJSON *item = cJSON_CreateObject();
+        cJSON_AddStringToObject(item, "service", plan.left_out[i].service);
+        cJSON_AddStringToObject(item, "reason", plan.left_out[i].detail);
+        cJSON_AddItemToArray(left_out, item);
+    }
+    return o;
+}
+
+static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
+                                  const request_t *req)
+{
+    submission_t s;
+    memset(&s, 0, sizeof s);
+    enum MHD_Result sent = MHD_NO;
+    bg_scene_t *scene = NULL;
+    cJSON *plan = NULL;
+    char *plan_text = NULL;
+    if (!read_submission(rest, c, req, &s, &sent))
+        goto out;
+    if (!unpack(rest, &s)) {
+        sent = send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal", "Internal error",
+                            NULL, "cannot unpack the job's files: %s", strerror(errno));
+        goto out;
+    }
+    char scene_path[REST_PATH_MAX + 16];
+    snprintf(scene_path, sizeof scene_path, "%s/scene.json", s.dir);
+    const bg_scene_options_t options = {.max_vertices = rest->config.max_vertices,
+                                        .max_elements = rest->config.max_elements,
+                                        .confined = 1,
+                                        .display_name = "scene"};
+    bg_error_t err = BG_ERROR_INIT;
+    if (bg_scene_parse_with(s.scene, strlen(s.scene), scene_path, &options, &scene, &err) !=
+        BG_OK) {
+        char field[256];
+        field_of(err.message, field, sizeof field);
+        sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT,
+                            err.status == BG_ERR_LIMIT ? "job-too-large" : "invalid-scene",
+                            err.status == BG_ERR_LIMIT ? "Job too large" : "Invalid scene", field,
+                            "%s", err.message);
+        goto out;
+    }
+    plan = plan_json(scene);
+    plan_text = plan ? cJSON_PrintUnformatted(plan) : NULL;
+    bgb_file_t files[BGB_STORE_MAX_FILES];
+    for (int i = 0; i < s.file_count; i++) {
+        files[i].name = s.files[i].name;
+        files[i].data = s.files[i].data;
+        files[i].size = s.files[i].size;
+    }
+    const bgb_submit_t job = {
+        .idempotency_key = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Idempotency-Key"),
+        .scene = s.scene,
+        .scene_size = strlen(s.scene),
+        .mechanism = s.mechanism,
+        .budget = s.budget,
+        .files = files,
+        .file_count = s.file_count};
+    char id[BGB_JOB_ID_SIZE];
+    int created = 0;
+    if (bgb_store_submit(rest->store, &job, id, &created, &err) != BG_OK) {
+        sent = err.status == BG_ERR_IO
+                   ? send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                                  "Job store unavailable", NULL, "%s", err.message)
+                   : send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
+                                  "Invalid request", NULL, "%s", err.message);
+        goto out;
+    }
+    if (created && plan_text && bgb_store_add_event(rest->store, id, "plan", plan_text, &err) !=
+                                    BG_OK) {
+        sent = send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                            "Job store unavailable", NULL, "%s", err.message);
+        goto out;
+    }
+    bgb_job_t stored = BGB_JOB_INIT;
+    if (bgb_store_get(rest->store, id, &stored, &err) != BG_OK) {
+        sent = send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                            "Job store unavailable", NULL, "%s", err.message);
+        goto out;
+    }
+    char location[64];
+    snprintf(location, sizeof location, "/v1/jobs/%s", id);
+    sent = send_json(rest, c, created ? MHD_HTTP_ACCEPTED : MHD_HTTP_OK,
+                     job_json(rest, &stored, 1), "application/json", location);
+    bgb_job_release(&stored);
+out:
+    free(plan_text);
+    cJSON_Delete(plan);
+    bg_scene_destroy(&scene);
+    submission_release(&s);
+    return sent;
+}
+
+/* -------------------------------------------------------------- reading */
+
+static enum MHD_Result get_job(bgb_rest_t *rest, struct MHD_Connection *c, const char *id)
+{
+    bgb_job_t job = BGB_JOB_INIT;
+    bg_error_t err = BG_ERROR_INIT;
+    const bg_status st = bgb_store_get(rest->store, id, &job, &err);
+    if (st == BG_ERR_NOT_FOUND)
+        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job", "No such job", NULL,
+                            "%s", err.message);
+    if (st != BG_OK)
+        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                            "Job store unavailable", NULL, "%s", err.message);
+    const enum MHD_Result sent =
+        send_json(rest, c, MHD_HTTP_OK, job_json(rest, &job, 1), "application/json", NULL);
+    bgb_job_release(&job);
+    return sent;
+}
+
+static enum MHD_Result list_jobs(bgb_rest_t *rest, struct MHD_Connection *c)
+{
+    const char *state_text = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "state");
+    const char *limit_text = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "limit");
+    const char *cursor_text = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "cursor");
+    int state = -1;
+    if (state_text && (state = bgb_job_state_parse(state_text)) < 0)
+        return send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "invalid-parameter",
+                            "Invalid parameter", "state",
+                            "state: '%s' is not one of queued, allocating, running, succeeded, "
+                            "failed, cancelled",
+                            state_text);
+    long limit = REST_DEFAULT_LIMIT;
+    if (limit_text) {
+        char *end = NULL;
+        limit = strtol(limit_text, &end, 10);
+        if (!end || *end || limit < 1 || limit > REST_MAX_LIMIT)
+            return send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "invalid-parameter",
+                                "Invalid parameter", "limit",
+                                "limit: '%s' must be an integer in 1..%d", limit_text,
+                                REST_MAX_LIMIT);
+    }
+    long long cursor = 0;
+    if (cursor_text) {
+        char *end = NULL;
+        cursor = strtoll(cursor_text, &end, 10);
+        if (!end || *end || cursor < 1)
+            return send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "invalid-parameter",
+                                "Invalid parameter", "cursor",
+                                "cursor: '%s' is not a cursor this server gave", cursor_text);
+    }
+    bgb_job_t *jobs = calloc((size_t)limit, sizeof *jobs);
+    if (!jobs)
+        return send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
+                            "Internal error", NULL, "out of memory");
+    int count = 0;
+    int64_t next = 0;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgb_store_list(rest->store, state, cursor, (int)limit, jobs, &count, &next, &err) !=
+        BG_OK) {
+        free(jobs);
+        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                            "Job store unavailable", NULL, "%s", err.message);
+    }
+    cJSON *doc = cJSON_CreateObject();
+    cJSON *array = cJSON_AddArrayToObject(doc, "jobs");
+    for (int i = 0; i < count; i++) {
+        cJSON_AddItemToArray(array, job_json(rest, &jobs[i], 0));
+        bgb_job_release(&jobs[i]);
+    }
+    free(jobs);
+    if (next) {
+        char text[32];
+        snprintf(text, sizeof text, "%lld", (long long)next);
+        cJSON_AddStringToObject(doc, "next", text);
+    } else {
+        cJSON_AddNullToObject(doc, "next");
+    }
+    return send_json(rest, c, MHD_HTTP_OK, doc, "application/json", NULL);
+}
+
+static enum MHD_Result cancel_job(bgb_rest_t *rest, struct MHD_Connection *c, const char *id)
+{
+    const unsigned active = (1u << BGB_JOB_QUEUED) | (1u << BGB_JOB_ALLOCATING) |
+                            (1u << BGB_JOB_RUNNING);
+    bg_error_t err = BG_ERROR_INIT;
+    const bg_status st = bgb_store_transition(rest->store, id, active, BGB_JOB_CANCELLED,
+                                              "cancelled by the client", &err);
+    if (st == BG_ERR_NOT_FOUND)
+        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job", "No such job", NULL,
+                            "%s", err.message);
+    if (st == BG_ERR_CONFLICT)
+        return send_problem(rest, c, MHD_HTTP_CONFLICT, "job-ended", "Job already ended", NULL,
+                            "%s", err.message);
+    if (st != BG_OK)
+        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                            "Job store unavailable", NULL, "%s", err.message);
+    return get_job(rest, c, id);
+}
+
+static void list_file(void *ctx, const char *name, size_t size)
+{
+    cJSON *array = ctx;
+    cJSON *item = cJSON_CreateObject();
+    cJSON_AddStringToObject(item, "name", name);
+    cJSON_AddNumberToObject(item, "size", (double)size);
+    cJSON_AddItemToArray(array, item);
+}
+
+static const char *content_type(const char *name)
+{
+    static const struct {
+        const char *suffix, *type;
+    } types[] = {{".json", "application/json"}, {".svg", "image/svg+xml"},
+                 {".vtu", "application/xml"},   {".pvd", "application/xml"},
+                 {".csv", "text/csv"},          {".obj", "text/plain"},
+                 {".off", "text/plain"},        {".mesh", "text/plain"}};
+    const size_t n = strlen(name);
+    for (size_t i = 0; i < sizeof types / sizeof types[0]; i++) {
+        const size_t k = strlen(types[i].suffix);
+        if (n > k && strcmp(name + n - k, types[i].suffix) == 0)
+            return types[i].type;
+    }
+    return "application/octet-stream";
+}
+
+static enum MHD_Result get_result(bgb_rest_t *rest, struct MHD_Connection *c, const char *id,
+                                  const char *file)
+{
+    bgb_job_t job = BGB_JOB_INIT;
+    bg_error_t err = BG_ERROR_INIT;
+    bg_status st = bgb_store_get(rest->store, id, &job, &err);
+    if (st == BG_ERR_NOT_FOUND)
+        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job", "No such job", NULL,
+                            "%s", err.message);
+    if (st != BG_OK)
+        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                            "Job store unavailable", NULL, "%s", err.message);
+    const bgb_job_state state = job.state;
+    bgb_job_release(&job);
+    if (state != BGB_JOB_SUCCEEDED)
+        return send_problem(rest, c, MHD_HTTP_CONFLICT, "no-result", "No result", NULL,
+                            "job %s is %s: it has no result%s", id, bgb_job_state_name(state),
+                            bgb_job_state_is_active(state) ? " yet" : "");
+    if (!file) {
+        cJSON *doc = cJSON_CreateObject();
+        cJSON_AddStringToObject(doc, "id", id);
+        cJSON *files = cJSON_AddArrayToObject(doc, "files");
+        if (bgb_store_list_files(rest->store, id, "result", list_file, files, &err) != BG_OK) {
+            cJSON_Delete(doc);
+            return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                                "Job store unavailable", NULL, "%s", err.message);
+        }
+        return send_json(rest, c, MHD_HTTP_OK, doc, "application/json", NULL);
+    }
+    uint8_t *data = NULL;
+    size_t size = 0;
+    st = bgb_store_get_file(rest->store, id, "result", file, &data, &size, &err);
+    if (st == BG_ERR_NOT_FOUND || st == BG_ERR_INVALID)
+        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-file", "No such file", NULL,
+                            "%s", err.message);
+    if (st != BG_OK)
+        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                            "Job store unavailable", NULL, "%s", err.message);
+    const enum MHD_Result sent =
+        send_text(rest, c, MHD_HTTP_OK, content_type(file), (const char *)data, size, NULL);
+    free(data);
+    return sent;
+}
+
+/* ------------------------------------------------------ server-sent events */
+
+typedef struct stream {
+    bgb_rest_t *rest;
+    char id[BGB_JOB_ID_SIZE];
+    int64_t last;
+    char *pending; /* formatted events not yet sent */
+    size_t pending_size, pending_sent;
+    int ended;
+} stream_t;
+
+typedef struct collect {
+    stream_t *s;
+    size_t cap;
+    int failed;
+} collect_t;
+
+static void collect_event(void *ctx, int64_t sequence, double time, const char *kind,
+                          const char *json)
+{
+    collect_t *co = ctx;
+    stream_t *s = co->s;
+    (void)time;
+    const size_t need = strlen(kind) + strlen(json) + 64;
+    if (co->failed)
+        return;
+    if (s->pending_size + need > co->cap) {
+        size_t grown = co->cap ? co->cap : 4096;
+        while (grown < s->pending_size + need)
+            grown *= 2;
+        char *p = realloc(s->pending, grown);
+        if (!p) {
+            co->failed = 1;
+            return;
+        }
+        s->pending = p;
+        co->cap = grown;
+    }
+    s->pending_size += (size_t)snprintf(s->pending + s->pending_size, co->cap - s->pending_size,
+                                        "id: %lld\nevent: %s\ndata: %s\n\n",
+                                        (long long)sequence, kind, json);
+    s->last = sequence;
+}
+
+/* Refills s->pending from the store; sets ended when the job can no longer change. */
+static void refill(stream_t *s)
+{
+    free(s->pending);
+    s->pending = NULL;
+    s->pending_size = s->pending_sent = 0;
+    collect_t co = {s, 0, 0};
+    bg_error_t err = BG_ERROR_INIT;
+    bgb_job_t job = BGB_JOB_INIT;
+    /* Read the state before the events: an event written after this read
+     * is still delivered by the final refill that sees the job ended. */
+    if (bgb_store_get(s->rest->store, s->id, &job, &err) != BG_OK) {
+        s->ended = 1;
+        return;
+    }
+    const int active = bgb_job_state_is_active(job.state);
+    bgb_job_release(&job);
+    if (bgb_store_events(s->rest->store, s->id, s->last, collect_event, &co, &err) != BG_OK ||
+        co.failed || !active)
+        s->ended = 1;
+}
+
+static ssize_t read_events(void *cls, uint64_t pos, char *buf, size_t max)
+{
+    stream_t *s = cls;
+    (void)pos;
+    for (int polls = 0;; polls++) {
+        if (s->pending_sent < s->pending_size) {
+            size_t n = s->pending_size - s->pending_sent;
+            if (n > max)
+                n = max;
+            memcpy(buf, s->pending + s->pending_sent, n);
+            s->pending_sent += n;
+            return (ssize_t)n;
+        }
+        if (s->ended || atomic_load(&s->rest->stopping))
+            return MHD_CONTENT_READER_END_OF_STREAM;
+        if (polls == REST_KEEPALIVE_POLLS) {
+            static const char keepalive[] = ": keep-alive\n\n";
+            const size_t n = sizeof keepalive - 1 < max ? sizeof keepalive - 1 : max;
+            memcpy(buf, keepalive, n);
+            return (ssize_t)n;
+        }
+        if (polls > 0) {
+            const struct timespec pause = {0, REST_EVENT_POLL_NS};
+            nanosleep(&pause, NULL);
+        }
+        refill(s);
+    }
+}
+
+static void free_stream(void *cls)
+{
+    stream_t *s = cls;
+    free(s->pending);
+    free(s);
+}
+
+static enum MHD_Result stream_events(bgb_rest_t *rest, struct MHD_Connection *c, const char *id)
+{
+    bgb_job_t job = BGB_JOB_INIT;
+    bg_error_t err = BG_ERROR_INIT;
+    const bg_status st = bgb_store_get(rest->store, id, &job, &err);
+    bgb_job_release(&job);
+    if (st == BG_ERR_NOT_FOUND)
+        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job", "No such job", NULL,
+                            "%s", err.message);
+    if (st != BG_OK)
+        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                            "Job store unavailable", NULL, "%s", err.message);
+    stream_t *s = calloc(1, sizeof *s);
+    if (!s)
+        return send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
+                            "Internal error", NULL, "out of memory");
+    s->rest = rest;
+    snprintf(s->id, sizeof s->id, "%s", id);
+    const char *resume = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Last-Event-ID");
+    if (resume)
+        s->last = strtoll(resume, NULL, 10);
+    struct MHD_Response *r =
+        MHD_create_response_from_callback(MHD_SIZE_UNKNOWN, 4096, read_events, s, free_stream);
+    if (!r) {
+        free_stream(s);
+        return MHD_NO;
+    }
+    MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, "text/event-stream");
+    MHD_add_response_header(r, MHD_HTTP_HEADER_CACHE_CONTROL, "no-cache");
+    const enum MHD_Result ok = MHD_queue_response(c, MHD_HTTP_OK, r);
+    MHD_destroy_response(r);
+    atomic_fetch_add(&rest->responses[2], 1);
+    return ok;
+}
+
+/* ----------------------------------------------------------- the others */
+
+static enum MHD_Result health(bgb_rest_t *rest, struct MHD_Connection *c)
+{
+    int64_t counts[BGB_JOB_STATE_COUNT];
+    bg_error_t err = BG_ERROR_INIT;
+    const int store_ok = bgb_store_count(rest->store, counts, &err) == BG_OK;
+    cJSON *doc = cJSON_CreateObject();
+    cJSON_AddStringToObject(doc, "status", store_ok ? "ok" : "degraded");
+    cJSON_AddStringToObject(doc, "name", rest->name);
+    cJSON_AddStringToObject(doc, "store", store_ok ? "ok" : err.message);
+    return send_json(rest, c, store_ok ? MHD_HTTP_OK : MHD_HTTP_SERVICE_UNAVAILABLE, doc,
+                     "application/json", NULL);
+}
+
+static enum MHD_Result metrics(bgb_rest_t *rest, struct MHD_Connection *c)
+{
+    int64_t counts[BGB_JOB_STATE_COUNT], commits = 0, submits = 0;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgb_store_count(rest->store, counts, &err) != BG_OK)
+        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                            "Job store unavailable", NULL, "%s", err.message);
+    bgb_store_commit_stats(rest->store, &commits, &submits);
+    char text[4096];
+    size_t n = 0;
+    n += (size_t)snprintf(text + n, sizeof text - n,
+                          "# HELP biotgrid_jobs Jobs in the store, by state.\n"
+                          "# TYPE biotgrid_jobs gauge\n");
+    for (int s = 0; s < BGB_JOB_STATE_COUNT; s++)
+        n += (size_t)snprintf(text + n, sizeof text - n, "biotgrid_jobs{state=\"%s\"} %lld\n",
+                              bgb_job_state_name((bgb_job_state)s), (long long)counts[s]);
+    n += (size_t)snprintf(text + n, sizeof text - n,
+                          "# HELP biotgrid_store_commits_total Job store write transactions "
+                          "committed for submits.\n"
+                          "# TYPE biotgrid_store_commits_total counter\n"
+                          "biotgrid_store_commits_total %lld\n"
+                          "# HELP biotgrid_store_submits_total Jobs stored.\n"
+                          "# TYPE biotgrid_store_submits_total counter\n"
+                          "biotgrid_store_submits_total %lld\n"
+                          "# HELP biotgrid_http_responses_total Responses sent, by status "
+                          "class.\n"
+                          "# TYPE biotgrid_http_responses_total counter\n",
+                          (long long)commits, (long long)submits);
+    for (int k = 1; k <= 5; k++)
+        n += (size_t)snprintf(text + n, sizeof text - n,
+                              "biotgrid_http_responses_total{class=\"%dxx\"} %lld\n", k,
+                              (long long)atomic_load(&rest->responses[k]));
+    return send_text(rest, c, MHD_HTTP_OK, "text/plain; version=0.0.4", text, n, NULL);
+}
+
+/* ------------------------------------------------------------- routing */
+
+static int is_job_id(const char *s, size_t n)
+{
+    if (n != BGB_JOB_ID_SIZE - 1 || s[0] != 'j')
+        return 0;
+    for (size_t i = 1; i < n; i++)
+        if (!((s[i] >= '0' && s[i] <= '9') || (s[i] >= 'a' && s[i] <= 'f')))
+            return 0;
+    return 1;
+}
+
+static enum MHD_Result method_not_allowed(bgb_rest_t *rest, struct MHD_Connection *c,
+                                          const char *method, const char *url,
+                                          const char *allowed)
+{
+    return send_problem(rest, c, MHD_HTTP_METHOD_NOT_ALLOWED, "method-not-allowed",
+                        "Method not allowed", NULL, "%s %s: use %s", method, url, allowed);
+}
+
+static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const char *url,
+                             const char *method, const request_t *req)
+{
+    const int get = strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0;
+    const int post = strcmp(method, "POST") == 0;
+    if (strcmp(url, "/healthz") == 0)
+        return get ? health(rest, c) : method_not_allowed(rest, c, method, url, "GET");
+    if (strcmp(url, "/metrics") == 0)
+        return get ? metrics(rest, c) : method_not_allowed(rest, c, method, url, "GET");
+    if (strcmp(url, "/openapi.json") == 0)
+        return get ? send_text(rest, c, MHD_HTTP_OK, "application/json", bgb_rest_openapi(),
+                               strlen(bgb_rest_openapi()), NULL)
+                   : method_not_allowed(rest, c, method, url, "GET");
+    if (strcmp(url, "/v1/jobs") == 0) {
+        if (post)
+            return submit_job(rest, c, req);
+        return get ? list_jobs(rest, c) : method_not_allowed(rest, c, method, url, "GET or POST");
+    }
+    const char *prefix = "/v1/jobs/";
+    if (strncmp(url, prefix, strlen(prefix)) == 0) {
+        const char *id = url + strlen(prefix);
+        const size_t n = strcspn(id, "/");
+        const char *rest_of = id + n;
+        char job_id[BGB_JOB_ID_SIZE];
+        if (is_job_id(id, n)) {
+            memcpy(job_id, id, n);
+            job_id[n] = '\0';
+            if (!rest_of[0])
+                return get ? get_job(rest, c, job_id)
+                           : method_not_allowed(rest, c, method, url, "GET");
+            if (strcmp(rest_of, "/cancel") == 0)
+                return post ? cancel_job(rest, c, job_id)
+                            : method_not_allowed(rest, c, method, url, "POST");
+            if (strcmp(rest_of, "/events") == 0)
+                return get ? stream_events(rest, c, job_id)
+                           : method_not_allowed(rest, c, method, url, "GET");
+            if (strcmp(rest_of, "/result") == 0)
+                return get ? get_result(rest, c, job_id, NULL)
+                           : method_not_allowed(rest, c, method, url, "GET");
+            if (strncmp(rest_of, "/result/", 8) == 0 && rest_of[8])
+                return get ? get_result(rest, c, job_id, rest_of + 8)
+                           : method_not_allowed(rest, c, method, url, "GET");
+        }
+        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job", "No such job", NULL,
+                            "no job at %s", url);
+    }
+    return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "not-found", "Not found", NULL,
+                        "no resource at %s (see /openapi.json)", url);
+}
+
+static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *url,
+                              const char *method, const char *version, const char *upload_data,
+                              size_t *upload_data_size, void **con_cls)
+{
+    bgb_rest_t *rest = cls;
+    (void)version;
+    request_t *req = *con_cls;
+    if (!req) {
+        req = calloc(1, sizeof *req);
+        if (!req)
+            return MHD_NO;
+        *con_cls = req;
+        const char *length = MHD_lookup_connection_value(c, MHD_HEADER_KIND,
+                                                         MHD_HTTP_HEADER_CONTENT_LENGTH);
+        if (length && strtoull(length, NULL, 10) > rest->config.max_body) {
+            req->too_large = 1;
+            return send_problem(rest, c, MHD_HTTP_CONTENT_TOO_LARGE, "body-too-large",
+                                "Request body too large", NULL,
+                                "the body of %s bytes exceeds the limit of %zu bytes", length,
+                                rest->config.max_body);
+        }
+        return MHD_YES;
+    }
+    if (*upload_data_size > 0) {
+        if (!req->too_large) {
+            if (req->size + *upload_data_size > rest->config.max_body) {
+                req->too_large = 1;
+            } else {
+                if (req->size + *upload_data_size + 1 > req->cap) {
+                    size_t grown = req->cap ? req->cap : 65536;
+                    while (grown < req->size + *upload_data_size + 1)
+                        grown *= 2;
+                    if (grown > rest->config.max_body + 1)
+                        grown = rest->config.max_body + 1;
+                    char *body = realloc(req->body, grown);
+                    if (!body)
+                        return MHD_NO;
+                    req->body = body;
+                    req->cap = grown;
+                }
+                memcpy(req->body + req->size, upload_data, *upload_data_size);
+                req->size += *upload_data_size;
+                req->body[req->size] = '\0';
+            }
+        }
+        *upload_data_size = 0;
+        return MHD_YES;
+    }
+    if (req->too_large)
+        return send_problem(rest, c, MHD_HTTP_CONTENT_TOO_LARGE, "body-too-large",
+                            "Request body too large", NULL,
+                            "the body exceeds the limit of %zu bytes", rest->config.max_body);
+    return route(rest, c, url, method, req);
+}
+
+static void completed(void *cls, struct MHD_Connection *c, void **con_cls,
+                      enum MHD_RequestTerminationCode code)
+{
+    (void)cls;
+    (void)c;
+    (void)code;
+    request_t *req = *con_cls;
+    if (req) {
+        free(req->body);
+        free(req);
+        *con_cls = NULL;
+    }
+}
+
+bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bgb_rest_t **out,
+                         bg_error_t *err)
+{
+    *out = NULL;
+    bgb_rest_t *rest = calloc(1, sizeof *rest);
+    if (!rest)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the REST server");
+    rest->store = store;
+    rest->config = *config;
+    if (!rest->config.max_body)
+        rest->config.max_body = BGB_REST_DEFAULT_MAX_BODY;
+    if (!rest->config.connection_limit)
+        rest->config.connection_limit = REST_DEFAULT_CONNECTIONS;
+    rest->address = strdup(config->address ? config->address : "127.0.0.1");
+    rest->work_dir = strdup(config->work_dir ? config->work_dir : "/tmp");
+    rest->name = strdup(config->name ? config->name : "biotgrid");
+    bg_status st = BG_OK;
+    if (!rest->address || !rest->work_dir || !rest->name) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the REST server");
+        goto out;
+    }
+    struct sockaddr_in addr;
+    memset(&addr, 0, sizeof addr);
+    addr.sin_family = AF_INET;
+    addr.sin_port = htons(config->port);
+    if (inet_pton(AF_INET, rest->address, &addr.sin_addr) != 1) {
+        st = bg_error_set(err, BG_ERR_INVALID, "listen address '%s' is not an IPv4 address",
+                          rest->address);
+        goto out;
+    }
+    rest->daemon = MHD_start_daemon(
+        MHD_USE_THREAD_PER_CONNECTION | MHD_USE_INTERNAL_POLLING_THREAD, config->port, NULL,
+        NULL, handle, rest, MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&addr,
+        MHD_OPTION_NOTIFY_COMPLETED, completed, rest, MHD_OPTION_CONNECTION_LIMIT,
+        rest->config.connection_limit, MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)120,
+        MHD_OPTION_END);
+    if (!rest->daemon) {
+        st = bg_error_set(err, BG_ERR_IO, "cannot listen on %s:%u: %s", rest->address,
+                          (unsigned)config->port, strerror(errno));
+        goto out;
+    }
+    const union MHD_DaemonInfo *info = MHD_get_daemon_info(rest->daemon,
+                                                           MHD_DAEMON_INFO_BIND_PORT);
+    rest->port = info ? info->port : config->port;
+out:
+    if (st != BG_OK)
+        bgb_rest_stop(&rest);
+    *out = rest;
+    return st;
+}
+
+uint16_t bgb_rest_port(const bgb_rest_t *rest)
+{
+    return rest->port;
+}
+
+void bgb_rest_stop(bgb_rest_t **restp)
+{
+    if (!restp || !*restp)
+        return;
+    bgb_rest_t *rest = *restp;
+    atomic_store(&rest->stopping, 1);
+    if (rest->daemon)
+        MHD_stop_daemon(rest->daemon);
+    free(rest->address);
+    free(rest->work_dir);
+    free(rest->name);
+    free(rest);
+    *restp = NULL;
+}
+
+/* ------------------------------------------------------- the document */
+
+/* broker/openapi.json, embedded at build time (cmake/embed.cmake). */
+extern const char bgb_openapi_json[];
+
+const char *bgb_rest_openapi(void)
+{
+    return bgb_openapi_json;
+}

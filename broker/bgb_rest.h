@@ -1,0 +1,62 @@
+/*
+ * bgb_rest — the broker's REST API over libmicrohttpd: jobs in and out of
+ * the durable store (bgb_store), errors as RFC 9457 problem documents.
+ *
+ *   POST /v1/jobs                 submit: {"scene": {...}, "files": [{"name", "base64"}],
+ *                                 "mechanism", "budget"}; 202 + Location (200 when an
+ *                                 Idempotency-Key replays an earlier submit)
+ *   GET  /v1/jobs                 ?state=S&limit=N&cursor=C, oldest first
+ *   GET  /v1/jobs/{id}            the job: state, plan, reason, links
+ *   GET  /v1/jobs/{id}/events     server-sent events of the job's log until it ends
+ *   POST /v1/jobs/{id}/cancel     409 once the job has ended
+ *   GET  /v1/jobs/{id}/result     the result's file list (409 until the job succeeded)
+ *   GET  /v1/jobs/{id}/result/{file}
+ *   GET  /healthz, /metrics (Prometheus text), /openapi.json
+ *
+ * A submitted scene is validated exactly as `biotgrid validate` does —
+ * parsed, no solve — against the uploaded files only (an absolute path or
+ * one that leaves the job's folder is refused) and against the configured
+ * size caps before any mesh is built; an invalid one is a 422 naming the
+ * field. Bodies over the cap are refused with 413 without being read.
+ *
+ * The server runs its own threads (one per connection, up to a limit);
+ * the store is borrowed and must outlive it.
+ */
+#ifndef BGB_REST_H
+#define BGB_REST_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "bg_error.h"
+#include "bgb_store.h"
+
+typedef struct bgb_rest bgb_rest_t;
+
+typedef struct bgb_rest_config {
+    const char *address;     /* IPv4 address to bind; NULL: 127.0.0.1 */
+    uint16_t port;           /* 0: an ephemeral port (bgb_rest_port tells which) */
+    size_t max_body;         /* request bodies over this are refused (413); 0: 64 MiB */
+    int64_t max_vertices;    /* job size caps (0: the engine's own limits) */
+    int64_t max_elements;
+    const char *work_dir;    /* where submitted scenes are unpacked to be validated; NULL: /tmp */
+    const char *name;        /* the broker's name in /healthz and /metrics; NULL: "biotgrid" */
+    unsigned connection_limit; /* concurrent connections (0: 256) */
+} bgb_rest_config_t;
+
+#define BGB_REST_DEFAULT_MAX_BODY ((size_t)64 << 20)
+
+/* Starts serving; caller owns *out (bgb_rest_stop). */
+bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bgb_rest_t **out,
+                         bg_error_t *err);
+
+/* The port the server listens on. */
+uint16_t bgb_rest_port(const bgb_rest_t *rest);
+
+/* Stops accepting, waits for the connections in progress, frees; accepts NULL. */
+void bgb_rest_stop(bgb_rest_t **rest);
+
+/* The OpenAPI 3 document served at /openapi.json (static text). */
+const char *bgb_rest_openapi(void);
+
+#endif

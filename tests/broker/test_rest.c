@@ -1,0 +1,608 @@
+/*
+ * The broker's REST API end to end: a real libmicrohttpd server on a
+ * loopback port chosen at run time, a real SQLite store in a temporary
+ * directory, and libcurl as the client. Every response is also checked
+ * against the OpenAPI document the server publishes (the required
+ * properties of the schema documented for that path, method and status).
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cmocka.h>
+
+#include <cJSON.h>
+#include <curl/curl.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "bgb_base64.h"
+#include "bgb_rest.h"
+#include "bgb_store.h"
+
+#define MAX_BODY (256 * 1024)
+#define SMALL_BOX "{\"mesh\":{\"generate\":\"box\",\"cells\":[4,1,1],\"size\":[4,1,1]},"          \
+                  "\"material\":{\"mu\":1,\"lambda\":1},\"handles\":[{\"select\":{\"box\":"     \
+                  "{\"min\":[0,0,0],\"max\":[0,1,1]}}},{\"select\":{\"box\":{\"min\":[4,0,0],"  \
+                  "\"max\":[4,1,1]}},\"transform\":{\"translate\":[0.5,0,0]}}]}"
+
+typedef struct fixture {
+    char dir[64], path[128];
+    bgb_store_t *store;
+    bgb_rest_t *rest;
+    char base[64];
+    cJSON *openapi;
+} fixture_t;
+
+typedef struct response {
+    long status;
+    char *body;
+    size_t size;
+    char type[128];
+    char location[128];
+} response_t;
+
+static size_t on_body(char *data, size_t size, size_t n, void *ctx)
+{
+    response_t *r = ctx;
+    const size_t add = size * n;
+    char *grown = realloc(r->body, r->size + add + 1);
+    assert_non_null(grown);
+    r->body = grown;
+    memcpy(r->body + r->size, data, add);
+    r->size += add;
+    r->body[r->size] = '\0';
+    return add;
+}
+
+static size_t on_header(char *data, size_t size, size_t n, void *ctx)
+{
+    response_t *r = ctx;
+    const size_t len = size * n;
+    if (len > 14 && strncasecmp(data, "Content-Type: ", 14) == 0)
+        snprintf(r->type, sizeof r->type, "%.*s", (int)(len - 16), data + 14);
+    if (len > 10 && strncasecmp(data, "Location: ", 10) == 0)
+        snprintf(r->location, sizeof r->location, "%.*s", (int)(len - 12), data + 10);
+    return len;
+}
+
+/* One request; header may be NULL ("Name: value" otherwise). */
+static response_t request(const fixture_t *f, const char *method, const char *path,
+                          const char *body, const char *header)
+{
+    response_t r = {0};
+    CURL *curl = curl_easy_init();
+    assert_non_null(curl);
+    char url[512];
+    snprintf(url, sizeof url, "%s%s", f->base, path);
+    struct curl_slist *headers = curl_slist_append(NULL, "Content-Type: application/json");
+    if (header)
+        headers = curl_slist_append(headers, header);
+    curl_easy_setopt(curl, CURLOPT_URL, url);
+    curl_easy_setopt(curl, CURLOPT_CUSTOMREQUEST, method);
+    curl_easy_setopt(curl, CURLOPT_HTTPHEADER, headers);
+    curl_easy_setopt(curl, CURLOPT_WRITEFUNCTION, on_body);
+    curl_easy_setopt(curl, CURLOPT_WRITEDATA, &r);
+    curl_easy_setopt(curl, CURLOPT_HEADERFUNCTION, on_header);
+    curl_easy_setopt(curl, CURLOPT_HEADERDATA, &r);
+    curl_easy_setopt(curl, CURLOPT_TIMEOUT, 30L);
+    if (body) {
+        curl_easy_setopt(curl, CURLOPT_POSTFIELDS, body);
+        curl_easy_setopt(curl, CURLOPT_POSTFIELDSIZE, (long)strlen(body));
+    }
+    const CURLcode rc = curl_easy_perform(curl);
+    if (rc != CURLE_OK)
+        fail_msg("%s %s: %s", method, path, curl_easy_strerror(rc));
+    curl_easy_getinfo(curl, CURLINFO_RESPONSE_CODE, &r.status);
+    curl_slist_free_all(headers);
+    curl_easy_cleanup(curl);
+    if (!r.body)
+        r.body = calloc(1, 1);
+    return r;
+}
+
+/* Follows a local "$ref": "#/a/b/c" in the OpenAPI document. */
+static const cJSON *resolve(const fixture_t *f, const cJSON *node)
+{
+    const cJSON *ref = cJSON_GetObjectItemCaseSensitive(node, "$ref");
+    if (!cJSON_IsString(ref))
+        return node;
+    char path[256];
+    snprintf(path, sizeof path, "%s", ref->valuestring + 2);
+    const cJSON *at = f->openapi;
+    for (char *part = strtok(path, "/"); part && at; part = strtok(NULL, "/"))
+        at = cJSON_GetObjectItemCaseSensitive(at, part);
+    assert_non_null(at);
+    return resolve(f, at);
+}
+
+/*
+ * The response must be documented for (template, method, status), with the
+ * content type the document gives, and a JSON body must hold every
+ * property its schema requires.
+ */
+static void conforms(const fixture_t *f, const char *template, const char *method,
+                     const response_t *r)
+{
+    char status[8], lower[8];
+    snprintf(status, sizeof status, "%ld", r->status);
+    snprintf(lower, sizeof lower, "%s", method);
+    for (char *c = lower; *c; c++)
+        *c = (char)(*c - 'A' + 'a');
+    const cJSON *paths = cJSON_GetObjectItemCaseSensitive(f->openapi, "paths");
+    const cJSON *op = cJSON_GetObjectItemCaseSensitive(
+        cJSON_GetObjectItemCaseSensitive(paths, template), lower);
+    if (!op)
+        fail_msg("%s %s is not in the OpenAPI document", method, template);
+    const cJSON *resp = cJSON_GetObjectItemCaseSensitive(
+        cJSON_GetObjectItemCaseSensitive(op, "responses"), status);
+    if (!resp)
+        fail_msg("%s %s: status %s is not documented", method, template, status);
+    resp = resolve(f, resp);
+    const cJSON *content = cJSON_GetObjectItemCaseSensitive(resp, "content");
+    if (!content)
+        return;
+    char type[128];
+    snprintf(type, sizeof type, "%s", r->type);
+    type[strcspn(type, ";")] = '\0';
+    const cJSON *media = cJSON_GetObjectItemCaseSensitive(content, type);
+    if (!media)
+        fail_msg("%s %s %s: content type '%s' is not documented", method, template, status,
+                 type);
+    if (strstr(type, "json") == NULL)
+        return;
+    const cJSON *schema = resolve(f, cJSON_GetObjectItemCaseSensitive(media, "schema"));
+    cJSON *doc = cJSON_Parse(r->body);
+    assert_non_null(doc);
+    const cJSON *required = cJSON_GetObjectItemCaseSensitive(schema, "required");
+    for (const cJSON *k = required ? required->child : NULL; k; k = k->next)
+        if (!cJSON_GetObjectItemCaseSensitive(doc, k->valuestring))
+            fail_msg("%s %s %s: response lacks required '%s': %s", method, template, status,
+                     k->valuestring, r->body);
+    cJSON_Delete(doc);
+}
+
+static void release(response_t *r)
+{
+    free(r->body);
+    r->body = NULL;
+}
+
+static void start(fixture_t *f)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_open(f->path, &f->store, &err), BG_OK);
+    const bgb_rest_config_t config = {.port = 0, .max_body = MAX_BODY, .max_vertices = 100000,
+                                      .max_elements = 500000, .work_dir = f->dir,
+                                      .name = "test-broker"};
+    if (bgb_rest_start(&config, f->store, &f->rest, &err) != BG_OK)
+        fail_msg("%s", err.message);
+    assert_true(bgb_rest_port(f->rest) > 0);
+    snprintf(f->base, sizeof f->base, "http://127.0.0.1:%u", (unsigned)bgb_rest_port(f->rest));
+}
+
+static void stop(fixture_t *f)
+{
+    bgb_rest_stop(&f->rest);
+    bgb_store_destroy(&f->store);
+}
+
+static int setup(void **state)
+{
+    fixture_t *f = calloc(1, sizeof *f);
+    assert_non_null(f);
+    snprintf(f->dir, sizeof f->dir, "/tmp/bgb-rest-XXXXXX");
+    assert_non_null(mkdtemp(f->dir));
+    snprintf(f->path, sizeof f->path, "%s/jobs.db", f->dir);
+    f->openapi = cJSON_Parse(bgb_rest_openapi());
+    assert_non_null(f->openapi);
+    start(f);
+    *state = f;
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    fixture_t *f = *state;
+    stop(f);
+    cJSON_Delete(f->openapi);
+    char cmd[128];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", f->dir);
+    assert_int_equal(system(cmd), 0);
+    free(f);
+    return 0;
+}
+
+/* {"scene": SCENE, extra...} */
+static char *submission(const char *scene, const char *extra)
+{
+    const size_t n = strlen(scene) + (extra ? strlen(extra) : 0) + 32;
+    char *body = malloc(n);
+    assert_non_null(body);
+    snprintf(body, n, "{\"scene\":%s%s%s}", scene, extra ? "," : "", extra ? extra : "");
+    return body;
+}
+
+static char *field_of(const response_t *r, const char *key)
+{
+    cJSON *doc = cJSON_Parse(r->body);
+    assert_non_null(doc);
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(doc, key);
+    char *out = cJSON_IsString(v) ? strdup(v->valuestring) : NULL;
+    cJSON_Delete(doc);
+    return out;
+}
+
+/* Submits SMALL_BOX and returns the new job's id (caller frees). */
+static char *submit_small(const fixture_t *f, const char *header)
+{
+    char *body = submission(SMALL_BOX, "\"mechanism\":\"posted\",\"budget\":12.5");
+    response_t r = request(f, "POST", "/v1/jobs", body, header);
+    free(body);
+    if (r.status != 202 && r.status != 200)
+        fail_msg("submit: %ld %s", r.status, r.body);
+    conforms(f, "/v1/jobs", "POST", &r);
+    char *id = field_of(&r, "id");
+    assert_non_null(id);
+    char location[96];
+    snprintf(location, sizeof location, "/v1/jobs/%s", id);
+    assert_string_equal(r.location, location);
+    release(&r);
+    return id;
+}
+
+static void test_health_metrics_openapi(void **state)
+{
+    fixture_t *f = *state;
+    response_t r = request(f, "GET", "/healthz", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/healthz", "GET", &r);
+    assert_non_null(strstr(r.body, "\"status\":\"ok\""));
+    assert_non_null(strstr(r.body, "\"name\":\"test-broker\""));
+    release(&r);
+    r = request(f, "GET", "/openapi.json", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    cJSON *doc = cJSON_Parse(r.body);
+    assert_non_null(doc);
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(doc, "openapi")->valuestring, "3.0.3");
+    cJSON_Delete(doc);
+    release(&r);
+    free(submit_small(f, NULL));
+    r = request(f, "GET", "/metrics", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/metrics", "GET", &r);
+    assert_non_null(strstr(r.body, "biotgrid_jobs{state=\"queued\"} 1\n"));
+    assert_non_null(strstr(r.body, "biotgrid_store_submits_total 1\n"));
+    release(&r);
+    r = request(f, "GET", "/nowhere", NULL, NULL);
+    assert_int_equal(r.status, 404);
+    assert_string_equal(r.type, "application/problem+json");
+    release(&r);
+    r = request(f, "DELETE", "/v1/jobs", NULL, NULL);
+    assert_int_equal(r.status, 405);
+    release(&r);
+}
+
+static void test_submit_and_read(void **state)
+{
+    fixture_t *f = *state;
+    char *id = submit_small(f, NULL);
+    char path[96];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    response_t r = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/jobs/{id}", "GET", &r);
+    cJSON *doc = cJSON_Parse(r.body);
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(doc, "state")->valuestring, "queued");
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(doc, "mechanism")->valuestring,
+                        "posted");
+    assert_true(cJSON_GetObjectItemCaseSensitive(doc, "budget")->valuedouble == 12.5);
+    /* The plan of a static job: no integration step, and it says why. */
+    const cJSON *plan = cJSON_GetObjectItemCaseSensitive(doc, "plan");
+    assert_non_null(plan);
+    char *plan_text = cJSON_PrintUnformatted(plan);
+    assert_non_null(strstr(plan_text, "\"service\":\"rotation-fit\""));
+    assert_non_null(strstr(plan_text, "\"service\":\"sparse-solve\""));
+    const cJSON *left = cJSON_GetObjectItemCaseSensitive(plan, "left_out");
+    int integration_left_out = 0;
+    for (const cJSON *item = left->child; item; item = item->next)
+        integration_left_out |= strcmp(cJSON_GetObjectItemCaseSensitive(item, "service")
+                                           ->valuestring,
+                                       "integration-step") == 0;
+    assert_true(integration_left_out);
+    free(plan_text);
+    cJSON_Delete(doc);
+    release(&r);
+    /* No result while queued. */
+    snprintf(path, sizeof path, "/v1/jobs/%s/result", id);
+    r = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 409);
+    conforms(f, "/v1/jobs/{id}/result", "GET", &r);
+    assert_non_null(strstr(r.body, "is queued: it has no result yet"));
+    release(&r);
+    r = request(f, "GET", "/v1/jobs/j0123456789abcdef", NULL, NULL);
+    assert_int_equal(r.status, 404);
+    conforms(f, "/v1/jobs/{id}", "GET", &r);
+    release(&r);
+    free(id);
+}
+
+static void test_uploaded_files_only(void **state)
+{
+    fixture_t *f = *state;
+    /* Two positive tets; the scene names the uploaded file. */
+    const char *mesh = "MeshVersionFormatted 1\nDimension 3\nVertices\n5\n0 0 0 0\n1 0 0 0\n"
+                       "0 1 0 0\n0 0 1 0\n1 1 1 0\nTetrahedra\n2\n1 2 3 4 0\n2 3 4 5 0\nEnd\n";
+    char *b64 = bgb_base64_encode((const uint8_t *)mesh, strlen(mesh));
+    char files[1024];
+    snprintf(files, sizeof files, "\"files\":[{\"name\":\"two.mesh\",\"base64\":\"%s\"}]", b64);
+    const char *scene = "{\"mesh\":\"two.mesh\",\"material\":{\"mu\":1,\"lambda\":1},"
+                        "\"handles\":[{\"select\":{\"vertices\":[0,1,2]}},{\"select\":"
+                        "{\"vertices\":[4]},\"transform\":{\"translate\":[0.1,0,0]}}]}";
+    char *body = submission(scene, files);
+    response_t r = request(f, "POST", "/v1/jobs", body, NULL);
+    assert_int_equal(r.status, 202);
+    release(&r);
+    free(body);
+    struct {
+        const char *scene, *field, *words;
+    } bad[] = {
+        {"{\"mesh\":\"../two.mesh\",\"material\":{\"mu\":1,\"lambda\":1}}", "scene.mesh",
+         "'../two.mesh' is outside the job's files"},
+        {"{\"mesh\":\"/etc/passwd\",\"material\":{\"mu\":1,\"lambda\":1}}", "scene.mesh",
+         "'/etc/passwd' is outside the job's files"},
+        {"{\"mesh\":\"sub/../../x.mesh\",\"material\":{\"mu\":1,\"lambda\":1}}", "scene.mesh",
+         "is outside the job's files"},
+        {"{\"mesh\":\"missing.mesh\",\"material\":{\"mu\":1,\"lambda\":1}}", "scene.mesh",
+         "missing.mesh not found"},
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        body = submission(bad[i].scene, files);
+        r = request(f, "POST", "/v1/jobs", body, NULL);
+        free(body);
+        if (r.status != 422 || !strstr(r.body, bad[i].words))
+            fail_msg("case %zu: %ld %s", i, r.status, r.body);
+        conforms(f, "/v1/jobs", "POST", &r);
+        char *field = field_of(&r, "field");
+        assert_non_null(field);
+        assert_string_equal(field, bad[i].field);
+        free(field);
+        release(&r);
+    }
+    free(b64);
+    /* Nothing of the refused submits was stored, and no folder is left. */
+    int64_t counts[BGB_JOB_STATE_COUNT];
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_count(f->store, counts, &err), BG_OK);
+    assert_int_equal(counts[BGB_JOB_QUEUED], 1);
+    char cmd[160];
+    snprintf(cmd, sizeof cmd, "test -z \"$(ls -d '%s'/bgb-job-* 2>/dev/null)\"", f->dir);
+    assert_int_equal(system(cmd), 0);
+}
+
+static void test_bad_requests(void **state)
+{
+    fixture_t *f = *state;
+    struct {
+        const char *body;
+        long status;
+        const char *field, *words;
+    } cases[] = {
+        {"{\"scene\": {\"mesh\": ", 400, NULL, "malformed JSON at line 1, column 19"},
+        {"", 400, NULL, "empty body"},
+        {"[1,2]", 422, NULL, "must be a JSON object"},
+        {"{\"scene\":{},\"colour\":1}", 422, "colour", "unknown key 'colour'"},
+        {"{\"budget\":1}", 422, "scene", "scene: missing"},
+        {"{\"scene\":" SMALL_BOX ",\"budget\":-3}", 422, "budget", "positive number"},
+        {"{\"scene\":" SMALL_BOX ",\"mechanism\":\"auction\"}", 422, "mechanism",
+         "mechanism: expected"},
+        {"{\"scene\":" SMALL_BOX ",\"budget\":1,\"budget\":2}", 422, "budget",
+         "key 'budget' is given twice"},
+        {"{\"scene\":{\"mesh\":{\"generate\":\"box\",\"cells\":[1000,1000,30],\"size\":[1,1,1]}}}",
+         422, "scene.mesh.cells", "180000000 elements, over the limits"},
+        {"{\"scene\":{\"mesh\":{\"generate\":\"box\",\"cells\":[2,2,2],\"size\":[1,1,1]},"
+         "\"material\":{\"mu\":\"soft\",\"lambda\":1}}}",
+         422, "scene.material.mu", "material.mu"},
+        {"{\"scene\":" SMALL_BOX ",\"files\":[{\"name\":\"a/b\",\"base64\":\"\"}]}", 422,
+         "files[0]", "not a plain file name"},
+        {"{\"scene\":" SMALL_BOX ",\"files\":[{\"name\":\"a\",\"base64\":\"@@@@\"}]}", 422,
+         "files[0]", "bad base64 character at offset 0"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        response_t r = request(f, "POST", "/v1/jobs", cases[i].body, NULL);
+        if (r.status != cases[i].status || !strstr(r.body, cases[i].words))
+            fail_msg("case %zu: %ld %s", i, r.status, r.body);
+        assert_string_equal(r.type, "application/problem+json");
+        conforms(f, "/v1/jobs", "POST", &r);
+        char *field = field_of(&r, "field");
+        if (cases[i].field) {
+            if (!field || strcmp(field, cases[i].field) != 0)
+                fail_msg("case %zu: field %s, expected %s", i, field ? field : "(none)",
+                         cases[i].field);
+        }
+        free(field);
+        release(&r);
+    }
+    /* A body over the cap is refused before it is read. */
+    char *big = malloc(MAX_BODY + 64);
+    assert_non_null(big);
+    memset(big, ' ', MAX_BODY + 63);
+    big[MAX_BODY + 63] = '\0';
+    big[0] = '{';
+    big[MAX_BODY + 62] = '}';
+    response_t r = request(f, "POST", "/v1/jobs", big, NULL);
+    free(big);
+    assert_int_equal(r.status, 413);
+    conforms(f, "/v1/jobs", "POST", &r);
+    release(&r);
+    r = request(f, "GET", "/v1/jobs?state=sleeping", NULL, NULL);
+    assert_int_equal(r.status, 400);
+    conforms(f, "/v1/jobs", "GET", &r);
+    assert_non_null(strstr(r.body, "\"field\":\"state\""));
+    release(&r);
+    r = request(f, "GET", "/v1/jobs?limit=0", NULL, NULL);
+    assert_int_equal(r.status, 400);
+    release(&r);
+    int64_t counts[BGB_JOB_STATE_COUNT];
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_count(f->store, counts, &err), BG_OK);
+    assert_int_equal(counts[BGB_JOB_QUEUED], 0);
+}
+
+static void test_idempotent_resubmit(void **state)
+{
+    fixture_t *f = *state;
+    char *first = submit_small(f, "Idempotency-Key: order-7");
+    char *again = submit_small(f, "Idempotency-Key: order-7");
+    char *other = submit_small(f, "Idempotency-Key: order-8");
+    assert_string_equal(first, again);
+    assert_string_not_equal(first, other);
+    response_t r = request(f, "GET", "/v1/jobs", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/jobs", "GET", &r);
+    cJSON *doc = cJSON_Parse(r.body);
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(doc, "jobs")), 2);
+    cJSON_Delete(doc);
+    release(&r);
+    free(first);
+    free(again);
+    free(other);
+}
+
+static void test_list_cancel_events_restart(void **state)
+{
+    fixture_t *f = *state;
+    char *ids[5];
+    for (int i = 0; i < 5; i++)
+        ids[i] = submit_small(f, NULL);
+    char path[160];
+    snprintf(path, sizeof path, "/v1/jobs/%s/cancel", ids[1]);
+    response_t r = request(f, "POST", path, "", NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/jobs/{id}/cancel", "POST", &r);
+    assert_non_null(strstr(r.body, "\"state\":\"cancelled\""));
+    assert_non_null(strstr(r.body, "\"reason\":\"cancelled by the client\""));
+    release(&r);
+    r = request(f, "POST", path, "", NULL);
+    assert_int_equal(r.status, 409);
+    conforms(f, "/v1/jobs/{id}/cancel", "POST", &r);
+    release(&r);
+
+    /* The cancelled job's event stream: its whole log, then the end. */
+    snprintf(path, sizeof path, "/v1/jobs/%s/events", ids[1]);
+    r = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/jobs/{id}/events", "GET", &r);
+    assert_string_equal(r.type, "text/event-stream");
+    const char *queued = strstr(r.body, "event: state\ndata: {\"state\":\"queued\"}\n\n");
+    const char *plan = strstr(r.body, "event: plan\ndata: {\"services\":");
+    const char *cancelled = strstr(r.body, "event: state\ndata: {\"state\":\"cancelled\"}\n\n");
+    assert_non_null(queued);
+    assert_non_null(plan);
+    assert_non_null(cancelled);
+    assert_true(queued < plan && plan < cancelled);
+    release(&r);
+
+    /* The broker restarts between submit and poll: every job is still there. */
+    stop(f);
+    start(f);
+    int seen = 0;
+    char cursor[32] = "";
+    for (int pages = 0; pages < 10; pages++) {
+        snprintf(path, sizeof path, "/v1/jobs?limit=2%s%s", cursor[0] ? "&cursor=" : "", cursor);
+        r = request(f, "GET", path, NULL, NULL);
+        assert_int_equal(r.status, 200);
+        conforms(f, "/v1/jobs", "GET", &r);
+        cJSON *doc = cJSON_Parse(r.body);
+        const cJSON *jobs = cJSON_GetObjectItemCaseSensitive(doc, "jobs");
+        for (const cJSON *j = jobs->child; j; j = j->next, seen++)
+            assert_string_equal(cJSON_GetObjectItemCaseSensitive(j, "id")->valuestring,
+                                ids[seen]);
+        const cJSON *next = cJSON_GetObjectItemCaseSensitive(doc, "next");
+        const int more = cJSON_IsString(next);
+        if (more)
+            snprintf(cursor, sizeof cursor, "%s", next->valuestring);
+        cJSON_Delete(doc);
+        release(&r);
+        if (!more)
+            break;
+    }
+    assert_int_equal(seen, 5);
+    r = request(f, "GET", "/v1/jobs?state=cancelled", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    assert_non_null(strstr(r.body, ids[1]));
+    assert_null(strstr(r.body, ids[0]));
+    release(&r);
+    for (int i = 0; i < 5; i++)
+        free(ids[i]);
+}
+
+/* An open event stream follows the job: a transition made while the
+ * client listens arrives, and the stream ends when the job does. */
+typedef struct listener {
+    const fixture_t *f;
+    char path[96];
+    response_t r;
+} listener_t;
+
+static void *listen_events(void *arg)
+{
+    listener_t *l = arg;
+    l->r = request(l->f, "GET", l->path, NULL, NULL);
+    return NULL;
+}
+
+static void test_live_event_stream(void **state)
+{
+    fixture_t *f = *state;
+    char *id = submit_small(f, NULL);
+    listener_t l = {.f = f};
+    snprintf(l.path, sizeof l.path, "/v1/jobs/%s/events", id);
+    pthread_t thread;
+    assert_int_equal(pthread_create(&thread, NULL, listen_events, &l), 0);
+    const struct timespec pause = {0, 300000000L};
+    nanosleep(&pause, NULL);
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_transition(f->store, id, 1u << BGB_JOB_QUEUED, BGB_JOB_RUNNING,
+                                          NULL, &err),
+                     BG_OK);
+    assert_int_equal(bgb_store_add_event(f->store, id, "progress", "{\"iteration\":3}", &err),
+                     BG_OK);
+    assert_int_equal(bgb_store_transition(f->store, id, 1u << BGB_JOB_RUNNING, BGB_JOB_FAILED,
+                                          "no seller", &err),
+                     BG_OK);
+    assert_int_equal(pthread_join(thread, NULL), 0);
+    assert_int_equal(l.r.status, 200);
+    const char *running = strstr(l.r.body, "{\"state\":\"running\"}");
+    const char *progress = strstr(l.r.body, "event: progress\ndata: {\"iteration\":3}");
+    const char *failed = strstr(l.r.body, "{\"state\":\"failed\"}");
+    assert_non_null(running);
+    assert_non_null(progress);
+    assert_non_null(failed);
+    assert_true(running < progress && progress < failed);
+    release(&l.r);
+    free(id);
+}
+
+int main(void)
+{
+    curl_global_init(CURL_GLOBAL_DEFAULT);
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test_setup_teardown(test_health_metrics_openapi, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_submit_and_read, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_uploaded_files_only, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_bad_requests, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_idempotent_resubmit, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_list_cancel_events_restart, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_live_event_stream, setup, teardown),
+    };
+    const int failed = cmocka_run_group_tests(tests, NULL, NULL);
+    curl_global_cleanup();
+    return failed;
+}
