@@ -501,7 +501,8 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
         .mechanism = s.mechanism,
         .budget = s.budget,
         .files = files,
-        .file_count = s.file_count};
+        .file_count = s.file_count,
+        .plan = plan_text};
     char id[BGB_JOB_ID_SIZE];
     int created = 0;
     if (bgb_store_submit(rest->store, &job, id, &created, &err) != BG_OK) {
@@ -510,12 +511,6 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
                                   "Job store unavailable", NULL, "%s", err.message)
                    : send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
                                   "Invalid request", NULL, "%s", err.message);
-        goto out;
-    }
-    if (created && plan_text && bgb_store_add_event(rest->store, id, "plan", plan_text, &err) !=
-                                    BG_OK) {
-        sent = send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                            "Job store unavailable", NULL, "%s", err.message);
         goto out;
     }
     bgb_job_t stored = BGB_JOB_INIT;

@@ -13,6 +13,14 @@
 #define STORE_SCHEMA_VERSION 1
 /* How long a connection waits for another one's lock before failing. */
 #define STORE_BUSY_TIMEOUT_MS 10000
+/* Group commit: when the last batch held several submits (callers are
+ * submitting concurrently), the writer gives the callers it just answered
+ * up to this long to send their next submit before it commits, so batches
+ * grow to the number of concurrent callers instead of staying at the few
+ * that happened to arrive during the previous fsync. A lone caller never
+ * waits (its batches hold one submit). */
+#define STORE_GATHER_NS 1000000L
+#define STORE_GATHER_MAX 256
 
 static const char SCHEMA[] =
     "CREATE TABLE IF NOT EXISTS jobs("
@@ -62,6 +70,8 @@ struct bgb_store {
     pthread_mutex_t write_lock, read_lock, queue_lock;
     pthread_cond_t queue_ready, batch_done;
     pending_t *queue, *queue_tail;
+    int queued;      /* submits in queue */
+    int last_batch;  /* submits in the last batch written */
     int stopping;
     int thread_started;
     pthread_t thread;
@@ -288,6 +298,8 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
         st = insert_file(db, p->id, "input", &job->files[i], err);
     if (st == BG_OK)
         st = insert_event(db, p->id, now, "state", "{\"state\":\"queued\"}", err);
+    if (st == BG_OK && job->plan)
+        st = insert_event(db, p->id, now, "plan", job->plan, err);
     p->created = st == BG_OK;
     return st;
 }
@@ -342,8 +354,27 @@ static void *writer_main(void *arg)
             pthread_cond_wait(&store->queue_ready, &store->queue_lock);
         if (!store->queue && store->stopping)
             break;
+        if (store->last_batch > 1 && !store->stopping) {
+            struct timespec deadline;
+            clock_gettime(CLOCK_REALTIME, &deadline);
+            deadline.tv_nsec += STORE_GATHER_NS;
+            if (deadline.tv_nsec >= 1000000000L) {
+                deadline.tv_sec++;
+                deadline.tv_nsec -= 1000000000L;
+            }
+            /* Aim past the last batch so that batches can grow to the
+             * callers' concurrency; the deadline bounds the wait. */
+            const int target = store->last_batch < STORE_GATHER_MAX / 2 ? 2 * store->last_batch
+                                                                        : STORE_GATHER_MAX;
+            while (store->queued < target && !store->stopping &&
+                   pthread_cond_timedwait(&store->queue_ready, &store->queue_lock, &deadline) ==
+                       0)
+                ;
+        }
         pending_t *batch = store->queue;
+        store->last_batch = store->queued;
         store->queue = store->queue_tail = NULL;
+        store->queued = 0;
         pthread_mutex_unlock(&store->queue_lock);
         write_batch(store, batch);
         pthread_mutex_lock(&store->queue_lock);
@@ -445,6 +476,7 @@ bg_status bgb_store_submit(bgb_store_t *store, const bgb_submit_t *job,
     else
         store->queue = &p;
     store->queue_tail = &p;
+    store->queued++;
     pthread_cond_signal(&store->queue_ready);
     while (!p.done)
         pthread_cond_wait(&store->batch_done, &store->queue_lock);

@@ -61,6 +61,8 @@ typedef struct bgb_submit {
     double budget;               /* money the job may spend, > 0 */
     const bgb_file_t *files;     /* the mesh and data files uploaded with the scene */
     int file_count;
+    const char *plan;            /* the plan as JSON, stored as the job's "plan" event in the
+                                    same transaction; NULL: none */
 } bgb_submit_t;
 
 /* A job as stored; strings owned by the record (bgb_job_release). */
