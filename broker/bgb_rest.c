@@ -114,6 +114,22 @@ static enum MHD_Result send_problem(bgb_rest_t *rest, struct MHD_Connection *c, 
     return send_json(rest, c, status, doc, "application/problem+json", NULL);
 }
 
+/* A failed store call as a problem: no such job 404, a job in the wrong
+ * state 409, anything else 503 (the store is the broker's source of truth:
+ * without it nothing can be answered). */
+static enum MHD_Result send_store_problem(bgb_rest_t *rest, struct MHD_Connection *c,
+                                          bg_status st, const bg_error_t *err)
+{
+    if (st == BG_ERR_NOT_FOUND)
+        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job", "No such job", NULL,
+                            "%s", err->message);
+    if (st == BG_ERR_CONFLICT)
+        return send_problem(rest, c, MHD_HTTP_CONFLICT, "job-ended", "Job already ended", NULL,
+                            "%s", err->message);
+    return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
+                        "Job store unavailable", NULL, "%s", err->message);
+}
+
 /* ------------------------------------------------------------- job JSON */
 
 typedef struct plan_capture {
@@ -507,16 +523,14 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
     int created = 0;
     if (bgb_store_submit(rest->store, &job, id, &created, &err) != BG_OK) {
         sent = err.status == BG_ERR_IO
-                   ? send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                                  "Job store unavailable", NULL, "%s", err.message)
+                   ? send_store_problem(rest, c, BG_ERR_IO, &err)
                    : send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
                                   "Invalid request", NULL, "%s", err.message);
         goto out;
     }
     bgb_job_t stored = BGB_JOB_INIT;
     if (bgb_store_get(rest->store, id, &stored, &err) != BG_OK) {
-        sent = send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                            "Job store unavailable", NULL, "%s", err.message);
+        sent = send_store_problem(rest, c, BG_ERR_IO, &err);
         goto out;
     }
     char location[64];
@@ -539,12 +553,8 @@ static enum MHD_Result get_job(bgb_rest_t *rest, struct MHD_Connection *c, const
     bgb_job_t job = BGB_JOB_INIT;
     bg_error_t err = BG_ERROR_INIT;
     const bg_status st = bgb_store_get(rest->store, id, &job, &err);
-    if (st == BG_ERR_NOT_FOUND)
-        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job", "No such job", NULL,
-                            "%s", err.message);
     if (st != BG_OK)
-        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                            "Job store unavailable", NULL, "%s", err.message);
+        return send_store_problem(rest, c, st, &err);
     const enum MHD_Result sent =
         send_json(rest, c, MHD_HTTP_OK, job_json(rest, &job, 1), "application/json", NULL);
     bgb_job_release(&job);
@@ -592,8 +602,7 @@ static enum MHD_Result list_jobs(bgb_rest_t *rest, struct MHD_Connection *c)
     if (bgb_store_list(rest->store, state, cursor, (int)limit, jobs, &count, &next, &err) !=
         BG_OK) {
         free(jobs);
-        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                            "Job store unavailable", NULL, "%s", err.message);
+        return send_store_problem(rest, c, BG_ERR_IO, &err);
     }
     cJSON *doc = cJSON_CreateObject();
     cJSON *array = cJSON_AddArrayToObject(doc, "jobs");
@@ -619,16 +628,7 @@ static enum MHD_Result cancel_job(bgb_rest_t *rest, struct MHD_Connection *c, co
     bg_error_t err = BG_ERROR_INIT;
     const bg_status st = bgb_store_transition(rest->store, id, active, BGB_JOB_CANCELLED,
                                               "cancelled by the client", &err);
-    if (st == BG_ERR_NOT_FOUND)
-        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job", "No such job", NULL,
-                            "%s", err.message);
-    if (st == BG_ERR_CONFLICT)
-        return send_problem(rest, c, MHD_HTTP_CONFLICT, "job-ended", "Job already ended", NULL,
-                            "%s", err.message);
-    if (st != BG_OK)
-        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                            "Job store unavailable", NULL, "%s", err.message);
-    return get_job(rest, c, id);
+    return st == BG_OK ? get_job(rest, c, id) : send_store_problem(rest, c, st, &err);
 }
 
 static void list_file(void *ctx, const char *name, size_t size)
@@ -663,12 +663,8 @@ static enum MHD_Result get_result(bgb_rest_t *rest, struct MHD_Connection *c, co
     bgb_job_t job = BGB_JOB_INIT;
     bg_error_t err = BG_ERROR_INIT;
     bg_status st = bgb_store_get(rest->store, id, &job, &err);
-    if (st == BG_ERR_NOT_FOUND)
-        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job", "No such job", NULL,
-                            "%s", err.message);
     if (st != BG_OK)
-        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                            "Job store unavailable", NULL, "%s", err.message);
+        return send_store_problem(rest, c, st, &err);
     const bgb_job_state state = job.state;
     bgb_job_release(&job);
     if (state != BGB_JOB_SUCCEEDED)
@@ -681,8 +677,7 @@ static enum MHD_Result get_result(bgb_rest_t *rest, struct MHD_Connection *c, co
         cJSON *files = cJSON_AddArrayToObject(doc, "files");
         if (bgb_store_list_files(rest->store, id, "result", list_file, files, &err) != BG_OK) {
             cJSON_Delete(doc);
-            return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                                "Job store unavailable", NULL, "%s", err.message);
+            return send_store_problem(rest, c, BG_ERR_IO, &err);
         }
         return send_json(rest, c, MHD_HTTP_OK, doc, "application/json", NULL);
     }
@@ -693,8 +688,7 @@ static enum MHD_Result get_result(bgb_rest_t *rest, struct MHD_Connection *c, co
         return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-file", "No such file", NULL,
                             "%s", err.message);
     if (st != BG_OK)
-        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                            "Job store unavailable", NULL, "%s", err.message);
+        return send_store_problem(rest, c, BG_ERR_IO, &err);
     const enum MHD_Result sent =
         send_text(rest, c, MHD_HTTP_OK, content_type(file), (const char *)data, size, NULL);
     free(data);
@@ -809,12 +803,8 @@ static enum MHD_Result stream_events(bgb_rest_t *rest, struct MHD_Connection *c,
     bg_error_t err = BG_ERROR_INIT;
     const bg_status st = bgb_store_get(rest->store, id, &job, &err);
     bgb_job_release(&job);
-    if (st == BG_ERR_NOT_FOUND)
-        return send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job", "No such job", NULL,
-                            "%s", err.message);
     if (st != BG_OK)
-        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                            "Job store unavailable", NULL, "%s", err.message);
+        return send_store_problem(rest, c, st, &err);
     stream_t *s = calloc(1, sizeof *s);
     if (!s)
         return send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
@@ -858,8 +848,7 @@ static enum MHD_Result metrics(bgb_rest_t *rest, struct MHD_Connection *c)
     int64_t counts[BGB_JOB_STATE_COUNT], commits = 0, submits = 0;
     bg_error_t err = BG_ERROR_INIT;
     if (bgb_store_count(rest->store, counts, &err) != BG_OK)
-        return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                            "Job store unavailable", NULL, "%s", err.message);
+        return send_store_problem(rest, c, BG_ERR_IO, &err);
     bgb_store_commit_stats(rest->store, &commits, &submits);
     char text[4096];
     size_t n = 0;
