@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include "bg_cli.h"
+#include "cmd_agent.h"
 #ifdef BIOTGRID_HAVE_MARKET
 #include "bgm_sim.h"
 #endif
@@ -20,6 +21,7 @@ static void usage(FILE *out)
 #ifdef BIOTGRID_HAVE_MARKET
           "  sim EXPERIMENT.json  run a market simulation experiment\n"
 #endif
+          "  agent              run an agent daemon serving basic services\n"
           "  help               this text\n"
           "\n"
           "Run `biotgrid <command> --help` for a command's options.\n",
@@ -35,6 +37,8 @@ int main(int argc, char **argv)
     const char *cmd = argv[1];
     if (strcmp(cmd, "solve") == 0)
         return bg_cli_solve(argc - 1, argv + 1);
+    if (strcmp(cmd, "agent") == 0)
+        return bg_cmd_agent(argc - 1, argv + 1);
 #ifdef BIOTGRID_HAVE_MARKET
     if (strcmp(cmd, "sim") == 0)
         return bgm_sim_command(argc - 1, argv + 1);
