@@ -161,6 +161,15 @@ bg_status bga_client_request_raw(bga_client_t *c, const bga_frame_t *frames, int
     return await_reply(c, 0, 1, 0, t1, rep, err);
 }
 
+/* A decoded text array as a C string, cut to cap − 1 bytes. */
+static void copy_text(char *dst, size_t cap, const bga_array_t *a)
+{
+    const size_t n = a->count < cap ? a->count : cap - 1;
+    if (n > 0)
+        memcpy(dst, a->data, n);
+    dst[n] = 0;
+}
+
 /* Turns an ERROR reply or a reply of the wrong type into a message that
  * names the agent, the service and the request. */
 static bg_status expect(bga_client_t *c, const bga_reply_t *rep, uint16_t req_type,
@@ -170,10 +179,9 @@ static bg_status expect(bga_client_t *c, const bga_reply_t *rep, uint16_t req_ty
     if (m->header.type == want)
         return BG_OK;
     if (m->header.type == BGA_ERROR) {
-        char field[64] = "", text[BG_ERROR_MESSAGE_MAX] = "";
-        const size_t nf = m->array[BGA_ERR_FIELD].count, nt = m->array[BGA_ERR_MESSAGE].count;
-        memcpy(field, m->array[BGA_ERR_FIELD].data, nf < sizeof field ? nf : sizeof field - 1);
-        memcpy(text, m->array[BGA_ERR_MESSAGE].data, nt < sizeof text ? nt : sizeof text - 1);
+        char field[64], text[BG_ERROR_MESSAGE_MAX];
+        copy_text(field, sizeof field, &m->array[BGA_ERR_FIELD]);
+        copy_text(text, sizeof text, &m->array[BGA_ERR_MESSAGE]);
         return bg_error_set(err, BG_ERR_INVALID, "agent %s (%s): %s refused: %s (frame %lld%s%s): "
                             "%s", c->endpoint, c->service, bga_type_name(req_type),
                             bga_wire_code_name((bga_wire_code)m->field[BGA_ERR_CODE].i),
@@ -225,9 +233,7 @@ bg_status bga_client_heartbeat(bga_client_t *c, uint64_t job, bga_agent_status_t
         st->free_slots = rep.msg.field[BGA_HB_FREE].i;
         st->jobs = rep.msg.field[BGA_HB_JOBS].i;
         st->services = (unsigned)rep.msg.field[BGA_HB_SERVICES].i;
-        const size_t n = rep.msg.array[BGA_HB_NAME].count;
-        memcpy(st->name, rep.msg.array[BGA_HB_NAME].data,
-               n < sizeof st->name ? n : sizeof st->name - 1);
+        copy_text(st->name, sizeof st->name, &rep.msg.array[BGA_HB_NAME]);
     }
     bga_reply_close(&rep);
     return BG_OK;

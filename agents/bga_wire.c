@@ -532,7 +532,7 @@ static bga_wire_code validate(const schema *s, const bga_msg_t *msg, int host,
                 return bga_wire_fail(werr, BGA_WIRE_OVERSIZE, frame, as->name,
                                      "%s: text %s has %zu bytes, cap %d", s->name, as->name,
                                      count, BGA_WIRE_MAX_TEXT);
-            if (memchr(msg->array[a].data, 0, count))
+            if (count > 0 && memchr(msg->array[a].data, 0, count))
                 return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, frame, as->name,
                                      "%s: text %s contains a NUL byte", s->name, as->name);
         }

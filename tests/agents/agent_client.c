@@ -295,7 +295,8 @@ static void expect_refusal(bga_client_t *c, const bga_frame_t *f, int n, bga_wir
     }
     char text[BG_ERROR_MESSAGE_MAX] = "";
     if (rep.msg.header.type == BGA_ERROR)
-        memcpy(text, rep.msg.array[BGA_ERR_MESSAGE].data, rep.msg.array[BGA_ERR_MESSAGE].count);
+        if (rep.msg.array[BGA_ERR_MESSAGE].count)
+            memcpy(text, rep.msg.array[BGA_ERR_MESSAGE].data, rep.msg.array[BGA_ERR_MESSAGE].count);
     CHECK(rep.msg.header.type == BGA_ERROR && rep.msg.field[BGA_ERR_CODE].i == code &&
               strstr(text, needle),
           "%s: got %s code %lld '%s'", what, bga_type_name(rep.msg.header.type),

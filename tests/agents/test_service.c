@@ -61,7 +61,8 @@ static void expect_code(bga_service_t *svc, const bga_msg_t *req, double now, bg
     const bga_wire_code wc = call(svc, req, now, &rep, &keep);
     assert_int_equal(rep.header.type, BGA_ERROR);
     char text[BG_ERROR_MESSAGE_MAX] = "";
-    memcpy(text, rep.array[BGA_ERR_MESSAGE].data, rep.array[BGA_ERR_MESSAGE].count);
+    if (rep.array[BGA_ERR_MESSAGE].count)
+        memcpy(text, rep.array[BGA_ERR_MESSAGE].data, rep.array[BGA_ERR_MESSAGE].count);
     if (wc != code || !strstr(text, needle))
         fail_msg("wanted %s '%s', got %s: %s", bga_wire_code_name(code), needle,
                  bga_wire_code_name(wc), text);
