@@ -8,6 +8,7 @@
 
 #include "bg_cli.h"
 #include "cmd_agent.h"
+#include "cmd_grid.h"
 #ifdef BIOTGRID_HAVE_MARKET
 #include "bgm_sim.h"
 #endif
@@ -22,6 +23,7 @@ static void usage(FILE *out)
           "  sim EXPERIMENT.json  run a market simulation experiment\n"
 #endif
           "  agent              run an agent daemon serving basic services\n"
+          "  grid up|status|down  a local grid of agents on loopback\n"
           "  help               this text\n"
           "\n"
           "Run `biotgrid <command> --help` for a command's options.\n",
@@ -39,6 +41,8 @@ int main(int argc, char **argv)
         return bg_cli_solve(argc - 1, argv + 1);
     if (strcmp(cmd, "agent") == 0)
         return bg_cmd_agent(argc - 1, argv + 1);
+    if (strcmp(cmd, "grid") == 0)
+        return bg_cmd_grid(argc - 1, argv + 1);
 #ifdef BIOTGRID_HAVE_MARKET
     if (strcmp(cmd, "sim") == 0)
         return bgm_sim_command(argc - 1, argv + 1);

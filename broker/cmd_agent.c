@@ -19,6 +19,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "bg_mesh_io.h"
 #include "bga_agent.h"
 
 static volatile sig_atomic_t stop_requested;
@@ -33,7 +34,7 @@ static void usage(FILE *out)
 {
     fputs("usage: biotgrid agent [--config FILE] [--listen ENDPOINT] [--services LIST]\n"
           "                      [--slots N] [--name NAME] [--ready-file FILE]\n"
-          "  --listen ENDPOINT   ZeroMQ endpoint to bind (default tcp://127.0.0.1:0,\n"
+          "  --listen ENDPOINT   ZeroMQ endpoint to bind (default tcp://127.0.0.1:*,\n"
           "                      an ephemeral port; the resolved one is printed)\n"
           "  --services LIST     rotfit,solve,integ or all (default all)\n"
           "  --slots N           jobs held at once (default 4)\n"
@@ -42,12 +43,17 @@ static void usage(FILE *out)
 }
 
 typedef struct options {
-    char listen[BGA_AGENT_ENDPOINT_MAX];
-    char services[128];
-    char name[64];
-    int slots;
+    bg_agent_spec_t spec;
     const char *ready_file;
 } options;
+
+void bg_agent_spec_default(bg_agent_spec_t *spec)
+{
+    memset(spec, 0, sizeof *spec);
+    snprintf(spec->listen, sizeof spec->listen, "tcp://127.0.0.1:*");
+    snprintf(spec->services, sizeof spec->services, "all");
+    spec->slots = 4;
+}
 
 static int parse_slots(const char *text, const char *where, int *slots)
 {
@@ -67,7 +73,7 @@ static int copy_string(char *dst, size_t cap, const char *src, const char *where
                        const char *key)
 {
     if (strlen(src) >= cap) {
-        fprintf(stderr, "biotgrid agent: %s: %s is longer than %zu characters\n", where, key,
+        fprintf(stderr, "biotgrid: %s: %s is longer than %zu characters\n", where, key,
                 cap - 1);
         return 2;
     }
@@ -75,59 +81,64 @@ static int copy_string(char *dst, size_t cap, const char *src, const char *where
     return 0;
 }
 
-/* Reads the config's keys into o; unknown keys and wrong types are errors. */
-static int read_config(const char *path, options *o)
+int bg_agent_spec_parse(const cJSON *obj, const char *where, bg_agent_spec_t *spec)
 {
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        fprintf(stderr, "biotgrid agent: %s: %s\n", path, strerror(errno));
+    if (!cJSON_IsObject(obj)) {
+        fprintf(stderr, "biotgrid: %s: not a JSON object\n", where);
         return 2;
     }
-    char buf[65536];
-    const size_t n = fread(buf, 1, sizeof buf - 1, f);
-    const int too_big = !feof(f);
-    fclose(f);
-    if (too_big) {
-        fprintf(stderr, "biotgrid agent: %s: config over %zu bytes\n", path, sizeof buf - 1);
-        return 2;
-    }
-    buf[n] = 0;
-    cJSON *root = cJSON_Parse(buf);
-    int rc = 0;
-    if (!cJSON_IsObject(root)) {
-        fprintf(stderr, "biotgrid agent: %s: not a JSON object\n", path);
-        rc = 2;
-        goto out;
-    }
-    for (cJSON *it = root->child; it && rc == 0; it = it->next) {
-        if (strcmp(it->string, "slots") == 0) {
+    for (const cJSON *it = obj->child; it; it = it->next) {
+        const char *key = it->string;
+        int rc = 0;
+        if (strcmp(key, "slots") == 0) {
             if (!cJSON_IsNumber(it) || it->valuedouble != (int)it->valuedouble ||
                 it->valuedouble < 1 || it->valuedouble > 4096) {
-                fprintf(stderr, "biotgrid agent: %s: slots must be an integer in [1, 4096]\n",
-                        path);
+                fprintf(stderr, "biotgrid: %s: slots must be an integer in [1, 4096]\n", where);
                 rc = 2;
             } else {
-                o->slots = (int)it->valuedouble;
+                spec->slots = (int)it->valuedouble;
             }
-        } else if (strcmp(it->string, "listen") == 0 || strcmp(it->string, "services") == 0 ||
-                   strcmp(it->string, "name") == 0) {
+        } else if (strcmp(key, "listen") == 0 || strcmp(key, "services") == 0 ||
+                   strcmp(key, "name") == 0) {
+            char *dst = key[0] == 'l' ? spec->listen : key[0] == 's' ? spec->services : spec->name;
+            const size_t cap = key[0] == 'l'   ? sizeof spec->listen
+                               : key[0] == 's' ? sizeof spec->services
+                                               : sizeof spec->name;
             if (!cJSON_IsString(it)) {
-                fprintf(stderr, "biotgrid agent: %s: %s must be a string\n", path, it->string);
+                fprintf(stderr, "biotgrid: %s: %s must be a string\n", where, key);
                 rc = 2;
-            } else if (it->string[0] == 'l') {
-                rc = copy_string(o->listen, sizeof o->listen, it->valuestring, path, "listen");
-            } else if (it->string[0] == 's') {
-                rc = copy_string(o->services, sizeof o->services, it->valuestring, path,
-                                 "services");
             } else {
-                rc = copy_string(o->name, sizeof o->name, it->valuestring, path, "name");
+                rc = copy_string(dst, cap, it->valuestring, where, key);
             }
         } else {
-            fprintf(stderr, "biotgrid agent: %s: unknown key '%s'\n", path, it->string);
+            fprintf(stderr, "biotgrid: %s: unknown key '%s'\n", where, key);
             rc = 2;
         }
+        if (rc)
+            return rc;
     }
-out:
+    return 0;
+}
+
+/* Reads the config file's keys into o. */
+static int read_config(const char *path, options *o)
+{
+    char *text = NULL;
+    size_t len = 0;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bg_file_read_all(path, 1 << 16, &text, &len, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid agent: %s\n", err.message);
+        return 2;
+    }
+    cJSON *root = cJSON_ParseWithLength(text, len);
+    free(text);
+    int rc;
+    if (!root) {
+        fprintf(stderr, "biotgrid agent: %s: malformed JSON\n", path);
+        rc = 2;
+    } else {
+        rc = bg_agent_spec_parse(root, path, &o->spec);
+    }
     cJSON_Delete(root);
     return rc;
 }
@@ -170,13 +181,14 @@ static int parse_args(int argc, char **argv, options *o)
         if (strcmp(a, "--config") == 0)
             continue;
         else if (strcmp(a, "--listen") == 0)
-            rc = copy_string(o->listen, sizeof o->listen, v, "--listen", "the endpoint");
+            rc = copy_string(o->spec.listen, sizeof o->spec.listen, v, "--listen", "the endpoint");
         else if (strcmp(a, "--services") == 0)
-            rc = copy_string(o->services, sizeof o->services, v, "--services", "the list");
+            rc = copy_string(o->spec.services, sizeof o->spec.services, v, "--services",
+                             "the list");
         else if (strcmp(a, "--name") == 0)
-            rc = copy_string(o->name, sizeof o->name, v, "--name", "the name");
+            rc = copy_string(o->spec.name, sizeof o->spec.name, v, "--name", "the name");
         else if (strcmp(a, "--slots") == 0)
-            rc = parse_slots(v, "--slots", &o->slots);
+            rc = parse_slots(v, "--slots", &o->spec.slots);
         else if (strcmp(a, "--ready-file") == 0)
             o->ready_file = v;
         else {
@@ -192,19 +204,22 @@ static int parse_args(int argc, char **argv, options *o)
 
 int bg_cmd_agent(int argc, char **argv)
 {
-    options o = {"tcp://127.0.0.1:0", "all", "", 4, NULL};
+    options o;
+    bg_agent_spec_default(&o.spec);
+    o.ready_file = NULL;
     const int prc = parse_args(argc, argv, &o);
     if (prc != 0)
         return prc < 0 ? 0 : prc;
     bg_error_t err = BG_ERROR_INIT;
-    const unsigned services = bga_service_parse_list(o.services, &err);
+    const unsigned services = bga_service_parse_list(o.spec.services, &err);
     if (!services) {
         fprintf(stderr, "biotgrid agent: --services: %s\n", err.message);
         return 2;
     }
-    if (!o.name[0])
-        snprintf(o.name, sizeof o.name, "agent-%ld", (long)getpid());
-    bga_agent_config_t cfg = {o.listen, {o.slots, services, o.name, {0, 0}}, 100};
+    bg_agent_spec_t *sp = &o.spec;
+    if (!sp->name[0])
+        snprintf(sp->name, sizeof sp->name, "agent-%ld", (long)getpid());
+    bga_agent_config_t cfg = {sp->listen, {sp->slots, services, sp->name, {0, 0}}, 100};
     bga_agent_t *agent = NULL;
     if (bga_agent_new(&cfg, &agent, &err) != BG_OK) {
         fprintf(stderr, "biotgrid agent: %s\n", err.message);
@@ -223,16 +238,16 @@ int bg_cmd_agent(int argc, char **argv)
         rc = 1;
         goto out;
     }
-    printf("agent %s ready on %s (services %s, %d slots)\n", o.name, bga_agent_endpoint(agent),
-           o.services, o.slots);
+    printf("agent %s ready on %s (services %s, %d slots)\n", sp->name, bga_agent_endpoint(agent),
+           sp->services, sp->slots);
     fflush(stdout);
     if (bga_agent_run(agent, &stop_requested, &err) != BG_OK) {
-        fprintf(stderr, "biotgrid agent %s: %s\n", o.name, err.message);
+        fprintf(stderr, "biotgrid agent %s: %s\n", sp->name, err.message);
         rc = 1;
     }
     const bga_service_stats_t s = bga_agent_stats(agent);
     fprintf(stderr, "agent %s stopping: %lld requests, %lld errors, %lld released, %lld "
-            "expired, %.3f s computing\n", o.name, (long long)s.requests, (long long)s.errors,
+            "expired, %.3f s computing\n", sp->name, (long long)s.requests, (long long)s.errors,
             (long long)s.released, (long long)s.expired, s.compute_seconds);
 out:
     bga_agent_destroy(&agent);
