@@ -15,6 +15,12 @@ struct bga_client {
     int timeout_ms;
     uint64_t seq;
     bga_traffic_t traffic;
+    /* The request in flight (pending = 0: none). */
+    int pending;
+    uint64_t pending_seq;
+    uint16_t pending_type;
+    unsigned pending_want;
+    double pending_sent;
 };
 
 bg_status bga_client_new(const char *endpoint, const char *service, int timeout_ms,
@@ -127,9 +133,12 @@ static bg_status await_reply(bga_client_t *c, uint64_t seq, int raw, uint16_t ty
     }
 }
 
-bg_status bga_client_request(bga_client_t *c, bga_msg_t *req, bga_reply_t *rep, bg_error_t *err)
+bg_status bga_client_post(bga_client_t *c, bga_msg_t *req, bg_error_t *err)
 {
-    memset(rep, 0, sizeof *rep);
+    if (c->pending)
+        return bg_error_set(err, BG_ERR_INVALID, "agent %s (%s): %s posted while %s is in flight",
+                            c->endpoint, c->service, bga_type_name(req->header.type),
+                            bga_type_name(c->pending_type));
     req->header.seq = ++c->seq;
     const double t0 = bg_clock_now();
     bga_frames_t frames;
@@ -145,7 +154,28 @@ bg_status bga_client_request(bga_client_t *c, bga_msg_t *req, bga_reply_t *rep, 
     bga_frames_free(&frames);
     if (st != BG_OK)
         return bg_error_set(err, st, "agent %s (%s): %s", c->endpoint, c->service, eerr.message);
-    return await_reply(c, req->header.seq, 0, req->header.type, t1, rep, err);
+    c->pending = 1;
+    c->pending_seq = req->header.seq;
+    c->pending_type = req->header.type;
+    c->pending_sent = t1;
+    return BG_OK;
+}
+
+bg_status bga_client_collect(bga_client_t *c, bga_reply_t *rep, bg_error_t *err)
+{
+    memset(rep, 0, sizeof *rep);
+    if (!c->pending)
+        return bg_error_set(err, BG_ERR_INVALID, "agent %s (%s): nothing to collect",
+                            c->endpoint, c->service);
+    c->pending = 0;
+    return await_reply(c, c->pending_seq, 0, c->pending_type, c->pending_sent, rep, err);
+}
+
+bg_status bga_client_request(bga_client_t *c, bga_msg_t *req, bga_reply_t *rep, bg_error_t *err)
+{
+    memset(rep, 0, sizeof *rep);
+    bg_status st = bga_client_post(c, req, err);
+    return st == BG_OK ? bga_client_collect(c, rep, err) : st;
 }
 
 bg_status bga_client_request_raw(bga_client_t *c, const bga_frame_t *frames, int nframes,
@@ -279,17 +309,30 @@ bg_status bga_client_rotfit_setup(bga_client_t *c, uint64_t job, const bga_parti
     return simple(c, &m, err);
 }
 
-bg_status bga_client_rotfit(bga_client_t *c, uint64_t job, const double *positions, size_t count,
-                            unsigned want, bga_rotfit_out_t *out, bg_error_t *err)
+bg_status bga_client_rotfit_start(bga_client_t *c, uint64_t job, const double *positions,
+                                  size_t count, unsigned want, bg_error_t *err)
 {
     bga_msg_t m;
-    bga_reply_t rep;
     bga_msg_init(&m, BGA_ROTFIT_CALL, job, 0);
     m.field[BGA_RC_WANT].i = want;
     m.array[BGA_RC_POSITIONS] = (bga_array_t){positions, count};
-    bg_status st = exchange(c, &m, BGA_ROTFIT_RESULT, &rep, err);
+    bg_status st = bga_client_post(c, &m, err);
+    if (st == BG_OK)
+        c->pending_want = want;
+    return st;
+}
+
+bg_status bga_client_rotfit_finish(bga_client_t *c, bga_rotfit_out_t *out, bg_error_t *err)
+{
+    const unsigned want = c->pending_want;
+    bga_reply_t rep;
+    bg_status st = bga_client_collect(c, &rep, err);
     if (st != BG_OK)
         return st;
+    if ((st = expect(c, &rep, BGA_ROTFIT_CALL, BGA_ROTFIT_RESULT, err)) != BG_OK) {
+        bga_reply_close(&rep);
+        return st;
+    }
     out->energy = rep.msg.field[BGA_RR_ENERGY].f;
     out->fits.calls = rep.msg.field[BGA_RR_FITS].i;
     out->fits.warm = rep.msg.field[BGA_RR_WARM].i;
@@ -297,13 +340,22 @@ bg_status bga_client_rotfit(bga_client_t *c, uint64_t job, const double *positio
     out->fits.svd = rep.msg.field[BGA_RR_SVD].i;
     out->agent_seconds = rep.msg.field[BGA_RR_SECONDS].f;
     c->traffic.agent_seconds += out->agent_seconds;
+    const double t0 = bg_clock_now();
     if (want & BGA_WANT_GRADIENT)
         st = take_f64(c, &rep, BGA_RR_GRADIENT, out->gradient, out->gradient_count, "gradient",
                       err);
     if (st == BG_OK && (want & BGA_WANT_HESSIAN))
         st = take_f64(c, &rep, BGA_RR_HESSIAN, out->hessian, out->hessian_count, "Hessian", err);
+    c->traffic.encode_seconds += bg_clock_now() - t0;
     bga_reply_close(&rep);
     return st;
+}
+
+bg_status bga_client_rotfit(bga_client_t *c, uint64_t job, const double *positions, size_t count,
+                            unsigned want, bga_rotfit_out_t *out, bg_error_t *err)
+{
+    bg_status st = bga_client_rotfit_start(c, job, positions, count, want, err);
+    return st == BG_OK ? bga_client_rotfit_finish(c, out, err) : st;
 }
 
 bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const int32_t *colptr,

@@ -55,6 +55,15 @@ bga_traffic_t bga_client_traffic(const bga_client_t *client);
  * reply does not decode. On BG_OK the caller closes *rep.
  */
 bg_status bga_client_request(bga_client_t *c, bga_msg_t *req, bga_reply_t *rep, bg_error_t *err);
+/*
+ * The two halves of bga_client_request, so a coordinator can have one
+ * request in flight on each of several agents: post encodes and sends
+ * (one request in flight per client: BG_ERR_INVALID otherwise), collect
+ * waits for its reply (the timeout counts from the post).
+ */
+bg_status bga_client_post(bga_client_t *c, bga_msg_t *req, bg_error_t *err);
+bg_status bga_client_collect(bga_client_t *c, bga_reply_t *rep, bg_error_t *err);
+
 /* The same with raw frames (tests send malformed messages): the reply
  * is the first one to arrive. */
 bg_status bga_client_request_raw(bga_client_t *c, const bga_frame_t *frames, int nframes,
@@ -101,6 +110,11 @@ typedef struct bga_rotfit_out {
 
 bg_status bga_client_rotfit(bga_client_t *c, uint64_t job, const double *positions, size_t count,
                             unsigned want, bga_rotfit_out_t *out, bg_error_t *err);
+/* bga_client_rotfit in two halves (start on every agent, then finish
+ * each): the partitions are computed in parallel. */
+bg_status bga_client_rotfit_start(bga_client_t *c, uint64_t job, const double *positions,
+                                  size_t count, unsigned want, bg_error_t *err);
+bg_status bga_client_rotfit_finish(bga_client_t *c, bga_rotfit_out_t *out, bg_error_t *err);
 
 bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const int32_t *colptr,
                                  const int32_t *rowidx, int64_t lease_ms, bg_error_t *err);
