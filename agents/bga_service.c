@@ -218,6 +218,13 @@ static bga_wire_code need_service(const bga_service_t *svc, unsigned bit, const 
                          "this agent does not serve %s", what);
 }
 
+/* A call on a job that never set up this service here. */
+static bga_wire_code no_state(const job *j, const char *what, bga_wire_error_t *werr)
+{
+    return bga_wire_fail(werr, BGA_WIRE_WRONG_STATE, 0, "type", "job %llu has no %s on this agent",
+                         (unsigned long long)j->id, what);
+}
+
 /* Replies are built into `rep` (a bga_msg_t whose arrays point at job
  * buffers, alive until the reply is encoded). */
 static void reply_ack(bga_msg_t *rep, const bga_msg_t *req)
@@ -312,9 +319,7 @@ static bga_wire_code rotfit_call(job *j, const bga_msg_t *m, bga_msg_t *rep,
                                  bga_service_stats_t *stats, bga_wire_error_t *werr)
 {
     if (!j->model)
-        return bga_wire_fail(werr, BGA_WIRE_WRONG_STATE, 0, "type",
-                             "job %llu has no rotation-fit partition on this agent",
-                             (unsigned long long)j->id);
+        return no_state(j, "rotation-fit partition", werr);
     const int dim = j->mesh->dim;
     const size_t ndof = (size_t)j->mesh->nv * dim;
     if (m->array[BGA_RC_POSITIONS].count != ndof)
@@ -398,9 +403,7 @@ static bga_wire_code solve_factor(job *j, const bga_msg_t *m, bga_msg_t *rep, ch
                                   bga_wire_error_t *werr)
 {
     if (!j->sys)
-        return bga_wire_fail(werr, BGA_WIRE_WRONG_STATE, 0, "type",
-                             "job %llu has no sparse-solve pattern on this agent",
-                             (unsigned long long)j->id);
+        return no_state(j, "sparse-solve pattern", werr);
     const size_t nnz = bg_sparse_nonzeros(j->sys);
     if (m->array[BGA_SF_VALUES].count != nnz)
         return bga_wire_fail(werr, BGA_WIRE_BAD_LENGTH, 2 + BGA_SF_VALUES, "values",
@@ -504,9 +507,7 @@ static bga_wire_code integ_predict(job *j, const bga_msg_t *m, bga_msg_t *rep,
                                    bga_wire_error_t *werr)
 {
     if (!j->mass)
-        return bga_wire_fail(werr, BGA_WIRE_WRONG_STATE, 0, "type",
-                             "job %llu has no integrator state on this agent",
-                             (unsigned long long)j->id);
+        return no_state(j, "integrator state", werr);
     /* The step energy's inertia part (2/h²)|q − q_k|²_M − (2/h)p_kᵀ(q − q_k)
      * equals (c/2)|q − prediction|²_M + const with c = 4/h² and
      * prediction = q_k + (h/2) M⁻¹ p_k. */
@@ -526,9 +527,7 @@ static bga_wire_code integ_update(job *j, const bga_msg_t *m, bga_msg_t *rep,
                                   bga_wire_error_t *werr)
 {
     if (!j->mass)
-        return bga_wire_fail(werr, BGA_WIRE_WRONG_STATE, 0, "type",
-                             "job %llu has no integrator state on this agent",
-                             (unsigned long long)j->id);
+        return no_state(j, "integrator state", werr);
     const size_t ndof = (size_t)j->inv * j->idim;
     if (m->array[BGA_IU_QSTAR].count != ndof)
         return bga_wire_fail(werr, BGA_WIRE_BAD_LENGTH, 2 + BGA_IU_QSTAR, "q_star",
