@@ -24,6 +24,7 @@
 
 #include "agent_fixture.h"
 #include "bg_clock.h"
+#include "bga_agent.h"
 #include "bga_client.h"
 #include "bga_transport.h"
 
@@ -379,32 +380,43 @@ static int run_sigterm(const char *dir)
     bga_partition_t bp = fx_partition(&part, mesh, 1.0, 5.0);
     bg_status st = bga_client_rotfit_setup(c, 5, &bp, &err);
     CHECK(st == BG_OK, "set-up: %s", err.message);
+    /* One call measures the agent's time per call; then enough calls are
+     * queued for 0.3 s of work, so the signal (sent 30 ms after them)
+     * lands while the agent computes, with calls still queued. */
+    const size_t nq = (size_t)part.nv * 3, nh = (size_t)part.ne * 78;
+    double *gbuf = malloc(nq * sizeof *gbuf), *hbuf = malloc(nh * sizeof *hbuf);
+    bga_rotfit_out_t out = {0, gbuf, hbuf, nq, nh, {0, 0, 0, 0}, 0};
+    const unsigned want = BGA_WANT_GRADIENT | BGA_WANT_HESSIAN;
+    st = bga_client_rotfit(c, 5, part.q, nq, want, &out, &err);
+    CHECK(st == BG_OK, "first call: %s", err.message);
+    free(gbuf);
+    free(hbuf);
     bga_client_destroy(&c);
+    int nreq = (int)ceil(0.3 / (out.agent_seconds > 1e-4 ? out.agent_seconds : 1e-4)) + 2;
+    if (nreq > BGA_AGENT_DRAIN_MAX - 4)
+        nreq = BGA_AGENT_DRAIN_MAX - 4;
 
     /* A raw DEALER so the requests are pipelined. */
     void *ctx = zmq_ctx_new(), *s = zmq_socket(ctx, ZMQ_DEALER);
     const int linger = 0;
     zmq_setsockopt(s, ZMQ_LINGER, &linger, sizeof linger);
     zmq_connect(s, r.endpoint);
-    enum { NREQ = 4 };
-    for (int i = 0; i < NREQ; i++) {
+    for (int i = 0; i < nreq; i++) {
         bga_msg_t m;
         bga_frames_t fr;
         bga_msg_init(&m, BGA_ROTFIT_CALL, 5, 100 + (uint64_t)i);
-        m.field[BGA_RC_WANT].i = BGA_WANT_GRADIENT | BGA_WANT_HESSIAN;
-        m.array[BGA_RC_POSITIONS] = (bga_array_t){part.q, (size_t)part.nv * 3};
+        m.field[BGA_RC_WANT].i = want;
+        m.array[BGA_RC_POSITIONS] = (bga_array_t){part.q, nq};
         bga_wire_encode(&m, &fr, &err);
         bga_send(s, NULL, &fr, &err);
         bga_frames_free(&fr);
     }
-    /* Loopback delivers the requests within this pause; the agent is busy
-     * with the first when the signal arrives. */
-    struct timespec pause = {0, 100 * 1000 * 1000};
+    struct timespec pause = {0, 30 * 1000 * 1000};
     nanosleep(&pause, NULL);
     CHECK(kill((pid_t)r.pid, SIGTERM) == 0, "kill %ld: %s", r.pid, strerror(errno));
     int got = 0;
     const double deadline = bg_clock_now() + 20.0;
-    while (got < NREQ && bg_clock_now() < deadline) {
+    while (got < nreq && bg_clock_now() < deadline) {
         zmq_pollitem_t item = {s, 0, ZMQ_POLLIN, 0};
         if (zmq_poll(&item, 1, 1000) <= 0)
             continue;
@@ -423,14 +435,16 @@ static int run_sigterm(const char *dir)
         bga_received_close(&rx);
         got++;
     }
-    CHECK(got == NREQ, "%d of %d queued requests answered after SIGTERM", got, NREQ);
-    printf("SIGTERM with %d requests queued: %d answered\n", NREQ, got);
+    CHECK(got == nreq, "%d of %d queued requests answered after SIGTERM", got, nreq);
+    printf("SIGTERM 30 ms after %d requests of %.1f ms each: %d answered\n", nreq,
+           1e3 * out.agent_seconds, got);
     zmq_close(s);
     zmq_ctx_term(ctx);
     /* The fixture's wrapper records the exit status when the agent ends. */
     char path[1024];
     snprintf(path, sizeof path, "%s/term.rc", dir);
     int rc = -1;
+    pause.tv_nsec = 100 * 1000 * 1000;
     for (int i = 0; i < 100 && rc < 0; i++) {
         FILE *f = fopen(path, "r");
         if (f) {
