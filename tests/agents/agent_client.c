@@ -26,6 +26,7 @@
 #include "bg_clock.h"
 #include "bga_agent.h"
 #include "bga_client.h"
+#include "bga_pool.h"
 #include "bga_transport.h"
 
 #define TIMEOUT_MS 10000
@@ -211,6 +212,48 @@ static int run_compute(const char *dir)
     printf("rotation-fit over 2 agents: energy %.17g (in-process %.17g), gradient rel %.2g, "
            "Hessian rel %.2g\n", sum_energy, energy, max_rel(sum_grad, grad, ndof),
            max_rel(sumH, H, nnz));
+
+    /* The coordinator's pool over both agents: compact scatter maps, the
+     * partitions computed in parallel, sums in partition order. */
+    {
+        ready r1, r2;
+        if (read_ready(dir, "rotfit1", &r1) || read_ready(dir, "rotfit2", &r2))
+            return 1;
+        const char *eps[2] = {r1.endpoint, r2.endpoint};
+        bga_pool_config_t pc = {mesh, mu, lambda, 0.0, bg_sparse_scatter(sys), nnz, eps, 2,
+                                3000, TIMEOUT_MS, 60000};
+        bga_rotfit_pool_t *pool = NULL;
+        bg_status st = bga_rotfit_pool_new(&pc, &pool, &err);
+        CHECK(st == BG_OK, "pool: %s", err.message);
+        double *pgrad = malloc(ndof * sizeof *pgrad), *pH = calloc(nnz, sizeof *pH);
+        double pe = 0.0;
+        for (int round = 0; round < 2 && st == BG_OK; round++) {
+            memset(pH, 0, nnz * sizeof *pH);
+            st = bga_rotfit_pool_eval(pool, q, &pe, pgrad, pH, 0, &err);
+            CHECK(st == BG_OK, "pool eval: %s", err.message);
+        }
+        CHECK(fabs(pe - energy) <= 1e-12 * energy, "pool energy %.17g vs %.17g", pe, energy);
+        CHECK(max_rel(pgrad, grad, ndof) <= 1e-12, "pool gradient rel %g",
+              max_rel(pgrad, grad, ndof));
+        CHECK(max_rel(pH, H, nnz) <= 1e-12, "pool Hessian rel %g", max_rel(pH, H, nnz));
+        const bga_traffic_t t0 = bga_rotfit_pool_traffic(pool, 0);
+        printf("pool of 2: energy rel %.1e, gradient rel %.1e, Hessian rel %.1e; agent 1 "
+               "received %lld bytes per call for %d elements (compact Hessian)\n",
+               fabs(pe - energy) / energy, max_rel(pgrad, grad, ndof), max_rel(pH, H, nnz),
+               (long long)(t0.bytes_received / (t0.requests > 0 ? t0.requests : 1)),
+               (int)bga_rotfit_pool_elements(pool, 0));
+        bga_rotfit_pool_destroy(&pool);
+        for (int i = 0; i < 2; i++) { /* destroy released both jobs */
+            bga_client_t *c = connect_to(dir, i ? "rotfit2" : "rotfit1", "rotation-fit", &r1);
+            bga_agent_status_t as;
+            st = bga_client_heartbeat(c, 0, &as, &err);
+            CHECK(st == BG_OK && as.jobs == 0, "after the pool: %s, %lld jobs", err.message,
+                  (long long)as.jobs);
+            bga_client_destroy(&c);
+        }
+        free(pgrad);
+        free(pH);
+    }
 
     /* Sparse-solve: the projected Hessian plus a shift (the rigid modes
      * make it singular), pattern once, two factorizations, three solves. */

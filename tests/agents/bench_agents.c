@@ -6,8 +6,8 @@
  * rotfit2, solve in RUNDIR): energy + gradient + Hessian values (rotation
  * fit over 1 and 2 agents, partial sums combined in partition order),
  * then factor + solve of the shifted Hessian on the sparse-solve agent.
- * Each rotation-fit agent gets a compact scatter map: the partition's
- * Hessian comes back as one value per distinct pattern entry it touches.
+ * The rotation fit goes through bga_pool (compact scatter maps: each
+ * partition's Hessian comes back as one value per pattern entry it touches).
  * Prints per iteration: wall time, bytes, and the split agent compute /
  * client encode+decode / transit+queueing (wait − agent compute) /
  * coordinator gather; checks the remote energy (1e-12) and solution (1e-8,
@@ -23,53 +23,14 @@
 #include "bg_clock.h"
 #include "bg_mesh_io.h"
 #include "bga_client.h"
+#include "bga_pool.h"
 
-#define T 78
 #define SHIFT 1e-3
 
-typedef struct remote_part {
-    fx_part part;
-    int32_t nval;
-    int32_t *scatter;  /* ne*T into [0, nval) */
-    int32_t *to_global; /* nval pattern positions */
-    double *grad, *hess;
-} remote_part;
-
-/* The partition's compact Hessian layout: each distinct global pattern
- * position its elements touch gets one local value. */
-static int compact_scatter(const bg_sparse_t *sys, size_t nnz, remote_part *rp)
+/* The endpoint in RUNDIR/NAME.ready. */
+static void read_endpoint(const char *dir, const char *name, char *endpoint)
 {
-    const fx_part *p = &rp->part;
-    int32_t *local = malloc(nnz * sizeof *local);
-    rp->scatter = malloc((size_t)p->ne * T * sizeof *rp->scatter);
-    rp->to_global = malloc((size_t)p->ne * T * sizeof *rp->to_global);
-    if (!local || !rp->scatter || !rp->to_global)
-        return -1;
-    for (size_t i = 0; i < nnz; i++)
-        local[i] = -1;
-    rp->nval = 0;
-    for (int32_t e = 0; e < p->ne; e++)
-        for (int t = 0; t < T; t++) {
-            const int32_t g = bg_sparse_scatter(sys)[(size_t)p->global_elements[e] * T + t];
-            int32_t l = -1;
-            if (g >= 0) {
-                if (local[g] < 0) {
-                    local[g] = rp->nval;
-                    rp->to_global[rp->nval++] = g;
-                }
-                l = local[g];
-            }
-            rp->scatter[(size_t)e * T + t] = l;
-        }
-    free(local);
-    rp->grad = malloc((size_t)p->nv * 3 * sizeof *rp->grad);
-    rp->hess = malloc((size_t)rp->nval * sizeof *rp->hess);
-    return rp->grad && rp->hess ? 0 : -1;
-}
-
-static bga_client_t *open_agent(const char *dir, const char *name, const char *service)
-{
-    char path[1024], endpoint[256];
+    char path[1024];
     long pid;
     snprintf(path, sizeof path, "%s/%s.ready", dir, name);
     FILE *f = fopen(path, "r");
@@ -78,6 +39,12 @@ static bga_client_t *open_agent(const char *dir, const char *name, const char *s
         exit(1);
     }
     fclose(f);
+}
+
+static bga_client_t *open_agent(const char *dir, const char *name, const char *service)
+{
+    char endpoint[256];
+    read_endpoint(dir, name, endpoint);
     bga_client_t *c = NULL;
     bg_error_t err = BG_ERROR_INIT;
     if (bga_client_new(endpoint, service, 120000, &c, &err) != BG_OK) {
@@ -182,64 +149,29 @@ int main(int argc, char **argv)
     if (bga_client_solve_setup(solver, 9000, n, bg_sparse_colptr(sys), bg_sparse_rowidx(sys), 0,
                                &err) != BG_OK)
         die(&err);
-    const char *names[2] = {"rotfit1", "rotfit2"};
+    char ep[2][256];
+    read_endpoint(dir, "rotfit1", ep[0]);
+    read_endpoint(dir, "rotfit2", ep[1]);
+    const char *endpoints[2] = {ep[0], ep[1]};
     for (int K = 1; K <= 2; K++) {
-        bga_client_t *c[2] = {NULL, NULL};
-        remote_part rp[2];
-        memset(rp, 0, sizeof rp);
-        for (int p = 0; p < K; p++) {
-            c[p] = open_agent(dir, names[p], "rotation-fit");
-            if (fx_part_make(mesh, q, p, K, &rp[p].part) != 0 ||
-                compact_scatter(sys, nnz, &rp[p]) != 0) {
-                fprintf(stderr, "bench_agents: out of memory\n");
-                return 1;
-            }
-            bga_partition_t bp = fx_partition(&rp[p].part, mesh, mu, lambda);
-            bp.nval = rp[p].nval;
-            bp.scatter = rp[p].scatter;
-            if (bga_client_rotfit_setup(c[p], 9100 + (uint64_t)K * 10 + (uint64_t)p, &bp, &err) !=
-                BG_OK)
-                die(&err);
-        }
-        double wall = 0, gather = 0, renergy = 0;
+        bga_pool_config_t pc = {mesh, mu, lambda, 0.0, bg_sparse_scatter(sys), nnz, endpoints,
+                                K, 9100 + (uint64_t)K, 120000, 0};
+        bga_rotfit_pool_t *pool = NULL;
+        if (bga_rotfit_pool_new(&pc, &pool, &err) != BG_OK)
+            die(&err);
+        double wall = 0, renergy = 0, gather0 = 0;
         bga_traffic_t before[3];
         for (int it = 0; it < iterations; it++) {
             const double t0 = bg_clock_now();
             if (it == 1 || iterations == 1) {
                 for (int p = 0; p < K; p++)
-                    before[p] = bga_client_traffic(c[p]);
+                    before[p] = bga_rotfit_pool_traffic(pool, p);
                 before[2] = bga_client_traffic(solver);
+                gather0 = bga_rotfit_pool_gather_seconds(pool);
             }
-            for (int p = 0; p < K; p++) {
-                fx_part *pp = &rp[p].part;
-                for (int32_t v = 0; v < pp->nv; v++) /* gather this iteration's positions */
-                    memcpy(pp->q + (size_t)v * 3, q + (size_t)pp->local_to_global[v] * 3,
-                           3 * sizeof *q);
-                if (bga_client_rotfit_start(c[p], 9100 + (uint64_t)K * 10 + (uint64_t)p, pp->q,
-                                            (size_t)pp->nv * 3,
-                                            BGA_WANT_GRADIENT | BGA_WANT_HESSIAN |
-                                                BGA_WANT_PROJECTED,
-                                            &err) != BG_OK)
-                    die(&err);
-            }
-            renergy = 0.0;
-            memset(rgrad, 0, ndof * sizeof *rgrad);
             memset(rvalues, 0, nnz * sizeof *rvalues);
-            for (int p = 0; p < K; p++) { /* combined in partition order */
-                bga_rotfit_out_t out = {0, rp[p].grad, rp[p].hess, (size_t)rp[p].part.nv * 3,
-                                        (size_t)rp[p].nval, {0, 0, 0, 0}, 0};
-                if (bga_client_rotfit_finish(c[p], &out, &err) != BG_OK)
-                    die(&err);
-                const double g0 = bg_clock_now();
-                renergy += out.energy;
-                const fx_part *pp = &rp[p].part;
-                for (int32_t v = 0; v < pp->nv; v++)
-                    for (int k = 0; k < 3; k++)
-                        rgrad[(size_t)pp->local_to_global[v] * 3 + k] += rp[p].grad[(size_t)v * 3 + k];
-                for (int32_t l = 0; l < rp[p].nval; l++)
-                    rvalues[rp[p].to_global[l]] += rp[p].hess[l];
-                gather += it > 0 || iterations == 1 ? bg_clock_now() - g0 : 0.0;
-            }
+            if (bga_rotfit_pool_eval(pool, q, &renergy, rgrad, rvalues, 1, &err) != BG_OK)
+                die(&err);
             int posdef = 0;
             if (bga_client_solve_factor(solver, 9000, rvalues, nnz, SHIFT, &posdef, &err) != BG_OK ||
                 !posdef || bga_client_solve(solver, 9000, rgrad, n, 1, rx, &err) != BG_OK) {
@@ -252,13 +184,15 @@ int main(int argc, char **argv)
         double agent = 0, codec = 0, wait = 0;
         int64_t bytes = 0;
         for (int p = 0; p <= K; p++) {
-            const bga_traffic_t now = bga_client_traffic(p < K ? c[p] : solver);
+            const bga_traffic_t now = p < K ? bga_rotfit_pool_traffic(pool, p)
+                                            : bga_client_traffic(solver);
             const bga_traffic_t *b = &before[p < K ? p : 2];
             agent += now.agent_seconds - b->agent_seconds;
             codec += now.encode_seconds - b->encode_seconds;
             wait += now.wait_seconds - b->wait_seconds;
             bytes += now.bytes_sent - b->bytes_sent + now.bytes_received - b->bytes_received;
         }
+        const double gather = bga_rotfit_pool_gather_seconds(pool) - gather0;
         const double ediff = fabs(renergy - energy) / fabs(energy);
         double xd = 0.0;
         for (size_t i = 0; i < ndof; i++)
@@ -281,15 +215,7 @@ int main(int argc, char **argv)
             fprintf(stderr, "bench_agents: the remote result differs from the in-process one\n");
             failures++;
         }
-        for (int p = 0; p < K; p++) {
-            bga_client_release(c[p], 9100 + (uint64_t)K * 10 + (uint64_t)p, &err);
-            bga_client_destroy(&c[p]);
-            fx_part_free(&rp[p].part);
-            free(rp[p].scatter);
-            free(rp[p].to_global);
-            free(rp[p].grad);
-            free(rp[p].hess);
-        }
+        bga_rotfit_pool_destroy(&pool);
     }
     bga_client_release(solver, 9000, &err);
     bga_client_destroy(&solver);
