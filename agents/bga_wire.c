@@ -355,11 +355,22 @@ bga_wire_code bga_wire_fail(bga_wire_error_t *werr, bga_wire_code code, int fram
     return code;
 }
 
-/* Little-endian loads and stores, byte by byte: independent of the host's
- * byte order and of the alignment of ZeroMQ's buffers. */
+/* Little-endian loads and stores, independent of the alignment of
+ * ZeroMQ's buffers: memcpy on a little-endian host (one unaligned load),
+ * byte by byte elsewhere. */
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+#define LE_HOST 1
+#else
+#define LE_HOST 0
+#endif
+
 static uint64_t load_u64(const uint8_t *p)
 {
     uint64_t v = 0;
+    if (LE_HOST) {
+        memcpy(&v, p, sizeof v);
+        return v;
+    }
     for (int i = 7; i >= 0; i--)
         v = (v << 8) | p[i];
     return v;
@@ -367,6 +378,11 @@ static uint64_t load_u64(const uint8_t *p)
 
 static uint32_t load_u32(const uint8_t *p)
 {
+    uint32_t v;
+    if (LE_HOST) {
+        memcpy(&v, p, sizeof v);
+        return v;
+    }
     return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
 }
 
@@ -377,12 +393,20 @@ static uint16_t load_u16(const uint8_t *p)
 
 static void store_u64(uint8_t *p, uint64_t v)
 {
+    if (LE_HOST) {
+        memcpy(p, &v, sizeof v);
+        return;
+    }
     for (int i = 0; i < 8; i++, v >>= 8)
         p[i] = (uint8_t)(v & 0xff);
 }
 
 static void store_u32(uint8_t *p, uint32_t v)
 {
+    if (LE_HOST) {
+        memcpy(p, &v, sizeof v);
+        return;
+    }
     for (int i = 0; i < 4; i++, v >>= 8)
         p[i] = (uint8_t)(v & 0xff);
 }
@@ -425,6 +449,11 @@ int32_t bga_msg_i32(const bga_msg_t *msg, int array, size_t i)
 void bga_msg_copy_f64(const bga_msg_t *msg, int array, double *dst)
 {
     const uint8_t *p = msg->array[array].data;
+    if (LE_HOST) {
+        if (msg->array[array].count > 0)
+            memcpy(dst, p, msg->array[array].count * sizeof *dst);
+        return;
+    }
     for (size_t i = 0; i < msg->array[array].count; i++)
         dst[i] = u64_to_f64(load_u64(p + 8 * i));
 }
@@ -432,6 +461,11 @@ void bga_msg_copy_f64(const bga_msg_t *msg, int array, double *dst)
 void bga_msg_copy_i32(const bga_msg_t *msg, int array, int32_t *dst)
 {
     const uint8_t *p = msg->array[array].data;
+    if (LE_HOST) {
+        if (msg->array[array].count > 0)
+            memcpy(dst, p, msg->array[array].count * sizeof *dst);
+        return;
+    }
     for (size_t i = 0; i < msg->array[array].count; i++)
         dst[i] = (int32_t)load_u32(p + 4 * i);
 }
@@ -696,7 +730,9 @@ bg_status bga_wire_encode(const bga_msg_t *msg, bga_frames_t *out, bg_error_t *e
     for (int a = 0; a < s->narrays; a++) {
         uint8_t *p = out->data[2 + a];
         const size_t count = msg->array[a].count;
-        if (s->arrays[a].elem == BGA_ELEM_F64) {
+        if (LE_HOST && count > 0 && s->arrays[a].elem != BGA_ELEM_BYTES) {
+            memcpy(p, msg->array[a].data, out->size[2 + a]);
+        } else if (s->arrays[a].elem == BGA_ELEM_F64) {
             const double *src = msg->array[a].data;
             for (size_t i = 0; i < count; i++)
                 store_u64(p + 8 * i, f64_to_u64(src[i]));
