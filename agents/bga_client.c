@@ -43,6 +43,8 @@ bg_status bga_client_new(const char *endpoint, const char *service, int timeout_
     }
     const int linger = 0; /* a request to a dead agent must not hold the exit */
     zmq_setsockopt(c->socket, ZMQ_LINGER, &linger, sizeof linger);
+    /* A send never blocks longer than a reply may take. */
+    zmq_setsockopt(c->socket, ZMQ_SNDTIMEO, &c->timeout_ms, sizeof c->timeout_ms);
     if (zmq_connect(c->socket, endpoint) != 0) {
         st = bg_error_set(err, BG_ERR_IO, "agent %s (%s): cannot connect: %s", endpoint,
                           c->service, zmq_strerror(errno));
