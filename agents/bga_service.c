@@ -80,6 +80,13 @@ static void free_job(job *j)
     memset(j, 0, sizeof *j);
 }
 
+/* A job whose only set-up failed holds nothing: give its slot back. */
+static void free_job_if_empty(job *j)
+{
+    if (!j->model && !j->sys && !j->mass)
+        free_job(j);
+}
+
 bg_status bga_service_new(const bga_service_config_t *config, bga_service_t **out,
                           bg_error_t *err)
 {
@@ -245,6 +252,17 @@ static bga_wire_code rotfit_setup(bga_service_t *svc, const bga_msg_t *m, double
     const int dim = (int)m->field[BGA_RS_DIM].i, k = (int)m->field[BGA_RS_NODES].i;
     const int32_t nv = (int32_t)m->field[BGA_RS_NV].i, ne = (int32_t)m->field[BGA_RS_NE].i;
     const int T = (int)m->field[BGA_RS_BLOCK].i;
+    /* Per-element blocks must fit one reply frame: otherwise the set-up
+     * would allocate for replies that can never be sent. */
+    if (m->field[BGA_RS_NVAL].i == 0 &&
+        (size_t)ne * (size_t)T * sizeof(double) > svc->config.limits.max_frame_bytes) {
+        free_job_if_empty(j);
+        return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 1, "values",
+                             "%d elements' Hessian blocks (%zu bytes) exceed the %zu-byte frame "
+                             "cap: send a scatter map", (int)ne,
+                             (size_t)ne * (size_t)T * sizeof(double),
+                             svc->config.limits.max_frame_bytes);
+    }
     bg_error_t e = BG_ERROR_INIT;
     if (bg_mesh_new(dim == 2 ? BG_MESH_PLANAR : BG_MESH_VOLUME, nv, ne, &j->mesh, &e) != BG_OK)
         goto internal;
@@ -255,11 +273,13 @@ static bga_wire_code rotfit_setup(bga_service_t *svc, const bga_msg_t *m, double
         int32_t reoriented = 0;
         if (bg_mesh_validate(j->mesh, "partition", &reoriented, &e) != BG_OK) {
             free_rotfit(j);
+            free_job_if_empty(j);
             return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 2 + BGA_RS_ELEMENTS, "elements",
                                  "%s", e.message);
         }
         if (reoriented > 0) {
             free_rotfit(j);
+            free_job_if_empty(j);
             return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 2 + BGA_RS_ELEMENTS, "elements",
                                  "%d elements are negatively oriented: the coordinator sends "
                                  "validated, positively oriented elements", (int)reoriented);
@@ -281,6 +301,7 @@ static bga_wire_code rotfit_setup(bga_service_t *svc, const bga_msg_t *m, double
             if (!(det > 0.0) || !isfinite(1.0 / det)) {
                 free(edges);
                 free_rotfit(j);
+                free_job_if_empty(j);
                 return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 2 + BGA_RS_REST_EDGES,
                                      "rest_edges", "element %d: rest edge matrix has "
                                      "determinant %g, must be positive", (int)el, det);
@@ -311,6 +332,7 @@ static bga_wire_code rotfit_setup(bga_service_t *svc, const bga_msg_t *m, double
     return BGA_WIRE_OK;
 internal:
     free_rotfit(j);
+    free_job_if_empty(j);
     return bga_wire_fail(werr, BGA_WIRE_INTERNAL, -1, "", "rotation-fit set-up: %s",
                          e.message[0] ? e.message : "out of memory");
 }
@@ -389,6 +411,7 @@ static bga_wire_code solve_setup(bga_service_t *svc, const bga_msg_t *m, double 
     }
     if (st != BG_OK) {
         free_solve(j);
+        free_job_if_empty(j);
         return bga_wire_fail(werr, st == BG_ERR_INVALID ? BGA_WIRE_INCONSISTENT
                                                         : BGA_WIRE_INTERNAL,
                              2 + BGA_SS_ROWIDX, "rowidx", "sparse-solve set-up: %s",
@@ -493,6 +516,7 @@ static bga_wire_code integ_setup(bga_service_t *svc, const bga_msg_t *m, double 
     j->scratch = malloc(ndof * sizeof *j->scratch);
     if (!j->mass || !j->iq || !j->ip || !j->scratch) {
         free_integ(j);
+        free_job_if_empty(j);
         return bga_wire_fail(werr, BGA_WIRE_INTERNAL, -1, "", "out of memory for the "
                              "integrator state of %d vertices", (int)m->field[BGA_IS_NV].i);
     }

@@ -246,11 +246,22 @@ static void test_rotfit_bad_requests(void **state)
     bp.elements = swapped;
     setup_msg(&m, 6, &bp, 78, 0, NULL);
     expect_code(svc, &m, 0.0, BGA_WIRE_INCONSISTENT, "negatively oriented");
+    assert_int_equal(bga_service_jobs(svc), 1); /* the failed set-up gave its slot back */
     /* A service this agent does not sell. */
     bga_msg_init(&m, BGA_INTEG_PREDICT, 5, 11);
     expect_code(svc, &m, 0.0, BGA_WIRE_WRONG_STATE, "no integrator state");
     bga_msg_init(&m, BGA_ROTFIT_RESULT, 5, 12);
     expect_code(svc, &m, 0.0, BGA_WIRE_UNEXPECTED, "is a reply");
+    bga_service_destroy(&svc);
+    /* Per-element blocks that could never fit a reply frame are refused
+     * before anything is allocated for them (6 tets x 78 x 8 > 2048). */
+    bga_service_config_t small = {1, BGA_SERVICE_ROTFIT, "small", {2048, 1 << 20}};
+    bg_error_t err2 = BG_ERROR_INIT;
+    assert_int_equal(bga_service_new(&small, &svc, &err2), BG_OK);
+    bp.elements = part.elements;
+    setup_msg(&m, 8, &bp, 78, 0, NULL);
+    expect_code(svc, &m, 0.0, BGA_WIRE_OUT_OF_RANGE, "exceed the 2048-byte frame cap");
+    assert_int_equal(bga_service_jobs(svc), 0);
     bga_service_destroy(&svc);
     svc = service(1, BGA_SERVICE_SOLVE);
     setup_msg(&m, 5, &bp, 78, 0, NULL);
