@@ -208,6 +208,22 @@ static bga_wire_code claim_job(bga_service_t *svc, uint64_t id, job **out,
     return BGA_WIRE_OK;
 }
 
+static void renew(job *j, double now, int64_t lease_ms);
+
+/* A set-up's common start: the job (new or existing), the service's old
+ * state dropped, the lease renewed. */
+static bga_wire_code begin_setup(bga_service_t *svc, const bga_msg_t *m, double now,
+                                 int64_t lease_ms, void (*drop)(job *), job **j,
+                                 bga_wire_error_t *werr)
+{
+    const bga_wire_code wc = claim_job(svc, m->header.job, j, werr);
+    if (wc != BGA_WIRE_OK)
+        return wc;
+    drop(*j);
+    renew(*j, now, lease_ms);
+    return BGA_WIRE_OK;
+}
+
 static void renew(job *j, double now, int64_t lease_ms)
 {
     const double lease = (double)lease_ms / 1000.0;
@@ -244,11 +260,9 @@ static bga_wire_code rotfit_setup(bga_service_t *svc, const bga_msg_t *m, double
                                   bga_msg_t *rep, bga_wire_error_t *werr)
 {
     job *j;
-    bga_wire_code wc = claim_job(svc, m->header.job, &j, werr);
+    const bga_wire_code wc = begin_setup(svc, m, now, m->field[BGA_RS_LEASE_MS].i, free_rotfit, &j, werr);
     if (wc != BGA_WIRE_OK)
         return wc;
-    free_rotfit(j);
-    renew(j, now, m->field[BGA_RS_LEASE_MS].i);
     const int dim = (int)m->field[BGA_RS_DIM].i, k = (int)m->field[BGA_RS_NODES].i;
     const int32_t nv = (int32_t)m->field[BGA_RS_NV].i, ne = (int32_t)m->field[BGA_RS_NE].i;
     const int T = (int)m->field[BGA_RS_BLOCK].i;
@@ -386,11 +400,9 @@ static bga_wire_code solve_setup(bga_service_t *svc, const bga_msg_t *m, double 
                                  bga_msg_t *rep, bga_wire_error_t *werr)
 {
     job *j;
-    bga_wire_code wc = claim_job(svc, m->header.job, &j, werr);
+    const bga_wire_code wc = begin_setup(svc, m, now, m->field[BGA_SS_LEASE_MS].i, free_solve, &j, werr);
     if (wc != BGA_WIRE_OK)
         return wc;
-    free_solve(j);
-    renew(j, now, m->field[BGA_SS_LEASE_MS].i);
     const int32_t n = (int32_t)m->field[BGA_SS_N].i;
     const size_t nnz = (size_t)m->field[BGA_SS_NNZ].i;
     int32_t *colptr = malloc(((size_t)n + 1) * sizeof *colptr);
@@ -500,11 +512,9 @@ static bga_wire_code integ_setup(bga_service_t *svc, const bga_msg_t *m, double 
                                  bga_msg_t *rep, bga_wire_error_t *werr)
 {
     job *j;
-    bga_wire_code wc = claim_job(svc, m->header.job, &j, werr);
+    const bga_wire_code wc = begin_setup(svc, m, now, m->field[BGA_IS_LEASE_MS].i, free_integ, &j, werr);
     if (wc != BGA_WIRE_OK)
         return wc;
-    free_integ(j);
-    renew(j, now, m->field[BGA_IS_LEASE_MS].i);
     j->idim = (int)m->field[BGA_IS_DIM].i;
     j->inv = (int32_t)m->field[BGA_IS_NV].i;
     j->h = m->field[BGA_IS_H].f;

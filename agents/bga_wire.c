@@ -364,58 +364,35 @@ bga_wire_code bga_wire_fail(bga_wire_error_t *werr, bga_wire_code code, int fram
 #define LE_HOST 0
 #endif
 
-static uint64_t load_u64(const uint8_t *p)
+/* The low n bytes of v (n ≤ 8), little-endian at p, and back. */
+static uint64_t load_le(const uint8_t *p, int n)
 {
     uint64_t v = 0;
     if (LE_HOST) {
-        memcpy(&v, p, sizeof v);
+        memcpy(&v, p, (size_t)n);
         return v;
     }
-    for (int i = 7; i >= 0; i--)
+    for (int i = n - 1; i >= 0; i--)
         v = (v << 8) | p[i];
     return v;
 }
 
-static uint32_t load_u32(const uint8_t *p)
-{
-    uint32_t v;
-    if (LE_HOST) {
-        memcpy(&v, p, sizeof v);
-        return v;
-    }
-    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
-}
-
-static uint16_t load_u16(const uint8_t *p)
-{
-    return (uint16_t)(p[0] | p[1] << 8);
-}
-
-static void store_u64(uint8_t *p, uint64_t v)
+static void store_le(uint8_t *p, uint64_t v, int n)
 {
     if (LE_HOST) {
-        memcpy(p, &v, sizeof v);
+        memcpy(p, &v, (size_t)n);
         return;
     }
-    for (int i = 0; i < 8; i++, v >>= 8)
+    for (int i = 0; i < n; i++, v >>= 8)
         p[i] = (uint8_t)(v & 0xff);
 }
 
-static void store_u32(uint8_t *p, uint32_t v)
-{
-    if (LE_HOST) {
-        memcpy(p, &v, sizeof v);
-        return;
-    }
-    for (int i = 0; i < 4; i++, v >>= 8)
-        p[i] = (uint8_t)(v & 0xff);
-}
-
-static void store_u16(uint8_t *p, uint16_t v)
-{
-    p[0] = (uint8_t)(v & 0xff);
-    p[1] = (uint8_t)(v >> 8);
-}
+static uint64_t load_u64(const uint8_t *p) { return load_le(p, 8); }
+static uint32_t load_u32(const uint8_t *p) { return (uint32_t)load_le(p, 4); }
+static uint16_t load_u16(const uint8_t *p) { return (uint16_t)load_le(p, 2); }
+static void store_u64(uint8_t *p, uint64_t v) { store_le(p, v, 8); }
+static void store_u32(uint8_t *p, uint32_t v) { store_le(p, v, 4); }
+static void store_u16(uint8_t *p, uint16_t v) { store_le(p, v, 2); }
 
 static double u64_to_f64(uint64_t u)
 {
