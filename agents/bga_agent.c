@@ -29,8 +29,7 @@ bg_status bga_agent_new(const bga_agent_config_t *config, bga_agent_t **out, bg_
     a->ctx = zmq_ctx_new();
     a->socket = a->ctx ? zmq_socket(a->ctx, ZMQ_ROUTER) : NULL;
     if (!a->socket) {
-        st = bg_error_set(err, BG_ERR_IO, "cannot create a ZeroMQ socket: %s",
-                          zmq_strerror(errno));
+        st = bg_error_set(err, BG_ERR_IO, "cannot create a ZeroMQ socket: %s", zmq_strerror(errno));
         goto fail;
     }
     const int linger = BGA_AGENT_LINGER_MS;
@@ -38,20 +37,19 @@ bg_status bga_agent_new(const bga_agent_config_t *config, bga_agent_t **out, bg_
     /* Frames over the codec's cap get an error reply; a frame over twice
      * the cap is refused by the transport before it is buffered whole
      * (ZeroMQ then drops that connection). */
-    const bga_limits_t lim = config->service.limits.max_frame_bytes
-                                 ? config->service.limits
-                                 : bga_wire_default_limits();
+    const bga_limits_t lim =
+        config->service.limits.max_frame_bytes ? config->service.limits : bga_wire_default_limits();
     const int64_t maxmsg = (int64_t)(2 * lim.max_frame_bytes);
     zmq_setsockopt(a->socket, ZMQ_MAXMSGSIZE, &maxmsg, sizeof maxmsg);
     if (zmq_bind(a->socket, config->listen) != 0) {
-        st = bg_error_set(err, BG_ERR_IO, "cannot bind %s: %s", config->listen,
-                          zmq_strerror(errno));
+        st =
+            bg_error_set(err, BG_ERR_IO, "cannot bind %s: %s", config->listen, zmq_strerror(errno));
         goto fail;
     }
     size_t len = sizeof a->endpoint;
     if (zmq_getsockopt(a->socket, ZMQ_LAST_ENDPOINT, a->endpoint, &len) != 0) {
-        st = bg_error_set(err, BG_ERR_IO, "cannot read the bound endpoint: %s",
-                          zmq_strerror(errno));
+        st =
+            bg_error_set(err, BG_ERR_IO, "cannot read the bound endpoint: %s", zmq_strerror(errno));
         goto fail;
     }
     *out = a;
@@ -101,8 +99,10 @@ static bg_status serve_one(bga_agent_t *a, bg_error_t *err)
     bga_frames_t reply;
     if (r.total > r.count) {
         bga_wire_error_t werr;
-        bga_wire_fail(&werr, BGA_WIRE_FRAME_COUNT, -1, "", "%d frames, no message type has "
-                      "more than %d", r.total, BGA_WIRE_MAX_FRAMES);
+        bga_wire_fail(&werr, BGA_WIRE_FRAME_COUNT, -1, "",
+                      "%d frames, no message type has "
+                      "more than %d",
+                      r.total, BGA_WIRE_MAX_FRAMES);
         st = bga_wire_error_reply(NULL, &werr, &reply, err);
     } else {
         st = bga_service_handle(a->service, views, r.count, bg_clock_now(), &reply, err);

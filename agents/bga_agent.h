@@ -27,9 +27,9 @@
 typedef struct bga_agent bga_agent_t;
 
 typedef struct bga_agent_config {
-    const char *listen;          /* e.g. tcp://127.0.0.1:0 (an ephemeral port) */
+    const char *listen; /* e.g. tcp://127.0.0.1:0 (an ephemeral port) */
     bga_service_config_t service;
-    int poll_ms;                 /* how often leases and the stop flag are checked */
+    int poll_ms; /* how often leases and the stop flag are checked */
 } bga_agent_config_t;
 
 /* Creates the job table and binds. Caller owns *out. */

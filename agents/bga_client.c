@@ -46,8 +46,8 @@ bg_status bga_client_new(const char *endpoint, const char *service, int timeout_
     /* A send never blocks longer than a reply may take. */
     zmq_setsockopt(c->socket, ZMQ_SNDTIMEO, &c->timeout_ms, sizeof c->timeout_ms);
     if (zmq_connect(c->socket, endpoint) != 0) {
-        st = bg_error_set(err, BG_ERR_IO, "agent %s (%s): cannot connect: %s", endpoint,
-                          c->service, zmq_strerror(errno));
+        st = bg_error_set(err, BG_ERR_IO, "agent %s (%s): cannot connect: %s", endpoint, c->service,
+                          zmq_strerror(errno));
         goto fail;
     }
     *out = c;
@@ -86,8 +86,8 @@ void bga_reply_close(bga_reply_t *rep)
 }
 
 /* Waits until `deadline` for a reply to `seq` (any reply when raw). */
-static bg_status await_reply(bga_client_t *c, uint64_t seq, int raw, uint16_t type,
-                             double t_sent, bga_reply_t *rep, bg_error_t *err)
+static bg_status await_reply(bga_client_t *c, uint64_t seq, int raw, uint16_t type, double t_sent,
+                             bga_reply_t *rep, bg_error_t *err)
 {
     const double deadline = t_sent + c->timeout_ms / 1000.0;
     for (;;) {
@@ -113,19 +113,18 @@ static bg_status await_reply(bga_client_t *c, uint64_t seq, int raw, uint16_t ty
         bga_frame_t views[BGA_WIRE_MAX_FRAMES + 1];
         bga_received_view(&rep->frames, views);
         bga_wire_error_t werr;
-        const bga_wire_code wc = rep->frames.total > rep->frames.count
-                                     ? BGA_WIRE_FRAME_COUNT
-                                     : bga_wire_decode(views, rep->frames.count, NULL, &rep->msg,
-                                                       &werr);
+        const bga_wire_code wc =
+            rep->frames.total > rep->frames.count
+                ? BGA_WIRE_FRAME_COUNT
+                : bga_wire_decode(views, rep->frames.count, NULL, &rep->msg, &werr);
         c->traffic.bytes_received += (int64_t)rep->frames.bytes;
         c->traffic.encode_seconds += bg_clock_now() - t_got;
         if (wc != BGA_WIRE_OK) {
             bga_received_close(&rep->frames);
             return bg_error_set(err, BG_ERR_PARSE, "agent %s (%s): malformed reply to %s: %s",
                                 c->endpoint, c->service, bga_type_name(type),
-                                wc == BGA_WIRE_FRAME_COUNT && rep->frames.total
-                                    ? "too many frames"
-                                    : werr.message);
+                                wc == BGA_WIRE_FRAME_COUNT && rep->frames.total ? "too many frames"
+                                                                                : werr.message);
         }
         if (raw || rep->msg.header.seq == seq) {
             c->traffic.wait_seconds += t_got - t_sent;
@@ -167,8 +166,8 @@ bg_status bga_client_collect(bga_client_t *c, bga_reply_t *rep, bg_error_t *err)
 {
     memset(rep, 0, sizeof *rep);
     if (!c->pending)
-        return bg_error_set(err, BG_ERR_INVALID, "agent %s (%s): nothing to collect",
-                            c->endpoint, c->service);
+        return bg_error_set(err, BG_ERR_INVALID, "agent %s (%s): nothing to collect", c->endpoint,
+                            c->service);
     c->pending = 0;
     return await_reply(c, c->pending_seq, 0, c->pending_type, c->pending_sent, rep, err);
 }
@@ -204,8 +203,8 @@ static void copy_text(char *dst, size_t cap, const bga_array_t *a)
 
 /* Turns an ERROR reply or a reply of the wrong type into a message that
  * names the agent, the service and the request. */
-static bg_status expect(bga_client_t *c, const bga_reply_t *rep, uint16_t req_type,
-                        uint16_t want, bg_error_t *err)
+static bg_status expect(bga_client_t *c, const bga_reply_t *rep, uint16_t req_type, uint16_t want,
+                        bg_error_t *err)
 {
     const bga_msg_t *m = &rep->msg;
     if (m->header.type == want)
@@ -214,8 +213,10 @@ static bg_status expect(bga_client_t *c, const bga_reply_t *rep, uint16_t req_ty
         char field[64], text[BG_ERROR_MESSAGE_MAX];
         copy_text(field, sizeof field, &m->array[BGA_ERR_FIELD]);
         copy_text(text, sizeof text, &m->array[BGA_ERR_MESSAGE]);
-        return bg_error_set(err, BG_ERR_INVALID, "agent %s (%s): %s refused: %s (frame %lld%s%s): "
-                            "%s", c->endpoint, c->service, bga_type_name(req_type),
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "agent %s (%s): %s refused: %s (frame %lld%s%s): "
+                            "%s",
+                            c->endpoint, c->service, bga_type_name(req_type),
                             bga_wire_code_name((bga_wire_code)m->field[BGA_ERR_CODE].i),
                             (long long)m->field[BGA_ERR_FRAME].i, field[0] ? ", " : "", field,
                             text);
@@ -300,11 +301,9 @@ bg_status bga_client_rotfit_setup(bga_client_t *c, uint64_t job, const bga_parti
     m.array[BGA_RS_ELEMENTS] = (bga_array_t){p->elements, (size_t)p->ne * k};
     m.array[BGA_RS_LOCAL_TO_GLOBAL] = (bga_array_t){p->local_to_global, (size_t)p->nv};
     if (p->rest_positions)
-        m.array[BGA_RS_REST_POSITIONS] =
-            (bga_array_t){p->rest_positions, (size_t)p->nv * p->dim};
+        m.array[BGA_RS_REST_POSITIONS] = (bga_array_t){p->rest_positions, (size_t)p->nv * p->dim};
     if (p->rest_edges)
-        m.array[BGA_RS_REST_EDGES] =
-            (bga_array_t){p->rest_edges, (size_t)p->ne * p->dim * p->dim};
+        m.array[BGA_RS_REST_EDGES] = (bga_array_t){p->rest_edges, (size_t)p->ne * p->dim * p->dim};
     if (p->scatter)
         m.array[BGA_RS_SCATTER] =
             (bga_array_t){p->scatter, (size_t)p->ne * (size_t)m.field[BGA_RS_BLOCK].i};
@@ -344,8 +343,8 @@ bg_status bga_client_rotfit_finish(bga_client_t *c, bga_rotfit_out_t *out, bg_er
     c->traffic.agent_seconds += out->agent_seconds;
     const double t0 = bg_clock_now();
     if (want & BGA_WANT_GRADIENT)
-        st = take_f64(c, &rep, BGA_RR_GRADIENT, out->gradient, out->gradient_count, "gradient",
-                      err);
+        st =
+            take_f64(c, &rep, BGA_RR_GRADIENT, out->gradient, out->gradient_count, "gradient", err);
     if (st == BG_OK && (want & BGA_WANT_HESSIAN))
         st = take_f64(c, &rep, BGA_RR_HESSIAN, out->hessian, out->hessian_count, "Hessian", err);
     c->traffic.encode_seconds += bg_clock_now() - t0;
@@ -373,8 +372,8 @@ bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const
     return simple(c, &m, err);
 }
 
-bg_status bga_client_solve_factor(bga_client_t *c, uint64_t job, const double *values,
-                                  size_t nnz, double shift, int *posdef, bg_error_t *err)
+bg_status bga_client_solve_factor(bga_client_t *c, uint64_t job, const double *values, size_t nnz,
+                                  double shift, int *posdef, bg_error_t *err)
 {
     bga_msg_t m;
     bga_reply_t rep;
@@ -391,8 +390,8 @@ bg_status bga_client_solve_factor(bga_client_t *c, uint64_t job, const double *v
     return BG_OK;
 }
 
-bg_status bga_client_solve(bga_client_t *c, uint64_t job, const double *rhs, int32_t n,
-                           int nrhs, double *x, bg_error_t *err)
+bg_status bga_client_solve(bga_client_t *c, uint64_t job, const double *rhs, int32_t n, int nrhs,
+                           double *x, bg_error_t *err)
 {
     bga_msg_t m;
     bga_reply_t rep;

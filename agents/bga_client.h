@@ -27,9 +27,9 @@ typedef struct bga_client bga_client_t;
 typedef struct bga_traffic {
     int64_t requests;
     int64_t bytes_sent, bytes_received;
-    double encode_seconds;  /* encoding requests and decoding replies */
-    double wait_seconds;    /* from the send to the reply (transit + agent compute) */
-    double agent_seconds;   /* compute time the agents reported */
+    double encode_seconds; /* encoding requests and decoding replies */
+    double wait_seconds;   /* from the send to the reply (transit + agent compute) */
+    double agent_seconds;  /* compute time the agents reported */
 } bga_traffic_t;
 
 /* A decoded reply; msg points into the received frames until closed. */
@@ -101,8 +101,8 @@ bg_status bga_client_rotfit_setup(bga_client_t *c, uint64_t job, const bga_parti
 
 typedef struct bga_rotfit_out {
     double energy;
-    double *gradient;   /* nv*dim, filled when want has BGA_WANT_GRADIENT */
-    double *hessian;    /* nval (or ne*T), filled when want has BGA_WANT_HESSIAN */
+    double *gradient; /* nv*dim, filled when want has BGA_WANT_GRADIENT */
+    double *hessian;  /* nval (or ne*T), filled when want has BGA_WANT_HESSIAN */
     size_t gradient_count, hessian_count; /* capacities of the two */
     bg_rotfit_stats_t fits;
     double agent_seconds;
@@ -120,11 +120,11 @@ bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const
                                  const int32_t *rowidx, int64_t lease_ms, bg_error_t *err);
 /* *posdef = 0 when the matrix (plus shift·I) is not positive definite:
  * the caller may retry with a larger shift. */
-bg_status bga_client_solve_factor(bga_client_t *c, uint64_t job, const double *values,
-                                  size_t nnz, double shift, int *posdef, bg_error_t *err);
+bg_status bga_client_solve_factor(bga_client_t *c, uint64_t job, const double *values, size_t nnz,
+                                  double shift, int *posdef, bg_error_t *err);
 /* x = A⁻¹ rhs for nrhs right-hand sides of n values each (column blocks). */
-bg_status bga_client_solve(bga_client_t *c, uint64_t job, const double *rhs, int32_t n,
-                           int nrhs, double *x, bg_error_t *err);
+bg_status bga_client_solve(bga_client_t *c, uint64_t job, const double *rhs, int32_t n, int nrhs,
+                           double *x, bg_error_t *err);
 bg_status bga_client_release(bga_client_t *c, uint64_t job, bg_error_t *err);
 
 #endif

@@ -8,8 +8,8 @@
 typedef struct part {
     bga_client_t *client;
     int32_t nv, ne, nval;
-    int32_t *local_to_global;  /* nv */
-    int32_t *to_global;        /* nval: global value position of each local value */
+    int32_t *local_to_global; /* nv */
+    int32_t *to_global;       /* nval: global value position of each local value */
     double *q, *grad, *hess;
 } part;
 
@@ -49,8 +49,7 @@ static bg_status make_part(const bga_pool_config_t *cfg, int32_t e0, int32_t e1,
     p->to_global = cfg->scatter ? malloc((size_t)p->ne * T * sizeof *p->to_global + 1) : NULL;
     if (!g2l || !*elements || !p->local_to_global ||
         (cfg->scatter && (!v2l || !*scatter || !p->to_global))) {
-        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory partitioning %d elements",
-                          (int)p->ne);
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory partitioning %d elements", (int)p->ne);
         goto out;
     }
     for (int32_t v = 0; v < mesh->nv; v++)
@@ -180,7 +179,8 @@ bg_status bga_rotfit_pool_eval(bga_rotfit_pool_t *pool, const double *q, double 
                                double *grad, double *values, int project, bg_error_t *err)
 {
     if (values && !pool->has_hessian)
-        return bg_error_set(err, BG_ERR_INVALID, "this rotation-fit pool has no Hessian "
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "this rotation-fit pool has no Hessian "
                             "scatter map");
     const int dim = pool->dim;
     const unsigned want = (grad ? BGA_WANT_GRADIENT : 0u) |
@@ -201,8 +201,8 @@ bg_status bga_rotfit_pool_eval(bga_rotfit_pool_t *pool, const double *q, double 
         memset(grad, 0, pool->ndof * sizeof *grad); /* vertices in no element stay 0 */
     for (int i = 0; i < started; i++) {
         part *p = &pool->parts[i];
-        bga_rotfit_out_t out = {0, p->grad, p->hess, (size_t)p->nv * dim, (size_t)p->nval,
-                                {0, 0, 0, 0}, 0};
+        bga_rotfit_out_t out = {
+            0, p->grad, p->hess, (size_t)p->nv * dim, (size_t)p->nval, {0, 0, 0, 0}, 0};
         /* Every started request is collected, even after a failure, so
          * no client is left with a request in flight. */
         bg_error_t e = BG_ERROR_INIT;

@@ -28,13 +28,13 @@
 typedef struct bga_rotfit_pool bga_rotfit_pool_t;
 
 typedef struct bga_pool_config {
-    const bg_mesh_t *mesh;          /* validated planar or volume rest mesh; read during _new */
+    const bg_mesh_t *mesh; /* validated planar or volume rest mesh; read during _new */
     double mu, lambda, barrier;
-    const int32_t *scatter;         /* ne*T global positions (−1: skipped), or NULL: no Hessian */
-    size_t nval;                    /* entries of the caller's value array */
-    const char *const *endpoints;   /* nagents rotation-fit agents */
+    const int32_t *scatter;       /* ne*T global positions (−1: skipped), or NULL: no Hessian */
+    size_t nval;                  /* entries of the caller's value array */
+    const char *const *endpoints; /* nagents rotation-fit agents */
     int nagents;
-    uint64_t job;                   /* job id used on every agent */
+    uint64_t job; /* job id used on every agent */
     int timeout_ms;
     int64_t lease_ms;
 } bga_pool_config_t;

@@ -18,12 +18,12 @@ typedef struct job {
     /* rotation-fit */
     bg_mesh_t *mesh;
     bg_elastic_t *model;
-    int32_t *scatter;     /* ne*T into hess, identity when the set-up sent none */
+    int32_t *scatter; /* ne*T into hess, identity when the set-up sent none */
     size_t nhess;
     double *q, *grad, *hess;
     /* sparse-solve */
     bg_sparse_t *sys;
-    int factored;         /* the last factorization succeeded */
+    int factored; /* the last factorization succeeded */
     double *x;
     /* integration step */
     int idim;
@@ -87,8 +87,7 @@ static void free_job_if_empty(job *j)
         free_job(j);
 }
 
-bg_status bga_service_new(const bga_service_config_t *config, bga_service_t **out,
-                          bg_error_t *err)
+bg_status bga_service_new(const bga_service_config_t *config, bga_service_t **out, bg_error_t *err)
 {
     *out = NULL;
     if (config->slots < 1 || config->slots > (1 << 20))
@@ -168,8 +167,10 @@ unsigned bga_service_parse_list(const char *list, bg_error_t *err)
         else if (len == 5 && strncmp(p, "integ", 5) == 0)
             bits |= BGA_SERVICE_INTEG;
         else {
-            bg_error_set(err, BG_ERR_INVALID, "unknown service '%.*s' (known: rotfit, solve, "
-                         "integ, all)", (int)len, p);
+            bg_error_set(err, BG_ERR_INVALID,
+                         "unknown service '%.*s' (known: rotfit, solve, "
+                         "integ, all)",
+                         (int)len, p);
             return 0;
         }
         if (!end)
@@ -190,8 +191,7 @@ static job *find_job(bga_service_t *svc, uint64_t id)
 }
 
 /* The job named by a set-up, created in a free slot if new. */
-static bga_wire_code claim_job(bga_service_t *svc, uint64_t id, job **out,
-                               bga_wire_error_t *werr)
+static bga_wire_code claim_job(bga_service_t *svc, uint64_t id, job **out, bga_wire_error_t *werr)
 {
     if (id == 0)
         return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 0, "job",
@@ -201,9 +201,8 @@ static bga_wire_code claim_job(bga_service_t *svc, uint64_t id, job **out,
         return BGA_WIRE_OK;
     *out = find_job(svc, 0);
     if (!*out)
-        return bga_wire_fail(werr, BGA_WIRE_BUSY, 0, "job",
-                             "no free slot: %d of %d jobs held", svc->config.slots,
-                             svc->config.slots);
+        return bga_wire_fail(werr, BGA_WIRE_BUSY, 0, "job", "no free slot: %d of %d jobs held",
+                             svc->config.slots, svc->config.slots);
     (*out)->id = id;
     return BGA_WIRE_OK;
 }
@@ -237,8 +236,8 @@ static bga_wire_code need_service(const bga_service_t *svc, unsigned bit, const 
 {
     if (svc->config.services & bit)
         return BGA_WIRE_OK;
-    return bga_wire_fail(werr, BGA_WIRE_UNEXPECTED, 0, "type",
-                         "this agent does not serve %s", what);
+    return bga_wire_fail(werr, BGA_WIRE_UNEXPECTED, 0, "type", "this agent does not serve %s",
+                         what);
 }
 
 /* A call on a job that never set up this service here. */
@@ -256,99 +255,107 @@ static void reply_ack(bga_msg_t *rep, const bga_msg_t *req)
     rep->field[BGA_ACK_TYPE].i = req->header.type;
 }
 
+/* det D of a dim×dim row-major matrix (dim 2 or 3). */
+static double det_small(int dim, const double *D)
+{
+    if (dim == 2)
+        return D[0] * D[3] - D[1] * D[2];
+    return D[0] * (D[4] * D[8] - D[5] * D[7]) - D[1] * (D[3] * D[8] - D[5] * D[6]) +
+           D[2] * (D[3] * D[7] - D[4] * D[6]);
+}
+
 static bga_wire_code rotfit_setup(bga_service_t *svc, const bga_msg_t *m, double now,
                                   bga_msg_t *rep, bga_wire_error_t *werr)
 {
     job *j;
-    const bga_wire_code wc = begin_setup(svc, m, now, m->field[BGA_RS_LEASE_MS].i, free_rotfit, &j, werr);
+    bga_wire_code wc = begin_setup(svc, m, now, m->field[BGA_RS_LEASE_MS].i, free_rotfit, &j, werr);
     if (wc != BGA_WIRE_OK)
         return wc;
-    const int dim = (int)m->field[BGA_RS_DIM].i, k = (int)m->field[BGA_RS_NODES].i;
+    const int dim = (int)m->field[BGA_RS_DIM].i;
     const int32_t nv = (int32_t)m->field[BGA_RS_NV].i, ne = (int32_t)m->field[BGA_RS_NE].i;
     const int T = (int)m->field[BGA_RS_BLOCK].i;
+    const size_t nsc = (size_t)ne * (size_t)T;
+    double *edges = NULL;
+    bg_error_t e = BG_ERROR_INIT;
+    bg_status st = BG_OK;
     /* Per-element blocks must fit one reply frame: otherwise the set-up
      * would allocate for replies that can never be sent. */
-    if (m->field[BGA_RS_NVAL].i == 0 &&
-        (size_t)ne * (size_t)T * sizeof(double) > svc->config.limits.max_frame_bytes) {
-        free_job_if_empty(j);
-        return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 1, "values",
-                             "%d elements' Hessian blocks (%zu bytes) exceed the %zu-byte frame "
-                             "cap: send a scatter map", (int)ne,
-                             (size_t)ne * (size_t)T * sizeof(double),
-                             svc->config.limits.max_frame_bytes);
+    if (m->field[BGA_RS_NVAL].i == 0 && nsc * sizeof(double) > svc->config.limits.max_frame_bytes) {
+        wc = bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 1, "values",
+                           "%d elements' Hessian blocks (%zu bytes) exceed the %zu-byte frame "
+                           "cap: send a scatter map",
+                           (int)ne, nsc * sizeof(double), svc->config.limits.max_frame_bytes);
+        goto fail;
     }
-    bg_error_t e = BG_ERROR_INIT;
-    if (bg_mesh_new(dim == 2 ? BG_MESH_PLANAR : BG_MESH_VOLUME, nv, ne, &j->mesh, &e) != BG_OK)
-        goto internal;
+    if ((st = bg_mesh_new(dim == 2 ? BG_MESH_PLANAR : BG_MESH_VOLUME, nv, ne, &j->mesh, &e)) !=
+        BG_OK)
+        goto fail;
     bga_msg_copy_i32(m, BGA_RS_ELEMENTS, j->mesh->elements);
-    bg_status st;
     if (m->array[BGA_RS_REST_POSITIONS].count > 0) {
         bga_msg_copy_f64(m, BGA_RS_REST_POSITIONS, j->mesh->x);
         int32_t reoriented = 0;
         if (bg_mesh_validate(j->mesh, "partition", &reoriented, &e) != BG_OK) {
-            free_rotfit(j);
-            free_job_if_empty(j);
-            return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 2 + BGA_RS_ELEMENTS, "elements",
-                                 "%s", e.message);
+            wc = bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 2 + BGA_RS_ELEMENTS, "elements", "%s",
+                               e.message);
+            goto fail;
         }
         if (reoriented > 0) {
-            free_rotfit(j);
-            free_job_if_empty(j);
-            return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 2 + BGA_RS_ELEMENTS, "elements",
-                                 "%d elements are negatively oriented: the coordinator sends "
-                                 "validated, positively oriented elements", (int)reoriented);
+            wc = bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 2 + BGA_RS_ELEMENTS, "elements",
+                               "%d elements are negatively oriented: the coordinator sends "
+                               "validated, positively oriented elements",
+                               (int)reoriented);
+            goto fail;
         }
-        st = bg_elastic_new(j->mesh, m->field[BGA_RS_MU].f, m->field[BGA_RS_LAMBDA].f,
-                            &j->model, &e);
+        st = bg_elastic_new(j->mesh, m->field[BGA_RS_MU].f, m->field[BGA_RS_LAMBDA].f, &j->model,
+                            &e);
     } else {
-        const size_t n = m->array[BGA_RS_REST_EDGES].count;
-        double *edges = malloc(n * sizeof *edges + 1);
-        if (!edges)
-            goto internal;
+        edges = malloc(m->array[BGA_RS_REST_EDGES].count * sizeof *edges + 1);
+        if (!edges) {
+            st = BG_ERR_NOMEM;
+            goto fail;
+        }
         bga_msg_copy_f64(m, BGA_RS_REST_EDGES, edges);
         for (int32_t el = 0; el < ne; el++) {
-            const double *D = edges + (size_t)el * dim * dim;
-            const double det = dim == 2 ? D[0] * D[3] - D[1] * D[2]
-                                        : D[0] * (D[4] * D[8] - D[5] * D[7]) -
-                                              D[1] * (D[3] * D[8] - D[5] * D[6]) +
-                                              D[2] * (D[3] * D[7] - D[4] * D[6]);
+            const double det = det_small(dim, edges + (size_t)el * dim * dim);
             if (!(det > 0.0) || !isfinite(1.0 / det)) {
-                free(edges);
-                free_rotfit(j);
-                free_job_if_empty(j);
-                return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 2 + BGA_RS_REST_EDGES,
-                                     "rest_edges", "element %d: rest edge matrix has "
-                                     "determinant %g, must be positive", (int)el, det);
+                wc = bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 2 + BGA_RS_REST_EDGES, "rest_edges",
+                                   "element %d: rest edge matrix has determinant "
+                                   "%g, must be positive",
+                                   (int)el, det);
+                goto fail;
             }
         }
         st = bg_elastic_new_from_rest(j->mesh, dim, edges, m->field[BGA_RS_MU].f,
                                       m->field[BGA_RS_LAMBDA].f, &j->model, &e);
-        free(edges);
     }
     if (st != BG_OK)
-        goto internal;
+        goto fail;
     bg_elastic_set_barrier(j->model, m->field[BGA_RS_BARRIER].f);
-    const size_t nsc = (size_t)ne * (size_t)T;
     j->scatter = malloc(nsc * sizeof *j->scatter + 1);
     j->nhess = m->field[BGA_RS_NVAL].i > 0 ? (size_t)m->field[BGA_RS_NVAL].i : nsc;
     j->hess = malloc(j->nhess * sizeof *j->hess + 1);
     j->q = malloc((size_t)nv * dim * sizeof *j->q + 1);
     j->grad = malloc((size_t)nv * dim * sizeof *j->grad + 1);
-    if (!j->scatter || !j->hess || !j->q || !j->grad)
-        goto internal;
+    if (!j->scatter || !j->hess || !j->q || !j->grad) {
+        st = BG_ERR_NOMEM;
+        goto fail;
+    }
     if (m->array[BGA_RS_SCATTER].count > 0)
         bga_msg_copy_i32(m, BGA_RS_SCATTER, j->scatter);
     else
         for (size_t i = 0; i < nsc; i++)
             j->scatter[i] = (int32_t)i;
-    (void)k;
+    free(edges);
     reply_ack(rep, m);
     return BGA_WIRE_OK;
-internal:
+fail:
+    if (wc == BGA_WIRE_OK) /* a library failure, not the request's */
+        wc = bga_wire_fail(werr, BGA_WIRE_INTERNAL, -1, "", "rotation-fit set-up: %s",
+                           e.message[0] ? e.message : bg_strerror(st));
+    free(edges);
     free_rotfit(j);
     free_job_if_empty(j);
-    return bga_wire_fail(werr, BGA_WIRE_INTERNAL, -1, "", "rotation-fit set-up: %s",
-                         e.message[0] ? e.message : "out of memory");
+    return wc;
 }
 
 static bga_wire_code rotfit_call(job *j, const bga_msg_t *m, bga_msg_t *rep,
@@ -366,8 +373,8 @@ static bga_wire_code rotfit_call(job *j, const bga_msg_t *m, bga_msg_t *rep,
     const int64_t want = m->field[BGA_RC_WANT].i;
     const double t0 = bg_clock_now();
     bg_elastic_reset_stats(j->model);
-    const double energy = bg_elastic_eval(j->model, j->q, (want & BGA_WANT_GRADIENT) ? j->grad
-                                                                                      : NULL);
+    const double energy =
+        bg_elastic_eval(j->model, j->q, (want & BGA_WANT_GRADIENT) ? j->grad : NULL);
     if (want & BGA_WANT_HESSIAN) {
         memset(j->hess, 0, j->nhess * sizeof *j->hess);
         bg_elastic_assemble_hessian(j->model, j->q, (want & BGA_WANT_PROJECTED) != 0, 1.0,
@@ -396,11 +403,12 @@ static bga_wire_code rotfit_call(job *j, const bga_msg_t *m, bga_msg_t *rep,
     return BGA_WIRE_OK;
 }
 
-static bga_wire_code solve_setup(bga_service_t *svc, const bga_msg_t *m, double now,
-                                 bga_msg_t *rep, bga_wire_error_t *werr)
+static bga_wire_code solve_setup(bga_service_t *svc, const bga_msg_t *m, double now, bga_msg_t *rep,
+                                 bga_wire_error_t *werr)
 {
     job *j;
-    const bga_wire_code wc = begin_setup(svc, m, now, m->field[BGA_SS_LEASE_MS].i, free_solve, &j, werr);
+    const bga_wire_code wc =
+        begin_setup(svc, m, now, m->field[BGA_SS_LEASE_MS].i, free_solve, &j, werr);
     if (wc != BGA_WIRE_OK)
         return wc;
     const int32_t n = (int32_t)m->field[BGA_SS_N].i;
@@ -424,8 +432,7 @@ static bga_wire_code solve_setup(bga_service_t *svc, const bga_msg_t *m, double 
     if (st != BG_OK) {
         free_solve(j);
         free_job_if_empty(j);
-        return bga_wire_fail(werr, st == BG_ERR_INVALID ? BGA_WIRE_INCONSISTENT
-                                                        : BGA_WIRE_INTERNAL,
+        return bga_wire_fail(werr, st == BG_ERR_INVALID ? BGA_WIRE_INCONSISTENT : BGA_WIRE_INTERNAL,
                              2 + BGA_SS_ROWIDX, "rowidx", "sparse-solve set-up: %s",
                              e.message[0] ? e.message : "out of memory");
     }
@@ -459,8 +466,8 @@ static bga_wire_code solve_factor(job *j, const bga_msg_t *m, bga_msg_t *rep, ch
     rep->field[BGA_SD_ANALYZE_SECONDS].f = t1.analyze_seconds - t0.analyze_seconds;
     rep->field[BGA_SD_FACTOR_SECONDS].f = t1.factor_seconds - t0.factor_seconds;
     rep->field[BGA_SD_FLOPS].f = bg_sparse_factor_flops(j->sys);
-    stats->compute_seconds += rep->field[BGA_SD_ANALYZE_SECONDS].f +
-                              rep->field[BGA_SD_FACTOR_SECONDS].f;
+    stats->compute_seconds +=
+        rep->field[BGA_SD_ANALYZE_SECONDS].f + rep->field[BGA_SD_FACTOR_SECONDS].f;
     if (!j->factored) {
         snprintf(text, text_cap, "%s", e.message);
         rep->array[BGA_SD_MESSAGE].data = text;
@@ -488,8 +495,10 @@ static bga_wire_code solve_rhs(job *j, const bga_msg_t *m, bga_msg_t *rep,
     if (nrhs > 1) {
         double *grown = realloc(j->x, n * nrhs * sizeof *grown);
         if (!grown)
-            return bga_wire_fail(werr, BGA_WIRE_INTERNAL, -1, "", "out of memory for %zu "
-                                 "solutions", nrhs);
+            return bga_wire_fail(werr, BGA_WIRE_INTERNAL, -1, "",
+                                 "out of memory for %zu "
+                                 "solutions",
+                                 nrhs);
         j->x = grown;
     }
     bga_msg_copy_f64(m, BGA_SR_RHS, j->x);
@@ -508,11 +517,12 @@ static bga_wire_code solve_rhs(job *j, const bga_msg_t *m, bga_msg_t *rep,
     return BGA_WIRE_OK;
 }
 
-static bga_wire_code integ_setup(bga_service_t *svc, const bga_msg_t *m, double now,
-                                 bga_msg_t *rep, bga_wire_error_t *werr)
+static bga_wire_code integ_setup(bga_service_t *svc, const bga_msg_t *m, double now, bga_msg_t *rep,
+                                 bga_wire_error_t *werr)
 {
     job *j;
-    const bga_wire_code wc = begin_setup(svc, m, now, m->field[BGA_IS_LEASE_MS].i, free_integ, &j, werr);
+    const bga_wire_code wc =
+        begin_setup(svc, m, now, m->field[BGA_IS_LEASE_MS].i, free_integ, &j, werr);
     if (wc != BGA_WIRE_OK)
         return wc;
     j->idim = (int)m->field[BGA_IS_DIM].i;
@@ -527,8 +537,10 @@ static bga_wire_code integ_setup(bga_service_t *svc, const bga_msg_t *m, double 
     if (!j->mass || !j->iq || !j->ip || !j->scratch) {
         free_integ(j);
         free_job_if_empty(j);
-        return bga_wire_fail(werr, BGA_WIRE_INTERNAL, -1, "", "out of memory for the "
-                             "integrator state of %d vertices", (int)m->field[BGA_IS_NV].i);
+        return bga_wire_fail(werr, BGA_WIRE_INTERNAL, -1, "",
+                             "out of memory for the "
+                             "integrator state of %d vertices",
+                             (int)m->field[BGA_IS_NV].i);
     }
     bga_msg_copy_f64(m, BGA_IS_MASS, j->mass);
     bga_msg_copy_f64(m, BGA_IS_Q, j->iq);
@@ -600,9 +612,8 @@ static void reply_heartbeat(const bga_service_t *svc, const bga_msg_t *m, bga_ms
 }
 
 /* A decoded request → *rep, or an error code in werr. */
-static bga_wire_code dispatch(bga_service_t *svc, const bga_msg_t *m, double now,
-                              bga_msg_t *rep, char *text, size_t text_cap,
-                              bga_wire_error_t *werr)
+static bga_wire_code dispatch(bga_service_t *svc, const bga_msg_t *m, double now, bga_msg_t *rep,
+                              char *text, size_t text_cap, bga_wire_error_t *werr)
 {
     const uint16_t type = m->header.type;
     bga_wire_code wc;
@@ -641,8 +652,8 @@ static bga_wire_code dispatch(bga_service_t *svc, const bga_msg_t *m, double now
     if (!j)
         return bga_wire_fail(werr, BGA_WIRE_NO_JOB, 0, "job",
                              "%s: this agent holds no state for job %llu (never set up, "
-                             "released, or its lease expired)", bga_type_name(type),
-                             (unsigned long long)m->header.job);
+                             "released, or its lease expired)",
+                             bga_type_name(type), (unsigned long long)m->header.job);
     renew(j, now, 0);
     switch (type) {
     case BGA_RELEASE:
@@ -663,8 +674,8 @@ static bga_wire_code dispatch(bga_service_t *svc, const bga_msg_t *m, double now
     }
 }
 
-bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int nframes,
-                             double now, bga_frames_t *reply, bg_error_t *err)
+bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int nframes, double now,
+                             bga_frames_t *reply, bg_error_t *err)
 {
     memset(reply, 0, sizeof *reply);
     svc->stats.requests++;

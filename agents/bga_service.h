@@ -37,10 +37,10 @@
 typedef struct bga_service bga_service_t;
 
 typedef struct bga_service_config {
-    int slots;             /* jobs held at once, ≥ 1 */
-    unsigned services;     /* BGA_SERVICE_* bits served */
-    const char *name;      /* reported in heartbeats (copied), may be NULL */
-    bga_limits_t limits;   /* decoding caps */
+    int slots;           /* jobs held at once, ≥ 1 */
+    unsigned services;   /* BGA_SERVICE_* bits served */
+    const char *name;    /* reported in heartbeats (copied), may be NULL */
+    bga_limits_t limits; /* decoding caps */
 } bga_service_config_t;
 
 typedef struct bga_service_stats {
@@ -49,8 +49,7 @@ typedef struct bga_service_stats {
 } bga_service_stats_t;
 
 /* Caller owns *out. */
-bg_status bga_service_new(const bga_service_config_t *config, bga_service_t **out,
-                          bg_error_t *err);
+bg_status bga_service_new(const bga_service_config_t *config, bga_service_t **out, bg_error_t *err);
 void bga_service_destroy(bga_service_t **svc);
 
 /*
@@ -58,8 +57,8 @@ void bga_service_destroy(bga_service_t **svc);
  * (seconds) and fills *reply (caller frees with bga_frames_free).
  * Returns BG_OK, or BG_ERR_NOMEM when no reply could be built.
  */
-bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int nframes,
-                             double now, bga_frames_t *reply, bg_error_t *err);
+bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int nframes, double now,
+                             bga_frames_t *reply, bg_error_t *err);
 
 /* Frees every job whose lease ran out before `now`; returns how many. */
 int bga_service_expire(bga_service_t *svc, double now);

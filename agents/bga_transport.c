@@ -58,8 +58,7 @@ bg_status bga_recv(void *socket, int envelope, bga_received_t *r, bg_error_t *er
             const int e = errno;
             zmq_msg_close(m);
             bga_received_close(r);
-            return bg_error_set(err, BG_ERR_IO, "receive failed mid-message: %s",
-                                zmq_strerror(e));
+            return bg_error_set(err, BG_ERR_IO, "receive failed mid-message: %s", zmq_strerror(e));
         }
         r->bytes += zmq_msg_size(m);
         r->total++;
@@ -81,8 +80,7 @@ void bga_received_view(const bga_received_t *r, bga_frame_t *views)
     }
 }
 
-static bg_status send_part(void *socket, const void *data, size_t size, int more,
-                           bg_error_t *err)
+static bg_status send_part(void *socket, const void *data, size_t size, int more, bg_error_t *err)
 {
     int rc;
     do

@@ -16,12 +16,12 @@
  * more than any schema has, so an oversized count still decodes to a
  * frame-count error), the total part count is recorded. */
 typedef struct bga_received {
-    int envelope;                        /* routing-id frames kept apart (0 or 1) */
+    int envelope; /* routing-id frames kept apart (0 or 1) */
     zmq_msg_t route;
-    int count;                           /* frames kept in part[] */
-    int total;                           /* parts received after the envelope */
+    int count; /* frames kept in part[] */
+    int total; /* parts received after the envelope */
     zmq_msg_t part[BGA_WIRE_MAX_FRAMES + 1];
-    size_t bytes;                        /* all parts */
+    size_t bytes; /* all parts */
 } bga_received_t;
 
 /*

@@ -50,33 +50,52 @@ typedef struct schema {
     check_fn check;
 } schema;
 
-#define I64F(n, lo, hi) {n, KIND_I64, (double)(lo), (double)(hi), 0}
-#define F64F(n, lo, hi) {n, KIND_F64, lo, hi, 0}
-#define F64ANY(n) {n, KIND_F64, -INFINITY, INFINITY, 1}
+#define I64F(n, lo, hi)                                                                            \
+    {                                                                                              \
+        n, KIND_I64, (double)(lo), (double)(hi), 0                                                 \
+    }
+#define F64F(n, lo, hi)                                                                            \
+    {                                                                                              \
+        n, KIND_F64, lo, hi, 0                                                                     \
+    }
+#define F64ANY(n)                                                                                  \
+    {                                                                                              \
+        n, KIND_F64, -INFINITY, INFINITY, 1                                                        \
+    }
 #define LEASE_MAX_MS 86400000
 #define FREE_LEN 0, -1, -1, -1, 0
 #define NO_IDX 0, -1, 0
-#define TEXT(n, opt) {n, BGA_ELEM_BYTES, opt, FREE_LEN, 0, NO_IDX}
-#define F64FREE(n, fin) {n, BGA_ELEM_F64, 0, FREE_LEN, fin, NO_IDX}
+#define TEXT(n, opt)                                                                               \
+    {                                                                                              \
+        n, BGA_ELEM_BYTES, opt, FREE_LEN, 0, NO_IDX                                                \
+    }
+#define F64FREE(n, fin)                                                                            \
+    {                                                                                              \
+        n, BGA_ELEM_F64, 0, FREE_LEN, fin, NO_IDX                                                  \
+    }
 
-static const field_spec hb_fields[] = {
-    I64F("slots", 0, 1 << 20), I64F("free_slots", 0, 1 << 20), I64F("services", 0, 7),
-    I64F("jobs", 0, 1 << 20)};
+static const field_spec hb_fields[] = {I64F("slots", 0, 1 << 20), I64F("free_slots", 0, 1 << 20),
+                                       I64F("services", 0, 7), I64F("jobs", 0, 1 << 20)};
 static const array_spec hb_arrays[] = {TEXT("name", 1)};
 
-static const field_spec err_fields[] = {
-    I64F("code", 0, 255), I64F("frame", -1, BGA_WIRE_MAX_FRAMES), I64F("type", 0, 65535),
-    I64F("seq", INT64_MIN, INT64_MAX)};
+static const field_spec err_fields[] = {I64F("code", 0, 255),
+                                        I64F("frame", -1, BGA_WIRE_MAX_FRAMES),
+                                        I64F("type", 0, 65535), I64F("seq", INT64_MIN, INT64_MAX)};
 static const array_spec err_arrays[] = {TEXT("field", 1), TEXT("message", 0)};
 
 static const field_spec ack_fields[] = {I64F("type", 0, 65535)};
 
-static const field_spec rs_fields[] = {
-    I64F("dim", 2, 3), I64F("nodes_per_element", 3, 4),
-    I64F("vertices", 1, BG_MESH_MAX_VERTICES), I64F("elements", 1, BG_MESH_MAX_ELEMENTS),
-    I64F("global_vertices", 1, BG_MESH_MAX_VERTICES), F64F("mu", 0.0, 1e300),
-    F64F("lambda", -1e300, 1e300), F64F("barrier", 0.0, 1e300), I64F("block", 0, 78),
-    I64F("values", 0, INT32_MAX), I64F("lease_ms", 0, LEASE_MAX_MS)};
+static const field_spec rs_fields[] = {I64F("dim", 2, 3),
+                                       I64F("nodes_per_element", 3, 4),
+                                       I64F("vertices", 1, BG_MESH_MAX_VERTICES),
+                                       I64F("elements", 1, BG_MESH_MAX_ELEMENTS),
+                                       I64F("global_vertices", 1, BG_MESH_MAX_VERTICES),
+                                       F64F("mu", 0.0, 1e300),
+                                       F64F("lambda", -1e300, 1e300),
+                                       F64F("barrier", 0.0, 1e300),
+                                       I64F("block", 0, 78),
+                                       I64F("values", 0, INT32_MAX),
+                                       I64F("lease_ms", 0, LEASE_MAX_MS)};
 static const array_spec rs_arrays[] = {
     {"elements", BGA_ELEM_I32, 0, 1, BGA_RS_NE, BGA_RS_NODES, -1, 0, 0, 0, BGA_RS_NV, 0},
     {"local_to_global", BGA_ELEM_I32, 0, 1, BGA_RS_NV, -1, -1, 0, 0, 0, BGA_RS_NGLOBAL, 0},
@@ -87,9 +106,9 @@ static const array_spec rs_arrays[] = {
 static const field_spec rc_fields[] = {I64F("want", 0, 7)};
 static const array_spec rc_arrays[] = {F64FREE("positions", 1)};
 
-static const field_spec rr_fields[] = {
-    F64ANY("energy"), I64F("fits", 0, INT64_MAX), I64F("warm", 0, INT64_MAX),
-    I64F("polar", 0, INT64_MAX), I64F("svd", 0, INT64_MAX), F64F("seconds", 0.0, 1e300)};
+static const field_spec rr_fields[] = {F64ANY("energy"),           I64F("fits", 0, INT64_MAX),
+                                       I64F("warm", 0, INT64_MAX), I64F("polar", 0, INT64_MAX),
+                                       I64F("svd", 0, INT64_MAX),  F64F("seconds", 0.0, 1e300)};
 static const array_spec rr_arrays[] = {F64FREE("gradient", 0), F64FREE("hessian", 0)};
 
 static const field_spec ss_fields[] = {I64F("n", 1, INT32_MAX - 1), I64F("nnz", 1, INT32_MAX),
@@ -102,8 +121,8 @@ static const field_spec sf_fields[] = {F64F("shift", 0.0, 1e300)};
 static const array_spec sf_arrays[] = {F64FREE("values", 1)};
 
 static const field_spec sd_fields[] = {
-    I64F("positive_definite", 0, 1), F64F("analyze_seconds", 0.0, 1e300), F64F("factor_seconds", 0.0, 1e300),
-    F64F("flops", 0.0, 1e300)};
+    I64F("positive_definite", 0, 1), F64F("analyze_seconds", 0.0, 1e300),
+    F64F("factor_seconds", 0.0, 1e300), F64F("flops", 0.0, 1e300)};
 static const array_spec sd_arrays[] = {TEXT("message", 1)};
 
 static const field_spec sr_fields[] = {I64F("nrhs", 1, 64)};
@@ -112,9 +131,9 @@ static const array_spec sr_arrays[] = {F64FREE("rhs", 1)};
 static const field_spec sx_fields[] = {F64F("seconds", 0.0, 1e300)};
 static const array_spec sx_arrays[] = {F64FREE("x", 0)};
 
-static const field_spec is_fields[] = {
-    I64F("dim", 2, 3), I64F("vertices", 1, BG_MESH_MAX_VERTICES), F64F("h", 0.0, 1e6),
-    F64F("damping", 0.0, 1e6), I64F("lease_ms", 0, LEASE_MAX_MS)};
+static const field_spec is_fields[] = {I64F("dim", 2, 3), I64F("vertices", 1, BG_MESH_MAX_VERTICES),
+                                       F64F("h", 0.0, 1e6), F64F("damping", 0.0, 1e6),
+                                       I64F("lease_ms", 0, LEASE_MAX_MS)};
 static const array_spec is_arrays[] = {
     {"mass", BGA_ELEM_F64, 0, 1, BGA_IS_NV, -1, -1, 0, 1, NO_IDX},
     {"q", BGA_ELEM_F64, 0, 1, BGA_IS_NV, BGA_IS_DIM, -1, 0, 1, NO_IDX},
@@ -125,17 +144,15 @@ static const array_spec ii_arrays[] = {F64FREE("q", 1), F64FREE("prediction", 1)
 
 static const array_spec iu_arrays[] = {F64FREE("q_star", 1), F64FREE("gradient", 1)};
 
-static const field_spec it_fields[] = {F64F("kinetic", 0.0, 1e300),
-                                       I64F("steps", 0, INT64_MAX)};
+static const field_spec it_fields[] = {F64F("kinetic", 0.0, 1e300), I64F("steps", 0, INT64_MAX)};
 static const array_spec it_arrays[] = {F64FREE("q", 1), F64FREE("p", 1)};
 
 static bga_wire_code check_heartbeat(const bga_msg_t *m, bga_wire_error_t *werr)
 {
     if (m->field[BGA_HB_FREE].i > m->field[BGA_HB_SLOTS].i)
-        return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 1, "free_slots",
-                             "free_slots %lld exceeds slots %lld",
-                             (long long)m->field[BGA_HB_FREE].i,
-                             (long long)m->field[BGA_HB_SLOTS].i);
+        return bga_wire_fail(
+            werr, BGA_WIRE_INCONSISTENT, 1, "free_slots", "free_slots %lld exceeds slots %lld",
+            (long long)m->field[BGA_HB_FREE].i, (long long)m->field[BGA_HB_SLOTS].i);
     return BGA_WIRE_OK;
 }
 
@@ -151,7 +168,8 @@ static bga_wire_code check_rotfit_setup(const bga_msg_t *m, bga_wire_error_t *we
     if (!(mu > 0.0) || !((double)dim * lambda + 2.0 * mu > 0.0))
         return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 1, "mu",
                              "unstable material mu = %g, lambda = %g (need mu > 0 and "
-                             "n lambda + 2 mu > 0)", mu, lambda);
+                             "n lambda + 2 mu > 0)",
+                             mu, lambda);
     if (dim == 3 && m->field[BGA_RS_BARRIER].f != 0.0)
         return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 1, "barrier",
                              "the area barrier exists only in 2D");
@@ -161,7 +179,8 @@ static bga_wire_code check_rotfit_setup(const bga_msg_t *m, bga_wire_error_t *we
         return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 2 + BGA_RS_REST_POSITIONS,
                              "rest_positions",
                              "exactly one of rest_positions and rest_edges must be given "
-                             "(got %s)", has_pos ? "both" : "neither");
+                             "(got %s)",
+                             has_pos ? "both" : "neither");
     const int64_t local = k * dim, tri = local * (local + 1) / 2;
     const int64_t block = m->field[BGA_RS_BLOCK].i, nval = m->field[BGA_RS_NVAL].i;
     if (block != tri)
@@ -207,12 +226,13 @@ static bga_wire_code check_solve_setup(const bga_msg_t *m, bga_wire_error_t *wer
         if (p1 <= p0)
             return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, cf, "colptr",
                                  "column %d is empty or colptr decreases (%d, %d): every "
-                                 "column needs its diagonal", (int)col, (int)p0, (int)p1);
+                                 "column needs its diagonal",
+                                 (int)col, (int)p0, (int)p1);
         if (bga_msg_i32(m, BGA_SS_ROWIDX, (size_t)p0) != col)
             return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, rf, "rowidx",
                                  "column %d starts at row %d: the lower triangle must start "
-                                 "at the diagonal", (int)col,
-                                 (int)bga_msg_i32(m, BGA_SS_ROWIDX, (size_t)p0));
+                                 "at the diagonal",
+                                 (int)col, (int)bga_msg_i32(m, BGA_SS_ROWIDX, (size_t)p0));
         for (int32_t p = p0 + 1; p < p1; p++)
             if (bga_msg_i32(m, BGA_SS_ROWIDX, (size_t)p) <=
                 bga_msg_i32(m, BGA_SS_ROWIDX, (size_t)p - 1))
@@ -235,8 +255,10 @@ static bga_wire_code check_solve_rhs(const bga_msg_t *m, bga_wire_error_t *werr)
 static bga_wire_code check_integ_setup(const bga_msg_t *m, bga_wire_error_t *werr)
 {
     if (!(m->field[BGA_IS_H].f > 0.0))
-        return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 1, "h", "time step h = %g is not "
-                             "positive", m->field[BGA_IS_H].f);
+        return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 1, "h",
+                             "time step h = %g is not "
+                             "positive",
+                             m->field[BGA_IS_H].f);
     for (size_t v = 0; v < m->array[BGA_IS_MASS].count; v++)
         if (!(bga_msg_f64(m, BGA_IS_MASS, v) > 0.0))
             return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 2 + BGA_IS_MASS, "mass",
@@ -249,14 +271,19 @@ static bga_wire_code check_integ_update(const bga_msg_t *m, bga_wire_error_t *we
 {
     if (m->array[BGA_IU_QSTAR].count != m->array[BGA_IU_GRAD].count)
         return bga_wire_fail(werr, BGA_WIRE_BAD_LENGTH, 2 + BGA_IU_GRAD, "gradient",
-                             "%zu gradient values for %zu positions",
-                             m->array[BGA_IU_GRAD].count, m->array[BGA_IU_QSTAR].count);
+                             "%zu gradient values for %zu positions", m->array[BGA_IU_GRAD].count,
+                             m->array[BGA_IU_QSTAR].count);
     return BGA_WIRE_OK;
 }
 
-#define SCHEMA(t, n, f, a, c)                                                                 \
-    {t, n, (int)(sizeof f / sizeof f[0]), f, (int)(sizeof a / sizeof a[0]), a, c}
-#define SCHEMA_NOARRAYS(t, n, f, c) {t, n, (int)(sizeof f / sizeof f[0]), f, 0, NULL, c}
+#define SCHEMA(t, n, f, a, c)                                                                      \
+    {                                                                                              \
+        t, n, (int)(sizeof f / sizeof f[0]), f, (int)(sizeof a / sizeof a[0]), a, c                \
+    }
+#define SCHEMA_NOARRAYS(t, n, f, c)                                                                \
+    {                                                                                              \
+        t, n, (int)(sizeof f / sizeof f[0]), f, 0, NULL, c                                         \
+    }
 
 static const schema SCHEMAS[] = {
     SCHEMA(BGA_HEARTBEAT, "heartbeat", hb_fields, hb_arrays, check_heartbeat),
@@ -312,24 +339,42 @@ int bga_type_narrays(uint16_t type)
 const char *bga_wire_code_name(bga_wire_code code)
 {
     switch (code) {
-    case BGA_WIRE_OK: return "ok";
-    case BGA_WIRE_TRUNCATED: return "truncated";
-    case BGA_WIRE_OVERSIZE: return "oversize";
-    case BGA_WIRE_BAD_MAGIC: return "bad magic";
-    case BGA_WIRE_WRONG_VERSION: return "wrong version";
-    case BGA_WIRE_UNKNOWN_TYPE: return "unknown type";
-    case BGA_WIRE_FRAME_COUNT: return "wrong frame count";
-    case BGA_WIRE_BAD_LENGTH: return "bad length";
-    case BGA_WIRE_NOT_FINITE: return "not finite";
-    case BGA_WIRE_OUT_OF_RANGE: return "out of range";
-    case BGA_WIRE_INCONSISTENT: return "inconsistent";
-    case BGA_WIRE_BAD_HEADER: return "bad header";
-    case BGA_WIRE_NO_JOB: return "no such job";
-    case BGA_WIRE_BUSY: return "no free slot";
-    case BGA_WIRE_WRONG_STATE: return "wrong state";
-    case BGA_WIRE_NUMERIC: return "numerical failure";
-    case BGA_WIRE_INTERNAL: return "internal error";
-    case BGA_WIRE_UNEXPECTED: return "unexpected message";
+    case BGA_WIRE_OK:
+        return "ok";
+    case BGA_WIRE_TRUNCATED:
+        return "truncated";
+    case BGA_WIRE_OVERSIZE:
+        return "oversize";
+    case BGA_WIRE_BAD_MAGIC:
+        return "bad magic";
+    case BGA_WIRE_WRONG_VERSION:
+        return "wrong version";
+    case BGA_WIRE_UNKNOWN_TYPE:
+        return "unknown type";
+    case BGA_WIRE_FRAME_COUNT:
+        return "wrong frame count";
+    case BGA_WIRE_BAD_LENGTH:
+        return "bad length";
+    case BGA_WIRE_NOT_FINITE:
+        return "not finite";
+    case BGA_WIRE_OUT_OF_RANGE:
+        return "out of range";
+    case BGA_WIRE_INCONSISTENT:
+        return "inconsistent";
+    case BGA_WIRE_BAD_HEADER:
+        return "bad header";
+    case BGA_WIRE_NO_JOB:
+        return "no such job";
+    case BGA_WIRE_BUSY:
+        return "no free slot";
+    case BGA_WIRE_WRONG_STATE:
+        return "wrong state";
+    case BGA_WIRE_NUMERIC:
+        return "numerical failure";
+    case BGA_WIRE_INTERNAL:
+        return "internal error";
+    case BGA_WIRE_UNEXPECTED:
+        return "unexpected message";
     }
     return "unknown code";
 }
@@ -387,12 +432,30 @@ static void store_le(uint8_t *p, uint64_t v, int n)
         p[i] = (uint8_t)(v & 0xff);
 }
 
-static uint64_t load_u64(const uint8_t *p) { return load_le(p, 8); }
-static uint32_t load_u32(const uint8_t *p) { return (uint32_t)load_le(p, 4); }
-static uint16_t load_u16(const uint8_t *p) { return (uint16_t)load_le(p, 2); }
-static void store_u64(uint8_t *p, uint64_t v) { store_le(p, v, 8); }
-static void store_u32(uint8_t *p, uint32_t v) { store_le(p, v, 4); }
-static void store_u16(uint8_t *p, uint16_t v) { store_le(p, v, 2); }
+static uint64_t load_u64(const uint8_t *p)
+{
+    return load_le(p, 8);
+}
+static uint32_t load_u32(const uint8_t *p)
+{
+    return (uint32_t)load_le(p, 4);
+}
+static uint16_t load_u16(const uint8_t *p)
+{
+    return (uint16_t)load_le(p, 2);
+}
+static void store_u64(uint8_t *p, uint64_t v)
+{
+    store_le(p, v, 8);
+}
+static void store_u32(uint8_t *p, uint32_t v)
+{
+    store_le(p, v, 4);
+}
+static void store_u16(uint8_t *p, uint16_t v)
+{
+    store_le(p, v, 2);
+}
 
 static double u64_to_f64(uint64_t u)
 {
@@ -488,8 +551,8 @@ static bga_wire_code validate(const schema *s, const bga_msg_t *msg, int host,
             if ((fs->min > (double)INT64_MIN && (double)v < fs->min) ||
                 (fs->max < (double)INT64_MAX && (double)v > fs->max))
                 return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 1, fs->name,
-                                     "%s: field %s = %lld outside [%.0f, %.0f]", s->name,
-                                     fs->name, (long long)v, fs->min, fs->max);
+                                     "%s: field %s = %lld outside [%.0f, %.0f]", s->name, fs->name,
+                                     (long long)v, fs->min, fs->max);
         } else {
             const double v = msg->field[f].f;
             if (isnan(v) || (!fs->nonfinite && !isfinite(v)))
@@ -512,7 +575,8 @@ static bga_wire_code validate(const schema *s, const bga_msg_t *msg, int host,
         if (as->mul > 0 && !(as->optional && count == 0)) {
             /* Field caps keep this product far below 2^63. */
             const int64_t want = as->mul * field_or_one(msg, as->a) * field_or_one(msg, as->b) *
-                                     field_or_one(msg, as->c) + as->add;
+                                     field_or_one(msg, as->c) +
+                                 as->add;
             if ((int64_t)count != want)
                 return bga_wire_fail(werr, BGA_WIRE_BAD_LENGTH, frame, as->name,
                                      "%s: array %s has %zu values, expected %lld", s->name,
@@ -522,8 +586,8 @@ static bga_wire_code validate(const schema *s, const bga_msg_t *msg, int host,
             for (size_t i = 0; i < count; i++)
                 if (!isfinite(get_f64(msg, a, i, host)))
                     return bga_wire_fail(werr, BGA_WIRE_NOT_FINITE, frame, as->name,
-                                         "%s: %s[%zu] is %g, must be finite", s->name, as->name,
-                                         i, get_f64(msg, a, i, host));
+                                         "%s: %s[%zu] is %g, must be finite", s->name, as->name, i,
+                                         get_f64(msg, a, i, host));
         } else if (as->elem == BGA_ELEM_F64) {
             for (size_t i = 0; i < count; i++)
                 if (isnan(get_f64(msg, a, i, host)))
@@ -535,14 +599,14 @@ static bga_wire_code validate(const schema *s, const bga_msg_t *msg, int host,
                 const int32_t v = get_i32(msg, a, i, host);
                 if (v < as->lo || v >= hi)
                     return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, frame, as->name,
-                                         "%s: %s[%zu] = %d outside [%d, %lld)", s->name,
-                                         as->name, i, (int)v, (int)as->lo, (long long)hi);
+                                         "%s: %s[%zu] = %d outside [%d, %lld)", s->name, as->name,
+                                         i, (int)v, (int)as->lo, (long long)hi);
             }
         } else if (as->elem == BGA_ELEM_BYTES) {
             if (count > BGA_WIRE_MAX_TEXT)
                 return bga_wire_fail(werr, BGA_WIRE_OVERSIZE, frame, as->name,
-                                     "%s: text %s has %zu bytes, cap %d", s->name, as->name,
-                                     count, BGA_WIRE_MAX_TEXT);
+                                     "%s: text %s has %zu bytes, cap %d", s->name, as->name, count,
+                                     BGA_WIRE_MAX_TEXT);
             if (count > 0 && memchr(msg->array[a].data, 0, count))
                 return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, frame, as->name,
                                      "%s: text %s contains a NUL byte", s->name, as->name);
@@ -567,16 +631,15 @@ bga_wire_code bga_wire_decode(const bga_frame_t *frames, int nframes, const bga_
     size_t total = 0;
     for (int i = 0; i < nframes; i++) {
         if (frames[i].size > limits->max_frame_bytes)
-            return bga_wire_fail(werr, BGA_WIRE_OVERSIZE, i, "",
-                                 "frame %d has %zu bytes, cap %zu", i, frames[i].size,
-                                 limits->max_frame_bytes);
+            return bga_wire_fail(werr, BGA_WIRE_OVERSIZE, i, "", "frame %d has %zu bytes, cap %zu",
+                                 i, frames[i].size, limits->max_frame_bytes);
         if (frames[i].size > 0 && !frames[i].data)
             return bga_wire_fail(werr, BGA_WIRE_TRUNCATED, i, "", "frame %d has no data", i);
         total += frames[i].size;
         if (total > limits->max_message_bytes)
             return bga_wire_fail(werr, BGA_WIRE_OVERSIZE, i, "",
-                                 "message over %zu bytes at frame %d",
-                                 limits->max_message_bytes, i);
+                                 "message over %zu bytes at frame %d", limits->max_message_bytes,
+                                 i);
     }
     const uint8_t *h = frames[0].data;
     if (frames[0].size < BGA_WIRE_HEADER_BYTES)
@@ -616,10 +679,10 @@ bga_wire_code bga_wire_decode(const bga_frame_t *frames, int nframes, const bga_
     msg->nfields = s->nfields;
     msg->narrays = s->narrays;
     if (frames[1].size != (size_t)s->nfields * 8)
-        return bga_wire_fail(werr, frames[1].size < (size_t)s->nfields * 8 ? BGA_WIRE_TRUNCATED
-                                                                           : BGA_WIRE_OVERSIZE,
-                             1, "fields", "%s: field frame has %zu bytes, expected %d", s->name,
-                             frames[1].size, s->nfields * 8);
+        return bga_wire_fail(
+            werr, frames[1].size < (size_t)s->nfields * 8 ? BGA_WIRE_TRUNCATED : BGA_WIRE_OVERSIZE,
+            1, "fields", "%s: field frame has %zu bytes, expected %d", s->name, frames[1].size,
+            s->nfields * 8);
     for (int f = 0; f < s->nfields; f++) {
         const uint64_t u = load_u64(frames[1].data + 8 * f);
         if (s->fields[f].kind == KIND_I64)
@@ -632,8 +695,8 @@ bga_wire_code bga_wire_decode(const bga_frame_t *frames, int nframes, const bga_
         const bga_frame_t *fr = &frames[2 + a];
         if (fr->size % es != 0)
             return bga_wire_fail(werr, BGA_WIRE_TRUNCATED, 2 + a, s->arrays[a].name,
-                                 "%s: array %s frame has %zu bytes, not a multiple of %zu",
-                                 s->name, s->arrays[a].name, fr->size, es);
+                                 "%s: array %s frame has %zu bytes, not a multiple of %zu", s->name,
+                                 s->arrays[a].name, fr->size, es);
         msg->array[a].data = fr->data;
         msg->array[a].count = fr->size / es;
     }
@@ -686,8 +749,10 @@ bg_status bga_wire_encode(const bga_msg_t *msg, bga_frames_t *out, bg_error_t *e
         out->data[i] = malloc(out->size[i] + 1);
         if (!out->data[i]) {
             bga_frames_free(out);
-            return bg_error_set(err, BG_ERR_NOMEM, "out of memory encoding %s (frame %d, %zu "
-                                "bytes)", s->name, i, out->size[i]);
+            return bg_error_set(err, BG_ERR_NOMEM,
+                                "out of memory encoding %s (frame %d, %zu "
+                                "bytes)",
+                                s->name, i, out->size[i]);
         }
     }
     uint8_t *h = out->data[0];

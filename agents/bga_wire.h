@@ -48,30 +48,30 @@
 #define BGA_WIRE_MAX_TEXT 4096
 
 typedef enum bga_type {
-    BGA_HEARTBEAT = 0x0001,       /* ping, and the agent's status as the pong */
-    BGA_ERROR = 0x0002,           /* error reply: what was wrong, where */
-    BGA_RELEASE = 0x0003,         /* free the job's state on the agent */
-    BGA_ACK = 0x0004,             /* success reply without data */
-    BGA_ROTFIT_SETUP = 0x0101,    /* a partition: elements, rest data, map, material */
-    BGA_ROTFIT_CALL = 0x0102,     /* positions in */
-    BGA_ROTFIT_RESULT = 0x0103,   /* energy, gradient, Hessian values out */
-    BGA_SOLVE_SETUP = 0x0201,     /* lower-triangle CSC pattern */
-    BGA_SOLVE_FACTOR = 0x0202,    /* values (+ shift) → factor */
-    BGA_SOLVE_FACTORED = 0x0203,  /* factorization outcome */
-    BGA_SOLVE_RHS = 0x0204,       /* right-hand sides → solve */
-    BGA_SOLVE_RESULT = 0x0205,    /* solutions */
-    BGA_INTEG_SETUP = 0x0301,     /* masses, q, p, h, damping */
-    BGA_INTEG_PREDICT = 0x0302,   /* ask for the step's inertia data */
-    BGA_INTEG_INERTIA = 0x0303,   /* q_k, the inertial prediction, inertia coefficient */
-    BGA_INTEG_UPDATE = 0x0304,    /* q* and ∇W(q*) in → state advanced */
-    BGA_INTEG_STATE = 0x0305,     /* q, p, kinetic energy after the step */
+    BGA_HEARTBEAT = 0x0001,      /* ping, and the agent's status as the pong */
+    BGA_ERROR = 0x0002,          /* error reply: what was wrong, where */
+    BGA_RELEASE = 0x0003,        /* free the job's state on the agent */
+    BGA_ACK = 0x0004,            /* success reply without data */
+    BGA_ROTFIT_SETUP = 0x0101,   /* a partition: elements, rest data, map, material */
+    BGA_ROTFIT_CALL = 0x0102,    /* positions in */
+    BGA_ROTFIT_RESULT = 0x0103,  /* energy, gradient, Hessian values out */
+    BGA_SOLVE_SETUP = 0x0201,    /* lower-triangle CSC pattern */
+    BGA_SOLVE_FACTOR = 0x0202,   /* values (+ shift) → factor */
+    BGA_SOLVE_FACTORED = 0x0203, /* factorization outcome */
+    BGA_SOLVE_RHS = 0x0204,      /* right-hand sides → solve */
+    BGA_SOLVE_RESULT = 0x0205,   /* solutions */
+    BGA_INTEG_SETUP = 0x0301,    /* masses, q, p, h, damping */
+    BGA_INTEG_PREDICT = 0x0302,  /* ask for the step's inertia data */
+    BGA_INTEG_INERTIA = 0x0303,  /* q_k, the inertial prediction, inertia coefficient */
+    BGA_INTEG_UPDATE = 0x0304,   /* q* and ∇W(q*) in → state advanced */
+    BGA_INTEG_STATE = 0x0305,    /* q, p, kinetic energy after the step */
 } bga_type;
 
 /* What went wrong, carried by BGA_ERROR replies (stable numbers). */
 typedef enum bga_wire_code {
     BGA_WIRE_OK = 0,
-    BGA_WIRE_TRUNCATED = 1,     /* a frame shorter than its content */
-    BGA_WIRE_OVERSIZE = 2,      /* a frame or the message over its cap */
+    BGA_WIRE_TRUNCATED = 1, /* a frame shorter than its content */
+    BGA_WIRE_OVERSIZE = 2,  /* a frame or the message over its cap */
     BGA_WIRE_BAD_MAGIC = 3,
     BGA_WIRE_WRONG_VERSION = 4,
     BGA_WIRE_UNKNOWN_TYPE = 5,
@@ -91,8 +91,8 @@ typedef enum bga_wire_code {
 
 typedef struct bga_wire_error {
     bga_wire_code code;
-    int frame;                 /* frame index, −1 when not about one frame */
-    char field[48];            /* schema name of the field or array, or "" */
+    int frame;      /* frame index, −1 when not about one frame */
+    char field[48]; /* schema name of the field or array, or "" */
     char message[BG_ERROR_MESSAGE_MAX];
 } bga_wire_error_t;
 
@@ -122,7 +122,7 @@ typedef struct bga_array {
 
 typedef struct bga_msg {
     bga_header_t header;
-    int nfields, narrays;      /* set by decode; encode takes them from the schema */
+    int nfields, narrays; /* set by decode; encode takes them from the schema */
     union {
         int64_t i;
         double f;
@@ -154,27 +154,54 @@ bga_limits_t bga_wire_default_limits(void);
  * fill msg.field[...] / msg.array[...] at these positions.
  */
 enum { /* HEARTBEAT */
-    BGA_HB_SLOTS, BGA_HB_FREE, BGA_HB_SERVICES, BGA_HB_JOBS, BGA_HB_NFIELDS
+       BGA_HB_SLOTS,
+       BGA_HB_FREE,
+       BGA_HB_SERVICES,
+       BGA_HB_JOBS,
+       BGA_HB_NFIELDS
 };
 enum { /* HEARTBEAT arrays */ BGA_HB_NAME, BGA_HB_NARRAYS };
 enum { /* ERROR */
-    BGA_ERR_CODE, BGA_ERR_FRAME, BGA_ERR_TYPE, BGA_ERR_SEQ, BGA_ERR_NFIELDS
+       BGA_ERR_CODE,
+       BGA_ERR_FRAME,
+       BGA_ERR_TYPE,
+       BGA_ERR_SEQ,
+       BGA_ERR_NFIELDS
 };
 enum { /* ERROR arrays */ BGA_ERR_FIELD, BGA_ERR_MESSAGE, BGA_ERR_NARRAYS };
 enum { /* ACK */ BGA_ACK_TYPE, BGA_ACK_NFIELDS };
 enum { /* ROTFIT_SETUP */
-    BGA_RS_DIM, BGA_RS_NODES, BGA_RS_NV, BGA_RS_NE, BGA_RS_NGLOBAL, BGA_RS_MU, BGA_RS_LAMBDA,
-    BGA_RS_BARRIER, BGA_RS_BLOCK, BGA_RS_NVAL, BGA_RS_LEASE_MS, BGA_RS_NFIELDS
+       BGA_RS_DIM,
+       BGA_RS_NODES,
+       BGA_RS_NV,
+       BGA_RS_NE,
+       BGA_RS_NGLOBAL,
+       BGA_RS_MU,
+       BGA_RS_LAMBDA,
+       BGA_RS_BARRIER,
+       BGA_RS_BLOCK,
+       BGA_RS_NVAL,
+       BGA_RS_LEASE_MS,
+       BGA_RS_NFIELDS
 };
 enum { /* ROTFIT_SETUP arrays */
-    BGA_RS_ELEMENTS, BGA_RS_LOCAL_TO_GLOBAL, BGA_RS_REST_POSITIONS, BGA_RS_REST_EDGES,
-    BGA_RS_SCATTER, BGA_RS_NARRAYS
+       BGA_RS_ELEMENTS,
+       BGA_RS_LOCAL_TO_GLOBAL,
+       BGA_RS_REST_POSITIONS,
+       BGA_RS_REST_EDGES,
+       BGA_RS_SCATTER,
+       BGA_RS_NARRAYS
 };
 enum { /* ROTFIT_CALL */ BGA_RC_WANT, BGA_RC_NFIELDS };
 enum { /* ROTFIT_CALL arrays */ BGA_RC_POSITIONS, BGA_RC_NARRAYS };
 enum { /* ROTFIT_RESULT */
-    BGA_RR_ENERGY, BGA_RR_FITS, BGA_RR_WARM, BGA_RR_POLAR, BGA_RR_SVD, BGA_RR_SECONDS,
-    BGA_RR_NFIELDS
+       BGA_RR_ENERGY,
+       BGA_RR_FITS,
+       BGA_RR_WARM,
+       BGA_RR_POLAR,
+       BGA_RR_SVD,
+       BGA_RR_SECONDS,
+       BGA_RR_NFIELDS
 };
 enum { /* ROTFIT_RESULT arrays */ BGA_RR_GRADIENT, BGA_RR_HESSIAN, BGA_RR_NARRAYS };
 enum { /* SOLVE_SETUP */ BGA_SS_N, BGA_SS_NNZ, BGA_SS_LEASE_MS, BGA_SS_NFIELDS };
@@ -182,14 +209,22 @@ enum { /* SOLVE_SETUP arrays */ BGA_SS_COLPTR, BGA_SS_ROWIDX, BGA_SS_NARRAYS };
 enum { /* SOLVE_FACTOR */ BGA_SF_SHIFT, BGA_SF_NFIELDS };
 enum { /* SOLVE_FACTOR arrays */ BGA_SF_VALUES, BGA_SF_NARRAYS };
 enum { /* SOLVE_FACTORED */
-    BGA_SD_POSDEF, BGA_SD_ANALYZE_SECONDS, BGA_SD_FACTOR_SECONDS, BGA_SD_FLOPS, BGA_SD_NFIELDS
+       BGA_SD_POSDEF,
+       BGA_SD_ANALYZE_SECONDS,
+       BGA_SD_FACTOR_SECONDS,
+       BGA_SD_FLOPS,
+       BGA_SD_NFIELDS
 };
 enum { /* SOLVE_FACTORED arrays */ BGA_SD_MESSAGE, BGA_SD_NARRAYS };
 enum { /* SOLVE_RHS */ BGA_SR_NRHS, BGA_SR_NFIELDS };
 enum { /* SOLVE_RHS arrays */ BGA_SR_RHS, BGA_SR_NARRAYS };
 enum { /* SOLVE_RESULT */ BGA_SX_SECONDS, BGA_SX_NFIELDS };
 enum { /* SOLVE_RESULT arrays */ BGA_SX_X, BGA_SX_NARRAYS };
-enum { /* INTEG_SETUP */ BGA_IS_DIM, BGA_IS_NV, BGA_IS_H, BGA_IS_DAMPING, BGA_IS_LEASE_MS,
+enum { /* INTEG_SETUP */ BGA_IS_DIM,
+       BGA_IS_NV,
+       BGA_IS_H,
+       BGA_IS_DAMPING,
+       BGA_IS_LEASE_MS,
        BGA_IS_NFIELDS };
 enum { /* INTEG_SETUP arrays */ BGA_IS_MASS, BGA_IS_Q, BGA_IS_P, BGA_IS_NARRAYS };
 enum { /* INTEG_INERTIA */ BGA_II_COEF, BGA_II_NFIELDS };

@@ -69,12 +69,10 @@ static int parse_slots(const char *text, const char *where, int *slots)
     return 0;
 }
 
-static int copy_string(char *dst, size_t cap, const char *src, const char *where,
-                       const char *key)
+static int copy_string(char *dst, size_t cap, const char *src, const char *where, const char *key)
 {
     if (strlen(src) >= cap) {
-        fprintf(stderr, "biotgrid: %s: %s is longer than %zu characters\n", where, key,
-                cap - 1);
+        fprintf(stderr, "biotgrid: %s: %s is longer than %zu characters\n", where, key, cap - 1);
         return 2;
     }
     memcpy(dst, src, strlen(src) + 1);
@@ -183,8 +181,8 @@ static int parse_args(int argc, char **argv, options *o)
         else if (strcmp(a, "--listen") == 0)
             rc = copy_string(o->spec.listen, sizeof o->spec.listen, v, "--listen", "the endpoint");
         else if (strcmp(a, "--services") == 0)
-            rc = copy_string(o->spec.services, sizeof o->spec.services, v, "--services",
-                             "the list");
+            rc =
+                copy_string(o->spec.services, sizeof o->spec.services, v, "--services", "the list");
         else if (strcmp(a, "--name") == 0)
             rc = copy_string(o->spec.name, sizeof o->spec.name, v, "--name", "the name");
         else if (strcmp(a, "--slots") == 0)
@@ -246,9 +244,11 @@ int bg_cmd_agent(int argc, char **argv)
         rc = 1;
     }
     const bga_service_stats_t s = bga_agent_stats(agent);
-    fprintf(stderr, "agent %s stopping: %lld requests, %lld errors, %lld released, %lld "
-            "expired, %.3f s computing\n", sp->name, (long long)s.requests, (long long)s.errors,
-            (long long)s.released, (long long)s.expired, s.compute_seconds);
+    fprintf(stderr,
+            "agent %s stopping: %lld requests, %lld errors, %lld released, %lld "
+            "expired, %.3f s computing\n",
+            sp->name, (long long)s.requests, (long long)s.errors, (long long)s.released,
+            (long long)s.expired, s.compute_seconds);
 out:
     bga_agent_destroy(&agent);
     return rc;

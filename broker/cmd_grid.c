@@ -117,22 +117,27 @@ static int read_grid_config(const char *path, grid *g)
                 }
                 if (rc == 0 && (strspn(ga->spec.name, "abcdefghijklmnopqrstuvwxyz"
                                                       "ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-") !=
-                                    strlen(ga->spec.name) || !ga->spec.name[0])) {
-                    fprintf(stderr, "biotgrid grid: %s: name '%s' must be letters, digits, "
-                            "'-' or '_'\n", where, ga->spec.name);
+                                    strlen(ga->spec.name) ||
+                                !ga->spec.name[0])) {
+                    fprintf(stderr,
+                            "biotgrid grid: %s: name '%s' must be letters, digits, "
+                            "'-' or '_'\n",
+                            where, ga->spec.name);
                     rc = 2;
                 }
                 for (int j = 0; rc == 0 && j < g->count; j++)
                     if (strcmp(g->agent[j].spec.name, ga->spec.name) == 0) {
-                        fprintf(stderr, "biotgrid grid: %s: name '%s' repeats agents[%d]\n",
-                                where, ga->spec.name, j);
+                        fprintf(stderr, "biotgrid grid: %s: name '%s' repeats agents[%d]\n", where,
+                                ga->spec.name, j);
                         rc = 2;
                     }
                 g->count++;
             }
         } else {
-            fprintf(stderr, "biotgrid grid: %s: unknown key or wrong type '%s' (name: string, "
-                    "agents: array)\n", path, it->string);
+            fprintf(stderr,
+                    "biotgrid grid: %s: unknown key or wrong type '%s' (name: string, "
+                    "agents: array)\n",
+                    path, it->string);
             rc = 2;
         }
     }
@@ -194,8 +199,10 @@ static int stop_agents(grid *g, const char *dir, double grace, int children)
         while (still_runs(a, dir, children) && bg_clock_now() < deadline)
             sleep_ms(20);
         if (still_runs(a, dir, children)) {
-            fprintf(stderr, "biotgrid grid: %s (pid %ld) still runs %.1f s after SIGTERM: "
-                    "SIGKILL\n", a->spec.name, a->pid, grace);
+            fprintf(stderr,
+                    "biotgrid grid: %s (pid %ld) still runs %.1f s after SIGTERM: "
+                    "SIGKILL\n",
+                    a->spec.name, a->pid, grace);
             kill((pid_t)a->pid, SIGKILL);
             killed++;
         }
@@ -262,8 +269,7 @@ static int read_state(const char *dir, grid *g)
         const cJSON *e = cJSON_GetObjectItemCaseSensitive(a, "endpoint");
         const cJSON *p = cJSON_GetObjectItemCaseSensitive(a, "pid");
         const cJSON *s = cJSON_GetObjectItemCaseSensitive(a, "services");
-        if (!cJSON_IsString(n) || !cJSON_IsString(e) || !cJSON_IsNumber(p) ||
-            !cJSON_IsString(s)) {
+        if (!cJSON_IsString(n) || !cJSON_IsString(e) || !cJSON_IsNumber(p) || !cJSON_IsString(s)) {
             rc = 2;
             break;
         }
@@ -389,8 +395,10 @@ static int grid_up(const char *file, const char *dir)
         return rc;
     grid old;
     if (read_state(dir, &old) == 0 && any_alive(&old, dir)) {
-        fprintf(stderr, "biotgrid grid: a grid (%s) is already up in %s: `biotgrid grid down` "
-                "first\n", old.name, dir);
+        fprintf(stderr,
+                "biotgrid grid: a grid (%s) is already up in %s: `biotgrid grid down` "
+                "first\n",
+                old.name, dir);
         return 1;
     }
     if (mkdir_p(dir) != 0) {
@@ -427,15 +435,15 @@ static int grid_up(const char *file, const char *dir)
         char msg[BG_ERROR_MESSAGE_MAX] = "";
         if (read_ready_file(dir, a) != 0) {
             fprintf(stderr, "biotgrid grid: %s %s (see %s/%s.log)\n", a->spec.name,
-                    exited ? "exited before it was ready" : "did not become ready within 10 s",
-                    dir, a->spec.name);
+                    exited ? "exited before it was ready" : "did not become ready within 10 s", dir,
+                    a->spec.name);
             rc = 1;
         } else if (ping(a, &st, msg, sizeof msg) != 0) {
             fprintf(stderr, "biotgrid grid: %s\n", msg);
             rc = 1;
         } else {
-            printf("%-12s %-28s pid %-7ld services %-18s slots %lld\n", a->spec.name,
-                   a->endpoint, a->pid, a->spec.services, (long long)st.slots);
+            printf("%-12s %-28s pid %-7ld services %-18s slots %lld\n", a->spec.name, a->endpoint,
+                   a->pid, a->spec.services, (long long)st.slots);
         }
     }
     if (rc == 0 && write_state(&g, dir) != 0)
@@ -467,13 +475,13 @@ static int grid_status(const char *dir)
             printf("%-12s %-28s pid %-7ld not running\n", a->spec.name, a->endpoint, a->pid);
             bad = 1;
         } else if (ping(a, &st, msg, sizeof msg) != 0) {
-            printf("%-12s %-28s pid %-7ld not answering: %s\n", a->spec.name, a->endpoint,
-                   a->pid, msg);
+            printf("%-12s %-28s pid %-7ld not answering: %s\n", a->spec.name, a->endpoint, a->pid,
+                   msg);
             bad = 1;
         } else {
-            printf("%-12s %-28s pid %-7ld up, %lld jobs, %lld of %lld slots free\n",
-                   a->spec.name, a->endpoint, a->pid, (long long)st.jobs,
-                   (long long)st.free_slots, (long long)st.slots);
+            printf("%-12s %-28s pid %-7ld up, %lld jobs, %lld of %lld slots free\n", a->spec.name,
+                   a->endpoint, a->pid, (long long)st.jobs, (long long)st.free_slots,
+                   (long long)st.slots);
         }
     }
     printf("grid %s: %s\n", g.name, bad ? "degraded" : "up");
@@ -527,8 +535,10 @@ int bg_cmd_grid(int argc, char **argv)
             char *end;
             grace = strtod(argv[++i], &end);
             if (*end || !(grace >= 0.0 && grace <= 600.0)) {
-                fprintf(stderr, "biotgrid grid: --grace '%s' is not a number of seconds in "
-                        "[0, 600]\n", argv[i]);
+                fprintf(stderr,
+                        "biotgrid grid: --grace '%s' is not a number of seconds in "
+                        "[0, 600]\n",
+                        argv[i]);
                 return 2;
             }
         } else if (argv[i][0] != '-' && strcmp(sub, "up") == 0 && i == 2) {

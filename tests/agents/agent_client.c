@@ -33,14 +33,14 @@
 
 static int failures;
 
-#define CHECK(cond, ...)                                                                      \
-    do {                                                                                      \
-        if (!(cond)) {                                                                        \
-            fprintf(stderr, "FAIL %s:%d: ", __FILE__, __LINE__);                              \
-            fprintf(stderr, __VA_ARGS__);                                                     \
-            fputc('\n', stderr);                                                              \
-            failures++;                                                                       \
-        }                                                                                     \
+#define CHECK(cond, ...)                                                                           \
+    do {                                                                                           \
+        if (!(cond)) {                                                                             \
+            fprintf(stderr, "FAIL %s:%d: ", __FILE__, __LINE__);                                   \
+            fprintf(stderr, __VA_ARGS__);                                                          \
+            fputc('\n', stderr);                                                                   \
+            failures++;                                                                            \
+        }                                                                                          \
     } while (0)
 
 typedef struct ready {
@@ -66,8 +66,7 @@ static int read_ready(const char *dir, const char *name, ready *r)
     return 0;
 }
 
-static bga_client_t *connect_to(const char *dir, const char *name, const char *service,
-                                ready *r)
+static bga_client_t *connect_to(const char *dir, const char *name, const char *service, ready *r)
 {
     bga_client_t *c = NULL;
     bg_error_t err = BG_ERROR_INIT;
@@ -153,17 +152,16 @@ static int run_compute(const char *dir)
             CHECK(st == BG_OK, "%s call: %s", names[p], err.message);
             if (st != BG_OK)
                 break;
-            CHECK(fabs(out.energy - le) <= 1e-12 * fabs(le), "%s energy %.17g vs %.17g",
-                  names[p], out.energy, le);
+            CHECK(fabs(out.energy - le) <= 1e-12 * fabs(le), "%s energy %.17g vs %.17g", names[p],
+                  out.energy, le);
             CHECK(max_rel(agrad, lgrad, lndof) <= 1e-12, "%s gradient rel %g", names[p],
                   max_rel(agrad, lgrad, lndof));
-            CHECK(max_rel(aH, lH, nh) <= 1e-12, "%s Hessian rel %g", names[p],
-                  max_rel(aH, lH, nh));
+            CHECK(max_rel(aH, lH, nh) <= 1e-12, "%s Hessian rel %g", names[p], max_rel(aH, lH, nh));
             CHECK(out.fits.calls == part.ne, "%s: %lld fits for %d elements", names[p],
                   (long long)out.fits.calls, (int)part.ne);
             if (round == 1) {
-                CHECK(out.fits.warm == part.ne, "%s: second call warm-started %lld of %d",
-                      names[p], (long long)out.fits.warm, (int)part.ne);
+                CHECK(out.fits.warm == part.ne, "%s: second call warm-started %lld of %d", names[p],
+                      (long long)out.fits.warm, (int)part.ne);
                 sum_energy += out.energy;
                 for (int32_t v = 0; v < part.nv; v++)
                     for (int k = 0; k < dim; k++)
@@ -182,17 +180,16 @@ static int run_compute(const char *dir)
         st = bga_client_heartbeat(c, job, &as, &err);
         CHECK(st == BG_OK && as.jobs == 1, "%s heartbeat: %s, %lld jobs", names[p], err.message,
               (long long)as.jobs);
-        CHECK(bga_client_release(c, job, &err) == BG_OK, "%s release: %s", names[p],
-              err.message);
+        CHECK(bga_client_release(c, job, &err) == BG_OK, "%s release: %s", names[p], err.message);
         st = bga_client_heartbeat(c, 0, &as, &err);
         CHECK(st == BG_OK && as.jobs == 0 && as.free_slots == as.slots,
               "%s after release: %lld jobs, %lld of %lld free", names[p], (long long)as.jobs,
               (long long)as.free_slots, (long long)as.slots);
         const bga_traffic_t tr = bga_client_traffic(c);
         printf("%s (%s): %d elements, %lld requests, %lld bytes sent, %lld received, "
-               "wait %.3f ms, agent compute %.3f ms\n", names[p], r.endpoint, (int)part.ne,
-               (long long)tr.requests, (long long)tr.bytes_sent, (long long)tr.bytes_received,
-               1e3 * tr.wait_seconds, 1e3 * tr.agent_seconds);
+               "wait %.3f ms, agent compute %.3f ms\n",
+               names[p], r.endpoint, (int)part.ne, (long long)tr.requests, (long long)tr.bytes_sent,
+               (long long)tr.bytes_received, 1e3 * tr.wait_seconds, 1e3 * tr.agent_seconds);
         free(lgrad);
         free(lH);
         free(ident);
@@ -207,11 +204,10 @@ static int run_compute(const char *dir)
           sum_energy, energy);
     CHECK(max_rel(sum_grad, grad, ndof) <= 1e-12, "gradient over 2 agents rel %g",
           max_rel(sum_grad, grad, ndof));
-    CHECK(max_rel(sumH, H, nnz) <= 1e-12, "Hessian over 2 agents rel %g",
-          max_rel(sumH, H, nnz));
+    CHECK(max_rel(sumH, H, nnz) <= 1e-12, "Hessian over 2 agents rel %g", max_rel(sumH, H, nnz));
     printf("rotation-fit over 2 agents: energy %.17g (in-process %.17g), gradient rel %.2g, "
-           "Hessian rel %.2g\n", sum_energy, energy, max_rel(sum_grad, grad, ndof),
-           max_rel(sumH, H, nnz));
+           "Hessian rel %.2g\n",
+           sum_energy, energy, max_rel(sum_grad, grad, ndof), max_rel(sumH, H, nnz));
 
     /* The coordinator's pool over both agents: compact scatter maps, the
      * partitions computed in parallel, sums in partition order. */
@@ -220,8 +216,8 @@ static int run_compute(const char *dir)
         if (read_ready(dir, "rotfit1", &r1) || read_ready(dir, "rotfit2", &r2))
             return 1;
         const char *eps[2] = {r1.endpoint, r2.endpoint};
-        bga_pool_config_t pc = {mesh, mu, lambda, 0.0, bg_sparse_scatter(sys), nnz, eps, 2,
-                                3000, TIMEOUT_MS, 60000};
+        bga_pool_config_t pc = {mesh, mu,   lambda,     0.0,  bg_sparse_scatter(sys), nnz, eps,
+                                2,    3000, TIMEOUT_MS, 60000};
         bga_rotfit_pool_t *pool = NULL;
         bg_status st = bga_rotfit_pool_new(&pc, &pool, &err);
         CHECK(st == BG_OK, "pool: %s", err.message);
@@ -296,8 +292,8 @@ static int run_compute(const char *dir)
     CHECK(st == BG_ERR_INVALID && strstr(err.message, "no such job") &&
               strstr(err.message, r.endpoint) && strstr(err.message, "sparse-solve"),
           "solve after release: %s", err.message);
-    printf("sparse-solve (%s): n = %d, nnz = %zu, matches in-process CHOLMOD\n", r.endpoint,
-           (int)n, nnz);
+    printf("sparse-solve (%s): n = %d, nnz = %zu, matches in-process CHOLMOD\n", r.endpoint, (int)n,
+           nnz);
     bga_client_destroy(&c);
 
     /* Nothing listens on port 1: the timeout names the agent and service. */
@@ -344,8 +340,7 @@ static void expect_refusal(bga_client_t *c, const bga_frame_t *f, int n, bga_wir
     CHECK(rep.msg.header.type == BGA_ERROR && rep.msg.field[BGA_ERR_CODE].i == code &&
               strstr(text, needle),
           "%s: got %s code %lld '%s'", what, bga_type_name(rep.msg.header.type),
-          rep.msg.header.type == BGA_ERROR ? (long long)rep.msg.field[BGA_ERR_CODE].i : -1LL,
-          text);
+          rep.msg.header.type == BGA_ERROR ? (long long)rep.msg.field[BGA_ERR_CODE].i : -1LL, text);
     printf("%-22s -> %s: %s\n", what, bga_wire_code_name(code), text);
     bga_reply_close(&rep);
 }
@@ -372,8 +367,7 @@ static int run_malformed(const char *dir)
     memcpy(hdr, v[0].data, 48);
     hdr[6] = 0x99;
     bga_frame_t t2[3] = {{hdr, 48}, v[1], v[2]};
-    expect_refusal(c, t2, 3, BGA_WIRE_UNKNOWN_TYPE, "unknown message type 0x0199",
-                   "unknown type");
+    expect_refusal(c, t2, 3, BGA_WIRE_UNKNOWN_TYPE, "unknown message type 0x0199", "unknown type");
     memcpy(hdr, v[0].data, 48);
     hdr[4] = 9;
     t2[0].data = hdr;

@@ -20,7 +20,7 @@
 
 typedef struct fx_part {
     int32_t nv, ne;
-    int32_t *elements;        /* local numbering */
+    int32_t *elements; /* local numbering */
     int32_t *local_to_global;
     int32_t *global_elements; /* which global element each local one is */
     double *rest;             /* nv*dim */

@@ -64,7 +64,7 @@ int main(int argc, char **argv)
 {
     if (argc < 2) {
         fprintf(stderr, "usage: bench_agents RUNDIR [MESH | --box NX NY NZ] [--iterations N] "
-                "[--smoke]\n");
+                        "[--smoke]\n");
         return 2;
     }
     const char *dir = argv[1], *mesh_path = NULL;
@@ -117,8 +117,7 @@ int main(int argc, char **argv)
     const int32_t n = bg_sparse_size(sys);
     double *rvalues = malloc(nnz * sizeof *rvalues);
     printf("mesh %s: %d vertices, %d tetrahedra, %zu nonzeros; %d iterations (load: see uptime)\n",
-           mesh_path ? mesh_path : "generated box", (int)mesh->nv, (int)mesh->ne, nnz,
-           iterations);
+           mesh_path ? mesh_path : "generated box", (int)mesh->nv, (int)mesh->ne, nnz, iterations);
 
     /* In-process: evaluation + assembly, then factor + solve. */
     double t_eval = 0, t_factor = 0, energy = 0;
@@ -141,8 +140,8 @@ int main(int argc, char **argv)
     }
     const int timed = iterations > 1 ? iterations - 1 : 1;
     printf("in-process              per iteration %8.2f ms (evaluation + assembly %.2f, factor + "
-           "solve %.2f)\n", 1e3 * (t_eval + t_factor) / timed, 1e3 * t_eval / timed,
-           1e3 * t_factor / timed);
+           "solve %.2f)\n",
+           1e3 * (t_eval + t_factor) / timed, 1e3 * t_eval / timed, 1e3 * t_factor / timed);
 
     int failures = 0;
     bga_client_t *solver = open_agent(dir, "solve", "sparse-solve");
@@ -154,8 +153,9 @@ int main(int argc, char **argv)
     read_endpoint(dir, "rotfit2", ep[1]);
     const char *endpoints[2] = {ep[0], ep[1]};
     for (int K = 1; K <= 2; K++) {
-        bga_pool_config_t pc = {mesh, mu, lambda, 0.0, bg_sparse_scatter(sys), nnz, endpoints,
-                                K, 9100 + (uint64_t)K, 120000, 0};
+        bga_pool_config_t pc = {
+            mesh,   mu, lambda, 0.0, bg_sparse_scatter(sys), nnz, endpoints, K, 9100 + (uint64_t)K,
+            120000, 0};
         bga_rotfit_pool_t *pool = NULL;
         if (bga_rotfit_pool_new(&pc, &pool, &err) != BG_OK)
             die(&err);
@@ -173,7 +173,8 @@ int main(int argc, char **argv)
             if (bga_rotfit_pool_eval(pool, q, &renergy, rgrad, rvalues, 1, &err) != BG_OK)
                 die(&err);
             int posdef = 0;
-            if (bga_client_solve_factor(solver, 9000, rvalues, nnz, SHIFT, &posdef, &err) != BG_OK ||
+            if (bga_client_solve_factor(solver, 9000, rvalues, nnz, SHIFT, &posdef, &err) !=
+                    BG_OK ||
                 !posdef || bga_client_solve(solver, 9000, rgrad, n, 1, rx, &err) != BG_OK) {
                 fprintf(stderr, "bench_agents: remote factor/solve failed: %s\n", err.message);
                 return 1;
@@ -184,8 +185,8 @@ int main(int argc, char **argv)
         double agent = 0, codec = 0, wait = 0;
         int64_t bytes = 0;
         for (int p = 0; p <= K; p++) {
-            const bga_traffic_t now = p < K ? bga_rotfit_pool_traffic(pool, p)
-                                            : bga_client_traffic(solver);
+            const bga_traffic_t now =
+                p < K ? bga_rotfit_pool_traffic(pool, p) : bga_client_traffic(solver);
             const bga_traffic_t *b = &before[p < K ? p : 2];
             agent += now.agent_seconds - b->agent_seconds;
             codec += now.encode_seconds - b->encode_seconds;

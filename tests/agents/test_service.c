@@ -35,8 +35,7 @@ static bga_wire_code call(bga_service_t *svc, const bga_msg_t *req, double now, 
     bga_frames_view(keep, rv);
     bga_wire_error_t w;
     assert_int_equal(bga_wire_decode(rv, keep->count, NULL, rep, &w), BGA_WIRE_OK);
-    return rep->header.type == BGA_ERROR ? (bga_wire_code)rep->field[BGA_ERR_CODE].i
-                                         : BGA_WIRE_OK;
+    return rep->header.type == BGA_ERROR ? (bga_wire_code)rep->field[BGA_ERR_CODE].i : BGA_WIRE_OK;
 }
 
 static void expect_reply(bga_service_t *svc, const bga_msg_t *req, double now, uint16_t type)
@@ -48,8 +47,7 @@ static void expect_reply(bga_service_t *svc, const bga_msg_t *req, double now, u
         fail_msg("%s: got %s (code %d: %.*s)", bga_type_name(req->header.type),
                  bga_type_name(rep.header.type), (int)wc,
                  rep.header.type == BGA_ERROR ? (int)rep.array[BGA_ERR_MESSAGE].count : 0,
-                 rep.header.type == BGA_ERROR ? (const char *)rep.array[BGA_ERR_MESSAGE].data
-                                              : "");
+                 rep.header.type == BGA_ERROR ? (const char *)rep.array[BGA_ERR_MESSAGE].data : "");
     bga_frames_free(&keep);
 }
 
@@ -140,8 +138,8 @@ static void test_rotfit_partitions_match_whole_mesh(void **state)
         /* Job 1+p: per-element blocks; job 100+p: scattered by the agent. */
         int32_t *sc = malloc((size_t)part.ne * T * sizeof *sc);
         for (int32_t e = 0; e < part.ne; e++)
-            memcpy(sc + (size_t)e * T,
-                   bg_sparse_scatter(sys) + (size_t)part.global_elements[e] * T, T * sizeof *sc);
+            memcpy(sc + (size_t)e * T, bg_sparse_scatter(sys) + (size_t)part.global_elements[e] * T,
+                   T * sizeof *sc);
         bga_msg_t m;
         setup_msg(&m, 1 + (uint64_t)p, &bp, T, 0, NULL);
         expect_reply(svc, &m, 0.0, BGA_ACK);

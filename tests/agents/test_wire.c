@@ -20,11 +20,10 @@
 #include "bga_wire.h"
 
 static const uint16_t TYPES[] = {
-    BGA_HEARTBEAT,     BGA_ERROR,         BGA_RELEASE,        BGA_ACK,
-    BGA_ROTFIT_SETUP,  BGA_ROTFIT_CALL,   BGA_ROTFIT_RESULT,  BGA_SOLVE_SETUP,
-    BGA_SOLVE_FACTOR,  BGA_SOLVE_FACTORED, BGA_SOLVE_RHS,     BGA_SOLVE_RESULT,
-    BGA_INTEG_SETUP,   BGA_INTEG_PREDICT, BGA_INTEG_INERTIA,  BGA_INTEG_UPDATE,
-    BGA_INTEG_STATE};
+    BGA_HEARTBEAT,    BGA_ERROR,         BGA_RELEASE,     BGA_ACK,           BGA_ROTFIT_SETUP,
+    BGA_ROTFIT_CALL,  BGA_ROTFIT_RESULT, BGA_SOLVE_SETUP, BGA_SOLVE_FACTOR,  BGA_SOLVE_FACTORED,
+    BGA_SOLVE_RHS,    BGA_SOLVE_RESULT,  BGA_INTEG_SETUP, BGA_INTEG_PREDICT, BGA_INTEG_INERTIA,
+    BGA_INTEG_UPDATE, BGA_INTEG_STATE};
 #define NTYPES (sizeof TYPES / sizeof TYPES[0])
 
 /* Data the sample messages point at: one tetrahedron (2D: a triangle
@@ -145,8 +144,8 @@ static size_t elem_bytes(uint16_t type, int a)
     if ((type == BGA_HEARTBEAT) || type == BGA_ERROR ||
         (type == BGA_SOLVE_FACTORED && a == BGA_SD_MESSAGE))
         return 1;
-    if ((type == BGA_ROTFIT_SETUP && (a == BGA_RS_ELEMENTS || a == BGA_RS_LOCAL_TO_GLOBAL ||
-                                      a == BGA_RS_SCATTER)) ||
+    if ((type == BGA_ROTFIT_SETUP &&
+         (a == BGA_RS_ELEMENTS || a == BGA_RS_LOCAL_TO_GLOBAL || a == BGA_RS_SCATTER)) ||
         type == BGA_SOLVE_SETUP)
         return 4;
     return 8;
@@ -227,7 +226,12 @@ static void expect_error(bga_wire_code got, const bga_wire_error_t *werr, bga_wi
                  bga_wire_code_name(want), frame, field, needle);
 }
 
-static void cut_header(bga_frame_t *v, int *n, uint8_t *s) { (void)n; (void)s; v[0].size = 47; }
+static void cut_header(bga_frame_t *v, int *n, uint8_t *s)
+{
+    (void)n;
+    (void)s;
+    v[0].size = 47;
+}
 static void long_header(bga_frame_t *v, int *n, uint8_t *s)
 {
     (void)n;
@@ -242,19 +246,50 @@ static void patch_header(bga_frame_t *v, uint8_t *s, size_t off, uint8_t byte)
     s[off] = byte;
     v[0].data = s;
 }
-static void bad_magic(bga_frame_t *v, int *n, uint8_t *s) { (void)n; patch_header(v, s, 0, 'x'); }
-static void version2(bga_frame_t *v, int *n, uint8_t *s) { (void)n; patch_header(v, s, 4, 2); }
-static void type_ff(bga_frame_t *v, int *n, uint8_t *s) { (void)n; patch_header(v, s, 7, 0x7f); }
-static void flags1(bga_frame_t *v, int *n, uint8_t *s) { (void)n; patch_header(v, s, 40, 1); }
-static void drop_last(bga_frame_t *v, int *n, uint8_t *s) { (void)v; (void)s; (*n)--; }
+static void bad_magic(bga_frame_t *v, int *n, uint8_t *s)
+{
+    (void)n;
+    patch_header(v, s, 0, 'x');
+}
+static void version2(bga_frame_t *v, int *n, uint8_t *s)
+{
+    (void)n;
+    patch_header(v, s, 4, 2);
+}
+static void type_ff(bga_frame_t *v, int *n, uint8_t *s)
+{
+    (void)n;
+    patch_header(v, s, 7, 0x7f);
+}
+static void flags1(bga_frame_t *v, int *n, uint8_t *s)
+{
+    (void)n;
+    patch_header(v, s, 40, 1);
+}
+static void drop_last(bga_frame_t *v, int *n, uint8_t *s)
+{
+    (void)v;
+    (void)s;
+    (*n)--;
+}
 static void extra_frame(bga_frame_t *v, int *n, uint8_t *s)
 {
     (void)s;
     v[*n] = v[*n - 1];
     (*n)++;
 }
-static void short_fields(bga_frame_t *v, int *n, uint8_t *s) { (void)n; (void)s; v[1].size -= 8; }
-static void odd_array(bga_frame_t *v, int *n, uint8_t *s) { (void)n; (void)s; v[2].size -= 3; }
+static void short_fields(bga_frame_t *v, int *n, uint8_t *s)
+{
+    (void)n;
+    (void)s;
+    v[1].size -= 8;
+}
+static void odd_array(bga_frame_t *v, int *n, uint8_t *s)
+{
+    (void)n;
+    (void)s;
+    v[2].size -= 3;
+}
 static void nan_position(bga_frame_t *v, int *n, uint8_t *s)
 {
     (void)n;
@@ -278,7 +313,12 @@ static void element_oob(bga_frame_t *v, int *n, uint8_t *s)
     s[8] = 9; /* elements[2] = 9 in a partition of 4 vertices */
     v[2].data = s;
 }
-static void short_elements(bga_frame_t *v, int *n, uint8_t *s) { (void)n; (void)s; v[2].size -= 4; }
+static void short_elements(bga_frame_t *v, int *n, uint8_t *s)
+{
+    (void)n;
+    (void)s;
+    v[2].size -= 4;
+}
 static void row_before_diag(bga_frame_t *v, int *n, uint8_t *s)
 {
     (void)n;
@@ -293,9 +333,17 @@ static void nul_in_name(bga_frame_t *v, int *n, uint8_t *s)
     s[3] = 0;
     v[2].data = s;
 }
-static void no_frames(bga_frame_t *v, int *n, uint8_t *s) { (void)v; (void)s; *n = 0; }
+static void no_frames(bga_frame_t *v, int *n, uint8_t *s)
+{
+    (void)v;
+    (void)s;
+    *n = 0;
+}
 
-static void edit_both_rest(bga_msg_t *m) { m->array[BGA_RS_REST_EDGES] = (bga_array_t){VEC, 9}; }
+static void edit_both_rest(bga_msg_t *m)
+{
+    m->array[BGA_RS_REST_EDGES] = (bga_array_t){VEC, 9};
+}
 static void edit_tet_in_2d(bga_msg_t *m)
 {
     m->field[BGA_RS_DIM].i = 2;
@@ -306,40 +354,40 @@ static void test_malformed_cases(void **state)
 {
     (void)state;
     bga_wire_error_t w;
-    expect_error(decode_mutated(BGA_HEARTBEAT, NULL, no_frames, &w), &w, BGA_WIRE_FRAME_COUNT,
-                 -1, "", "no header");
+    expect_error(decode_mutated(BGA_HEARTBEAT, NULL, no_frames, &w), &w, BGA_WIRE_FRAME_COUNT, -1,
+                 "", "no header");
     expect_error(decode_mutated(BGA_HEARTBEAT, NULL, cut_header, &w), &w, BGA_WIRE_TRUNCATED, 0,
                  "header", "47 bytes");
     expect_error(decode_mutated(BGA_HEARTBEAT, NULL, long_header, &w), &w, BGA_WIRE_OVERSIZE, 0,
                  "header", "49 bytes");
     expect_error(decode_mutated(BGA_HEARTBEAT, NULL, bad_magic, &w), &w, BGA_WIRE_BAD_MAGIC, 0,
                  "magic", "bgwp");
-    expect_error(decode_mutated(BGA_HEARTBEAT, NULL, version2, &w), &w, BGA_WIRE_WRONG_VERSION,
-                 0, "version", "version 2");
+    expect_error(decode_mutated(BGA_HEARTBEAT, NULL, version2, &w), &w, BGA_WIRE_WRONG_VERSION, 0,
+                 "version", "version 2");
     expect_error(decode_mutated(BGA_HEARTBEAT, NULL, type_ff, &w), &w, BGA_WIRE_UNKNOWN_TYPE, 0,
                  "type", "0x7f01");
     expect_error(decode_mutated(BGA_HEARTBEAT, NULL, flags1, &w), &w, BGA_WIRE_BAD_HEADER, 0,
                  "flags", "must be 0");
-    expect_error(decode_mutated(BGA_ROTFIT_CALL, NULL, drop_last, &w), &w, BGA_WIRE_FRAME_COUNT,
-                 -1, "", "2 frames, expected 3");
-    expect_error(decode_mutated(BGA_ROTFIT_CALL, NULL, extra_frame, &w), &w,
-                 BGA_WIRE_FRAME_COUNT, -1, "", "4 frames, expected 3");
-    expect_error(decode_mutated(BGA_ROTFIT_SETUP, NULL, short_fields, &w), &w,
-                 BGA_WIRE_TRUNCATED, 1, "fields", "80 bytes, expected 88");
+    expect_error(decode_mutated(BGA_ROTFIT_CALL, NULL, drop_last, &w), &w, BGA_WIRE_FRAME_COUNT, -1,
+                 "", "2 frames, expected 3");
+    expect_error(decode_mutated(BGA_ROTFIT_CALL, NULL, extra_frame, &w), &w, BGA_WIRE_FRAME_COUNT,
+                 -1, "", "4 frames, expected 3");
+    expect_error(decode_mutated(BGA_ROTFIT_SETUP, NULL, short_fields, &w), &w, BGA_WIRE_TRUNCATED,
+                 1, "fields", "80 bytes, expected 88");
     expect_error(decode_mutated(BGA_ROTFIT_CALL, NULL, odd_array, &w), &w, BGA_WIRE_TRUNCATED, 2,
                  "positions", "not a multiple of 8");
-    expect_error(decode_mutated(BGA_ROTFIT_CALL, NULL, nan_position, &w), &w,
-                 BGA_WIRE_NOT_FINITE, 2, "positions", "positions[3] is nan");
+    expect_error(decode_mutated(BGA_ROTFIT_CALL, NULL, nan_position, &w), &w, BGA_WIRE_NOT_FINITE,
+                 2, "positions", "positions[3] is nan");
     expect_error(decode_mutated(BGA_ROTFIT_SETUP, NULL, nan_mu, &w), &w, BGA_WIRE_NOT_FINITE, 1,
                  "mu", "field mu is nan");
-    expect_error(decode_mutated(BGA_ROTFIT_SETUP, NULL, element_oob, &w), &w,
-                 BGA_WIRE_OUT_OF_RANGE, 2, "elements", "elements[2] = 9 outside [0, 4)");
+    expect_error(decode_mutated(BGA_ROTFIT_SETUP, NULL, element_oob, &w), &w, BGA_WIRE_OUT_OF_RANGE,
+                 2, "elements", "elements[2] = 9 outside [0, 4)");
     expect_error(decode_mutated(BGA_ROTFIT_SETUP, NULL, short_elements, &w), &w,
                  BGA_WIRE_BAD_LENGTH, 2, "elements", "3 values, expected 4");
     expect_error(decode_mutated(BGA_SOLVE_SETUP, NULL, row_before_diag, &w), &w,
                  BGA_WIRE_INCONSISTENT, 3, "rowidx", "column 1 starts at row 2");
-    expect_error(decode_mutated(BGA_HEARTBEAT, NULL, nul_in_name, &w), &w,
-                 BGA_WIRE_INCONSISTENT, 2, "name", "NUL");
+    expect_error(decode_mutated(BGA_HEARTBEAT, NULL, nul_in_name, &w), &w, BGA_WIRE_INCONSISTENT, 2,
+                 "name", "NUL");
 
     /* Rules the encoder enforces too: build the bad message with the good
      * encoder by editing after a valid encode is impossible, so check the
@@ -376,11 +424,11 @@ static void test_caps(void **state)
     bga_frames_view(&fr, views);
     bga_wire_error_t w;
     bga_limits_t small = {64, 1 << 20};
-    expect_error(bga_wire_decode(views, fr.count, &small, &back, &w), &w, BGA_WIRE_OVERSIZE, 2,
-                 "", "frame 2 has 96 bytes, cap 64");
+    expect_error(bga_wire_decode(views, fr.count, &small, &back, &w), &w, BGA_WIRE_OVERSIZE, 2, "",
+                 "frame 2 has 96 bytes, cap 64");
     bga_limits_t tight = {1 << 20, 100};
-    expect_error(bga_wire_decode(views, fr.count, &tight, &back, &w), &w, BGA_WIRE_OVERSIZE, 2,
-                 "", "message over 100 bytes");
+    expect_error(bga_wire_decode(views, fr.count, &tight, &back, &w), &w, BGA_WIRE_OVERSIZE, 2, "",
+                 "message over 100 bytes");
     bga_frames_free(&fr);
 }
 
@@ -542,8 +590,8 @@ static void test_fuzz_never_crashes(void **state)
         bga_frames_free(&reply);
         bga_frames_free(&fr);
     }
-    print_message("fuzz: %d inputs, %ld decoded, %ld rejected, agent jobs left %d\n", ITER,
-                  decoded, errors, bga_service_jobs(svc));
+    print_message("fuzz: %d inputs, %ld decoded, %ld rejected, agent jobs left %d\n", ITER, decoded,
+                  errors, bga_service_jobs(svc));
     assert_true(decoded > 0 && errors > 0);
     bga_service_destroy(&svc);
 }
