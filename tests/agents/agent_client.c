@@ -78,6 +78,19 @@ static bga_client_t *connect_to(const char *dir, const char *name, const char *s
     return c;
 }
 
+/* The agent holds nothing for job: a call on it is refused as such. */
+static void expect_no_job(bga_client_t *c, uint64_t job, const char *what)
+{
+    const double q[3] = {0, 0, 0};
+    double g[3];
+    bga_rotfit_out_t out = {0, g, NULL, 3, 0, {0, 0, 0, 0}, 0};
+    bg_error_t err = BG_ERROR_INIT;
+    const bg_status st = bga_client_rotfit(c, job, q, 3, BGA_WANT_GRADIENT, &out, &err);
+    CHECK(st == BG_ERR_INVALID && strstr(err.message, "no such job"),
+          "%s: job %llu should be gone: %s", what, (unsigned long long)job,
+          st == BG_OK ? "it answered" : err.message);
+}
+
 static double max_rel(const double *a, const double *b, size_t n)
 {
     const double scale = fx_max_abs(b, n);
@@ -176,15 +189,14 @@ static int run_compute(const char *dir)
                     }
             }
         }
+        /* Other tests share these agents: counts are checked as bounds,
+         * this job's own state by name. */
         bga_agent_status_t as;
         st = bga_client_heartbeat(c, job, &as, &err);
-        CHECK(st == BG_OK && as.jobs == 1, "%s heartbeat: %s, %lld jobs", names[p], err.message,
-              (long long)as.jobs);
+        CHECK(st == BG_OK && as.jobs >= 1 && as.free_slots < as.slots,
+              "%s heartbeat: %s, %lld jobs", names[p], err.message, (long long)as.jobs);
         CHECK(bga_client_release(c, job, &err) == BG_OK, "%s release: %s", names[p], err.message);
-        st = bga_client_heartbeat(c, 0, &as, &err);
-        CHECK(st == BG_OK && as.jobs == 0 && as.free_slots == as.slots,
-              "%s after release: %lld jobs, %lld of %lld free", names[p], (long long)as.jobs,
-              (long long)as.free_slots, (long long)as.slots);
+        expect_no_job(c, job, names[p]);
         const bga_traffic_t tr = bga_client_traffic(c);
         printf("%s (%s): %d elements, %lld requests, %lld bytes sent, %lld received, "
                "wait %.3f ms, agent compute %.3f ms\n",
@@ -241,10 +253,7 @@ static int run_compute(const char *dir)
         bga_rotfit_pool_destroy(&pool);
         for (int i = 0; i < 2; i++) { /* destroy released both jobs */
             bga_client_t *c = connect_to(dir, i ? "rotfit2" : "rotfit1", "rotation-fit", &r1);
-            bga_agent_status_t as;
-            st = bga_client_heartbeat(c, 0, &as, &err);
-            CHECK(st == BG_OK && as.jobs == 0, "after the pool: %s, %lld jobs", err.message,
-                  (long long)as.jobs);
+            expect_no_job(c, 3000, "after the pool");
             bga_client_destroy(&c);
         }
         free(pgrad);
@@ -386,10 +395,11 @@ static int run_malformed(const char *dir)
     expect_refusal(c, t5, 1, BGA_WIRE_TRUNCATED, "header frame has 0 bytes", "empty frame");
     bga_frames_free(&fr);
 
-    /* Still serving, with nothing held. */
+    /* Still serving. */
     bga_agent_status_t as;
     const bg_status st = bga_client_heartbeat(c, 0, &as, &err);
-    CHECK(st == BG_OK && as.jobs == 0, "heartbeat after malformed input: %s", err.message);
+    CHECK(st == BG_OK && strcmp(as.name, "rotfit1") == 0, "heartbeat after malformed input: %s",
+          err.message);
     printf("agent %s still serving: %lld slots, %lld free\n", as.name, (long long)as.slots,
            (long long)as.free_slots);
     bga_client_destroy(&c);
@@ -418,7 +428,7 @@ static int run_sigterm(const char *dir)
     bg_status st = bga_client_rotfit_setup(c, 5, &bp, &err);
     CHECK(st == BG_OK, "set-up: %s", err.message);
     /* One call measures the agent's time per call; then enough calls are
-     * queued for 0.3 s of work, so the signal (sent 30 ms after them)
+     * queued for 0.3 s of work, so the signal (after the first reply)
      * lands while the agent computes, with calls still queued. */
     const size_t nq = (size_t)part.nv * 3, nh = (size_t)part.ne * 78;
     double *gbuf = malloc(nq * sizeof *gbuf), *hbuf = malloc(nh * sizeof *hbuf);
@@ -448,10 +458,11 @@ static int run_sigterm(const char *dir)
         bga_send(s, NULL, &fr, &err);
         bga_frames_free(&fr);
     }
+    /* The signal goes once the first reply is back (the agent has the
+     * requests sent before it and works through them) plus 30 ms for the
+     * rest to leave this process's I/O thread. */
     struct timespec pause = {0, 30 * 1000 * 1000};
-    nanosleep(&pause, NULL);
-    CHECK(kill((pid_t)r.pid, SIGTERM) == 0, "kill %ld: %s", r.pid, strerror(errno));
-    int got = 0;
+    int got = 0, signalled = 0;
     const double deadline = bg_clock_now() + 20.0;
     while (got < nreq && bg_clock_now() < deadline) {
         zmq_pollitem_t item = {s, 0, ZMQ_POLLIN, 0};
@@ -471,9 +482,14 @@ static int run_sigterm(const char *dir)
               (unsigned long long)rep.header.seq);
         bga_received_close(&rx);
         got++;
+        if (!signalled) {
+            nanosleep(&pause, NULL);
+            CHECK(kill((pid_t)r.pid, SIGTERM) == 0, "kill %ld: %s", r.pid, strerror(errno));
+            signalled = 1;
+        }
     }
     CHECK(got == nreq, "%d of %d queued requests answered after SIGTERM", got, nreq);
-    printf("SIGTERM 30 ms after %d requests of %.1f ms each: %d answered\n", nreq,
+    printf("SIGTERM after the first of %d requests of %.1f ms each: %d answered\n", nreq,
            1e3 * out.agent_seconds, got);
     zmq_close(s);
     zmq_ctx_term(ctx);
