@@ -8,6 +8,8 @@
 #include <string.h>
 
 #include "cmd.h"
+#include "cmd_agent.h"
+#include "cmd_grid.h"
 #include "cmd_solve.h"
 #ifdef BIOTGRID_HAVE_MARKET
 #include "bgm_sim.h"
@@ -34,6 +36,10 @@ static const command_t COMMANDS[] = {
     {"sim", "sim EXPERIMENT.json [options]", "run a market simulation experiment",
      bgm_sim_command, NULL},
 #endif
+    {"agent", "agent [options]", "run an agent daemon serving basic services", bg_cmd_agent,
+     bg_cmd_agent_usage},
+    {"grid", "grid up|status|down [options]", "a local grid of agents on loopback", bg_cmd_grid,
+     bg_cmd_grid_usage},
 };
 #define COMMAND_COUNT (sizeof COMMANDS / sizeof COMMANDS[0])
 

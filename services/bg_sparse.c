@@ -212,6 +212,51 @@ fail:
     return st;
 }
 
+bg_status bg_sparse_new_csc(int32_t n, const int32_t *colptr, const int32_t *rowidx,
+                            bg_sparse_t **out, bg_error_t *err)
+{
+    *out = NULL;
+    if (n <= 0 || colptr[0] != 0 || colptr[n] <= 0)
+        return bg_error_set(err, BG_ERR_INVALID, "sparse pattern: %d columns, colptr[0] = %d, "
+                            "colptr[n] = %d", (int)n, n > 0 ? (int)colptr[0] : 0,
+                            n > 0 ? (int)colptr[n] : 0);
+    for (int32_t col = 0; col < n; col++) {
+        if (colptr[col + 1] <= colptr[col] || rowidx[colptr[col]] != col)
+            return bg_error_set(err, BG_ERR_INVALID, "sparse pattern: column %d does not start "
+                                "at its diagonal", (int)col);
+        for (int32_t p = colptr[col] + 1; p < colptr[col + 1]; p++)
+            if (rowidx[p] <= rowidx[p - 1] || rowidx[p] >= n)
+                return bg_error_set(err, BG_ERR_INVALID, "sparse pattern: column %d, entry %d: "
+                                    "row %d out of order or range", (int)col, (int)p,
+                                    (int)rowidx[p]);
+    }
+    bg_sparse_t *sys = calloc(1, sizeof *sys);
+    if (!sys)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating a sparse system");
+    cholmod_start(&sys->common);
+    sys->common.print = 0;
+    sys->nfree = n;
+    sys->nnz = (size_t)colptr[n];
+    bg_status st = BG_OK;
+    sys->A = cholmod_allocate_sparse((size_t)n, (size_t)n, sys->nnz, 1, 1, -1, CHOLMOD_REAL,
+                                     &sys->common);
+    sys->B = cholmod_zeros((size_t)n, 1, CHOLMOD_REAL, &sys->common);
+    if (!sys->A || !sys->B) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory allocating a %d x %d sparse matrix "
+                          "with %zu nonzeros", (int)n, (int)n, sys->nnz);
+        bg_sparse_destroy(&sys);
+        return st;
+    }
+    int *Ap = sys->A->p, *Ai = sys->A->i;
+    for (int32_t col = 0; col <= n; col++)
+        Ap[col] = colptr[col];
+    for (size_t p = 0; p < sys->nnz; p++)
+        Ai[p] = rowidx[p];
+    memset(sys->A->x, 0, sys->nnz * sizeof(double));
+    *out = sys;
+    return BG_OK;
+}
+
 void bg_sparse_destroy(bg_sparse_t **psys)
 {
     if (!psys || !*psys)
@@ -237,6 +282,19 @@ int32_t bg_sparse_size(const bg_sparse_t *sys)
 size_t bg_sparse_nonzeros(const bg_sparse_t *sys)
 {
     return sys->nnz;
+}
+
+/* CHOLMOD's int indices are the int32_t of the public interface. */
+_Static_assert(sizeof(int) == sizeof(int32_t), "CHOLMOD int indices must be 32-bit");
+
+const int32_t *bg_sparse_colptr(const bg_sparse_t *sys)
+{
+    return (const int32_t *)sys->A->p;
+}
+
+const int32_t *bg_sparse_rowidx(const bg_sparse_t *sys)
+{
+    return (const int32_t *)sys->A->i;
 }
 
 const int32_t *bg_sparse_scatter(const bg_sparse_t *sys)

@@ -41,8 +41,24 @@ bg_status bg_sparse_new(const bg_mesh_t *mesh, int n, const int32_t *free_index,
                         bg_sparse_t **out, bg_error_t *err);
 void bg_sparse_destroy(bg_sparse_t **sys);
 
+/*
+ * A system on a given lower-triangle CSC pattern (the sparse-solve
+ * agent's form: the pattern arrives over the wire, with no mesh): n
+ * columns, colptr[n + 1], rowidx[colptr[n]], rows strictly increasing in
+ * each column and starting at the diagonal. The pattern is checked
+ * (BG_ERR_INVALID naming the column) and copied. There is no element
+ * scatter map (bg_sparse_scatter returns NULL). Caller owns *out.
+ */
+bg_status bg_sparse_new_csc(int32_t n, const int32_t *colptr, const int32_t *rowidx,
+                            bg_sparse_t **out, bg_error_t *err);
+
 int32_t bg_sparse_size(const bg_sparse_t *sys);
 size_t bg_sparse_nonzeros(const bg_sparse_t *sys);
+
+/* The lower-triangle CSC pattern (size() + 1 column starts, nonzeros()
+ * row indices), borrowed: what a sparse-solve agent is sent once. */
+const int32_t *bg_sparse_colptr(const bg_sparse_t *sys);
+const int32_t *bg_sparse_rowidx(const bg_sparse_t *sys);
 
 /* Per element, BG_ELASTIC_TRI_SIZE(local size) positions (or −1); borrowed. */
 const int32_t *bg_sparse_scatter(const bg_sparse_t *sys);

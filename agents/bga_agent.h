@@ -1,0 +1,50 @@
+/*
+ * bga_agent — the agent daemon's loop: a ZeroMQ ROUTER socket bound to an
+ * endpoint, requests handed to bga_service, replies routed back, leases
+ * expired between requests.
+ *
+ * Heartbeats are ping-pong: a peer's HEARTBEAT gets the agent's status
+ * (slots, free slots, services, name) and renews the lease of the job it
+ * names. The loop is single-threaded: a request in progress always
+ * finishes and its reply is sent before the stop flag is looked at; once
+ * stopping, requests already queued on the socket (at most
+ * BGA_AGENT_DRAIN_MAX) are answered too, then the loop returns; and the
+ * socket lingers up to BGA_AGENT_LINGER_MS at close so that reply
+ * leaves the process.
+ */
+#ifndef BGA_AGENT_H
+#define BGA_AGENT_H
+
+#include <signal.h>
+
+#include "bg_error.h"
+#include "bga_service.h"
+
+#define BGA_AGENT_LINGER_MS 2000
+#define BGA_AGENT_DRAIN_MAX 64
+#define BGA_AGENT_ENDPOINT_MAX 256
+
+typedef struct bga_agent bga_agent_t;
+
+typedef struct bga_agent_config {
+    const char *listen; /* e.g. tcp://127.0.0.1:0 (an ephemeral port) */
+    bga_service_config_t service;
+    int poll_ms; /* how often leases and the stop flag are checked */
+} bga_agent_config_t;
+
+/* Creates the job table and binds. Caller owns *out. */
+bg_status bga_agent_new(const bga_agent_config_t *config, bga_agent_t **out, bg_error_t *err);
+void bga_agent_destroy(bga_agent_t **agent);
+
+/* The bound endpoint with the resolved port (tcp://127.0.0.1:40123). */
+const char *bga_agent_endpoint(const bga_agent_t *agent);
+
+/*
+ * Serves until *stop becomes non-zero (set by the command's signal
+ * handler). Returns BG_OK then, or the failure that ended the loop.
+ */
+bg_status bga_agent_run(bga_agent_t *agent, const volatile sig_atomic_t *stop, bg_error_t *err);
+
+bga_service_stats_t bga_agent_stats(const bga_agent_t *agent);
+
+#endif

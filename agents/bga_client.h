@@ -1,0 +1,130 @@
+/*
+ * bga_client — the coordinator's side of the wire: one connection to one
+ * agent, blocking request/reply with a timeout, and typed calls for the
+ * basic services.
+ *
+ * Every failure names the agent's endpoint and the service: a timeout
+ * ("agent tcp://127.0.0.1:40123 (rotation-fit): no reply to rotfit-call
+ * within 2000 ms"), an error reply (its code, frame, field and message),
+ * or a reply of the wrong shape. One request is in flight at a time; a
+ * reply that arrives after its timeout is recognised by its sequence
+ * number and dropped. The client owns its ZeroMQ context and DEALER socket.
+ */
+#ifndef BGA_CLIENT_H
+#define BGA_CLIENT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "bg_error.h"
+#include "bg_rotfit.h"
+#include "bga_transport.h"
+#include "bga_wire.h"
+
+typedef struct bga_client bga_client_t;
+
+/* What one request/reply exchange cost, accumulated per client. */
+typedef struct bga_traffic {
+    int64_t requests;
+    int64_t bytes_sent, bytes_received;
+    double encode_seconds; /* encoding requests and decoding replies */
+    double wait_seconds;   /* from the send to the reply (transit + agent compute) */
+    double agent_seconds;  /* compute time the agents reported */
+} bga_traffic_t;
+
+/* A decoded reply; msg points into the received frames until closed. */
+typedef struct bga_reply {
+    bga_received_t frames;
+    bga_msg_t msg;
+} bga_reply_t;
+
+/*
+ * Connects to endpoint. `service` names what this connection is for in
+ * messages ("rotation-fit"). Caller owns *out.
+ */
+bg_status bga_client_new(const char *endpoint, const char *service, int timeout_ms,
+                         bga_client_t **out, bg_error_t *err);
+void bga_client_destroy(bga_client_t **client);
+const char *bga_client_endpoint(const bga_client_t *client);
+bga_traffic_t bga_client_traffic(const bga_client_t *client);
+
+/*
+ * Sends req (its seq is assigned here) and waits for the matching reply.
+ * An ERROR reply is returned too (BG_OK): look at rep->msg.header.type.
+ * BG_ERR_IO on a timeout or a transport failure, BG_ERR_PARSE when the
+ * reply does not decode. On BG_OK the caller closes *rep.
+ */
+bg_status bga_client_request(bga_client_t *c, bga_msg_t *req, bga_reply_t *rep, bg_error_t *err);
+/*
+ * The two halves of bga_client_request, so a coordinator can have one
+ * request in flight on each of several agents: post encodes and sends
+ * (one request in flight per client: BG_ERR_INVALID otherwise), collect
+ * waits for its reply (the timeout counts from the post).
+ */
+bg_status bga_client_post(bga_client_t *c, bga_msg_t *req, bg_error_t *err);
+bg_status bga_client_collect(bga_client_t *c, bga_reply_t *rep, bg_error_t *err);
+
+/* The same with raw frames (tests send malformed messages): the reply
+ * is the first one to arrive. */
+bg_status bga_client_request_raw(bga_client_t *c, const bga_frame_t *frames, int nframes,
+                                 bga_reply_t *rep, bg_error_t *err);
+void bga_reply_close(bga_reply_t *rep);
+
+/* The agent's answer to a ping. */
+typedef struct bga_agent_status {
+    int64_t slots, free_slots, jobs;
+    unsigned services;
+    char name[64];
+} bga_agent_status_t;
+bg_status bga_client_heartbeat(bga_client_t *c, uint64_t job, bga_agent_status_t *st,
+                               bg_error_t *err);
+
+/* A rotation-fit partition (all arrays borrowed for the call). Exactly one
+ * of rest_positions (nv*dim) and rest_edges (ne*dim*dim) is non-NULL;
+ * scatter (ne*T into nval entries, −1 skips) may be NULL: then the
+ * Hessian comes back as per-element packed upper triangles. */
+typedef struct bga_partition {
+    int dim;
+    int32_t nv, ne, nglobal;
+    const int32_t *elements;        /* ne*(dim+1), local vertex numbers */
+    const int32_t *local_to_global; /* nv */
+    const double *rest_positions;
+    const double *rest_edges;
+    double mu, lambda, barrier;
+    int32_t nval;
+    const int32_t *scatter;
+    int64_t lease_ms;
+} bga_partition_t;
+
+bg_status bga_client_rotfit_setup(bga_client_t *c, uint64_t job, const bga_partition_t *p,
+                                  bg_error_t *err);
+
+typedef struct bga_rotfit_out {
+    double energy;
+    double *gradient; /* nv*dim, filled when want has BGA_WANT_GRADIENT */
+    double *hessian;  /* nval (or ne*T), filled when want has BGA_WANT_HESSIAN */
+    size_t gradient_count, hessian_count; /* capacities of the two */
+    bg_rotfit_stats_t fits;
+    double agent_seconds;
+} bga_rotfit_out_t;
+
+bg_status bga_client_rotfit(bga_client_t *c, uint64_t job, const double *positions, size_t count,
+                            unsigned want, bga_rotfit_out_t *out, bg_error_t *err);
+/* bga_client_rotfit in two halves (start on every agent, then finish
+ * each): the partitions are computed in parallel. */
+bg_status bga_client_rotfit_start(bga_client_t *c, uint64_t job, const double *positions,
+                                  size_t count, unsigned want, bg_error_t *err);
+bg_status bga_client_rotfit_finish(bga_client_t *c, bga_rotfit_out_t *out, bg_error_t *err);
+
+bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const int32_t *colptr,
+                                 const int32_t *rowidx, int64_t lease_ms, bg_error_t *err);
+/* *posdef = 0 when the matrix (plus shift·I) is not positive definite:
+ * the caller may retry with a larger shift. */
+bg_status bga_client_solve_factor(bga_client_t *c, uint64_t job, const double *values, size_t nnz,
+                                  double shift, int *posdef, bg_error_t *err);
+/* x = A⁻¹ rhs for nrhs right-hand sides of n values each (column blocks). */
+bg_status bga_client_solve(bga_client_t *c, uint64_t job, const double *rhs, int32_t n, int nrhs,
+                           double *x, bg_error_t *err);
+bg_status bga_client_release(bga_client_t *c, uint64_t job, bg_error_t *err);
+
+#endif

@@ -1,0 +1,254 @@
+#include "bga_pool.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+#include "bg_clock.h"
+
+typedef struct part {
+    bga_client_t *client;
+    int32_t nv, ne, nval;
+    int32_t *local_to_global; /* nv */
+    int32_t *to_global;       /* nval: global value position of each local value */
+    double *q, *grad, *hess;
+} part;
+
+struct bga_rotfit_pool {
+    int n, dim, has_hessian;
+    size_t ndof;
+    uint64_t job;
+    part *parts;
+    double gather_seconds;
+};
+
+static void part_free(part *p)
+{
+    free(p->local_to_global);
+    free(p->to_global);
+    free(p->q);
+    free(p->grad);
+    free(p->hess);
+}
+
+/* Elements [e0, e1) of mesh as a partition: local vertices in order of
+ * first use; its Hessian entries compacted likewise. */
+static bg_status make_part(const bga_pool_config_t *cfg, int32_t e0, int32_t e1, part *p,
+                           bga_partition_t *bp, int32_t **elements, int32_t **scatter,
+                           double **rest, bg_error_t *err)
+{
+    const bg_mesh_t *mesh = cfg->mesh;
+    const int k = mesh->nodes_per_element, dim = mesh->dim, local = k * dim;
+    const int T = local * (local + 1) / 2;
+    bg_status st = BG_OK;
+    int32_t *g2l = malloc((size_t)mesh->nv * sizeof *g2l);
+    int32_t *v2l = cfg->scatter ? malloc(cfg->nval * sizeof *v2l + 1) : NULL;
+    p->ne = e1 - e0;
+    *elements = malloc((size_t)p->ne * k * sizeof **elements + 1);
+    p->local_to_global = malloc((size_t)p->ne * k * sizeof *p->local_to_global + 1);
+    *scatter = cfg->scatter ? malloc((size_t)p->ne * T * sizeof **scatter + 1) : NULL;
+    p->to_global = cfg->scatter ? malloc((size_t)p->ne * T * sizeof *p->to_global + 1) : NULL;
+    if (!g2l || !*elements || !p->local_to_global ||
+        (cfg->scatter && (!v2l || !*scatter || !p->to_global))) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory partitioning %d elements", (int)p->ne);
+        goto out;
+    }
+    for (int32_t v = 0; v < mesh->nv; v++)
+        g2l[v] = -1;
+    for (int32_t e = e0; e < e1; e++)
+        for (int i = 0; i < k; i++) {
+            const int32_t g = mesh->elements[(size_t)e * k + i];
+            if (g2l[g] < 0) {
+                g2l[g] = p->nv;
+                p->local_to_global[p->nv++] = g;
+            }
+            (*elements)[(size_t)(e - e0) * k + i] = g2l[g];
+        }
+    if (cfg->scatter) {
+        for (size_t i = 0; i < cfg->nval; i++)
+            v2l[i] = -1;
+        for (int32_t e = e0; e < e1; e++)
+            for (int t = 0; t < T; t++) {
+                const int32_t g = cfg->scatter[(size_t)e * T + t];
+                int32_t l = -1;
+                if (g >= 0) {
+                    if (v2l[g] < 0) {
+                        v2l[g] = p->nval;
+                        p->to_global[p->nval++] = g;
+                    }
+                    l = v2l[g];
+                }
+                (*scatter)[(size_t)(e - e0) * T + t] = l;
+            }
+    }
+    const size_t ndof = (size_t)p->nv * dim;
+    *rest = malloc(ndof * sizeof **rest + 1);
+    p->q = malloc(ndof * sizeof *p->q + 1);
+    p->grad = malloc(ndof * sizeof *p->grad + 1);
+    p->hess = malloc((size_t)p->nval * sizeof *p->hess + 1);
+    if (!*rest || !p->q || !p->grad || !p->hess) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for a partition of %d vertices",
+                          (int)p->nv);
+        goto out;
+    }
+    for (int32_t v = 0; v < p->nv; v++)
+        memcpy(*rest + (size_t)v * dim, mesh->x + (size_t)p->local_to_global[v] * dim,
+               (size_t)dim * sizeof **rest);
+    memset(bp, 0, sizeof *bp);
+    bp->dim = dim;
+    bp->nv = p->nv;
+    bp->ne = p->ne;
+    bp->nglobal = mesh->nv;
+    bp->elements = *elements;
+    bp->local_to_global = p->local_to_global;
+    bp->rest_positions = *rest;
+    bp->mu = cfg->mu;
+    bp->lambda = cfg->lambda;
+    bp->barrier = cfg->barrier;
+    bp->nval = p->nval;
+    bp->scatter = p->nval > 0 ? *scatter : NULL;
+    bp->lease_ms = cfg->lease_ms;
+out:
+    free(g2l);
+    free(v2l);
+    return st;
+}
+
+bg_status bga_rotfit_pool_new(const bga_pool_config_t *cfg, bga_rotfit_pool_t **out,
+                              bg_error_t *err)
+{
+    *out = NULL;
+    if (cfg->nagents < 1 || cfg->nagents > cfg->mesh->ne)
+        return bg_error_set(err, BG_ERR_INVALID, "%d rotation-fit agents for %d elements",
+                            cfg->nagents, (int)cfg->mesh->ne);
+    bga_rotfit_pool_t *pool = calloc(1, sizeof *pool);
+    if (!pool || !(pool->parts = calloc((size_t)cfg->nagents, sizeof *pool->parts))) {
+        free(pool);
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for a pool of %d agents",
+                            cfg->nagents);
+    }
+    pool->n = cfg->nagents;
+    pool->dim = cfg->mesh->dim;
+    pool->ndof = (size_t)cfg->mesh->nv * (size_t)cfg->mesh->dim;
+    pool->job = cfg->job;
+    pool->has_hessian = cfg->scatter != NULL;
+    bg_status st = BG_OK;
+    for (int i = 0; i < pool->n && st == BG_OK; i++) {
+        part *p = &pool->parts[i];
+        const int32_t e0 = (int32_t)((int64_t)cfg->mesh->ne * i / pool->n);
+        const int32_t e1 = (int32_t)((int64_t)cfg->mesh->ne * (i + 1) / pool->n);
+        int32_t *elements = NULL, *scatter = NULL;
+        double *rest = NULL;
+        bga_partition_t bp;
+        st = bga_client_new(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms, &p->client, err);
+        if (st == BG_OK)
+            st = make_part(cfg, e0, e1, p, &bp, &elements, &scatter, &rest, err);
+        if (st == BG_OK)
+            st = bga_client_rotfit_setup(p->client, cfg->job, &bp, err);
+        free(elements);
+        free(scatter);
+        free(rest);
+    }
+    if (st != BG_OK) {
+        bga_rotfit_pool_destroy(&pool);
+        return st;
+    }
+    *out = pool;
+    return BG_OK;
+}
+
+void bga_rotfit_pool_destroy(bga_rotfit_pool_t **ppool)
+{
+    if (!ppool || !*ppool)
+        return;
+    bga_rotfit_pool_t *pool = *ppool;
+    for (int i = 0; i < pool->n; i++) {
+        part *p = &pool->parts[i];
+        if (p->client && p->local_to_global) {
+            bg_error_t ignored = BG_ERROR_INIT; /* best effort: the lease frees it otherwise */
+            bga_client_release(p->client, pool->job, &ignored);
+        }
+        bga_client_destroy(&p->client);
+        part_free(p);
+    }
+    free(pool->parts);
+    free(pool);
+    *ppool = NULL;
+}
+
+bg_status bga_rotfit_pool_eval(bga_rotfit_pool_t *pool, const double *q, double *energy,
+                               double *grad, double *values, int project, bg_error_t *err)
+{
+    if (values && !pool->has_hessian)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "this rotation-fit pool has no Hessian "
+                            "scatter map");
+    const int dim = pool->dim;
+    const unsigned want = (grad ? BGA_WANT_GRADIENT : 0u) |
+                          (values ? BGA_WANT_HESSIAN | (project ? BGA_WANT_PROJECTED : 0u) : 0u);
+    bg_status st = BG_OK;
+    int started = 0;
+    for (; started < pool->n && st == BG_OK; started++) {
+        part *p = &pool->parts[started];
+        for (int32_t v = 0; v < p->nv; v++)
+            memcpy(p->q + (size_t)v * dim, q + (size_t)p->local_to_global[v] * dim,
+                   (size_t)dim * sizeof *q);
+        st = bga_client_rotfit_start(p->client, pool->job, p->q, (size_t)p->nv * dim, want, err);
+    }
+    if (st != BG_OK)
+        started--;
+    double total = 0.0;
+    if (grad && st == BG_OK)
+        memset(grad, 0, pool->ndof * sizeof *grad); /* vertices in no element stay 0 */
+    for (int i = 0; i < started; i++) {
+        part *p = &pool->parts[i];
+        bga_rotfit_out_t out = {
+            0, p->grad, p->hess, (size_t)p->nv * dim, (size_t)p->nval, {0, 0, 0, 0}, 0};
+        /* Every started request is collected, even after a failure, so
+         * no client is left with a request in flight. */
+        bg_error_t e = BG_ERROR_INIT;
+        const bg_status s = bga_client_rotfit_finish(p->client, &out, &e);
+        if (s != BG_OK) {
+            if (st == BG_OK) {
+                st = s;
+                bg_error_set(err, s, "%s", e.message);
+            }
+            continue;
+        }
+        if (st != BG_OK)
+            continue;
+        const double t0 = bg_clock_now();
+        total += out.energy;
+        if (grad) {
+            for (int32_t v = 0; v < p->nv; v++)
+                for (int c = 0; c < dim; c++)
+                    grad[(size_t)p->local_to_global[v] * dim + c] += p->grad[(size_t)v * dim + c];
+        }
+        if (values)
+            for (int32_t l = 0; l < p->nval; l++)
+                values[p->to_global[l]] += p->hess[l];
+        pool->gather_seconds += bg_clock_now() - t0;
+    }
+    if (st == BG_OK)
+        *energy = total;
+    return st;
+}
+
+int bga_rotfit_pool_size(const bga_rotfit_pool_t *pool)
+{
+    return pool->n;
+}
+
+bga_traffic_t bga_rotfit_pool_traffic(const bga_rotfit_pool_t *pool, int agent)
+{
+    return bga_client_traffic(pool->parts[agent].client);
+}
+
+int32_t bga_rotfit_pool_elements(const bga_rotfit_pool_t *pool, int agent)
+{
+    return pool->parts[agent].ne;
+}
+
+double bga_rotfit_pool_gather_seconds(const bga_rotfit_pool_t *pool)
+{
+    return pool->gather_seconds;
+}

@@ -1,0 +1,74 @@
+/*
+ * bga_service — what an agent computes, without sockets: a table of jobs
+ * (up to `slots`), each holding the state of the basic services it set up
+ * on this agent, and one function that turns a request's frames into the
+ * reply's frames.
+ *
+ *   rotation-fit    ROTFIT_SETUP keeps the partition as a local mesh and a
+ *                   bg_elastic model (its warm rotations live there);
+ *                   ROTFIT_CALL returns energy, gradient (local vertices)
+ *                   and Hessian values: per element packed blocks, or
+ *                   summed through the set-up's scatter map into `values`
+ *                   entries (the partition's share of the fixed pattern).
+ *   sparse-solve    SOLVE_SETUP keeps a bg_sparse system on the CSC
+ *                   pattern (CHOLMOD analyses on the first factor, once);
+ *                   SOLVE_FACTOR factors values + shift·I and keeps the
+ *                   factor; SOLVE_RHS solves with it, as often as asked.
+ *   integration     INTEG_SETUP keeps masses, q_k, p_k, h and damping;
+ *                   INTEG_PREDICT returns the inertia term's data;
+ *                   INTEG_UPDATE takes q* and ∇W(q*) and advances
+ *                   q_{k+1} = 2q* − q_k, p_{k+1} = e^{−γh}(M(2/h)(q* − q_k) − (h/2)∇W(q*)).
+ *   control         HEARTBEAT answers the agent's status (and renews the
+ *                   lease of the job named in the header, if any); RELEASE
+ *                   frees the job.
+ * Every request on a job renews its lease (the largest lease_ms of its
+ * set-ups; 0 = no expiry). A malformed or unserviceable request gets an
+ * ERROR reply naming the frame and field; bga_service_handle itself fails
+ * only when memory for the reply runs out.
+ */
+#ifndef BGA_SERVICE_H
+#define BGA_SERVICE_H
+
+#include <stdint.h>
+
+#include "bg_error.h"
+#include "bga_wire.h"
+
+typedef struct bga_service bga_service_t;
+
+typedef struct bga_service_config {
+    int slots;           /* jobs held at once, ≥ 1 */
+    unsigned services;   /* BGA_SERVICE_* bits served */
+    const char *name;    /* reported in heartbeats (copied), may be NULL */
+    bga_limits_t limits; /* decoding caps */
+} bga_service_config_t;
+
+typedef struct bga_service_stats {
+    int64_t requests, errors, expired, released;
+    double compute_seconds;
+} bga_service_stats_t;
+
+/* Caller owns *out. */
+bg_status bga_service_new(const bga_service_config_t *config, bga_service_t **out, bg_error_t *err);
+void bga_service_destroy(bga_service_t **svc);
+
+/*
+ * Handles one request (frames, borrowed) at monotonic time `now`
+ * (seconds) and fills *reply (caller frees with bga_frames_free).
+ * Returns BG_OK, or BG_ERR_NOMEM when no reply could be built.
+ */
+bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int nframes, double now,
+                             bga_frames_t *reply, bg_error_t *err);
+
+/* Frees every job whose lease ran out before `now`; returns how many. */
+int bga_service_expire(bga_service_t *svc, double now);
+
+/* Jobs held now. */
+int bga_service_jobs(const bga_service_t *svc);
+bga_service_stats_t bga_service_stats(const bga_service_t *svc);
+
+/* Parses a --services list ("rotfit,solve,integ" or "all") into bits;
+ * 0 on an unknown name (err names it). */
+unsigned bga_service_parse_list(const char *list, bg_error_t *err);
+
+#endif

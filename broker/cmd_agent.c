@@ -1,0 +1,257 @@
+/*
+ * biotgrid agent [--config FILE] [--listen ENDPOINT] [--services LIST] [--slots N]
+ *                [--name NAME] [--ready-file FILE]
+ *
+ * Binds, prints "agent NAME ready on ENDPOINT" (the resolved port) on
+ * stdout, writes "ENDPOINT PID" to the ready file if asked (written to a
+ * temporary name and renamed, so a reader never sees half of it), serves
+ * until SIGTERM or SIGINT, finishes the request in progress and exits 0.
+ * Command-line options override the config file's keys.
+ */
+#include "cmd_agent.h"
+
+#include <cjson/cJSON.h>
+#include <errno.h>
+#include <limits.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "bg_mesh_io.h"
+#include "bga_agent.h"
+
+static volatile sig_atomic_t stop_requested;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    stop_requested = 1;
+}
+
+const char bg_cmd_agent_usage[] =
+    "usage: biotgrid agent [--config FILE] [--listen ENDPOINT] [--services LIST]\n"
+    "                      [--slots N] [--name NAME] [--ready-file FILE]\n"
+    "  --listen ENDPOINT   ZeroMQ endpoint to bind (default tcp://127.0.0.1:*,\n"
+    "                      an ephemeral port; the resolved one is printed)\n"
+    "  --services LIST     rotfit,solve,integ or all (default all)\n"
+    "  --slots N           jobs held at once (default 4)\n"
+    "  --config FILE       JSON object with keys listen, services, slots, name\n";
+
+static void usage(FILE *out)
+{
+    fputs(bg_cmd_agent_usage, out);
+}
+
+typedef struct options {
+    bg_agent_spec_t spec;
+    const char *ready_file;
+} options;
+
+void bg_agent_spec_default(bg_agent_spec_t *spec)
+{
+    memset(spec, 0, sizeof *spec);
+    snprintf(spec->listen, sizeof spec->listen, "tcp://127.0.0.1:*");
+    snprintf(spec->services, sizeof spec->services, "all");
+    spec->slots = 4;
+}
+
+static int parse_slots(const char *text, const char *where, int *slots)
+{
+    char *end;
+    errno = 0;
+    const long v = strtol(text, &end, 10);
+    if (errno || *end || end == text || v < 1 || v > 4096) {
+        fprintf(stderr, "biotgrid agent: %s: slots '%s' is not an integer in [1, 4096]\n", where,
+                text);
+        return 2;
+    }
+    *slots = (int)v;
+    return 0;
+}
+
+static int copy_string(char *dst, size_t cap, const char *src, const char *where, const char *key)
+{
+    if (strlen(src) >= cap) {
+        fprintf(stderr, "biotgrid: %s: %s is longer than %zu characters\n", where, key, cap - 1);
+        return 2;
+    }
+    memcpy(dst, src, strlen(src) + 1);
+    return 0;
+}
+
+int bg_agent_spec_parse(const cJSON *obj, const char *where, bg_agent_spec_t *spec)
+{
+    if (!cJSON_IsObject(obj)) {
+        fprintf(stderr, "biotgrid: %s: not a JSON object\n", where);
+        return 2;
+    }
+    for (const cJSON *it = obj->child; it; it = it->next) {
+        const char *key = it->string;
+        int rc = 0;
+        if (strcmp(key, "slots") == 0) {
+            if (!cJSON_IsNumber(it) || it->valuedouble != (int)it->valuedouble ||
+                it->valuedouble < 1 || it->valuedouble > 4096) {
+                fprintf(stderr, "biotgrid: %s: slots must be an integer in [1, 4096]\n", where);
+                rc = 2;
+            } else {
+                spec->slots = (int)it->valuedouble;
+            }
+        } else if (strcmp(key, "listen") == 0 || strcmp(key, "services") == 0 ||
+                   strcmp(key, "name") == 0) {
+            char *dst = key[0] == 'l' ? spec->listen : key[0] == 's' ? spec->services : spec->name;
+            const size_t cap = key[0] == 'l'   ? sizeof spec->listen
+                               : key[0] == 's' ? sizeof spec->services
+                                               : sizeof spec->name;
+            if (!cJSON_IsString(it)) {
+                fprintf(stderr, "biotgrid: %s: %s must be a string\n", where, key);
+                rc = 2;
+            } else {
+                rc = copy_string(dst, cap, it->valuestring, where, key);
+            }
+        } else {
+            fprintf(stderr, "biotgrid: %s: unknown key '%s'\n", where, key);
+            rc = 2;
+        }
+        if (rc)
+            return rc;
+    }
+    return 0;
+}
+
+/* Reads the config file's keys into o. */
+static int read_config(const char *path, options *o)
+{
+    char *text = NULL;
+    size_t len = 0;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bg_file_read_all(path, 1 << 16, &text, &len, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid agent: %s\n", err.message);
+        return 2;
+    }
+    cJSON *root = cJSON_ParseWithLength(text, len);
+    free(text);
+    int rc;
+    if (!root) {
+        fprintf(stderr, "biotgrid agent: %s: malformed JSON\n", path);
+        rc = 2;
+    } else {
+        rc = bg_agent_spec_parse(root, path, &o->spec);
+    }
+    cJSON_Delete(root);
+    return rc;
+}
+
+static int write_ready_file(const char *path, const char *endpoint)
+{
+    char tmp[PATH_MAX];
+    if (snprintf(tmp, sizeof tmp, "%s.tmp", path) >= (int)sizeof tmp)
+        return -1;
+    FILE *f = fopen(tmp, "w");
+    if (!f)
+        return -1;
+    const int ok = fprintf(f, "%s %ld\n", endpoint, (long)getpid()) > 0;
+    if (fclose(f) != 0 || !ok)
+        return -1;
+    return rename(tmp, path);
+}
+
+static int parse_args(int argc, char **argv, options *o)
+{
+    const char *config = NULL;
+    for (int i = 1; i < argc; i++)
+        if (strcmp(argv[i], "--config") == 0 && i + 1 < argc)
+            config = argv[i + 1];
+    if (config && read_config(config, o) != 0)
+        return 2;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            usage(stdout);
+            return -1;
+        }
+        if (i + 1 >= argc) {
+            fprintf(stderr, "biotgrid agent: unknown option or missing value: '%s'\n", a);
+            usage(stderr);
+            return 2;
+        }
+        const char *v = argv[++i];
+        int rc = 0;
+        if (strcmp(a, "--config") == 0)
+            continue;
+        else if (strcmp(a, "--listen") == 0)
+            rc = copy_string(o->spec.listen, sizeof o->spec.listen, v, "--listen", "the endpoint");
+        else if (strcmp(a, "--services") == 0)
+            rc =
+                copy_string(o->spec.services, sizeof o->spec.services, v, "--services", "the list");
+        else if (strcmp(a, "--name") == 0)
+            rc = copy_string(o->spec.name, sizeof o->spec.name, v, "--name", "the name");
+        else if (strcmp(a, "--slots") == 0)
+            rc = parse_slots(v, "--slots", &o->spec.slots);
+        else if (strcmp(a, "--ready-file") == 0)
+            o->ready_file = v;
+        else {
+            fprintf(stderr, "biotgrid agent: unknown option '%s'\n", a);
+            usage(stderr);
+            return 2;
+        }
+        if (rc)
+            return rc;
+    }
+    return 0;
+}
+
+int bg_cmd_agent(int argc, char **argv)
+{
+    options o;
+    bg_agent_spec_default(&o.spec);
+    o.ready_file = NULL;
+    const int prc = parse_args(argc, argv, &o);
+    if (prc != 0)
+        return prc < 0 ? 0 : prc;
+    bg_error_t err = BG_ERROR_INIT;
+    const unsigned services = bga_service_parse_list(o.spec.services, &err);
+    if (!services) {
+        fprintf(stderr, "biotgrid agent: --services: %s\n", err.message);
+        return 2;
+    }
+    bg_agent_spec_t *sp = &o.spec;
+    if (!sp->name[0])
+        snprintf(sp->name, sizeof sp->name, "agent-%ld", (long)getpid());
+    bga_agent_config_t cfg = {sp->listen, {sp->slots, services, sp->name, {0, 0}}, 100};
+    bga_agent_t *agent = NULL;
+    if (bga_agent_new(&cfg, &agent, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid agent: %s\n", err.message);
+        return err.status == BG_ERR_IO ? 2 : 1;
+    }
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal; /* no SA_RESTART: zmq_poll returns EINTR at once */
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGINT, &sa, NULL);
+    int rc = 0;
+    if (o.ready_file && write_ready_file(o.ready_file, bga_agent_endpoint(agent)) != 0) {
+        fprintf(stderr, "biotgrid agent: cannot write the ready file %s: %s\n", o.ready_file,
+                strerror(errno));
+        rc = 1;
+        goto out;
+    }
+    printf("agent %s ready on %s (services %s, %d slots)\n", sp->name, bga_agent_endpoint(agent),
+           sp->services, sp->slots);
+    fflush(stdout);
+    if (bga_agent_run(agent, &stop_requested, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid agent %s: %s\n", sp->name, err.message);
+        rc = 1;
+    }
+    const bga_service_stats_t s = bga_agent_stats(agent);
+    fprintf(stderr,
+            "agent %s stopping: %lld requests, %lld errors, %lld released, %lld "
+            "expired, %.3f s computing\n",
+            sp->name, (long long)s.requests, (long long)s.errors, (long long)s.released,
+            (long long)s.expired, s.compute_seconds);
+out:
+    bga_agent_destroy(&agent);
+    return rc;
+}

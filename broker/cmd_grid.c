@@ -1,0 +1,563 @@
+/*
+ * biotgrid grid up [FILE] [--state DIR]    start the grid's agents
+ * biotgrid grid status [--state DIR]       ping every recorded agent
+ * biotgrid grid down [--state DIR] [--grace SECONDS]
+ *
+ * FILE (default configs/grids/local.json) is {"name": ..., "agents":
+ * [{"name", "services", "slots", "listen"}, ...]}. `up` starts each agent
+ * as its own process (this executable, `agent --ready-file
+ * DIR/NAME.ready`, in a new session so a terminal's signals do not reach
+ * it), waits until each has written its endpoint and answers a heartbeat,
+ * and writes DIR/grid.json (name, endpoint, PID, services, slots per
+ * agent). If any agent fails, every agent started so far is stopped.
+ * `down` sends SIGTERM to each recorded agent, SIGKILL to any still alive
+ * after the grace (default 5 s), and removes the state file. A PID is
+ * signalled only while /proc says it still runs this grid's agent (its
+ * command line names the grid's ready file), so a recycled PID is never
+ * hit. DIR defaults to $BIOTGRID_GRID_DIR or out/grid.
+ */
+#include "cmd_grid.h"
+
+#include <cjson/cJSON.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <limits.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/types.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "bg_clock.h"
+#include "bg_mesh_io.h"
+#include "bga_client.h"
+#include "cmd_agent.h"
+
+#define GRID_MAX_AGENTS 64
+#define GRID_READY_SECONDS 10.0
+#define GRID_PING_MS 2000
+
+typedef struct grid_agent {
+    bg_agent_spec_t spec;
+    char endpoint[BGA_AGENT_ENDPOINT_MAX];
+    long pid;
+} grid_agent;
+
+typedef struct grid {
+    char name[64];
+    int count;
+    grid_agent agent[GRID_MAX_AGENTS];
+} grid;
+
+static void sleep_ms(long ms)
+{
+    struct timespec ts = {ms / 1000, (ms % 1000) * 1000000L};
+    nanosleep(&ts, NULL);
+}
+
+static int path_join(char *out, size_t cap, const char *dir, const char *file)
+{
+    if (snprintf(out, cap, "%s/%s", dir, file) >= (int)cap) {
+        fprintf(stderr, "biotgrid grid: path %s/%s is too long\n", dir, file);
+        return -1;
+    }
+    return 0;
+}
+
+static cJSON *read_json(const char *path, size_t cap)
+{
+    char *text = NULL;
+    size_t len = 0;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bg_file_read_all(path, cap, &text, &len, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid grid: %s\n", err.message);
+        return NULL;
+    }
+    cJSON *root = cJSON_ParseWithLength(text, len);
+    free(text);
+    if (!root)
+        fprintf(stderr, "biotgrid grid: %s: malformed JSON\n", path);
+    return root;
+}
+
+/* The grid config: names unique and usable as file names. */
+static int read_grid_config(const char *path, grid *g)
+{
+    memset(g, 0, sizeof *g);
+    cJSON *root = read_json(path, 1 << 20);
+    if (!root)
+        return 2;
+    int rc = 0;
+    snprintf(g->name, sizeof g->name, "grid");
+    for (cJSON *it = root->child; it && rc == 0; it = it->next) {
+        if (strcmp(it->string, "name") == 0 && cJSON_IsString(it)) {
+            snprintf(g->name, sizeof g->name, "%s", it->valuestring);
+        } else if (strcmp(it->string, "agents") == 0 && cJSON_IsArray(it)) {
+            for (cJSON *a = it->child; a && rc == 0; a = a->next) {
+                char where[PATH_MAX + 32];
+                snprintf(where, sizeof where, "%s: agents[%d]", path, g->count);
+                if (g->count == GRID_MAX_AGENTS) {
+                    fprintf(stderr, "biotgrid grid: %s: more than %d agents\n", where,
+                            GRID_MAX_AGENTS);
+                    rc = 2;
+                    break;
+                }
+                grid_agent *ga = &g->agent[g->count];
+                bg_agent_spec_default(&ga->spec);
+                snprintf(ga->spec.name, sizeof ga->spec.name, "agent-%d", g->count + 1);
+                rc = bg_agent_spec_parse(a, where, &ga->spec);
+                bg_error_t err = BG_ERROR_INIT;
+                if (rc == 0 && !bga_service_parse_list(ga->spec.services, &err)) {
+                    fprintf(stderr, "biotgrid grid: %s: services: %s\n", where, err.message);
+                    rc = 2;
+                }
+                if (rc == 0 && (strspn(ga->spec.name, "abcdefghijklmnopqrstuvwxyz"
+                                                      "ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-") !=
+                                    strlen(ga->spec.name) ||
+                                !ga->spec.name[0])) {
+                    fprintf(stderr,
+                            "biotgrid grid: %s: name '%s' must be letters, digits, "
+                            "'-' or '_'\n",
+                            where, ga->spec.name);
+                    rc = 2;
+                }
+                for (int j = 0; rc == 0 && j < g->count; j++)
+                    if (strcmp(g->agent[j].spec.name, ga->spec.name) == 0) {
+                        fprintf(stderr, "biotgrid grid: %s: name '%s' repeats agents[%d]\n", where,
+                                ga->spec.name, j);
+                        rc = 2;
+                    }
+                g->count++;
+            }
+        } else {
+            fprintf(stderr,
+                    "biotgrid grid: %s: unknown key or wrong type '%s' (name: string, "
+                    "agents: array)\n",
+                    path, it->string);
+            rc = 2;
+        }
+    }
+    if (rc == 0 && g->count == 0) {
+        fprintf(stderr, "biotgrid grid: %s: no agents\n", path);
+        rc = 2;
+    }
+    cJSON_Delete(root);
+    return rc;
+}
+
+/* Whether pid is alive and still this grid's agent `name`: its command
+ * line holds the ready-file path of the grid directory. A zombie counts
+ * as gone. */
+static int is_our_agent(long pid, const char *dir, const char *name)
+{
+    char path[64], stat_text[512], want[PATH_MAX + 80];
+    snprintf(path, sizeof path, "/proc/%ld/stat", pid);
+    FILE *f = fopen(path, "r");
+    if (!f)
+        return 0;
+    const size_t n = fread(stat_text, 1, sizeof stat_text - 1, f);
+    fclose(f);
+    stat_text[n] = 0;
+    const char *close_paren = strrchr(stat_text, ')');
+    if (!close_paren || close_paren[1] != ' ' || close_paren[2] == 'Z')
+        return 0;
+    snprintf(path, sizeof path, "/proc/%ld/cmdline", pid);
+    f = fopen(path, "rb");
+    if (!f)
+        return 0;
+    char cmd[8192];
+    const size_t m = fread(cmd, 1, sizeof cmd - 1, f);
+    fclose(f);
+    for (size_t i = 0; i < m; i++)
+        if (cmd[i] == 0)
+            cmd[i] = ' ';
+    cmd[m] = 0;
+    snprintf(want, sizeof want, "--ready-file %s/%s.ready ", dir, name);
+    return strstr(cmd, want) != NULL;
+}
+
+/* Whether agent a still runs. `children`: a is this process's child (in
+ * `up`), tracked by waitpid, which also reaps it; otherwise it is known
+ * only by its PID and command line. A stopped agent's pid becomes 0. */
+static int still_runs(grid_agent *a, const char *dir, int children);
+
+/* SIGTERM, then SIGKILL after grace seconds, for every agent of g still
+ * running. Returns how many needed SIGKILL. */
+static int stop_agents(grid *g, const char *dir, double grace, int children)
+{
+    for (int i = 0; i < g->count; i++)
+        if (still_runs(&g->agent[i], dir, children))
+            kill((pid_t)g->agent[i].pid, SIGTERM);
+    const double deadline = bg_clock_now() + grace;
+    int killed = 0;
+    for (int i = 0; i < g->count; i++) {
+        grid_agent *a = &g->agent[i];
+        while (still_runs(a, dir, children) && bg_clock_now() < deadline)
+            sleep_ms(20);
+        if (still_runs(a, dir, children)) {
+            fprintf(stderr,
+                    "biotgrid grid: %s (pid %ld) still runs %.1f s after SIGTERM: "
+                    "SIGKILL\n",
+                    a->spec.name, a->pid, grace);
+            kill((pid_t)a->pid, SIGKILL);
+            killed++;
+        }
+    }
+    for (int i = 0; i < g->count; i++) /* SIGKILL is not instant either */
+        while (still_runs(&g->agent[i], dir, children))
+            sleep_ms(10);
+    return killed;
+}
+
+static int write_state(const grid *g, const char *dir)
+{
+    cJSON *root = cJSON_CreateObject(), *arr = cJSON_AddArrayToObject(root, "agents");
+    cJSON_AddStringToObject(root, "name", g->name);
+    for (int i = 0; i < g->count; i++) {
+        cJSON *a = cJSON_CreateObject();
+        cJSON_AddStringToObject(a, "name", g->agent[i].spec.name);
+        cJSON_AddStringToObject(a, "endpoint", g->agent[i].endpoint);
+        cJSON_AddNumberToObject(a, "pid", (double)g->agent[i].pid);
+        cJSON_AddStringToObject(a, "services", g->agent[i].spec.services);
+        cJSON_AddNumberToObject(a, "slots", g->agent[i].spec.slots);
+        cJSON_AddItemToArray(arr, a);
+    }
+    char *text = cJSON_Print(root);
+    cJSON_Delete(root);
+    char path[PATH_MAX], tmp[PATH_MAX];
+    if (!text || path_join(path, sizeof path, dir, "grid.json") ||
+        path_join(tmp, sizeof tmp, dir, "grid.json.tmp")) {
+        free(text);
+        return -1;
+    }
+    FILE *f = fopen(tmp, "w");
+    int ok = f && fputs(text, f) >= 0;
+    if (f && fclose(f) != 0)
+        ok = 0;
+    free(text);
+    if (!ok || rename(tmp, path) != 0) {
+        fprintf(stderr, "biotgrid grid: cannot write %s: %s\n", path, strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+/* The recorded grid; 1 when there is none, 2 when it is malformed. */
+static int read_state(const char *dir, grid *g)
+{
+    memset(g, 0, sizeof *g);
+    char path[PATH_MAX];
+    if (path_join(path, sizeof path, dir, "grid.json"))
+        return 2;
+    if (access(path, F_OK) != 0)
+        return 1;
+    cJSON *root = read_json(path, 1 << 20);
+    if (!root)
+        return 2;
+    const cJSON *name = cJSON_GetObjectItemCaseSensitive(root, "name");
+    const cJSON *arr = cJSON_GetObjectItemCaseSensitive(root, "agents");
+    int rc = cJSON_IsString(name) && cJSON_IsArray(arr) ? 0 : 2;
+    if (rc == 0)
+        snprintf(g->name, sizeof g->name, "%s", name->valuestring);
+    for (const cJSON *a = rc == 0 ? arr->child : NULL; a && g->count < GRID_MAX_AGENTS;
+         a = a->next) {
+        const cJSON *n = cJSON_GetObjectItemCaseSensitive(a, "name");
+        const cJSON *e = cJSON_GetObjectItemCaseSensitive(a, "endpoint");
+        const cJSON *p = cJSON_GetObjectItemCaseSensitive(a, "pid");
+        const cJSON *s = cJSON_GetObjectItemCaseSensitive(a, "services");
+        if (!cJSON_IsString(n) || !cJSON_IsString(e) || !cJSON_IsNumber(p) || !cJSON_IsString(s)) {
+            rc = 2;
+            break;
+        }
+        grid_agent *ga = &g->agent[g->count++];
+        snprintf(ga->spec.name, sizeof ga->spec.name, "%s", n->valuestring);
+        snprintf(ga->spec.services, sizeof ga->spec.services, "%s", s->valuestring);
+        snprintf(ga->endpoint, sizeof ga->endpoint, "%s", e->valuestring);
+        ga->pid = (long)p->valuedouble;
+    }
+    if (rc == 2)
+        fprintf(stderr, "biotgrid grid: %s: not a grid state file\n", path);
+    cJSON_Delete(root);
+    return rc;
+}
+
+/* Forks `self agent ...` for agent a in its own session, output to
+ * DIR/NAME.log. */
+static long spawn_agent(const char *self, const char *dir, const grid_agent *a)
+{
+    char ready[PATH_MAX], log[PATH_MAX], slots[16], tmp[PATH_MAX];
+    snprintf(tmp, sizeof tmp, "%s.ready", a->spec.name);
+    if (path_join(ready, sizeof ready, dir, tmp))
+        return -1;
+    snprintf(tmp, sizeof tmp, "%s.log", a->spec.name);
+    if (path_join(log, sizeof log, dir, tmp))
+        return -1;
+    snprintf(slots, sizeof slots, "%d", a->spec.slots);
+    unlink(ready);
+    fflush(NULL);
+    const pid_t pid = fork();
+    if (pid != 0)
+        return (long)pid;
+    setsid();
+    const int fd = open(log, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    const int null = open("/dev/null", O_RDONLY);
+    if (fd >= 0) {
+        dup2(fd, 1);
+        dup2(fd, 2);
+    }
+    if (null >= 0)
+        dup2(null, 0);
+    execl(self, self, "agent", "--listen", a->spec.listen, "--services", a->spec.services,
+          "--slots", slots, "--name", a->spec.name, "--ready-file", ready, (char *)NULL);
+    _exit(127);
+}
+
+/* For `up`, whose children the agents are: whether child pid has exited
+ * (reaping it). Before its exec a child's command line is still this
+ * one's, so is_our_agent cannot tell yet. */
+static int child_exited(long pid)
+{
+    int status;
+    return waitpid((pid_t)pid, &status, WNOHANG) == (pid_t)pid;
+}
+
+static int still_runs(grid_agent *a, const char *dir, int children)
+{
+    if (a->pid <= 0)
+        return 0;
+    if (children ? child_exited(a->pid) : !is_our_agent(a->pid, dir, a->spec.name)) {
+        a->pid = 0;
+        return 0;
+    }
+    return 1;
+}
+
+static int read_ready_file(const char *dir, grid_agent *a)
+{
+    char path[PATH_MAX], tmp[PATH_MAX];
+    snprintf(tmp, sizeof tmp, "%s.ready", a->spec.name);
+    if (path_join(path, sizeof path, dir, tmp))
+        return -1;
+    FILE *f = fopen(path, "r");
+    if (!f)
+        return -1;
+    long pid = 0;
+    const int n = fscanf(f, "%255s %ld", a->endpoint, &pid);
+    fclose(f);
+    return n == 2 && pid == a->pid ? 0 : -1;
+}
+
+static int ping(const grid_agent *a, bga_agent_status_t *st, char *msg, size_t cap)
+{
+    bga_client_t *c = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    bg_status s = bga_client_new(a->endpoint, a->spec.services, GRID_PING_MS, &c, &err);
+    if (s == BG_OK)
+        s = bga_client_heartbeat(c, 0, st, &err);
+    bga_client_destroy(&c);
+    if (s != BG_OK)
+        snprintf(msg, cap, "%s", err.message);
+    return s == BG_OK ? 0 : -1;
+}
+
+static int mkdir_p(const char *dir)
+{
+    char buf[PATH_MAX];
+    if (snprintf(buf, sizeof buf, "%s", dir) >= (int)sizeof buf)
+        return -1;
+    for (char *p = buf + 1; *p; p++)
+        if (*p == '/') {
+            *p = 0;
+            if (mkdir(buf, 0755) != 0 && errno != EEXIST)
+                return -1;
+            *p = '/';
+        }
+    return mkdir(buf, 0755) != 0 && errno != EEXIST ? -1 : 0;
+}
+
+static int any_alive(const grid *g, const char *dir)
+{
+    for (int i = 0; i < g->count; i++)
+        if (is_our_agent(g->agent[i].pid, dir, g->agent[i].spec.name))
+            return 1;
+    return 0;
+}
+
+static int grid_up(const char *file, const char *dir)
+{
+    grid g;
+    int rc = read_grid_config(file, &g);
+    if (rc)
+        return rc;
+    grid old;
+    if (read_state(dir, &old) == 0 && any_alive(&old, dir)) {
+        fprintf(stderr,
+                "biotgrid grid: a grid (%s) is already up in %s: `biotgrid grid down` "
+                "first\n",
+                old.name, dir);
+        return 1;
+    }
+    if (mkdir_p(dir) != 0) {
+        fprintf(stderr, "biotgrid grid: cannot create %s: %s\n", dir, strerror(errno));
+        return 1;
+    }
+    char self[PATH_MAX];
+    const ssize_t n = readlink("/proc/self/exe", self, sizeof self - 1);
+    if (n <= 0) {
+        fprintf(stderr, "biotgrid grid: cannot find this executable: %s\n", strerror(errno));
+        return 1;
+    }
+    self[n] = 0;
+    for (int i = 0; i < g.count; i++) {
+        g.agent[i].pid = spawn_agent(self, dir, &g.agent[i]);
+        if (g.agent[i].pid < 0) {
+            fprintf(stderr, "biotgrid grid: cannot start %s: %s\n", g.agent[i].spec.name,
+                    strerror(errno));
+            g.count = i;
+            stop_agents(&g, dir, 5.0, 1);
+            return 1;
+        }
+    }
+    const double deadline = bg_clock_now() + GRID_READY_SECONDS;
+    for (int i = 0; i < g.count && rc == 0; i++) {
+        grid_agent *a = &g.agent[i];
+        int exited = 0;
+        while (read_ready_file(dir, a) != 0 && bg_clock_now() < deadline &&
+               !(exited = child_exited(a->pid)))
+            sleep_ms(20);
+        if (exited)
+            a->pid = 0; /* reaped: nothing to stop */
+        bga_agent_status_t st;
+        char msg[BG_ERROR_MESSAGE_MAX] = "";
+        if (read_ready_file(dir, a) != 0) {
+            fprintf(stderr, "biotgrid grid: %s %s (see %s/%s.log)\n", a->spec.name,
+                    exited ? "exited before it was ready" : "did not become ready within 10 s", dir,
+                    a->spec.name);
+            rc = 1;
+        } else if (ping(a, &st, msg, sizeof msg) != 0) {
+            fprintf(stderr, "biotgrid grid: %s\n", msg);
+            rc = 1;
+        } else {
+            printf("%-12s %-28s pid %-7ld services %-18s slots %lld\n", a->spec.name, a->endpoint,
+                   a->pid, a->spec.services, (long long)st.slots);
+        }
+    }
+    if (rc == 0 && write_state(&g, dir) != 0)
+        rc = 1;
+    if (rc != 0) {
+        stop_agents(&g, dir, 5.0, 1);
+        return rc;
+    }
+    printf("grid %s up: %d agents, state in %s/grid.json\n", g.name, g.count, dir);
+    return 0;
+}
+
+static int grid_status(const char *dir)
+{
+    grid g;
+    const int rc = read_state(dir, &g);
+    if (rc == 1) {
+        printf("no grid is up in %s\n", dir);
+        return 1;
+    }
+    if (rc)
+        return rc;
+    int bad = 0;
+    for (int i = 0; i < g.count; i++) {
+        const grid_agent *a = &g.agent[i];
+        bga_agent_status_t st;
+        char msg[BG_ERROR_MESSAGE_MAX] = "";
+        if (!is_our_agent(a->pid, dir, a->spec.name)) {
+            printf("%-12s %-28s pid %-7ld not running\n", a->spec.name, a->endpoint, a->pid);
+            bad = 1;
+        } else if (ping(a, &st, msg, sizeof msg) != 0) {
+            printf("%-12s %-28s pid %-7ld not answering: %s\n", a->spec.name, a->endpoint, a->pid,
+                   msg);
+            bad = 1;
+        } else {
+            printf("%-12s %-28s pid %-7ld up, %lld jobs, %lld of %lld slots free\n", a->spec.name,
+                   a->endpoint, a->pid, (long long)st.jobs, (long long)st.free_slots,
+                   (long long)st.slots);
+        }
+    }
+    printf("grid %s: %s\n", g.name, bad ? "degraded" : "up");
+    return bad;
+}
+
+static int grid_down(const char *dir, double grace)
+{
+    grid g;
+    const int rc = read_state(dir, &g);
+    if (rc == 1) {
+        printf("no grid is up in %s\n", dir);
+        return 0;
+    }
+    if (rc)
+        return rc;
+    const int killed = stop_agents(&g, dir, grace, 0);
+    char path[PATH_MAX];
+    if (path_join(path, sizeof path, dir, "grid.json") == 0)
+        unlink(path);
+    printf("grid %s down: %d agents stopped (%d with SIGKILL)\n", g.name, g.count, killed);
+    return 0;
+}
+
+const char bg_cmd_grid_usage[] =
+    "usage: biotgrid grid up [FILE] [--state DIR]\n"
+    "       biotgrid grid status [--state DIR]\n"
+    "       biotgrid grid down [--state DIR] [--grace SECONDS]\n"
+    "FILE defaults to configs/grids/local.json, DIR to $BIOTGRID_GRID_DIR or out/grid.\n";
+
+static void usage(FILE *out)
+{
+    fputs(bg_cmd_grid_usage, out);
+}
+
+int bg_cmd_grid(int argc, char **argv)
+{
+    if (argc < 2) {
+        usage(stderr);
+        return 2;
+    }
+    const char *sub = argv[1], *file = "configs/grids/local.json";
+    const char *dir = getenv("BIOTGRID_GRID_DIR") ? getenv("BIOTGRID_GRID_DIR") : "out/grid";
+    double grace = 5.0;
+    if (strcmp(sub, "--help") == 0 || strcmp(sub, "-h") == 0) {
+        usage(stdout);
+        return 0;
+    }
+    for (int i = 2; i < argc; i++) {
+        if (strcmp(argv[i], "--state") == 0 && i + 1 < argc) {
+            dir = argv[++i];
+        } else if (strcmp(argv[i], "--grace") == 0 && i + 1 < argc) {
+            char *end;
+            grace = strtod(argv[++i], &end);
+            if (*end || !(grace >= 0.0 && grace <= 600.0)) {
+                fprintf(stderr,
+                        "biotgrid grid: --grace '%s' is not a number of seconds in "
+                        "[0, 600]\n",
+                        argv[i]);
+                return 2;
+            }
+        } else if (argv[i][0] != '-' && strcmp(sub, "up") == 0 && i == 2) {
+            file = argv[i];
+        } else {
+            fprintf(stderr, "biotgrid grid: unexpected argument '%s'\n", argv[i]);
+            usage(stderr);
+            return 2;
+        }
+    }
+    if (strcmp(sub, "up") == 0)
+        return grid_up(file, dir);
+    if (strcmp(sub, "status") == 0)
+        return grid_status(dir);
+    if (strcmp(sub, "down") == 0)
+        return grid_down(dir, grace);
+    fprintf(stderr, "biotgrid grid: unknown subcommand '%s'\n", sub);
+    usage(stderr);
+    return 2;
+}
