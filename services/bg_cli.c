@@ -483,6 +483,9 @@ int bg_cli_solve(int argc, char **argv)
             fprintf(stderr, "%s: %s after %d iterations, %.3f s (relative gradient %.3e)\n",
                     bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].iterations,
                     runs[i].wall_seconds, runs[i].relative_gradient);
+        if (runs[i].inverted_elements >= 0)
+            fprintf(stderr, "%s: %lld inverted elements (det F <= 0) in the result\n",
+                    bg_method_name(o.methods[i]), (long long)runs[i].inverted_elements);
         all_converged &= runs[i].converged;
     }
 

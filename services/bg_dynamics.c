@@ -412,6 +412,8 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         goto out;
     }
     memcpy(res->q, s.q, s.ndof * sizeof *res->q);
+    res->inverted_elements = bg_static_count_inverted(scene->mesh, s.q);
+    res->gradient_roundoff = res->force_scale = NAN;
     memcpy(res->energy_density, bg_solver_energy_density(solver),
            (size_t)scene->mesh->ne * sizeof *res->energy_density);
     res->wall_seconds = bg_clock_now() - t_start;

@@ -68,6 +68,9 @@ bg_status bg_morph_solve(const bg_scene_t *scene, const bg_morph_options_t *opt,
         res->energy = inner.energy;
         res->gradient_norm = inner.gradient_norm;
         res->relative_gradient = inner.relative_gradient;
+        res->gradient_roundoff = inner.gradient_roundoff;
+        res->force_scale = inner.force_scale;
+        res->inverted_elements = inner.inverted_elements;
         bg_solve_result_release(&inner);
         if (opt->progress)
             opt->progress(opt->progress_ctx, opt->method, pt);

@@ -25,6 +25,13 @@ static cJSON *run_json(const bg_solve_result_t *r, int morph)
     cJSON_AddItemToObject(o, "energy", number_or_null(r->energy));
     cJSON_AddItemToObject(o, "gradient_norm", number_or_null(r->gradient_norm));
     cJSON_AddItemToObject(o, "relative_gradient", number_or_null(r->relative_gradient));
+    cJSON_AddItemToObject(o, "force_scale", number_or_null(r->force_scale));
+    cJSON_AddItemToObject(o, "gradient_roundoff", number_or_null(r->gradient_roundoff));
+    cJSON_AddBoolToObject(o, "roundoff_floor", r->roundoff_floor);
+    if (r->inverted_elements >= 0)
+        cJSON_AddNumberToObject(o, "inverted_elements", (double)r->inverted_elements);
+    else
+        cJSON_AddNullToObject(o, "inverted_elements");
     cJSON_AddNumberToObject(o, "svd_fallbacks", (double)r->rotfit.svd);
     cJSON *fits = cJSON_AddObjectToObject(o, "rotation_fits");
     if (fits) {
@@ -211,7 +218,7 @@ bg_status bg_report_write_plot(const char *path, const bg_scene_t *scene,
     const bg_svg_plot_t plot = {title, "wall time (s)",
                                 dynamic          ? "relative energy drift |E - E0| / |E0|"
                                 : with_reference ? "relative error |q - q_ref| / |q_ref|"
-                                                 : "relative gradient |grad W| / |grad W(q0)|",
+                                                 : "relative gradient |grad W| / force scale",
                                 0, 1};
     st = bg_svg_write(path, &plot, series, count, err);
 out:

@@ -19,19 +19,33 @@
 #define STATIC_FIRST_SHIFT 1e-10
 #define STATIC_SHIFT_GROWTH 100.0
 #define STATIC_MAX_SHIFTS 8
-/* Newton tries the exact (unprojected) Hessian once the relative gradient
- * is below this and the last step was a full one: clamping element twist
- * modes that the assembled system does not need clamped would make the
- * method only linearly convergent. After the exact matrix fails to factor,
- * it is tried again only when the gradient has fallen by this factor. */
+/* Newton tries the exact (unprojected) Hessian at every iteration once the
+ * relative gradient is below this, and falls back to the projected one
+ * when it does not factor: clamping element twist modes that the assembled
+ * system does not need clamped makes the method only linearly convergent,
+ * and on nearly incompressible bodies (λ/μ ≥ 10⁴) with a rate close to 1
+ * (the clamped twist eigenvalues are of the order of the pressure
+ * λ(tr Y − 3), far from 2μ). Waiting for a full step or for the gradient
+ * to halve before retrying, as this solver once did, left such solves on
+ * the projected matrix for tens of iterations at a time (stiff twisted
+ * bar, λ/μ = 10⁵: 115 iterations and a false stop, now 61 converged). */
 #define STATIC_EXACT_HESSIAN_BELOW 1e-1
-#define STATIC_EXACT_RETRY_FACTOR 0.5
-/* The gradient has hit its round-off floor when an accepted step changes
- * the energy by no more than round-off and the gradient by less than 1 %
- * (a linearly converging method still shrinks it by more), or when a full
- * exact-Newton step fails to halve a gradient already below 1e-6 relative
- * (quadratic convergence would otherwise have gone on): stop there. */
+/* A step that changes the energy by no more than round-off and the
+ * gradient by less than 1 % makes the solver look at the gradient's
+ * round-off (below); it stops only if the gradient is there. */
 #define STATIC_NO_PROGRESS 0.99
+/* The round-off of a computed gradient: this many ulps of the magnitudes
+ * it is summed from (bg_elastic_force_magnitude plus the load and inertia
+ * terms), over the free coordinates. The magnitudes bound every term, so
+ * the estimate is pessimistic by the square root of the number of terms;
+ * the ulps cover the rotation fit's residual (BG_ROTFIT_SKEW_TOL = 45 ulps)
+ * and the dozen operations per stress entry. A gradient at or below it is
+ * noise: no method can say which way is down. */
+#define STATIC_GRADIENT_NOISE_ULPS 256.0
+/* While steps keep landing in the energy's round-off, the gradient's
+ * round-off (one extra pass over the elements) is re-estimated at most
+ * once per this many iterations. */
+#define STATIC_NOISE_RECHECK 8
 /* The absolute floor of the stopping test (DESIGN.md §1.5): a gradient this
  * small relative to the scene's force scale — (2μ + |λ|)·V/L for elastic
  * forces over a body of volume V and size L, plus the weight — is
@@ -42,7 +56,6 @@
  * integration conserves angular momentum only as well as its steps meet
  * this floor (bar-spin: 1e-9 over 1000 steps needs it below 1e-12). */
 #define STATIC_ABSOLUTE_FLOOR 1e-13
-#define STATIC_STAGNATION_BELOW 1e-6
 /* Factor reuse (bg_solve_options_t.reuse_factor): L-BFGS keeps this many
  * curvature pairs on top of the last factored Newton matrix, and the matrix
  * is refactored when this many quasi-Newton steps in a row fail to lower
@@ -83,6 +96,7 @@ struct bg_solver {
     double *lg_rhs, *lg_x;
     double lg_scale;               /* 2μ + λ */
     double *q, *q_trial, *grad, *grad_trial, *rhs, *step;
+    double *mag;           /* ndof scratch: force magnitudes for the round-off estimate */
     double *mass;          /* nv lumped masses */
     double *inertia_diag;  /* nfree: c·m on the diagonal, while an inertia term is active */
     const bg_inertia_t *inertia; /* the active inertia term, or NULL */
@@ -137,6 +151,7 @@ static void problem_release(problem_t *p)
     free(p->grad_trial);
     free(p->rhs);
     free(p->step);
+    free(p->mag);
     free(p->qn_s);
     free(p->qn_y);
     free(p->qn_rho);
@@ -251,8 +266,9 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
     p->grad_trial = malloc(p->ndof * sizeof *p->q + 1);
     p->rhs = malloc(p->ndof * sizeof *p->q + 1);
     p->step = malloc(p->ndof * sizeof *p->q + 1);
+    p->mag = malloc(p->ndof * sizeof *p->q + 1);
     if (!p->free_index || !p->q || !p->q_trial || !p->grad || !p->grad_trial || !p->rhs ||
-        !p->step)
+        !p->step || !p->mag)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory setting up the solve");
     for (size_t i = 0; i < p->ndof; i++)
         p->free_index[i] = scene->constrained[i] ? -1 : p->nfree++;
@@ -318,7 +334,7 @@ static double potential(problem_t *p, const double *q, double *grad)
             magnitude += fabs(p->gravity_force[i] * q[i]);
         }
     }
-    double kinetic = 0.0;
+    double kinetic = 0.0, spread = 0.0;
     if (p->inertia) {
         const bg_inertia_t *in = p->inertia;
         for (int32_t v = 0; v < p->mesh->nv; v++)
@@ -327,8 +343,10 @@ static double potential(problem_t *p, const double *q, double *grad)
                 const double d = q[i] - in->y[i], f = in->c * p->mass[v] * d;
                 kinetic += 0.5 * f * d;
                 grad[i] += f;
+                /* d carries the round-off of |q| + |y|, f·d that times |f| */
+                spread += fabs(f) * (fabs(q[i]) + fabs(in->y[i]));
             }
-        magnitude += kinetic;
+        magnitude += kinetic + spread;
     }
     p->last_magnitude = magnitude;
     p->rotfit_seconds += bg_clock_now() - t0;
@@ -340,6 +358,50 @@ static double potential(problem_t *p, const double *q, double *grad)
 static double energy_noise(const problem_t *p, double W)
 {
     return STATIC_ENERGY_NOISE_ULPS * DBL_EPSILON * fmax(p->last_magnitude, fabs(W));
+}
+
+/*
+ * The round-off of the free gradient at q (DESIGN.md §1.5 stopping):
+ * STATIC_GRADIENT_NOISE_ULPS ε ‖m‖ over the free coordinates, m the sum of
+ * the magnitudes of every term of each gradient entry (element forces of
+ * both rest shapes when morphing, the load, the inertia term c m (q − y),
+ * whose difference carries the round-off of |q| + |y|). *total gets
+ * ‖m‖ over all coordinates (a force scale of the state). Counted as
+ * evaluation time.
+ */
+static double gradient_noise(problem_t *p, const double *q, double *total)
+{
+    const double t0 = bg_clock_now();
+    memset(p->mag, 0, p->ndof * sizeof *p->mag);
+    const double b = p->target_model ? p->blend : 0.0;
+    bg_elastic_force_magnitude(p->model, q, 1.0 - b, p->mag);
+    if (p->target_model)
+        bg_elastic_force_magnitude(p->target_model, q, b, p->mag);
+    if (p->gravity_force)
+        for (size_t i = 0; i < p->ndof; i++)
+            p->mag[i] += fabs(p->gravity_force[i]);
+    if (p->inertia)
+        for (size_t i = 0; i < p->ndof; i++)
+            p->mag[i] += p->inertia->c * p->mass[i / (size_t)p->n] *
+                         (fabs(q[i]) + fabs(p->inertia->y[i]));
+    double free2 = 0.0, all2 = 0.0;
+    for (size_t i = 0; i < p->ndof; i++) {
+        all2 += p->mag[i] * p->mag[i];
+        if (p->free_index[i] >= 0)
+            free2 += p->mag[i] * p->mag[i];
+    }
+    if (total)
+        *total = sqrt(all2);
+    p->rotfit_seconds += bg_clock_now() - t0;
+    return STATIC_GRADIENT_NOISE_ULPS * DBL_EPSILON * sqrt(free2);
+}
+
+int64_t bg_static_count_inverted(const bg_mesh_t *mesh, const double *q)
+{
+    int64_t count = 0;
+    for (int32_t e = 0; e < mesh->ne; e++)
+        count += !(bg_mesh_element_measure(mesh, q, e) > 0.0);
+    return count;
 }
 
 /* Whether positions q invert (or flatten) any element. */
@@ -719,8 +781,29 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                           "finite", scene->path);
         goto out;
     }
-    const double g0 = gnorm;
-    bg_trace_point_t pt = {bg_clock_now() - t_start, 0, W, gnorm, g0 > 0.0 ? 1.0 : 0.0,
+    /* The relative gradient's scale: the start's free gradient, but at
+     * least the reactions at the handles and the load, which do not vanish
+     * when the start is already the solution; and when the start's
+     * gradient is round-off, the element forces themselves. */
+    double reaction = 0.0, load = 0.0;
+    for (size_t i = 0; i < ndof; i++) {
+        if (p->free_index[i] < 0)
+            reaction += p->grad[i] * p->grad[i];
+        else if (p->gravity_force)
+            load += p->gravity_force[i] * p->gravity_force[i];
+    }
+    double g0 = fmax(gnorm, fmax(sqrt(reaction), sqrt(load)));
+    double noise = NAN;
+    int noise_at = -STATIC_NOISE_RECHECK;
+    if (!p->inertia) {
+        double forces = 0.0;
+        noise = gradient_noise(p, p->q, &forces);
+        noise_at = 0;
+        if (gnorm <= noise)
+            g0 = fmax(g0, forces);
+    }
+    res->force_scale = g0;
+    bg_trace_point_t pt = {bg_clock_now() - t_start, 0, W, gnorm, g0 > 0.0 ? gnorm / g0 : 0.0,
                            relative_error(p->q, opt->reference, ndof)};
     if (push_trace(res, &trace_cap, &pt) != BG_OK) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
@@ -741,8 +824,6 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     int since_best = 0;
     res->stop_reason = "iteration limit";
     int it = 0;
-    int last_full_step = 0;
-    double exact_failed_at = INFINITY; /* gradient norm when the exact Hessian last failed */
     for (;;) {
         const double rel = g0 > 0.0 ? gnorm / g0 : 0.0;
         if (rel <= opt->tolerance || gnorm <= opt->absolute_tolerance ||
@@ -777,11 +858,8 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         } else if (solver->method == BG_METHOD_NEWTON) {
             /* With an inertia term (4/h²)M the exact Hessian is almost
              * always positive definite: try it from the first iteration. */
-            const int near = p->inertia || (last_full_step && rel < STATIC_EXACT_HESSIAN_BELOW);
-            const int try_exact = near && gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at;
+            const int try_exact = p->inertia || rel < STATIC_EXACT_HESSIAN_BELOW;
             st = newton_direction(p, try_exact, res, &slope, err);
-            if (try_exact && res->last_direction != BG_DIRECTION_EXACT)
-                exact_failed_at = gnorm;
             refactor = 0;
             p->qn_cost = 0.0;
         } else {
@@ -792,9 +870,14 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         if (!(slope < 0.0)) {
             /* Every matrix tried was positive definite or shifted to be, and
              * −A⁻¹∇ is then a descent direction unless the gradient is
-             * round-off noise: progress has reached its floor. */
-            res->stop_reason = "no descent direction (gradient at round-off)";
-            res->roundoff_floor = 1;
+             * round-off noise. */
+            noise = gradient_noise(p, p->q, NULL);
+            noise_at = it;
+            res->roundoff_floor = gnorm <= noise;
+            res->stop_reason = res->roundoff_floor
+                                   ? "no descent direction: the gradient is at its round-off"
+                                   : "stalled: no descent direction, the gradient above its "
+                                     "round-off";
             break;
         }
         double alpha = 1.0, W_trial = NAN, g_trial = NAN;
@@ -825,16 +908,22 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                 refactor = 1;
                 continue;
             }
-            res->stop_reason = "no step decreases the energy beyond round-off";
-            res->roundoff_floor = 1;
+            noise = gradient_noise(p, p->q, NULL);
+            noise_at = it;
+            res->roundoff_floor = gnorm <= noise;
+            res->stop_reason = res->roundoff_floor
+                                   ? "the gradient reached its round-off floor"
+                                   : "stalled: no step decreases the energy, the gradient above "
+                                     "its round-off";
             break;
         }
-        /* A quasi-Newton step that stalls asks for a fresh matrix, not a stop. */
+        /* A quasi-Newton step that stalls asks for a fresh matrix, not a
+         * stop; any other stalls only where the gradient is its own
+         * round-off (checked below, at the accepted point). A gradient
+         * that rises once while the energy is flat is no stop: local/global's
+         * is not monotone. */
         const int stagnated =
-            !quasi &&
-            ((fabs(W_trial - W) <= energy_noise(p, W) && g_trial > STATIC_NO_PROGRESS * gnorm) ||
-             (alpha == 1.0 && res->last_direction == BG_DIRECTION_EXACT &&
-              rel < STATIC_STAGNATION_BELOW && g_trial > 0.5 * gnorm));
+            !quasi && fabs(W_trial - W) <= energy_noise(p, W) && g_trial > STATIC_NO_PROGRESS * gnorm;
         if (reuse) {
             qn_push(p, alpha, p->grad_trial);
             if (!quasi || g_trial < g_best) {
@@ -855,7 +944,6 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                     refactor = 1;
             }
         }
-        last_full_step = alpha == 1.0;
         double *swap = p->q;
         p->q = p->q_trial;
         p->q_trial = swap;
@@ -870,13 +958,19 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         pt.gradient_norm = gnorm;
         pt.relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
         pt.error = relative_error(p->q, opt->reference, ndof);
+        if (stagnated && !(pt.relative_gradient <= opt->tolerance) &&
+            it - noise_at >= STATIC_NOISE_RECHECK) {
+            noise = gradient_noise(p, p->q, NULL);
+            noise_at = it;
+        }
         if (push_trace(res, &trace_cap, &pt) != BG_OK) {
             st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
             goto out;
         }
         if (opt->progress)
             opt->progress(opt->progress_ctx, solver->method, &pt);
-        if (stagnated && !(pt.relative_gradient <= opt->tolerance)) {
+        if (stagnated && !(pt.relative_gradient <= opt->tolerance) && noise_at == it &&
+            gnorm <= noise) {
             res->stop_reason = "the gradient reached its round-off floor";
             res->roundoff_floor = 1;
             break;
@@ -886,6 +980,10 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     res->energy = W;
     res->gradient_norm = gnorm;
     res->relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
+    if (noise_at != it || !isfinite(noise))
+        noise = gradient_noise(p, p->q, NULL);
+    res->gradient_roundoff = noise;
+    res->inverted_elements = bg_static_count_inverted(p->mesh, p->q);
     res->rotfit = bg_elastic_rotfit_stats(p->model);
     res->rotfit_seconds = p->rotfit_seconds;
     const bg_sparse_timing_t timing1 = total_timing(p);

@@ -16,9 +16,13 @@
  *                 on L⁻¹ b(R)); for λ > 0 the same fixed matrix serves as a
  *                 preconditioner under the same line search. Linear
  *                 convergence.
- * Both stop when ‖∇W‖/‖∇W(q₀)‖ ≤ tolerance (free coordinates), at the
- * iteration cap, or when no step decreases the energy beyond round-off;
- * they never produce NaN: a non-finite energy is a rejected step.
+ * Both stop when ‖∇W‖/s ≤ tolerance (free coordinates; s the start's free
+ * gradient, at least the reactions at the handles and the load), at the
+ * iteration cap, or when the gradient is at its own round-off (estimated
+ * from the magnitudes of the element forces that sum to it) and no step
+ * improves it: "round-off floor". A line search that fails above that
+ * floor is reported as "stalled". They never produce NaN: a non-finite
+ * energy is a rejected step.
  */
 #ifndef BG_STATIC_H
 #define BG_STATIC_H
@@ -123,7 +127,13 @@ typedef struct bg_solve_result {
     double rotfit_seconds, assembly_seconds, analyze_seconds, factor_seconds, solve_seconds;
     int64_t factorizations;
     bg_direction last_direction;
-    int roundoff_floor;       /* stopped where round-off, not the method, limits progress */
+    int roundoff_floor;       /* stopped where the free gradient is at most its own round-off
+                                 (gradient_roundoff): no method can make further progress */
+    double gradient_roundoff; /* the round-off of the final gradient norm, estimated from the
+                                 magnitudes of the element forces that sum to it */
+    double force_scale;       /* what relative_gradient divides by: the start's free gradient,
+                                 at least the handles' reactions and the load there */
+    int64_t inverted_elements; /* elements of the result with det F <= 0 (-1: not counted) */
     double *q;                /* final positions, nv*n; owned */
     double *energy_density;   /* final ψ per element, ne; owned */
     bg_trace_point_t *trace;  /* one point per iteration from 0 (dynamic: per step); owned */
@@ -185,6 +195,10 @@ const double *bg_solver_energy_density(const bg_solver_t *solver);
 
 /* The lumped vertex masses (nv), borrowed. */
 const double *bg_solver_mass(const bg_solver_t *solver);
+
+/* Elements of the mesh at positions q with measure <= 0: inverted or flat
+ * tetrahedra (det F <= 0) or planar triangles. */
+int64_t bg_static_count_inverted(const bg_mesh_t *mesh, const double *q);
 
 /* Lumped vertex masses ρ Σ V_e/(n+1) of the scene's mesh into mass[nv]. */
 void bg_static_lumped_mass(const bg_mesh_t *mesh, double density, double *mass);

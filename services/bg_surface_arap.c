@@ -285,6 +285,9 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
     res->energy = E;
     res->gradient_norm = gnorm;
     res->relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
+    res->force_scale = g0;
+    res->gradient_roundoff = NAN; /* no round-off estimate for this energy */
+    res->inverted_elements = -1;  /* a surface has no orientation to invert */
     res->energy_density = calloc((size_t)mesh->ne + 1, sizeof *res->energy_density);
     if (!res->energy_density) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the result");
