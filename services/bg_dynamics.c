@@ -297,6 +297,10 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     s.nv = scene->mesh->nv;
     s.ndof = (size_t)s.nv * s.n;
     s.mass = bg_solver_mass(solver);
+    if (!s.mass) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the mass matrix");
+        goto out;
+    }
     double **arrays[] = {&s.q,    &s.p,       &s.v,      &s.v_prev,    &s.y,
                          &s.t0,   &s.t1,      &s.targets, &s.grad,     &s.start,
                          &s.work, &s.candidate, &s.q_next, &s.p_next, &s.grad_next};
@@ -322,8 +326,13 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the step records");
         goto out;
     }
-    if (opt->frame && (st = opt->frame(opt->frame_ctx, 0, 0.0, s.q, err)) != BG_OK)
-        goto out;
+    if (opt->frame) {
+        const double t_out = bg_clock_now();
+        st = opt->frame(opt->frame_ctx, 0, 0.0, s.q, err);
+        res->output_seconds += bg_clock_now() - t_out;
+        if (st != BG_OK)
+            goto out;
+    }
 
     res->converged = 1;
     res->stop_reason = "completed";
@@ -400,9 +409,13 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         }
         if (opt->progress)
             opt->progress(opt->progress_ctx, opt->method, &pt);
-        if (opt->frame && ((k + 1) % every == 0 || k + 1 == steps) &&
-            (st = opt->frame(opt->frame_ctx, k + 1, t1, s.q, err)) != BG_OK)
-            goto out;
+        if (opt->frame && ((k + 1) % every == 0 || k + 1 == steps)) {
+            const double t_out = bg_clock_now();
+            st = opt->frame(opt->frame_ctx, k + 1, t1, s.q, err);
+            res->output_seconds += bg_clock_now() - t_out;
+            if (st != BG_OK)
+                goto out;
+        }
     }
     res->energy = rec.total_energy;
     res->q = malloc(s.ndof * sizeof *res->q + 1);
@@ -416,7 +429,9 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     res->gradient_roundoff = res->force_scale = NAN;
     memcpy(res->energy_density, bg_solver_energy_density(solver),
            (size_t)scene->mesh->ne * sizeof *res->energy_density);
+    bg_solver_report(solver, res);
     res->wall_seconds = bg_clock_now() - t_start;
+    bg_solve_result_add_scene_prep(res, scene);
 out:
     bg_solver_destroy(&solver);
     state_release(&s);

@@ -42,12 +42,33 @@ static cJSON *run_json(const bg_solve_result_t *r, int morph)
     }
     cJSON *split = cJSON_AddObjectToObject(o, "time_split");
     if (split) {
+        const double accounted = r->setup.seconds + r->rotfit_seconds + r->assembly_seconds +
+                                 r->analyze_seconds + r->factor_seconds + r->solve_seconds +
+                                 r->vector_seconds + r->output_seconds;
+        cJSON_AddNumberToObject(split, "setup_seconds", r->setup.seconds);
         cJSON_AddNumberToObject(split, "rotation_fit_seconds", r->rotfit_seconds);
         cJSON_AddNumberToObject(split, "assembly_seconds", r->assembly_seconds);
         cJSON_AddNumberToObject(split, "analyze_seconds", r->analyze_seconds);
         cJSON_AddNumberToObject(split, "factor_seconds", r->factor_seconds);
         cJSON_AddNumberToObject(split, "solve_seconds", r->solve_seconds);
-        cJSON_AddNumberToObject(split, "factorizations", (double)r->factorizations);
+        cJSON_AddNumberToObject(split, "vector_seconds", r->vector_seconds);
+        cJSON_AddNumberToObject(split, "output_seconds", r->output_seconds);
+        cJSON_AddNumberToObject(split, "accounted_seconds", accounted);
+        cJSON_AddNumberToObject(split, "factorizations",
+                                (double)(r->factorizations + r->setup.factorizations));
+        cJSON_AddNumberToObject(split, "iteration_factorizations", (double)r->factorizations);
+    }
+    cJSON *setup = cJSON_AddArrayToObject(o, "setup");
+    for (int i = 0; setup && i < r->setup.count; i++) {
+        const bg_setup_step_t *s = &r->setup.step[i];
+        cJSON *it = cJSON_CreateObject();
+        if (!it)
+            break;
+        cJSON_AddStringToObject(it, "step", s->name);
+        cJSON_AddNumberToObject(it, "count", (double)s->count);
+        cJSON_AddNumberToObject(it, "factorizations", (double)s->factorizations);
+        cJSON_AddNumberToObject(it, "seconds", s->seconds);
+        cJSON_AddItemToArray(setup, it);
     }
     if (r->map.valid) {
         cJSON_AddNumberToObject(o, "flipped_triangles", (double)r->map.flipped_triangles);

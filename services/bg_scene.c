@@ -1264,7 +1264,7 @@ static bg_status parse_initial(parser_t *p, const cJSON *item)
         (!item && moving && s->task == BG_TASK_STATIC) || (cJSON_IsString(item) && strcmp(item->valuestring, "interpolate") == 0);
     if (interpolate) {
         s->initial_kind = BG_INITIAL_INTERPOLATE;
-        st = bg_initial_interpolate(s, s->initial, p->err);
+        st = bg_initial_interpolate(s, s->initial, &s->prep[s->prep_count++], p->err);
         if (st != BG_OK)
             return st;
     } else if (!item || (cJSON_IsString(item) && strcmp(item->valuestring, "rest") == 0)) {

@@ -98,6 +98,15 @@ typedef enum bg_initial_kind {
     BG_INITIAL_INTERPOLATE = 2, /* the handles' motions interpolated into the body */
 } bg_initial_kind;
 
+/* Set-up work done while loading a scene (the starting guess), which every
+ * run of it reports in its set-up list and wall time. */
+typedef struct bg_scene_prep {
+    const char *name;        /* static text */
+    int64_t factorizations;  /* numeric factorizations it did */
+    double seconds;
+} bg_scene_prep_t;
+#define BG_SCENE_MAX_PREP 3
+
 typedef struct bg_scene {
     char *path;        /* the scene file as given ("<memory>" when parsed from text) */
     char *name;        /* the "name" field, else the file's stem */
@@ -133,6 +142,8 @@ typedef struct bg_scene {
     bg_method method;           /* solver.method, default newton */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
     int max_iterations;         /* solver.max_iterations, default 200 */
+    bg_scene_prep_t prep[BG_SCENE_MAX_PREP]; /* set-up done at load (bg_initial, bg_param) */
+    int prep_count;
 } bg_scene_t;
 
 #define BG_SCENE_DEFAULT_TOLERANCE 1e-8

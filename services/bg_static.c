@@ -19,17 +19,21 @@
 #define STATIC_FIRST_SHIFT 1e-10
 #define STATIC_SHIFT_GROWTH 100.0
 #define STATIC_MAX_SHIFTS 8
-/* Newton tries the exact (unprojected) Hessian at every iteration once the
- * relative gradient is below this, and falls back to the projected one
- * when it does not factor: clamping element twist modes that the assembled
- * system does not need clamped makes the method only linearly convergent,
- * and on nearly incompressible bodies (λ/μ ≥ 10⁴) with a rate close to 1
- * (the clamped twist eigenvalues are of the order of the pressure
- * λ(tr Y − 3), far from 2μ). Waiting for a full step or for the gradient
- * to halve before retrying, as this solver once did, left such solves on
- * the projected matrix for tens of iterations at a time (stiff twisted
- * bar, λ/μ = 10⁵: 115 iterations and a false stop, now 61 converged). */
+/* Newton tries the exact (unprojected) Hessian once the relative gradient
+ * is below this, and falls back to the projected one when it does not
+ * factor: clamping element twist modes that the assembled system does not
+ * need clamped makes the method only linearly convergent, and on nearly
+ * incompressible bodies (λ/μ ≥ 10⁴) with a rate close to 1 (the clamped
+ * twist eigenvalues are of the order of the pressure λ(tr Y − 3), far
+ * from 2μ). After a failed attempt (a wasted factorization) the exact
+ * matrix is tried again once the gradient has halved or after a few
+ * iterations, whichever comes first. Waiting for a full step and for the
+ * gradient to halve, as this solver once did, left stiff solves on the
+ * projected matrix for tens of iterations at a time (twisted bar,
+ * λ/μ = 10⁵: 115 iterations and a false round-off stop). */
 #define STATIC_EXACT_HESSIAN_BELOW 1e-1
+#define STATIC_EXACT_RETRY_FACTOR 0.5
+#define STATIC_EXACT_RETRY_AFTER 4
 /* A step that changes the energy by no more than round-off and the
  * gradient by less than 1 % makes the solver look at the gradient's
  * round-off (below); it stops only if the gradient is there. */
@@ -112,10 +116,39 @@ struct bg_solver {
     double *qn_s, *qn_y, *qn_rho, *qn_alpha, *qn_grad; /* pairs, 1/yᵀs, scratch, ∇ (free) */
     bg_method method;
     double last_magnitude; /* |elastic| + |gravity work| + inertia of the last evaluation */
-    double rotfit_seconds;
+    double rotfit_seconds; /* evaluations not yet reported (bg_solver_minimize, _report) */
+    int mass_ready;        /* mass holds the lumped masses */
+    double vector_seconds; /* vector work of the iterations, not yet reported */
+    bg_setup_t setup;      /* set-up steps not yet reported */
     double force_floor;    /* absolute gradient floor */
 };
 typedef struct bg_solver problem_t;
+
+void bg_setup_add(bg_setup_t *setup, const char *name, int64_t count, int64_t factorizations,
+                  double seconds)
+{
+    int i = 0;
+    while (i < setup->count && strcmp(setup->step[i].name, name) != 0)
+        i++;
+    if (i == setup->count) {
+        if (setup->count == BG_SETUP_MAX_STEPS)
+            i = BG_SETUP_MAX_STEPS - 1;
+        else
+            setup->step[setup->count++] = (bg_setup_step_t){name, 0, 0, 0.0};
+    }
+    setup->step[i].count += count;
+    setup->step[i].factorizations += factorizations;
+    setup->step[i].seconds += seconds;
+    setup->factorizations += factorizations;
+    setup->seconds += seconds;
+}
+
+void bg_setup_merge(bg_setup_t *into, const bg_setup_t *from)
+{
+    for (int i = 0; i < from->count; i++)
+        bg_setup_add(into, from->step[i].name, from->step[i].count, from->step[i].factorizations,
+                     from->step[i].seconds);
+}
 
 void bg_static_lumped_mass(const bg_mesh_t *mesh, double density, double *mass)
 {
@@ -200,6 +233,11 @@ static bg_status factor_with_shift(bg_sparse_t *sys, bg_error_t *err)
  * of rest shapes: (1 − b) c L0 + b c L1. */
 static bg_status lg_factor(problem_t *p, bg_error_t *err)
 {
+    const double t0 = bg_clock_now();
+    int64_t before = 0;
+    for (int c = 0; c < 3; c++)
+        before += p->lg[c] ? bg_sparse_timing(p->lg[c]).factorizations : 0;
+    bg_status st = BG_OK;
     const double b = p->target_model ? p->blend : 0.0;
     for (int c = 0; c < 3; c++) {
         if (!p->lg[c])
@@ -212,11 +250,16 @@ static bg_status lg_factor(problem_t *p, bg_error_t *err)
             bg_elastic_assemble_scalar_laplacian(p->target_model, b * p->lg_scale,
                                                  bg_sparse_scatter(p->lg[c]),
                                                  bg_sparse_values(p->lg[c]));
-        bg_status st = factor_with_shift(p->lg[c], err);
+        st = factor_with_shift(p->lg[c], err);
         if (st != BG_OK)
-            return st;
+            break;
     }
-    return BG_OK;
+    int64_t after = 0;
+    for (int c = 0; c < 3; c++)
+        after += p->lg[c] ? bg_sparse_timing(p->lg[c]).factorizations : 0;
+    bg_setup_add(&p->setup, "local/global: the Laplacian assembled and factored", 1,
+                 after - before, bg_clock_now() - t0);
+    return st;
 }
 
 static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
@@ -280,9 +323,12 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
     p->inertia_diag = malloc((size_t)p->nfree * sizeof *p->inertia_diag + 1);
     if (!p->mass || !p->inertia_diag)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the mass matrix");
-    bg_static_lumped_mass(p->mesh, scene->material.density, p->mass);
     const double *gv = scene->gravity;
+    /* The masses are built only for a load (here) or an inertia term
+     * (bg_solver_mass): the plan promises a static scene without gravity
+     * none. */
     if (gv[0] != 0.0 || gv[1] != 0.0 || (p->n == 3 && gv[2] != 0.0)) {
+        bg_solver_mass(p);
         p->gravity_force = malloc(p->ndof * sizeof *p->gravity_force + 1);
         if (!p->gravity_force)
             return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the gravity load");
@@ -313,6 +359,20 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
     if (method == BG_METHOD_NEWTON)
         return bg_sparse_new(p->mesh, p->n, p->free_index, p->nfree, &p->sys, err);
     return lg_init(p, scene, err);
+}
+
+/* problem_init, with its time (less the mass and the Laplacian factoring,
+ * which record themselves) as the "solver set-up" step. */
+static bg_status problem_setup(problem_t *p, const bg_scene_t *scene, bg_method method,
+                               bg_error_t *err)
+{
+    const double t0 = bg_clock_now();
+    const bg_status st = problem_init(p, scene, method, err);
+    bg_setup_add(&p->setup, method == BG_METHOD_NEWTON
+                                ? "solver set-up: elastic model, Hessian pattern and scatter map"
+                                : "solver set-up: elastic model, Laplacian patterns",
+                 1, 0, bg_clock_now() - t0 - p->setup.seconds);
+    return st;
 }
 
 /* W(q) and its full gradient into grad. */
@@ -459,18 +519,22 @@ static bg_status lg_direction(problem_t *p, double *slope, bg_error_t *err)
         if (!sys)
             continue;
         const int32_t *idx = p->lg_index[c];
+        double tv = bg_clock_now();
         for (int32_t v = 0; v < nv; v++)
             if (idx[v] >= 0)
                 p->lg_rhs[idx[v]] = p->rhs[p->free_index[(size_t)v * p->n + c]];
+        p->vector_seconds += bg_clock_now() - tv;
         bg_status st = bg_sparse_solve(sys, p->lg_rhs, p->lg_x, err);
         if (st != BG_OK)
             return st;
+        tv = bg_clock_now();
         for (int32_t v = 0; v < nv; v++)
             if (idx[v] >= 0) {
                 const int32_t f = p->free_index[(size_t)v * p->n + c];
                 p->step[f] = p->lg_x[idx[v]];
                 s -= p->rhs[f] * p->step[f];
             }
+        p->vector_seconds += bg_clock_now() - tv;
     }
     *slope = isfinite(s) ? s : NAN;
     return BG_OK;
@@ -592,6 +656,7 @@ static void gather_free(const problem_t *p, const double *grad, double *out)
 static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
 {
     const size_t nf = (size_t)p->nfree;
+    double tv = bg_clock_now();
     double *r = p->rhs;
     for (int k = p->qn_count - 1; k >= 0; k--) {
         const int slot = (p->qn_head + k) % STATIC_QN_PAIRS;
@@ -604,9 +669,11 @@ static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
         for (size_t i = 0; i < nf; i++)
             r[i] -= a * yk[i];
     }
+    p->vector_seconds += bg_clock_now() - tv;
     bg_status st = bg_sparse_solve(p->sys, r, p->step, err);
     if (st != BG_OK)
         return st;
+    tv = bg_clock_now();
     double *d = p->step;
     for (int k = 0; k < p->qn_count; k++) {
         const int slot = (p->qn_head + k) % STATIC_QN_PAIRS;
@@ -622,6 +689,7 @@ static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
     for (size_t i = 0; i < nf; i++)
         s += p->qn_grad[i] * d[i];
     *slope = isfinite(s) ? s : NAN;
+    p->vector_seconds += bg_clock_now() - tv;
     return BG_OK;
 }
 
@@ -663,7 +731,7 @@ bg_status bg_solver_new(const bg_scene_t *scene, bg_method method, bg_solver_t *
     problem_t *p = malloc(sizeof *p);
     if (!p)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating a solver");
-    bg_status st = problem_init(p, scene, method, err);
+    bg_status st = problem_setup(p, scene, method, err);
     if (st != BG_OK) {
         bg_solver_destroy(&p);
         return st;
@@ -714,9 +782,32 @@ const double *bg_solver_energy_density(const bg_solver_t *solver)
     return bg_elastic_energy_density(solver->model);
 }
 
-const double *bg_solver_mass(const bg_solver_t *solver)
+const double *bg_solver_mass(bg_solver_t *solver)
 {
-    return solver->mass;
+    if (!solver->mass_ready && solver->mass) {
+        const double t0 = bg_clock_now();
+        bg_static_lumped_mass(solver->mesh, solver->scene->material.density, solver->mass);
+        solver->mass_ready = 1;
+        bg_setup_add(&solver->setup, "lumped mass matrix", 1, 0, bg_clock_now() - t0);
+    }
+    return solver->mass_ready ? solver->mass : NULL;
+}
+
+void bg_solver_report(bg_solver_t *solver, bg_solve_result_t *res)
+{
+    bg_setup_merge(&res->setup, &solver->setup);
+    memset(&solver->setup, 0, sizeof solver->setup);
+    res->rotfit_seconds += solver->rotfit_seconds;
+    solver->rotfit_seconds = 0.0;
+}
+
+void bg_solve_result_add_scene_prep(bg_solve_result_t *res, const bg_scene_t *scene)
+{
+    for (int i = 0; i < scene->prep_count; i++) {
+        bg_setup_add(&res->setup, scene->prep[i].name, 1, scene->prep[i].factorizations,
+                     scene->prep[i].seconds);
+        res->wall_seconds += scene->prep[i].seconds;
+    }
 }
 
 double bg_solver_potential(bg_solver_t *p, const double *q, double *grad)
@@ -758,6 +849,10 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         st = bg_error_set(err, BG_ERR_UNSUPPORTED, "an inertia term needs the newton method");
         goto out;
     }
+    if (opt->inertia && !bg_solver_mass(p)) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the mass matrix");
+        goto out;
+    }
     p->inertia = opt->inertia;
     if (p->inertia)
         for (int32_t v = 0; v < p->mesh->nv; v++)
@@ -767,7 +862,6 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                     p->inertia_diag[f] = p->inertia->c * p->mass[v];
             }
     bg_elastic_reset_stats(p->model);
-    p->rotfit_seconds = 0.0;
     const bg_sparse_timing_t timing0 = total_timing(p);
     const double *start = opt->start ? opt->start : scene->initial;
     const double *targets = opt->targets ? opt->targets : scene->target;
@@ -824,6 +918,8 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     int since_best = 0;
     res->stop_reason = "iteration limit";
     int it = 0;
+    double exact_failed_at = INFINITY; /* gradient norm when the exact Hessian last failed */
+    int exact_failed_it = 0;
     for (;;) {
         const double rel = g0 > 0.0 ? gnorm / g0 : 0.0;
         if (rel <= opt->tolerance || gnorm <= opt->absolute_tolerance ||
@@ -835,9 +931,11 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         if (it >= opt->max_iterations)
             break;
         it++;
+        double tv = bg_clock_now();
         for (size_t i = 0; i < ndof; i++)
             if (p->free_index[i] >= 0)
                 p->rhs[p->free_index[i]] = -p->grad[i];
+        p->vector_seconds += bg_clock_now() - tv;
         double slope = NAN;
         int quasi = 0;
         if (reuse) {
@@ -858,8 +956,16 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         } else if (solver->method == BG_METHOD_NEWTON) {
             /* With an inertia term (4/h²)M the exact Hessian is almost
              * always positive definite: try it from the first iteration. */
-            const int try_exact = p->inertia || rel < STATIC_EXACT_HESSIAN_BELOW;
+            const int try_exact =
+                p->inertia ||
+                (rel < STATIC_EXACT_HESSIAN_BELOW &&
+                 (gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at ||
+                  it - exact_failed_it > STATIC_EXACT_RETRY_AFTER));
             st = newton_direction(p, try_exact, res, &slope, err);
+            if (try_exact && res->last_direction != BG_DIRECTION_EXACT) {
+                exact_failed_at = gnorm;
+                exact_failed_it = it;
+            }
             refactor = 0;
             p->qn_cost = 0.0;
         } else {
@@ -884,16 +990,21 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         int accepted = 0, bt_used = 0;
         for (int bt = 0; bt <= STATIC_MAX_BACKTRACKS; bt++, alpha *= 0.5) {
             bt_used = bt;
+            tv = bg_clock_now();
             for (size_t i = 0; i < ndof; i++) {
                 const int32_t f = p->free_index[i];
                 p->q_trial[i] = f >= 0 ? p->q[i] + alpha * p->step[f] : p->q[i];
             }
-            if (opt->keep_orientation && inverts(p, p->q_trial))
+            const int flips = opt->keep_orientation && inverts(p, p->q_trial);
+            p->vector_seconds += bg_clock_now() - tv;
+            if (flips)
                 continue;
             W_trial = potential(p, p->q_trial, p->grad_trial);
             if (!isfinite(W_trial))
                 continue;
+            tv = bg_clock_now();
             g_trial = free_norm(p, p->grad_trial);
+            p->vector_seconds += bg_clock_now() - tv;
             if (W_trial <= W + STATIC_ARMIJO * alpha * slope ||
                 (W_trial <= W + energy_noise(p, W) && g_trial < gnorm)) {
                 accepted = 1;
@@ -924,6 +1035,7 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
          * is not monotone. */
         const int stagnated =
             !quasi && fabs(W_trial - W) <= energy_noise(p, W) && g_trial > STATIC_NO_PROGRESS * gnorm;
+        tv = bg_clock_now();
         if (reuse) {
             qn_push(p, alpha, p->grad_trial);
             if (!quasi || g_trial < g_best) {
@@ -958,14 +1070,15 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         pt.gradient_norm = gnorm;
         pt.relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
         pt.error = relative_error(p->q, opt->reference, ndof);
+        if (push_trace(res, &trace_cap, &pt) != BG_OK) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
+            goto out;
+        }
+        p->vector_seconds += bg_clock_now() - tv;
         if (stagnated && !(pt.relative_gradient <= opt->tolerance) &&
             it - noise_at >= STATIC_NOISE_RECHECK) {
             noise = gradient_noise(p, p->q, NULL);
             noise_at = it;
-        }
-        if (push_trace(res, &trace_cap, &pt) != BG_OK) {
-            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
-            goto out;
         }
         if (opt->progress)
             opt->progress(opt->progress_ctx, solver->method, &pt);
@@ -986,6 +1099,9 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     res->inverted_elements = bg_static_count_inverted(p->mesh, p->q);
     res->rotfit = bg_elastic_rotfit_stats(p->model);
     res->rotfit_seconds = p->rotfit_seconds;
+    p->rotfit_seconds = 0.0;
+    res->vector_seconds = p->vector_seconds;
+    p->vector_seconds = 0.0;
     const bg_sparse_timing_t timing1 = total_timing(p);
     res->analyze_seconds = timing1.analyze_seconds - timing0.analyze_seconds;
     res->factor_seconds = timing1.factor_seconds - timing0.factor_seconds;
@@ -1017,10 +1133,15 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
     bg_status st = bg_solver_new(scene, opt->method, &solver, err);
     if (st == BG_OK)
         st = bg_solver_minimize(solver, opt, res, err);
-    bg_solver_destroy(&solver);
-    /* Setup (pattern, analysis, factoring local/global's Laplacian) counts. */
     if (st == BG_OK)
+        bg_solver_report(solver, res);
+    bg_solver_destroy(&solver);
+    /* Setup (pattern, analysis, factoring local/global's Laplacian) counts,
+     * and so does the scene's starting guess. */
+    if (st == BG_OK) {
         res->wall_seconds = bg_clock_now() - t_start;
+        bg_solve_result_add_scene_prep(res, scene);
+    }
     return st;
 }
 
@@ -1036,6 +1157,8 @@ void bg_solve_result_accumulate(bg_solve_result_t *total, const bg_solve_result_
     total->analyze_seconds += part->analyze_seconds;
     total->factor_seconds += part->factor_seconds;
     total->solve_seconds += part->solve_seconds;
+    total->vector_seconds += part->vector_seconds;
+    total->output_seconds += part->output_seconds;
     total->factorizations += part->factorizations;
 }
 

@@ -111,6 +111,30 @@ typedef struct bg_map_quality {
     double angle_mean, angle_max;
 } bg_map_quality_t;
 
+/* Set-up work of a run, outside its iterations: each step once per name
+ * with how often it ran, its numeric factorizations and its time. */
+#define BG_SETUP_MAX_STEPS 8
+typedef struct bg_setup_step {
+    const char *name;         /* static text */
+    int64_t count;
+    int64_t factorizations;
+    double seconds;
+} bg_setup_step_t;
+
+typedef struct bg_setup {
+    bg_setup_step_t step[BG_SETUP_MAX_STEPS];
+    int count;
+    double seconds;           /* Σ step[].seconds */
+    int64_t factorizations;   /* Σ step[].factorizations */
+} bg_setup_t;
+
+/* Adds one run of a set-up step (merged with an earlier one of the same
+ * name; steps beyond BG_SETUP_MAX_STEPS go into the last one). */
+void bg_setup_add(bg_setup_t *setup, const char *name, int64_t count, int64_t factorizations,
+                  double seconds);
+/* Adds every step of from to into. */
+void bg_setup_merge(bg_setup_t *into, const bg_setup_t *from);
+
 typedef struct bg_solve_result {
     bg_method method;
     int converged;
@@ -121,11 +145,18 @@ typedef struct bg_solve_result {
     double gradient_norm;
     double relative_gradient;
     bg_rotfit_stats_t rotfit;
-    /* Time split (seconds): rotation fitting with energy and gradient,
-     * Hessian/matrix assembly, CHOLMOD symbolic analysis, numeric
-     * factorization, triangular solves. */
+    /* Time split (seconds): rotation fitting with energy and gradient
+     * (every evaluation, the round-off estimates included), Hessian/matrix
+     * assembly, CHOLMOD symbolic analysis, numeric factorization, triangular
+     * solves, the vector work of the iterations (line search, L-BFGS
+     * recursion, orientation checks, norms), writing output frames. With
+     * setup.seconds they add up to wall_seconds (the difference is
+     * bookkeeping between these timers). */
     double rotfit_seconds, assembly_seconds, analyze_seconds, factor_seconds, solve_seconds;
-    int64_t factorizations;
+    double vector_seconds, output_seconds;
+    int64_t factorizations;   /* numeric factorizations of the iterations (setup's: in setup) */
+    bg_setup_t setup;         /* the set-up steps: solver, lumped mass, local/global's
+                                 Laplacian, the scene's starting guess */
     bg_direction last_direction;
     int roundoff_floor;       /* stopped where the free gradient is at most its own round-off
                                  (gradient_roundoff): no method can make further progress */
@@ -193,8 +224,23 @@ double bg_solver_potential(bg_solver_t *solver, const double *q, double *grad);
 /* ψ per element at the last evaluated positions (ne values), borrowed. */
 const double *bg_solver_energy_density(const bg_solver_t *solver);
 
-/* The lumped vertex masses (nv), borrowed. */
-const double *bg_solver_mass(const bg_solver_t *solver);
+/* The lumped vertex masses (nv), borrowed; built on the first call (a
+ * solver without gravity needs them only for an inertia term). NULL when
+ * out of memory. */
+const double *bg_solver_mass(bg_solver_t *solver);
+
+/*
+ * Adds to res what the solver did outside the minimisations already
+ * reported: its set-up steps (model and pattern, lumped mass, local/global's
+ * Laplacian factorizations, also those of bg_solver_set_blend) and the
+ * evaluations made through bg_solver_potential since the last
+ * bg_solver_minimize. Call once, at the end of a series.
+ */
+void bg_solver_report(bg_solver_t *solver, bg_solve_result_t *res);
+
+/* Adds the scene's load-time set-up (scene->prep) to res: set-up list and
+ * wall time. */
+void bg_solve_result_add_scene_prep(bg_solve_result_t *res, const bg_scene_t *scene);
 
 /* Elements of the mesh at positions q with measure <= 0: inverted or flat
  * tetrahedra (det F <= 0) or planar triangles. */
