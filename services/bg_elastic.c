@@ -772,7 +772,7 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
 /*
  * Σ of |terms| behind each gradient entry: per element the entries of
  * |P|ₐ = 2μ(|F|ₐ + |R|) + |λ|(|R|·|F|ₐ + n)|R| (+ the barrier's |terms|),
- * |F|ₐ = Σ_j (|q_j| + |q_0|)|D_m⁻¹| the magnitudes F is computed from,
+ * |F|ₐ = Σ_j |q_j − q_0||D_m⁻¹| the magnitudes F is computed from,
  * times |D_m⁻ᵀ|, scaled by V, summed in absolute value per vertex. The
  * round-off of a computed gradient entry is a small multiple of ε times
  * this (the cancellation inside tr Y − n and across elements is what a
@@ -793,14 +793,15 @@ void bg_elastic_force_magnitude(const bg_elastic_t *md, const double *q, double 
         deformation_gradient(n, el, q, Di, F);
         int path;
         material_point(n, md->mu, md->lambda, F, quat, R, NULL, NULL, 0, &path);
-        /* F is a difference of positions: its entries carry the round-off
-         * of |q|, not of |F|, on a body away from the origin. */
+        /* The edge differences q_j − q_0 of nearby vertices are exact
+         * (Sterbenz), so F's entries carry the round-off of the products
+         * that form them: |F|ₐ = |d||D_m⁻¹|. */
         double Fm[9], trY = 0.0;
         for (int a = 0; a < n; a++)
             for (int b = 0; b < n; b++) {
                 double m = 0.0;
                 for (int j = 0; j < n; j++)
-                    m += (fabs(q[(size_t)el[j + 1] * n + a]) + fabs(q[(size_t)el[0] * n + a])) *
+                    m += fabs(q[(size_t)el[j + 1] * n + a] - q[(size_t)el[0] * n + a]) *
                          fabs(Di[j * n + b]);
                 Fm[a * n + b] = m;
                 trY += fabs(R[a * n + b]) * m;

@@ -45,7 +45,7 @@
  * the ulps cover the rotation fit's residual (BG_ROTFIT_SKEW_TOL = 45 ulps)
  * and the dozen operations per stress entry. A gradient at or below it is
  * noise: no method can say which way is down. */
-#define STATIC_GRADIENT_NOISE_ULPS 256.0
+#define STATIC_GRADIENT_NOISE_ULPS 16.0
 /* While steps keep landing in the energy's round-off, the gradient's
  * round-off (one extra pass over the elements) is re-estimated at most
  * once per this many iterations. */
@@ -121,6 +121,7 @@ struct bg_solver {
     double vector_seconds; /* vector work of the iterations, not yet reported */
     bg_setup_t setup;      /* set-up steps not yet reported */
     double force_floor;    /* absolute gradient floor */
+    double energy_spread;  /* Σ |force terms|·|q| at the last round-off estimate */
 };
 typedef struct bg_solver problem_t;
 
@@ -414,18 +415,24 @@ static double potential(problem_t *p, const double *q, double *grad)
 }
 
 /* Round-off in an energy value W: a few ulps of the magnitude of the terms
- * it was summed from (the last evaluation's). */
+ * it was summed from (the last evaluation's), and of Σ|P||F| over the
+ * elements: ψ = μ|F − R|² + … is computed from F and R, not from their
+ * small difference, so near the minimum its error is ε|P||F|, far above
+ * ε ψ. Σ_i m_i |q_i| from the last round-off estimate stands for that
+ * (the element force magnitudes times the positions they act on). */
 static double energy_noise(const problem_t *p, double W)
 {
-    return STATIC_ENERGY_NOISE_ULPS * DBL_EPSILON * fmax(p->last_magnitude, fabs(W));
+    return STATIC_ENERGY_NOISE_ULPS * DBL_EPSILON *
+           (fmax(p->last_magnitude, fabs(W)) + p->energy_spread);
 }
 
 /*
  * The round-off of the free gradient at q (DESIGN.md §1.5 stopping):
  * STATIC_GRADIENT_NOISE_ULPS ε ‖m‖ over the free coordinates, m the sum of
  * the magnitudes of every term of each gradient entry (element forces of
- * both rest shapes when morphing, the load, the inertia term c m (q − y),
- * whose difference carries the round-off of |q| + |y|). *total gets
+ * both rest shapes when morphing, the load, the inertia term). It also
+ * refreshes energy_spread = Σ m_i |q_i|, the energy's own round-off scale
+ * (energy_noise). *total gets
  * ‖m‖ over all coordinates (a force scale of the state). Counted as
  * evaluation time.
  */
@@ -442,16 +449,17 @@ static double gradient_noise(problem_t *p, const double *q, double *total)
             p->mag[i] += fabs(p->gravity_force[i]);
     if (p->inertia)
         for (size_t i = 0; i < p->ndof; i++)
-            p->mag[i] += p->inertia->c * p->mass[i / (size_t)p->n] *
-                         (fabs(q[i]) + fabs(p->inertia->y[i]));
-    double free2 = 0.0, all2 = 0.0;
+            p->mag[i] += p->inertia->c * p->mass[i / (size_t)p->n] * fabs(q[i] - p->inertia->y[i]);
+    double free2 = 0.0, all2 = 0.0, spread = 0.0;
     for (size_t i = 0; i < p->ndof; i++) {
         all2 += p->mag[i] * p->mag[i];
+        spread += p->mag[i] * fabs(q[i]);
         if (p->free_index[i] >= 0)
             free2 += p->mag[i] * p->mag[i];
     }
     if (total)
         *total = sqrt(all2);
+    p->energy_spread = spread;
     p->rotfit_seconds += bg_clock_now() - t0;
     return STATIC_GRADIENT_NOISE_ULPS * DBL_EPSILON * sqrt(free2);
 }
@@ -923,7 +931,7 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     for (;;) {
         const double rel = g0 > 0.0 ? gnorm / g0 : 0.0;
         if (rel <= opt->tolerance || gnorm <= opt->absolute_tolerance ||
-            gnorm <= p->force_floor) {
+            (gnorm <= p->force_floor && !opt->no_force_floor)) {
             res->converged = 1;
             res->stop_reason = "converged";
             break;

@@ -61,6 +61,8 @@ typedef struct bg_solve_options {
     double tolerance;
     int max_iterations;
     double absolute_tolerance; /* also stop when ‖∇‖ ≤ this (0: unused) */
+    int no_force_floor;       /* ignore the scene's absolute floor (1e-13 of its force scale):
+                                 run to the gradient's round-off (tests of the round-off stop) */
     const double *targets;    /* nv*n values of the constrained coordinates, or NULL for scene->target */
     const bg_inertia_t *inertia; /* NULL for a static solve */
     int keep_orientation;     /* reject steps that invert an element (from a start
