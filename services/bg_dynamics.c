@@ -211,6 +211,7 @@ static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scen
                          bg_solve_result_t *inner, double *handle_work, bg_error_t *err)
 {
     const double c = variational ? 4.0 / (h * h) : 1.0 / (h * h);
+    double tv = bg_clock_now();
     /* y is the inertial prediction (the minimiser without forces); the
      * constrained coordinates sit at the midpoint of their prescribed path
      * (variational) or at its end (Euler). */
@@ -219,6 +220,7 @@ static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scen
         s->y[i] = variational ? s->q[i] + 0.5 * h * s->p[i] / m : s->q[i] + h * s->v[i];
         s->targets[i] = variational ? 0.5 * (s->t0[i] + s->t1[i]) : s->t1[i];
     }
+    const double t_loops = bg_clock_now() - tv;
     choose_start(s, solver, scene, c, variational, h, k, opt->predictor);
     const double tau = opt->tolerance > 0.0 ? opt->tolerance : scene->tolerance;
     const bg_inertia_t inertia = {c, s->y};
@@ -238,6 +240,7 @@ static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scen
         return st;
     const double *qs = inner->q;
     bg_solver_potential(solver, qs, s->grad_next);
+    tv = bg_clock_now();
     double work = 0.0;
     for (size_t i = 0; i < s->ndof; i++) {
         const double m = s->mass[i / (size_t)s->n];
@@ -260,6 +263,7 @@ static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scen
         }
     }
     *handle_work = work;
+    inner->vector_seconds += t_loops + (bg_clock_now() - tv);
     return BG_OK;
 }
 
@@ -376,6 +380,7 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
             res->stop_reason = "an inner solve did not converge";
         }
         bg_solve_result_accumulate(res, &inner);
+        double tv = bg_clock_now();
         memcpy(s.v_prev, s.v, s.ndof * sizeof *s.v);
         for (size_t i = 0; i < s.ndof; i++) {
             s.q[i] = scene->constrained[i] ? s.t1[i] : s.q_next[i];
@@ -387,11 +392,14 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         const int inner_iterations = inner.iterations;
         bg_solve_result_release(&inner);
 
+        res->vector_seconds += bg_clock_now() - tv;
         record(&s, solver, t1, &rec);
+        tv = bg_clock_now();
         rec.iterations = inner_iterations;
         rec.limited = limited;
         rec.seconds = bg_clock_now() - t_step;
         scale = fmax(scale, rec.kinetic + rec.potential + gravity_work(&s, scene, s.q));
+        res->vector_seconds += bg_clock_now() - tv;
         if (!isfinite(rec.total_energy)) {
             st = bg_error_set(err, BG_ERR_NUMERIC, "%s: the energy is not finite at step %d",
                               scene->path, k + 1);

@@ -781,8 +781,11 @@ bg_status bg_solver_set_blend(bg_solver_t *p, const double *target, double blend
         if (st != BG_OK)
             return st;
     }
+    /* The Laplacian factored for the previous blend (0 before any) is
+     * still right when the blend does not change. */
+    const double previous = p->blend;
     p->blend = blend;
-    return p->method == BG_METHOD_LOCAL_GLOBAL ? lg_factor(p, err) : BG_OK;
+    return p->method == BG_METHOD_LOCAL_GLOBAL && blend != previous ? lg_factor(p, err) : BG_OK;
 }
 
 const double *bg_solver_energy_density(const bg_solver_t *solver)
