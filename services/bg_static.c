@@ -845,6 +845,18 @@ static bg_sparse_timing_t total_timing(const problem_t *p)
     return sum;
 }
 
+/* A solve that cannot go on: at the round-off floor if the gradient is
+ * within its round-off at the current iterate, else stalled. Returns the
+ * estimate. */
+static double classify_stop(problem_t *p, double gnorm, bg_solve_result_t *res,
+                            const char *at_floor, const char *stalled)
+{
+    const double noise = gradient_noise(p, p->q, NULL);
+    res->roundoff_floor = gnorm <= noise;
+    res->stop_reason = res->roundoff_floor ? at_floor : stalled;
+    return noise;
+}
+
 bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                              bg_solve_result_t *res, bg_error_t *err)
 {
@@ -988,13 +1000,11 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
             /* Every matrix tried was positive definite or shifted to be, and
              * −A⁻¹∇ is then a descent direction unless the gradient is
              * round-off noise. */
-            noise = gradient_noise(p, p->q, NULL);
+            noise = classify_stop(p, gnorm, res,
+                                  "no descent direction: the gradient is at its round-off",
+                                  "stalled: no descent direction, the gradient above its "
+                                  "round-off");
             noise_at = it;
-            res->roundoff_floor = gnorm <= noise;
-            res->stop_reason = res->roundoff_floor
-                                   ? "no descent direction: the gradient is at its round-off"
-                                   : "stalled: no descent direction, the gradient above its "
-                                     "round-off";
             break;
         }
         double alpha = 1.0, W_trial = NAN, g_trial = NAN;
@@ -1030,13 +1040,10 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                 refactor = 1;
                 continue;
             }
-            noise = gradient_noise(p, p->q, NULL);
+            noise = classify_stop(p, gnorm, res, "the gradient reached its round-off floor",
+                                  "stalled: no step decreases the energy, the gradient above "
+                                  "its round-off");
             noise_at = it;
-            res->roundoff_floor = gnorm <= noise;
-            res->stop_reason = res->roundoff_floor
-                                   ? "the gradient reached its round-off floor"
-                                   : "stalled: no step decreases the energy, the gradient above "
-                                     "its round-off";
             break;
         }
         /* A quasi-Newton step that stalls asks for a fresh matrix, not a

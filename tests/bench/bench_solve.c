@@ -135,15 +135,19 @@ static split_t split_of(const bg_scene_t *scene, const bg_solve_result_t *r)
     const double per_eval = s.evaluations > 0.0 ? r->rotfit_seconds / s.evaluations : 0.0;
     s.rotfit = per_eval * (s.evaluations - 1.0) / its;
     s.solve = r->solve_seconds / its;
+    double in_loop_once = 0.0;
     if (r->method == BG_METHOD_NEWTON) {
-        s.once = r->analyze_seconds;
+        s.once = in_loop_once = r->analyze_seconds;
         s.assembly = r->assembly_seconds / its;
         s.factor = r->factor_seconds / its;
     } else {
-        /* Local/global assembles and factors its matrix once. */
-        s.once = r->analyze_seconds + r->factor_seconds + r->assembly_seconds;
+        /* Local/global assembles and factors its matrix once, in the
+         * solver's set-up (before the first trace point). */
+        for (int i = 0; i < r->setup.count; i++)
+            if (strncmp(r->setup.step[i].name, "local/global", 12) == 0)
+                s.once += r->setup.step[i].seconds;
     }
-    s.per_iteration = (loop - s.once) / its;
+    s.per_iteration = (loop - in_loop_once) / its;
     s.other = s.per_iteration - s.rotfit - s.assembly - s.factor - s.solve;
     return s;
 }
