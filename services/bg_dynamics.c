@@ -211,6 +211,7 @@ static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scen
                          bg_solve_result_t *inner, double *handle_work, bg_error_t *err)
 {
     const double c = variational ? 4.0 / (h * h) : 1.0 / (h * h);
+    double tv = bg_clock_now();
     /* y is the inertial prediction (the minimiser without forces); the
      * constrained coordinates sit at the midpoint of their prescribed path
      * (variational) or at its end (Euler). */
@@ -219,6 +220,7 @@ static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scen
         s->y[i] = variational ? s->q[i] + 0.5 * h * s->p[i] / m : s->q[i] + h * s->v[i];
         s->targets[i] = variational ? 0.5 * (s->t0[i] + s->t1[i]) : s->t1[i];
     }
+    const double t_loops = bg_clock_now() - tv;
     choose_start(s, solver, scene, c, variational, h, k, opt->predictor);
     const double tau = opt->tolerance > 0.0 ? opt->tolerance : scene->tolerance;
     const bg_inertia_t inertia = {c, s->y};
@@ -238,6 +240,7 @@ static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scen
         return st;
     const double *qs = inner->q;
     bg_solver_potential(solver, qs, s->grad_next);
+    tv = bg_clock_now();
     double work = 0.0;
     for (size_t i = 0; i < s->ndof; i++) {
         const double m = s->mass[i / (size_t)s->n];
@@ -260,6 +263,7 @@ static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scen
         }
     }
     *handle_work = work;
+    inner->vector_seconds += t_loops + (bg_clock_now() - tv);
     return BG_OK;
 }
 
@@ -297,6 +301,10 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     s.nv = scene->mesh->nv;
     s.ndof = (size_t)s.nv * s.n;
     s.mass = bg_solver_mass(solver);
+    if (!s.mass) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the mass matrix");
+        goto out;
+    }
     double **arrays[] = {&s.q,    &s.p,       &s.v,      &s.v_prev,    &s.y,
                          &s.t0,   &s.t1,      &s.targets, &s.grad,     &s.start,
                          &s.work, &s.candidate, &s.q_next, &s.p_next, &s.grad_next};
@@ -322,8 +330,13 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the step records");
         goto out;
     }
-    if (opt->frame && (st = opt->frame(opt->frame_ctx, 0, 0.0, s.q, err)) != BG_OK)
-        goto out;
+    if (opt->frame) {
+        const double t_out = bg_clock_now();
+        st = opt->frame(opt->frame_ctx, 0, 0.0, s.q, err);
+        res->output_seconds += bg_clock_now() - t_out;
+        if (st != BG_OK)
+            goto out;
+    }
 
     res->converged = 1;
     res->stop_reason = "completed";
@@ -367,6 +380,7 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
             res->stop_reason = "an inner solve did not converge";
         }
         bg_solve_result_accumulate(res, &inner);
+        double tv = bg_clock_now();
         memcpy(s.v_prev, s.v, s.ndof * sizeof *s.v);
         for (size_t i = 0; i < s.ndof; i++) {
             s.q[i] = scene->constrained[i] ? s.t1[i] : s.q_next[i];
@@ -378,11 +392,14 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         const int inner_iterations = inner.iterations;
         bg_solve_result_release(&inner);
 
+        res->vector_seconds += bg_clock_now() - tv;
         record(&s, solver, t1, &rec);
+        tv = bg_clock_now();
         rec.iterations = inner_iterations;
         rec.limited = limited;
         rec.seconds = bg_clock_now() - t_step;
         scale = fmax(scale, rec.kinetic + rec.potential + gravity_work(&s, scene, s.q));
+        res->vector_seconds += bg_clock_now() - tv;
         if (!isfinite(rec.total_energy)) {
             st = bg_error_set(err, BG_ERR_NUMERIC, "%s: the energy is not finite at step %d",
                               scene->path, k + 1);
@@ -400,9 +417,13 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         }
         if (opt->progress)
             opt->progress(opt->progress_ctx, opt->method, &pt);
-        if (opt->frame && ((k + 1) % every == 0 || k + 1 == steps) &&
-            (st = opt->frame(opt->frame_ctx, k + 1, t1, s.q, err)) != BG_OK)
-            goto out;
+        if (opt->frame && ((k + 1) % every == 0 || k + 1 == steps)) {
+            const double t_out = bg_clock_now();
+            st = opt->frame(opt->frame_ctx, k + 1, t1, s.q, err);
+            res->output_seconds += bg_clock_now() - t_out;
+            if (st != BG_OK)
+                goto out;
+        }
     }
     res->energy = rec.total_energy;
     res->q = malloc(s.ndof * sizeof *res->q + 1);
@@ -412,9 +433,13 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         goto out;
     }
     memcpy(res->q, s.q, s.ndof * sizeof *res->q);
+    res->inverted_elements = bg_static_count_inverted(scene->mesh, s.q);
+    res->gradient_roundoff = res->force_scale = NAN;
     memcpy(res->energy_density, bg_solver_energy_density(solver),
            (size_t)scene->mesh->ne * sizeof *res->energy_density);
+    bg_solver_report(solver, res);
     res->wall_seconds = bg_clock_now() - t_start;
+    bg_solve_result_add_scene_prep(res, scene);
 out:
     bg_solver_destroy(&solver);
     state_release(&s);

@@ -769,6 +769,63 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
     }
 }
 
+/*
+ * Σ of |terms| behind each gradient entry: per element the entries of
+ * |P|ₐ = 2μ(|F|ₐ + |R|) + |λ|(|R|·|F|ₐ + n)|R| (+ the barrier's |terms|),
+ * |F|ₐ = Σ_j |q_j − q_0||D_m⁻¹| the magnitudes F is computed from,
+ * times |D_m⁻ᵀ|, scaled by V, summed in absolute value per vertex. The
+ * round-off of a computed gradient entry is a small multiple of ε times
+ * this (the cancellation inside tr Y − n and across elements is what a
+ * gradient at its floor is made of). Uses copies of the warm-start
+ * rotations, so the model's state is unchanged.
+ */
+void bg_elastic_force_magnitude(const bg_elastic_t *md, const double *q, double scale,
+                                double *mag)
+{
+    const int n = md->n, k = n + 1, nn = n * n;
+    const bg_mesh_t *mesh = md->mesh;
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        const int32_t *el = mesh->elements + (size_t)e * k;
+        const double *Di = md->dminv + (size_t)e * nn;
+        double F[9], R[9], P[9], quat[4] = {0, 0, 0, 0}, g[4][3];
+        if (n == 3)
+            memcpy(quat, md->quat + 4 * (size_t)e, sizeof quat);
+        deformation_gradient(n, el, q, Di, F);
+        int path;
+        material_point(n, md->mu, md->lambda, F, quat, R, NULL, NULL, 0, &path);
+        /* The edge differences q_j − q_0 of nearby vertices are exact
+         * (Sterbenz), so F's entries carry the round-off of the products
+         * that form them: |F|ₐ = |d||D_m⁻¹|. */
+        double Fm[9], trY = 0.0;
+        for (int a = 0; a < n; a++)
+            for (int b = 0; b < n; b++) {
+                double m = 0.0;
+                for (int j = 0; j < n; j++)
+                    m += fabs(q[(size_t)el[j + 1] * n + a] - q[(size_t)el[0] * n + a]) *
+                         fabs(Di[j * n + b]);
+                Fm[a * n + b] = m;
+                trY += fabs(R[a * n + b]) * m;
+            }
+        for (int i = 0; i < nn; i++)
+            P[i] = 2.0 * md->mu * (Fm[i] + fabs(R[i])) + fabs(md->lambda) * (trY + n) * fabs(R[i]);
+        if (md->barrier > 0.0) {
+            double Pb[4] = {0, 0, 0, 0};
+            barrier_point(md->barrier, F, Pb, NULL, 0);
+            for (int i = 0; i < 4; i++)
+                P[i] += fabs(Pb[i]);
+        }
+        barycentric_gradients(n, Di, g);
+        const double w = scale * md->volume[e];
+        for (int i = 0; i < k; i++)
+            for (int a = 0; a < n; a++) {
+                double s = 0.0;
+                for (int b = 0; b < n; b++)
+                    s += P[a * n + b] * fabs(g[i][b]);
+                mag[(size_t)el[i] * n + a] += w * s;
+            }
+    }
+}
+
 void bg_elastic_apply_laplacian(const bg_elastic_t *md, const double *restrict u,
                                 double *restrict out)
 {

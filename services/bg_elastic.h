@@ -90,6 +90,15 @@ void bg_elastic_assemble_scalar_laplacian(const bg_elastic_t *model, double scal
 /* out = K u with K = Σ_e V_e (G Gᵀ ⊗ I_n) over all dofs (u, out: nv*n). */
 void bg_elastic_apply_laplacian(const bg_elastic_t *model, const double *u, double *out);
 
+/*
+ * Adds scale · Σ_e |element force terms| per coordinate into mag (nv*n):
+ * the magnitudes a gradient entry at q is summed from, before they cancel.
+ * ε times this bounds the round-off of bg_elastic_eval's gradient. The
+ * model's warm-start rotations are read, not changed. Allocates nothing.
+ */
+void bg_elastic_force_magnitude(const bg_elastic_t *model, const double *q, double scale,
+                                double *mag);
+
 /* Per-element ψ of the last bg_elastic_eval (ne values, borrowed). */
 const double *bg_elastic_energy_density(const bg_elastic_t *model);
 

@@ -20,7 +20,9 @@
 #include "bg_scene.h"
 
 /* Writes nv*dim positions to out. The scene's mesh, constrained, target
- * and motions must be filled. */
-bg_status bg_initial_interpolate(const bg_scene_t *scene, double *out, bg_error_t *err);
+ * and motions must be filled. *prep gets the step's name, factorization
+ * count and time (the scene reports it with every run). */
+bg_status bg_initial_interpolate(const bg_scene_t *scene, double *out, bg_scene_prep_t *prep,
+                                 bg_error_t *err);
 
 #endif

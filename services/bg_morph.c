@@ -68,11 +68,19 @@ bg_status bg_morph_solve(const bg_scene_t *scene, const bg_morph_options_t *opt,
         res->energy = inner.energy;
         res->gradient_norm = inner.gradient_norm;
         res->relative_gradient = inner.relative_gradient;
+        res->gradient_roundoff = inner.gradient_roundoff;
+        res->force_scale = inner.force_scale;
+        res->inverted_elements = inner.inverted_elements;
         bg_solve_result_release(&inner);
         if (opt->progress)
             opt->progress(opt->progress_ctx, opt->method, pt);
-        if (opt->frame && (st = opt->frame(opt->frame_ctx, j, t, q, err)) != BG_OK)
-            goto out;
+        if (opt->frame) {
+            const double t_out = bg_clock_now();
+            st = opt->frame(opt->frame_ctx, j, t, q, err);
+            res->output_seconds += bg_clock_now() - t_out;
+            if (st != BG_OK)
+                goto out;
+        }
     }
     res->energy_density = malloc((size_t)scene->mesh->ne * sizeof *res->energy_density + 1);
     if (!res->energy_density) {
@@ -83,7 +91,9 @@ bg_status bg_morph_solve(const bg_scene_t *scene, const bg_morph_options_t *opt,
            (size_t)scene->mesh->ne * sizeof *res->energy_density);
     res->q = q;
     q = NULL;
+    bg_solver_report(solver, res);
     res->wall_seconds = bg_clock_now() - t_start;
+    bg_solve_result_add_scene_prep(res, scene);
 out:
     free(q);
     bg_solver_destroy(&solver);

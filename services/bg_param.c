@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bg_clock.h"
 #include "bg_elastic.h"
 #include "bg_sparse.h"
 
@@ -194,7 +195,7 @@ out:
  * the 3-2-1 mount (a fully, b in v) at the new positions.
  */
 static bg_status conformal_start(bg_scene_t *s, int32_t a, int32_t b, double area,
-                                 bg_error_t *err)
+                                 int64_t *factorizations, bg_error_t *err)
 {
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     const size_t n2 = (size_t)s->mesh->nv * 2;
@@ -207,6 +208,7 @@ static bg_status conformal_start(bg_scene_t *s, int32_t a, int32_t b, double are
     bg_status st = bg_static_solve(s, &o, &r, err);
     if (st != BG_OK)
         return st;
+    *factorizations = r.factorizations + r.setup.factorizations;
     double uv_area = 0.0, centre[2] = {0, 0};
     for (int32_t e = 0; e < s->mesh->ne; e++)
         uv_area += bg_mesh_element_measure(s->mesh, r.q, e);
@@ -225,6 +227,7 @@ static bg_status conformal_start(bg_scene_t *s, int32_t a, int32_t b, double are
 
 bg_status bg_param_setup(bg_scene_t *s, bg_error_t *err)
 {
+    const double t_start = bg_clock_now();
     bg_status st = BG_OK;
     bg_mesh_t *surface = s->mesh, *planar = NULL;
     int32_t *loop = NULL;
@@ -307,11 +310,23 @@ bg_status bg_param_setup(bg_scene_t *s, bg_error_t *err)
     s->surface = surface;
     s->mesh = planar;
     planar = NULL;
+    /* Recorded after the conformal solve, which must not report them. */
+    const double t_conformal = bg_clock_now();
+    int64_t conformal_factorizations = 0;
     if (s->alpha > 0.0) {
-        st = conformal_start(s, a, b, area, err);
+        st = conformal_start(s, a, b, area, &conformal_factorizations, err);
         if (st != BG_OK)
             goto out;
     }
+    s->prep_count = 0;
+    s->prep[s->prep_count++] = (bg_scene_prep_t){
+        "parameterization start: boundary loop, rest frames, Tutte embedding (one Laplacian "
+        "factorization)",
+        1, t_conformal - t_start};
+    if (s->alpha > 0.0)
+        s->prep[s->prep_count++] =
+            (bg_scene_prep_t){"parameterization start: the conformal (ASAP) map, a Newton solve",
+                              conformal_factorizations, bg_clock_now() - t_conformal};
     s->material.mu = 0.5 * s->beta * s->beta;
     s->material.lambda = 0.5 * (s->alpha * s->alpha - s->beta * s->beta);
 out:

@@ -32,13 +32,30 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
         planar ? "closed-form 2D rotation per triangle"
                : "polar decomposition per tetrahedron (Newton on SO(3), warm-started), "
                  "rotation-variant SVD where det F <= eps");
-    char detail[160];
-    snprintf(detail, sizeof detail, "%s%s%s", newton ? "CHOLMOD: one symbolic analysis, a numeric "
-                                                       "factorization per Newton iteration" : "",
+    char detail[256];
+    /* Series (time steps, morph frames) keep the factored Newton matrix
+     * and take L-BFGS steps on it (bg_dynamics, bg_morph). */
+    const int series = dynamic || scene->task == BG_TASK_MORPH;
+    snprintf(detail, sizeof detail, "%s%s%s",
+             !newton  ? ""
+             : series ? "CHOLMOD: one symbolic analysis; the Newton matrix factored when it goes "
+                        "stale, L-BFGS steps on it in between"
+                      : "CHOLMOD: one symbolic analysis, a numeric factorization per Newton "
+                        "iteration (exact Hessian first near the solution)",
              newton && local_global ? "; " : "",
-             local_global ? "CHOLMOD: the Laplacian factored once, two triangular solves per "
-                            "iteration" : "");
+             !local_global ? ""
+             : scene->task == BG_TASK_MORPH
+                 ? "CHOLMOD: the Laplacian factored once per frame, solves per iteration"
+                 : "CHOLMOD: the Laplacian factored once, solves per iteration");
     add(plan->services, &plan->service_count, "sparse-solve", detail);
+    for (int i = 0; i < scene->prep_count; i++)
+        add(plan->services, &plan->service_count, "starting-guess", scene->prep[i].name);
+    const double *g = scene->gravity;
+    const int weighted = g[0] != 0.0 || g[1] != 0.0 || g[2] != 0.0;
+    if (dynamic || weighted)
+        add(plan->services, &plan->service_count, "mass-matrix",
+            dynamic ? "lumped masses rho V/(n+1) per vertex: inertia and weight"
+                    : "lumped masses rho V/(n+1) per vertex: the weight");
 
     if (dynamic) {
         snprintf(detail, sizeof detail, "%d steps of h = %g s, each a Newton solve with the "
@@ -56,18 +73,16 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
     if (scene->task == BG_TASK_MORPH)
         add(plan->services, &plan->service_count, "rotation-fit/target",
             "rotations fitted against the target rest shape too: E(M0 -> x) and E(M1 -> x)");
-    if (planar && scene->task == BG_TASK_PARAMETERIZE)
-        add(plan->left_out, &plan->left_out_count, "mass-matrix",
-            "parameterization: a static map of the surface to the plane");
     if (planar)
         add(plan->left_out, &plan->left_out_count, "rotation-fit/svd",
             "planar scene: the 2D closed form covers inverted triangles, no 3D SVD path");
     if (scene->material.lambda == 0.0)
         add(plan->left_out, &plan->left_out_count, "volume-term",
             "lambda = 0: no (tr Y - n)^2 term (the plain as-rigid-as-possible energy)");
-    const double *g = scene->gravity;
-    if (!dynamic && scene->task != BG_TASK_PARAMETERIZE && g[0] == 0.0 && g[1] == 0.0 &&
-        g[2] == 0.0)
+    /* bg_static builds the masses exactly when this says so. */
+    if (!dynamic && !weighted)
         add(plan->left_out, &plan->left_out_count, "mass-matrix",
-            "no gravity: the lumped mass matrix is not built");
+            scene->task == BG_TASK_PARAMETERIZE
+                ? "parameterization: a static map of the surface to the plane, no masses"
+                : "no gravity: the lumped mass matrix is not built");
 }

@@ -13,11 +13,11 @@
 
 #include "bg_scene.h"
 
-#define BG_PLAN_MAX_ITEMS 8
+#define BG_PLAN_MAX_ITEMS 12
 
 typedef struct bg_plan_item {
     const char *service; /* "rotation-fit", "sparse-solve", "integration-step", or a part */
-    char detail[160];    /* what it does for this scene, or why it is left out */
+    char detail[256];    /* what it does for this scene, or why it is left out */
 } bg_plan_item_t;
 
 typedef struct bg_plan {

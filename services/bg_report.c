@@ -25,6 +25,13 @@ static cJSON *run_json(const bg_solve_result_t *r, int morph)
     cJSON_AddItemToObject(o, "energy", number_or_null(r->energy));
     cJSON_AddItemToObject(o, "gradient_norm", number_or_null(r->gradient_norm));
     cJSON_AddItemToObject(o, "relative_gradient", number_or_null(r->relative_gradient));
+    cJSON_AddItemToObject(o, "force_scale", number_or_null(r->force_scale));
+    cJSON_AddItemToObject(o, "gradient_roundoff", number_or_null(r->gradient_roundoff));
+    cJSON_AddBoolToObject(o, "roundoff_floor", r->roundoff_floor);
+    if (r->inverted_elements >= 0)
+        cJSON_AddNumberToObject(o, "inverted_elements", (double)r->inverted_elements);
+    else
+        cJSON_AddNullToObject(o, "inverted_elements");
     cJSON_AddNumberToObject(o, "svd_fallbacks", (double)r->rotfit.svd);
     cJSON *fits = cJSON_AddObjectToObject(o, "rotation_fits");
     if (fits) {
@@ -35,12 +42,33 @@ static cJSON *run_json(const bg_solve_result_t *r, int morph)
     }
     cJSON *split = cJSON_AddObjectToObject(o, "time_split");
     if (split) {
+        const double accounted = r->setup.seconds + r->rotfit_seconds + r->assembly_seconds +
+                                 r->analyze_seconds + r->factor_seconds + r->solve_seconds +
+                                 r->vector_seconds + r->output_seconds;
+        cJSON_AddNumberToObject(split, "setup_seconds", r->setup.seconds);
         cJSON_AddNumberToObject(split, "rotation_fit_seconds", r->rotfit_seconds);
         cJSON_AddNumberToObject(split, "assembly_seconds", r->assembly_seconds);
         cJSON_AddNumberToObject(split, "analyze_seconds", r->analyze_seconds);
         cJSON_AddNumberToObject(split, "factor_seconds", r->factor_seconds);
         cJSON_AddNumberToObject(split, "solve_seconds", r->solve_seconds);
-        cJSON_AddNumberToObject(split, "factorizations", (double)r->factorizations);
+        cJSON_AddNumberToObject(split, "vector_seconds", r->vector_seconds);
+        cJSON_AddNumberToObject(split, "output_seconds", r->output_seconds);
+        cJSON_AddNumberToObject(split, "accounted_seconds", accounted);
+        cJSON_AddNumberToObject(split, "factorizations",
+                                (double)(r->factorizations + r->setup.factorizations));
+        cJSON_AddNumberToObject(split, "iteration_factorizations", (double)r->factorizations);
+    }
+    cJSON *setup = cJSON_AddArrayToObject(o, "setup");
+    for (int i = 0; setup && i < r->setup.count; i++) {
+        const bg_setup_step_t *s = &r->setup.step[i];
+        cJSON *it = cJSON_CreateObject();
+        if (!it)
+            break;
+        cJSON_AddStringToObject(it, "step", s->name);
+        cJSON_AddNumberToObject(it, "count", (double)s->count);
+        cJSON_AddNumberToObject(it, "factorizations", (double)s->factorizations);
+        cJSON_AddNumberToObject(it, "seconds", s->seconds);
+        cJSON_AddItemToArray(setup, it);
     }
     if (r->map.valid) {
         cJSON_AddNumberToObject(o, "flipped_triangles", (double)r->map.flipped_triangles);
@@ -211,7 +239,7 @@ bg_status bg_report_write_plot(const char *path, const bg_scene_t *scene,
     const bg_svg_plot_t plot = {title, "wall time (s)",
                                 dynamic          ? "relative energy drift |E - E0| / |E0|"
                                 : with_reference ? "relative error |q - q_ref| / |q_ref|"
-                                                 : "relative gradient |grad W| / |grad W(q0)|",
+                                                 : "relative gradient |grad W| / force scale",
                                 0, 1};
     st = bg_svg_write(path, &plot, series, count, err);
 out:

@@ -6,8 +6,16 @@
  * "kind", "source"}, "plan": {"services": [{"name", "detail"}], "left_out":
  * [{"name", "reason"}]}, "reference", "runs": [ {"method", "converged",
  * "stop_reason", "iterations", "wall_seconds", "energy", "gradient_norm",
- * "relative_gradient", "svd_fallbacks", "rotation_fits", "time_split":
- * {...}, "trace": [{"seconds", "iteration", "energy", "gradient_norm",
+ * "relative_gradient", "force_scale" (what relative_gradient divides by),
+ * "gradient_roundoff" (the final gradient's round-off estimate),
+ * "roundoff_floor", "inverted_elements" (det F <= 0 in the result, null
+ * where not counted), "svd_fallbacks", "rotation_fits", "time_split":
+ * {"setup_seconds", "rotation_fit_seconds", "assembly_seconds",
+ * "analyze_seconds", "factor_seconds", "solve_seconds", "vector_seconds",
+ * "output_seconds", "accounted_seconds" (their sum, ≈ wall_seconds),
+ * "factorizations" (all, set-up included), "iteration_factorizations"},
+ * "setup": [{"step", "count", "factorizations", "seconds"}],
+ * "trace": [{"seconds", "iteration", "energy", "gradient_norm",
  * "relative_gradient", "error"}]} ] }. "error" is null without a reference.
  */
 #ifndef BG_REPORT_H

@@ -1,6 +1,5 @@
 #include "bg_scene.h"
 
-#include "bg_clock.h"
 #include "bg_initial.h"
 #include "bg_param.h"
 
@@ -2010,20 +2009,18 @@ bg_status bg_scene_prepare(bg_scene_t *s, bg_error_t *err)
 {
     if (s->prepared)
         return BG_OK;
-    const double start = bg_clock_now();
     bg_status st = BG_OK;
     if (s->task == BG_TASK_PARAMETERIZE) {
         st = bg_param_setup(s, err);
     } else if (s->initial_kind == BG_INITIAL_INTERPOLATE) {
         const size_t n = (size_t)s->mesh->nv * s->mesh->dim;
-        st = bg_initial_interpolate(s, s->initial, err);
+        st = bg_initial_interpolate(s, s->initial, &s->prep[s->prep_count++], err);
         for (size_t k = 0; st == BG_OK && k < n; k++)
             if (s->constrained[k])
                 s->initial[k] = s->target[k];
     }
     if (st != BG_OK)
         return st;
-    s->prepare_seconds = bg_clock_now() - start;
     s->prepared = 1;
     return BG_OK;
 }

@@ -100,6 +100,15 @@ typedef enum bg_initial_kind {
     BG_INITIAL_INTERPOLATE = 2, /* the handles' motions interpolated into the body */
 } bg_initial_kind;
 
+/* Set-up work done while loading a scene (the starting guess), which every
+ * run of it reports in its set-up list and wall time. */
+typedef struct bg_scene_prep {
+    const char *name;        /* static text */
+    int64_t factorizations;  /* numeric factorizations it did */
+    double seconds;
+} bg_scene_prep_t;
+#define BG_SCENE_MAX_PREP 3
+
 typedef struct bg_scene {
     char *path;        /* the scene file as given ("<memory>" when parsed from text) */
     char *name;        /* the "name" field, else the file's stem */
@@ -133,13 +142,15 @@ typedef struct bg_scene {
     double barrier;             /* parameterize: area-barrier weight relative to μ (default 1,
                                    0: none; see bg_elastic_set_barrier) */
     int prepared;               /* bg_scene_prepare has run: the scene is ready to solve */
-    double prepare_seconds;     /* wall time bg_scene_prepare spent */
     bg_method method;           /* solver.method, default newton */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
     int max_iterations;         /* solver.max_iterations (or its entry for `method`),
                                    default 200 */
     int method_max_iterations[BG_METHOD_COUNT]; /* solver.max_iterations given per method
                                                    ({"newton": n, ...}); 0 where not given */
+    bg_scene_prep_t prep[BG_SCENE_MAX_PREP]; /* set-up done before solving (bg_initial,
+                                                bg_param), by bg_scene_prepare */
+    int prep_count;
 } bg_scene_t;
 
 #define BG_SCENE_DEFAULT_TOLERANCE 1e-8
@@ -183,8 +194,9 @@ bg_status bg_scene_parse_with(const char *json, size_t length, const char *path,
  * out so that validation stays cheap: the harmonic starting guess of an
  * "interpolate" start (a scalar Laplacian factorization) and, for a
  * parameterize task, the Tutte and conformal start that replaces the 3D
- * surface by the planar UV mesh (bg_param_setup). Idempotent; records its
- * time in prepare_seconds. Solvers need a prepared scene.
+ * surface by the planar UV mesh (bg_param_setup). Idempotent; each step is
+ * recorded in prep[] (name, factorizations, seconds), which every run of
+ * the scene reports in its set-up list. Solvers need a prepared scene.
  */
 bg_status bg_scene_prepare(bg_scene_t *scene, bg_error_t *err);
 

@@ -20,18 +20,36 @@
 #define STATIC_SHIFT_GROWTH 100.0
 #define STATIC_MAX_SHIFTS 8
 /* Newton tries the exact (unprojected) Hessian once the relative gradient
- * is below this and the last step was a full one: clamping element twist
- * modes that the assembled system does not need clamped would make the
- * method only linearly convergent. After the exact matrix fails to factor,
- * it is tried again only when the gradient has fallen by this factor. */
+ * is below this, and falls back to the projected one when it does not
+ * factor: clamping element twist modes that the assembled system does not
+ * need clamped makes the method only linearly convergent, and on nearly
+ * incompressible bodies (λ/μ ≥ 10⁴) with a rate close to 1 (the clamped
+ * twist eigenvalues are of the order of the pressure λ(tr Y − 3), far
+ * from 2μ). After a failed attempt (a wasted factorization) the exact
+ * matrix is tried again once the gradient has halved or after a few
+ * iterations, whichever comes first. Waiting for a full step and for the
+ * gradient to halve, as this solver once did, left stiff solves on the
+ * projected matrix for tens of iterations at a time (twisted bar,
+ * λ/μ = 10⁵: 115 iterations and a false round-off stop). */
 #define STATIC_EXACT_HESSIAN_BELOW 1e-1
 #define STATIC_EXACT_RETRY_FACTOR 0.5
-/* The gradient has hit its round-off floor when an accepted step changes
- * the energy by no more than round-off and the gradient by less than 1 %
- * (a linearly converging method still shrinks it by more), or when a full
- * exact-Newton step fails to halve a gradient already below 1e-6 relative
- * (quadratic convergence would otherwise have gone on): stop there. */
+#define STATIC_EXACT_RETRY_AFTER 4
+/* A step that changes the energy by no more than round-off and the
+ * gradient by less than 1 % makes the solver look at the gradient's
+ * round-off (below); it stops only if the gradient is there. */
 #define STATIC_NO_PROGRESS 0.99
+/* The round-off of a computed gradient: this many ulps of the magnitudes
+ * it is summed from (bg_elastic_force_magnitude plus the load and inertia
+ * terms), over the free coordinates. The magnitudes bound every term, so
+ * the estimate is pessimistic by the square root of the number of terms;
+ * the ulps cover the rotation fit's residual (BG_ROTFIT_SKEW_TOL = 45 ulps)
+ * and the dozen operations per stress entry. A gradient at or below it is
+ * noise: no method can say which way is down. */
+#define STATIC_GRADIENT_NOISE_ULPS 16.0
+/* While steps keep landing in the energy's round-off, the gradient's
+ * round-off (one extra pass over the elements) is re-estimated at most
+ * once per this many iterations. */
+#define STATIC_NOISE_RECHECK 8
 /* The absolute floor of the stopping test (DESIGN.md §1.5): a gradient this
  * small relative to the scene's force scale — (2μ + |λ|)·V/L for elastic
  * forces over a body of volume V and size L, plus the weight — is
@@ -42,7 +60,6 @@
  * integration conserves angular momentum only as well as its steps meet
  * this floor (bar-spin: 1e-9 over 1000 steps needs it below 1e-12). */
 #define STATIC_ABSOLUTE_FLOOR 1e-13
-#define STATIC_STAGNATION_BELOW 1e-6
 /* Factor reuse (bg_solve_options_t.reuse_factor): L-BFGS keeps this many
  * curvature pairs on top of the last factored Newton matrix, and the matrix
  * is refactored when this many quasi-Newton steps in a row fail to lower
@@ -83,6 +100,7 @@ struct bg_solver {
     double *lg_rhs, *lg_x;
     double lg_scale;               /* 2μ + λ */
     double *q, *q_trial, *grad, *grad_trial, *rhs, *step;
+    double *mag;           /* ndof scratch: force magnitudes for the round-off estimate */
     double *mass;          /* nv lumped masses */
     double *inertia_diag;  /* nfree: c·m on the diagonal, while an inertia term is active */
     const bg_inertia_t *inertia; /* the active inertia term, or NULL */
@@ -98,10 +116,40 @@ struct bg_solver {
     double *qn_s, *qn_y, *qn_rho, *qn_alpha, *qn_grad; /* pairs, 1/yᵀs, scratch, ∇ (free) */
     bg_method method;
     double last_magnitude; /* |elastic| + |gravity work| + inertia of the last evaluation */
-    double rotfit_seconds;
+    double rotfit_seconds; /* evaluations not yet reported (bg_solver_minimize, _report) */
+    int mass_ready;        /* mass holds the lumped masses */
+    double vector_seconds; /* vector work of the iterations, not yet reported */
+    bg_setup_t setup;      /* set-up steps not yet reported */
     double force_floor;    /* absolute gradient floor */
+    double energy_spread;  /* Σ |force terms|·|q| at the last round-off estimate */
 };
 typedef struct bg_solver problem_t;
+
+void bg_setup_add(bg_setup_t *setup, const char *name, int64_t count, int64_t factorizations,
+                  double seconds)
+{
+    int i = 0;
+    while (i < setup->count && strcmp(setup->step[i].name, name) != 0)
+        i++;
+    if (i == setup->count) {
+        if (setup->count == BG_SETUP_MAX_STEPS)
+            i = BG_SETUP_MAX_STEPS - 1;
+        else
+            setup->step[setup->count++] = (bg_setup_step_t){name, 0, 0, 0.0};
+    }
+    setup->step[i].count += count;
+    setup->step[i].factorizations += factorizations;
+    setup->step[i].seconds += seconds;
+    setup->factorizations += factorizations;
+    setup->seconds += seconds;
+}
+
+void bg_setup_merge(bg_setup_t *into, const bg_setup_t *from)
+{
+    for (int i = 0; i < from->count; i++)
+        bg_setup_add(into, from->step[i].name, from->step[i].count, from->step[i].factorizations,
+                     from->step[i].seconds);
+}
 
 void bg_static_lumped_mass(const bg_mesh_t *mesh, double density, double *mass)
 {
@@ -137,6 +185,7 @@ static void problem_release(problem_t *p)
     free(p->grad_trial);
     free(p->rhs);
     free(p->step);
+    free(p->mag);
     free(p->qn_s);
     free(p->qn_y);
     free(p->qn_rho);
@@ -185,6 +234,11 @@ static bg_status factor_with_shift(bg_sparse_t *sys, bg_error_t *err)
  * of rest shapes: (1 − b) c L0 + b c L1. */
 static bg_status lg_factor(problem_t *p, bg_error_t *err)
 {
+    const double t0 = bg_clock_now();
+    int64_t before = 0;
+    for (int c = 0; c < 3; c++)
+        before += p->lg[c] ? bg_sparse_timing(p->lg[c]).factorizations : 0;
+    bg_status st = BG_OK;
     const double b = p->target_model ? p->blend : 0.0;
     for (int c = 0; c < 3; c++) {
         if (!p->lg[c])
@@ -197,11 +251,16 @@ static bg_status lg_factor(problem_t *p, bg_error_t *err)
             bg_elastic_assemble_scalar_laplacian(p->target_model, b * p->lg_scale,
                                                  bg_sparse_scatter(p->lg[c]),
                                                  bg_sparse_values(p->lg[c]));
-        bg_status st = factor_with_shift(p->lg[c], err);
+        st = factor_with_shift(p->lg[c], err);
         if (st != BG_OK)
-            return st;
+            break;
     }
-    return BG_OK;
+    int64_t after = 0;
+    for (int c = 0; c < 3; c++)
+        after += p->lg[c] ? bg_sparse_timing(p->lg[c]).factorizations : 0;
+    bg_setup_add(&p->setup, "local/global: the Laplacian assembled and factored", 1,
+                 after - before, bg_clock_now() - t0);
+    return st;
 }
 
 static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
@@ -251,8 +310,9 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
     p->grad_trial = malloc(p->ndof * sizeof *p->q + 1);
     p->rhs = malloc(p->ndof * sizeof *p->q + 1);
     p->step = malloc(p->ndof * sizeof *p->q + 1);
+    p->mag = malloc(p->ndof * sizeof *p->q + 1);
     if (!p->free_index || !p->q || !p->q_trial || !p->grad || !p->grad_trial || !p->rhs ||
-        !p->step)
+        !p->step || !p->mag)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory setting up the solve");
     for (size_t i = 0; i < p->ndof; i++)
         p->free_index[i] = scene->constrained[i] ? -1 : p->nfree++;
@@ -264,9 +324,12 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
     p->inertia_diag = malloc((size_t)p->nfree * sizeof *p->inertia_diag + 1);
     if (!p->mass || !p->inertia_diag)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the mass matrix");
-    bg_static_lumped_mass(p->mesh, scene->material.density, p->mass);
     const double *gv = scene->gravity;
+    /* The masses are built only for a load (here) or an inertia term
+     * (bg_solver_mass): the plan promises a static scene without gravity
+     * none. */
     if (gv[0] != 0.0 || gv[1] != 0.0 || (p->n == 3 && gv[2] != 0.0)) {
+        bg_solver_mass(p);
         p->gravity_force = malloc(p->ndof * sizeof *p->gravity_force + 1);
         if (!p->gravity_force)
             return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the gravity load");
@@ -299,6 +362,20 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
     return lg_init(p, scene, err);
 }
 
+/* problem_init, with its time (less the mass and the Laplacian factoring,
+ * which record themselves) as the "solver set-up" step. */
+static bg_status problem_setup(problem_t *p, const bg_scene_t *scene, bg_method method,
+                               bg_error_t *err)
+{
+    const double t0 = bg_clock_now();
+    const bg_status st = problem_init(p, scene, method, err);
+    bg_setup_add(&p->setup, method == BG_METHOD_NEWTON
+                                ? "solver set-up: elastic model, Hessian pattern and scatter map"
+                                : "solver set-up: elastic model, Laplacian patterns",
+                 1, 0, bg_clock_now() - t0 - p->setup.seconds);
+    return st;
+}
+
 /* W(q) and its full gradient into grad. */
 static double potential(problem_t *p, const double *q, double *grad)
 {
@@ -318,7 +395,7 @@ static double potential(problem_t *p, const double *q, double *grad)
             magnitude += fabs(p->gravity_force[i] * q[i]);
         }
     }
-    double kinetic = 0.0;
+    double kinetic = 0.0, spread = 0.0;
     if (p->inertia) {
         const bg_inertia_t *in = p->inertia;
         for (int32_t v = 0; v < p->mesh->nv; v++)
@@ -327,8 +404,10 @@ static double potential(problem_t *p, const double *q, double *grad)
                 const double d = q[i] - in->y[i], f = in->c * p->mass[v] * d;
                 kinetic += 0.5 * f * d;
                 grad[i] += f;
+                /* d carries the round-off of |q| + |y|, f·d that times |f| */
+                spread += fabs(f) * (fabs(q[i]) + fabs(in->y[i]));
             }
-        magnitude += kinetic;
+        magnitude += kinetic + spread;
     }
     p->last_magnitude = magnitude;
     p->rotfit_seconds += bg_clock_now() - t0;
@@ -336,10 +415,61 @@ static double potential(problem_t *p, const double *q, double *grad)
 }
 
 /* Round-off in an energy value W: a few ulps of the magnitude of the terms
- * it was summed from (the last evaluation's). */
+ * it was summed from (the last evaluation's), and of Σ|P||F| over the
+ * elements: ψ = μ|F − R|² + … is computed from F and R, not from their
+ * small difference, so near the minimum its error is ε|P||F|, far above
+ * ε ψ. Σ_i m_i |q_i| from the last round-off estimate stands for that
+ * (the element force magnitudes times the positions they act on). */
 static double energy_noise(const problem_t *p, double W)
 {
-    return STATIC_ENERGY_NOISE_ULPS * DBL_EPSILON * fmax(p->last_magnitude, fabs(W));
+    return STATIC_ENERGY_NOISE_ULPS * DBL_EPSILON *
+           (fmax(p->last_magnitude, fabs(W)) + p->energy_spread);
+}
+
+/*
+ * The round-off of the free gradient at q (DESIGN.md §1.5 stopping):
+ * STATIC_GRADIENT_NOISE_ULPS ε ‖m‖ over the free coordinates, m the sum of
+ * the magnitudes of every term of each gradient entry (element forces of
+ * both rest shapes when morphing, the load, the inertia term). It also
+ * refreshes energy_spread = Σ m_i |q_i|, the energy's own round-off scale
+ * (energy_noise). *total gets
+ * ‖m‖ over all coordinates (a force scale of the state). Counted as
+ * evaluation time.
+ */
+static double gradient_noise(problem_t *p, const double *q, double *total)
+{
+    const double t0 = bg_clock_now();
+    memset(p->mag, 0, p->ndof * sizeof *p->mag);
+    const double b = p->target_model ? p->blend : 0.0;
+    bg_elastic_force_magnitude(p->model, q, 1.0 - b, p->mag);
+    if (p->target_model)
+        bg_elastic_force_magnitude(p->target_model, q, b, p->mag);
+    if (p->gravity_force)
+        for (size_t i = 0; i < p->ndof; i++)
+            p->mag[i] += fabs(p->gravity_force[i]);
+    if (p->inertia)
+        for (size_t i = 0; i < p->ndof; i++)
+            p->mag[i] += p->inertia->c * p->mass[i / (size_t)p->n] * fabs(q[i] - p->inertia->y[i]);
+    double free2 = 0.0, all2 = 0.0, spread = 0.0;
+    for (size_t i = 0; i < p->ndof; i++) {
+        all2 += p->mag[i] * p->mag[i];
+        spread += p->mag[i] * fabs(q[i]);
+        if (p->free_index[i] >= 0)
+            free2 += p->mag[i] * p->mag[i];
+    }
+    if (total)
+        *total = sqrt(all2);
+    p->energy_spread = spread;
+    p->rotfit_seconds += bg_clock_now() - t0;
+    return STATIC_GRADIENT_NOISE_ULPS * DBL_EPSILON * sqrt(free2);
+}
+
+int64_t bg_static_count_inverted(const bg_mesh_t *mesh, const double *q)
+{
+    int64_t count = 0;
+    for (int32_t e = 0; e < mesh->ne; e++)
+        count += !(bg_mesh_element_measure(mesh, q, e) > 0.0);
+    return count;
 }
 
 /* Whether positions q invert (or flatten) any element. */
@@ -397,18 +527,22 @@ static bg_status lg_direction(problem_t *p, double *slope, bg_error_t *err)
         if (!sys)
             continue;
         const int32_t *idx = p->lg_index[c];
+        double tv = bg_clock_now();
         for (int32_t v = 0; v < nv; v++)
             if (idx[v] >= 0)
                 p->lg_rhs[idx[v]] = p->rhs[p->free_index[(size_t)v * p->n + c]];
+        p->vector_seconds += bg_clock_now() - tv;
         bg_status st = bg_sparse_solve(sys, p->lg_rhs, p->lg_x, err);
         if (st != BG_OK)
             return st;
+        tv = bg_clock_now();
         for (int32_t v = 0; v < nv; v++)
             if (idx[v] >= 0) {
                 const int32_t f = p->free_index[(size_t)v * p->n + c];
                 p->step[f] = p->lg_x[idx[v]];
                 s -= p->rhs[f] * p->step[f];
             }
+        p->vector_seconds += bg_clock_now() - tv;
     }
     *slope = isfinite(s) ? s : NAN;
     return BG_OK;
@@ -530,6 +664,7 @@ static void gather_free(const problem_t *p, const double *grad, double *out)
 static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
 {
     const size_t nf = (size_t)p->nfree;
+    double tv = bg_clock_now();
     double *r = p->rhs;
     for (int k = p->qn_count - 1; k >= 0; k--) {
         const int slot = (p->qn_head + k) % STATIC_QN_PAIRS;
@@ -542,9 +677,11 @@ static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
         for (size_t i = 0; i < nf; i++)
             r[i] -= a * yk[i];
     }
+    p->vector_seconds += bg_clock_now() - tv;
     bg_status st = bg_sparse_solve(p->sys, r, p->step, err);
     if (st != BG_OK)
         return st;
+    tv = bg_clock_now();
     double *d = p->step;
     for (int k = 0; k < p->qn_count; k++) {
         const int slot = (p->qn_head + k) % STATIC_QN_PAIRS;
@@ -560,6 +697,7 @@ static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
     for (size_t i = 0; i < nf; i++)
         s += p->qn_grad[i] * d[i];
     *slope = isfinite(s) ? s : NAN;
+    p->vector_seconds += bg_clock_now() - tv;
     return BG_OK;
 }
 
@@ -601,7 +739,7 @@ bg_status bg_solver_new(const bg_scene_t *scene, bg_method method, bg_solver_t *
     problem_t *p = malloc(sizeof *p);
     if (!p)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating a solver");
-    bg_status st = problem_init(p, scene, method, err);
+    bg_status st = problem_setup(p, scene, method, err);
     if (st != BG_OK) {
         bg_solver_destroy(&p);
         return st;
@@ -643,8 +781,11 @@ bg_status bg_solver_set_blend(bg_solver_t *p, const double *target, double blend
         if (st != BG_OK)
             return st;
     }
+    /* The Laplacian factored for the previous blend (0 before any) is
+     * still right when the blend does not change. */
+    const double previous = p->blend;
     p->blend = blend;
-    return p->method == BG_METHOD_LOCAL_GLOBAL ? lg_factor(p, err) : BG_OK;
+    return p->method == BG_METHOD_LOCAL_GLOBAL && blend != previous ? lg_factor(p, err) : BG_OK;
 }
 
 const double *bg_solver_energy_density(const bg_solver_t *solver)
@@ -652,9 +793,32 @@ const double *bg_solver_energy_density(const bg_solver_t *solver)
     return bg_elastic_energy_density(solver->model);
 }
 
-const double *bg_solver_mass(const bg_solver_t *solver)
+const double *bg_solver_mass(bg_solver_t *solver)
 {
-    return solver->mass;
+    if (!solver->mass_ready && solver->mass) {
+        const double t0 = bg_clock_now();
+        bg_static_lumped_mass(solver->mesh, solver->scene->material.density, solver->mass);
+        solver->mass_ready = 1;
+        bg_setup_add(&solver->setup, "lumped mass matrix", 1, 0, bg_clock_now() - t0);
+    }
+    return solver->mass_ready ? solver->mass : NULL;
+}
+
+void bg_solver_report(bg_solver_t *solver, bg_solve_result_t *res)
+{
+    bg_setup_merge(&res->setup, &solver->setup);
+    memset(&solver->setup, 0, sizeof solver->setup);
+    res->rotfit_seconds += solver->rotfit_seconds;
+    solver->rotfit_seconds = 0.0;
+}
+
+void bg_solve_result_add_scene_prep(bg_solve_result_t *res, const bg_scene_t *scene)
+{
+    for (int i = 0; i < scene->prep_count; i++) {
+        bg_setup_add(&res->setup, scene->prep[i].name, 1, scene->prep[i].factorizations,
+                     scene->prep[i].seconds);
+        res->wall_seconds += scene->prep[i].seconds;
+    }
 }
 
 double bg_solver_potential(bg_solver_t *p, const double *q, double *grad)
@@ -681,6 +845,18 @@ static bg_sparse_timing_t total_timing(const problem_t *p)
     return sum;
 }
 
+/* A solve that cannot go on: at the round-off floor if the gradient is
+ * within its round-off at the current iterate, else stalled. Returns the
+ * estimate. */
+static double classify_stop(problem_t *p, double gnorm, bg_solve_result_t *res,
+                            const char *at_floor, const char *stalled)
+{
+    const double noise = gradient_noise(p, p->q, NULL);
+    res->roundoff_floor = gnorm <= noise;
+    res->stop_reason = res->roundoff_floor ? at_floor : stalled;
+    return noise;
+}
+
 bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                              bg_solve_result_t *res, bg_error_t *err)
 {
@@ -696,6 +872,10 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         st = bg_error_set(err, BG_ERR_UNSUPPORTED, "an inertia term needs the newton method");
         goto out;
     }
+    if (opt->inertia && !bg_solver_mass(p)) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the mass matrix");
+        goto out;
+    }
     p->inertia = opt->inertia;
     if (p->inertia)
         for (int32_t v = 0; v < p->mesh->nv; v++)
@@ -705,7 +885,6 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                     p->inertia_diag[f] = p->inertia->c * p->mass[v];
             }
     bg_elastic_reset_stats(p->model);
-    p->rotfit_seconds = 0.0;
     const bg_sparse_timing_t timing0 = total_timing(p);
     const double *start = opt->start ? opt->start : scene->initial;
     const double *targets = opt->targets ? opt->targets : scene->target;
@@ -719,8 +898,29 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                           "finite", scene->path);
         goto out;
     }
-    const double g0 = gnorm;
-    bg_trace_point_t pt = {bg_clock_now() - t_start, 0, W, gnorm, g0 > 0.0 ? 1.0 : 0.0,
+    /* The relative gradient's scale: the start's free gradient, but at
+     * least the reactions at the handles and the load, which do not vanish
+     * when the start is already the solution; and when the start's
+     * gradient is round-off, the element forces themselves. */
+    double reaction = 0.0, load = 0.0;
+    for (size_t i = 0; i < ndof; i++) {
+        if (p->free_index[i] < 0)
+            reaction += p->grad[i] * p->grad[i];
+        else if (p->gravity_force)
+            load += p->gravity_force[i] * p->gravity_force[i];
+    }
+    double g0 = fmax(gnorm, fmax(sqrt(reaction), sqrt(load)));
+    double noise = NAN;
+    int noise_at = -STATIC_NOISE_RECHECK;
+    if (!p->inertia) {
+        double forces = 0.0;
+        noise = gradient_noise(p, p->q, &forces);
+        noise_at = 0;
+        if (gnorm <= noise)
+            g0 = fmax(g0, forces);
+    }
+    res->force_scale = g0;
+    bg_trace_point_t pt = {bg_clock_now() - t_start, 0, W, gnorm, g0 > 0.0 ? gnorm / g0 : 0.0,
                            relative_error(p->q, opt->reference, ndof)};
     if (push_trace(res, &trace_cap, &pt) != BG_OK) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
@@ -741,12 +941,12 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     int since_best = 0;
     res->stop_reason = "iteration limit";
     int it = 0;
-    int last_full_step = 0;
     double exact_failed_at = INFINITY; /* gradient norm when the exact Hessian last failed */
+    int exact_failed_it = 0;
     for (;;) {
         const double rel = g0 > 0.0 ? gnorm / g0 : 0.0;
         if (rel <= opt->tolerance || gnorm <= opt->absolute_tolerance ||
-            gnorm <= p->force_floor) {
+            (gnorm <= p->force_floor && !opt->no_force_floor)) {
             res->converged = 1;
             res->stop_reason = "converged";
             break;
@@ -754,9 +954,11 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         if (it >= opt->max_iterations)
             break;
         it++;
+        double tv = bg_clock_now();
         for (size_t i = 0; i < ndof; i++)
             if (p->free_index[i] >= 0)
                 p->rhs[p->free_index[i]] = -p->grad[i];
+        p->vector_seconds += bg_clock_now() - tv;
         double slope = NAN;
         int quasi = 0;
         if (reuse) {
@@ -777,11 +979,16 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         } else if (solver->method == BG_METHOD_NEWTON) {
             /* With an inertia term (4/h²)M the exact Hessian is almost
              * always positive definite: try it from the first iteration. */
-            const int near = p->inertia || (last_full_step && rel < STATIC_EXACT_HESSIAN_BELOW);
-            const int try_exact = near && gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at;
+            const int try_exact =
+                p->inertia ||
+                (rel < STATIC_EXACT_HESSIAN_BELOW &&
+                 (gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at ||
+                  it - exact_failed_it > STATIC_EXACT_RETRY_AFTER));
             st = newton_direction(p, try_exact, res, &slope, err);
-            if (try_exact && res->last_direction != BG_DIRECTION_EXACT)
+            if (try_exact && res->last_direction != BG_DIRECTION_EXACT) {
                 exact_failed_at = gnorm;
+                exact_failed_it = it;
+            }
             refactor = 0;
             p->qn_cost = 0.0;
         } else {
@@ -792,25 +999,33 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         if (!(slope < 0.0)) {
             /* Every matrix tried was positive definite or shifted to be, and
              * −A⁻¹∇ is then a descent direction unless the gradient is
-             * round-off noise: progress has reached its floor. */
-            res->stop_reason = "no descent direction (gradient at round-off)";
-            res->roundoff_floor = 1;
+             * round-off noise. */
+            noise = classify_stop(p, gnorm, res,
+                                  "no descent direction: the gradient is at its round-off",
+                                  "stalled: no descent direction, the gradient above its "
+                                  "round-off");
+            noise_at = it;
             break;
         }
         double alpha = 1.0, W_trial = NAN, g_trial = NAN;
         int accepted = 0, bt_used = 0;
         for (int bt = 0; bt <= STATIC_MAX_BACKTRACKS; bt++, alpha *= 0.5) {
             bt_used = bt;
+            tv = bg_clock_now();
             for (size_t i = 0; i < ndof; i++) {
                 const int32_t f = p->free_index[i];
                 p->q_trial[i] = f >= 0 ? p->q[i] + alpha * p->step[f] : p->q[i];
             }
-            if (opt->keep_orientation && inverts(p, p->q_trial))
+            const int flips = opt->keep_orientation && inverts(p, p->q_trial);
+            p->vector_seconds += bg_clock_now() - tv;
+            if (flips)
                 continue;
             W_trial = potential(p, p->q_trial, p->grad_trial);
             if (!isfinite(W_trial))
                 continue;
+            tv = bg_clock_now();
             g_trial = free_norm(p, p->grad_trial);
+            p->vector_seconds += bg_clock_now() - tv;
             if (W_trial <= W + STATIC_ARMIJO * alpha * slope ||
                 (W_trial <= W + energy_noise(p, W) && g_trial < gnorm)) {
                 accepted = 1;
@@ -825,16 +1040,20 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                 refactor = 1;
                 continue;
             }
-            res->stop_reason = "no step decreases the energy beyond round-off";
-            res->roundoff_floor = 1;
+            noise = classify_stop(p, gnorm, res, "the gradient reached its round-off floor",
+                                  "stalled: no step decreases the energy, the gradient above "
+                                  "its round-off");
+            noise_at = it;
             break;
         }
-        /* A quasi-Newton step that stalls asks for a fresh matrix, not a stop. */
+        /* A quasi-Newton step that stalls asks for a fresh matrix, not a
+         * stop; any other stalls only where the gradient is its own
+         * round-off (checked below, at the accepted point). A gradient
+         * that rises once while the energy is flat is no stop: local/global's
+         * is not monotone. */
         const int stagnated =
-            !quasi &&
-            ((fabs(W_trial - W) <= energy_noise(p, W) && g_trial > STATIC_NO_PROGRESS * gnorm) ||
-             (alpha == 1.0 && res->last_direction == BG_DIRECTION_EXACT &&
-              rel < STATIC_STAGNATION_BELOW && g_trial > 0.5 * gnorm));
+            !quasi && fabs(W_trial - W) <= energy_noise(p, W) && g_trial > STATIC_NO_PROGRESS * gnorm;
+        tv = bg_clock_now();
         if (reuse) {
             qn_push(p, alpha, p->grad_trial);
             if (!quasi || g_trial < g_best) {
@@ -855,7 +1074,6 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                     refactor = 1;
             }
         }
-        last_full_step = alpha == 1.0;
         double *swap = p->q;
         p->q = p->q_trial;
         p->q_trial = swap;
@@ -874,9 +1092,16 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
             st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
             goto out;
         }
+        p->vector_seconds += bg_clock_now() - tv;
+        if (stagnated && !(pt.relative_gradient <= opt->tolerance) &&
+            it - noise_at >= STATIC_NOISE_RECHECK) {
+            noise = gradient_noise(p, p->q, NULL);
+            noise_at = it;
+        }
         if (opt->progress)
             opt->progress(opt->progress_ctx, solver->method, &pt);
-        if (stagnated && !(pt.relative_gradient <= opt->tolerance)) {
+        if (stagnated && !(pt.relative_gradient <= opt->tolerance) && noise_at == it &&
+            gnorm <= noise) {
             res->stop_reason = "the gradient reached its round-off floor";
             res->roundoff_floor = 1;
             break;
@@ -886,8 +1111,15 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     res->energy = W;
     res->gradient_norm = gnorm;
     res->relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
+    if (noise_at != it || !isfinite(noise))
+        noise = gradient_noise(p, p->q, NULL);
+    res->gradient_roundoff = noise;
+    res->inverted_elements = bg_static_count_inverted(p->mesh, p->q);
     res->rotfit = bg_elastic_rotfit_stats(p->model);
     res->rotfit_seconds = p->rotfit_seconds;
+    p->rotfit_seconds = 0.0;
+    res->vector_seconds = p->vector_seconds;
+    p->vector_seconds = 0.0;
     const bg_sparse_timing_t timing1 = total_timing(p);
     res->analyze_seconds = timing1.analyze_seconds - timing0.analyze_seconds;
     res->factor_seconds = timing1.factor_seconds - timing0.factor_seconds;
@@ -919,10 +1151,15 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
     bg_status st = bg_solver_new(scene, opt->method, &solver, err);
     if (st == BG_OK)
         st = bg_solver_minimize(solver, opt, res, err);
-    bg_solver_destroy(&solver);
-    /* Setup (pattern, analysis, factoring local/global's Laplacian) counts. */
     if (st == BG_OK)
+        bg_solver_report(solver, res);
+    bg_solver_destroy(&solver);
+    /* Setup (pattern, analysis, factoring local/global's Laplacian) counts,
+     * and so does the scene's starting guess. */
+    if (st == BG_OK) {
         res->wall_seconds = bg_clock_now() - t_start;
+        bg_solve_result_add_scene_prep(res, scene);
+    }
     return st;
 }
 
@@ -938,6 +1175,8 @@ void bg_solve_result_accumulate(bg_solve_result_t *total, const bg_solve_result_
     total->analyze_seconds += part->analyze_seconds;
     total->factor_seconds += part->factor_seconds;
     total->solve_seconds += part->solve_seconds;
+    total->vector_seconds += part->vector_seconds;
+    total->output_seconds += part->output_seconds;
     total->factorizations += part->factorizations;
 }
 

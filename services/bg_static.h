@@ -16,9 +16,13 @@
  *                 on L⁻¹ b(R)); for λ > 0 the same fixed matrix serves as a
  *                 preconditioner under the same line search. Linear
  *                 convergence.
- * Both stop when ‖∇W‖/‖∇W(q₀)‖ ≤ tolerance (free coordinates), at the
- * iteration cap, or when no step decreases the energy beyond round-off;
- * they never produce NaN: a non-finite energy is a rejected step.
+ * Both stop when ‖∇W‖/s ≤ tolerance (free coordinates; s the start's free
+ * gradient, at least the reactions at the handles and the load), at the
+ * iteration cap, or when the gradient is at its own round-off (estimated
+ * from the magnitudes of the element forces that sum to it) and no step
+ * improves it: "round-off floor". A line search that fails above that
+ * floor is reported as "stalled". They never produce NaN: a non-finite
+ * energy is a rejected step.
  */
 #ifndef BG_STATIC_H
 #define BG_STATIC_H
@@ -57,6 +61,8 @@ typedef struct bg_solve_options {
     double tolerance;
     int max_iterations;
     double absolute_tolerance; /* also stop when ‖∇‖ ≤ this (0: unused) */
+    int no_force_floor;       /* ignore the scene's absolute floor (1e-13 of its force scale):
+                                 run to the gradient's round-off (tests of the round-off stop) */
     const double *targets;    /* nv*n values of the constrained coordinates, or NULL for scene->target */
     const bg_inertia_t *inertia; /* NULL for a static solve */
     int keep_orientation;     /* reject steps that invert an element (from a start
@@ -107,6 +113,30 @@ typedef struct bg_map_quality {
     double angle_mean, angle_max;
 } bg_map_quality_t;
 
+/* Set-up work of a run, outside its iterations: each step once per name
+ * with how often it ran, its numeric factorizations and its time. */
+#define BG_SETUP_MAX_STEPS 8
+typedef struct bg_setup_step {
+    const char *name;         /* static text */
+    int64_t count;
+    int64_t factorizations;
+    double seconds;
+} bg_setup_step_t;
+
+typedef struct bg_setup {
+    bg_setup_step_t step[BG_SETUP_MAX_STEPS];
+    int count;
+    double seconds;           /* Σ step[].seconds */
+    int64_t factorizations;   /* Σ step[].factorizations */
+} bg_setup_t;
+
+/* Adds one run of a set-up step (merged with an earlier one of the same
+ * name; steps beyond BG_SETUP_MAX_STEPS go into the last one). */
+void bg_setup_add(bg_setup_t *setup, const char *name, int64_t count, int64_t factorizations,
+                  double seconds);
+/* Adds every step of from to into. */
+void bg_setup_merge(bg_setup_t *into, const bg_setup_t *from);
+
 typedef struct bg_solve_result {
     bg_method method;
     int converged;
@@ -117,13 +147,26 @@ typedef struct bg_solve_result {
     double gradient_norm;
     double relative_gradient;
     bg_rotfit_stats_t rotfit;
-    /* Time split (seconds): rotation fitting with energy and gradient,
-     * Hessian/matrix assembly, CHOLMOD symbolic analysis, numeric
-     * factorization, triangular solves. */
+    /* Time split (seconds): rotation fitting with energy and gradient
+     * (every evaluation, the round-off estimates included), Hessian/matrix
+     * assembly, CHOLMOD symbolic analysis, numeric factorization, triangular
+     * solves, the vector work of the iterations (line search, L-BFGS
+     * recursion, orientation checks, norms), writing output frames. With
+     * setup.seconds they add up to wall_seconds (the difference is
+     * bookkeeping between these timers). */
     double rotfit_seconds, assembly_seconds, analyze_seconds, factor_seconds, solve_seconds;
-    int64_t factorizations;
+    double vector_seconds, output_seconds;
+    int64_t factorizations;   /* numeric factorizations of the iterations (setup's: in setup) */
+    bg_setup_t setup;         /* the set-up steps: solver, lumped mass, local/global's
+                                 Laplacian, the scene's starting guess */
     bg_direction last_direction;
-    int roundoff_floor;       /* stopped where round-off, not the method, limits progress */
+    int roundoff_floor;       /* stopped where the free gradient is at most its own round-off
+                                 (gradient_roundoff): no method can make further progress */
+    double gradient_roundoff; /* the round-off of the final gradient norm, estimated from the
+                                 magnitudes of the element forces that sum to it */
+    double force_scale;       /* what relative_gradient divides by: the start's free gradient,
+                                 at least the handles' reactions and the load there */
+    int64_t inverted_elements; /* elements of the result with det F <= 0 (-1: not counted) */
     double *q;                /* final positions, nv*n; owned */
     double *energy_density;   /* final ψ per element, ne; owned */
     bg_trace_point_t *trace;  /* one point per iteration from 0 (dynamic: per step); owned */
@@ -183,8 +226,27 @@ double bg_solver_potential(bg_solver_t *solver, const double *q, double *grad);
 /* ψ per element at the last evaluated positions (ne values), borrowed. */
 const double *bg_solver_energy_density(const bg_solver_t *solver);
 
-/* The lumped vertex masses (nv), borrowed. */
-const double *bg_solver_mass(const bg_solver_t *solver);
+/* The lumped vertex masses (nv), borrowed; built on the first call (a
+ * solver without gravity needs them only for an inertia term). NULL when
+ * out of memory. */
+const double *bg_solver_mass(bg_solver_t *solver);
+
+/*
+ * Adds to res what the solver did outside the minimisations already
+ * reported: its set-up steps (model and pattern, lumped mass, local/global's
+ * Laplacian factorizations, also those of bg_solver_set_blend) and the
+ * evaluations made through bg_solver_potential since the last
+ * bg_solver_minimize. Call once, at the end of a series.
+ */
+void bg_solver_report(bg_solver_t *solver, bg_solve_result_t *res);
+
+/* Adds the scene's load-time set-up (scene->prep) to res: set-up list and
+ * wall time. */
+void bg_solve_result_add_scene_prep(bg_solve_result_t *res, const bg_scene_t *scene);
+
+/* Elements of the mesh at positions q with measure <= 0: inverted or flat
+ * tetrahedra (det F <= 0) or planar triangles. */
+int64_t bg_static_count_inverted(const bg_mesh_t *mesh, const double *q);
 
 /* Lumped vertex masses ρ Σ V_e/(n+1) of the scene's mesh into mass[nv]. */
 void bg_static_lumped_mass(const bg_mesh_t *mesh, double density, double *mass);

@@ -218,6 +218,12 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
         if (st != BG_OK)
             goto out;
     }
+    int64_t factored = 0;
+    for (int c = 0; c < 3; c++)
+        factored += sys[c] ? bg_sparse_timing(sys[c]).factorizations : 0;
+    bg_setup_add(&res->setup,
+                 "spokes-and-rims model, cotangent weights, per-coordinate matrices factored", 1,
+                 factored, bg_clock_now() - t_start);
     const double *start = opt->start ? opt->start : scene->initial;
     const double *targets = opt->targets ? opt->targets : scene->target;
     for (size_t i = 0; i < ndof; i++)
@@ -228,7 +234,8 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
         double t0 = bg_clock_now();
         fit_rotations(&m, q, &res->rotfit);
         E = energy_with_rotations(&m, q, grad);
-        res->rotfit_seconds += bg_clock_now() - t0;
+        const double t1 = bg_clock_now();
+        res->rotfit_seconds += t1 - t0;
         gnorm = 0.0;
         for (size_t i = 0; i < ndof; i++)
             if (!scene->constrained[i])
@@ -250,6 +257,7 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
         *pt = (bg_trace_point_t){bg_clock_now() - t_start, it, E, gnorm, rel, NAN};
         if (opt->progress)
             opt->progress(opt->progress_ctx, opt->method, pt);
+        res->vector_seconds += bg_clock_now() - t1;
         res->iterations = it;
         if (rel <= opt->tolerance) {
             res->converged = 1;
@@ -263,28 +271,32 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
         for (int c = 0; c < 3; c++) {
             if (!sys[c])
                 continue;
+            double tv = bg_clock_now();
             for (int32_t v = 0; v < nv; v++)
                 if (index[c][v] >= 0)
                     rhs[index[c][v]] = grad[3 * (size_t)v + c];
+            res->vector_seconds += bg_clock_now() - tv;
             st = bg_sparse_solve(sys[c], rhs, x, err);
             if (st != BG_OK)
                 goto out;
+            tv = bg_clock_now();
             for (int32_t v = 0; v < nv; v++)
                 if (index[c][v] >= 0)
                     q[3 * (size_t)v + c] -= x[index[c][v]];
+            res->vector_seconds += bg_clock_now() - tv;
         }
     }
     for (int c = 0; c < 3; c++)
         if (sys[c]) {
-            const bg_sparse_timing_t tm = bg_sparse_timing(sys[c]);
-            res->analyze_seconds += tm.analyze_seconds;
-            res->factor_seconds += tm.factor_seconds;
-            res->solve_seconds += tm.solve_seconds;
-            res->factorizations += tm.factorizations;
+            /* The analysis and the factorization are set-up (above). */
+            res->solve_seconds += bg_sparse_timing(sys[c]).solve_seconds;
         }
     res->energy = E;
     res->gradient_norm = gnorm;
     res->relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
+    res->force_scale = g0;
+    res->gradient_roundoff = NAN; /* no round-off estimate for this energy */
+    res->inverted_elements = -1;  /* a surface has no orientation to invert */
     res->energy_density = calloc((size_t)mesh->ne + 1, sizeof *res->energy_density);
     if (!res->energy_density) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the result");
@@ -293,6 +305,7 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
     res->q = q;
     q = NULL;
     res->wall_seconds = bg_clock_now() - t_start;
+    bg_solve_result_add_scene_prep(res, scene);
 out:
     model_release(&m);
     for (int c = 0; c < 3; c++) {
