@@ -589,7 +589,6 @@ int main(int argc, char **argv)
             return 2;
         }
     }
-    bench_header("bench_scale: how the cost of a static solve grows with the mesh size", smoke);
     const size_case_t *sizes = smoke ? SMOKE_SIZES : FULL_SIZES;
     int count = smoke ? (int)(sizeof SMOKE_SIZES / sizeof SMOKE_SIZES[0])
                       : (int)(sizeof FULL_SIZES / sizeof FULL_SIZES[0]);
@@ -600,6 +599,7 @@ int main(int argc, char **argv)
                 max_tets);
         return 2;
     }
+    bench_header("bench_scale: how the cost of a static solve grows with the mesh size", smoke);
     const int caps[2] = {smoke ? NEWTON_CAP_SMOKE : NEWTON_CAP_FULL,
                          smoke ? LOCAL_GLOBAL_CAP_SMOKE : LOCAL_GLOBAL_CAP_FULL};
     printf("scene: 16:1:1 bar of cubic cells (6 tets each), mu = lambda = 1, x = 0 clamped, far "
