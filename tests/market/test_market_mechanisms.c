@@ -337,7 +337,9 @@ static int tiny_feasible(const tiny_t *t, const delivery_t *d, int n)
  * starting at one of `grid` evenly spaced points of its window. */
 static double tiny_brute(const tiny_t *t, int grid, int split, int i, delivery_t *chosen, int n)
 {
-    if (i == t->nq)
+    /* The recursion ends at the last request, and never past the arrays
+     * (t->q and chosen hold TINY_Q): n <= i, so chosen[n] is in range. */
+    if (i >= t->nq || i >= TINY_Q)
         return 0.0;
     double best = tiny_brute(t, grid, split, i + 1, chosen, n);
     const bgm_opt_request_t *q = &t->q[i];
