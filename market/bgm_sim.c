@@ -718,7 +718,7 @@ int bgm_sim_command(int argc, char **argv)
     }
     if (write_summary(cfg, &o, met, means) || write_replications(cfg, &o, met) ||
         merge_csv(&o, runs, n, "contracts.csv", "contracts",
-                  "scenario,replication,mechanism,layer,time,start,end,buyer,seller,good,"
+                  "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,good,"
                   "quantity,price,buyer_limit,seller_limit\n") ||
         merge_csv(&o, runs, n, "agents.csv", "agents",
                   "scenario,replication,mechanism,agent,role,good,capacity,limit\n")) {
