@@ -1261,7 +1261,9 @@ static void compact_rbids(bgm_world_t *w)
 }
 
 /* The resource layer through the combinatorial exchange: whole bundles,
- * each from one resource agent, winner determination by bgm_combex. */
+ * each from one resource agent, winner determination by bgm_combex, and
+ * each award paid its seller's cost plus a rent priced against the bids
+ * and sellers left out (bgm_combex_rents). */
 static void clear_exchange(bgm_world_t *w, double now)
 {
     if (expire_rbids(w, now) == 0)
@@ -1269,6 +1271,7 @@ static void clear_exchange(bgm_world_t *w, double now)
     bgm_combex_reset(w->cx);
     int *seller_of = malloc(w->nmr * sizeof *seller_of);
     uint32_t *mr_of = malloc(w->nmr * sizeof *mr_of);
+    double *rent = NULL;
     if (!seller_of || !mr_of) {
         fail(w, BG_ERR_NOMEM);
         goto out;
@@ -1310,6 +1313,11 @@ static void clear_exchange(bgm_world_t *w, double now)
         w->combex_exact += 1.0;
     else
         w->combex_greedy += 1.0;
+    rent = malloc((w->npend_rbid ? w->npend_rbid : 1) * sizeof *rent);
+    if (!rent || bgm_combex_rents(w->cx, w->assign, w->cfg.central.k, rent)) {
+        fail(w, BG_ERR_NOMEM);
+        goto out;
+    }
     const bgm_combex_pair_t *pairs = bgm_combex_pairs(w->cx);
     for (size_t i = 0; i < w->npend_rbid; i++) {
         if (w->assign[i] < 0)
@@ -1320,7 +1328,7 @@ static void clear_exchange(bgm_world_t *w, double now)
         mkt_seller_t *s = &w->mr[mr_of[p->seller]];
         double dur = req_duration(w, r, s->speed);
         double cost = r->limit - p->surplus;
-        double total = cost + w->cfg.central.k * p->surplus;
+        double total = cost + rent[i];
         s->free_a -= req_cores(w, r);
         s->free_b -= req_memory(w, r);
         r->state = RQ_COMMITTED;
@@ -1333,6 +1341,7 @@ static void clear_exchange(bgm_world_t *w, double now)
 out:
     free(seller_of);
     free(mr_of);
+    free(rent);
 }
 
 /* One bundle's bids on the two call markets, as its proxy places them. */
