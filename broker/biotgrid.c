@@ -8,7 +8,7 @@
 
 #include "bg_cli.h"
 #ifdef BIOTGRID_HAVE_MARKET
-#include "bgm_sim.h"
+#include "cmd_sim.h"
 #endif
 
 static void usage(FILE *out)
@@ -37,7 +37,7 @@ int main(int argc, char **argv)
         return bg_cli_solve(argc - 1, argv + 1);
 #ifdef BIOTGRID_HAVE_MARKET
     if (strcmp(cmd, "sim") == 0)
-        return bgm_sim_command(argc - 1, argv + 1);
+        return bg_cmd_sim(argc - 1, argv + 1);
 #endif
     if (strcmp(cmd, "help") == 0 || strcmp(cmd, "--help") == 0 || strcmp(cmd, "-h") == 0) {
         usage(stdout);

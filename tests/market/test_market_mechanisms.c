@@ -820,7 +820,7 @@ static void expect_reject(const char *json, const char *field)
 {
     bgm_config_t cfg;
     bg_error_t err = BG_ERROR_INIT;
-    bg_status st = bgm_config_parse(json, strlen(json), &cfg, &err);
+    bg_status st = bgm_config_parse(json, strlen(json), NULL, &cfg, &err);
     assert_int_not_equal(st, BG_OK);
     if (!strstr(err.message, field))
         fail_msg("message '%s' does not name '%s'", err.message, field);
@@ -831,7 +831,7 @@ static void test_config_validation(void **state)
     (void)state;
     bgm_config_t cfg;
     bg_error_t err = BG_ERROR_INIT;
-    assert_int_equal(bgm_config_parse(good_config, strlen(good_config), &cfg, &err), BG_OK);
+    assert_int_equal(bgm_config_parse(good_config, strlen(good_config), NULL, &cfg, &err), BG_OK);
     assert_int_equal(bgm_config_scenario_count(&cfg), 1);
     expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,\"bogus\":1,"
                   "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[6],\"density\":[1]}}",
@@ -848,7 +848,7 @@ static void test_config_validation(void **state)
     expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
                   "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
                   "\"network\":{\"latencyy\":1}}",
-                  "network.latencyy");
+                  "network: unknown key 'latencyy' (expected: topology, platform, latency,");
     expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
                   "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[-1]}}",
                   "factors.density[0]");
@@ -863,7 +863,28 @@ static void test_config_validation(void **state)
                   "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
                   "\"services\":{\"rotation-fit\":{\"cores\":-2}}}",
                   "services.rotation-fit.cores");
-    expect_reject("not json", "JSON");
+    expect_reject("not json", "<config>: malformed JSON at line 1, column 1");
+    expect_reject("{\"name\":\"t\",\n \"seed\":1,,\n}", "malformed JSON at line 2, column 12");
+    expect_reject(" \n\t ", "<config>: empty file");
+    expect_reject("", "<config>: empty file");
+    /* A repeated key is an error at any depth (cJSON would keep the first). */
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"seed\":2,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]}}",
+                  "<config>: key 'seed' appears twice");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
+                  "\"central\":{\"k\":0.5,\"k\":0.9}}",
+                  "central: key 'k' appears twice");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
+                  "\"dynamics\":{\"a\":{},\"a\":{}}}",
+                  "dynamics: key 'a' appears twice");
+    /* Messages name the file they came from. */
+    bgm_config_t named;
+    bg_error_t nerr = BG_ERROR_INIT;
+    const char *bad = "{\"name\":\"t\"}";
+    assert_int_not_equal(bgm_config_parse(bad, strlen(bad), "exp.json", &named, &nerr), BG_OK);
+    assert_non_null(strstr(nerr.message, "exp.json: seed: missing"));
 }
 
 /* ---------------------------------------------- invariants of whole runs */
@@ -872,7 +893,7 @@ static bgm_config_t load_cfg(const char *json)
 {
     bgm_config_t cfg;
     bg_error_t err = BG_ERROR_INIT;
-    if (bgm_config_parse(json, strlen(json), &cfg, &err))
+    if (bgm_config_parse(json, strlen(json), NULL, &cfg, &err))
         fail_msg("config: %s", err.message);
     return cfg;
 }
