@@ -17,11 +17,18 @@
 bg_status bg_json_fail(bg_error_t *err, bg_status status, const char *name, const char *field,
                        const char *fmt, ...)
 {
-    char text[BG_ERROR_MESSAGE_MAX];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(text, sizeof text, fmt, ap);
+    bg_status st = bg_json_vfail(err, status, name, field, fmt, ap);
     va_end(ap);
+    return st;
+}
+
+bg_status bg_json_vfail(bg_error_t *err, bg_status status, const char *name, const char *field,
+                        const char *fmt, va_list ap)
+{
+    char text[BG_ERROR_MESSAGE_MAX];
+    vsnprintf(text, sizeof text, fmt, ap);
     if (field && field[0])
         return bg_error_set(err, status, "%s: %s: %s", name, field, text);
     return bg_error_set(err, status, "%s: %s", name, text);

@@ -21,6 +21,7 @@
 #define BG_JSON_H
 
 #include <cJSON.h>
+#include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -33,6 +34,9 @@
  * and returns status. */
 bg_status bg_json_fail(bg_error_t *err, bg_status status, const char *name, const char *field,
                        const char *fmt, ...) __attribute__((format(printf, 5, 6)));
+/* The same with a va_list, for callers with their own printf-style front. */
+bg_status bg_json_vfail(bg_error_t *err, bg_status status, const char *name, const char *field,
+                        const char *fmt, va_list ap) __attribute__((format(printf, 5, 0)));
 
 /* Parses text[0, length) into *root (caller deletes it): rejects an empty
  * document, a syntax error, text after the value and repeated keys, with

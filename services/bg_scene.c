@@ -69,17 +69,15 @@ typedef struct selection {
 static bg_status fail(parser_t *p, bg_status status, const char *field, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 
-/* Records "<file>: <field>: <message>" (or "<file>: <message>" without a field). */
+/* Records "<file>: <field>: <message>" (or "<file>: <message>" without a
+ * field), in bg_json's format. */
 static bg_status fail(parser_t *p, bg_status status, const char *field, const char *fmt, ...)
 {
-    char text[BG_ERROR_MESSAGE_MAX];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(text, sizeof text, fmt, ap);
+    bg_status st = bg_json_vfail(p->err, status, p->file, field, fmt, ap);
     va_end(ap);
-    if (field && field[0])
-        return bg_error_set(p->err, status, "%s: %s: %s", p->file, field, text);
-    return bg_error_set(p->err, status, "%s: %s", p->file, text);
+    return st;
 }
 
 /* Re-raises the error of a service call under the scene's name and field. */

@@ -18,6 +18,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bg_json.h"
 #include "bgm_callmarket.h"
 #include "bgm_catallactic.h"
 #include "bgm_combex.h"
@@ -124,6 +125,16 @@ static double clear_price(bgm_callmarket_t *cm, double k)
     return res.price;
 }
 
+/* A book of two trades, bids 10 and 9 against asks 1 and 2. */
+static void two_trades(bgm_callmarket_t *cm)
+{
+    bgm_callmarket_reset(cm);
+    add_bid(cm, 1, 1, 10.0);
+    add_bid(cm, 2, 1, 9.0);
+    add_ask(cm, 11, 1, 1.0);
+    add_ask(cm, 12, 1, 2.0);
+}
+
 /* Scarcity moves the price: the same two trades clear higher when more
  * buyers are left out (excess demand) and lower when more sellers are
  * (excess supply); the old marginal-pair rule priced all three alike. */
@@ -131,21 +142,14 @@ static void test_callmarket_scarcity(void **state)
 {
     (void)state;
     bgm_callmarket_t *cm = bgm_callmarket_new(16);
-    add_bid(cm, 1, 1, 10.0);
-    add_bid(cm, 2, 1, 9.0);
-    add_ask(cm, 11, 1, 1.0);
-    add_ask(cm, 12, 1, 2.0);
+    two_trades(cm);
     const double balanced = clear_price(cm, 0.5);
     assert_float_equal(balanced, 2.0 + 0.5 * (9.0 - 2.0), EPS);
     add_bid(cm, 3, 1, 8.0);
     add_bid(cm, 4, 1, 7.5);
     const double demand = clear_price(cm, 0.5);
     assert_float_equal(demand, 8.0 + 0.5 * (9.0 - 8.0), EPS);
-    bgm_callmarket_reset(cm);
-    add_bid(cm, 1, 1, 10.0);
-    add_bid(cm, 2, 1, 9.0);
-    add_ask(cm, 11, 1, 1.0);
-    add_ask(cm, 12, 1, 2.0);
+    two_trades(cm);
     add_ask(cm, 13, 1, 3.0);
     add_ask(cm, 14, 1, 4.0);
     const double supply = clear_price(cm, 0.5);
@@ -887,6 +891,46 @@ static void test_config_validation(void **state)
     assert_non_null(strstr(nerr.message, "exp.json: seed: missing"));
 }
 
+/* bg_json, the loader configs share with scenes: repeated keys found at
+ * any depth, in small objects (pairwise) and large ones (sorted), with the
+ * path; text after the value; a clean document parses. */
+static void test_json_loader(void **state)
+{
+    (void)state;
+    char text[4096];
+    size_t n = (size_t)snprintf(text, sizeof text, "{\"a\": [1, {");
+    for (int k = 0; k < 40; k++)
+        n += (size_t)snprintf(text + n, sizeof text - n, "%s\"k%d\": %d", k ? ", " : "", k, k);
+    n += (size_t)snprintf(text + n, sizeof text - n, ", \"k7\": 0}]}");
+    cJSON *root = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bg_json_parse(text, n, "t.json", &root, &err), BG_ERR_INVALID);
+    assert_null(root);
+    assert_string_equal(err.message, "t.json: a[1]: key 'k7' appears twice");
+    bg_error_clear(&err);
+    const char *small = "{\"x\": {\"y\": 1, \"y\": 2}}";
+    assert_int_equal(bg_json_parse(small, strlen(small), "s.json", &root, &err), BG_ERR_INVALID);
+    assert_string_equal(err.message, "s.json: x: key 'y' appears twice");
+    bg_error_clear(&err);
+    const char *trailing = "{}\n  x";
+    assert_int_equal(bg_json_parse(trailing, strlen(trailing), "r.json", &root, &err),
+                     BG_ERR_PARSE);
+    assert_string_equal(err.message, "r.json: text after the JSON value at line 2, column 3");
+    bg_error_clear(&err);
+    text[n - 8] = '8'; /* "k7": 0 becomes "k8": 0, still a repeat */
+    assert_int_equal(bg_json_parse(text, n, "t.json", &root, &err), BG_ERR_INVALID);
+    bg_error_clear(&err);
+    text[n - 9] = 'q'; /* "q8": 0: no repeat left */
+    assert_int_equal(bg_json_parse(text, n, "t.json", &root, &err), BG_OK);
+    assert_non_null(root);
+    static const char *const allowed[] = {"a", "b", NULL};
+    assert_int_equal(bg_json_check_keys(root, "t.json", "", allowed, &err), BG_OK);
+    static const char *const only_b[] = {"b", NULL};
+    assert_int_equal(bg_json_check_keys(root, "t.json", "", only_b, &err), BG_ERR_INVALID);
+    assert_string_equal(err.message, "t.json: unknown key 'a' (expected: b)");
+    cJSON_Delete(root);
+}
+
 /* ---------------------------------------------- invariants of whole runs */
 
 static bgm_config_t load_cfg(const char *json)
@@ -1348,6 +1392,7 @@ int main(void)
         cmocka_unit_test(test_posted_first_fit),
         cmocka_unit_test(test_rng_streams),
         cmocka_unit_test(test_config_validation),
+        cmocka_unit_test(test_json_loader),
         cmocka_unit_test(test_invariants_inprocess),
         cmocka_unit_test(test_call_markets_inprocess),
         cmocka_unit_test(test_price_convergence_shock),
