@@ -12,7 +12,7 @@
 #define RIGHT 170.0
 #define TOP 60.0
 #define BOTTOM 60.0
-#define TICKS 5
+#define TICKS 5 /* about this many tick intervals per axis */
 #define MARKER_RADIUS 3.5
 #define BAND_OPACITY 0.18
 
@@ -34,8 +34,16 @@ static void widen(range_t *r, double v)
         r->hi = v;
 }
 
-/* A degenerate or empty range gets some room so the axis still scales. */
-static void settle(range_t *r)
+/* A step of 1, 2 or 5 times a power of ten near span / TICKS. */
+static double nice_step(double span)
+{
+    double raw = span / TICKS, mag = pow(10.0, floor(log10(raw))), f = raw / mag;
+    return (f <= 1.0 ? 1.0 : f <= 2.0 ? 2.0 : f <= 5.0 ? 5.0 : 10.0) * mag;
+}
+
+/* A degenerate or empty range gets some room so the axis still scales;
+ * then both ends move out to whole steps, so ticks fall on round values. */
+static void settle(range_t *r, double *step)
 {
     if (!(r->lo <= r->hi)) {
         r->lo = 0.0;
@@ -45,6 +53,9 @@ static void settle(range_t *r)
         r->lo -= pad;
         r->hi += pad;
     }
+    *step = nice_step(r->hi - r->lo);
+    r->lo = floor(r->lo / *step + 1e-9) * *step;
+    r->hi = ceil(r->hi / *step - 1e-9) * *step;
 }
 
 static double px(const range_t *r, double v)
@@ -72,20 +83,20 @@ static void put_text(FILE *f, const char *s)
     }
 }
 
-static void axes(FILE *f, const bgm_plot_t *plot, const range_t *xr, const range_t *yr)
+static void axes(FILE *f, const bgm_plot_t *plot, const range_t *xr, double xstep,
+                 const range_t *yr, double ystep)
 {
     fprintf(f, "<rect x=\"%.1f\" y=\"%.1f\" width=\"%.1f\" height=\"%.1f\" fill=\"none\" "
                "stroke=\"#444\"/>\n",
             LEFT, TOP, W - LEFT - RIGHT, H - TOP - BOTTOM);
-    for (int i = 0; i <= TICKS; i++) {
-        double vx = xr->lo + (xr->hi - xr->lo) * i / TICKS;
-        double vy = yr->lo + (yr->hi - yr->lo) * i / TICKS;
+    for (double vx = xr->lo; vx <= xr->hi + 1e-9 * xstep; vx += xstep)
         fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" font-size=\"11\" text-anchor=\"middle\">%.4g</text>\n",
-                px(xr, vx), H - BOTTOM + 16.0, vx);
+                px(xr, vx), H - BOTTOM + 16.0, fabs(vx) < 1e-9 * xstep ? 0.0 : vx);
+    for (double vy = yr->lo; vy <= yr->hi + 1e-9 * ystep; vy += ystep) {
         fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"#ddd\"/>\n", LEFT,
                 py(yr, vy), W - RIGHT, py(yr, vy));
         fprintf(f, "<text x=\"%.1f\" y=\"%.1f\" font-size=\"11\" text-anchor=\"end\">%.4g</text>\n",
-                LEFT - 6.0, py(yr, vy) + 4.0, vy);
+                LEFT - 6.0, py(yr, vy) + 4.0, fabs(vy) < 1e-9 * ystep ? 0.0 : vy);
     }
     fputs("<text x=\"380\" y=\"24\" font-size=\"15\" text-anchor=\"middle\">", f);
     put_text(f, plot->title);
@@ -169,8 +180,9 @@ bg_status bgm_plot_write(const char *path, const bgm_plot_t *plot, const bgm_plo
                 widen(&yr, series[i].hi[k]);
             }
         }
-    settle(&xr);
-    settle(&yr);
+    double xstep = 1.0, ystep = 1.0;
+    settle(&xr, &xstep);
+    settle(&yr, &ystep);
     FILE *f = fopen(path, "w");
     if (!f)
         return bg_error_set(err, BG_ERR_IO, "%s: cannot open for writing: %s", path,
@@ -179,7 +191,7 @@ bg_status bgm_plot_write(const char *path, const bgm_plot_t *plot, const bgm_plo
                "viewBox=\"0 0 %.0f %.0f\" font-family=\"sans-serif\">\n"
                "<rect width=\"100%%\" height=\"100%%\" fill=\"white\"/>\n",
             W, H, W, H);
-    axes(f, plot, &xr, &yr);
+    axes(f, plot, &xr, xstep, &yr, ystep);
     for (int i = 0; i < count; i++)
         if (series[i].lo && series[i].hi)
             band(f, &series[i], colours[i], &xr, &yr);
