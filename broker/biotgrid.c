@@ -12,7 +12,7 @@
 #include "cmd_grid.h"
 #include "cmd_solve.h"
 #ifdef BIOTGRID_HAVE_MARKET
-#include "bgm_sim.h"
+#include "cmd_sim.h"
 #endif
 
 #ifndef BIOTGRID_VERSION
@@ -34,7 +34,7 @@ static const command_t COMMANDS[] = {
      bg_cmd_validate_usage},
 #ifdef BIOTGRID_HAVE_MARKET
     {"sim", "sim EXPERIMENT.json [options]", "run a market simulation experiment",
-     bgm_sim_command, NULL},
+     bg_cmd_sim, bg_cmd_sim_usage},
 #endif
     {"agent", "agent [options]", "run an agent daemon serving basic services", bg_cmd_agent,
      bg_cmd_agent_usage},

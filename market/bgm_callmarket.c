@@ -1,5 +1,6 @@
 #include "bgm_callmarket.h"
 
+#include <math.h>
 #include <stdlib.h>
 
 struct bgm_callmarket {
@@ -92,6 +93,9 @@ bg_status bgm_callmarket_clear(bgm_callmarket_t *cm, double k, bgm_clearing_t *r
     res->volume = 0;
     res->price = 0.0;
     res->bid_limit = res->ask_limit = 0.0;
+    res->bid_excluded = -INFINITY;
+    res->ask_excluded = INFINITY;
+    res->low = res->high = 0.0;
     res->fill_count = 0;
     if (!(k >= 0.0 && k <= 1.0))
         return BG_ERR_INVALID;
@@ -129,8 +133,17 @@ bg_status bgm_callmarket_clear(bgm_callmarket_t *cm, double k, bgm_clearing_t *r
         if (rem_a == 0 && ++ia < cm->nask)
             rem_a = cm->asks[ka[ia].index].quantity;
     }
-    if (res->volume > 0)
-        res->price = res->ask_limit + k * (res->bid_limit - res->ask_limit);
+    /* What is left at ib / ia (a partly filled order's rest included) is
+     * the first excluded unit of each side. */
+    if (ib < cm->nbid)
+        res->bid_excluded = kb[ib].price;
+    if (ia < cm->nask)
+        res->ask_excluded = ka[ia].price;
+    if (res->volume > 0) {
+        res->low = fmax(res->ask_limit, res->bid_excluded);
+        res->high = fmin(res->bid_limit, res->ask_excluded);
+        res->price = res->low + k * (res->high - res->low);
+    }
 out:
     free(kb);
     free(ka);

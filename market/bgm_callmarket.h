@@ -3,13 +3,22 @@
  *
  * Orders accumulate in a book; bgm_callmarket_clear matches the highest
  * bids with the lowest asks while bid >= ask and prices every trade at one
- * uniform price set by k-pricing on the marginal matched pair:
- *     p = a_m + k (b_m - a_m),   k in [0, 1],
- * where b_m is the lowest matched bid and a_m the highest matched ask.
- * Because every matched bid is >= b_m and every matched ask is <= a_m, p
- * lies within every matched trader's limit: no buyer pays above its bid,
- * no seller receives below its ask. Ties break by the order reference, so
- * clearing is deterministic. Pure: no I/O, no clock, no randomness.
+ * uniform price, the k-double auction's (Rustichini, Satterthwaite and
+ * Williams 1994): with b_m the lowest matched bid, a_m the highest matched
+ * ask, b_x the first excluded bid (the highest unit not bought; -inf when
+ * every bid is filled) and a_x the first excluded ask (+inf when every ask
+ * is filled), every price in
+ *     [lo, hi] = [max(a_m, b_x), min(b_m, a_x)]
+ * keeps every matched trader willing and every excluded one out, and
+ *     p = lo + k (hi - lo),   k in [0, 1].
+ * The excluded orders carry the scarcity: with demand left over, b_x
+ * lifts the price towards the buyers' limits; with supply left over
+ * (including the unsold rest of a partly filled ask), a_x pulls it down
+ * towards the sellers'. lo <= hi always: a_m <= b_m (they trade), b_x <=
+ * b_m and a_m <= a_x (sorted), b_x < a_x (matching stopped). No buyer pays
+ * above its bid, no seller receives below its ask. Ties break by the order
+ * reference, so clearing is deterministic. Pure: no I/O, no clock, no
+ * randomness.
  */
 #ifndef BGM_CALLMARKET_H
 #define BGM_CALLMARKET_H
@@ -37,6 +46,9 @@ typedef struct bgm_clearing {
     double price;     /* uniform price; meaningless when volume == 0 */
     double bid_limit; /* marginal bid b_m */
     double ask_limit; /* marginal ask a_m */
+    double bid_excluded; /* first excluded bid b_x, -INFINITY when none */
+    double ask_excluded; /* first excluded ask a_x, +INFINITY when none */
+    double low, high;    /* the price interval [lo, hi] */
     size_t fill_count;
 } bgm_clearing_t;
 

@@ -254,3 +254,75 @@ bg_status bgm_combex_solve(bgm_combex_t *cx, bgm_combex_method method, size_t ex
     }
     return solve_greedy(cx, greedy_budget, assign, r);
 }
+
+/* Whether a pair's use fits in `room` (per dimension). */
+static int fits_in(const bgm_combex_pair_t *p, const double *room)
+{
+    for (int d = 0; d < BGM_COMBEX_DIMS; d++)
+        if (p->use[d] > room[d] + BGM_COMBEX_EPS)
+            return 0;
+    return 1;
+}
+
+bg_status bgm_combex_rents(const bgm_combex_t *cx, const int *assign, double k, double *rent)
+{
+    bg_status st = BG_OK;
+    size_t ns = (size_t)(cx->nseller > 0 ? cx->nseller : 1), nb = (size_t)(cx->nbid > 0 ? cx->nbid : 1);
+    double (*left)[BGM_COMBEX_DIMS] = malloc(ns * sizeof *left);
+    int *head = malloc(ns * sizeof *head), *next = malloc(nb * sizeof *next);
+    double *lo = malloc(nb * sizeof *lo), *alt = malloc(nb * sizeof *alt);
+    if (!left || !head || !next || !lo || !alt) {
+        st = BG_ERR_NOMEM;
+        goto out;
+    }
+    memcpy(left, cx->cap, (size_t)cx->nseller * sizeof *left);
+    for (int s = 0; s < cx->nseller; s++)
+        head[s] = -1;
+    /* Capacity left after the allocation, and each seller's winners. */
+    for (int b = 0; b < cx->nbid; b++) {
+        lo[b] = alt[b] = 0.0;
+        rent[b] = 0.0;
+        if (assign[b] < 0)
+            continue;
+        const bgm_combex_pair_t *p = &cx->pairs[assign[b]];
+        for (int d = 0; d < BGM_COMBEX_DIMS; d++)
+            left[p->seller][d] -= p->use[d];
+        next[b] = head[p->seller];
+        head[p->seller] = b;
+    }
+    for (size_t i = 0; i < cx->npair; i++) {
+        const bgm_combex_pair_t *q = &cx->pairs[i];
+        if (assign[q->bid] < 0) {
+            /* An excluded bid competes for each winner's place on q's seller. */
+            for (int b = head[q->seller]; b >= 0; b = next[b]) {
+                const bgm_combex_pair_t *p = &cx->pairs[assign[b]];
+                double room[BGM_COMBEX_DIMS];
+                for (int d = 0; d < BGM_COMBEX_DIMS; d++)
+                    room[d] = left[q->seller][d] + p->use[d];
+                if (fits_in(q, room) && q->surplus > lo[b])
+                    lo[b] = q->surplus;
+            }
+        } else if ((size_t)assign[q->bid] != i && fits_in(q, left[q->seller]) &&
+                   q->surplus > alt[q->bid]) {
+            /* A winner's alternative seller with room to spare. */
+            alt[q->bid] = q->surplus;
+        }
+    }
+    for (int b = 0; b < cx->nbid; b++) {
+        if (assign[b] < 0)
+            continue;
+        double sbs = cx->pairs[assign[b]].surplus;
+        double l = lo[b] < sbs ? lo[b] : sbs;
+        double h = sbs - alt[b];
+        if (h < l)
+            h = l;
+        rent[b] = l + k * (h - l);
+    }
+out:
+    free(left);
+    free(head);
+    free(next);
+    free(lo);
+    free(alt);
+    return st;
+}

@@ -78,4 +78,23 @@ void bgm_combex_set_exact(bgm_combex_t *cx, double mip_gap, long node_budget);
 bg_status bgm_combex_solve(bgm_combex_t *cx, bgm_combex_method method, size_t exact_limit,
                            long greedy_budget, int *assignment, bgm_combex_result_t *result);
 
+/*
+ * Payments that respond to competition. For each winning pair (bid b,
+ * seller s) with surplus S_bs, rent[b] receives the share of S_bs the
+ * seller gets above its cost (the buyer keeps the rest), priced like the
+ * k-double auction on an interval set by the orders left out:
+ *   lo = the largest surplus an excluded bid would have created on s in
+ *        b's place (it fits s's capacity left over plus b's use): s could
+ *        have earned that from it, so b must pay at least as much;
+ *   hi = S_bs minus the largest surplus b would have created with another
+ *        seller that still has room for it after the allocation: b could
+ *        have bought there, so it pays no more above cost than that saves;
+ *   rent = lo' + k (hi' - lo'), with [lo', hi'] = [lo, hi] clipped into
+ *        [0, S_bs] (and hi' >= lo').
+ * Without competition the interval is [0, S_bs] and rent = k S_bs, the
+ * plain k-pricing of the pair; excluded demand lifts it, spare supply
+ * lowers it. Bids without a pair get 0. assignment is bgm_combex_solve's.
+ */
+bg_status bgm_combex_rents(const bgm_combex_t *cx, const int *assignment, double k, double *rent);
+
 #endif

@@ -1,10 +1,13 @@
 #include "bgm_config.h"
 
-#include <cjson/cJSON.h>
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include "bg_json.h"
+#include "bg_mesh_io.h"
 
 const char *const bgm_service_names[BGM_SERVICE_TYPES] = {"rotation-fit", "sparse-solve",
                                                           "integration-step"};
@@ -27,40 +30,30 @@ typedef struct field {
 
 #define FIELD_END {NULL, F_INT, NULL, 0, 0, 0, 0}
 
-/* Rejects keys not listed in names (NULL-terminated), with the path. */
-static bg_status check_keys(const cJSON *obj, const char *path, const char *const *names,
-                            bg_error_t *err)
+/* Rejects keys not listed in names (NULL-terminated), naming the valid
+ * ones, and repeated keys. */
+static bg_status check_keys(const char *nm, const cJSON *obj, const char *path,
+                            const char *const *names, bg_error_t *err)
 {
-    for (const cJSON *c = obj->child; c; c = c->next) {
-        int ok = 0;
-        for (const char *const *n = names; *n; n++)
-            if (strcmp(c->string, *n) == 0)
-                ok = 1;
-        if (!ok)
-            return bg_error_set(err, BG_ERR_INVALID, "unknown key '%s%s%s'", path,
-                                *path ? "." : "", c->string);
-    }
-    return BG_OK;
+    return bg_json_check_keys(obj, nm, path, names, err);
 }
 
-static bg_status get_number(const cJSON *item, const char *path, double min, double max,
-                            int integral, double *out, bg_error_t *err)
+static bg_status get_number(const char *nm, const cJSON *item, const char *path, double min,
+                            double max, int integral, double *out, bg_error_t *err)
 {
-    if (!cJSON_IsNumber(item))
-        return bg_error_set(err, BG_ERR_INVALID, "field '%s' must be a number", path);
-    double v = item->valuedouble;
-    if (!isfinite(v) || v < min || v > max)
-        return bg_error_set(err, BG_ERR_INVALID, "field '%s' must be in [%g, %g], got %g", path,
-                            min, max, v);
-    if (integral && v != floor(v))
-        return bg_error_set(err, BG_ERR_INVALID, "field '%s' must be an integer, got %g", path, v);
-    *out = v;
-    return BG_OK;
+    if (integral) {
+        int64_t v = 0;
+        bg_status st = bg_json_integer(item, nm, path, min, max, &v, err);
+        if (st == BG_OK)
+            *out = (double)v;
+        return st;
+    }
+    return bg_json_number_in(item, nm, path, min, max, out, err);
 }
 
 /* Parses the listed scalar fields of obj; other keys are the caller's
  * (extra) or unknown. */
-static bg_status parse_fields(const cJSON *obj, const char *path, const field_t *f,
+static bg_status parse_fields(const char *nm, const cJSON *obj, const char *path, const field_t *f,
                               const char *const *extra, bg_error_t *err)
 {
     const char *names[48];
@@ -70,18 +63,19 @@ static bg_status parse_fields(const cJSON *obj, const char *path, const field_t 
     for (const char *const *e = extra; e && *e; e++)
         names[n++] = *e;
     names[n] = NULL;
-    if (!cJSON_IsObject(obj))
-        return bg_error_set(err, BG_ERR_INVALID, "field '%s' must be an object", path);
-    bg_status st = check_keys(obj, path, names, err);
+    bg_status st = bg_json_expect_object(obj, nm, path, err);
+    if (st)
+        return st;
+    st = check_keys(nm, obj, path, names, err);
     if (st)
         return st;
     for (const field_t *p = f; p->name; p++) {
-        char fp[256];
-        snprintf(fp, sizeof fp, "%s%s%s", path, *path ? "." : "", p->name);
+        char fp[BG_JSON_PATH_MAX];
+        bg_json_path_key(fp, path, p->name);
         const cJSON *it = cJSON_GetObjectItemCaseSensitive(obj, p->name);
         if (!it) {
             if (p->required)
-                return bg_error_set(err, BG_ERR_INVALID, "missing required field '%s'", fp);
+                return bg_json_fail(err, BG_ERR_INVALID, nm, fp, "missing (a required field)");
             continue;
         }
         double v = 0.0;
@@ -89,18 +83,17 @@ static bg_status parse_fields(const cJSON *obj, const char *path, const field_t 
         case F_STR:
             if (!cJSON_IsString(it) || strlen(it->valuestring) >= p->str_cap ||
                 it->valuestring[0] == '\0')
-                return bg_error_set(err, BG_ERR_INVALID,
-                                    "field '%s' must be a non-empty string shorter than %zu", fp,
-                                    p->str_cap);
+                return bg_json_fail(err, BG_ERR_INVALID, nm, fp,
+                                    "must be a non-empty string shorter than %zu", p->str_cap);
             memcpy(p->dst, it->valuestring, strlen(it->valuestring) + 1);
             continue;
         case F_INT:
         case F_LONG:
         case F_U64:
-            st = get_number(it, fp, p->min, p->max, 1, &v, err);
+            st = get_number(nm, it, fp, p->min, p->max, 1, &v, err);
             break;
         case F_NUM:
-            st = get_number(it, fp, p->min, p->max, 0, &v, err);
+            st = get_number(nm, it, fp, p->min, p->max, 0, &v, err);
             break;
         }
         if (st)
@@ -185,33 +178,34 @@ static int name_index(const char *s, const char *const *names, int n)
     return -1;
 }
 
-static bg_status parse_array(const cJSON *obj, const char *key, const char *path, int max,
+static bg_status parse_array(const char *nm, const cJSON *obj, const char *key, const char *path, int max,
                              const cJSON **arr, int *count, bg_error_t *err)
 {
     *arr = cJSON_GetObjectItemCaseSensitive(obj, key);
     if (!*arr)
-        return bg_error_set(err, BG_ERR_INVALID, "missing required field '%s'", path);
+        return bg_json_fail(err, BG_ERR_INVALID, nm, path, "missing (a required field)");
     if (!cJSON_IsArray(*arr) || cJSON_GetArraySize(*arr) < 1 || cJSON_GetArraySize(*arr) > max)
-        return bg_error_set(err, BG_ERR_INVALID, "field '%s' must be an array of 1 to %d items",
-                            path, max);
+        return bg_json_fail(err, BG_ERR_INVALID, nm, path, "must be an array of 1 to %d items",
+                            max);
     *count = cJSON_GetArraySize(*arr);
     return BG_OK;
 }
 
-static bg_status parse_dynamics(const cJSON *obj, bgm_config_t *c, bg_error_t *err)
+static bg_status parse_dynamics(const char *nm, const cJSON *obj, bgm_config_t *c, bg_error_t *err)
 {
     if (!cJSON_IsObject(obj))
-        return bg_error_set(err, BG_ERR_INVALID, "field 'dynamics' must be an object");
+        return bg_json_expect_object(obj, nm, "dynamics", err);
     c->dynamics_count = 0;
     for (const cJSON *d = obj->child; d; d = d->next) {
         if (c->dynamics_count >= BGM_MAX_DYNAMICS)
-            return bg_error_set(err, BG_ERR_LIMIT, "field 'dynamics' has more than %d entries",
+            return bg_json_fail(err, BG_ERR_LIMIT, nm, "dynamics", "has more than %d entries",
                                 BGM_MAX_DYNAMICS);
         bgm_dynamics_t *dy = &c->dynamics[c->dynamics_count];
-        char path[128];
-        snprintf(path, sizeof path, "dynamics.%s", d->string);
+        char path[BG_JSON_PATH_MAX];
+        bg_json_path_key(path, "dynamics", d->string);
         if (strlen(d->string) == 0 || strlen(d->string) >= BGM_NAME_MAX)
-            return bg_error_set(err, BG_ERR_INVALID, "field '%s': bad name length", path);
+            return bg_json_fail(err, BG_ERR_INVALID, nm, path, "a name of 1 to %d characters",
+                                BGM_NAME_MAX - 1);
         snprintf(dy->name, BGM_NAME_MAX, "%s", d->string);
         dy->node_repair_mean = 30.0;
         dy->link_repair_mean = 10.0;
@@ -220,7 +214,7 @@ static bg_status parse_dynamics(const cJSON *obj, bgm_config_t *c, bg_error_t *e
                        {"link_failure_rate", F_NUM, &dy->link_failure_rate, 0, 1, 0, 0},
                        {"link_repair_mean", F_NUM, &dy->link_repair_mean, 1e-3, 1e6, 0, 0},
                        FIELD_END};
-        bg_status st = parse_fields(d, path, f, NULL, err);
+        bg_status st = parse_fields(nm, d, path, f, NULL, err);
         if (st)
             return st;
         c->dynamics_count++;
@@ -228,39 +222,45 @@ static bg_status parse_dynamics(const cJSON *obj, bgm_config_t *c, bg_error_t *e
     return BG_OK;
 }
 
-static bg_status parse_plans(const cJSON *arr, bgm_config_t *c, bg_error_t *err)
+static bg_status parse_plans(const char *nm, const cJSON *arr, bgm_config_t *c, bg_error_t *err)
 {
     if (!cJSON_IsArray(arr) || cJSON_GetArraySize(arr) < 1 ||
         cJSON_GetArraySize(arr) > BGM_MAX_PLANS)
-        return bg_error_set(err, BG_ERR_INVALID, "field 'demand.plans' must be an array of 1 to %d plans",
-                            BGM_MAX_PLANS);
+        return bg_json_fail(err, BG_ERR_INVALID, nm, "demand.plans",
+                            "must be an array of 1 to %d plans", BGM_MAX_PLANS);
     c->demand.plan_count = 0;
     for (const cJSON *p = arr->child; p; p = p->next) {
-        char path[96];
+        char path[BG_JSON_PATH_MAX];
         int i = c->demand.plan_count;
-        snprintf(path, sizeof path, "demand.plans[%d]", i);
+        bg_json_path_index(path, "demand.plans", i);
         bgm_plan_cfg_t *pl = &c->demand.plans[i];
         memset(pl, 0, sizeof *pl);
         field_t f[] = {{"weight", F_NUM, &pl->weight, 1e-9, 1e9, 1, 0}, FIELD_END};
         static const char *const extra[] = {"services", NULL};
-        bg_status st = parse_fields(p, path, f, extra, err);
+        bg_status st = parse_fields(nm, p, path, f, extra, err);
         if (st)
             return st;
         const cJSON *sv = cJSON_GetObjectItemCaseSensitive(p, "services");
         if (!cJSON_IsArray(sv) || cJSON_GetArraySize(sv) < 1)
-            return bg_error_set(err, BG_ERR_INVALID,
-                                "field '%s.services' must be a non-empty array of service names",
-                                path);
+        {
+            char sp[BG_JSON_PATH_MAX];
+            bg_json_path_key(sp, path, "services");
+            return bg_json_fail(err, BG_ERR_INVALID, nm, sp,
+                                "must be a non-empty array of service names");
+        }
         int k = 0;
         for (const cJSON *s = sv->child; s; s = s->next, k++) {
             int t = cJSON_IsString(s) ? name_index(s->valuestring, bgm_service_names,
                                                    BGM_SERVICE_TYPES)
                                       : -1;
             if (t < 0)
-                return bg_error_set(err, BG_ERR_INVALID,
-                                    "field '%s.services[%d]' must be one of rotation-fit, "
-                                    "sparse-solve, integration-step",
-                                    path, k);
+            {
+                char sp[BG_JSON_PATH_MAX], spi[BG_JSON_PATH_MAX];
+                bg_json_path_key(sp, path, "services");
+                bg_json_path_index(spi, sp, k);
+                return bg_json_fail(err, BG_ERR_INVALID, nm, spi,
+                                    "must be one of rotation-fit, sparse-solve, integration-step");
+            }
             pl->services[t] = 1;
         }
         c->demand.plan_count++;
@@ -268,7 +268,7 @@ static bg_status parse_plans(const cJSON *arr, bgm_config_t *c, bg_error_t *err)
     return BG_OK;
 }
 
-static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
+static bg_status parse_root(const char *nm, const cJSON *root, bgm_config_t *c, bg_error_t *err)
 {
     bg_status st;
     static const char *const extra[] = {"mechanisms", "factors",  "dynamics",  "network",
@@ -281,63 +281,65 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
                      {"duration", F_NUM, &c->duration, 1e-3, 1e7, 1, 0},
                      {"drain", F_NUM, &c->drain, 0, 1e7, 0, 0},
                      FIELD_END};
-    if ((st = parse_fields(root, "", top, extra, err)))
+    if ((st = parse_fields(nm, root, "", top, extra, err)))
         return st;
     const cJSON *d = cJSON_GetObjectItemCaseSensitive(root, "description");
     if (d && !cJSON_IsString(d))
-        return bg_error_set(err, BG_ERR_INVALID, "field 'description' must be a string");
+        return bg_json_fail(err, BG_ERR_INVALID, nm, "description", "expected a string, got %s",
+                            bg_json_type_name(d));
 
     const cJSON *arr;
     int n;
-    if ((st = parse_array(root, "mechanisms", "mechanisms", BGM_MAX_MECHANISMS, &arr, &n, err)))
+    if ((st = parse_array(nm, root, "mechanisms", "mechanisms", BGM_MAX_MECHANISMS, &arr, &n, err)))
         return st;
     c->mechanism_count = 0;
     for (const cJSON *m = arr->child; m; m = m->next) {
+        char mp[BG_JSON_PATH_MAX];
+        bg_json_path_index(mp, "mechanisms", c->mechanism_count);
         int k = cJSON_IsString(m) ? name_index(m->valuestring, bgm_mechanism_names,
                                                BGM_MAX_MECHANISMS)
                                   : -1;
         if (k < 0)
-            return bg_error_set(err, BG_ERR_INVALID,
-                                "field 'mechanisms[%d]' must be central, catallactic or baseline",
-                                c->mechanism_count);
+            return bg_json_fail(err, BG_ERR_INVALID, nm, mp,
+                                "must be central, catallactic or baseline");
         for (int j = 0; j < c->mechanism_count; j++)
             if (c->mechanisms[j] == k)
-                return bg_error_set(err, BG_ERR_INVALID, "field 'mechanisms[%d]' repeats '%s'",
-                                    c->mechanism_count, bgm_mechanism_names[k]);
+                return bg_json_fail(err, BG_ERR_INVALID, nm, mp, "repeats '%s'",
+                                    bgm_mechanism_names[k]);
         c->mechanisms[c->mechanism_count++] = k;
     }
 
     const cJSON *dyn = cJSON_GetObjectItemCaseSensitive(root, "dynamics");
-    if (dyn && (st = parse_dynamics(dyn, c, err)))
+    if (dyn && (st = parse_dynamics(nm, dyn, c, err)))
         return st;
 
     const cJSON *fac = cJSON_GetObjectItemCaseSensitive(root, "factors");
     if (!fac)
-        return bg_error_set(err, BG_ERR_INVALID, "missing required field 'factors'");
-    if (!cJSON_IsObject(fac))
-        return bg_error_set(err, BG_ERR_INVALID, "field 'factors' must be an object");
-    static const char *const fnames[] = {"nodes", "density", "dynamics", NULL};
-    if ((st = check_keys(fac, "factors", fnames, err)))
+        return bg_json_fail(err, BG_ERR_INVALID, nm, "factors", "missing (a required field)");
+    if ((st = bg_json_expect_object(fac, nm, "factors", err)))
         return st;
-    if ((st = parse_array(fac, "nodes", "factors.nodes", BGM_MAX_LEVELS, &arr, &c->node_levels, err)))
+    static const char *const fnames[] = {"nodes", "density", "dynamics", NULL};
+    if ((st = check_keys(nm, fac, "factors", fnames, err)))
+        return st;
+    if ((st = parse_array(nm, fac, "nodes", "factors.nodes", BGM_MAX_LEVELS, &arr, &c->node_levels, err)))
         return st;
     int i = 0;
     for (const cJSON *x = arr->child; x; x = x->next, i++) {
         char p[64];
         double v;
         snprintf(p, sizeof p, "factors.nodes[%d]", i);
-        if ((st = get_number(x, p, 1, BGM_MAX_NODES, 1, &v, err)))
+        if ((st = get_number(nm, x, p, 1, BGM_MAX_NODES, 1, &v, err)))
             return st;
         c->nodes[i] = (int)v;
     }
-    if ((st = parse_array(fac, "density", "factors.density", BGM_MAX_LEVELS, &arr,
+    if ((st = parse_array(nm, fac, "density", "factors.density", BGM_MAX_LEVELS, &arr,
                           &c->density_levels, err)))
         return st;
     i = 0;
     for (const cJSON *x = arr->child; x; x = x->next, i++) {
         char p[64];
         snprintf(p, sizeof p, "factors.density[%d]", i);
-        if ((st = get_number(x, p, 0.01, 64, 0, &c->density[i], err)))
+        if ((st = get_number(nm, x, p, 0.01, 64, 0, &c->density[i], err)))
             return st;
     }
     const cJSON *fd = cJSON_GetObjectItemCaseSensitive(fac, "dynamics");
@@ -345,7 +347,7 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
         c->dynamics_levels = 1;
         c->dynamics_index[0] = 0;
     } else {
-        if ((st = parse_array(fac, "dynamics", "factors.dynamics", BGM_MAX_LEVELS, &arr,
+        if ((st = parse_array(nm, fac, "dynamics", "factors.dynamics", BGM_MAX_LEVELS, &arr,
                               &c->dynamics_levels, err)))
             return st;
         i = 0;
@@ -355,9 +357,12 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
                 if (strcmp(x->valuestring, c->dynamics[j].name) == 0)
                     k = j;
             if (k < 0)
-                return bg_error_set(err, BG_ERR_INVALID,
-                                    "field 'factors.dynamics[%d]' must name an entry of 'dynamics'",
-                                    i);
+            {
+                char dp[BG_JSON_PATH_MAX];
+                bg_json_path_index(dp, "factors.dynamics", i);
+                return bg_json_fail(err, BG_ERR_INVALID, nm, dp,
+                                    "must name an entry of 'dynamics'");
+            }
             c->dynamics_index[i] = k;
         }
     }
@@ -374,12 +379,12 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
                        {"degree", F_INT, &c->network.degree, 1, 64, 0, 0},
                        {"message_bytes", F_INT, &c->network.message_bytes, 1, 1 << 24, 0, 0},
                        FIELD_END};
-        if ((st = parse_fields(o, "network", f, NULL, err)))
+        if ((st = parse_fields(nm, o, "network", f, NULL, err)))
             return st;
         c->network.topology = name_index(topo, topology_names, 3);
         if (c->network.topology < 0)
-            return bg_error_set(err, BG_ERR_INVALID,
-                                "field 'network.topology' must be star, cluster or random");
+            return bg_json_fail(err, BG_ERR_INVALID, nm, "network.topology",
+                                "must be star, cluster or random");
     }
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "agents"))) {
         field_t f[] = {{"complex_per_node", F_NUM, &c->agents.complex_per_node, 0.01, 64, 0, 0},
@@ -389,7 +394,7 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
                        {"resource_memory", F_NUM, &c->agents.resource_memory, 0.1, 1e6, 0, 0},
                        {"overlay_degree", F_INT, &c->agents.overlay_degree, 1, 32, 0, 0},
                        FIELD_END};
-        if ((st = parse_fields(o, "agents", f, NULL, err)))
+        if ((st = parse_fields(nm, o, "agents", f, NULL, err)))
             return st;
     }
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "demand"))) {
@@ -401,28 +406,28 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
                        {"valuation_spread", F_NUM, &c->demand.valuation_spread, 0, 0.95, 0, 0},
                        {"deadline", F_NUM, &c->demand.deadline, 1e-3, 1e9, 0, 0},
                        FIELD_END};
-        if ((st = parse_fields(o, "demand", f, dx, err)))
+        if ((st = parse_fields(nm, o, "demand", f, dx, err)))
             return st;
         if (c->demand.work_max < c->demand.work_min)
-            return bg_error_set(err, BG_ERR_INVALID,
-                                "field 'demand.work_max' must be >= demand.work_min");
+            return bg_json_fail(err, BG_ERR_INVALID, nm, "demand.work_max",
+                                "must be >= demand.work_min");
         const cJSON *pl = cJSON_GetObjectItemCaseSensitive(o, "plans");
-        if (pl && (st = parse_plans(pl, c, err)))
+        if (pl && (st = parse_plans(nm, pl, c, err)))
             return st;
         const cJSON *sh = cJSON_GetObjectItemCaseSensitive(o, "shock");
         if (sh) {
             field_t fs[] = {{"time", F_NUM, &c->demand.shock_time, 0, 1e9, 1, 0},
                             {"factor", F_NUM, &c->demand.shock_factor, 0.01, 100, 1, 0},
                             FIELD_END};
-            if ((st = parse_fields(sh, "demand.shock", fs, NULL, err)))
+            if ((st = parse_fields(nm, sh, "demand.shock", fs, NULL, err)))
                 return st;
         }
     }
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "services"))) {
         static const char *const sn[] = {"rotation-fit", "sparse-solve", "integration-step", NULL};
         if (!cJSON_IsObject(o))
-            return bg_error_set(err, BG_ERR_INVALID, "field 'services' must be an object");
-        if ((st = check_keys(o, "services", sn, err)))
+            return bg_json_expect_object(o, nm, "services", err);
+        if ((st = check_keys(nm, o, "services", sn, err)))
             return st;
         for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
             const cJSON *s = cJSON_GetObjectItemCaseSensitive(o, bgm_service_names[t]);
@@ -436,7 +441,7 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
                            {"memory", F_NUM, &sv->memory, 0, 1e6, 0, 0},
                            {"cost_per_unit", F_NUM, &sv->cost_per_unit, 0, 1e9, 0, 0},
                            FIELD_END};
-            if ((st = parse_fields(s, p, f, NULL, err)))
+            if ((st = parse_fields(nm, s, p, f, NULL, err)))
                 return st;
         }
     }
@@ -445,7 +450,7 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
                        {"memory_cost", F_NUM, &c->resources.memory_cost, 0, 1e9, 0, 0},
                        {"cost_spread", F_NUM, &c->resources.cost_spread, 0, 0.95, 0, 0},
                        FIELD_END};
-        if ((st = parse_fields(o, "resources", f, NULL, err)))
+        if ((st = parse_fields(nm, o, "resources", f, NULL, err)))
             return st;
     }
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "central"))) {
@@ -457,12 +462,12 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
                        {"optimum_limit", F_INT, &c->central.optimum_limit, 0, 1e7, 0, 0},
                        {"resource_market", F_STR, rm, 0, 0, 0, sizeof rm},
                        FIELD_END};
-        if ((st = parse_fields(o, "central", f, NULL, err)))
+        if ((st = parse_fields(nm, o, "central", f, NULL, err)))
             return st;
         c->central.resource_market = name_index(rm, bgm_resource_market_names, 2);
         if (c->central.resource_market < 0)
-            return bg_error_set(err, BG_ERR_INVALID,
-                                "field 'central.resource_market' must be exchange or call");
+            return bg_json_fail(err, BG_ERR_INVALID, nm, "central.resource_market",
+                                "must be exchange or call");
     }
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "catallactic"))) {
         field_t f[] = {{"hops", F_INT, &c->catallactic.hops, 1, 8, 0, 0},
@@ -475,7 +480,7 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
                        {"mutation_sigma", F_NUM, &c->catallactic.mutation_sigma, 0, 1, 0, 0},
                        {"retry_backoff", F_NUM, &c->catallactic.retry_backoff, 1e-4, 1e6, 0, 0},
                        FIELD_END};
-        if ((st = parse_fields(o, "catallactic", f, NULL, err)))
+        if ((st = parse_fields(nm, o, "catallactic", f, NULL, err)))
             return st;
     }
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "baseline"))) {
@@ -483,60 +488,81 @@ static bg_status parse_root(const cJSON *root, bgm_config_t *c, bg_error_t *err)
                        {"candidates", F_INT, &c->baseline.candidates, 1, 64, 0, 0},
                        {"retry_backoff", F_NUM, &c->baseline.retry_backoff, 1e-4, 1e6, 0, 0},
                        FIELD_END};
-        if ((st = parse_fields(o, "baseline", f, NULL, err)))
+        if ((st = parse_fields(nm, o, "baseline", f, NULL, err)))
             return st;
     }
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "metrics"))) {
         field_t f[] = {{"convergence_tolerance", F_NUM, &c->metrics.convergence_tolerance, 1e-4, 1, 0, 0},
                        {"price_bucket", F_NUM, &c->metrics.price_bucket, 1e-3, 1e9, 0, 0},
                        FIELD_END};
-        if ((st = parse_fields(o, "metrics", f, NULL, err)))
+        if ((st = parse_fields(nm, o, "metrics", f, NULL, err)))
             return st;
     }
     return BG_OK;
 }
 
-bg_status bgm_config_parse(const char *text, size_t length, bgm_config_t *cfg, bg_error_t *err)
+/* The name configs parsed from memory go by in messages. */
+#define BGM_CONFIG_MEMORY_NAME "<config>"
+
+bg_status bgm_config_parse(const char *text, size_t length, const char *name, bgm_config_t *cfg,
+                           bg_error_t *err)
 {
-    if (length > BGM_CONFIG_MAX_BYTES)
-        return bg_error_set(err, BG_ERR_LIMIT, "experiment config exceeds %d bytes",
-                            BGM_CONFIG_MAX_BYTES);
+    const char *nm = name ? name : BGM_CONFIG_MEMORY_NAME;
     set_defaults(cfg);
-    cJSON *root = cJSON_ParseWithLength(text, length);
-    if (!root)
-        return bg_error_set(err, BG_ERR_PARSE, "experiment config is not valid JSON");
-    bg_status st = BG_OK;
+    if (length > BGM_CONFIG_MAX_BYTES)
+        return bg_json_fail(err, BG_ERR_LIMIT, nm, NULL, "%zu bytes exceed the limit of %d bytes",
+                            length, BGM_CONFIG_MAX_BYTES);
+    cJSON *root = NULL;
+    bg_status st = bg_json_parse(text, length, nm, &root, err);
+    if (st)
+        return st;
     if (!cJSON_IsObject(root)) {
-        st = bg_error_set(err, BG_ERR_INVALID, "experiment config must be a JSON object");
+        st = bg_json_fail(err, BG_ERR_INVALID, nm, NULL, "an experiment is a JSON object, got %s",
+                          bg_json_type_name(root));
         goto out;
     }
-    st = parse_root(root, cfg, err);
+    st = parse_root(nm, root, cfg, err);
 out:
     cJSON_Delete(root);
     return st;
 }
 
+/* A relative network.platform names a file next to the config: it is
+ * rewritten relative to the working directory (or left absolute), and
+ * must be readable now, before any run starts. */
+static bg_status resolve_platform(const char *path, bgm_config_t *cfg, bg_error_t *err)
+{
+    char *plat = cfg->network.platform;
+    if (!plat[0])
+        return BG_OK;
+    const char *slash = strrchr(path, '/');
+    if (plat[0] != '/' && slash) {
+        char joined[2 * BGM_PATH_MAX];
+        int n = snprintf(joined, sizeof joined, "%.*s/%s", (int)(slash - path), path, plat);
+        if (n < 0 || (size_t)n >= BGM_PATH_MAX)
+            return bg_json_fail(err, BG_ERR_LIMIT, path, "network.platform",
+                                "'%s' relative to the config is longer than %d bytes", plat,
+                                BGM_PATH_MAX - 1);
+        memcpy(plat, joined, (size_t)n + 1);
+    }
+    FILE *f = fopen(plat, "r");
+    if (!f)
+        return bg_json_fail(err, BG_ERR_INVALID, path, "network.platform", "cannot open '%s': %s",
+                            plat, strerror(errno));
+    fclose(f);
+    return BG_OK;
+}
+
 bg_status bgm_config_load(const char *path, bgm_config_t *cfg, bg_error_t *err)
 {
-    bg_status st = BG_OK;
-    char *buf = NULL;
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return bg_error_set(err, BG_ERR_IO, "%s: cannot open experiment config", path);
-    buf = malloc(BGM_CONFIG_MAX_BYTES + 1);
-    if (!buf) {
-        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory");
-        goto out;
-    }
-    size_t n = fread(buf, 1, BGM_CONFIG_MAX_BYTES + 1, f);
-    if (ferror(f)) {
-        st = bg_error_set(err, BG_ERR_IO, "%s: read error", path);
-        goto out;
-    }
-    st = bgm_config_parse(buf, n, cfg, err);
-out:
-    free(buf);
-    fclose(f);
+    char *text = NULL;
+    size_t length = 0;
+    bg_status st = bg_file_read_all(path, BGM_CONFIG_MAX_BYTES, &text, &length, err);
+    if (st == BG_OK)
+        st = bgm_config_parse(text, length, path, cfg, err);
+    if (st == BG_OK)
+        st = resolve_platform(path, cfg, err);
+    free(text);
     return st;
 }
 

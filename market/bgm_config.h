@@ -87,7 +87,7 @@ typedef struct bgm_config {
 
     struct {
         int topology;
-        char platform[BGM_PATH_MAX]; /* user platform XML, or "" */
+        char platform[BGM_PATH_MAX]; /* user platform XML, or "" (see bgm_config_load) */
         double latency;              /* s */
         double bandwidth;            /* bytes/s */
         double speed;                /* flops */
@@ -158,9 +158,16 @@ typedef struct bgm_config {
     } metrics;
 } bgm_config_t;
 
-/* Parses and validates a config held in memory. */
-bg_status bgm_config_parse(const char *text, size_t length, bgm_config_t *cfg, bg_error_t *err);
-/* Reads and parses a file (capped at BGM_CONFIG_MAX_BYTES). */
+/* Parses and validates a config held in memory; name is the file as
+ * messages name it (NULL: "<config>"). Messages are bg_json's:
+ * "<name>: <field>: <text>", with line and column for syntax errors;
+ * repeated keys are rejected. */
+bg_status bgm_config_parse(const char *text, size_t length, const char *name, bgm_config_t *cfg,
+                           bg_error_t *err);
+/* Reads and parses a file (capped at BGM_CONFIG_MAX_BYTES); a file that
+ * cannot be read is BG_ERR_IO with the reason. A relative
+ * network.platform is resolved against the config's folder (and stored
+ * so), and must be readable: BG_ERR_INVALID naming the file otherwise. */
 bg_status bgm_config_load(const char *path, bgm_config_t *cfg, bg_error_t *err);
 
 int bgm_config_scenario_count(const bgm_config_t *cfg);

@@ -15,34 +15,22 @@
 #include <unistd.h>
 
 #include "bg_error.h"
-#include "bg_svg.h"
 #include "bgm_config.h"
 #include "bgm_evq.h"
 #include "bgm_platform.h"
+#include "bgm_plot.h"
 #include "bgm_rng.h"
 #include "bgm_simdriver.h"
 #include "bgm_stats.h"
 #include "bgm_world.h"
 
-#define BGM_EXIT_OK 0
-#define BGM_EXIT_FAIL 1
-#define BGM_EXIT_USAGE 2
-#define BGM_MAX_JOBS 256
 #define BGM_MAX_RUNS 100000
 /* Blocks at least this large are mapped on their own (see run_child). */
 #define BGM_MMAP_THRESHOLD (128 * 1024)
 #define BGM_PLATFORM_STREAM 0xfffffff1ULL
 #define BGM_COPY_CHUNK 65536
-#define BGM_BAR_WIDTH 30
 
-typedef struct sim_opts {
-    const char *config_path;
-    char out[BGM_PATH_MAX];
-    int jobs;
-    int inprocess;
-    int timing;
-    int quiet;
-} sim_opts_t;
+typedef bgm_sim_options_t sim_opts_t;
 
 typedef struct run_id {
     int scenario, mechanism, replication;
@@ -68,57 +56,6 @@ static int make_dirs(const char *path)
     }
     if (mkdir(tmp, 0755) != 0 && errno != EEXIST)
         return -1;
-    return 0;
-}
-
-static const char SIM_USAGE[] =
-    "usage: biotgrid sim EXPERIMENT.json [--out DIR] [--jobs N] "
-    "[--engine simgrid|inprocess] [--timing] [--quiet]\n";
-
-/* Returns 0 to run, 1 after --help, -1 on a bad argument (message printed). */
-static int parse_args(int argc, char **argv, sim_opts_t *o)
-{
-    memset(o, 0, sizeof *o);
-    o->jobs = 1;
-    for (int i = 1; i < argc; i++) {
-        const char *a = argv[i];
-        if (strcmp(a, "--out") == 0 && i + 1 < argc) {
-            snprintf(o->out, sizeof o->out, "%s", argv[++i]);
-        } else if (strcmp(a, "--jobs") == 0 && i + 1 < argc) {
-            char *end = NULL;
-            long v = strtol(argv[++i], &end, 10);
-            if (!end || *end || v < 1 || v > BGM_MAX_JOBS) {
-                fprintf(stderr, "biotgrid sim: --jobs must be an integer in [1, %d]\n",
-                        BGM_MAX_JOBS);
-                return -1;
-            }
-            o->jobs = (int)v;
-        } else if (strcmp(a, "--engine") == 0 && i + 1 < argc) {
-            const char *e = argv[++i];
-            if (strcmp(e, "inprocess") == 0)
-                o->inprocess = 1;
-            else if (strcmp(e, "simgrid") != 0) {
-                fprintf(stderr, "biotgrid sim: --engine must be simgrid or inprocess\n");
-                return -1;
-            }
-        } else if (strcmp(a, "--timing") == 0) {
-            o->timing = 1;
-        } else if (strcmp(a, "--quiet") == 0) {
-            o->quiet = 1;
-        } else if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
-            fputs(SIM_USAGE, stdout);
-            return 1;
-        } else if (a[0] == '-' || o->config_path) {
-            fprintf(stderr, "biotgrid sim: unexpected argument '%s'\n", a);
-            return -1;
-        } else {
-            o->config_path = a;
-        }
-    }
-    if (!o->config_path) {
-        fputs(SIM_USAGE, stderr);
-        return -1;
-    }
     return 0;
 }
 
@@ -164,7 +101,7 @@ static int run_child(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_
                    BGM_PLATFORM_STREAM);
     part_path(xml, sizeof xml, o->out, id, "xml");
     int user = cfg->network.platform[0] != '\0';
-    {
+    if (!user) {
         FILE *f = fopen(xml, "w");
         if (!f) {
             st = bg_error_set(&err, BG_ERR_IO, "%s: cannot write platform", xml);
@@ -176,8 +113,19 @@ static int run_child(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_
             goto out;
         }
     }
+    if (user || !o->inprocess)
+        bgm_simdriver_init();
+    if (user) {
+        /* The economics see the user's hosts: each node's resource agents
+         * sell cores at the speed of the host the node runs on. */
+        bgm_simdriver_load(cfg->network.platform);
+        if ((st = bgm_simdriver_user_speeds((uint32_t)nodes, speed, &err)))
+            goto out;
+    } else if (!o->inprocess) {
+        bgm_simdriver_load(xml);
+    }
     bgm_world_params_t wp = {cfg, id->scenario, cfg->mechanisms[id->mechanism], id->replication,
-                             nodes, density, dyn, user ? NULL : speed};
+                             nodes, density, dyn, speed};
     w = bgm_world_new(&wp, &err);
     if (!w) {
         st = err.status ? err.status : BG_ERR_NOMEM;
@@ -194,12 +142,12 @@ static int run_child(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_
         end_time = es.end_time;
     } else {
         bgm_sim_stats_t ss = {0, 0, 0.0};
-        bgm_simdriver_init();
-        st = bgm_simdriver_run(w, user ? cfg->network.platform : xml, user, &ss, &err);
+        st = bgm_simdriver_run(w, user, &ss, &err);
         messages = ss.messages;
         end_time = ss.end_time;
     }
-    remove(xml);
+    if (!user)
+        remove(xml);
     if (st)
         goto out;
     double m[BGM_M_COUNT];
@@ -238,13 +186,19 @@ static int run_child(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_
 io:
     bg_error_set(&err, st, "%s: cannot write", path);
 out:
-    if (st)
-        fprintf(stderr, "biotgrid sim: scenario %d mechanism %s replication %d: %s\n",
-                id->scenario, bgm_mechanism_names[cfg->mechanisms[id->mechanism]],
-                id->replication, err.message);
+    if (st) {
+        /* The parent reports it: a child writes its message, not to a console. */
+        part_path(path, sizeof path, o->out, id, "err");
+        FILE *e = fopen(path, "w");
+        if (e) {
+            fprintf(e, "%d %s", (int)(err.status ? err.status : st),
+                    err.message[0] ? err.message : bg_strerror(st));
+            fclose(e);
+        }
+    }
     bgm_world_destroy(&w);
     free(speed);
-    return st ? BGM_EXIT_FAIL : BGM_EXIT_OK;
+    return st ? 1 : 0;
 }
 
 /* ----------------------------------------------------------- parent side */
@@ -256,39 +210,61 @@ static double now_seconds(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-static void progress(const sim_opts_t *o, int done, int total, double t0)
+/* Reads a failed run's message into err (the first failure is kept). */
+static void run_failure(const sim_opts_t *o, const bgm_config_t *cfg, const run_id_t *r,
+                        bg_error_t *err)
 {
-    if (o->quiet || !isatty(fileno(stderr)))
-        return;
-    double el = now_seconds() - t0;
-    double eta = done > 0 ? el * (double)(total - done) / (double)done : 0.0;
-    int fill = total > 0 ? BGM_BAR_WIDTH * done / total : BGM_BAR_WIDTH;
-    char bar[BGM_BAR_WIDTH + 1];
-    for (int i = 0; i < BGM_BAR_WIDTH; i++)
-        bar[i] = i < fill ? '#' : '-';
-    bar[BGM_BAR_WIDTH] = '\0';
-    fprintf(stderr, "\r[%s] %d/%d runs  %.0fs elapsed  ETA %.0fs ", bar, done, total, el, eta);
-    if (done == total)
-        fputc('\n', stderr);
-    fflush(stderr);
+    char path[BGM_PATH_MAX + 64], text[BG_ERROR_MESSAGE_MAX] = "";
+    int code = BG_ERR_NUMERIC;
+    part_path(path, sizeof path, o->out, r, "err");
+    FILE *f = fopen(path, "r");
+    if (f) {
+        if (fscanf(f, "%d ", &code) != 1)
+            code = BG_ERR_NUMERIC;
+        size_t n = fread(text, 1, sizeof text - 1, f);
+        text[n] = '\0';
+        fclose(f);
+        remove(path);
+    }
+    bg_error_set(err, code < 0 ? (bg_status)code : BG_ERR_NUMERIC,
+                 "scenario %d, mechanism %s, replication %d: %s", r->scenario,
+                 bgm_mechanism_names[cfg->mechanisms[r->mechanism]], r->replication,
+                 text[0] ? text : "the run's process died");
 }
 
-static int run_all(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_t *runs, int n)
+/* Fills a finished run's report from its stats part. */
+static void run_report(const sim_opts_t *o, const bgm_config_t *cfg, const run_id_t *r,
+                       int failed, double wall, bgm_sim_run_report_t *rep)
 {
-    pid_t pids[BGM_MAX_JOBS];
-    int slot_run[BGM_MAX_JOBS];
-    double slot_t0[BGM_MAX_JOBS];
-    int active = 0, next = 0, done = 0, failed = 0;
-    double t0 = now_seconds();
-    progress(o, 0, n, t0);
+    char path[BGM_PATH_MAX + 64];
+    double end = 0;
+    *rep = (bgm_sim_run_report_t){r->scenario, r->replication,
+                                  bgm_mechanism_names[cfg->mechanisms[r->mechanism]],
+                                  failed, 0, wall, 0, 0};
+    part_path(path, sizeof path, o->out, r, "stats");
+    FILE *f = fopen(path, "r");
+    if (f) {
+        if (fscanf(f, "%ld %lf %ld %u", &rep->messages, &end, &rep->peak_rss_kib, &rep->agents) !=
+            4)
+            rep->messages = rep->peak_rss_kib = rep->agents = 0;
+        fclose(f);
+    }
+}
+
+static bg_status run_all(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_t *runs, int n,
+                         const bgm_sim_observer_t *obs, bg_error_t *err)
+{
+    pid_t pids[BGM_SIM_MAX_JOBS];
+    int slot_run[BGM_SIM_MAX_JOBS];
+    double slot_t0[BGM_SIM_MAX_JOBS];
+    int active = 0, next = 0, done = 0;
+    bg_status st = BG_OK;
     while (done < n) {
         while (active < o->jobs && next < n) {
             fflush(NULL);
             pid_t pid = fork();
-            if (pid < 0) {
-                perror("biotgrid sim: fork");
-                return -1;
-            }
+            if (pid < 0)
+                return bg_error_set(err, BG_ERR_NOMEM, "cannot start a run: %s", strerror(errno));
             if (pid == 0)
                 _exit(run_child(cfg, o, &runs[next]));
             pids[active] = pid;
@@ -300,35 +276,22 @@ static int run_all(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_t 
         int status = 0;
         pid_t pid = wait(&status);
         if (pid < 0)
-            return -1;
+            return bg_error_set(err, BG_ERR_NOMEM, "waiting for the runs: %s", strerror(errno));
         for (int i = 0; i < active; i++) {
             if (pids[i] != pid)
                 continue;
             const run_id_t *r = &runs[slot_run[i]];
-            if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
-                failed++;
-                fprintf(stderr, "biotgrid sim: run s%d m%d r%d failed\n", r->scenario,
-                        r->mechanism, r->replication);
+            int failed = !WIFEXITED(status) || WEXITSTATUS(status) != 0;
+            if (failed) {
+                run_failure(o, cfg, r, err);
+                if (st == BG_OK)
+                    st = err->status ? err->status : BG_ERR_NUMERIC;
             }
-            if (o->timing) {
-                char path[BGM_PATH_MAX + 64];
-                long msgs = 0, rss = 0;
-                unsigned agents = 0;
-                double end = 0;
-                part_path(path, sizeof path, o->out, r, "stats");
-                FILE *f = fopen(path, "r");
-                if (f) {
-                    if (fscanf(f, "%ld %lf %ld %u", &msgs, &end, &rss, &agents) != 4)
-                        msgs = 0;
-                    fclose(f);
-                }
-                double wall = now_seconds() - slot_t0[i];
-                fprintf(stderr,
-                        "timing: scenario %d %s rep %d: agents %u wall %.2f s, messages %ld "
-                        "(%.0f msg/s), peak RSS %ld KiB (%.1f KiB/agent)\n",
-                        r->scenario, bgm_mechanism_names[cfg->mechanisms[r->mechanism]],
-                        r->replication, agents, wall, msgs, wall > 0 ? msgs / wall : 0.0, rss,
-                        agents ? (double)rss / agents : 0.0);
+            done++;
+            if (obs && obs->run_done) {
+                bgm_sim_run_report_t rep;
+                run_report(o, cfg, r, failed, now_seconds() - slot_t0[i], &rep);
+                obs->run_done(obs->ctx, done, n, &rep);
             }
             pids[i] = pids[active - 1];
             slot_run[i] = slot_run[active - 1];
@@ -336,10 +299,8 @@ static int run_all(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_t 
             active--;
             break;
         }
-        done++;
-        progress(o, done, n, t0);
     }
-    return failed ? -1 : 0;
+    return st;
 }
 
 static bg_status append_file(FILE *dst, const char *src_path)
@@ -410,12 +371,7 @@ static cJSON *num_or_null(double v)
     return cJSON_CreateNumber(strtod(b, NULL));
 }
 
-typedef struct plot_data {
-    double *mean; /* [scenario][mechanism][metric] replication means */
-} plot_data_t;
-
-static bg_status write_summary(const bgm_config_t *cfg, const sim_opts_t *o, const double *met,
-                               double *means)
+static bg_status write_summary(const bgm_config_t *cfg, const sim_opts_t *o, const double *met)
 {
     int ns = bgm_config_scenario_count(cfg), nm = cfg->mechanism_count, nr = cfg->replications;
     bg_status st = BG_OK;
@@ -467,13 +423,22 @@ static bg_status write_summary(const bgm_config_t *cfg, const sim_opts_t *o, con
             cJSON *mets = cJSON_AddObjectToObject(e, "metrics");
             for (int k = 0; k < BGM_M_COUNT; k++) {
                 bgm_summary_t sm = bgm_summarize(base + k, (size_t)nr, BGM_M_COUNT);
-                means[((size_t)(s * nm + m)) * BGM_M_COUNT + (size_t)k] = sm.mean;
                 cJSON *x = cJSON_CreateObject();
                 cJSON_AddItemToObject(x, "mean", num_or_null(sm.mean));
-                cJSON *ci = cJSON_CreateArray();
-                cJSON_AddItemToArray(ci, num_or_null(sm.lo));
-                cJSON_AddItemToArray(ci, num_or_null(sm.hi));
-                cJSON_AddItemToObject(x, "ci95", ci);
+                if (sm.n >= 2) {
+                    cJSON *ci = cJSON_CreateArray();
+                    cJSON_AddItemToArray(ci, num_or_null(sm.lo));
+                    cJSON_AddItemToArray(ci, num_or_null(sm.hi));
+                    cJSON_AddItemToObject(x, "ci95", ci);
+                } else {
+                    /* [mean, mean] would claim a certainty one value
+                     * cannot give. */
+                    cJSON_AddNullToObject(x, "ci95");
+                    cJSON_AddStringToObject(x, "ci95_null",
+                                            sm.n == 1 ? "one value: an interval needs at least "
+                                                        "two replications"
+                                                      : "no replication has a value");
+                }
                 cJSON_AddNumberToObject(x, "n", (double)sm.n);
                 cJSON_AddItemToObject(mets, bgm_metric_names[k], x);
             }
@@ -538,49 +503,94 @@ static bg_status write_replications(const bgm_config_t *cfg, const sim_opts_t *o
     return fclose(f) == 0 ? BG_OK : BG_ERR_IO;
 }
 
-/* Mean of a metric over the scenarios sharing a factor level, per
- * mechanism: the x axis is the level (agents or churn rate). */
-static bg_status plot_factor(const bgm_config_t *cfg, const sim_opts_t *o, const double *means,
+/* Scenario s's level of a factor: its node count's index, or its
+ * dynamics' index. */
+static int factor_level(const bgm_config_t *cfg, int s, int by_churn)
+{
+    return by_churn ? s % cfg->dynamics_levels : s / (cfg->dynamics_levels * cfg->density_levels);
+}
+
+/*
+ * A metric against one factor of the experiment (nodes, or churn as the
+ * dynamics' node failure rate), one line per mechanism. A point is the
+ * mean over replications of the mean over the scenarios at that level;
+ * its band is the 95 % Student-t interval of that mean over the
+ * replications, the scenarios of a replication taken together (with one
+ * scenario per level it is summary.json's ci95 of that scenario). One
+ * replication: no band (the interval is null).
+ */
+static bg_status plot_factor(const bgm_config_t *cfg, const sim_opts_t *o, const double *met,
                              int metric, int by_churn, const char *file, const char *title,
                              const char *ylabel, bg_error_t *err)
 {
-    int ns = bgm_config_scenario_count(cfg), nm = cfg->mechanism_count;
+    int ns = bgm_config_scenario_count(cfg), nm = cfg->mechanism_count, nr = cfg->replications;
     int nlev = by_churn ? cfg->dynamics_levels : cfg->node_levels;
     double x[BGM_MAX_MECHANISMS][BGM_MAX_LEVELS], y[BGM_MAX_MECHANISMS][BGM_MAX_LEVELS];
-    bg_svg_series_t series[BGM_MAX_MECHANISMS];
+    double lo[BGM_MAX_MECHANISMS][BGM_MAX_LEVELS], hi[BGM_MAX_MECHANISMS][BGM_MAX_LEVELS];
+    bgm_plot_series_t series[BGM_MAX_MECHANISMS];
+    double *per_rep = malloc((size_t)nr * sizeof *per_rep);
+    if (!per_rep)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the plots");
     for (int m = 0; m < nm; m++) {
         for (int l = 0; l < nlev; l++) {
-            double sx = 0, sy = 0;
-            int cnt = 0, cy = 0;
-            for (int s = 0; s < ns; s++) {
-                int nodes;
-                double density;
-                const bgm_dynamics_t *dyn;
-                bgm_config_scenario(cfg, s, &nodes, &density, &dyn);
-                int level = by_churn ? s % cfg->dynamics_levels
-                                     : s / (cfg->dynamics_levels * cfg->density_levels);
-                if (level != l)
-                    continue;
-                sx += by_churn ? dyn->node_failure_rate
-                               : (double)(bgm_config_agent_count(cfg, nodes, density) + 1);
-                cnt++;
-                double v = means[((size_t)(s * nm + m)) * BGM_M_COUNT + (size_t)metric];
-                if (isfinite(v)) {
-                    sy += v;
-                    cy++;
+            x[m][l] = by_churn ? cfg->dynamics[cfg->dynamics_index[l]].node_failure_rate
+                               : (double)cfg->nodes[l];
+            for (int r = 0; r < nr; r++) {
+                double sum = 0.0;
+                int cnt = 0;
+                for (int s = 0; s < ns; s++) {
+                    if (factor_level(cfg, s, by_churn) != l)
+                        continue;
+                    double v = met[(((size_t)(s * nm + m) * (size_t)nr) + (size_t)r) * BGM_M_COUNT +
+                                   (size_t)metric];
+                    if (isfinite(v)) {
+                        sum += v;
+                        cnt++;
+                    }
                 }
+                per_rep[r] = cnt ? sum / cnt : NAN;
             }
-            x[m][l] = cnt ? sx / cnt : NAN;
-            y[m][l] = cy ? sy / cy : NAN;
+            bgm_summary_t sm = bgm_summarize(per_rep, (size_t)nr, 1);
+            y[m][l] = sm.mean;
+            lo[m][l] = sm.lo;
+            hi[m][l] = sm.hi;
         }
-        series[m] = (bg_svg_series_t){bgm_mechanism_names[cfg->mechanisms[m]], x[m], y[m],
-                                      (size_t)nlev};
+        series[m] = (bgm_plot_series_t){bgm_mechanism_names[cfg->mechanisms[m]], x[m], y[m],
+                                        lo[m], hi[m], (size_t)nlev};
     }
-    bg_svg_plot_t plot = {title, by_churn ? "node failure rate (1/s per node)" : "agents",
-                          ylabel, 0, 0};
+    free(per_rep);
+    bgm_plot_t plot = {title, by_churn ? "node failure rate (1/s per node)" : "nodes", ylabel,
+                       nr > 1 ? "points: means over replications; bands: 95 % confidence intervals"
+                              : "one replication: no confidence interval"};
     char path[BGM_PATH_MAX + 256];
     snprintf(path, sizeof path, "%s/%s", o->out, file);
-    return bg_svg_write(path, &plot, series, nm, err);
+    return bgm_plot_write(path, &plot, series, nm, err);
+}
+
+static bg_status write_plots(const bgm_config_t *cfg, const sim_opts_t *o, const double *met,
+                             bg_error_t *err)
+{
+    static const struct {
+        int metric;
+        const char *name, *title, *ylabel;
+    } plots[] = {
+        {BGM_M_ALLOCATION_RATE, "allocation_rate", "Allocation rate", "allocated / requested"},
+        {BGM_M_MESSAGES_PER_ALLOCATION, "messages_per_allocation", "Messages per allocation",
+         "messages"},
+        {BGM_M_ACCESS_TIME_MEDIAN, "access_time", "Median service access time",
+         "request to contract (s)"},
+    };
+    bg_status st = BG_OK;
+    for (size_t i = 0; i < sizeof plots / sizeof plots[0] && !st; i++)
+        for (int churn = 0; churn < 2 && !st; churn++) {
+            char file[128], title[160];
+            snprintf(file, sizeof file, "%s_vs_%s.svg", plots[i].name, churn ? "churn" : "size");
+            snprintf(title, sizeof title, "%s against %s", plots[i].title,
+                     churn ? "churn" : "network size");
+            st = plot_factor(cfg, o, met, plots[i].metric, churn, file, title, plots[i].ylabel,
+                             err);
+        }
+    return st;
 }
 
 static bg_status plot_prices(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_t *runs,
@@ -594,7 +604,7 @@ static bg_status plot_prices(const bgm_config_t *cfg, const sim_opts_t *o, const
     size_t cnt[BGM_MAX_MECHANISMS][BGM_SERVICE_TYPES];
     memset(cnt, 0, sizeof cnt);
     if (!xs || !ys) {
-        st = BG_ERR_NOMEM;
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the price plots");
         goto out;
     }
     /* Scenario 0, replication 0 of each mechanism: one trajectory. */
@@ -623,18 +633,19 @@ static bg_status plot_prices(const bgm_config_t *cfg, const sim_opts_t *o, const
         fclose(f);
     }
     for (int g = 0; g < BGM_SERVICE_TYPES && !st; g++) {
-        bg_svg_series_t series[BGM_MAX_MECHANISMS];
+        bgm_plot_series_t series[BGM_MAX_MECHANISMS];
         for (int m = 0; m < nm; m++) {
             size_t base = ((size_t)m * BGM_SERVICE_TYPES + (size_t)g) * cap;
-            series[m] = (bg_svg_series_t){bgm_mechanism_names[cfg->mechanisms[m]], xs + base,
-                                          ys + base, cnt[m][g]};
+            series[m] = (bgm_plot_series_t){bgm_mechanism_names[cfg->mechanisms[m]], xs + base,
+                                            ys + base, NULL, NULL, cnt[m][g]};
         }
         char title[128], path[BGM_PATH_MAX + 256];
         snprintf(title, sizeof title, "Price of %s over time (first scenario, replication 0)",
                  bgm_service_names[g]);
         snprintf(path, sizeof path, "%s/price_%s.svg", o->out, bgm_service_names[g]);
-        bg_svg_plot_t plot = {title, "simulated time (s)", "mean price per unit of work", 0, 0};
-        st = bg_svg_write(path, &plot, series, nm, err);
+        bgm_plot_t plot = {title, "simulated time (s)", "mean price per unit of work",
+                           "one point per price bucket (metrics.price_bucket)"};
+        st = bgm_plot_write(path, &plot, series, nm, err);
     }
 out:
     free(xs);
@@ -644,7 +655,7 @@ out:
 
 static void remove_parts(const sim_opts_t *o, const run_id_t *runs, int n)
 {
-    static const char *const exts[] = {"met", "contracts", "agents", "prices", "stats"};
+    static const char *const exts[] = {"met", "contracts", "agents", "prices", "stats", "err"};
     char path[BGM_PATH_MAX + 64];
     for (int i = 0; i < n; i++)
         for (size_t e = 0; e < sizeof exts / sizeof exts[0]; e++) {
@@ -655,107 +666,102 @@ static void remove_parts(const sim_opts_t *o, const run_id_t *runs, int n)
     rmdir(path);
 }
 
-int bgm_sim_command(int argc, char **argv)
+bg_status bgm_sim_check_platform(const bgm_config_t *cfg, bg_error_t *err)
 {
-    sim_opts_t o;
-    bgm_config_t *cfg = NULL;
+    const char *plat = cfg->network.platform;
+    if (!plat[0])
+        return BG_OK;
+    fflush(NULL);
+    pid_t pid = fork();
+    if (pid < 0)
+        return bg_error_set(err, BG_ERR_NOMEM, "cannot check the platform: %s", strerror(errno));
+    if (pid == 0) {
+        /* SimGrid reports a bad file with a backtrace and aborts: keep it
+         * off the console, the parent says what is wrong. */
+        if (!freopen("/dev/null", "w", stdout) || !freopen("/dev/null", "w", stderr))
+            _exit(3);
+        bgm_simdriver_init();
+        bgm_simdriver_load(plat);
+        double speed[2];
+        bg_error_t e = BG_ERROR_INIT;
+        _exit(bgm_simdriver_user_speeds(1, speed, &e) == BG_OK && speed[0] > 0.0 ? 0 : 4);
+    }
+    int status = 0;
+    if (waitpid(pid, &status, 0) != pid)
+        return bg_error_set(err, BG_ERR_NOMEM, "cannot check the platform: %s", strerror(errno));
+    if (WIFEXITED(status) && WEXITSTATUS(status) == 0)
+        return BG_OK;
+    if (WIFEXITED(status) && WEXITSTATUS(status) == 4)
+        return bg_error_set(err, BG_ERR_INVALID, "%s: the platform has no host with a speed", plat);
+    return bg_error_set(err, BG_ERR_INVALID,
+                        "%s: SimGrid cannot load this platform (not a valid platform XML file)",
+                        plat);
+}
+
+bg_status bgm_sim_run(const bgm_config_t *cfg, bgm_sim_options_t *o,
+                      const bgm_sim_observer_t *obs, bg_error_t *err)
+{
     run_id_t *runs = NULL;
-    double *met = NULL, *means = NULL;
-    int rc = BGM_EXIT_FAIL;
-    bg_error_t err = BG_ERROR_INIT;
-    const int parsed = parse_args(argc, argv, &o);
-    if (parsed != 0)
-        return parsed > 0 ? 0 : BGM_EXIT_USAGE;
-    cfg = malloc(sizeof *cfg);
-    if (!cfg)
-        goto out;
-    if (bgm_config_load(o.config_path, cfg, &err)) {
-        fprintf(stderr, "biotgrid sim: %s: %s\n", o.config_path, err.message);
-        rc = err.status == BG_ERR_IO ? BGM_EXIT_FAIL : BGM_EXIT_USAGE;
-        goto out;
-    }
-    if (!o.out[0])
-        snprintf(o.out, sizeof o.out, "out/sim/%s", cfg->name);
-    char parts[BGM_PATH_MAX + 256];
-    snprintf(parts, sizeof parts, "%s/.parts", o.out);
-    if (make_dirs(parts)) {
-        fprintf(stderr, "biotgrid sim: %s: cannot create output directory\n", o.out);
-        goto out;
-    }
+    double *met = NULL;
+    bg_status st = BG_OK;
+    if (o->jobs < 1 || o->jobs > BGM_SIM_MAX_JOBS)
+        return bg_error_set(err, BG_ERR_INVALID, "jobs must be in [1, %d], got %d",
+                            BGM_SIM_MAX_JOBS, o->jobs);
     int ns = bgm_config_scenario_count(cfg), nm = cfg->mechanism_count, nr = cfg->replications;
     long total = (long)ns * nm * nr;
-    if (total > BGM_MAX_RUNS) {
-        fprintf(stderr, "biotgrid sim: %ld runs exceed the cap of %d\n", total, BGM_MAX_RUNS);
-        rc = BGM_EXIT_USAGE;
-        goto out;
-    }
+    if (total > BGM_MAX_RUNS)
+        return bg_error_set(err, BG_ERR_LIMIT, "%ld runs exceed the cap of %d", total,
+                            BGM_MAX_RUNS);
+    if ((st = bgm_sim_check_platform(cfg, err)))
+        return st;
+    if (!o->out[0])
+        snprintf(o->out, sizeof o->out, "out/sim/%s", cfg->name);
+    char parts[BGM_PATH_MAX + 256];
+    snprintf(parts, sizeof parts, "%s/.parts", o->out);
+    if (make_dirs(parts))
+        return bg_error_set(err, BG_ERR_IO, "%s: cannot create the output folder: %s", o->out,
+                            strerror(errno));
     runs = malloc((size_t)total * sizeof *runs);
     met = malloc((size_t)total * BGM_M_COUNT * sizeof *met);
-    means = malloc((size_t)ns * (size_t)nm * BGM_M_COUNT * sizeof *means);
-    if (!runs || !met || !means)
+    if (!runs || !met) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %ld runs", total);
         goto out;
+    }
     int n = 0;
     for (int s = 0; s < ns; s++)
         for (int m = 0; m < nm; m++)
             for (int r = 0; r < nr; r++)
                 runs[n++] = (run_id_t){s, m, r};
-    if (!o.quiet)
-        fprintf(stderr, "biotgrid sim: %s, seed %llu: %d scenarios x %d mechanisms x %d replications\n",
-                cfg->name, (unsigned long long)cfg->seed, ns, nm, nr);
-    if (run_all(cfg, &o, runs, n))
+    if (obs && obs->start)
+        obs->start(obs->ctx, ns, nm, nr);
+    if ((st = run_all(cfg, o, runs, n, obs, err)))
         goto out;
     for (int i = 0; i < n; i++) {
         char path[BGM_PATH_MAX + 64];
-        part_path(path, sizeof path, o.out, &runs[i], "met");
+        part_path(path, sizeof path, o->out, &runs[i], "met");
         FILE *f = fopen(path, "rb");
         size_t got = f ? fread(met + (size_t)i * BGM_M_COUNT, sizeof(double), BGM_M_COUNT, f) : 0;
         if (f)
             fclose(f);
         if (got != BGM_M_COUNT) {
-            fprintf(stderr, "biotgrid sim: %s: missing run output\n", path);
+            st = bg_error_set(err, BG_ERR_IO, "%s: missing run output", path);
             goto out;
         }
     }
-    if (write_summary(cfg, &o, met, means) || write_replications(cfg, &o, met) ||
-        merge_csv(&o, runs, n, "contracts.csv", "contracts",
-                  "scenario,replication,mechanism,layer,time,start,end,buyer,seller,good,"
+    if (write_summary(cfg, o, met) || write_replications(cfg, o, met) ||
+        merge_csv(o, runs, n, "contracts.csv", "contracts",
+                  "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,good,"
                   "quantity,price,buyer_limit,seller_limit\n") ||
-        merge_csv(&o, runs, n, "agents.csv", "agents",
+        merge_csv(o, runs, n, "agents.csv", "agents",
                   "scenario,replication,mechanism,agent,role,good,capacity,limit\n")) {
-        fprintf(stderr, "biotgrid sim: %s: cannot write outputs\n", o.out);
+        st = bg_error_set(err, BG_ERR_IO, "%s: cannot write the outputs", o->out);
         goto out;
     }
-    static const struct {
-        int metric;
-        const char *name, *title, *ylabel;
-    } plots[] = {
-        {BGM_M_ALLOCATION_RATE, "allocation_rate", "Allocation rate", "allocated / requested"},
-        {BGM_M_MESSAGES_PER_ALLOCATION, "messages_per_allocation", "Messages per allocation",
-         "messages"},
-        {BGM_M_ACCESS_TIME_MEDIAN, "access_time", "Median service access time",
-         "request to contract (s)"},
-    };
-    for (size_t i = 0; i < sizeof plots / sizeof plots[0]; i++)
-        for (int churn = 0; churn < 2; churn++) {
-            char file[128], title[160];
-            snprintf(file, sizeof file, "%s_vs_%s.svg", plots[i].name, churn ? "churn" : "size");
-            snprintf(title, sizeof title, "%s against %s", plots[i].title,
-                     churn ? "churn" : "network size");
-            if (plot_factor(cfg, &o, means, plots[i].metric, churn, file, title, plots[i].ylabel,
-                            &err))
-                fprintf(stderr, "biotgrid sim: plot %s: %s\n", file, err.message);
-        }
-    if (plot_prices(cfg, &o, runs, n, &err))
-        fprintf(stderr, "biotgrid sim: price plots: %s\n", err.message);
-    remove_parts(&o, runs, n);
-    if (!o.quiet)
-        fprintf(stderr, "biotgrid sim: wrote %s/{summary.json,replications.csv,contracts.csv,agents.csv,*.svg}\n",
-                o.out);
-    rc = BGM_EXIT_OK;
+    if ((st = write_plots(cfg, o, met, err)) || (st = plot_prices(cfg, o, runs, n, err)))
+        goto out;
+    remove_parts(o, runs, n);
 out:
-    free(cfg);
     free(runs);
     free(met);
-    free(means);
-    return rc;
+    return st;
 }

@@ -352,8 +352,35 @@ static void start_actor(const char *name, sg_host_t host, void (*code)(int, char
     sg_actor_start_(a, code, 2, argv);
 }
 
-bg_status bgm_simdriver_run(bgm_world_t *w, const char *platform_xml, int user_platform,
-                            bgm_sim_stats_t *stats, bg_error_t *err)
+void bgm_simdriver_load(const char *platform_xml)
+{
+    simgrid_load_platform(platform_xml);
+}
+
+/* Node i's host on a user platform: the market on the first host by name,
+ * the nodes round-robin after it (hosts sorted by name). */
+static sg_host_t user_host(sg_host_t *hosts, size_t nhosts, uint32_t i, uint32_t nworld)
+{
+    return i == nworld ? hosts[0] : hosts[(1 + i) % nhosts];
+}
+
+bg_status bgm_simdriver_user_speeds(uint32_t nodes, double *speed, bg_error_t *err)
+{
+    sg_host_t *hosts = sg_host_list();
+    size_t nhosts = sg_host_count();
+    if (!hosts || nhosts == 0) {
+        free(hosts);
+        return bg_error_set(err, BG_ERR_INVALID, "the platform has no host");
+    }
+    qsort(hosts, nhosts, sizeof *hosts, cmp_host);
+    for (uint32_t i = 0; i <= nodes; i++)
+        speed[i] = sg_host_get_speed(user_host(hosts, nhosts, i, nodes));
+    free(hosts);
+    return BG_OK;
+}
+
+bg_status bgm_simdriver_run(bgm_world_t *w, int user_platform, bgm_sim_stats_t *stats,
+                            bg_error_t *err)
 {
     bg_status st = BG_OK;
     driver_t d;
@@ -362,7 +389,6 @@ bg_status bgm_simdriver_run(bgm_world_t *w, const char *platform_xml, int user_p
     d.env_free = BGM_ENV_NONE;
     d.horizon = bgm_world_horizon(w);
     g_driver = &d;
-    simgrid_load_platform(platform_xml);
     uint32_t nworld = bgm_world_agent_node(w, 0); /* the market's node = world node count */
     d.nnodes = nworld + 1;
     d.nodes = calloc(d.nnodes, sizeof *d.nodes);
@@ -377,8 +403,7 @@ bg_status bgm_simdriver_run(bgm_world_t *w, const char *platform_xml, int user_p
         node_t *n = &d.nodes[i];
         char name[BGM_HOST_NAME_MAX];
         if (user_platform) {
-            /* Market on the first host by name, nodes round-robin after it. */
-            n->host = i == nworld ? hosts[0] : hosts[(1 + i) % nhosts];
+            n->host = user_host(hosts, nhosts, i, nworld);
         } else {
             if (i == nworld)
                 snprintf(name, sizeof name, "market");

@@ -33,12 +33,23 @@ typedef struct bgm_sim_stats {
 /* Initialises SimGrid (silenced, small actor stacks). Once per process. */
 void bgm_simdriver_init(void);
 
+/* Loads platform_xml into the engine (after init, once per process).
+ * SimGrid aborts the process on a file it cannot load: validate user
+ * platforms in a disposable process first (bgm_sim_check_platform). */
+void bgm_simdriver_load(const char *platform_xml);
+
+/* For a user platform (loaded): speed[0..nodes] receives the speed of the
+ * host each node runs on (the market's, index nodes, last), as
+ * bgm_simdriver_run maps them: the market on the first host by name, the
+ * nodes round-robin over the hosts after it. */
+bg_status bgm_simdriver_user_speeds(uint32_t nodes, double *speed, bg_error_t *err);
+
 /*
- * Loads platform_xml (whose hosts must include h0..h{nodes-1} and
- * "market", or any hosts for a user platform: nodes map onto them in name
- * order) and runs the world to its horizon.
+ * Runs the world to its horizon on the loaded platform, whose hosts must
+ * include h0..h{nodes-1} and "market" (generated), or any hosts (user
+ * platform: mapped as above).
  */
-bg_status bgm_simdriver_run(bgm_world_t *w, const char *platform_xml, int user_platform,
-                            bgm_sim_stats_t *stats, bg_error_t *err);
+bg_status bgm_simdriver_run(bgm_world_t *w, int user_platform, bgm_sim_stats_t *stats,
+                            bg_error_t *err);
 
 #endif

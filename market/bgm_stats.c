@@ -29,10 +29,8 @@ bgm_summary_t bgm_summarize(const double *v, size_t count, size_t stride)
     if (s.n == 0)
         return s;
     s.mean = sum / (double)s.n;
-    if (s.n == 1) {
-        s.lo = s.hi = s.mean;
-        return s;
-    }
+    if (s.n == 1)
+        return s; /* one value: no interval (lo and hi stay NaN) */
     double ss = 0.0;
     for (size_t i = 0; i < count; i++) {
         double x = v[i * stride];

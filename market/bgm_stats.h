@@ -10,7 +10,7 @@
 typedef struct bgm_summary {
     size_t n;     /* non-null values */
     double mean;  /* NaN when n == 0 */
-    double lo;    /* 95 % CI; equal to mean when n == 1 */
+    double lo;    /* 95 % CI; NaN when n < 2 (one value gives no interval) */
     double hi;
 } bgm_summary_t;
 

@@ -78,7 +78,7 @@ enum {
     M_AVAIL,    /* baseline seller->directory: a=free slots|cores, b=free memory */
     M_RPART     /* A->R, call markets: req, good=cores|memory, a=quantity, b=duration,
                  * price=rate per unit-second, c=buyer limit per unit-second,
-                 * hops=parts of the bundle, origin=buyer */
+                 * hops=parts of the bundle, origin=buyer, cand_price[0]=start */
 };
 
 /* Timer kinds. */
@@ -127,6 +127,7 @@ typedef struct req {
     uint32_t buyer, seller, job, parent; /* parent: service req of a resource req */
     uint32_t attempt;
     uint32_t tseq; /* phase timer generation: only the latest T_REQ counts */
+    uint32_t sattempt; /* resource request: the service attempt its basic agent agreed to */
     double work;   /* service: units (a bundle's size follows from its service) */
     double limit;        /* service: valuation/unit; resource: revenue total */
     double created, deadline;
@@ -701,7 +702,7 @@ static void final_fail(bgm_world_t *w, uint32_t rid, double now)
         bgm_msg_t m = msg(M_FREE, r->buyer, 0, rid, 0);
         send(w, &m);
     }
-    bgm_msg_t m = msg(M_CANCEL, r->buyer, s->buyer, r->parent, s->attempt);
+    bgm_msg_t m = msg(M_CANCEL, r->buyer, s->buyer, r->parent, r->sattempt);
     send(w, &m);
     (void)now;
 }
@@ -804,16 +805,20 @@ static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
     }
 }
 
-/* The basic agent has agreed to serve service request sid at `price` per
- * unit: it reserves a slot and starts buying the resources. Returns 0
- * (and changes nothing) when it has no free slot. */
-static int service_agreed(bgm_world_t *w, uint32_t b, uint32_t sid, double price, double limit,
-                          double now)
+/* The basic agent has agreed to serve attempt `attempt` of service
+ * request sid at `price` per unit: it reserves a slot and starts buying
+ * the resources. The agreement is bound to that attempt: once the job's
+ * agent has moved on to another attempt (a timeout, a lost message), the
+ * bundle bought for this one serves nothing (service_live). Returns 0
+ * (and changes nothing) when it has no free slot or the attempt is stale. */
+static int service_agreed(bgm_world_t *w, uint32_t b, uint32_t sid, uint32_t attempt, double price,
+                          double limit, double now)
 {
     agent_t *ag = &w->agents[b];
-    if (ag->used >= ag->slots || !agent_alive(w, b))
-        return 0;
     req_t *s = &w->reqs[sid];
+    if (ag->used >= ag->slots || !agent_alive(w, b) || attempt != s->attempt ||
+        s->state == RQ_DONE || s->state == RQ_FAILED)
+        return 0;
     ag->used++;
     announce(w, b);
     s->seller = b;
@@ -828,6 +833,7 @@ static int service_agreed(bgm_world_t *w, uint32_t b, uint32_t sid, double price
     r->good = BGM_GOOD_BUNDLE;
     r->buyer = b;
     r->parent = sid;
+    r->sattempt = attempt;
     r->job = s->job;
     r->limit = price * s->work;
     r->created = now;
@@ -854,6 +860,7 @@ static void pay_bundle(bgm_world_t *w, uint32_t rid, uint32_t seller, double rat
     bgm_contract_t c = {now,
                         start,
                         end,
+                        r->parent,
                         r->buyer,
                         seller,
                         1,
@@ -868,6 +875,7 @@ static void pay_bundle(bgm_world_t *w, uint32_t rid, uint32_t seller, double rat
         bgm_contract_t m = {now,
                             start,
                             end,
+                            r->parent,
                             r->buyer,
                             seller,
                             1,
@@ -934,31 +942,33 @@ static uint64_t part_arg(int good, double quantity)
 }
 
 /* The resource agent has been awarded one part of bundle m->req on a call
- * market: m->a cores or GiB for m->b seconds at m->price per unit-second.
- * It checks that it is up and has the room now, holds the part until its
- * end, and confirms to the buyer; it is paid only once the buyer has the
- * whole bundle (pay_parts). Returns 0 when it cannot. */
+ * market: m->a cores or GiB for m->b seconds from the bundle's common
+ * start (m->cand_price[0]) at m->price per unit-second. It checks that it
+ * is up, that the start is still ahead, and that it has the room now; it
+ * holds the part from now until the part's end and confirms to the buyer;
+ * it is paid only once the buyer has the whole bundle (pay_parts).
+ * Returns 0 when it cannot. */
 static int part_agreed(bgm_world_t *w, uint32_t ra_id, const bgm_msg_t *m, double now)
 {
     agent_t *ra = &w->agents[ra_id];
     const req_t *r = &w->reqs[m->req];
     int is_cores = m->good == BGM_GOOD_CORES;
-    double qty = m->a, dur = m->b, rate = m->price;
+    double qty = m->a, dur = m->b, rate = m->price, start = m->cand_price[0];
     double cost = is_cores ? ra->core_cost : ra->mem_cost;
     double *used = is_cores ? &ra->used_cores : &ra->used_mem;
     /* The auctioneer converts the uniform price to this seller's rate, so
      * the rate can sit an ulp below its cost. */
-    if (!agent_alive(w, ra_id) || *used + qty > (is_cores ? ra->cores : ra->mem) + 1e-9 ||
-        rate < cost * (1.0 - 1e-12))
+    if (!agent_alive(w, ra_id) || now > start ||
+        *used + qty > (is_cores ? ra->cores : ra->mem) + 1e-9 || rate < cost * (1.0 - 1e-12))
         return 0;
     *used += qty;
-    timer(w, ra_id, now + dur, T_RELEASE_PART, part_arg(m->good, qty));
+    timer(w, ra_id, start + dur, T_RELEASE_PART, part_arg(m->good, qty));
     bgm_msg_t k = msg(M_RCONFIRM, ra_id, r->buyer, m->req, m->attempt);
     k.good = m->good;
     k.hops = m->hops;
     k.price = rate;
-    k.a = now;
-    k.b = now + dur;
+    k.a = start;
+    k.b = start + dur;
     k.cand_price[0] = qty;
     k.cand_price[1] = m->c;
     k.cand_price[2] = cost;
@@ -977,8 +987,8 @@ static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
         if (p->rid != rid)
             continue;
         double dur = p->end - p->start, money = p->rate * p->quantity * dur;
-        bgm_contract_t c = {now,     p->start,    p->end,  r->buyer, p->seller, 1,
-                            p->good, p->quantity, p->rate, p->limit, p->cost};
+        bgm_contract_t c = {now,       p->start,   p->end,     r->parent, r->buyer, p->seller,
+                            1,         p->good,    p->quantity, p->rate,  p->limit, p->cost};
         bg_status st = log_contract(w, &c);
         if (st)
             fail(w, st);
@@ -996,12 +1006,38 @@ static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
 }
 
 /* The service that basic agent b's bundle serves is still wanted from b:
- * the job's agent has not given up on it (deadline passed, or moved to
- * another seller). */
+ * the job's agent has not bought it already, has not given up on it
+ * (deadline passed), and is still on the attempt b agreed to (it has not
+ * moved to another seller, nor back to b for a new attempt after a lost
+ * message). */
 static int service_live(const bgm_world_t *w, uint32_t b, const req_t *r)
 {
     const req_t *s = &w->reqs[r->parent];
-    return s->state != RQ_DONE && s->state != RQ_FAILED && s->seller == b;
+    return s->state != RQ_DONE && s->state != RQ_FAILED && s->seller == b &&
+           s->attempt == r->sattempt;
+}
+
+/* The job's agent takes delivery of service request sid: it is bought,
+ * once. This is the same step as the contract becoming final
+ * (bundle_rented): the check that the job's agent still wants the item
+ * (service_live) and its acceptance are one event, so a confirmation lost
+ * on the way back cannot make the job's agent buy the item a second time
+ * (it would otherwise time out on a seller that has in fact delivered and
+ * buy again). The M_CONFIRM that follows only carries the news to the job
+ * agent's node. */
+static void service_delivered(bgm_world_t *w, uint32_t sid, double price, double start, double end)
+{
+    req_t *r = &w->reqs[sid];
+    req_end(w, r, RQ_DONE);
+    r->start = start;
+    r->end = end;
+    job_t *j = &w->jobs[r->job];
+    j->done++;
+    if (end > j->last_end)
+        j->last_end = end;
+    agent_t *c = &w->agents[r->buyer];
+    c->memory[r->good] = bgm_memory_update(c->memory[r->good], price, c->genes.weight_memory);
+    learn_outcome(c, 1, (r->limit - price) / r->limit);
 }
 
 /* Basic agent b's bundle rid has arrived but its service is void (the
@@ -1023,8 +1059,8 @@ static void bundle_rented(bgm_world_t *w, uint32_t b, uint32_t rid, double start
     req_t *s = &w->reqs[r->parent];
     agent_t *ba = &w->agents[b];
     agent_t *ca = &w->agents[s->buyer];
-    bgm_contract_t c = {now,     start,    end,      s->buyer,       b, 0, s->good,
-                        s->work, s->price, s->limit, s->seller_limit};
+    bgm_contract_t c = {now,     start,    end,      r->parent,      s->buyer, b, 0,
+                        s->good, s->work,  s->price, s->limit, s->seller_limit};
     bg_status st = log_contract(w, &c);
     if (st)
         fail(w, st);
@@ -1057,6 +1093,7 @@ static void bundle_rented(bgm_world_t *w, uint32_t b, uint32_t rid, double start
     cm.price = s->price;
     cm.a = start;
     cm.b = end;
+    service_delivered(w, r->parent, s->price, start, end);
     send(w, &cm);
 }
 
@@ -1087,6 +1124,14 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
         r->end = r->parts == 0 ? m->b : fmax(r->end, m->b);
         if (++r->parts < m->hops)
             return;
+        /* Every part was held from before the common start; the service
+         * can run from it only if the bundle is complete by then. A later
+         * bundle is void for its sellers (unpaid) and fails for b. */
+        if (now > r->start) {
+            drop_parts(w, m->req);
+            final_fail(w, m->req, now);
+            return;
+        }
         req_end(w, r, RQ_DONE);
         r->seller = m->from;
         if (!service_live(w, b, r)) {
@@ -1216,7 +1261,9 @@ static void compact_rbids(bgm_world_t *w)
 }
 
 /* The resource layer through the combinatorial exchange: whole bundles,
- * each from one resource agent, winner determination by bgm_combex. */
+ * each from one resource agent, winner determination by bgm_combex, and
+ * each award paid its seller's cost plus a rent priced against the bids
+ * and sellers left out (bgm_combex_rents). */
 static void clear_exchange(bgm_world_t *w, double now)
 {
     if (expire_rbids(w, now) == 0)
@@ -1224,6 +1271,7 @@ static void clear_exchange(bgm_world_t *w, double now)
     bgm_combex_reset(w->cx);
     int *seller_of = malloc(w->nmr * sizeof *seller_of);
     uint32_t *mr_of = malloc(w->nmr * sizeof *mr_of);
+    double *rent = NULL;
     if (!seller_of || !mr_of) {
         fail(w, BG_ERR_NOMEM);
         goto out;
@@ -1265,6 +1313,11 @@ static void clear_exchange(bgm_world_t *w, double now)
         w->combex_exact += 1.0;
     else
         w->combex_greedy += 1.0;
+    rent = malloc((w->npend_rbid ? w->npend_rbid : 1) * sizeof *rent);
+    if (!rent || bgm_combex_rents(w->cx, w->assign, w->cfg.central.k, rent)) {
+        fail(w, BG_ERR_NOMEM);
+        goto out;
+    }
     const bgm_combex_pair_t *pairs = bgm_combex_pairs(w->cx);
     for (size_t i = 0; i < w->npend_rbid; i++) {
         if (w->assign[i] < 0)
@@ -1275,7 +1328,7 @@ static void clear_exchange(bgm_world_t *w, double now)
         mkt_seller_t *s = &w->mr[mr_of[p->seller]];
         double dur = req_duration(w, r, s->speed);
         double cost = r->limit - p->surplus;
-        double total = cost + w->cfg.central.k * p->surplus;
+        double total = cost + rent[i];
         s->free_a -= req_cores(w, r);
         s->free_b -= req_memory(w, r);
         r->state = RQ_COMMITTED;
@@ -1288,6 +1341,7 @@ static void clear_exchange(bgm_world_t *w, double now)
 out:
     free(seller_of);
     free(mr_of);
+    free(rent);
 }
 
 /* One bundle's bids on the two call markets, as its proxy places them. */
@@ -1311,9 +1365,9 @@ static bgm_fill_t *copy_fills(const bgm_world_t *w, size_t n)
 }
 
 /* Sends seller k its part of bundle i (bid index): q units of `good` for
- * dur seconds at rate per unit-second. */
-static void award_part(bgm_world_t *w, size_t i, uint32_t k, int good, double q, double dur,
-                       double rate, double limit, int parts)
+ * dur seconds from `start` at rate per unit-second. */
+static void award_part(bgm_world_t *w, size_t i, uint32_t k, int good, double q, double start,
+                       double dur, double rate, double limit, int parts)
 {
     const req_t *r = &w->reqs[w->pend_rbid[i]];
     mkt_seller_t *s = &w->mr[k];
@@ -1329,6 +1383,7 @@ static void award_part(bgm_world_t *w, size_t i, uint32_t k, int good, double q,
     m.price = rate;
     m.c = limit;
     m.origin = r->buyer;
+    m.cand_price[0] = start;
     send(w, &m);
 }
 
@@ -1347,7 +1402,10 @@ static void award_part(bgm_world_t *w, size_t i, uint32_t k, int good, double q,
  * each runs its share of the work at its own speed, so the bundle lasts
  * as long as its slowest seller's part. Memory is priced per GiB-second
  * and sold in MiB, held for that whole run; its bid's limit is what the
- * budget has left after the cores, per GiB-second.
+ * budget has left after the cores, per GiB-second. All parts start
+ * together, a period after the clearing: a seller holds its part from the
+ * award until the part's end, and a bundle not complete by the start is
+ * void (final_fail), so each service's memory covers its whole run.
  *
  * Complements on separate markets expose a buyer to winning one good and
  * not the other. A bundle not filled in full on both markets is cancelled
@@ -1367,6 +1425,10 @@ static void clear_calls(bgm_world_t *w, double now)
     if (n == 0)
         return;
     const double sref = w->cfg.network.speed, k = w->cfg.central.k;
+    /* Every part of a bundle runs over one interval from a common start a
+     * period ahead (the awards and confirmations travel meanwhile), so the
+     * memory is held for the whole run of the slowest cores. */
+    const double start = now + w->cfg.central.period;
     call_bid_t *cb = calloc(n, sizeof *cb);
     int *parts = calloc(n, sizeof *parts);
     bgm_fill_t *cf = NULL, *mf = NULL;
@@ -1454,15 +1516,15 @@ static void clear_calls(bgm_world_t *w, double now)
         if (cb[i].got_cores < cb[i].cores || cb[i].got_mib < cb[i].mib)
             continue;
         double ratio = w->mr[cf[f].ask].speed / sref;
-        award_part(w, i, (uint32_t)cf[f].ask, BGM_GOOD_CORES, cf[f].quantity, cb[i].tref / ratio,
-                   rc.price * ratio, cb[i].bid_core * ratio, parts[i]);
+        award_part(w, i, (uint32_t)cf[f].ask, BGM_GOOD_CORES, cf[f].quantity, start,
+                   cb[i].tref / ratio, rc.price * ratio, cb[i].bid_core * ratio, parts[i]);
     }
     for (size_t f = 0; f < rm.fill_count; f++) {
         size_t i = mf[f].bid;
         if (cb[i].got_cores < cb[i].cores || cb[i].got_mib < cb[i].mib)
             continue;
         award_part(w, i, (uint32_t)mf[f].ask, BGM_GOOD_MEMORY, (double)mf[f].quantity / BGM_MIB,
-                   cb[i].dur, rm.price, cb[i].bid_mem, parts[i]);
+                   start, cb[i].dur, rm.price, cb[i].bid_mem, parts[i]);
     }
     for (size_t i = 0; i < n; i++)
         if (cb[i].got_cores >= cb[i].cores && cb[i].got_mib >= cb[i].mib)
@@ -1710,7 +1772,7 @@ static void seller_commit(bgm_world_t *w, uint32_t me, uint32_t rid, double pric
     if (r->layer == 0) {
         uint32_t attempt = r->attempt;
         uint32_t buyer = r->buyer;
-        if (!service_agreed(w, me, rid, price, limit, now)) {
+        if (!service_agreed(w, me, rid, attempt, price, limit, now)) {
             bgm_msg_t x = msg(M_REJECT, me, buyer, rid, attempt);
             send(w, &x);
             return;
@@ -1824,22 +1886,6 @@ static void buyer_committed(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
     }
 }
 
-static void on_confirm(bgm_world_t *w, const bgm_msg_t *m)
-{
-    req_t *r = &w->reqs[m->req];
-    if (r->state == RQ_DONE || r->state == RQ_FAILED)
-        return;
-    req_end(w, r, RQ_DONE);
-    r->start = m->a;
-    r->end = m->b;
-    job_t *j = &w->jobs[r->job];
-    j->done++;
-    if (m->b > j->last_end)
-        j->last_end = m->b;
-    agent_t *c = &w->agents[r->buyer];
-    c->memory[r->good] = bgm_memory_update(c->memory[r->good], m->price, c->genes.weight_memory);
-    learn_outcome(c, 1, (r->limit - m->price) / r->limit);
-}
 
 bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
 {
@@ -1857,7 +1903,7 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
     req_t *r = m->type == M_GENES ? NULL : &w->reqs[m->req];
     switch (m->type) {
     case M_MATCH:
-        if (!service_agreed(w, me, m->req, m->price, m->b, now)) {
+        if (!service_agreed(w, me, m->req, m->attempt, m->price, m->b, now)) {
             bgm_msg_t c = msg(M_CANCEL, me, m->origin, m->req, m->attempt);
             send(w, &c);
         }
@@ -1890,7 +1936,8 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         on_rconfirm(w, me, m, now);
         break;
     case M_CONFIRM:
-        on_confirm(w, m);
+        /* The delivery was accepted when it became final
+         * (service_delivered); the news changes nothing more. */
         break;
     case M_CANCEL:
         if (m->attempt == r->attempt && r->state == RQ_COMMITTED)
@@ -2456,9 +2503,10 @@ bg_status bgm_world_write_contracts(const bgm_world_t *w, FILE *f)
     scenario_label(w, sc, sizeof sc);
     for (size_t i = 0; i < w->nlog; i++) {
         const bgm_contract_t *c = &w->log[i];
-        fprintf(f, "%s,%d,%s,%s,%.6f,%.6f,%.6f,%u,%u,%s,%.6f,%.9g,%.9g,%.9g\n", sc,
+        fprintf(f, "%s,%d,%s,%s,%u,%.6f,%.6f,%.6f,%u,%u,%s,%.6f,%.9g,%.9g,%.9g\n", sc,
                 w->p.replication, bgm_mechanism_names[w->p.mechanism],
-                c->layer == 0 ? "service" : "resource", c->time, c->start, c->end, c->buyer,
+                c->layer == 0 ? "service" : "resource", c->request, c->time, c->start, c->end,
+                c->buyer,
                 c->seller, bgm_good_names[c->good], c->quantity, c->price, c->buyer_limit,
                 c->seller_limit);
     }

@@ -136,6 +136,7 @@ bg_status bgm_world_write_prices(const bgm_world_t *w, FILE *f);
 /* Contract log access for tests. */
 typedef struct bgm_contract {
     double time, start, end;
+    uint32_t request; /* the service request served (per replication) */
     uint32_t buyer, seller;
     int layer; /* 0 service, 1 resource */
     int good;  /* service type 0..2, or 3 cores, 4 memory */

@@ -1,6 +1,7 @@
 #include "bg_scene.h"
 
 #include "bg_initial.h"
+#include "bg_json.h"
 #include "bg_param.h"
 
 #include <cJSON.h>
@@ -13,7 +14,7 @@
 #include <sys/stat.h>
 
 /* Field paths in messages ("handles[12].transform.rotate.axis") fit here. */
-#define FIELD_MAX 256
+#define FIELD_MAX BG_JSON_PATH_MAX
 /* The scene's name in messages when it was parsed from text. */
 #define MEMORY_NAME "<memory>"
 /* Default scene name for text scenes (there is no file stem). */
@@ -73,17 +74,15 @@ typedef struct selection {
 static bg_status fail(parser_t *p, bg_status status, const char *field, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 
-/* Records "<file>: <field>: <message>" (or "<file>: <message>" without a field). */
+/* Records "<file>: <field>: <message>" (or "<file>: <message>" without a
+ * field), in bg_json's format. */
 static bg_status fail(parser_t *p, bg_status status, const char *field, const char *fmt, ...)
 {
-    char text[BG_ERROR_MESSAGE_MAX];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(text, sizeof text, fmt, ap);
+    bg_status st = bg_json_vfail(p->err, status, p->file, field, fmt, ap);
     va_end(ap);
-    if (field && field[0])
-        return bg_error_set(p->err, status, "%s: %s: %s", p->file, field, text);
-    return bg_error_set(p->err, status, "%s: %s", p->file, text);
+    return st;
 }
 
 /* Re-raises the error of a service call under the scene's name and field. */
@@ -92,6 +91,8 @@ static bg_status relay(parser_t *p, const char *field, const bg_error_t *inner)
     return fail(p, inner->status, field, "%s", inner->message);
 }
 
+/* Paths, type names and the typed readers come from bg_json, the code
+ * the experiment configs share; these wrappers name the scene file. */
 /* Field paths longer than FIELD_MAX end in this marker instead. */
 #define TRUNCATED_MARK "..."
 
@@ -103,69 +104,31 @@ static void mark_if_truncated(char *out, int written)
 
 static void field_key(char *out, const char *parent, const char *key)
 {
-    int written = parent && parent[0] ? snprintf(out, FIELD_MAX, "%s.%s", parent, key)
-                                      : snprintf(out, FIELD_MAX, "%s", key);
-    mark_if_truncated(out, written);
+    bg_json_path_key(out, parent, key);
 }
 
 static void field_index(char *out, const char *parent, int index)
 {
-    mark_if_truncated(out, snprintf(out, FIELD_MAX, "%s[%d]", parent, index));
+    bg_json_path_index(out, parent, index);
 }
 
 static const char *json_type_name(const cJSON *item)
 {
-    if (cJSON_IsObject(item))
-        return "an object";
-    if (cJSON_IsArray(item))
-        return "an array";
-    if (cJSON_IsString(item))
-        return "a string";
-    if (cJSON_IsNumber(item))
-        return "a number";
-    if (cJSON_IsBool(item))
-        return "a boolean";
-    if (cJSON_IsNull(item))
-        return "null";
-    return "an invalid value";
+    return bg_json_type_name(item);
 }
 
 /* ------------------------------------------------------------ JSON access */
 
 static bg_status expect_object(parser_t *p, const cJSON *item, const char *field)
 {
-    if (!cJSON_IsObject(item))
-        return fail(p, BG_ERR_INVALID, field, "expected an object, got %s", json_type_name(item));
-    return BG_OK;
+    return bg_json_expect_object(item, p->file, field, p->err);
 }
 
 /* Rejects keys not in `allowed` (NULL-terminated) and repeated keys. */
 static bg_status check_keys(parser_t *p, const cJSON *object, const char *field,
                             const char *const *allowed)
 {
-    for (const cJSON *child = object->child; child; child = child->next) {
-        int known = 0;
-        for (const char *const *a = allowed; *a; a++)
-            if (strcmp(*a, child->string) == 0)
-                known = 1;
-        if (!known) {
-            char list[FIELD_MAX] = "";
-            size_t used = 0;
-            for (const char *const *a = allowed; *a && used < sizeof list; a++) {
-                int n =
-                    snprintf(list + used, sizeof list - used, "%s%s", a == allowed ? "" : ", ", *a);
-                if (n < 0)
-                    break;
-                used += (size_t)n;
-            }
-            return fail(p, BG_ERR_INVALID, field, "unknown key '%s' (expected: %s)", child->string,
-                        list);
-        }
-        for (const cJSON *prev = object->child; prev != child; prev = prev->next)
-            if (strcmp(prev->string, child->string) == 0)
-                return fail(p, BG_ERR_INVALID, field, "key '%s' appears twice", child->string);
-    }
-    return BG_OK;
+    return bg_json_check_keys(object, p->file, field, allowed, p->err);
 }
 
 static const cJSON *member(const cJSON *object, const char *key)
@@ -175,61 +138,30 @@ static const cJSON *member(const cJSON *object, const char *key)
 
 static bg_status read_number(parser_t *p, const cJSON *item, const char *field, double *out)
 {
-    if (!cJSON_IsNumber(item))
-        return fail(p, BG_ERR_INVALID, field, "expected a number, got %s", json_type_name(item));
-    if (!isfinite(item->valuedouble))
-        return fail(p, BG_ERR_INVALID, field, "must be a finite number, got %g", item->valuedouble);
-    *out = item->valuedouble;
-    return BG_OK;
+    return bg_json_number(item, p->file, field, out, p->err);
 }
 
 /* An integer in [lo, hi], written without a fraction. */
 static bg_status read_integer(parser_t *p, const cJSON *item, const char *field, double lo,
                               double hi, int64_t *out)
 {
-    double v = 0.0;
-    bg_status st = read_number(p, item, field, &v);
-    if (st != BG_OK)
-        return st;
-    if (v != floor(v))
-        return fail(p, BG_ERR_INVALID, field, "expected an integer, got %.17g", v);
-    if (v < lo || v > hi)
-        return fail(p, BG_ERR_INVALID, field, "%.17g is out of range [%.17g, %.17g]", v, lo, hi);
-    *out = (int64_t)v;
-    return BG_OK;
+    return bg_json_integer(item, p->file, field, lo, hi, out, p->err);
 }
 
 static bg_status read_bool(parser_t *p, const cJSON *item, const char *field, int *out)
 {
-    if (!cJSON_IsBool(item))
-        return fail(p, BG_ERR_INVALID, field, "expected true or false, got %s",
-                    json_type_name(item));
-    *out = cJSON_IsTrue(item);
-    return BG_OK;
+    return bg_json_bool(item, p->file, field, out, p->err);
 }
 
 static bg_status read_string(parser_t *p, const cJSON *item, const char *field, const char **out)
 {
-    if (!cJSON_IsString(item) || !item->valuestring)
-        return fail(p, BG_ERR_INVALID, field, "expected a string, got %s", json_type_name(item));
-    *out = item->valuestring;
-    return BG_OK;
+    return bg_json_string(item, p->file, field, out, p->err);
 }
 
 /* An array of exactly n finite numbers. */
 static bg_status read_vector(parser_t *p, const cJSON *item, const char *field, int n, double *out)
 {
-    if (!cJSON_IsArray(item) || cJSON_GetArraySize(item) != n)
-        return fail(p, BG_ERR_INVALID, field, "expected an array of %d numbers", n);
-    int i = 0;
-    for (const cJSON *e = item->child; e; e = e->next, i++) {
-        char sub[FIELD_MAX];
-        field_index(sub, field, i);
-        bg_status st = read_number(p, e, sub, &out[i]);
-        if (st != BG_OK)
-            return st;
-    }
-    return BG_OK;
+    return bg_json_vector(item, p->file, field, n, out, p->err);
 }
 
 /* ------------------------------------------------------------------ paths */
@@ -1826,20 +1758,6 @@ static bg_status parse_reference(parser_t *p, const cJSON *item)
 
 /* ------------------------------------------------------------------ scene */
 
-static void locate(const char *text, size_t offset, int *line, int *column)
-{
-    *line = 1;
-    *column = 1;
-    for (size_t i = 0; i < offset; i++) {
-        if (text[i] == '\n') {
-            ++*line;
-            *column = 1;
-        } else {
-            ++*column;
-        }
-    }
-}
-
 static bg_status parse_root(parser_t *p, const cJSON *root)
 {
     static const char *const keys[] = {"name",    "description", "mesh",    "material",
@@ -1963,36 +1881,11 @@ bg_status bg_scene_parse_with(const char *json, size_t length, const char *path,
         st = fail(&p, BG_ERR_NOMEM, NULL, "out of memory");
         goto out;
     }
-    size_t blank = 0;
-    while (blank < length && (json[blank] == ' ' || json[blank] == '\t' || json[blank] == '\n' ||
-                              json[blank] == '\r'))
-        blank++;
-    if (blank == length) {
-        st = fail(&p, BG_ERR_PARSE, NULL, length ? "empty file (only white space)" : "empty file");
+    /* Empty files, syntax errors (with line and column), trailing text
+     * and repeated keys anywhere are rejected by bg_json. */
+    st = bg_json_parse(json, length, p.file, &root, err);
+    if (st != BG_OK)
         goto out;
-    }
-    const char *end = NULL;
-    root = cJSON_ParseWithLengthOpts(json, length, &end, 0);
-    if (!root) {
-        int line = 0, column = 0;
-        size_t offset = end && end >= json && end <= json + length ? (size_t)(end - json) : length;
-        locate(json, offset, &line, &column);
-        st = fail(&p, BG_ERR_PARSE, NULL, "malformed JSON at line %d, column %d (byte %zu)", line,
-                  column, offset);
-        goto out;
-    }
-    /* Only whitespace (or a terminating NUL) may follow the value. */
-    size_t rest = end ? (size_t)(end - json) : length;
-    while (rest < length &&
-           (json[rest] == ' ' || json[rest] == '\t' || json[rest] == '\n' || json[rest] == '\r'))
-        rest++;
-    if (rest < length && json[rest] != '\0') {
-        int line = 0, column = 0;
-        locate(json, rest, &line, &column);
-        st = fail(&p, BG_ERR_PARSE, NULL, "text after the JSON value at line %d, column %d", line,
-                  column);
-        goto out;
-    }
     st = parse_root(&p, root);
 out:
     cJSON_Delete(root);

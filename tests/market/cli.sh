@@ -2,7 +2,13 @@
 # CLI tests of `biotgrid sim`. Usage: cli.sh BIOTGRID SOURCE_DIR WORK_DIR CASE [AUDIT]
 #   determinism: two runs of smoke.json, same seed -> identical files;
 #                another seed -> different contracts.
-#   bad-config:  broken configs exit 2 with a message naming the field.
+#   bad-config:  broken configs, files and platforms exit 2 with a message
+#                naming the file and the field (or line and column);
+#                --help lists the options.
+#   user-platform: a user SimGrid platform next to the config; its host
+#                speeds set the run times.
+#   audit-detects: the audit fails on a doctored log (a double purchase,
+#                a memory part shorter than its service).
 #   call-audit:  smoke.json's central market with per-type call markets for
 #                the resources, on SimGrid; the audit (market_audit, AUDIT)
 #                must hold and bundles must have been rented.
@@ -32,27 +38,114 @@ determinism)
     echo "determinism: ok"
     ;;
 bad-config)
-    check() { # name json field
-        printf '%s' "$2" > "$WORK/$1.json"
+    # check NAME CONTENT PATTERN...: the config exits 2 and its message
+    # matches every extended regular expression given.
+    check() {
+        name=$1 content=$2
+        shift 2
+        printf '%s' "$content" > "$WORK/$name.json"
+        expect_bad "$name" "$WORK/$name.json" "$@"
+    }
+    expect_bad() {
+        name=$1 file=$2
+        shift 2
         set +e
-        "$BIN" sim "$WORK/$1.json" --out "$WORK/$1-out" --quiet 2> "$WORK/$1.err"
+        "$BIN" sim "$file" --out "$WORK/$name-out" --quiet 2> "$WORK/$name.err"
         rc=$?
         set -e
-        [ "$rc" -eq 2 ] || { echo "FAIL: $1 exited $rc, expected 2"; cat "$WORK/$1.err"; exit 1; }
-        grep -q -- "$3" "$WORK/$1.err" || { echo "FAIL: $1 message does not name $3:"; cat "$WORK/$1.err"; exit 1; }
+        [ "$rc" -eq 2 ] || { echo "FAIL: $name exited $rc, expected 2"; cat "$WORK/$name.err"; exit 1; }
+        for pattern in "$@"; do
+            grep -Eq -- "$pattern" "$WORK/$name.err" || { echo "FAIL: $name: message does not match /$pattern/:"; cat "$WORK/$name.err"; exit 1; }
+        done
     }
     BASE='"name":"x","seed":1,"replications":1,"duration":10,"mechanisms":["central"]'
-    check unknown-key "{$BASE,\"factors\":{\"nodes\":[4],\"density\":[1]},\"colour\":1}" "colour"
-    check negative-size "{$BASE,\"factors\":{\"nodes\":[-3],\"density\":[1]}}" "factors.nodes\[0\]"
-    check missing-field "{\"name\":\"x\",\"seed\":1,\"replications\":1,\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]}}" "duration"
-    check nested-unknown "{$BASE,\"factors\":{\"nodes\":[4],\"density\":[1]},\"central\":{\"kk\":0.5}}" "central.kk"
-    check bad-k "{$BASE,\"factors\":{\"nodes\":[4],\"density\":[1]},\"central\":{\"k\":2}}" "central.k"
-    check bad-market "{$BASE,\"factors\":{\"nodes\":[4],\"density\":[1]},\"central\":{\"resource_market\":\"auction\"}}" "central.resource_market"
+    FAC='"factors":{"nodes":[4],"density":[1]}'
+    check unknown-key "{$BASE,$FAC,\"colour\":1}" "unknown-key\.json: unknown key 'colour' \(expected: name, seed, replications, duration, drain, mechanisms, factors"
+    check negative-size "{$BASE,\"factors\":{\"nodes\":[-3],\"density\":[1]}}" "factors\.nodes\[0\]: -3 is out of range \[1, 20000\]"
+    check missing-field "{\"name\":\"x\",\"seed\":1,\"replications\":1,\"mechanisms\":[\"central\"],$FAC}" "missing-field\.json: duration: missing"
+    check nested-unknown "{$BASE,$FAC,\"central\":{\"kk\":0.5}}" "central: unknown key 'kk' \(expected: period, k, exact_limit"
+    check bad-k "{$BASE,$FAC,\"central\":{\"k\":2}}" "central\.k: 2 is out of range"
+    check bad-market "{$BASE,$FAC,\"central\":{\"resource_market\":\"auction\"}}" "central\.resource_market: must be exchange or call"
+    check syntax "{$BASE,
+  $FAC,,
+}" "syntax\.json: malformed JSON at line 2, column [0-9]+"
+    check duplicate "{$BASE,$FAC,\"seed\":2}" "duplicate\.json: key 'seed' appears twice"
+    check empty "" "empty\.json: empty file"
+    # A missing file: exit 2, the path once, and the reason.
+    expect_bad missing "$WORK/no-such-dir/none.json" "none\.json: cannot open: No such file or directory"
+    [ "$(grep -o 'none\.json' "$WORK/missing.err" | wc -l)" -eq 1 ] || { echo "FAIL: the missing path is not printed exactly once:"; cat "$WORK/missing.err"; exit 1; }
+    # A platform that is not there (relative: next to the config), and one
+    # SimGrid cannot load: exit 2 naming the file, no SimGrid backtrace.
+    mkdir -p "$WORK/platdir"
+    printf '%s' "{$BASE,$FAC,\"network\":{\"platform\":\"nowhere.xml\"}}" > "$WORK/platdir/noplat.json"
+    expect_bad noplat "$WORK/platdir/noplat.json" "network\.platform: cannot open '.*platdir/nowhere\.xml': No such file or directory"
+    printf 'not a platform\n' > "$WORK/platdir/garbage.xml"
+    printf '%s' "{$BASE,$FAC,\"network\":{\"platform\":\"garbage.xml\"}}" > "$WORK/platdir/badplat.json"
+    expect_bad badplat "$WORK/platdir/badplat.json" "garbage\.xml: SimGrid cannot load this platform"
+    [ "$(wc -l < "$WORK/badplat.err")" -le 2 ] || { echo "FAIL: bad platform message is not short:"; cat "$WORK/badplat.err"; exit 1; }
     set +e
-    "$BIN" sim "$SMOKE" --jobs 0 2>/dev/null; rc=$?
+    "$BIN" sim "$SMOKE" --jobs 0 2> "$WORK/jobs.err"; rc=$?
     set -e
-    [ "$rc" -eq 2 ] || { echo "FAIL: --jobs 0 exited $rc"; exit 1; }
+    [ "$rc" -eq 2 ] && grep -q -- "--jobs '0' must be an integer in \[1, 256\]" "$WORK/jobs.err" || { echo "FAIL: --jobs 0 exited $rc"; cat "$WORK/jobs.err"; exit 1; }
+    "$BIN" sim --help > "$WORK/help.txt"
+    for word in --out --jobs --engine --timing --quiet summary.json "Exit status"; do
+        grep -q -- "$word" "$WORK/help.txt" || { echo "FAIL: sim --help does not mention $word"; exit 1; }
+    done
     echo "bad-config: ok"
+    ;;
+user-platform)
+    # A user platform named relative to the config's folder, run from
+    # another working directory; its host speed (2e8 flops, five times
+    # below network.speed) sets the run times the economics price: a
+    # rotation-fit unit (2e9 flops, one core) takes 10 s.
+    rm -rf "$WORK/up"
+    mkdir -p "$WORK/up/cfg"
+    cat > "$WORK/up/cfg/two-hosts.xml" <<'XML'
+<?xml version='1.0'?>
+<!DOCTYPE platform SYSTEM "https://simgrid.org/simgrid.dtd">
+<platform version="4.1">
+  <zone id="site" routing="Full">
+    <host id="a" speed="200Mf"/>
+    <host id="b" speed="200Mf"/>
+    <host id="c" speed="200Mf"/>
+    <link id="ab" bandwidth="125MBps" latency="5ms"/>
+    <link id="ac" bandwidth="125MBps" latency="5ms"/>
+    <link id="bc" bandwidth="125MBps" latency="5ms"/>
+    <route src="a" dst="b"><link_ctn id="ab"/></route>
+    <route src="a" dst="c"><link_ctn id="ac"/></route>
+    <route src="b" dst="c"><link_ctn id="bc"/></route>
+  </zone>
+</platform>
+XML
+    sed -e 's/"mechanisms": *\[[^]]*\]/"mechanisms": ["central"]/' \
+        -e 's/"replications": *[0-9]*/"replications": 1/' \
+        -e 's/"nodes": *\[[^]]*\]/"nodes": [6]/' \
+        -e 's/"network": *{/"network": {"platform": "two-hosts.xml", /' "$SMOKE" > "$WORK/up/cfg/exp.json"
+    grep -q '"platform": "two-hosts.xml"' "$WORK/up/cfg/exp.json" || { echo "FAIL: could not derive the config"; exit 1; }
+    (cd "$WORK" && "$BIN" sim up/cfg/exp.json --out up/out --quiet)
+    awk -F, '$4 == "service" && $11 == "rotation-fit" { n++; d = ($8 - $7) / $12; if (d < 9.99 || d > 10.01) bad++ }
+             END { if (n == 0 || bad > 0) { printf "FAIL: %d of %d rotation-fit services not at 10 s per unit\n", bad, n; exit 1 } }' \
+        "$WORK/up/out/contracts.csv"
+    echo "user-platform: ok"
+    ;;
+audit-detects)
+    # The audit finds what it claims to: a request bought twice, and a
+    # memory part that ends before its service.
+    AUDIT=$5
+    rm -rf "$WORK/aud"
+    "$BIN" sim "$SMOKE" --out "$WORK/aud/ok" --engine inprocess --quiet
+    "$AUDIT" "$WORK/aud/ok"
+    mkdir -p "$WORK/aud/twice" "$WORK/aud/short"
+    for d in twice short; do cp "$WORK/aud/ok/"*.csv "$WORK/aud/ok/summary.json" "$WORK/aud/$d/"; done
+    awk -F, 'NR > 1 && $4 == "service" && !done { print; done = 1 } { print }' "$WORK/aud/ok/contracts.csv" > "$WORK/aud/twice/contracts.csv"
+    awk -F, 'BEGIN { OFS = "," } NR > 1 && $11 == "memory" && !done { $8 = $8 - 1; done = 1 } { print }' "$WORK/aud/ok/contracts.csv" > "$WORK/aud/short/contracts.csv"
+    set +e
+    "$AUDIT" "$WORK/aud/twice" > "$WORK/aud/twice.out" 2>&1; rc1=$?
+    "$AUDIT" "$WORK/aud/short" > "$WORK/aud/short.out" 2>&1; rc2=$?
+    set -e
+    [ "$rc1" -eq 1 ] && grep -q "bought twice" "$WORK/aud/twice.out" || { echo "FAIL: a double purchase passed the audit"; cat "$WORK/aud/twice.out"; exit 1; }
+    [ "$rc2" -eq 1 ] && grep -q "does not cover" "$WORK/aud/short.out" || { echo "FAIL: a short memory part passed the audit"; cat "$WORK/aud/short.out"; exit 1; }
+    echo "audit-detects: ok"
     ;;
 call-audit)
     AUDIT=$5

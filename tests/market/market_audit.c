@@ -10,7 +10,14 @@
  *   4. every replication's allocation_rate equals its service contracts
  *      in contracts.csv over its requests;
  *   5. no replication's welfare beats the offline optimum: welfare_ratio
- *      <= 1 wherever it is not null, and at least one is not null.
+ *      <= 1 wherever it is not null, and at least one is not null;
+ *   6. no service request is bought twice (one service row per request
+ *      id and run), and every resource row names a request with a
+ *      service row;
+ *   7. each service's resources cover its delivery interval: every memory
+ *      row and every cores row starts by the service's start, every
+ *      memory row lasts to its end, and some cores row does too (cores of
+ *      a faster seller finish their share of the work earlier).
  * Prints the first violation and exits 1; exits 0 when all hold.
  */
 #include <math.h>
@@ -30,9 +37,9 @@
 typedef struct contract {
     char key[KEY_MAX / 2]; /* scenario|rep|mechanism */
     char skey[KEY_MAX]; /* key|seller|good */
-    int layer;
+    int layer, memory;
     double start, end, quantity, price, blim, slim;
-    long buyer, seller;
+    long buyer, seller, request;
 } contract_t;
 
 typedef struct cap {
@@ -77,6 +84,80 @@ static int cmp_ev(const void *a, const void *b)
     return (x->d > y->d) - (x->d < y->d); /* releases before new starts */
 }
 
+/* Moves the request column (f[4]) to the end, so the other fields keep
+ * the positions of the documented order without it. */
+static void request_last(char **f)
+{
+    char *request = f[4];
+    for (int i = 4; i < 14; i++)
+        f[i] = f[i + 1];
+    f[14] = request;
+}
+
+static int cmp_request(const void *a, const void *b)
+{
+    const contract_t *x = *(const contract_t *const *)a, *y = *(const contract_t *const *)b;
+    int k = strcmp(x->key, y->key);
+    if (k)
+        return k;
+    if (x->request != y->request)
+        return x->request < y->request ? -1 : 1;
+    return x->layer - y->layer; /* the service row first */
+}
+
+/* 6 and 7 over contracts grouped by (run, request), service row first. */
+static int check_requests(const contract_t *c, size_t n, char *msg, size_t cap)
+{
+    const contract_t **by = malloc((n ? n : 1) * sizeof *by);
+    int bad = 0;
+    if (!by) {
+        snprintf(msg, cap, "out of memory");
+        return 1;
+    }
+    for (size_t i = 0; i < n; i++)
+        by[i] = &c[i];
+    qsort(by, n, sizeof *by, cmp_request);
+    const double tol = 1e-5;
+    for (size_t i = 0; i < n && !bad;) {
+        size_t j = i;
+        while (j < n && by[j]->request == by[i]->request && strcmp(by[j]->key, by[i]->key) == 0)
+            j++;
+        const contract_t *s = by[i];
+        if (s->layer != 0) {
+            snprintf(msg, cap, "resource row for request %ld without a service contract (%s)",
+                     s->request, s->key);
+            bad = 1;
+        } else if (j > i + 1 && by[i + 1]->layer == 0) {
+            snprintf(msg, cap, "request %ld bought twice: at t=%g and t=%g (%s)", s->request,
+                     s->start, by[i + 1]->start, s->key);
+            bad = 1;
+        } else {
+            double cores_end = -INFINITY;
+            for (size_t k = i + 1; k < j && !bad; k++) {
+                const contract_t *r = by[k];
+                if (r->start > s->start + tol || (r->memory && r->end < s->end - tol)) {
+                    snprintf(msg, cap,
+                             "request %ld: %s row [%g, %g] does not cover the service [%g, %g] "
+                             "(%s)",
+                             s->request, r->memory ? "memory" : "cores", r->start, r->end,
+                             s->start, s->end, s->key);
+                    bad = 1;
+                }
+                if (!r->memory && r->end > cores_end)
+                    cores_end = r->end;
+            }
+            if (!bad && cores_end < s->end - tol) {
+                snprintf(msg, cap, "request %ld: no cores until the service's end %g (%s)",
+                         s->request, s->end, s->key);
+                bad = 1;
+            }
+        }
+        i = j;
+    }
+    free(by);
+    return bad;
+}
+
 static int fail(const char *what)
 {
     fprintf(stderr, "market_audit: %s\n", what);
@@ -97,12 +178,13 @@ int main(int argc, char **argv)
     FILE *fp = fopen(path, "r");
     if (!fp || !fgets(line, sizeof line, fp))
         return fail("cannot read contracts.csv");
-    if (strcmp(line, "scenario,replication,mechanism,layer,time,start,end,buyer,seller,good,"
-                     "quantity,price,buyer_limit,seller_limit\n") != 0)
+    if (strcmp(line, "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,"
+                     "good,quantity,price,buyer_limit,seller_limit\n") != 0)
         return fail("contracts.csv header differs from the documented one");
     while (fgets(line, sizeof line, fp)) {
-        if (split(line, f) != 14)
-            return fail("contracts.csv: row without 14 fields");
+        if (split(line, f) != 15)
+            return fail("contracts.csv: row without 15 fields");
+        request_last(f);
         if (n == alloc)
             c = realloc(c, (alloc *= 2) * sizeof *c);
         contract_t *x = &c[n++];
@@ -113,6 +195,8 @@ int main(int argc, char **argv)
         snprintf(x->skey, KEY_MAX, "%s|%s|%s|%s", x->key, f[8],
                  strcmp(f[3], "service") == 0 ? "*" : f[9], f[3]);
         x->layer = strcmp(f[3], "service") == 0 ? 0 : 1;
+        x->memory = strcmp(f[9], "memory") == 0;
+        x->request = atol(f[14]);
         x->start = atof(f[5]);
         x->end = atof(f[6]);
         x->buyer = atol(f[7]);
@@ -148,6 +232,9 @@ int main(int argc, char **argv)
         caps[ncap++].capacity = atof(f[6]);
     }
     fclose(fp);
+
+    if (check_requests(c, n, msg, sizeof msg))
+        return fail(msg);
 
     /* 2. capacity sweep per (run, seller, good). */
     qsort(c, n, sizeof *c, cmp_contract);

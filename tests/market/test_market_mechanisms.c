@@ -18,6 +18,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bg_json.h"
 #include "bgm_callmarket.h"
 #include "bgm_catallactic.h"
 #include "bgm_combex.h"
@@ -60,13 +61,16 @@ static void test_callmarket_uniform_price(void **state)
     add_ask(cm, 14, 1, 5.0);
     bgm_fill_t fills[8];
     bgm_clearing_t res;
-    /* Matches 10/3 and 8/5; 6 < 7 stops. Marginal pair (8, 5). */
-    const double ks[3] = {0.0, 0.5, 1.0}, expect[3] = {5.0, 6.5, 8.0};
+    /* Matches 10/3 and 8/5; 6 < 7 stops. Marginal pair (8, 5), first
+     * excluded bid 6 and ask 7: the price lies in [max(5, 6), min(8, 7)]. */
+    const double ks[3] = {0.0, 0.5, 1.0}, expect[3] = {6.0, 6.5, 7.0};
     for (int i = 0; i < 3; i++) {
         assert_int_equal(bgm_callmarket_clear(cm, ks[i], &res, fills, 8), BG_OK);
         assert_int_equal(res.volume, 2);
         assert_float_equal(res.bid_limit, 8.0, EPS);
         assert_float_equal(res.ask_limit, 5.0, EPS);
+        assert_float_equal(res.bid_excluded, 6.0, EPS);
+        assert_float_equal(res.ask_excluded, 7.0, EPS);
         assert_float_equal(res.price, expect[i], EPS);
     }
     /* The high bid trades with the low ask. */
@@ -95,7 +99,11 @@ static void test_callmarket_multi_unit(void **state)
     bgm_clearing_t res;
     assert_int_equal(bgm_callmarket_clear(cm, 0.25, &res, fills, 8), BG_OK);
     assert_int_equal(res.volume, 2);
-    assert_float_equal(res.price, 4.0 + 0.25 * (10.0 - 4.0), EPS);
+    /* The bid's third unit is left over at 10: excess demand holds the
+     * price at the buyer's limit, whatever k. */
+    assert_float_equal(res.bid_excluded, 10.0, EPS);
+    assert_float_equal(res.ask_excluded, 12.0, EPS);
+    assert_float_equal(res.price, 10.0, EPS);
     /* Every matched trader is within its limit at the uniform price. */
     for (size_t i = 0; i < res.fill_count; i++) {
         assert_true(res.price <= bgm_callmarket_bids(cm)[fills[i].bid].price + EPS);
@@ -105,6 +113,89 @@ static void test_callmarket_multi_unit(void **state)
     bgm_order_t bad = {99, 99, 0, 1.0};
     assert_int_equal(bgm_callmarket_bid(cm, &bad), BG_ERR_INVALID);
     assert_int_equal(bgm_callmarket_clear(cm, 1.5, &res, fills, 8), BG_ERR_INVALID);
+    bgm_callmarket_destroy(&cm);
+}
+
+static double clear_price(bgm_callmarket_t *cm, double k)
+{
+    bgm_fill_t fills[32];
+    bgm_clearing_t res;
+    assert_int_equal(bgm_callmarket_clear(cm, k, &res, fills, 32), BG_OK);
+    assert_true(res.volume > 0);
+    return res.price;
+}
+
+/* A book of two trades, bids 10 and 9 against asks 1 and 2. */
+static void two_trades(bgm_callmarket_t *cm)
+{
+    bgm_callmarket_reset(cm);
+    add_bid(cm, 1, 1, 10.0);
+    add_bid(cm, 2, 1, 9.0);
+    add_ask(cm, 11, 1, 1.0);
+    add_ask(cm, 12, 1, 2.0);
+}
+
+/* Scarcity moves the price: the same two trades clear higher when more
+ * buyers are left out (excess demand) and lower when more sellers are
+ * (excess supply); the old marginal-pair rule priced all three alike. */
+static void test_callmarket_scarcity(void **state)
+{
+    (void)state;
+    bgm_callmarket_t *cm = bgm_callmarket_new(16);
+    two_trades(cm);
+    const double balanced = clear_price(cm, 0.5);
+    assert_float_equal(balanced, 2.0 + 0.5 * (9.0 - 2.0), EPS);
+    add_bid(cm, 3, 1, 8.0);
+    add_bid(cm, 4, 1, 7.5);
+    const double demand = clear_price(cm, 0.5);
+    assert_float_equal(demand, 8.0 + 0.5 * (9.0 - 8.0), EPS);
+    two_trades(cm);
+    add_ask(cm, 13, 1, 3.0);
+    add_ask(cm, 14, 1, 4.0);
+    const double supply = clear_price(cm, 0.5);
+    assert_float_equal(supply, 2.0 + 0.5 * (3.0 - 2.0), EPS);
+    assert_true(demand > balanced && balanced > supply);
+    /* A seller with spare units prices at its own ask. */
+    bgm_callmarket_reset(cm);
+    add_bid(cm, 1, 2, 10.0);
+    add_ask(cm, 11, 5, 4.0);
+    assert_float_equal(clear_price(cm, 0.5), 4.0, EPS);
+
+    /* Random books: every matched trader is willing at the price and no
+     * excluded unit is (an excluded bid is at most the price, an excluded
+     * ask at least). */
+    bgm_rng_t rng;
+    bgm_rng_seed(&rng, 77);
+    bgm_fill_t fills[64];
+    for (int trial = 0; trial < 200; trial++) {
+        bgm_callmarket_reset(cm);
+        int nb = 1 + (int)bgm_rng_below(&rng, 8), na = 1 + (int)bgm_rng_below(&rng, 8);
+        for (int i = 0; i < nb; i++)
+            add_bid(cm, (uint64_t)i, 1 + (int)bgm_rng_below(&rng, 3), 10.0 * bgm_rng_uniform(&rng));
+        for (int i = 0; i < na; i++)
+            add_ask(cm, (uint64_t)(100 + i), 1 + (int)bgm_rng_below(&rng, 3),
+                    10.0 * bgm_rng_uniform(&rng));
+        const double k = bgm_rng_uniform(&rng);
+        bgm_clearing_t res;
+        assert_int_equal(bgm_callmarket_clear(cm, k, &res, fills, 64), BG_OK);
+        if (res.volume == 0)
+            continue;
+        assert_true(res.low <= res.high + EPS);
+        assert_true(res.price >= res.low - EPS && res.price <= res.high + EPS);
+        int bought[8] = {0}, sold[8] = {0};
+        for (size_t f = 0; f < res.fill_count; f++) {
+            assert_true(res.price <= bgm_callmarket_bids(cm)[fills[f].bid].price + EPS);
+            assert_true(res.price >= bgm_callmarket_asks(cm)[fills[f].ask].price - EPS);
+            bought[fills[f].bid] += fills[f].quantity;
+            sold[fills[f].ask] += fills[f].quantity;
+        }
+        for (int i = 0; i < nb; i++)
+            if (bought[i] < bgm_callmarket_bids(cm)[i].quantity)
+                assert_true(bgm_callmarket_bids(cm)[i].price <= res.price + EPS);
+        for (int i = 0; i < na; i++)
+            if (sold[i] < bgm_callmarket_asks(cm)[i].quantity)
+                assert_true(bgm_callmarket_asks(cm)[i].price >= res.price - EPS);
+    }
     bgm_callmarket_destroy(&cm);
 }
 
@@ -158,6 +249,68 @@ static void test_callmarket_reset(void **state)
 }
 
 /* ------------------------------------------------- combinatorial exchange */
+
+/* Rent (the seller's share of the pair's surplus) of the only winner of a
+ * book: bids with surplus per seller (0: no pair), unit use, unit
+ * capacity per seller unless caps says otherwise. */
+static double combex_winner_rent(int nb, int ns, const double *surplus, double k, int *winner)
+{
+    bgm_combex_t *cx = bgm_combex_new(8, 8, 64);
+    for (int b = 0; b < nb; b++)
+        bgm_combex_add_bid(cx);
+    double cap[BGM_COMBEX_DIMS] = {1.0, 1.0};
+    for (int s = 0; s < ns; s++)
+        bgm_combex_add_seller(cx, cap);
+    for (int b = 0; b < nb; b++)
+        for (int s = 0; s < ns; s++)
+            if (surplus[b * ns + s] > 0.0) {
+                bgm_combex_pair_t p = {b, s, surplus[b * ns + s], {1.0, 1.0}};
+                assert_int_equal(bgm_combex_add_pair(cx, &p), BG_OK);
+            }
+    int assign[8];
+    double rent[8];
+    bgm_combex_result_t res;
+    assert_int_equal(bgm_combex_solve(cx, BGM_COMBEX_EXACT, 100, 0, assign, &res), BG_OK);
+    assert_int_equal(bgm_combex_rents(cx, assign, k, rent), BG_OK);
+    *winner = -1;
+    double r = 0.0;
+    for (int b = 0; b < nb; b++)
+        if (assign[b] >= 0) {
+            assert_true(rent[b] >= -EPS && rent[b] <= bgm_combex_pairs(cx)[assign[b]].surplus + EPS);
+            *winner = b;
+            r = rent[b];
+        } else {
+            assert_float_equal(rent[b], 0.0, 0.0);
+        }
+    bgm_combex_destroy(&cx);
+    return r;
+}
+
+/* The exchange's payments respond to competition: a left-out bid raises
+ * what the winner pays its seller, a seller with room to spare lowers it;
+ * alone, the pair splits its surplus by k as before. */
+static void test_combex_competitive_rents(void **state)
+{
+    (void)state;
+    int win;
+    const double alone[1] = {8.0};
+    assert_float_equal(combex_winner_rent(1, 1, alone, 0.5, &win), 4.0, EPS);
+    assert_int_equal(win, 0);
+    /* Two bids for one seller's single unit: surplus 8 wins, 6 is out. */
+    const double demand[2] = {8.0, 6.0};
+    double r = combex_winner_rent(2, 1, demand, 0.5, &win);
+    assert_int_equal(win, 0);
+    assert_float_equal(r, 6.0 + 0.5 * (8.0 - 6.0), EPS);
+    assert_float_equal(combex_winner_rent(2, 1, demand, 0.0, &win), 6.0, EPS);
+    /* One bid, two sellers: it creates 8 with seller 0 and 7 with seller
+     * 1, which stays idle: b pays at most 1 above seller 0's cost. */
+    const double supply[2] = {8.0, 7.0};
+    r = combex_winner_rent(1, 2, supply, 0.5, &win);
+    assert_float_equal(r, 0.5 * (8.0 - 7.0), EPS);
+    assert_float_equal(combex_winner_rent(1, 2, supply, 1.0, &win), 1.0, EPS);
+    assert_true(combex_winner_rent(2, 1, demand, 0.5, &win) > combex_winner_rent(1, 1, alone, 0.5, &win));
+    assert_true(combex_winner_rent(1, 1, alone, 0.5, &win) > combex_winner_rent(1, 2, supply, 0.5, &win));
+}
 
 static void test_combex_known_optimum(void **state)
 {
@@ -337,7 +490,9 @@ static int tiny_feasible(const tiny_t *t, const delivery_t *d, int n)
  * starting at one of `grid` evenly spaced points of its window. */
 static double tiny_brute(const tiny_t *t, int grid, int split, int i, delivery_t *chosen, int n)
 {
-    if (i == t->nq)
+    /* The recursion ends at the last request, and never past the arrays
+     * (t->q and chosen hold TINY_Q): n <= i, so chosen[n] is in range. */
+    if (i >= t->nq || i >= TINY_Q)
         return 0.0;
     double best = tiny_brute(t, grid, split, i + 1, chosen, n);
     const bgm_opt_request_t *q = &t->q[i];
@@ -669,7 +824,7 @@ static void expect_reject(const char *json, const char *field)
 {
     bgm_config_t cfg;
     bg_error_t err = BG_ERROR_INIT;
-    bg_status st = bgm_config_parse(json, strlen(json), &cfg, &err);
+    bg_status st = bgm_config_parse(json, strlen(json), NULL, &cfg, &err);
     assert_int_not_equal(st, BG_OK);
     if (!strstr(err.message, field))
         fail_msg("message '%s' does not name '%s'", err.message, field);
@@ -680,7 +835,7 @@ static void test_config_validation(void **state)
     (void)state;
     bgm_config_t cfg;
     bg_error_t err = BG_ERROR_INIT;
-    assert_int_equal(bgm_config_parse(good_config, strlen(good_config), &cfg, &err), BG_OK);
+    assert_int_equal(bgm_config_parse(good_config, strlen(good_config), NULL, &cfg, &err), BG_OK);
     assert_int_equal(bgm_config_scenario_count(&cfg), 1);
     expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,\"bogus\":1,"
                   "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[6],\"density\":[1]}}",
@@ -697,7 +852,7 @@ static void test_config_validation(void **state)
     expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
                   "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
                   "\"network\":{\"latencyy\":1}}",
-                  "network.latencyy");
+                  "network: unknown key 'latencyy' (expected: topology, platform, latency,");
     expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
                   "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[-1]}}",
                   "factors.density[0]");
@@ -712,7 +867,68 @@ static void test_config_validation(void **state)
                   "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
                   "\"services\":{\"rotation-fit\":{\"cores\":-2}}}",
                   "services.rotation-fit.cores");
-    expect_reject("not json", "JSON");
+    expect_reject("not json", "<config>: malformed JSON at line 1, column 1");
+    expect_reject("{\"name\":\"t\",\n \"seed\":1,,\n}", "malformed JSON at line 2, column 12");
+    expect_reject(" \n\t ", "<config>: empty file");
+    expect_reject("", "<config>: empty file");
+    /* A repeated key is an error at any depth (cJSON would keep the first). */
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"seed\":2,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]}}",
+                  "<config>: key 'seed' appears twice");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
+                  "\"central\":{\"k\":0.5,\"k\":0.9}}",
+                  "central: key 'k' appears twice");
+    expect_reject("{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                  "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
+                  "\"dynamics\":{\"a\":{},\"a\":{}}}",
+                  "dynamics: key 'a' appears twice");
+    /* Messages name the file they came from. */
+    bgm_config_t named;
+    bg_error_t nerr = BG_ERROR_INIT;
+    const char *bad = "{\"name\":\"t\"}";
+    assert_int_not_equal(bgm_config_parse(bad, strlen(bad), "exp.json", &named, &nerr), BG_OK);
+    assert_non_null(strstr(nerr.message, "exp.json: seed: missing"));
+}
+
+/* bg_json, the loader configs share with scenes: repeated keys found at
+ * any depth, in small objects (pairwise) and large ones (sorted), with the
+ * path; text after the value; a clean document parses. */
+static void test_json_loader(void **state)
+{
+    (void)state;
+    char text[4096];
+    size_t n = (size_t)snprintf(text, sizeof text, "{\"a\": [1, {");
+    for (int k = 0; k < 40; k++)
+        n += (size_t)snprintf(text + n, sizeof text - n, "%s\"k%d\": %d", k ? ", " : "", k, k);
+    n += (size_t)snprintf(text + n, sizeof text - n, ", \"k7\": 0}]}");
+    cJSON *root = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bg_json_parse(text, n, "t.json", &root, &err), BG_ERR_INVALID);
+    assert_null(root);
+    assert_string_equal(err.message, "t.json: a[1]: key 'k7' appears twice");
+    bg_error_clear(&err);
+    const char *small = "{\"x\": {\"y\": 1, \"y\": 2}}";
+    assert_int_equal(bg_json_parse(small, strlen(small), "s.json", &root, &err), BG_ERR_INVALID);
+    assert_string_equal(err.message, "s.json: x: key 'y' appears twice");
+    bg_error_clear(&err);
+    const char *trailing = "{}\n  x";
+    assert_int_equal(bg_json_parse(trailing, strlen(trailing), "r.json", &root, &err),
+                     BG_ERR_PARSE);
+    assert_string_equal(err.message, "r.json: text after the JSON value at line 2, column 3");
+    bg_error_clear(&err);
+    text[n - 8] = '8'; /* "k7": 0 becomes "k8": 0, still a repeat */
+    assert_int_equal(bg_json_parse(text, n, "t.json", &root, &err), BG_ERR_INVALID);
+    bg_error_clear(&err);
+    text[n - 9] = 'q'; /* "q8": 0: no repeat left */
+    assert_int_equal(bg_json_parse(text, n, "t.json", &root, &err), BG_OK);
+    assert_non_null(root);
+    static const char *const allowed[] = {"a", "b", NULL};
+    assert_int_equal(bg_json_check_keys(root, "t.json", "", allowed, &err), BG_OK);
+    static const char *const only_b[] = {"b", NULL};
+    assert_int_equal(bg_json_check_keys(root, "t.json", "", only_b, &err), BG_ERR_INVALID);
+    assert_string_equal(err.message, "t.json: unknown key 'a' (expected: b)");
+    cJSON_Delete(root);
 }
 
 /* ---------------------------------------------- invariants of whole runs */
@@ -721,7 +937,7 @@ static bgm_config_t load_cfg(const char *json)
 {
     bgm_config_t cfg;
     bg_error_t err = BG_ERROR_INIT;
-    if (bgm_config_parse(json, strlen(json), &cfg, &err))
+    if (bgm_config_parse(json, strlen(json), NULL, &cfg, &err))
         fail_msg("config: %s", err.message);
     return cfg;
 }
@@ -777,6 +993,21 @@ static void check_invariants(bgm_world_t *w, const bgm_config_t *cfg)
                      : c[i].good == 3 ? cfg->agents.resource_cores
                                       : cfg->agents.resource_memory;
         assert_true(load <= cap + 1e-9);
+    }
+    /* Each service request is bought at most once, and every resource
+     * row serves a request that was bought. */
+    for (size_t i = 0; i < n; i++)
+        for (size_t j = 0; j < n; j++) {
+            if (c[j].request != c[i].request || j == i)
+                continue;
+            if (c[i].layer == 0 && c[j].layer == 0)
+                fail_msg("request %u bought twice", c[i].request);
+        }
+    for (size_t i = 0; i < n; i++) {
+        int served = c[i].layer == 0;
+        for (size_t j = 0; j < n && !served; j++)
+            served = c[j].layer == 0 && c[j].request == c[i].request;
+        assert_true(served);
     }
     double paid[2], received[2];
     bgm_world_money(w, paid, received);
@@ -1023,7 +1254,10 @@ static void test_price_convergence_shock(void **state)
     for (int j = 0; j < 2; j++) {
         long rank = lround(2.0 * lambda * (j + 1) * cfg.central.period);
         assert_true(rank >= 1 && rank <= nask);
-        eq[j] = (1.0 - k) * asks[rank - 1] + k * v;
+        /* The k-double auction's price: between the marginal ask and the
+         * first excluded one (every bid is v, and all are filled). */
+        double next = rank < nask && asks[rank] < v ? asks[rank] : v;
+        eq[j] = asks[rank - 1] + k * (next - asks[rank - 1]);
     }
     double pre[64];
     int npre = bucket_prices(w, 60.0, shock, width, pre);
@@ -1038,6 +1272,67 @@ static void test_price_convergence_shock(void **state)
 
 /* Every message is lost (access links down almost always): buyers must
  * give up through their timeouts, with nothing contracted. */
+/* Mean position of a layer's prices within their [seller, buyer] limits
+ * (0: at the seller's limit, 1: at the buyer's). */
+static double price_position(const bgm_world_t *w, int layer, int *count)
+{
+    size_t n = bgm_world_contract_count(w);
+    const bgm_contract_t *c = bgm_world_contracts(w);
+    double sum = 0.0;
+    *count = 0;
+    for (size_t i = 0; i < n; i++)
+        if (c[i].layer == layer && c[i].buyer_limit > c[i].seller_limit + 1e-12) {
+            sum += (c[i].price - c[i].seller_limit) / (c[i].buyer_limit - c[i].seller_limit);
+            ++*count;
+        }
+    return *count ? sum / *count : NAN;
+}
+
+/* A simulated market under- and oversupplied (few or many sellers for the
+ * same jobs; resource agents with 2 cores each for basic agents with 4
+ * slots, so resources are scarce too when sellers are few): the central
+ * market's prices sit higher in the limits when demand exceeds supply, on
+ * both layers, with the exchange and with the per-type call markets. */
+static void test_scarcity_prices_inprocess(void **state)
+{
+    (void)state;
+    static const char *const markets[2] = {"exchange", "call"};
+    for (int rm = 0; rm < 2; rm++) {
+        char json[1024];
+        double pos[2][2];
+        for (int level = 0; level < 2; level++) {
+            snprintf(json, sizeof json,
+                     "{\"name\":\"scarce\",\"seed\":5,\"replications\":1,\"duration\":200,"
+                     "\"drain\":40,\"mechanisms\":[\"central\"],"
+                     "\"factors\":{\"nodes\":[12],\"density\":[%s]},"
+                     "\"network\":{\"speed\":5e8},"
+                     "\"agents\":{\"service_slots\":4,\"resource_cores\":2,"
+                     "\"resource_memory\":4},"
+                     "\"demand\":{\"interarrival_mean\":12,\"deadline\":25},"
+                     "\"central\":{\"k\":0.5,\"resource_market\":\"%s\"}}",
+                     level == 0 ? "0.35" : "4", markets[rm]);
+            bgm_config_t cfg = load_cfg(json);
+            bgm_world_t *w = run_first_scenario(&cfg, BGM_MECH_CENTRAL, NULL);
+            if (level == 1) /* (the scarce market allocates less than they ask) */
+                check_invariants(w, &cfg);
+            for (int layer = 0; layer < 2; layer++) {
+                int count = 0;
+                pos[level][layer] = price_position(w, layer, &count);
+                assert_true(count >= 20);
+            }
+            double m[BGM_M_COUNT];
+            assert_int_equal(bgm_world_metrics(w, m), BG_OK);
+            print_message("%s, density %s: allocation %.3f, price position service %.3f "
+                          "resource %.3f\n",
+                          markets[rm], level == 0 ? "0.35" : "4", m[BGM_M_ALLOCATION_RATE],
+                          pos[level][0], pos[level][1]);
+            bgm_world_destroy(&w);
+        }
+        for (int layer = 0; layer < 2; layer++)
+            assert_true(pos[0][layer] > pos[1][layer] + 0.1);
+    }
+}
+
 static void test_timeouts_fire(void **state)
 {
     (void)state;
@@ -1081,9 +1376,11 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_callmarket_uniform_price),
         cmocka_unit_test(test_callmarket_multi_unit),
+        cmocka_unit_test(test_callmarket_scarcity),
         cmocka_unit_test(test_callmarket_cap),
         cmocka_unit_test(test_callmarket_reset),
         cmocka_unit_test(test_combex_known_optimum),
+        cmocka_unit_test(test_combex_competitive_rents),
         cmocka_unit_test(test_combex_random_instances),
         cmocka_unit_test(test_optimum_overlap),
         cmocka_unit_test(test_optimum_uncongested),
@@ -1095,9 +1392,11 @@ int main(void)
         cmocka_unit_test(test_posted_first_fit),
         cmocka_unit_test(test_rng_streams),
         cmocka_unit_test(test_config_validation),
+        cmocka_unit_test(test_json_loader),
         cmocka_unit_test(test_invariants_inprocess),
         cmocka_unit_test(test_call_markets_inprocess),
         cmocka_unit_test(test_price_convergence_shock),
+        cmocka_unit_test(test_scarcity_prices_inprocess),
         cmocka_unit_test(test_timeouts_fire),
         cmocka_unit_test(test_world_deterministic),
     };
