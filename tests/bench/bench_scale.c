@@ -241,7 +241,8 @@ static void scene_json(const size_case_t *c, char *out, size_t cap)
 
 /* Splits a capped solve's loop time per iteration with the solver's
  * counters. rotfit_seconds covers every evaluation, the one before the
- * loop included; that one is taken out at its own cost, the time to the
+ * loop and those after the last iteration included; the first is taken out
+ * at its own cost, the time to the
  * first trace point (it fits every rotation cold, by polar iteration, and
  * costs several warm evaluations: a mean would overstate the loop's). */
 static void split_solve(const bg_solve_result_t *r, int32_t tets, measurement_t *m)
@@ -253,7 +254,10 @@ static void split_solve(const bg_solve_result_t *r, int32_t tets, measurement_t 
         return;
     const double its = r->iterations;
     m->first_eval = r->trace[0].seconds;
-    const double loop = r->trace[r->trace_count - 1].seconds - r->trace[0].seconds;
+    /* Everything after the first trace point, the work that follows the
+     * last one included (the stop's classification re-evaluates the
+     * gradient and its round-off): the counters below cover it too. */
+    const double loop = r->wall_seconds - r->trace[0].seconds;
     m->evaluations = (double)r->rotfit.calls / tets;
     m->analysis = r->analyze_seconds;
     m->per_iteration = (loop - m->analysis) / its;
