@@ -27,7 +27,9 @@
  * Setup + evaluation + assembly + analysis + factorization + solves +
  * vector work + output against the wall time, each measured by its own
  * timer: within 5 % (the bookkeeping between timers: loop control, the
- * trace, the per-step record of a dynamic run) plus 2 ms of timer jitter.
+ * energy and momentum sums of a dynamic run's step record) plus 2 ms of
+ * timer jitter and 0.1 ms per step or frame (the scheduler preempting an
+ * untimed stretch on a loaded machine: 100 steps of bar-spin take 0.1 s).
  */
 static void assert_time_adds_up(const char *what, const bg_solve_result_t *r)
 {
@@ -38,7 +40,7 @@ static void assert_time_adds_up(const char *what, const bg_solve_result_t *r)
                   what, r->wall_seconds, parts, 100.0 * parts / r->wall_seconds,
                   (long long)r->factorizations, (long long)r->setup.factorizations);
     assert_true(parts <= r->wall_seconds * 1.001 + 1e-4);
-    assert_true(parts >= 0.95 * r->wall_seconds - 2e-3);
+    assert_true(parts >= 0.95 * r->wall_seconds - 2e-3 - 1e-4 * r->step_count);
 }
 
 /* The set-up step whose name starts with prefix, or NULL. */
