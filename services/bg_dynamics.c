@@ -345,7 +345,9 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     for (int k = 0; k < steps; k++) {
         const double t_step = bg_clock_now();
         const double t1 = (k + 1) * h;
+        double tv = bg_clock_now();
         bg_scene_targets_at(scene, t1, s.t1);
+        res->vector_seconds += bg_clock_now() - tv;
         bg_solve_result_t inner = BG_SOLVE_RESULT_INIT;
         double work = 0.0;
         st = advance(&s, solver, scene, opt, variational, h, k, &inner, &work, err);
@@ -380,7 +382,7 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
             res->stop_reason = "an inner solve did not converge";
         }
         bg_solve_result_accumulate(res, &inner);
-        double tv = bg_clock_now();
+        tv = bg_clock_now();
         memcpy(s.v_prev, s.v, s.ndof * sizeof *s.v);
         for (size_t i = 0; i < s.ndof; i++) {
             s.q[i] = scene->constrained[i] ? s.t1[i] : s.q_next[i];
@@ -405,7 +407,8 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
                               scene->path, k + 1);
             goto out;
         }
-        pt.seconds = bg_clock_now() - t_start;
+        tv = bg_clock_now();
+        pt.seconds = tv - t_start;
         pt.iteration = k + 1;
         pt.energy = rec.total_energy;
         pt.gradient_norm = inner_gradient;
@@ -417,6 +420,7 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         }
         if (opt->progress)
             opt->progress(opt->progress_ctx, opt->method, &pt);
+        res->vector_seconds += bg_clock_now() - tv;
         if (opt->frame && ((k + 1) % every == 0 || k + 1 == steps)) {
             const double t_out = bg_clock_now();
             st = opt->frame(opt->frame_ctx, k + 1, t1, s.q, err);

@@ -407,7 +407,8 @@ static int bench_accuracy(const char *file, const char *label, int local_global_
  * with λ/μ = 10³, 10⁴, 10⁵, the far end turned 90° about the bar's axis
  * (twisted) or about z through the end face's centre (bent), tolerance
  * 1e-8, 1000 iterations at most: iterations, factorizations, seconds, the
- * stop and the inverted elements of the result. Smoke: λ/μ = 10³ only.
+ * stop and the inverted elements of the result. Smoke: λ/μ = 10³ twisted
+ * only (the bent bar takes hundreds of iterations).
  */
 static void bench_stiff(int smoke)
 {
@@ -416,7 +417,7 @@ static void bench_stiff(int smoke)
     printf("%-8s %-8s %6s %6s %9s %12s %9s  %s\n", "lambda", "motion", "iters", "facts",
            "seconds", "final_rel_g", "inverted", "stop reason");
     for (int l = 0; l < (smoke ? 1 : 3); l++)
-        for (int bent = 0; bent < 2; bent++) {
+        for (int bent = 0; bent < (smoke ? 1 : 2); bent++) {
             char json[1024];
             snprintf(json, sizeof json,
                      "{\"mesh\": {\"generate\": \"box\", \"cells\": [16, 4, 4], \"size\": [4, 1, 1]},"

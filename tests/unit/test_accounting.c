@@ -57,8 +57,9 @@ static double off_cpu_seconds(void)
  * Setup + evaluation + assembly + analysis + factorization + solves +
  * vector work + output against the wall time, each measured by its own
  * timer: within 5 % (the bookkeeping between timers: loop control, the
- * trace, the per-step record of a dynamic run) plus 2 ms of timer jitter,
- * plus whatever time the thread spent preempted (off_cpu_seconds).
+ * trace, the energy and momentum sums of a dynamic run's step record) plus
+ * 2 ms of timer jitter, plus whatever time the thread spent preempted
+ * (off_cpu_seconds).
  */
 static void assert_time_adds_up(const char *what, const bg_solve_result_t *r)
 {
