@@ -144,7 +144,7 @@ static void bench_series(const char *label, bg_scene_t *s)
             st = bg_morph_solve(s, &o, &r, &err);
         } else {
             const bg_solve_options_t o = {.method = methods[m], .tolerance = s->tolerance,
-                                          .max_iterations = s->max_iterations,
+                                          .max_iterations = bg_scene_max_iterations(s, methods[m]),
                                           .keep_orientation = 1};
             st = bg_static_solve(s, &o, &r, &err);
             if (st == BG_OK)
