@@ -480,13 +480,23 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
     char *plan_text = NULL;
     if (!read_submission(rest, c, req, &s, &sent))
         goto out;
-    if (!unpack(rest, &s)) {
-        sent = send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal", "Internal error",
-                            NULL, "cannot unpack the job's files: %s", strerror(errno));
-        goto out;
+    /* A job without uploads needs no folder: its scene is parsed as if it
+     * lived in one that mkdtemp can never create (no six-character suffix),
+     * so any file it names is not found there, and nothing touches the
+     * disk (creating and removing a folder per submit costs more than the
+     * submit's own commit). */
+    char scene_path[REST_PATH_MAX + 32];
+    if (s.file_count == 0) {
+        snprintf(scene_path, sizeof scene_path, "%s/bgb-job-none/scene.json", rest->work_dir);
+    } else {
+        if (!unpack(rest, &s)) {
+            sent = send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
+                                "Internal error", NULL, "cannot unpack the job's files: %s",
+                                strerror(errno));
+            goto out;
+        }
+        snprintf(scene_path, sizeof scene_path, "%s/scene.json", s.dir);
     }
-    char scene_path[REST_PATH_MAX + 16];
-    snprintf(scene_path, sizeof scene_path, "%s/scene.json", s.dir);
     const bg_scene_options_t options = {.max_vertices = rest->config.max_vertices,
                                         .max_elements = rest->config.max_elements,
                                         .confined = 1,
