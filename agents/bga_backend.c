@@ -2,7 +2,9 @@
 
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
+#include "bg_clock.h"
 #include "bga_pool.h"
 
 #define BACKEND_ENDPOINT_MAX 256
@@ -30,6 +32,7 @@ typedef struct session {
     bga_client_t *solver;
     bg_sparse_t *sys[BG_BACKEND_MAX_SYSTEMS];
     int set_up[BG_BACKEND_MAX_SYSTEMS];
+    double flops[BG_BACKEND_MAX_SYSTEMS], nonzeros[BG_BACKEND_MAX_SYSTEMS]; /* the agent's */
     bg_status failed;
     bg_error_t fail_err;
 } session;
@@ -188,8 +191,9 @@ static bg_status solve_factor(void *opaque, int id, double shift, bg_error_t *er
     }
     int posdef = 0;
     if (st == BG_OK)
-        st = bga_client_solve_factor(s->solver, job, bg_sparse_values(sys),
-                                     bg_sparse_nonzeros(sys), shift, &posdef, err);
+        st = bga_client_solve_factor_cost(s->solver, job, bg_sparse_values(sys),
+                                          bg_sparse_nonzeros(sys), shift, &posdef,
+                                          &s->flops[id], &s->nonzeros[id], err);
     if (st != BG_OK)
         return fail(s, st, err);
     if (!posdef)
@@ -210,9 +214,16 @@ static bg_status solve(void *opaque, int id, const double *rhs, double *x, bg_er
     return st == BG_OK ? BG_OK : fail(s, st, err);
 }
 
+static void solve_cost(void *opaque, int id, double *flops, double *nonzeros)
+{
+    const session *s = opaque;
+    *flops = s->flops[id];
+    *nonzeros = s->nonzeros[id];
+}
+
 static const bg_backend_ops_t agents_ops = {
     "agents", session_new, session_destroy, fit_open, fit_eval, fit_hessian,
-    solve_open, solve_factor, solve,
+    solve_open, solve_factor, solve, solve_cost,
 };
 
 bg_status bga_backend_new(const bga_backend_config_t *cfg, bga_backend_t **out, bg_error_t *err)
@@ -238,6 +249,10 @@ bg_status bga_backend_new(const bga_backend_config_t *cfg, bga_backend_t **out, 
     }
     b->timeout_ms = cfg->timeout_ms;
     b->lease_ms = cfg->lease_ms;
+    /* Several coordinators share agents: job ids start from this
+     * process's id and the clock, so two jobs never meet on an agent. */
+    b->sessions = ((uint64_t)getpid() << 20 | ((uint64_t)(bg_clock_now() * 1e3) & 0xfffffu))
+                  << 16;
     b->services = (bg_backend_t){&agents_ops, b};
     *out = b;
     return BG_OK;

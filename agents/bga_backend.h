@@ -13,7 +13,7 @@
  *                  factor stays for every solve until the next factor.
  *
  * Each solver session is its own job on the agents (job ids distinct per
- * session), released when the session ends. A failure (a timeout, an
+ * session and per coordinator process), released when the session ends. A failure (a timeout, an
  * error reply) names the agent and the service and makes the session fail
  * every later call at once. The backend owns its configuration copy and
  * the per-agent traffic totals; sessions must end before it is destroyed.

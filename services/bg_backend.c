@@ -69,10 +69,17 @@ static bg_status local_solve(void *session, int id, const double *rhs, double *x
     return bg_sparse_solve(((local_session *)session)->sys[id], rhs, x, err);
 }
 
+static void local_solve_cost(void *session, int id, double *flops, double *nonzeros)
+{
+    const bg_sparse_t *sys = ((local_session *)session)->sys[id];
+    *flops = bg_sparse_factor_flops(sys);
+    *nonzeros = bg_sparse_factor_nonzeros(sys);
+}
+
 static const bg_backend_ops_t local_ops = {
     "in-process",     local_session_new, local_session_destroy, local_fit_open,
     local_fit_eval,   local_fit_hessian, local_solve_open,      local_solve_factor,
-    local_solve,
+    local_solve,      local_solve_cost,
 };
 
 static const bg_backend_t local_backend = {&local_ops, NULL};

@@ -60,6 +60,10 @@ typedef struct bg_backend_ops {
     bg_status (*solve_open)(void *session, int id, bg_sparse_t *sys, bg_error_t *err);
     bg_status (*solve_factor)(void *session, int id, double shift, bg_error_t *err);
     bg_status (*solve)(void *session, int id, const double *rhs, double *x, bg_error_t *err);
+    /* The cost model of system id's factor (bg_sparse_factor_flops and
+     * _nonzeros of whoever factors it; 0 before the first factor): the
+     * solver's refactoring rule must see the same figures either way. */
+    void (*solve_cost)(void *session, int id, double *flops, double *nonzeros);
 } bg_backend_ops_t;
 
 typedef struct bg_backend {

@@ -1151,10 +1151,11 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
              * most twice the cost of the better choice made in hindsight).
              * A modelled cost, not the clock, keeps runs reproducible. */
             if (quasi) {
-                p->qn_cost += 4.0 * bg_sparse_factor_nonzeros(p->sys) +
-                              4.0 * p->qn_count * (double)p->nfree +
+                double flops = 0.0, factor_nonzeros = 0.0;
+                p->backend->ops->solve_cost(p->session, 0, &flops, &factor_nonzeros);
+                p->qn_cost += 4.0 * factor_nonzeros + 4.0 * p->qn_count * (double)p->nfree +
                               STATIC_EVALUATION_UNITS * p->mesh->ne * (bt_used + 1);
-                if (p->qn_cost > bg_sparse_factor_flops(p->sys) / STATIC_FACTOR_FLOP_SPEEDUP)
+                if (p->qn_cost > flops / STATIC_FACTOR_FLOP_SPEEDUP)
                     refactor = 1;
             }
         }
