@@ -27,7 +27,8 @@ run() { # method label agents...
   cap=""
   [ "$m" = local-global ] && cap="--max-iterations $lg"
   # shellcheck disable=SC2086
-  log=$("$bin" solve "$scene" --method "$m" --quiet $cap $extra --out "$out/$m-$label" "$@" 2>&1)
+  log=$("$bin" solve "$scene" --method "$m" --quiet $cap $extra --agent-timeout 300000 \
+        --out "$out/$m-$label" "$@" 2>&1)
   st=$?
   if [ $st -gt 1 ] || ! printf '%s\n' "$log" | grep -q "^$m: .* iterations"; then
     printf '%s\n' "$log" >&2
