@@ -81,7 +81,8 @@ static bg_status make_part(const bga_pool_config_t *cfg, int32_t e0, int32_t e1,
             }
     }
     const size_t ndof = (size_t)p->nv * dim;
-    *rest = malloc(ndof * sizeof **rest + 1);
+    const size_t nrest = cfg->rest_edges ? (size_t)p->ne * dim * dim : ndof;
+    *rest = malloc(nrest * sizeof **rest + 1);
     p->q = malloc(ndof * sizeof *p->q + 1);
     p->grad = malloc(ndof * sizeof *p->grad + 1);
     p->hess = malloc((size_t)p->nval * sizeof *p->hess + 1);
@@ -90,9 +91,12 @@ static bg_status make_part(const bga_pool_config_t *cfg, int32_t e0, int32_t e1,
                           (int)p->nv);
         goto out;
     }
-    for (int32_t v = 0; v < p->nv; v++)
-        memcpy(*rest + (size_t)v * dim, mesh->x + (size_t)p->local_to_global[v] * dim,
-               (size_t)dim * sizeof **rest);
+    if (cfg->rest_edges)
+        memcpy(*rest, cfg->rest_edges + (size_t)e0 * dim * dim, nrest * sizeof **rest);
+    else
+        for (int32_t v = 0; v < p->nv; v++)
+            memcpy(*rest + (size_t)v * dim, mesh->x + (size_t)p->local_to_global[v] * dim,
+                   (size_t)dim * sizeof **rest);
     memset(bp, 0, sizeof *bp);
     bp->dim = dim;
     bp->nv = p->nv;
@@ -100,7 +104,8 @@ static bg_status make_part(const bga_pool_config_t *cfg, int32_t e0, int32_t e1,
     bp->nglobal = mesh->nv;
     bp->elements = *elements;
     bp->local_to_global = p->local_to_global;
-    bp->rest_positions = *rest;
+    bp->rest_positions = cfg->rest_edges ? NULL : *rest;
+    bp->rest_edges = cfg->rest_edges ? *rest : NULL;
     bp->mu = cfg->mu;
     bp->lambda = cfg->lambda;
     bp->barrier = cfg->barrier;
@@ -156,14 +161,14 @@ bg_status bga_rotfit_pool_new(const bga_pool_config_t *cfg, bga_rotfit_pool_t **
     return BG_OK;
 }
 
-void bga_rotfit_pool_destroy(bga_rotfit_pool_t **ppool)
+static void pool_free(bga_rotfit_pool_t **ppool, int release)
 {
     if (!ppool || !*ppool)
         return;
     bga_rotfit_pool_t *pool = *ppool;
     for (int i = 0; i < pool->n; i++) {
         part *p = &pool->parts[i];
-        if (p->client && p->local_to_global) {
+        if (release && p->client && p->local_to_global) {
             bg_error_t ignored = BG_ERROR_INIT; /* best effort: the lease frees it otherwise */
             bga_client_release(p->client, pool->job, &ignored);
         }
@@ -173,6 +178,16 @@ void bga_rotfit_pool_destroy(bga_rotfit_pool_t **ppool)
     free(pool->parts);
     free(pool);
     *ppool = NULL;
+}
+
+void bga_rotfit_pool_destroy(bga_rotfit_pool_t **pool)
+{
+    pool_free(pool, 1);
+}
+
+void bga_rotfit_pool_abandon(bga_rotfit_pool_t **pool)
+{
+    pool_free(pool, 0);
 }
 
 bg_status bga_rotfit_pool_eval(bga_rotfit_pool_t *pool, const double *q, double *energy,

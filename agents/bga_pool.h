@@ -28,7 +28,8 @@
 typedef struct bga_rotfit_pool bga_rotfit_pool_t;
 
 typedef struct bga_pool_config {
-    const bg_mesh_t *mesh; /* validated planar or volume rest mesh; read during _new */
+    const bg_mesh_t *mesh; /* validated planar or volume mesh (connectivity, and the rest
+                              positions unless rest_edges); read during _new */
     double mu, lambda, barrier;
     const int32_t *scatter;       /* ne*T global positions (−1: skipped), or NULL: no Hessian */
     size_t nval;                  /* entries of the caller's value array */
@@ -37,12 +38,16 @@ typedef struct bga_pool_config {
     uint64_t job; /* job id used on every agent */
     int timeout_ms;
     int64_t lease_ms;
+    const double *rest_edges; /* ne*dim*dim rest edge matrices, or NULL; read during _new */
 } bga_pool_config_t;
 
 /* Connects, partitions and sets up every agent. Caller owns *out. */
 bg_status bga_rotfit_pool_new(const bga_pool_config_t *config, bga_rotfit_pool_t **out,
                               bg_error_t *err);
 void bga_rotfit_pool_destroy(bga_rotfit_pool_t **pool);
+/* Destroys without releasing the jobs (an agent failed: its lease frees
+ * them, and no release request waits for a dead agent). */
+void bga_rotfit_pool_abandon(bga_rotfit_pool_t **pool);
 
 /*
  * Energy at q (nv*dim) into *energy; grad (nv*dim) overwritten when

@@ -466,6 +466,7 @@ static bga_wire_code solve_factor(job *j, const bga_msg_t *m, bga_msg_t *rep, ch
     rep->field[BGA_SD_ANALYZE_SECONDS].f = t1.analyze_seconds - t0.analyze_seconds;
     rep->field[BGA_SD_FACTOR_SECONDS].f = t1.factor_seconds - t0.factor_seconds;
     rep->field[BGA_SD_FLOPS].f = bg_sparse_factor_flops(j->sys);
+    rep->field[BGA_SD_FACTOR_NONZEROS].f = bg_sparse_factor_nonzeros(j->sys);
     stats->compute_seconds +=
         rep->field[BGA_SD_ANALYZE_SECONDS].f + rep->field[BGA_SD_FACTOR_SECONDS].f;
     if (!j->factored) {

@@ -122,7 +122,8 @@ static const array_spec sf_arrays[] = {F64FREE("values", 1)};
 
 static const field_spec sd_fields[] = {
     I64F("positive_definite", 0, 1), F64F("analyze_seconds", 0.0, 1e300),
-    F64F("factor_seconds", 0.0, 1e300), F64F("flops", 0.0, 1e300)};
+    F64F("factor_seconds", 0.0, 1e300), F64F("flops", 0.0, 1e300),
+    F64F("factor_nonzeros", 0.0, 1e300)};
 static const array_spec sd_arrays[] = {TEXT("message", 1)};
 
 static const field_spec sr_fields[] = {I64F("nrhs", 1, 64)};

@@ -2,6 +2,7 @@
 
 #include "cmd.h"
 
+#include <cjson/cJSON.h>
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -19,6 +20,9 @@
 #include "bg_report.h"
 #include "bg_scene.h"
 #include "bg_static.h"
+#include "bga_backend.h"
+#include "bga_client.h"
+#include "bga_service.h"
 
 #define CLI_MAX_METHODS 4
 #define CLI_TABLE_ROWS 24
@@ -29,6 +33,14 @@
 #define CLI_MESH_PATH_MAX 8192
 /* Time-to-accuracy rows: decades from 1e-1 down to the tolerance, at most this many. */
 #define CLI_ACCURACY_ROWS 16
+/* Jobs across agents: at most this many endpoints, each request answered
+ * within the timeout (default; --agent-timeout), the job's state on the
+ * agents leased for this long (renewed by every request). */
+#define CLI_MAX_AGENTS 32
+#define CLI_ENDPOINT_MAX 256
+#define CLI_AGENT_TIMEOUT_MS 10000
+#define CLI_AGENT_LEASE_MS 600000
+#define CLI_GRID_STATE_MAX (1 << 20)
 
 typedef struct cli_options {
     const char *scene_path;
@@ -39,7 +51,21 @@ typedef struct cli_options {
     int max_iterations;    /* < 0: the scene's */
     int quiet;
     char mesh_path[CLI_MESH_PATH_MAX];
+    const char *agents;    /* --agents list, or NULL */
+    int grid;              /* --grid: the running local grid's agents */
+    const char *grid_dir;  /* its state directory (--grid-state, $BIOTGRID_GRID_DIR, out/grid) */
+    int agent_timeout_ms;
 } cli_options_t;
+
+/* One agent named on the command line or in the grid's state file. */
+typedef struct cli_agent {
+    char endpoint[CLI_ENDPOINT_MAX];
+    unsigned services;     /* BGA_SERVICE_* bits; 0 until known */
+    int contacted;         /* a heartbeat or a service call went to it */
+    int role;              /* rotation-fit index, CLI_ROLE_SOLVE, or CLI_ROLE_NONE */
+} cli_agent;
+#define CLI_ROLE_NONE (-1)
+#define CLI_ROLE_SOLVE (-2)
 
 typedef struct progress {
     int tty;
@@ -64,6 +90,19 @@ const char bg_cmd_solve_usage[] =
     "                             $BIOTGRID_MESH_PATH, ':'-separated)\n"
     "  --out DIR                  output directory (default out/<scene name>)\n"
     "  --quiet                    no per-iteration progress\n"
+    "  --agents EP1,EP2,...       compute the basic services on these agents (ZeroMQ\n"
+    "                             endpoints, each optionally prefixed SERVICES= as in\n"
+    "                             rotfit=tcp://127.0.0.1:5555; an endpoint without a prefix\n"
+    "                             is asked for its services with a heartbeat)\n"
+    "  --grid                     the same with the agents of the running local grid\n"
+    "  --grid-state DIR           its state directory (default $BIOTGRID_GRID_DIR or out/grid)\n"
+    "  --agent-timeout MS         per request to an agent (default 10000)\n"
+    "\n"
+    "With agents, rotation-fit is split in balanced element ranges over every rotation-fit\n"
+    "agent and every matrix is factored and solved on one sparse-solve agent (the first\n"
+    "that serves only sparse-solve, else the first that serves it). The time loop of a\n"
+    "dynamic scene and surface-edit's solver run in this process. An agent that fails or\n"
+    "stops answering ends the solve with exit 1, naming the agent and the service.\n"
     "\n"
     "Every compared method gets the same stopping rule: the same tolerance, and its own\n"
     "iteration cap (the scene's per-method cap, else the common one). The table after the\n"
@@ -145,6 +184,7 @@ static int finish_mesh_path(char *mesh_path, size_t size, const char *command)
 static int parse_args(int argc, char **argv, cli_options_t *o)
 {
     memset(o, 0, sizeof *o);
+    o->agent_timeout_ms = CLI_AGENT_TIMEOUT_MS;
     o->tolerance = -1.0;
     o->max_iterations = -1;
     for (int i = 1; i < argc; i++) {
@@ -155,6 +195,26 @@ static int parse_args(int argc, char **argv, cli_options_t *o)
             return 1;
         } else if (strcmp(a, "--quiet") == 0) {
             o->quiet = 1;
+        } else if (strcmp(a, "--grid") == 0) {
+            o->grid = 1;
+        } else if ((strcmp(a, "--agents") == 0 || strcmp(a, "--grid-state") == 0 ||
+                    strcmp(a, "--agent-timeout") == 0) &&
+                   value) {
+            i++;
+            if (strcmp(a, "--agents") == 0) {
+                o->agents = value;
+            } else if (strcmp(a, "--grid-state") == 0) {
+                o->grid_dir = value;
+            } else {
+                char *end = NULL;
+                const long ms = strtol(value, &end, 10);
+                if (!end || *end || ms < 10 || ms > 3600000) {
+                    fprintf(stderr, "biotgrid solve: --agent-timeout '%s' must be an integer "
+                                    "in 10..3600000 (milliseconds)\n", value);
+                    return -1;
+                }
+                o->agent_timeout_ms = (int)ms;
+            }
         } else if (strcmp(a, "--method") == 0 || strcmp(a, "--compare") == 0 ||
                    strcmp(a, "--tolerance") == 0 || strcmp(a, "--max-iterations") == 0 ||
                    strcmp(a, "--out") == 0 || strcmp(a, "--mesh-path") == 0) {
@@ -210,6 +270,10 @@ static int parse_args(int argc, char **argv, cli_options_t *o)
     }
     if (!o->scene_path) {
         fputs(bg_cmd_solve_usage, stderr);
+        return -1;
+    }
+    if (o->agents && o->grid) {
+        fprintf(stderr, "biotgrid solve: --agents and --grid exclude each other\n");
         return -1;
     }
     return finish_mesh_path(o->mesh_path, sizeof o->mesh_path, "solve");
@@ -395,7 +459,7 @@ static bg_status write_parameterization(const bg_scene_t *scene, bg_solve_result
 /* A dynamic run or a morph: a series of frames written as it goes. */
 static bg_status run_series(const bg_scene_t *scene, bg_method method, double tolerance,
                             int max_iterations, const char *dir, progress_t *pr,
-                            bg_solve_result_t *run, bg_error_t *err)
+                            const bg_backend_t *backend, bg_solve_result_t *run, bg_error_t *err)
 {
     frames_t f = {scene, dir, bg_method_name(method), NULL, NULL, NULL, 0, 0};
     char frames_dir[4200];
@@ -417,7 +481,8 @@ static bg_status run_series(const bg_scene_t *scene, bg_method method, double to
                                           .frame = write_frame,
                                           .frame_ctx = &f,
                                           .progress = on_progress,
-                                          .progress_ctx = pr};
+                                          .progress_ctx = pr,
+                                          .backend = backend};
         st = bg_dynamic_solve(scene, &opt, run, err);
     } else {
         const bg_morph_options_t opt = {.method = method,
@@ -426,7 +491,8 @@ static bg_status run_series(const bg_scene_t *scene, bg_method method, double to
                                         .frame = write_frame,
                                         .frame_ctx = &f,
                                         .progress = on_progress,
-                                        .progress_ctx = pr};
+                                        .progress_ctx = pr,
+                                        .backend = backend};
         st = bg_morph_solve(scene, &opt, run, err);
     }
     if (st == BG_OK)
@@ -492,6 +558,208 @@ static void list_result(char *buf, size_t size, const char *dir, const char *nam
         snprintf(buf + used, size - used, "\n  %s/%s", dir, name);
 }
 
+/* Adds one agent; "SERVICES=ENDPOINT" gives its services. 0, or -1 after a message. */
+static int add_agent(cli_agent *agents, int *count, const char *spec, const char *services,
+                     const char *where)
+{
+    if (*count == CLI_MAX_AGENTS) {
+        fprintf(stderr, "biotgrid solve: %s: more than %d agents\n", where, CLI_MAX_AGENTS);
+        return -1;
+    }
+    cli_agent *a = &agents[*count];
+    memset(a, 0, sizeof *a);
+    a->role = CLI_ROLE_NONE;
+    const char *eq = strchr(spec, '='), *ep = eq ? eq + 1 : spec;
+    char list[64] = "";
+    if (eq && (size_t)(eq - spec) < sizeof list)
+        memcpy(list, spec, (size_t)(eq - spec));
+    else if (services)
+        snprintf(list, sizeof list, "%s", services);
+    if (strlen(ep) >= sizeof a->endpoint || strncmp(ep, "tcp://", 6) != 0 ||
+        (eq && (size_t)(eq - spec) >= sizeof list)) {
+        fprintf(stderr, "biotgrid solve: %s: '%s' is not [SERVICES=]tcp://HOST:PORT\n", where,
+                spec);
+        return -1;
+    }
+    strcpy(a->endpoint, ep);
+    if (list[0]) {
+        bg_error_t err = BG_ERROR_INIT;
+        a->services = bga_service_parse_list(list, &err);
+        if (!a->services) {
+            fprintf(stderr, "biotgrid solve: %s: %s: %s\n", where, spec, err.message);
+            return -1;
+        }
+    }
+    (*count)++;
+    return 0;
+}
+
+static int parse_agent_list(const char *list, cli_agent *agents, int *count)
+{
+    char buf[CLI_MAX_AGENTS * CLI_ENDPOINT_MAX];
+    if (strlen(list) >= sizeof buf) {
+        fprintf(stderr, "biotgrid solve: --agents: list too long\n");
+        return -1;
+    }
+    strcpy(buf, list);
+    for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save))
+        if (add_agent(agents, count, tok, NULL, "--agents") != 0)
+            return -1;
+    return 0;
+}
+
+/* The agents recorded by `biotgrid grid up` in DIR/grid.json. */
+static int read_grid_agents(const char *dir, cli_agent *agents, int *count)
+{
+    char path[4200];
+    if (join_path(path, sizeof path, dir, "grid.json") != 0) {
+        fprintf(stderr, "biotgrid solve: --grid: state directory name too long\n");
+        return -1;
+    }
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        fprintf(stderr, "biotgrid solve: --grid: no running grid (%s: %s; start one with "
+                        "`biotgrid grid up`)\n", path, strerror(errno));
+        return -1;
+    }
+    char *text = malloc(CLI_GRID_STATE_MAX + 1);
+    const size_t n = text ? fread(text, 1, CLI_GRID_STATE_MAX, f) : 0;
+    fclose(f);
+    cJSON *root = NULL;
+    if (text) {
+        text[n] = '\0';
+        root = cJSON_Parse(text);
+    }
+    free(text);
+    const cJSON *arr = cJSON_GetObjectItemCaseSensitive(root, "agents");
+    int rc = cJSON_IsArray(arr) ? 0 : -1;
+    for (const cJSON *a = rc == 0 ? arr->child : NULL; a && rc == 0; a = a->next) {
+        const cJSON *e = cJSON_GetObjectItemCaseSensitive(a, "endpoint");
+        const cJSON *sv = cJSON_GetObjectItemCaseSensitive(a, "services");
+        if (!cJSON_IsString(e) || !cJSON_IsString(sv))
+            rc = -1;
+        else
+            rc = add_agent(agents, count, e->valuestring, sv->valuestring, path);
+    }
+    if (rc != 0 || !arr)
+        fprintf(stderr, "biotgrid solve: --grid: %s: not a grid state file\n", path);
+    cJSON_Delete(root);
+    return rc == 0 && arr ? 0 : -1;
+}
+
+/*
+ * The simple rule for now (the market decides in the next issue): the
+ * sparse-solve agent is the first that serves only sparse-solve, else the
+ * first that serves it; every other agent serving rotation-fit fits
+ * rotations (the solve agent too when it is the only one). Agents of
+ * unknown services get a heartbeat. 0, or 1 after a message (exit 1: an
+ * agent did not answer), 2 (bad input: a service is missing).
+ */
+static int assign_agents(cli_agent *agents, int count, int timeout_ms, const char **rotfit,
+                         int *nrotfit, const char **solve)
+{
+    for (int i = 0; i < count; i++) {
+        if (agents[i].services)
+            continue;
+        bga_client_t *c = NULL;
+        bga_agent_status_t st;
+        bg_error_t err = BG_ERROR_INIT;
+        agents[i].contacted = 1;
+        if (bga_client_new(agents[i].endpoint, "heartbeat", timeout_ms, &c, &err) != BG_OK ||
+            bga_client_heartbeat(c, 0, &st, &err) != BG_OK) {
+            fprintf(stderr, "biotgrid solve: %s\n", err.message);
+            bga_client_destroy(&c);
+            return 1;
+        }
+        bga_client_destroy(&c);
+        agents[i].services = st.services;
+    }
+    int s = -1;
+    for (int i = 0; i < count && s < 0; i++)
+        if (agents[i].services == BGA_SERVICE_SOLVE)
+            s = i;
+    for (int i = 0; i < count && s < 0; i++)
+        if (agents[i].services & BGA_SERVICE_SOLVE)
+            s = i;
+    *nrotfit = 0;
+    for (int i = 0; i < count; i++)
+        if (i != s && (agents[i].services & BGA_SERVICE_ROTFIT)) {
+            agents[i].role = *nrotfit;
+            rotfit[(*nrotfit)++] = agents[i].endpoint;
+        }
+    if (*nrotfit == 0 && s >= 0 && (agents[s].services & BGA_SERVICE_ROTFIT)) {
+        agents[s].role = 0;
+        rotfit[(*nrotfit)++] = agents[s].endpoint;
+    }
+    if (s < 0 || *nrotfit == 0) {
+        fprintf(stderr, "biotgrid solve: the agents given serve no %s\n",
+                s < 0 ? "sparse-solve" : "rotation-fit");
+        return 2;
+    }
+    if (agents[s].role == CLI_ROLE_NONE)
+        agents[s].role = CLI_ROLE_SOLVE;
+    *solve = agents[s].endpoint;
+    return 0;
+}
+
+static const char *service_names(unsigned services)
+{
+    switch (services) {
+    case BGA_SERVICE_ROTFIT: return "rotation-fit";
+    case BGA_SERVICE_SOLVE: return "sparse-solve";
+    case BGA_SERVICE_INTEG: return "integration-step";
+    default: return "several services";
+    }
+}
+
+/* What every agent did, for the report and the console. */
+static int agents_report(const cli_agent *agents, int count, const bga_backend_t *backend,
+                         bg_report_agent_t *out)
+{
+    const int nrotfit = bga_backend_agents(backend) - 1;
+    for (int i = 0; i < count; i++) {
+        const cli_agent *a = &agents[i];
+        bg_report_agent_t *r = &out[i];
+        memset(r, 0, sizeof *r);
+        r->endpoint = a->endpoint;
+        r->contacted = a->contacted;
+        r->service = service_names(a->services);
+        if (a->role == CLI_ROLE_NONE)
+            continue;
+        const bga_agent_usage_t u =
+            bga_backend_usage(backend, a->role == CLI_ROLE_SOLVE ? nrotfit : a->role);
+        r->service = u.service;
+        r->calls = u.traffic.requests;
+        r->contacted |= r->calls > 0;
+        r->bytes_sent = u.traffic.bytes_sent;
+        r->bytes_received = u.traffic.bytes_received;
+        r->compute_seconds = u.traffic.agent_seconds;
+        r->encode_seconds = u.traffic.encode_seconds;
+        r->wait_seconds = u.traffic.wait_seconds;
+    }
+    return count;
+}
+
+static void print_agents(const bg_report_agent_t *r, int count)
+{
+    printf("\nagents (per service and agent; transit = wait - compute)\n");
+    for (int i = 0; i < count; i++) {
+        if (!r[i].contacted || r[i].calls == 0) {
+            printf("  %-14s %s: %s (the plan does not need it)\n", r[i].service,
+                   r[i].endpoint,
+                   r[i].contacted ? "asked its services (heartbeat), no service call"
+                                  : "not contacted");
+            continue;
+        }
+        printf("  %-14s %s: %lld calls, compute %.3f s, sent %lld B, received %lld B, "
+               "encode %.3f s, transit %.3f s, wait %.3f s\n",
+               r[i].service, r[i].endpoint, r[i].calls, r[i].compute_seconds, r[i].bytes_sent,
+               r[i].bytes_received, r[i].encode_seconds, r[i].wait_seconds - r[i].compute_seconds,
+               r[i].wait_seconds);
+    }
+}
+
 int bg_cmd_solve(int argc, char **argv)
 {
     cli_options_t o;
@@ -505,6 +773,11 @@ int bg_cmd_solve(int argc, char **argv)
     int run_count = 0;
     int exit_code = BG_EXIT_BAD_INPUT;
     memset(runs, 0, sizeof runs);
+    cli_agent agents[CLI_MAX_AGENTS];
+    int agent_count = 0;
+    bga_backend_t *remote = NULL;
+    const bg_backend_t *backend = NULL;
+    bg_report_agent_t agent_lines[CLI_MAX_AGENTS];
 
     const bg_scene_options_t scene_options = {.search_path = o.mesh_path};
     if (load_scene("solve", o.scene_path, &scene_options, &scene) != 0)
@@ -525,6 +798,30 @@ int bg_cmd_solve(int argc, char **argv)
         fprintf(stderr, "biotgrid solve: %s\n", err.message);
         exit_code = err.status == BG_ERR_INVALID ? BG_EXIT_BAD_INPUT : BG_EXIT_FAILED;
         goto out;
+    }
+    if (o.agents || o.grid) {
+        const char *env = getenv("BIOTGRID_GRID_DIR");
+        const char *dir = o.grid_dir ? o.grid_dir : env && *env ? env : "out/grid";
+        if ((o.agents ? parse_agent_list(o.agents, agents, &agent_count)
+                      : read_grid_agents(dir, agents, &agent_count)) != 0)
+            goto out;
+        const char *rotfit[CLI_MAX_AGENTS], *solve = NULL;
+        int nrotfit = 0;
+        const int arc = assign_agents(agents, agent_count, o.agent_timeout_ms, rotfit, &nrotfit,
+                                     &solve);
+        if (arc != 0) {
+            exit_code = arc == 1 ? BG_EXIT_FAILED : BG_EXIT_BAD_INPUT;
+            goto out;
+        }
+        const bga_backend_config_t bc = {rotfit, nrotfit, solve, o.agent_timeout_ms,
+                                         CLI_AGENT_LEASE_MS};
+        if (bga_backend_new(&bc, &remote, &err) != BG_OK) {
+            fprintf(stderr, "biotgrid solve: %s\n", err.message);
+            goto out;
+        }
+        /* surface-edit's per-vertex rotations have no agent service yet. */
+        if (scene->task != BG_TASK_SURFACE_EDIT)
+            backend = bga_backend_services(remote);
     }
     const double tolerance = o.tolerance > 0 ? o.tolerance : scene->tolerance;
     char out_dir[4096];
@@ -565,7 +862,7 @@ int bg_cmd_solve(int argc, char **argv)
                                        : bg_scene_max_iterations(scene, o.methods[i]);
         if (dynamic || scene->task == BG_TASK_MORPH) {
             st = run_series(scene, o.methods[i], tolerance, max_iterations, out_dir, &pr,
-                            &runs[i], &err);
+                            backend, &runs[i], &err);
         } else {
             const bg_solve_options_t so = {.method = o.methods[i],
                                            .tolerance = tolerance,
@@ -574,7 +871,8 @@ int bg_cmd_solve(int argc, char **argv)
                                            .progress = on_progress,
                                            .progress_ctx = &pr,
                                            .keep_orientation =
-                                               scene->task == BG_TASK_PARAMETERIZE};
+                                               scene->task == BG_TASK_PARAMETERIZE,
+                                           .backend = backend};
             st = scene->task == BG_TASK_SURFACE_EDIT
                      ? bg_surface_arap_solve(scene, &so, &runs[i], &err)
                      : bg_static_solve(scene, &so, &runs[i], &err);
@@ -615,13 +913,22 @@ int bg_cmd_solve(int argc, char **argv)
 
     bg_plan_t plan;
     bg_plan_for_scene(scene, o.methods, o.method_count, &plan);
+    if (remote && !backend && plan.service_count < BG_PLAN_MAX_ITEMS) {
+        plan.services[plan.service_count].service = "surface-edit";
+        snprintf(plan.services[plan.service_count++].detail,
+                 sizeof plan.services[0].detail,
+                 "surface-edit runs in process: its per-vertex rotations have no agent "
+                 "service yet");
+    }
+    const int lines = remote ? agents_report(agents, agent_count, remote, agent_lines) : 0;
     char report_path[4200], plot_path[4200], result_paths[8500];
     if (join_path(report_path, sizeof report_path, out_dir, "report.json") != 0 ||
         join_path(plot_path, sizeof plot_path, out_dir, "error-vs-time.svg") != 0) {
         fprintf(stderr, "biotgrid solve: output directory name too long\n");
         goto out;
     }
-    if (bg_report_write(report_path, scene, &plan, runs, run_count, &err) != BG_OK ||
+    if (bg_report_write_agents(report_path, scene, &plan, runs, run_count,
+                               remote ? agent_lines : NULL, lines, &err) != BG_OK ||
         bg_report_write_plot(plot_path, scene, runs, run_count, &err) != BG_OK ||
         write_results(out_dir, scene, &runs[0], result_paths, sizeof result_paths, &err) !=
             BG_OK) {
@@ -648,12 +955,15 @@ int bg_cmd_solve(int argc, char **argv)
     bg_report_print_table(stdout, runs, run_count, CLI_TABLE_ROWS);
     if (run_count > 1 && !dynamic && scene->task != BG_TASK_MORPH)
         print_time_to_accuracy(stdout, runs, run_count, tolerance);
+    if (remote)
+        print_agents(agent_lines, lines);
     printf("\nresults:\n  %s\n  %s\n  %s\n", report_path, plot_path, result_paths);
     exit_code = all_converged ? BG_EXIT_OK : BG_EXIT_FAILED;
 out:
     for (int i = 0; i < CLI_MAX_METHODS; i++)
         bg_solve_result_release(&runs[i]);
     bg_solve_result_release(&reference);
+    bga_backend_destroy(&remote);
     bg_scene_destroy(&scene);
     return exit_code;
 }

@@ -294,7 +294,7 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     const double decay = exp(-scene->dynamic.damping * h);
     const int limit = variational && scene->dynamic.energy_limit;
 
-    st = bg_solver_new(scene, BG_METHOD_NEWTON, &solver, err);
+    st = bg_solver_new_on(scene, BG_METHOD_NEWTON, opt->backend, &solver, err);
     if (st != BG_OK)
         goto out;
     s.n = scene->mesh->dim;

@@ -46,6 +46,8 @@ typedef struct bg_dynamic_options {
     void *frame_ctx;
     bg_progress_fn progress;  /* called after each step with the step's trace point */
     void *progress_ctx;
+    const bg_backend_t *backend; /* basic services (borrowed), NULL: in-process; the time loop
+                                    itself (integration-step) runs in this process */
 } bg_dynamic_options_t;
 
 /*

@@ -25,7 +25,7 @@ bg_status bg_morph_solve(const bg_scene_t *scene, const bg_morph_options_t *opt,
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the morph");
         goto out;
     }
-    st = bg_solver_new(scene, opt->method, &solver, err);
+    st = bg_solver_new_on(scene, opt->method, opt->backend, &solver, err);
     if (st != BG_OK)
         goto out;
     memcpy(q, scene->initial, ndof * sizeof *q);

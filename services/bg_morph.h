@@ -22,6 +22,7 @@ typedef struct bg_morph_options {
     void *frame_ctx;
     bg_progress_fn progress;  /* after every frame */
     void *progress_ctx;
+    const bg_backend_t *backend; /* basic services (borrowed), NULL: in-process */
 } bg_morph_options_t;
 
 /*

@@ -137,6 +137,34 @@ bg_status bg_report_render(const bg_scene_t *scene, const bg_plan_t *plan,
                            const bg_solve_result_t *runs, int run_count, char **json,
                            bg_error_t *err)
 {
+    return bg_report_render_agents(scene, plan, runs, run_count, NULL, 0, json, err);
+}
+
+static void add_agents(cJSON *root, const bg_report_agent_t *agents, int count)
+{
+    cJSON *arr = cJSON_AddArrayToObject(root, "agents");
+    for (int i = 0; arr && i < count; i++) {
+        const bg_report_agent_t *a = &agents[i];
+        cJSON *it = cJSON_CreateObject();
+        cJSON_AddStringToObject(it, "endpoint", a->endpoint);
+        cJSON_AddStringToObject(it, "service", a->service);
+        cJSON_AddBoolToObject(it, "contacted", a->contacted);
+        cJSON_AddNumberToObject(it, "calls", (double)a->calls);
+        cJSON_AddNumberToObject(it, "compute_seconds", a->compute_seconds);
+        cJSON_AddNumberToObject(it, "bytes_sent", (double)a->bytes_sent);
+        cJSON_AddNumberToObject(it, "bytes_received", (double)a->bytes_received);
+        cJSON_AddNumberToObject(it, "encode_seconds", a->encode_seconds);
+        cJSON_AddNumberToObject(it, "transit_seconds", a->wait_seconds - a->compute_seconds);
+        cJSON_AddNumberToObject(it, "wait_seconds", a->wait_seconds);
+        cJSON_AddItemToArray(arr, it);
+    }
+}
+
+bg_status bg_report_render_agents(const bg_scene_t *scene, const bg_plan_t *plan,
+                                  const bg_solve_result_t *runs, int run_count,
+                                  const bg_report_agent_t *agents, int agent_count, char **json,
+                                  bg_error_t *err)
+{
     *json = NULL;
     cJSON *root = cJSON_CreateObject();
     if (!root)
@@ -179,6 +207,8 @@ bg_status bg_report_render(const bg_scene_t *scene, const bg_plan_t *plan,
     cJSON *rj = cJSON_AddArrayToObject(root, "runs");
     for (int i = 0; rj && i < run_count; i++)
         cJSON_AddItemToArray(rj, run_json(&runs[i], scene->task == BG_TASK_MORPH));
+    if (agents)
+        add_agents(root, agents, agent_count);
     *json = cJSON_Print(root);
     cJSON_Delete(root);
     if (!*json)
@@ -189,8 +219,17 @@ bg_status bg_report_render(const bg_scene_t *scene, const bg_plan_t *plan,
 bg_status bg_report_write(const char *path, const bg_scene_t *scene, const bg_plan_t *plan,
                           const bg_solve_result_t *runs, int run_count, bg_error_t *err)
 {
+    return bg_report_write_agents(path, scene, plan, runs, run_count, NULL, 0, err);
+}
+
+bg_status bg_report_write_agents(const char *path, const bg_scene_t *scene, const bg_plan_t *plan,
+                                 const bg_solve_result_t *runs, int run_count,
+                                 const bg_report_agent_t *agents, int agent_count,
+                                 bg_error_t *err)
+{
     char *json = NULL;
-    bg_status st = bg_report_render(scene, plan, runs, run_count, &json, err);
+    bg_status st =
+        bg_report_render_agents(scene, plan, runs, run_count, agents, agent_count, &json, err);
     if (st != BG_OK)
         return st;
     FILE *f = fopen(path, "w");

@@ -36,6 +36,28 @@ bg_status bg_report_render(const bg_scene_t *scene, const bg_plan_t *plan,
 bg_status bg_report_write(const char *path, const bg_scene_t *scene, const bg_plan_t *plan,
                           const bg_solve_result_t *runs, int run_count, bg_error_t *err);
 
+/* What one agent did for a job computed across agents (solve --agents):
+ * report.json gets "agents": [{"endpoint", "service", "contacted", "calls",
+ * "compute_seconds", "bytes_sent", "bytes_received", "encode_seconds",
+ * "transit_seconds", "wait_seconds"}]. wait = from a request's send to its
+ * reply; transit = wait − compute. */
+typedef struct bg_report_agent {
+    const char *endpoint, *service; /* borrowed */
+    int contacted;                  /* 0: an agent of the grid the plan did not need */
+    long long calls, bytes_sent, bytes_received;
+    double compute_seconds, encode_seconds, wait_seconds;
+} bg_report_agent_t;
+
+/* bg_report_render with the agents section (agents may be NULL, then none). */
+bg_status bg_report_render_agents(const bg_scene_t *scene, const bg_plan_t *plan,
+                                  const bg_solve_result_t *runs, int run_count,
+                                  const bg_report_agent_t *agents, int agent_count, char **json,
+                                  bg_error_t *err);
+bg_status bg_report_write_agents(const char *path, const bg_scene_t *scene, const bg_plan_t *plan,
+                                 const bg_solve_result_t *runs, int run_count,
+                                 const bg_report_agent_t *agents, int agent_count,
+                                 bg_error_t *err);
+
 /* error-vs-time.svg: log error (or relative gradient without a reference)
  * against seconds, one curve per run. */
 bg_status bg_report_write_plot(const char *path, const bg_scene_t *scene,

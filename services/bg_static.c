@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bg_backend.h"
 #include "bg_clock.h"
 #include "bg_elastic.h"
 #include "bg_sparse.h"
@@ -122,6 +123,10 @@ struct bg_solver {
     bg_setup_t setup;      /* set-up steps not yet reported */
     double force_floor;    /* absolute gradient floor */
     double energy_spread;  /* Σ |force terms|·|q| at the last round-off estimate */
+    const bg_backend_t *backend; /* the basic services (borrowed) */
+    void *session;               /* the backend's session for this solver */
+    bg_status failed;            /* a basic service failed: every later result is void */
+    bg_error_t fail_err;
 };
 typedef struct bg_solver problem_t;
 
@@ -164,6 +169,8 @@ void bg_static_lumped_mass(const bg_mesh_t *mesh, double density, double *mass)
 
 static void problem_release(problem_t *p)
 {
+    if (p->session)
+        p->backend->ops->session_destroy(p->backend->ctx, p->session);
     free(p->free_index);
     free(p->gravity_force);
     bg_elastic_destroy(&p->model);
@@ -216,13 +223,13 @@ static double next_shift(const bg_sparse_t *sys, double shift)
 /* Factors the assembled matrix, adding a growing diagonal shift while it is
  * not numerically positive definite (a coordinate held nowhere leaves the
  * Laplacian singular). */
-static bg_status factor_with_shift(bg_sparse_t *sys, bg_error_t *err)
+static bg_status factor_with_shift(problem_t *p, int id, bg_sparse_t *sys, bg_error_t *err)
 {
     bg_error_t local = BG_ERROR_INIT;
     double shift = 0.0;
     for (int attempt = 0; attempt <= STATIC_MAX_SHIFTS; attempt++) {
         bg_error_clear(&local);
-        bg_status st = bg_sparse_factorize(sys, shift, &local);
+        bg_status st = p->backend->ops->solve_factor(p->session, id, shift, &local);
         if (st != BG_ERR_NUMERIC)
             return st == BG_OK ? BG_OK : bg_error_set(err, st, "%s", local.message);
         shift = next_shift(sys, shift);
@@ -251,7 +258,7 @@ static bg_status lg_factor(problem_t *p, bg_error_t *err)
             bg_elastic_assemble_scalar_laplacian(p->target_model, b * p->lg_scale,
                                                  bg_sparse_scatter(p->lg[c]),
                                                  bg_sparse_values(p->lg[c]));
-        st = factor_with_shift(p->lg[c], err);
+        st = factor_with_shift(p, 1 + c, p->lg[c], err);
         if (st != BG_OK)
             break;
     }
@@ -288,6 +295,8 @@ static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
         if (p->lg_system[c] != c)
             continue; /* same free vertices as an earlier coordinate: same matrix */
         bg_status st = bg_sparse_new(p->mesh, 1, p->lg_index[c], count, &p->lg[c], err);
+        if (st == BG_OK)
+            st = p->backend->ops->solve_open(p->session, 1 + c, p->lg[c], err);
         if (st != BG_OK)
             return st;
     }
@@ -296,9 +305,10 @@ static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
 }
 
 static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method method,
-                              bg_error_t *err)
+                              const bg_backend_t *backend, bg_error_t *err)
 {
     memset(p, 0, sizeof *p);
+    p->backend = backend ? backend : bg_backend_local();
     p->scene = scene;
     p->mesh = scene->mesh;
     p->n = scene->mesh->dim;
@@ -354,21 +364,41 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
         return st;
     if (scene->task == BG_TASK_PARAMETERIZE)
         bg_elastic_set_barrier(p->model, scene->barrier * scene->material.mu);
+    st = p->backend->ops->session_new(p->backend->ctx, &p->session, err);
+    if (st != BG_OK)
+        return st;
     p->force_floor = STATIC_ABSOLUTE_FLOOR *
                      (modulus * bg_elastic_total_volume(p->model) / fmax(sqrt(diagonal), 1e-300) +
                       sqrt(weight));
-    if (method == BG_METHOD_NEWTON)
-        return bg_sparse_new(p->mesh, p->n, p->free_index, p->nfree, &p->sys, err);
-    return lg_init(p, scene, err);
+    bg_backend_fit_t fit = {p->model,
+                            p->mesh,
+                            scene->rest_edges,
+                            scene->material.mu,
+                            scene->material.lambda,
+                            scene->task == BG_TASK_PARAMETERIZE ? scene->barrier * scene->material.mu
+                                                                : 0.0,
+                            NULL,
+                            0};
+    if (method != BG_METHOD_NEWTON) {
+        st = p->backend->ops->fit_open(p->session, 0, &fit, err);
+        return st == BG_OK ? lg_init(p, scene, err) : st;
+    }
+    st = bg_sparse_new(p->mesh, p->n, p->free_index, p->nfree, &p->sys, err);
+    if (st != BG_OK)
+        return st;
+    fit.scatter = bg_sparse_scatter(p->sys);
+    fit.nval = bg_sparse_nonzeros(p->sys);
+    st = p->backend->ops->solve_open(p->session, 0, p->sys, err);
+    return st == BG_OK ? p->backend->ops->fit_open(p->session, 0, &fit, err) : st;
 }
 
 /* problem_init, with its time (less the mass and the Laplacian factoring,
  * which record themselves) as the "solver set-up" step. */
 static bg_status problem_setup(problem_t *p, const bg_scene_t *scene, bg_method method,
-                               bg_error_t *err)
+                               const bg_backend_t *backend, bg_error_t *err)
 {
     const double t0 = bg_clock_now();
-    const bg_status st = problem_init(p, scene, method, err);
+    const bg_status st = problem_init(p, scene, method, backend, err);
     bg_setup_add(&p->setup, method == BG_METHOD_NEWTON
                                 ? "solver set-up: elastic model, Hessian pattern and scatter map"
                                 : "solver set-up: elastic model, Laplacian patterns",
@@ -376,13 +406,35 @@ static bg_status problem_setup(problem_t *p, const bg_scene_t *scene, bg_method 
     return st;
 }
 
-/* W(q) and its full gradient into grad. */
+/* Records the first failure of a basic service (the solve then stops with it). */
+static void service_failed(problem_t *p, bg_status st, const bg_error_t *e)
+{
+    if (p->failed == BG_OK) {
+        p->failed = st;
+        bg_error_set(&p->fail_err, st, "%s", e->message);
+    }
+}
+
+/* Rotation-fit id at q: the energy, NaN when the service failed. */
+static double fit_eval(problem_t *p, int id, const double *q, double *grad)
+{
+    bg_error_t e = BG_ERROR_INIT;
+    double energy = NAN;
+    const bg_status st = p->backend->ops->fit_eval(p->session, id, q, &energy, grad, &e);
+    if (st != BG_OK) {
+        service_failed(p, st, &e);
+        return NAN;
+    }
+    return energy;
+}
+
+/* W(q) and its full gradient into grad (NaN when a basic service failed). */
 static double potential(problem_t *p, const double *q, double *grad)
 {
     const double t0 = bg_clock_now();
-    double elastic = bg_elastic_eval(p->model, q, grad);
+    double elastic = fit_eval(p, 0, q, grad);
     if (p->target_model) {
-        const double b = p->blend, e1 = bg_elastic_eval(p->target_model, q, p->grad_target);
+        const double b = p->blend, e1 = fit_eval(p, 1, q, p->grad_target);
         elastic = (1.0 - b) * elastic + b * e1;
         for (size_t i = 0; i < p->ndof; i++)
             grad[i] = (1.0 - b) * grad[i] + b * p->grad_target[i];
@@ -532,7 +584,8 @@ static bg_status lg_direction(problem_t *p, double *slope, bg_error_t *err)
             if (idx[v] >= 0)
                 p->lg_rhs[idx[v]] = p->rhs[p->free_index[(size_t)v * p->n + c]];
         p->vector_seconds += bg_clock_now() - tv;
-        bg_status st = bg_sparse_solve(sys, p->lg_rhs, p->lg_x, err);
+        bg_status st =
+            p->backend->ops->solve(p->session, 1 + p->lg_system[c], p->lg_rhs, p->lg_x, err);
         if (st != BG_OK)
             return st;
         tv = bg_clock_now();
@@ -552,7 +605,7 @@ static bg_status lg_direction(problem_t *p, double *slope, bg_error_t *err)
  * NaN if d is not finite. */
 static bg_status solve_direction(problem_t *p, double *slope, bg_error_t *err)
 {
-    bg_status st = bg_sparse_solve(p->sys, p->rhs, p->step, err);
+    bg_status st = p->backend->ops->solve(p->session, 0, p->rhs, p->step, err);
     if (st != BG_OK)
         return st;
     double s = 0.0;
@@ -562,16 +615,19 @@ static bg_status solve_direction(problem_t *p, double *slope, bg_error_t *err)
     return BG_OK;
 }
 
-static double assemble_newton(problem_t *p, int project)
+/* The Newton matrix at p->q into p->sys's values; its time. */
+static double assemble_newton(problem_t *p, int project, bg_error_t *err)
 {
     const double t0 = bg_clock_now();
     bg_sparse_zero(p->sys);
     const double b = p->target_model ? p->blend : 0.0;
-    bg_elastic_assemble_hessian(p->model, p->q, project, 1.0 - b, bg_sparse_scatter(p->sys),
-                                bg_sparse_values(p->sys));
-    if (p->target_model)
-        bg_elastic_assemble_hessian(p->target_model, p->q, project, b, bg_sparse_scatter(p->sys),
-                                    bg_sparse_values(p->sys));
+    const bg_backend_ops_t *ops = p->backend->ops;
+    bg_status st = ops->fit_hessian(p->session, 0, p->q, project, 1.0 - b,
+                                    bg_sparse_values(p->sys), err);
+    if (st == BG_OK && p->target_model)
+        st = ops->fit_hessian(p->session, 1, p->q, project, b, bg_sparse_values(p->sys), err);
+    if (st != BG_OK)
+        service_failed(p, st, err);
     if (p->inertia)
         bg_sparse_add_diagonal(p->sys, p->inertia_diag);
     return bg_clock_now() - t0;
@@ -595,8 +651,10 @@ static bg_status newton_direction(problem_t *p, int try_exact, bg_solve_result_t
     p->factor_c = p->inertia ? p->inertia->c : 0.0;
     p->qn_count = p->qn_head = 0;
     if (try_exact) {
-        res->assembly_seconds += assemble_newton(p, 0);
-        st = bg_sparse_factorize(p->sys, 0.0, &local);
+        res->assembly_seconds += assemble_newton(p, 0, err);
+        if (p->failed != BG_OK)
+            return p->failed;
+        st = p->backend->ops->solve_factor(p->session, 0, 0.0, &local);
         if (st == BG_OK) {
             st = solve_direction(p, slope, err);
             if (st != BG_OK)
@@ -610,11 +668,13 @@ static bg_status newton_direction(problem_t *p, int try_exact, bg_solve_result_t
             return bg_error_set(err, st, "%s", local.message);
         }
     }
-    res->assembly_seconds += assemble_newton(p, 1);
+    res->assembly_seconds += assemble_newton(p, 1, err);
+    if (p->failed != BG_OK)
+        return p->failed;
     double shift = 0.0;
     for (int attempt = 0; attempt <= STATIC_MAX_SHIFTS; attempt++) {
         bg_error_clear(&local);
-        st = bg_sparse_factorize(p->sys, shift, &local);
+        st = p->backend->ops->solve_factor(p->session, 0, shift, &local);
         if (st == BG_OK) {
             st = solve_direction(p, slope, err);
             if (st != BG_OK)
@@ -678,7 +738,7 @@ static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
             r[i] -= a * yk[i];
     }
     p->vector_seconds += bg_clock_now() - tv;
-    bg_status st = bg_sparse_solve(p->sys, r, p->step, err);
+    bg_status st = p->backend->ops->solve(p->session, 0, r, p->step, err);
     if (st != BG_OK)
         return st;
     tv = bg_clock_now();
@@ -732,6 +792,12 @@ static void qn_push(problem_t *p, double alpha, const double *grad_new)
 bg_status bg_solver_new(const bg_scene_t *scene, bg_method method, bg_solver_t **out,
                         bg_error_t *err)
 {
+    return bg_solver_new_on(scene, method, NULL, out, err);
+}
+
+bg_status bg_solver_new_on(const bg_scene_t *scene, bg_method method, const bg_backend_t *backend,
+                           bg_solver_t **out, bg_error_t *err)
+{
     *out = NULL;
     if (method != BG_METHOD_NEWTON && method != BG_METHOD_LOCAL_GLOBAL)
         return bg_error_set(err, BG_ERR_INVALID, "%s is not a static solver method",
@@ -739,7 +805,7 @@ bg_status bg_solver_new(const bg_scene_t *scene, bg_method method, bg_solver_t *
     problem_t *p = malloc(sizeof *p);
     if (!p)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating a solver");
-    bg_status st = problem_setup(p, scene, method, err);
+    bg_status st = problem_setup(p, scene, method, backend, err);
     if (st != BG_OK) {
         bg_solver_destroy(&p);
         return st;
@@ -778,6 +844,17 @@ bg_status bg_solver_set_blend(bg_solver_t *p, const double *target, double blend
             return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the morph target");
         st = bg_elastic_new(p->target_mesh, p->scene->material.mu, p->scene->material.lambda,
                             &p->target_model, err);
+        if (st != BG_OK)
+            return st;
+        const bg_backend_fit_t fit = {p->target_model,
+                                      p->target_mesh,
+                                      NULL,
+                                      p->scene->material.mu,
+                                      p->scene->material.lambda,
+                                      0.0,
+                                      p->sys ? bg_sparse_scatter(p->sys) : NULL,
+                                      p->sys ? bg_sparse_nonzeros(p->sys) : 0};
+        st = p->backend->ops->fit_open(p->session, 1, &fit, err);
         if (st != BG_OK)
             return st;
     }
@@ -891,8 +968,13 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     for (size_t i = 0; i < ndof; i++)
         p->q[i] = scene->constrained[i] ? targets[i] : start[i];
 
+    p->failed = BG_OK;
     double W = potential(p, p->q, p->grad);
     double gnorm = free_norm(p, p->grad);
+    if (p->failed != BG_OK) {
+        st = bg_error_set(err, p->failed, "%s", p->fail_err.message);
+        goto out;
+    }
     if (!isfinite(W) || !isfinite(gnorm)) {
         st = bg_error_set(err, BG_ERR_NUMERIC, "%s: the energy at the initial positions is not "
                           "finite", scene->path);
@@ -996,6 +1078,8 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         }
         if (st != BG_OK)
             goto out;
+        if (p->failed != BG_OK)
+            break;
         if (!(slope < 0.0)) {
             /* Every matrix tried was positive definite or shifted to be, and
              * −A⁻¹∇ is then a descent direction unless the gradient is
@@ -1067,10 +1151,11 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
              * most twice the cost of the better choice made in hindsight).
              * A modelled cost, not the clock, keeps runs reproducible. */
             if (quasi) {
-                p->qn_cost += 4.0 * bg_sparse_factor_nonzeros(p->sys) +
-                              4.0 * p->qn_count * (double)p->nfree +
+                double flops = 0.0, factor_nonzeros = 0.0;
+                p->backend->ops->solve_cost(p->session, 0, &flops, &factor_nonzeros);
+                p->qn_cost += 4.0 * factor_nonzeros + 4.0 * p->qn_count * (double)p->nfree +
                               STATIC_EVALUATION_UNITS * p->mesh->ne * (bt_used + 1);
-                if (p->qn_cost > bg_sparse_factor_flops(p->sys) / STATIC_FACTOR_FLOP_SPEEDUP)
+                if (p->qn_cost > flops / STATIC_FACTOR_FLOP_SPEEDUP)
                     refactor = 1;
             }
         }
@@ -1107,6 +1192,10 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
             break;
         }
     }
+    if (p->failed != BG_OK) {
+        st = bg_error_set(err, p->failed, "%s", p->fail_err.message);
+        goto out;
+    }
     res->iterations = it;
     res->energy = W;
     res->gradient_norm = gnorm;
@@ -1132,6 +1221,10 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         goto out;
     }
     memcpy(res->q, p->q, ndof * sizeof *res->q);
+    /* A remote backend fitted the rotations on the agents: the energy
+     * density of the result comes from one evaluation here. */
+    if (p->backend != bg_backend_local())
+        bg_elastic_eval(p->model, p->q, p->mag);
     memcpy(res->energy_density, bg_elastic_energy_density(p->model),
            (size_t)scene->mesh->ne * sizeof *res->energy_density);
     res->wall_seconds = bg_clock_now() - t_start;
@@ -1148,7 +1241,7 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
     bg_solver_t *solver = NULL;
     memset(res, 0, sizeof *res);
     const double t_start = bg_clock_now();
-    bg_status st = bg_solver_new(scene, opt->method, &solver, err);
+    bg_status st = bg_solver_new_on(scene, opt->method, opt->backend, &solver, err);
     if (st == BG_OK)
         st = bg_solver_minimize(solver, opt, res, err);
     if (st == BG_OK)

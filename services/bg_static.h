@@ -29,6 +29,7 @@
 
 #include <stdint.h>
 
+#include "bg_backend.h"
 #include "bg_error.h"
 #include "bg_rotfit.h"
 #include "bg_scene.h"
@@ -77,6 +78,8 @@ typedef struct bg_solve_options {
                                  (every direction keeps Σ m d = 0 for a free body). */
     bg_progress_fn progress;  /* called after every iteration (may be NULL) */
     void *progress_ctx;
+    const bg_backend_t *backend; /* bg_static_solve: the basic services (borrowed), NULL for
+                                    in-process; bg_solver_minimize uses the solver's */
 } bg_solve_options_t;
 
 /* Which matrix gave the last Newton direction. */
@@ -204,6 +207,11 @@ typedef struct bg_solver bg_solver_t;
 
 bg_status bg_solver_new(const bg_scene_t *scene, bg_method method, bg_solver_t **out,
                         bg_error_t *err);
+/* The same with the basic services of backend (borrowed, outlives the
+ * solver; NULL: in-process). A failure of a service mid-solve ends the
+ * minimisation with its error (which names the agent and the service). */
+bg_status bg_solver_new_on(const bg_scene_t *scene, bg_method method, const bg_backend_t *backend,
+                           bg_solver_t **out, bg_error_t *err);
 void bg_solver_destroy(bg_solver_t **solver);
 
 /* One minimisation from options->start (or the scene's initial positions);

@@ -1,0 +1,90 @@
+#include "bg_backend.h"
+
+#include <stdlib.h>
+
+/* The in-process backend: the solver's own models and systems, called
+ * directly. A session only remembers which object serves which id. */
+typedef struct local_session {
+    bg_elastic_t *fit[BG_BACKEND_MAX_FITS];
+    bg_sparse_t *sys[BG_BACKEND_MAX_SYSTEMS];
+} local_session;
+
+static bg_status local_session_new(void *ctx, void **session, bg_error_t *err)
+{
+    (void)ctx;
+    local_session *s = calloc(1, sizeof *s);
+    if (!s)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for a solver session");
+    *session = s;
+    return BG_OK;
+}
+
+static void local_session_destroy(void *ctx, void *session)
+{
+    (void)ctx;
+    free(session);
+}
+
+static bg_status local_fit_open(void *session, int id, const bg_backend_fit_t *fit,
+                                bg_error_t *err)
+{
+    (void)err;
+    ((local_session *)session)->fit[id] = fit->model;
+    return BG_OK;
+}
+
+static bg_status local_fit_eval(void *session, int id, const double *q, double *energy,
+                                double *grad, bg_error_t *err)
+{
+    (void)err;
+    *energy = bg_elastic_eval(((local_session *)session)->fit[id], q, grad);
+    return BG_OK;
+}
+
+static bg_status local_fit_hessian(void *session, int id, const double *q, int project,
+                                   double scale, double *values, bg_error_t *err)
+{
+    (void)err;
+    local_session *s = session;
+    bg_elastic_assemble_hessian(s->fit[id], q, project, scale, bg_sparse_scatter(s->sys[0]),
+                                values);
+    return BG_OK;
+}
+
+static bg_status local_solve_open(void *session, int id, bg_sparse_t *sys, bg_error_t *err)
+{
+    (void)err;
+    ((local_session *)session)->sys[id] = sys;
+    return BG_OK;
+}
+
+static bg_status local_solve_factor(void *session, int id, double shift, bg_error_t *err)
+{
+    return bg_sparse_factorize(((local_session *)session)->sys[id], shift, err);
+}
+
+static bg_status local_solve(void *session, int id, const double *rhs, double *x,
+                             bg_error_t *err)
+{
+    return bg_sparse_solve(((local_session *)session)->sys[id], rhs, x, err);
+}
+
+static void local_solve_cost(void *session, int id, double *flops, double *nonzeros)
+{
+    const bg_sparse_t *sys = ((local_session *)session)->sys[id];
+    *flops = bg_sparse_factor_flops(sys);
+    *nonzeros = bg_sparse_factor_nonzeros(sys);
+}
+
+static const bg_backend_ops_t local_ops = {
+    "in-process",     local_session_new, local_session_destroy, local_fit_open,
+    local_fit_eval,   local_fit_hessian, local_solve_open,      local_solve_factor,
+    local_solve,      local_solve_cost,
+};
+
+static const bg_backend_t local_backend = {&local_ops, NULL};
+
+const bg_backend_t *bg_backend_local(void)
+{
+    return &local_backend;
+}

@@ -1,0 +1,165 @@
+/*
+ * agent_solve RUNDIR SCENE.json METHOD AGENTS...
+ *
+ * The same job solved in process and across agents: for each count N in
+ * 1..(number of rotation-fit agents given) the scene's solver runs with
+ * rotation-fit on the first N of them and sparse-solve on RUNDIR's `sv`
+ * agent, and must give the in-process answer: the energy to 1e-10
+ * relative, every position to 1e-9 of the bounding-box diagonal, the same
+ * iteration count (per frame or step for a series). The differences are
+ * round-off only: the partial sums are added in partition order rather
+ * than element order, and the agents warm-start their rotations from
+ * their own previous fits at the same positions. Exit 0 when every case
+ * matches, 1 otherwise (each mismatch printed).
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bg_dynamics.h"
+#include "bg_morph.h"
+#include "bg_scene.h"
+#include "bg_static.h"
+#include "bga_backend.h"
+
+#define MAX_AGENTS 8
+#define TIMEOUT_MS 20000
+#define ENERGY_TOL 1e-10
+#define POSITION_TOL 1e-9
+
+static int read_endpoint(const char *dir, const char *name, char *ep, size_t cap)
+{
+    char path[1024];
+    snprintf(path, sizeof path, "%s/%s.ready", dir, name);
+    FILE *f = fopen(path, "r");
+    if (!f) {
+        fprintf(stderr, "agent_solve: no %s\n", path);
+        return -1;
+    }
+    char fmt[32];
+    snprintf(fmt, sizeof fmt, "%%%zus", cap - 1);
+    const int ok = fscanf(f, fmt, ep) == 1;
+    fclose(f);
+    return ok ? 0 : -1;
+}
+
+static bg_status run(const bg_scene_t *scene, bg_method method, const bg_backend_t *backend,
+                     bg_solve_result_t *r, bg_error_t *err)
+{
+    if (scene->task == BG_TASK_DYNAMIC) {
+        const bg_dynamic_options_t o = {.method = method, .backend = backend};
+        return bg_dynamic_solve(scene, &o, r, err);
+    }
+    if (scene->task == BG_TASK_MORPH) {
+        const bg_morph_options_t o = {.method = method, .backend = backend};
+        return bg_morph_solve(scene, &o, r, err);
+    }
+    const bg_solve_options_t o = {.method = method,
+                                  .tolerance = scene->tolerance,
+                                  .max_iterations = bg_scene_max_iterations(scene, method),
+                                  .keep_orientation = scene->task == BG_TASK_PARAMETERIZE,
+                                  .backend = backend};
+    return bg_static_solve(scene, &o, r, err);
+}
+
+static int rel_differs(double a, double b, double tol)
+{
+    return !(fabs(a - b) <= tol * fmax(fabs(a), fabs(b)));
+}
+
+/* Mismatches between the in-process result a and the agents' b. */
+static int compare(const bg_scene_t *scene, const bg_solve_result_t *a, const bg_solve_result_t *b,
+                   int n)
+{
+    int bad = 0;
+    double lo[3], hi[3], diag = 0.0;
+    bg_mesh_bounds(scene->mesh, lo, hi);
+    for (int c = 0; c < scene->mesh->dim; c++)
+        diag += (hi[c] - lo[c]) * (hi[c] - lo[c]);
+    diag = sqrt(diag);
+    double dq = 0.0;
+    for (size_t i = 0; i < (size_t)scene->mesh->nv * scene->mesh->dim; i++)
+        dq = fmax(dq, fabs(a->q[i] - b->q[i]));
+    printf("  %d rotation-fit agent(s): energy %.17g vs %.17g, iterations %d vs %d, "
+           "max |dq| %.3e (diagonal %.3g)\n",
+           n, a->energy, b->energy, a->iterations, b->iterations, dq, diag);
+    if (rel_differs(a->energy, b->energy, ENERGY_TOL)) {
+        printf("    MISMATCH: energy differs by more than %g relative\n", ENERGY_TOL);
+        bad++;
+    }
+    if (!(dq <= POSITION_TOL * diag)) {
+        printf("    MISMATCH: positions differ by more than %g of the diagonal\n", POSITION_TOL);
+        bad++;
+    }
+    if (a->iterations != b->iterations || a->step_count != b->step_count) {
+        printf("    MISMATCH: iteration or step counts differ\n");
+        bad++;
+    }
+    for (int s = 0; s < a->step_count && s < b->step_count; s++)
+        if (a->steps[s].iterations != b->steps[s].iterations ||
+            rel_differs(a->steps[s].total_energy, b->steps[s].total_energy, ENERGY_TOL)) {
+            printf("    MISMATCH: step/frame %d: %d vs %d iterations, energy %.17g vs %.17g\n", s,
+                   a->steps[s].iterations, b->steps[s].iterations, a->steps[s].total_energy,
+                   b->steps[s].total_energy);
+            bad++;
+        }
+    return bad;
+}
+
+int main(int argc, char **argv)
+{
+    if (argc < 5 || argc - 4 > MAX_AGENTS) {
+        fprintf(stderr, "usage: agent_solve RUNDIR SCENE.json METHOD ROTFIT-AGENT...\n");
+        return 2;
+    }
+    const char *dir = argv[1];
+    bg_method method;
+    bg_error_t perr = BG_ERROR_INIT;
+    if (bg_method_parse(argv[3], &method, &perr) != BG_OK) {
+        fprintf(stderr, "agent_solve: unknown method %s\n", argv[3]);
+        return 2;
+    }
+    char eps[MAX_AGENTS][256], solve_ep[256];
+    const int nagents = argc - 4;
+    for (int i = 0; i < nagents; i++)
+        if (read_endpoint(dir, argv[4 + i], eps[i], sizeof eps[i]) != 0)
+            return 1;
+    if (read_endpoint(dir, "sv", solve_ep, sizeof solve_ep) != 0)
+        return 1;
+    bg_error_t err = BG_ERROR_INIT;
+    bg_scene_t *scene = NULL;
+    if (bg_scene_load(argv[2], &scene, &err) != BG_OK) {
+        fprintf(stderr, "agent_solve: %s\n", err.message);
+        return 1;
+    }
+    bg_solve_result_t local = BG_SOLVE_RESULT_INIT;
+    int bad = 0;
+    if (run(scene, method, NULL, &local, &err) != BG_OK) {
+        fprintf(stderr, "agent_solve: in process: %s\n", err.message);
+        bad = 1;
+    }
+    printf("%s, %s: in process %d iterations (%s)\n", scene->name, bg_method_name(method),
+           local.iterations, local.stop_reason ? local.stop_reason : "-");
+    for (int n = 1; n <= nagents && !bad; n++) {
+        const char *rot[MAX_AGENTS];
+        for (int i = 0; i < n; i++)
+            rot[i] = eps[i];
+        const bga_backend_config_t bc = {rot, n, solve_ep, TIMEOUT_MS, 60000};
+        bga_backend_t *remote = NULL;
+        bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
+        if (bga_backend_new(&bc, &remote, &err) != BG_OK ||
+            run(scene, method, bga_backend_services(remote), &r, &err) != BG_OK) {
+            printf("  %d agent(s): FAILED: %s\n", n, err.message);
+            bad++;
+        } else {
+            bad += compare(scene, &local, &r, n);
+        }
+        bg_solve_result_release(&r);
+        bga_backend_destroy(&remote);
+    }
+    bg_solve_result_release(&local);
+    bg_scene_destroy(&scene);
+    printf("%s\n", bad ? "FAILED" : "same answers");
+    return bad ? 1 : 0;
+}
