@@ -499,9 +499,14 @@ static double gradient_noise(problem_t *p, const double *q, double *total)
     if (p->gravity_force)
         for (size_t i = 0; i < p->ndof; i++)
             p->mag[i] += fabs(p->gravity_force[i]);
+    /* The inertia force c m (q − y) is a difference of the terms c m q and
+     * c m y: its round-off scales with their magnitudes, not with the small
+     * difference (one ulp of q moves it by c m ulp(q), which at a small
+     * time step can exceed what a tight tolerance asks for). */
     if (p->inertia)
         for (size_t i = 0; i < p->ndof; i++)
-            p->mag[i] += p->inertia->c * p->mass[i / (size_t)p->n] * fabs(q[i] - p->inertia->y[i]);
+            p->mag[i] += p->inertia->c * p->mass[i / (size_t)p->n] *
+                         (fabs(q[i]) + fabs(p->inertia->y[i]));
     double free2 = 0.0, all2 = 0.0, spread = 0.0;
     for (size_t i = 0; i < p->ndof; i++) {
         all2 += p->mag[i] * p->mag[i];
