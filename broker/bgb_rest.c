@@ -239,18 +239,6 @@ static void submission_release(submission_t *s)
         rmdir(s->dir);
 }
 
-static int plain_name(const char *name)
-{
-    const size_t n = strlen(name);
-    if (n == 0 || n > BGB_STORE_MAX_FILE_NAME || strchr(name, '/') || strcmp(name, ".") == 0 ||
-        strcmp(name, "..") == 0)
-        return 0;
-    for (size_t i = 0; i < n; i++)
-        if ((unsigned char)name[i] < 0x20)
-            return 0;
-    return 1;
-}
-
 /* Whether an object repeats a key; the first repeated key in *key. */
 static int repeats_key(const cJSON *object, const char **key)
 {
@@ -383,11 +371,12 @@ static int read_submission(bgb_rest_t *rest, struct MHD_Connection *c, const req
                                  "%s: expected {\"name\": string, \"base64\": string}", field);
             goto out;
         }
-        if (!plain_name(name->valuestring)) {
+        char name_field[80];
+        snprintf(name_field, sizeof name_field, "%s.name", field);
+        bg_error_t bad = BG_ERROR_INIT;
+        if (bgb_store_check_file_name(name->valuestring, name_field, &bad) != BG_OK) {
             *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-file-name",
-                                 "Invalid file name", field,
-                                 "%s.name: '%s' is not a plain file name (no '/', '.' or '..')",
-                                 field, name->valuestring);
+                                 "Invalid file name", field, "%s", bad.message);
             goto out;
         }
         for (int j = 0; j < s->file_count; j++)

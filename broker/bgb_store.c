@@ -144,19 +144,19 @@ static bg_status open_connection(const char *path, sqlite3 **db, bg_error_t *err
                 err);
 }
 
-/* A readable or writable file name inside the job's folder: no separator, no "." or "..". */
-static bg_status check_file_name(const char *name, bg_error_t *err)
+bg_status bgb_store_check_file_name(const char *name, const char *field, bg_error_t *err)
 {
     const size_t n = name ? strlen(name) : 0;
     if (n == 0 || n > BGB_STORE_MAX_FILE_NAME)
-        return bg_error_set(err, BG_ERR_INVALID, "files: a file name must have 1 to %d bytes",
+        return bg_error_set(err, BG_ERR_INVALID, "%s: a file name must have 1 to %d bytes", field,
                             BGB_STORE_MAX_FILE_NAME);
     if (strchr(name, '/') || strcmp(name, ".") == 0 || strcmp(name, "..") == 0)
         return bg_error_set(err, BG_ERR_INVALID,
-                            "files: '%s' is not a plain file name (no '/', '.' or '..')", name);
+                            "%s: '%s' is not a plain file name (no '/', '.' or '..')", field, name);
     for (size_t i = 0; i < n; i++)
         if ((unsigned char)name[i] < 0x20)
-            return bg_error_set(err, BG_ERR_INVALID, "files: a file name holds a control byte");
+            return bg_error_set(err, BG_ERR_INVALID, "%s: a file name holds a control byte",
+                                field);
     return BG_OK;
 }
 
@@ -182,7 +182,7 @@ static bg_status check_submit(const bgb_submit_t *job, bg_error_t *err)
         return bg_error_set(err, BG_ERR_LIMIT, "files: %d files, at most %d", job->file_count,
                             BGB_STORE_MAX_FILES);
     for (int i = 0; i < job->file_count; i++) {
-        bg_status st = check_file_name(job->files[i].name, err);
+        bg_status st = bgb_store_check_file_name(job->files[i].name, "files", err);
         if (st != BG_OK)
             return st;
         for (int j = 0; j < i; j++)
@@ -719,7 +719,7 @@ bg_status bgb_store_put_file(bgb_store_t *store, const char *id, const char *kin
 {
     bg_status st = check_kind(kind, err);
     if (st == BG_OK)
-        st = check_file_name(file->name, err);
+        st = bgb_store_check_file_name(file->name, "files", err);
     if (st != BG_OK)
         return st;
     pthread_mutex_lock(&store->write_lock);

@@ -65,6 +65,14 @@ typedef struct bgb_submit {
                                     same transaction; NULL: none */
 } bgb_submit_t;
 
+/*
+ * A file name a job may upload or be given: a plain name inside the job's
+ * folder (1..BGB_STORE_MAX_FILE_NAME bytes, no '/', not "." or "..", no
+ * control bytes). BG_ERR_INVALID with "<field>: ..." otherwise. The store
+ * checks every name with it; the REST API checks before unpacking.
+ */
+bg_status bgb_store_check_file_name(const char *name, const char *field, bg_error_t *err);
+
 /* A job as stored; strings owned by the record (bgb_job_release). */
 typedef struct bgb_job {
     char id[BGB_JOB_ID_SIZE];
