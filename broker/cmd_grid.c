@@ -35,6 +35,7 @@
 #include "bg_clock.h"
 #include "bg_mesh_io.h"
 #include "bga_client.h"
+#include "cmd.h"
 #include "cmd_agent.h"
 
 #define GRID_MAX_AGENTS 64
@@ -364,21 +365,6 @@ static int ping(const grid_agent *a, bga_agent_status_t *st, char *msg, size_t c
     return s == BG_OK ? 0 : -1;
 }
 
-static int mkdir_p(const char *dir)
-{
-    char buf[PATH_MAX];
-    if (snprintf(buf, sizeof buf, "%s", dir) >= (int)sizeof buf)
-        return -1;
-    for (char *p = buf + 1; *p; p++)
-        if (*p == '/') {
-            *p = 0;
-            if (mkdir(buf, 0755) != 0 && errno != EEXIST)
-                return -1;
-            *p = '/';
-        }
-    return mkdir(buf, 0755) != 0 && errno != EEXIST ? -1 : 0;
-}
-
 static int any_alive(const grid *g, const char *dir)
 {
     for (int i = 0; i < g->count; i++)
@@ -401,7 +387,7 @@ static int grid_up(const char *file, const char *dir)
                 old.name, dir);
         return 1;
     }
-    if (mkdir_p(dir) != 0) {
+    if (bg_cmd_make_directories(dir) != 0) {
         fprintf(stderr, "biotgrid grid: cannot create %s: %s\n", dir, strerror(errno));
         return 1;
     }
