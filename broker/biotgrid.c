@@ -9,6 +9,7 @@
 
 #include "cmd.h"
 #include "cmd_agent.h"
+#include "cmd_client.h"
 #include "cmd_grid.h"
 #include "cmd_solve.h"
 #ifdef BIOTGRID_HAVE_MARKET
@@ -40,6 +41,16 @@ static const command_t COMMANDS[] = {
      bg_cmd_agent_usage},
     {"grid", "grid up|status|down [options]", "a local grid of agents on loopback", bg_cmd_grid,
      bg_cmd_grid_usage},
+    {"submit", "submit SCENE.json [options]", "submit a job to a broker", bg_cmd_submit,
+     bg_cmd_submit_usage},
+    {"jobs", "jobs [--state S] [--limit N]", "list a broker's jobs", bg_cmd_jobs,
+     bg_cmd_jobs_usage},
+    {"status", "status ID", "show a job", bg_cmd_status, bg_cmd_status_usage},
+    {"result", "result ID --out DIR", "download a job's result files", bg_cmd_result,
+     bg_cmd_result_usage},
+    {"cancel", "cancel ID", "cancel a job", bg_cmd_cancel, bg_cmd_cancel_usage},
+    {"agents", "agents", "list a broker's agents", bg_cmd_agents, bg_cmd_agents_usage},
+    {"market", "market", "a broker's recent prices", bg_cmd_market, bg_cmd_market_usage},
 };
 #define COMMAND_COUNT (sizeof COMMANDS / sizeof COMMANDS[0])
 
@@ -124,6 +135,9 @@ static int manual(FILE *out)
     fputs(".SH ENVIRONMENT\n.TP\n.B " BG_CMD_MESH_PATH_ENV "\n"
           "Folders (':'-separated) in which a scene's relative mesh or data file is looked up "
           "by its file name when it is not found beside the scene.\n"
+          ".TP\n.B BIOTGRID_BROKER\n"
+          "The broker's URL for submit, jobs, status, result, cancel, agents and market when "
+          "--broker is not given.\n"
           ".SH EXIT STATUS\n0 success, 1 ran but did not reach its goal (a report is still "
           "written), 2 bad input or usage.\n",
           out);

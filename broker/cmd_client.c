@@ -1,0 +1,684 @@
+#include "cmd_client.h"
+
+#include <cJSON.h>
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "bg_mesh_io.h"
+#include "bgb_client.h"
+#include "cmd.h"
+
+#define CLIENT_DEFAULT_BROKER "http://127.0.0.1:8080"
+#define CLIENT_BROKER_ENV "BIOTGRID_BROKER"
+#define CLIENT_GRID_DIR_ENV "BIOTGRID_GRID_DIR"
+#define CLIENT_GRID_DIR "out/grid"
+#define CLIENT_MESH_PATH_MAX 8192
+#define CLIENT_URL_MAX 1024
+#define CLIENT_DEFAULT_PAGE 100
+#define CLIENT_MAX_PAGE 500
+#define CLIENT_BAR_WIDTH 30
+
+#define BROKER_HELP                                                                                \
+    "  --broker URL        the broker (default $" CLIENT_BROKER_ENV ", else the local grid's\n"    \
+    "                      broker recorded by `biotgrid grid up`, else " CLIENT_DEFAULT_BROKER     \
+    ")\n"                                                                                          \
+    "  --json              print the broker's JSON document instead of text\n"
+
+const char bg_cmd_submit_usage[] =
+    "usage: biotgrid submit SCENE.json [--mechanism M] [--budget B] [--wait] [options]\n"
+    "Submits the scene and every mesh or data file it names (found as `solve` finds\n"
+    "them) to the broker, and prints the new job's id.\n"
+    "  --mechanism M       central, catallactic or posted (default: the broker's, central)\n"
+    "  --budget B          money the job may spend (default: the broker's, 1000)\n"
+    "  --wait              follow the job's events until it ends (a progress bar on a\n"
+    "                      terminal, plain lines otherwise); exit 1 unless it succeeded\n"
+    "  --idempotency-key K a resubmit with the same key returns the same job\n"
+    "  --mesh-path DIR     also look for the scene's files in DIR (repeatable; then\n"
+    "                      $" BG_CMD_MESH_PATH_ENV ")\n" BROKER_HELP;
+
+const char bg_cmd_jobs_usage[] =
+    "usage: biotgrid jobs [--state S] [--limit N] [--page N] [options]\n"
+    "Lists the broker's jobs, oldest first.\n"
+    "  --state S           only jobs in state S (queued, allocating, running, succeeded,\n"
+    "                      failed, cancelled)\n"
+    "  --limit N           at most N jobs (default: all)\n"
+    "  --page N            jobs per request, 1..500 (default 100)\n" BROKER_HELP;
+
+const char bg_cmd_status_usage[] = "usage: biotgrid status ID [options]\n"
+                                   "Shows a job: its state, mechanism, budget, plan and why it "
+                                   "failed or was cancelled.\n" BROKER_HELP;
+
+const char bg_cmd_result_usage[] =
+    "usage: biotgrid result ID --out DIR [options]\n"
+    "Downloads a succeeded job's result files into DIR (created "
+    "if needed).\n"
+    "  --out DIR           the folder to write the files to\n" BROKER_HELP;
+
+const char bg_cmd_cancel_usage[] = "usage: biotgrid cancel ID [options]\n"
+                                   "Cancels a job that has not ended.\n" BROKER_HELP;
+
+const char bg_cmd_agents_usage[] = "usage: biotgrid agents [options]\n"
+                                   "Lists the agents registered with the broker.\n" BROKER_HELP;
+
+const char bg_cmd_market_usage[] =
+    "usage: biotgrid market [options]\n"
+    "Shows the broker's recent prices per good and mechanism.\n" BROKER_HELP;
+
+/* The options a command accepts beyond --broker, --json and --help. */
+enum {
+    OPT_MECHANISM = 1 << 0,
+    OPT_BUDGET = 1 << 1,
+    OPT_WAIT = 1 << 2,
+    OPT_KEY = 1 << 3,
+    OPT_MESH_PATH = 1 << 4,
+    OPT_STATE = 1 << 5,
+    OPT_LIMIT = 1 << 6,
+    OPT_PAGE = 1 << 7,
+    OPT_OUT = 1 << 8,
+};
+
+typedef struct options {
+    const char *command;
+    const char *usage;
+    const char *broker;
+    int json, wait;
+    const char *mechanism;
+    double budget;
+    const char *key;
+    char mesh_path[CLIENT_MESH_PATH_MAX];
+    const char *state;
+    long limit, page;
+    const char *out;
+    const char *positional; /* SCENE or ID */
+} options_t;
+
+static int bad_usage(const options_t *o, const char *fmt, const char *what)
+{
+    fprintf(stderr, "biotgrid %s: ", o->command);
+    fprintf(stderr, fmt, what);
+    fputc('\n', stderr);
+    fputs(o->usage, stderr);
+    return -1;
+}
+
+static int parse_count(const options_t *o, const char *name, const char *text, long max, long *out)
+{
+    char *end = NULL;
+    errno = 0;
+    const long v = strtol(text, &end, 10);
+    if (errno || !end || *end || end == text || v < 1 || v > max) {
+        fprintf(stderr, "biotgrid %s: %s: '%s' must be an integer in 1..%ld\n", o->command, name,
+                text, max);
+        return -1;
+    }
+    *out = v;
+    return 0;
+}
+
+/* 1: --help printed, 0: go on, -1: bad usage (message printed). positional: 1 if required. */
+static int parse(int argc, char **argv, unsigned allowed, int positional, const char *what,
+                 options_t *o)
+{
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            fputs(o->usage, stdout);
+            return 1;
+        }
+        if (strcmp(a, "--json") == 0) {
+            o->json = 1;
+            continue;
+        }
+        if (strcmp(a, "--wait") == 0 && (allowed & OPT_WAIT)) {
+            o->wait = 1;
+            continue;
+        }
+        static const struct {
+            const char *name;
+            unsigned bit;
+        } valued[] = {{"--broker", 0},
+                      {"--mechanism", OPT_MECHANISM},
+                      {"--budget", OPT_BUDGET},
+                      {"--idempotency-key", OPT_KEY},
+                      {"--mesh-path", OPT_MESH_PATH},
+                      {"--state", OPT_STATE},
+                      {"--limit", OPT_LIMIT},
+                      {"--page", OPT_PAGE},
+                      {"--out", OPT_OUT}};
+        int matched = -1;
+        for (size_t k = 0; k < sizeof valued / sizeof valued[0]; k++)
+            if (strcmp(a, valued[k].name) == 0 && (!valued[k].bit || (allowed & valued[k].bit)))
+                matched = (int)k;
+        if (matched >= 0) {
+            if (i + 1 >= argc)
+                return bad_usage(o, "%s needs a value", a);
+            const char *v = argv[++i];
+            const unsigned bit = valued[matched].bit;
+            if (bit == 0) {
+                o->broker = v;
+            } else if (bit == OPT_MECHANISM) {
+                if (strcmp(v, "central") && strcmp(v, "catallactic") && strcmp(v, "posted"))
+                    return bad_usage(o,
+                                     "--mechanism: unknown mechanism '%s' (expected central, "
+                                     "catallactic or posted)",
+                                     v);
+                o->mechanism = v;
+            } else if (bit == OPT_BUDGET) {
+                char *end = NULL;
+                o->budget = strtod(v, &end);
+                if (!end || *end || end == v || !isfinite(o->budget) || !(o->budget > 0.0))
+                    return bad_usage(o, "--budget: '%s' is not a positive number", v);
+            } else if (bit == OPT_KEY) {
+                o->key = v;
+            } else if (bit == OPT_MESH_PATH) {
+                if (bg_cmd_mesh_path_add(o->mesh_path, sizeof o->mesh_path, v) != 0)
+                    return bad_usage(o, "--mesh-path: too many folders%s", "");
+            } else if (bit == OPT_STATE) {
+                o->state = v;
+            } else if (bit == OPT_LIMIT) {
+                if (parse_count(o, "--limit", v, 1000000000L, &o->limit) != 0)
+                    return -1;
+            } else if (bit == OPT_PAGE) {
+                if (parse_count(o, "--page", v, CLIENT_MAX_PAGE, &o->page) != 0)
+                    return -1;
+            } else {
+                o->out = v;
+            }
+            continue;
+        }
+        if (a[0] == '-' && a[1])
+            return bad_usage(o, "unknown option '%s'", a);
+        if (!positional || o->positional)
+            return bad_usage(o, "unexpected argument '%s'", a);
+        o->positional = a;
+    }
+    if (positional && !o->positional)
+        return bad_usage(o, "missing %s", what);
+    if ((allowed & OPT_OUT) && !o->out)
+        return bad_usage(o, "missing --out DIR%s", "");
+    if ((allowed & OPT_MESH_PATH) &&
+        bg_cmd_mesh_path_finish(o->mesh_path, sizeof o->mesh_path) != 0)
+        return bad_usage(o, "$%s is too long", BG_CMD_MESH_PATH_ENV);
+    return 0;
+}
+
+/* The broker recorded in the local grid's state file, if any. */
+static int grid_broker(char *url, size_t size)
+{
+    const char *dir = getenv(CLIENT_GRID_DIR_ENV);
+    char path[4096];
+    snprintf(path, sizeof path, "%s/grid.json", dir && dir[0] ? dir : CLIENT_GRID_DIR);
+    if (access(path, R_OK) != 0)
+        return 0;
+    char *text = NULL;
+    size_t length = 0;
+    if (bg_file_read_all(path, 1 << 20, &text, &length, NULL) != BG_OK)
+        return 0;
+    cJSON *root = cJSON_ParseWithLength(text, length);
+    free(text);
+    const cJSON *broker = cJSON_GetObjectItemCaseSensitive(root, "broker");
+    if (cJSON_IsObject(broker))
+        broker = cJSON_GetObjectItemCaseSensitive(broker, "url");
+    int found = 0;
+    if (cJSON_IsString(broker) && broker->valuestring[0] && strlen(broker->valuestring) < size) {
+        snprintf(url, size, "%s", broker->valuestring);
+        found = 1;
+    }
+    cJSON_Delete(root);
+    return found;
+}
+
+static int exit_for(bg_status st)
+{
+    /* Unreachable broker, 5xx, out of memory: the request did not reach its goal;
+     * everything else is the input's fault (including the broker's 4xx). */
+    return st == BG_ERR_IO || st == BG_ERR_NOMEM ? BG_EXIT_FAILED : BG_EXIT_BAD_INPUT;
+}
+
+static int fail(const options_t *o, const bg_error_t *err)
+{
+    fprintf(stderr, "biotgrid %s: %s\n", o->command, err->message);
+    return exit_for(err->status);
+}
+
+/* Parses the options and opens the client; returns -1 to go on, else the exit status. */
+static int start(int argc, char **argv, unsigned allowed, int positional, const char *what,
+                 const char *usage, options_t *o, bgb_client_t **client)
+{
+    memset(o, 0, sizeof *o);
+    o->command = argv[0];
+    o->usage = usage;
+    const int p = parse(argc, argv, allowed, positional, what, o);
+    if (p != 0)
+        return p > 0 ? BG_EXIT_OK : BG_EXIT_BAD_INPUT;
+    char url[CLIENT_URL_MAX];
+    const char *env = getenv(CLIENT_BROKER_ENV);
+    if (o->broker)
+        snprintf(url, sizeof url, "%s", o->broker);
+    else if (env && env[0])
+        snprintf(url, sizeof url, "%s", env);
+    else if (!grid_broker(url, sizeof url))
+        snprintf(url, sizeof url, "%s", CLIENT_DEFAULT_BROKER);
+    const bgb_client_config_t config = {.url = url};
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgb_client_new(&config, client, &err) != BG_OK)
+        return fail(o, &err);
+    return -1;
+}
+
+static const char *string_of(const cJSON *o, const char *key)
+{
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(o, key);
+    return cJSON_IsString(item) ? item->valuestring : NULL;
+}
+
+static double number_of(const cJSON *o, const char *key)
+{
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(o, key);
+    return cJSON_IsNumber(item) ? item->valuedouble : NAN;
+}
+
+/* Prints a document as JSON (--json) and frees it. */
+static int print_json(cJSON *doc)
+{
+    char *text = cJSON_Print(doc);
+    cJSON_Delete(doc);
+    if (!text) {
+        fputs("biotgrid: out of memory\n", stderr);
+        return BG_EXIT_FAILED;
+    }
+    puts(text);
+    free(text);
+    return BG_EXIT_OK;
+}
+
+static void format_time(double t, char *out, size_t size)
+{
+    const time_t s = isfinite(t) ? (time_t)t : 0;
+    struct tm tm;
+    if (!gmtime_r(&s, &tm) || !strftime(out, size, "%Y-%m-%dT%H:%M:%SZ", &tm))
+        snprintf(out, size, "?");
+}
+
+static void print_job(const cJSON *job)
+{
+    const char *id = string_of(job, "id"), *state = string_of(job, "state");
+    const char *mechanism = string_of(job, "mechanism"), *reason = string_of(job, "reason");
+    printf("job %s: %s\n", id ? id : "?", state ? state : "?");
+    printf("  mechanism %s, budget %g\n", mechanism ? mechanism : "?", number_of(job, "budget"));
+    char created[32], updated[32];
+    format_time(number_of(job, "created"), created, sizeof created);
+    format_time(number_of(job, "updated"), updated, sizeof updated);
+    printf("  submitted %s, updated %s\n", created, updated);
+    const cJSON *plan = cJSON_GetObjectItemCaseSensitive(job, "plan");
+    const cJSON *services = cJSON_GetObjectItemCaseSensitive(plan, "services");
+    const cJSON *s;
+    cJSON_ArrayForEach(s, services)
+    {
+        const char *name = string_of(s, "service"), *detail = string_of(s, "detail");
+        printf("  plan: %s%s%s\n", name ? name : "?", detail ? " — " : "", detail ? detail : "");
+    }
+    if (reason)
+        printf("  reason: %s\n", reason);
+}
+
+/* ------------------------------------------------------------- submit */
+
+typedef struct follow {
+    const char *id;
+    int tty, json;
+    char state[32];
+    double fraction;
+    int bar_shown;
+} follow_t;
+
+static void draw_bar(follow_t *f)
+{
+    const double x = f->fraction < 0.0 ? 0.0 : f->fraction > 1.0 ? 1.0 : f->fraction;
+    const int filled = (int)lround(x * CLIENT_BAR_WIDTH);
+    char bar[CLIENT_BAR_WIDTH + 1];
+    for (int i = 0; i < CLIENT_BAR_WIDTH; i++)
+        bar[i] = i < filled ? '#' : '.';
+    bar[CLIENT_BAR_WIDTH] = '\0';
+    fprintf(stderr, "\r%s [%s] %3d%% %-10s", f->id, bar, (int)lround(100.0 * x), f->state);
+    fflush(stderr);
+    f->bar_shown = 1;
+}
+
+static int on_event(void *ctx, const char *id, const char *event, const char *data)
+{
+    follow_t *f = ctx;
+    (void)id;
+    cJSON *doc = cJSON_Parse(data);
+    if (strcmp(event, "state") == 0) {
+        const char *state = string_of(doc, "state");
+        snprintf(f->state, sizeof f->state, "%s", state ? state : "?");
+        if (strcmp(f->state, "succeeded") == 0)
+            f->fraction = 1.0;
+        if (!f->tty && !f->json)
+            printf("job %s: %s\n", f->id, f->state);
+    } else if (strcmp(event, "progress") == 0) {
+        double x = number_of(doc, "fraction");
+        if (!isfinite(x))
+            x = number_of(doc, "progress");
+        if (isfinite(x))
+            f->fraction = x;
+        if (!f->tty && !f->json && isfinite(x))
+            printf("job %s: progress %.0f%%\n", f->id, 100.0 * x);
+    } else if (!f->tty && !f->json) {
+        printf("job %s: %s %s\n", f->id, event, data);
+    }
+    if (f->tty)
+        draw_bar(f);
+    fflush(stdout);
+    cJSON_Delete(doc);
+    return 0;
+}
+
+/* Follows the job until it ends, then prints it; exit 0 only if it succeeded. */
+static int wait_for(const options_t *o, bgb_client_t *client, const char *id)
+{
+    follow_t f = {.id = id, .tty = isatty(STDERR_FILENO), .json = o->json, .state = "queued"};
+    bg_error_t err = BG_ERROR_INIT;
+    bg_status st = bgb_client_events(client, id, NULL, on_event, &f, &err);
+    if (f.bar_shown)
+        fputc('\n', stderr);
+    if (st != BG_OK)
+        return fail(o, &err);
+    cJSON *job = NULL;
+    if ((st = bgb_client_get_job(client, id, &job, &err)) != BG_OK)
+        return fail(o, &err);
+    const char *state = string_of(job, "state");
+    const int ok = state && strcmp(state, "succeeded") == 0;
+    if (o->json)
+        return print_json(job) == BG_EXIT_OK && ok ? BG_EXIT_OK : BG_EXIT_FAILED;
+    const char *reason = string_of(job, "reason");
+    printf("job %s: %s%s%s\n", id, state ? state : "?", reason ? ": " : "", reason ? reason : "");
+    if (ok)
+        printf("  its files: biotgrid result %s --out DIR\n", id);
+    cJSON_Delete(job);
+    return ok ? BG_EXIT_OK : BG_EXIT_FAILED;
+}
+
+int bg_cmd_submit(int argc, char **argv)
+{
+    options_t o;
+    bgb_client_t *client = NULL;
+    int rc = start(argc, argv, OPT_MECHANISM | OPT_BUDGET | OPT_WAIT | OPT_KEY | OPT_MESH_PATH, 1,
+                   "SCENE.json", bg_cmd_submit_usage, &o, &client);
+    if (rc >= 0)
+        return rc;
+    const bgb_client_submit_t submit = {.scene_path = o.positional,
+                                        .search_path = o.mesh_path,
+                                        .mechanism = o.mechanism,
+                                        .budget = o.budget,
+                                        .idempotency_key = o.key};
+    cJSON *job = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgb_client_submit_job(client, &submit, &job, &err) != BG_OK) {
+        rc = fail(&o, &err);
+        goto out;
+    }
+    const char *id = string_of(job, "id");
+    if (!id) {
+        fprintf(stderr, "biotgrid submit: the broker's answer has no job id\n");
+        rc = BG_EXIT_FAILED;
+        goto out;
+    }
+    char job_id[64];
+    snprintf(job_id, sizeof job_id, "%s", id);
+    if (o.wait) {
+        if (!o.json)
+            printf("submitted job %s to %s\n", job_id, bgb_client_url(client));
+        rc = wait_for(&o, client, job_id);
+    } else if (o.json) {
+        rc = print_json(job);
+        job = NULL;
+    } else {
+        printf("submitted job %s (%s, mechanism %s, budget %g) to %s\n", job_id,
+               string_of(job, "state") ? string_of(job, "state") : "?",
+               string_of(job, "mechanism") ? string_of(job, "mechanism") : "?",
+               number_of(job, "budget"), bgb_client_url(client));
+        rc = BG_EXIT_OK;
+    }
+out:
+    cJSON_Delete(job);
+    bgb_client_destroy(&client);
+    return rc;
+}
+
+/* --------------------------------------------------------------- jobs */
+
+int bg_cmd_jobs(int argc, char **argv)
+{
+    options_t o;
+    bgb_client_t *client = NULL;
+    int rc = start(argc, argv, OPT_STATE | OPT_LIMIT | OPT_PAGE, 0, NULL, bg_cmd_jobs_usage, &o,
+                   &client);
+    if (rc >= 0)
+        return rc;
+    cJSON *all = cJSON_CreateArray();
+    cJSON *page = NULL;
+    char cursor[64] = "";
+    long listed = 0;
+    const long page_size = o.page ? o.page : CLIENT_DEFAULT_PAGE;
+    bg_error_t err = BG_ERROR_INIT;
+    rc = BG_EXIT_OK;
+    if (!all) {
+        fputs("biotgrid jobs: out of memory\n", stderr);
+        rc = BG_EXIT_FAILED;
+        goto out;
+    }
+    for (;;) {
+        long want = page_size;
+        if (o.limit && o.limit - listed < want)
+            want = o.limit - listed;
+        if (bgb_client_list_jobs(client, o.state, (int)want, cursor[0] ? cursor : NULL, &page,
+                                 &err) != BG_OK) {
+            rc = fail(&o, &err);
+            goto out;
+        }
+        cJSON *jobs = cJSON_GetObjectItemCaseSensitive(page, "jobs");
+        while (cJSON_IsArray(jobs) && jobs->child && (!o.limit || listed < o.limit)) {
+            cJSON_AddItemToArray(all, cJSON_DetachItemViaPointer(jobs, jobs->child));
+            listed++;
+        }
+        const char *next = string_of(page, "next");
+        if (!next || (o.limit && listed >= o.limit))
+            break;
+        if (strlen(next) >= sizeof cursor || strcmp(next, cursor) == 0) {
+            fprintf(stderr, "biotgrid jobs: the broker's cursor '%s' does not advance\n", next);
+            rc = BG_EXIT_FAILED;
+            goto out;
+        }
+        snprintf(cursor, sizeof cursor, "%s", next);
+        cJSON_Delete(page);
+        page = NULL;
+    }
+    if (o.json) {
+        cJSON *doc = cJSON_CreateObject();
+        if (doc && cJSON_AddItemToObject(doc, "jobs", all)) {
+            all = NULL;
+            rc = print_json(doc);
+        } else {
+            cJSON_Delete(doc);
+            rc = BG_EXIT_FAILED;
+        }
+        goto out;
+    }
+    printf("%-18s %-10s %-11s %10s  %s\n", "ID", "STATE", "MECHANISM", "BUDGET", "SUBMITTED");
+    const cJSON *job;
+    cJSON_ArrayForEach(job, all)
+    {
+        char created[32];
+        format_time(number_of(job, "created"), created, sizeof created);
+        const char *id = string_of(job, "id"), *state = string_of(job, "state");
+        const char *mechanism = string_of(job, "mechanism");
+        printf("%-18s %-10s %-11s %10g  %s\n", id ? id : "?", state ? state : "?",
+               mechanism ? mechanism : "?", number_of(job, "budget"), created);
+    }
+    printf("%ld job%s\n", listed, listed == 1 ? "" : "s");
+out:
+    cJSON_Delete(all);
+    cJSON_Delete(page);
+    bgb_client_destroy(&client);
+    return rc;
+}
+
+/* ------------------------------------------------------ status, cancel */
+
+typedef bg_status (*job_call_fn)(bgb_client_t *, const char *, cJSON **, bg_error_t *);
+
+static int job_command(int argc, char **argv, const char *usage, job_call_fn call, const char *done)
+{
+    options_t o;
+    bgb_client_t *client = NULL;
+    int rc = start(argc, argv, 0, 1, "ID", usage, &o, &client);
+    if (rc >= 0)
+        return rc;
+    cJSON *job = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    if (call(client, o.positional, &job, &err) != BG_OK) {
+        rc = fail(&o, &err);
+    } else if (o.json) {
+        rc = print_json(job);
+        job = NULL;
+    } else {
+        if (done)
+            printf("%s %s\n", done, o.positional);
+        print_job(job);
+        rc = BG_EXIT_OK;
+    }
+    cJSON_Delete(job);
+    bgb_client_destroy(&client);
+    return rc;
+}
+
+int bg_cmd_status(int argc, char **argv)
+{
+    return job_command(argc, argv, bg_cmd_status_usage, bgb_client_get_job, NULL);
+}
+
+int bg_cmd_cancel(int argc, char **argv)
+{
+    return job_command(argc, argv, bg_cmd_cancel_usage, bgb_client_cancel_job, "cancelled");
+}
+
+/* -------------------------------------------------------------- result */
+
+int bg_cmd_result(int argc, char **argv)
+{
+    options_t o;
+    bgb_client_t *client = NULL;
+    int rc = start(argc, argv, OPT_OUT, 1, "ID", bg_cmd_result_usage, &o, &client);
+    if (rc >= 0)
+        return rc;
+    cJSON *doc = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgb_client_result(client, o.positional, &doc, &err) != BG_OK) {
+        rc = fail(&o, &err);
+        goto out;
+    }
+    if (bg_cmd_make_directories(o.out) != 0) {
+        fprintf(stderr, "biotgrid result: --out %s: %s\n", o.out, strerror(errno));
+        rc = BG_EXIT_BAD_INPUT;
+        goto out;
+    }
+    const cJSON *files = cJSON_GetObjectItemCaseSensitive(doc, "files");
+    const cJSON *file;
+    int count = 0;
+    rc = BG_EXIT_OK;
+    cJSON_ArrayForEach(file, files)
+    {
+        const char *name = string_of(file, "name");
+        size_t size = 0;
+        if (!name) {
+            fprintf(stderr, "biotgrid result: the broker's file list has an entry without a "
+                            "name\n");
+            rc = BG_EXIT_FAILED;
+            goto out;
+        }
+        if (bgb_client_download(client, o.positional, name, o.out, &size, &err) != BG_OK) {
+            rc = fail(&o, &err);
+            goto out;
+        }
+        if (!o.json)
+            printf("%s/%s (%zu bytes)\n", o.out, name, size);
+        count++;
+    }
+    if (o.json) {
+        cJSON_AddStringToObject(doc, "out", o.out);
+        rc = print_json(doc);
+        doc = NULL;
+    } else {
+        printf("job %s: %d file%s in %s\n", o.positional, count, count == 1 ? "" : "s", o.out);
+    }
+out:
+    cJSON_Delete(doc);
+    bgb_client_destroy(&client);
+    return rc;
+}
+
+/* ------------------------------------------------------ agents, market */
+
+/* A document as indented "key: value" lines, for the commands whose schema the broker owns. */
+static void print_tree(const cJSON *item, int depth)
+{
+    const cJSON *child;
+    cJSON_ArrayForEach(child, item)
+    {
+        printf("%*s", 2 * depth, "");
+        if (child->string)
+            printf("%s:", child->string);
+        else if (cJSON_IsArray(item))
+            printf("-");
+        if (cJSON_IsObject(child) || cJSON_IsArray(child)) {
+            putchar('\n');
+            print_tree(child, depth + 1);
+            continue;
+        }
+        char *text = cJSON_PrintUnformatted(child);
+        printf(" %s\n", text ? text : "?");
+        free(text);
+    }
+}
+
+typedef bg_status (*doc_call_fn)(bgb_client_t *, cJSON **, bg_error_t *);
+
+static int document_command(int argc, char **argv, const char *usage, doc_call_fn call)
+{
+    options_t o;
+    bgb_client_t *client = NULL;
+    int rc = start(argc, argv, 0, 0, NULL, usage, &o, &client);
+    if (rc >= 0)
+        return rc;
+    cJSON *doc = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    if (call(client, &doc, &err) != BG_OK) {
+        rc = fail(&o, &err);
+    } else if (o.json) {
+        rc = print_json(doc);
+        doc = NULL;
+    } else {
+        print_tree(doc, 0);
+        rc = BG_EXIT_OK;
+    }
+    cJSON_Delete(doc);
+    bgb_client_destroy(&client);
+    return rc;
+}
+
+int bg_cmd_agents(int argc, char **argv)
+{
+    return document_command(argc, argv, bg_cmd_agents_usage, bgb_client_agents);
+}
+
+int bg_cmd_market(int argc, char **argv)
+{
+    return document_command(argc, argv, bg_cmd_market_usage, bgb_client_market);
+}
