@@ -756,12 +756,13 @@ static bg_status pack_refs(packer_t *p, cJSON *scene, bg_error_t *err)
         if (!cJSON_IsObject(h))
             continue;
         char field[96];
-        snprintf(field, sizeof field, "handles[%d].positions", index);
-        st = pack_ref(p, h, "positions", field, 0, err);
         cJSON *select = cJSON_GetObjectItemCaseSensitive(h, "select");
         snprintf(field, sizeof field, "handles[%d].select.file", index);
-        if (st == BG_OK && cJSON_IsObject(select))
+        if (cJSON_IsObject(select))
             st = pack_ref(p, select, "file", field, 0, err);
+        snprintf(field, sizeof field, "handles[%d].positions", index);
+        if (st == BG_OK)
+            st = pack_ref(p, h, "positions", field, 0, err);
     }
     return st;
 }

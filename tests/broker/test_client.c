@@ -1,0 +1,355 @@
+/*
+ * bgb_client without a server: the server-sent events parser (every chunk
+ * boundary, line endings, comments, the caps, stopping) and the packing of
+ * a scene with the files it names (found beside the scene or through the
+ * search path, renamed, TetGen pairs, name clashes, errors naming the field).
+ * The HTTP side is tests/broker/client.sh against a real server.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cmocka.h>
+
+#include <cJSON.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "bgb_base64.h"
+#include "bgb_client.h"
+
+/* ------------------------------------------------------------ events */
+
+#define MAX_EVENTS 16
+
+typedef struct seen {
+    char text[MAX_EVENTS][256];
+    int count;
+    int stop_after; /* 0: never */
+} seen_t;
+
+static int record(void *ctx, const char *id, const char *event, const char *data)
+{
+    seen_t *s = ctx;
+    assert_true(s->count < MAX_EVENTS);
+    snprintf(s->text[s->count], sizeof s->text[0], "%s|%s|%s", id, event, data);
+    s->count++;
+    return s->stop_after && s->count >= s->stop_after;
+}
+
+/* A stream exercising the format: LF, CRLF and CR line ends, comments, a
+ * field without a colon, an unknown field, multi-line data, an id that
+ * persists, an event without data (not dispatched), one without a type. */
+static const char STREAM[] = ": keep-alive\n\n"
+                             "id: 1\nevent: state\ndata: {\"state\":\"queued\"}\n\n"
+                             "id: 2\r\nevent: progress\r\ndata: {\"fraction\":0.5}\r\n\r\n"
+                             "event: contract\rdata:first\rdata: second\r\r"
+                             "retry: 10\nid: 7\nevent: nothing\n\n"
+                             "data\nunknown: x\n\n"
+                             "id:9\ndata: a: b\n\n";
+
+static const char *const EXPECTED[] = {"1|state|{\"state\":\"queued\"}",
+                                       "2|progress|{\"fraction\":0.5}", "2|contract|first\nsecond",
+                                       "7|message|", "9|message|a: b"};
+#define EXPECTED_COUNT 5
+
+static void feed_split(const size_t *cuts, int ncuts, seen_t *seen)
+{
+    bgb_sse_t *sse = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_sse_new(0, record, seen, &sse, &err), BG_OK);
+    size_t from = 0;
+    for (int i = 0; i <= ncuts; i++) {
+        const size_t to = i < ncuts ? cuts[i] : sizeof STREAM - 1;
+        int stopped = 0;
+        assert_int_equal(bgb_sse_feed(sse, STREAM + from, to - from, &stopped, &err), BG_OK);
+        assert_int_equal(stopped, 0);
+        from = to;
+    }
+    bgb_sse_destroy(&sse);
+    assert_null(sse);
+}
+
+static void expect_all(const seen_t *seen)
+{
+    assert_int_equal(seen->count, EXPECTED_COUNT);
+    for (int i = 0; i < EXPECTED_COUNT; i++)
+        assert_string_equal(seen->text[i], EXPECTED[i]);
+}
+
+static void test_sse_every_boundary(void **state)
+{
+    (void)state;
+    seen_t whole = {0};
+    feed_split(NULL, 0, &whole);
+    expect_all(&whole);
+    /* Two chunks cut at every byte, then three chunks at every pair of cuts. */
+    const size_t n = sizeof STREAM - 1;
+    for (size_t cut = 0; cut <= n; cut++) {
+        seen_t seen = {0};
+        feed_split(&cut, 1, &seen);
+        expect_all(&seen);
+    }
+    for (size_t a = 0; a <= n; a += 3)
+        for (size_t b = a; b <= n; b += 5) {
+            const size_t cuts[2] = {a, b};
+            seen_t seen = {0};
+            feed_split(cuts, 2, &seen);
+            expect_all(&seen);
+        }
+    /* One byte at a time. */
+    size_t cuts[sizeof STREAM];
+    for (size_t i = 0; i < n; i++)
+        cuts[i] = i + 1;
+    seen_t bytes = {0};
+    feed_split(cuts, (int)n - 1, &bytes);
+    expect_all(&bytes);
+}
+
+static void test_sse_caps(void **state)
+{
+    (void)state;
+    seen_t seen = {0};
+    bgb_sse_t *sse = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    /* Data lines of 10 bytes each: the third would take the event over 32 bytes. */
+    assert_int_equal(bgb_sse_new(32, record, &seen, &sse, &err), BG_OK);
+    const char ok[] = "data: 0123456789\n\n";
+    assert_int_equal(bgb_sse_feed(sse, ok, sizeof ok - 1, NULL, &err), BG_OK);
+    assert_int_equal(seen.count, 1);
+    const char big[] = "data: 0123456789\ndata: 0123456789\ndata: 0123456789\n";
+    assert_int_equal(bgb_sse_feed(sse, big, sizeof big - 1, NULL, &err), BG_ERR_LIMIT);
+    assert_non_null(strstr(err.message, "exceeds 32 bytes"));
+    bgb_sse_destroy(&sse);
+    /* A line that never ends is refused at the cap, not buffered. */
+    bg_error_t err2 = BG_ERROR_INIT;
+    assert_int_equal(bgb_sse_new(32, record, &seen, &sse, &err2), BG_OK);
+    char endless[100];
+    memset(endless, 'x', sizeof endless);
+    assert_int_equal(bgb_sse_feed(sse, endless, sizeof endless, NULL, &err2), BG_ERR_LIMIT);
+    assert_non_null(strstr(err2.message, "a line exceeds 32 bytes"));
+    assert_int_equal(seen.count, 1);
+    bgb_sse_destroy(&sse);
+}
+
+static void test_sse_stop(void **state)
+{
+    (void)state;
+    seen_t seen = {.stop_after = 2};
+    bgb_sse_t *sse = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_sse_new(0, record, &seen, &sse, &err), BG_OK);
+    int stopped = 0;
+    assert_int_equal(bgb_sse_feed(sse, STREAM, sizeof STREAM - 1, &stopped, &err), BG_OK);
+    assert_int_equal(stopped, 1);
+    assert_int_equal(seen.count, 2);
+    assert_int_equal(bgb_sse_feed(sse, STREAM, sizeof STREAM - 1, &stopped, &err), BG_OK);
+    assert_int_equal(seen.count, 2);
+    bgb_sse_destroy(&sse);
+}
+
+/* ----------------------------------------------------------- packing */
+
+typedef struct folder {
+    char dir[64];
+} folder_t;
+
+static void write_file(const folder_t *f, const char *relative, const char *text)
+{
+    char path[256];
+    snprintf(path, sizeof path, "%s/%s", f->dir, relative);
+    /* The folders below f->dir, each in turn. */
+    for (char *slash = strchr(path + strlen(f->dir) + 1, '/'); slash;
+         slash = strchr(slash + 1, '/')) {
+        *slash = '\0';
+        mkdir(path, 0755);
+        *slash = '/';
+    }
+    FILE *out = fopen(path, "w");
+    assert_non_null(out);
+    fputs(text, out);
+    fclose(out);
+}
+
+static int setup_folder(void **state)
+{
+    folder_t *f = calloc(1, sizeof *f);
+    snprintf(f->dir, sizeof f->dir, "/tmp/bgb-client-test.XXXXXX");
+    assert_non_null(mkdtemp(f->dir));
+    *state = f;
+    return 0;
+}
+
+static int teardown_folder(void **state)
+{
+    folder_t *f = *state;
+    char command[128];
+    snprintf(command, sizeof command, "rm -rf '%s'", f->dir);
+    assert_int_equal(system(command), 0);
+    free(f);
+    return 0;
+}
+
+/* The uploaded file called name, decoded; NULL if none. */
+static char *uploaded(const cJSON *root, const char *name)
+{
+    const cJSON *f;
+    cJSON_ArrayForEach(f, cJSON_GetObjectItemCaseSensitive(root, "files"))
+    {
+        if (strcmp(cJSON_GetObjectItemCaseSensitive(f, "name")->valuestring, name) != 0)
+            continue;
+        const char *b64 = cJSON_GetObjectItemCaseSensitive(f, "base64")->valuestring;
+        uint8_t *data = NULL;
+        size_t size = 0;
+        bg_error_t err = BG_ERROR_INIT;
+        assert_int_equal(bgb_base64_decode(b64, strlen(b64), 1 << 20, &data, &size, &err), BG_OK);
+        char *text = malloc(size + 1);
+        memcpy(text, data, size);
+        text[size] = '\0';
+        free(data);
+        return text;
+    }
+    return NULL;
+}
+
+static void assert_uploaded(const cJSON *root, const char *name, const char *text)
+{
+    char *got = uploaded(root, name);
+    assert_non_null(got);
+    assert_string_equal(got, text);
+    free(got);
+}
+
+static void test_pack_files(void **state)
+{
+    folder_t *f = *state;
+    /* A TetGen mesh in a subfolder, two different files both called a.txt,
+     * one file named twice, and a positions file found only through the
+     * search path. */
+    write_file(f, "scene/mesh/box.node", "node text\n");
+    write_file(f, "scene/mesh/box.ele", "ele text\n");
+    write_file(f, "scene/sel/a.txt", "selection\n");
+    write_file(f, "scene/pos/a.txt", "positions\n");
+    write_file(f, "library/goal.txt", "goal\n");
+    write_file(f, "scene/job.json",
+               "{\"mesh\": \"mesh/box.node\",\n"
+               " \"handles\": [{\"select\": {\"file\": \"sel/a.txt\"}, \"positions\": "
+               "\"pos/a.txt\"},\n"
+               "             {\"select\": {\"file\": \"sel/a.txt\", \"group\": 2}}],\n"
+               " \"task\": {\"kind\": \"morph\", \"target\": \"elsewhere/goal.txt\"},\n"
+               " \"reference\": \"newton\"}\n");
+    char scene[128], search[160];
+    snprintf(scene, sizeof scene, "%s/scene/job.json", f->dir);
+    snprintf(search, sizeof search, "/nonexistent:%s/library", f->dir);
+    const bgb_client_submit_t submit = {
+        .scene_path = scene, .search_path = search, .mechanism = "posted", .budget = 7.5};
+    char *body = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_OK);
+    cJSON *root = cJSON_Parse(body);
+    free(body);
+    assert_non_null(root);
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(root, "mechanism")->valuestring, "posted");
+    assert_true(cJSON_GetObjectItemCaseSensitive(root, "budget")->valuedouble == 7.5);
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(root, "files")), 5);
+    assert_uploaded(root, "box.node", "node text\n");
+    assert_uploaded(root, "box.ele", "ele text\n");
+    assert_uploaded(root, "a.txt", "selection\n");
+    assert_uploaded(root, "2-a.txt", "positions\n");
+    assert_uploaded(root, "goal.txt", "goal\n");
+    const cJSON *s = cJSON_GetObjectItemCaseSensitive(root, "scene");
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(s, "mesh")->valuestring, "box.node");
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(s, "name")->valuestring, "job");
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(s, "reference")->valuestring, "newton");
+    const cJSON *handles = cJSON_GetObjectItemCaseSensitive(s, "handles");
+    const cJSON *h0 = cJSON_GetArrayItem(handles, 0), *h1 = cJSON_GetArrayItem(handles, 1);
+    assert_string_equal(
+        cJSON_GetObjectItemCaseSensitive(cJSON_GetObjectItemCaseSensitive(h0, "select"), "file")
+            ->valuestring,
+        "a.txt");
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(h0, "positions")->valuestring, "2-a.txt");
+    const cJSON *select1 = cJSON_GetObjectItemCaseSensitive(h1, "select");
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(select1, "file")->valuestring, "a.txt");
+    assert_int_equal(cJSON_GetObjectItemCaseSensitive(select1, "group")->valueint, 2);
+    assert_string_equal(
+        cJSON_GetObjectItemCaseSensitive(cJSON_GetObjectItemCaseSensitive(s, "task"), "target")
+            ->valuestring,
+        "goal.txt");
+    cJSON_Delete(root);
+}
+
+static void test_pack_errors(void **state)
+{
+    folder_t *f = *state;
+    char scene[128];
+    snprintf(scene, sizeof scene, "%s/s/missing.json", f->dir);
+    write_file(f, "s/missing.json", "{\"name\": \"m\", \"mesh\": {\"file\": \"gone/x.mesh\"}}");
+    const bgb_client_submit_t submit = {.scene_path = scene};
+    char *body = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_ERR_NOT_FOUND);
+    assert_null(body);
+    assert_non_null(strstr(err.message, "missing.json: mesh.file: gone/x.mesh not found"));
+    assert_non_null(strstr(err.message, "mesh search path (empty)"));
+
+    write_file(f, "s/tet.json", "{\"mesh\": \"t.ele\"}");
+    write_file(f, "s/t.ele", "ele\n");
+    snprintf(scene, sizeof scene, "%s/s/tet.json", f->dir);
+    bg_error_t err2 = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_pack(&submit, &body, &err2), BG_ERR_NOT_FOUND);
+    assert_non_null(strstr(err2.message, "tet.json: mesh: a TetGen mesh needs"));
+    assert_non_null(strstr(err2.message, "t.node"));
+
+    write_file(f, "s/bad.json", "{\"mesh\":\n  [1, 2,,]}");
+    snprintf(scene, sizeof scene, "%s/s/bad.json", f->dir);
+    bg_error_t err3 = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_pack(&submit, &body, &err3), BG_ERR_PARSE);
+    assert_non_null(strstr(err3.message, "bad.json: malformed JSON at line 2"));
+
+    snprintf(scene, sizeof scene, "%s/s/none.json", f->dir);
+    bg_error_t err4 = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_pack(&submit, &body, &err4), BG_ERR_IO);
+    assert_non_null(strstr(err4.message, "none.json"));
+}
+
+/* A result file name that could leave --out is refused before any request. */
+static void test_download_names(void **state)
+{
+    folder_t *f = *state;
+    const bgb_client_config_t config = {.url = "http://127.0.0.1:9/"};
+    bgb_client_t *client = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_new(&config, &client, &err), BG_OK);
+    assert_string_equal(bgb_client_url(client), "http://127.0.0.1:9");
+    static const char *const bad[] = {"../escape", "a/b", "..", ".", "", "x\ny"};
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        bg_error_t e = BG_ERROR_INIT;
+        assert_int_equal(bgb_client_download(client, "j0123456789abcdef", bad[i], f->dir, NULL, &e),
+                         BG_ERR_INVALID);
+        assert_non_null(strstr(e.message, "result file name"));
+    }
+    assert_int_equal(bgb_client_http_status(client), 0);
+    bgb_client_destroy(&client);
+    assert_null(client);
+    const bgb_client_config_t ftp = {.url = "ftp://127.0.0.1/"};
+    bg_error_t e = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_new(&ftp, &client, &e), BG_ERR_INVALID);
+    assert_non_null(strstr(e.message, "expected http://HOST:PORT"));
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_sse_every_boundary),
+        cmocka_unit_test(test_sse_caps),
+        cmocka_unit_test(test_sse_stop),
+        cmocka_unit_test_setup_teardown(test_pack_files, setup_folder, teardown_folder),
+        cmocka_unit_test_setup_teardown(test_pack_errors, setup_folder, teardown_folder),
+        cmocka_unit_test_setup_teardown(test_download_names, setup_folder, teardown_folder),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
