@@ -113,6 +113,19 @@ printf '%s\n' "$out" | grep -Eq "^job j[0-9a-f]{16}: running$" ||
 check 0 '"state"' "$bin" submit "$tmp/ok.json" --wait --json $b
 [ "$(get state)" = succeeded ] || fail "submit --wait --json: state $(get state)"
 
+# On a terminal (a pseudo-terminal from script(1), util-linux) --wait draws a
+# progress bar fed by the events instead of the lines.
+if command -v script >/dev/null 2>&1; then
+    check 0 "j[0-9a-f]{16} \\[#{15}\\.{15}\\]  50% running" \
+        script -qec "'$bin' submit '$tmp/ok.json' --wait $b" /dev/null
+    printf '%s\n' "$out" | grep -Eq "\\[#{30}\\] 100% succeeded" ||
+        fail "submit --wait on a terminal: no full bar: $out"
+    printf '%s\n' "$out" | grep -q "progress 50%" &&
+        fail "submit --wait on a terminal printed plain lines: $out"
+else
+    fail "script(1) is needed for the terminal test"
+fi
+
 # A job that fails: --wait exits 1 with the reason.
 scene "$tmp/fail.json" fail-1
 check 1 "failed: the test host fails jobs named fail" "$bin" submit "$tmp/fail.json" --wait $b
@@ -163,7 +176,7 @@ check 2 "404 Not found" "$bin" market --json $b
 check 0 '"jobs"' "$bin" jobs --json --page 500 $b
 all=$(get jobs)
 total=$(get jobs.#)
-[ "$total" = 6 ] || fail "jobs: $total jobs, expected 6"
+[ "$total" = 7 ] || fail "jobs: $total jobs, expected 7"
 check 0 '"jobs"' "$bin" jobs --json --page 2 $b
 [ "$(get jobs)" = "$all" ] || fail "jobs in pages of 2 differ from one page"
 [ "$(get jobs.0.id)" = "$id1" ] || fail "jobs: first is $(get jobs.0.id), expected $id1"
@@ -171,14 +184,14 @@ check 0 '"jobs"' "$bin" jobs --json --limit 3 --page 2 $b
 [ "$(get jobs.#)" = 3 ] || fail "jobs --limit 3: $(get jobs.#) jobs"
 check 0 '"jobs"' "$bin" jobs --json --state cancelled $b
 [ "$(get jobs.#)" = 1 ] && [ "$(get jobs.0.id)" = "$hold" ] || fail "jobs --state cancelled: $out"
-check 0 "^6 jobs$" "$bin" jobs $b
+check 0 "^7 jobs$" "$bin" jobs $b
 
 # The broker from the environment, then from the local grid's state file.
-check 0 "^6 jobs$" env BIOTGRID_BROKER="http://127.0.0.1:$main_port" "$bin" jobs
+check 0 "^7 jobs$" env BIOTGRID_BROKER="http://127.0.0.1:$main_port" "$bin" jobs
 mkdir -p "$tmp/grid"
 printf '{"name": "local", "broker": {"url": "http://127.0.0.1:%s"}, "agents": []}\n' \
     "$main_port" >"$tmp/grid/grid.json"
-check 0 "^6 jobs$" env -u BIOTGRID_BROKER BIOTGRID_GRID_DIR="$tmp/grid" "$bin" jobs
+check 0 "^7 jobs$" env -u BIOTGRID_BROKER BIOTGRID_GRID_DIR="$tmp/grid" "$bin" jobs
 
 # An oversized body: 413 from a host with a small cap.
 start_host small --max-body 300
