@@ -33,6 +33,7 @@ start_host() {
     "$host" "$tmp/$name" --lifetime 120 "$@" >"$tmp/$name.out" 2>"$tmp/$name.err" &
     pid=$!
     pids="$pids $pid"
+    eval "pid_$name=\$pid"
     port=""
     i=0
     while [ $i -lt 100 ]; do
@@ -198,7 +199,8 @@ start_host small --max-body 300
 small_port=$port
 check 2 "413 Request body too large" "$bin" submit "$fixtures/scenes/mesh-path.json" \
     --mesh-path "$fixtures/mesh" --broker "http://127.0.0.1:$small_port"
-kill "$pid" && wait "$pid"
+kill "$pid"
+wait "$pid" || fail "rest_host small exited $? on SIGTERM"
 # ... and once it is gone, connection refused names the URL and how to start a broker.
 check 1 "cannot reach the broker at http://127.0.0.1:$small_port .*biotgrid grid up" \
     "$bin" jobs --broker "http://127.0.0.1:$small_port"
@@ -208,6 +210,10 @@ check 2 "--mechanism: unknown mechanism 'bogus'" "$bin" submit "$tmp/ok.json" --
 check 2 "--budget: '-3' is not a positive number" "$bin" submit "$tmp/ok.json" --budget -3 $b
 check 2 "missing --out DIR" "$bin" result "$id1" $b
 check 2 "missing ID" "$bin" status $b
+
+# The host stops cleanly on SIGTERM (under the sanitizers: without a leak report).
+kill "$pid_main"
+wait "$pid_main" || fail "rest_host main exited $? on SIGTERM: $(cat "$tmp/main.err")"
 
 echo "client.sh: $failures failure(s)"
 [ "$failures" -eq 0 ]
