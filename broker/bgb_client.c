@@ -172,8 +172,10 @@ bg_status bgb_client_new(const bgb_client_config_t *config, bgb_client_t **out, 
     if (curl_global_init(CURL_GLOBAL_DEFAULT) != CURLE_OK)
         return bg_error_set(err, BG_ERR_IO, "cannot initialise libcurl");
     bgb_client_t *c = calloc(1, sizeof *c);
-    if (!c)
+    if (!c) {
+        curl_global_cleanup();
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the client");
+    }
     c->config = *config;
     if (c->config.connect_timeout_ms <= 0)
         c->config.connect_timeout_ms = CLIENT_CONNECT_TIMEOUT_MS;
@@ -206,6 +208,8 @@ void bgb_client_destroy(bgb_client_t **client)
     free((*client)->url);
     free(*client);
     *client = NULL;
+    /* Pairs bgb_client_new's curl_global_init (libcurl counts them). */
+    curl_global_cleanup();
 }
 
 const char *bgb_client_url(const bgb_client_t *client)

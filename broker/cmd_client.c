@@ -321,7 +321,7 @@ static void print_job(const cJSON *job)
     cJSON_ArrayForEach(s, services)
     {
         const char *name = string_of(s, "service"), *detail = string_of(s, "detail");
-        printf("  plan: %s%s%s\n", name ? name : "?", detail ? " — " : "", detail ? detail : "");
+        printf("  plan: %s%s%s\n", name ? name : "?", detail ? ": " : "", detail ? detail : "");
     }
     if (reason)
         printf("  reason: %s\n", reason);
