@@ -1,9 +1,11 @@
 /*
- * bgb_client without a server: the server-sent events parser (every chunk
+ * bgb_client first without a server: the server-sent events parser (every chunk
  * boundary, line endings, comments, the caps, stopping) and the packing of
  * a scene with the files it names (found beside the scene or through the
  * search path, renamed, TetGen pairs, name clashes, errors naming the field).
- * The HTTP side is tests/broker/client.sh against a real server.
+ * Then the HTTP side at the library level against the REST library served
+ * in process on an ephemeral loopback port: the response cap, statuses,
+ * the events stream. The commands are tests/broker/client.sh.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -21,6 +23,8 @@
 
 #include "bgb_base64.h"
 #include "bgb_client.h"
+#include "bgb_rest.h"
+#include "bgb_store.h"
 
 /* ------------------------------------------------------------ events */
 
@@ -341,6 +345,154 @@ static void test_download_names(void **state)
     assert_non_null(strstr(e.message, "expected http://HOST:PORT"));
 }
 
+/* ------------------------------------------- against an in-process server */
+
+typedef struct served {
+    folder_t folder;
+    bgb_store_t *store;
+    bgb_rest_t *rest;
+    char url[64];
+} served_t;
+
+static int setup_server(void **state)
+{
+    served_t *s = calloc(1, sizeof *s);
+    snprintf(s->folder.dir, sizeof s->folder.dir, "/tmp/bgb-client-test.XXXXXX");
+    assert_non_null(mkdtemp(s->folder.dir));
+    char path[128];
+    snprintf(path, sizeof path, "%s/store.db", s->folder.dir);
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_open(path, &s->store, &err), BG_OK);
+    const bgb_rest_config_t config = {.work_dir = s->folder.dir};
+    assert_int_equal(bgb_rest_start(&config, s->store, &s->rest, &err), BG_OK);
+    snprintf(s->url, sizeof s->url, "http://127.0.0.1:%u", (unsigned)bgb_rest_port(s->rest));
+    *state = s;
+    return 0;
+}
+
+static int teardown_server(void **state)
+{
+    served_t *s = *state;
+    bgb_rest_stop(&s->rest);
+    bgb_store_destroy(&s->store);
+    folder_t *f = malloc(sizeof *f);
+    *f = s->folder;
+    free(s);
+    *state = f;
+    return teardown_folder(state);
+}
+
+static void submit_box(served_t *s, bgb_client_t *client, char id[32])
+{
+    write_file(
+        &s->folder, "box.json",
+        "{\"mesh\": {\"generate\": \"box\", \"cells\": [2, 1, 1], \"size\": [2, 1, 1]},"
+        " \"material\": {\"mu\": 1, \"lambda\": 1},"
+        " \"handles\": [{\"select\": {\"box\": {\"min\": [0, 0, 0], \"max\": [0, 1, 1]}}}]}");
+    char scene[128];
+    snprintf(scene, sizeof scene, "%s/box.json", s->folder.dir);
+    const bgb_client_submit_t submit = {.scene_path = scene};
+    cJSON *job = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_submit_job(client, &submit, &job, &err), BG_OK);
+    assert_int_equal(bgb_client_http_status(client), 202);
+    snprintf(id, 32, "%s", cJSON_GetObjectItemCaseSensitive(job, "id")->valuestring);
+    cJSON_Delete(job);
+}
+
+/* A response over the client's cap is refused; the statuses map to bg_status. */
+static void test_caps_and_statuses(void **state)
+{
+    served_t *s = *state;
+    bgb_client_t *client = NULL, *small = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    const bgb_client_config_t config = {.url = s->url};
+    const bgb_client_config_t tiny = {.url = s->url, .max_response = 64};
+    assert_int_equal(bgb_client_new(&config, &client, &err), BG_OK);
+    assert_int_equal(bgb_client_new(&tiny, &small, &err), BG_OK);
+    char id[32];
+    submit_box(s, client, id);
+    cJSON *doc = NULL;
+    assert_int_equal(bgb_client_get_job(client, id, &doc, &err), BG_OK);
+    char *text = cJSON_PrintUnformatted(doc);
+    assert_true(strlen(text) > 64);
+    free(text);
+    cJSON_Delete(doc);
+    bg_error_t over = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_get_job(small, id, &doc, &over), BG_ERR_LIMIT);
+    assert_null(doc);
+    assert_non_null(strstr(over.message, "exceeds the client's limit of 64 bytes"));
+
+    bg_error_t missing = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_get_job(client, "j0000000000000000", &doc, &missing),
+                     BG_ERR_NOT_FOUND);
+    assert_int_equal(bgb_client_http_status(client), 404);
+    assert_non_null(strstr(missing.message, ": 404 No such job: "));
+    bg_error_t early = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_result(client, id, &doc, &early), BG_ERR_CONFLICT);
+    assert_non_null(strstr(early.message, "409 No result"));
+    bg_error_t bad = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_list_jobs(client, "nope", 0, NULL, &doc, &bad), BG_ERR_INVALID);
+    assert_non_null(strstr(bad.message, "(field state)"));
+    bgb_client_destroy(&small);
+    bgb_client_destroy(&client);
+}
+
+typedef struct stream_seen {
+    int count;
+    char first_event[32];
+    char last_id[32];
+} stream_seen_t;
+
+static int count_events(void *ctx, const char *id, const char *event, const char *data)
+{
+    stream_seen_t *s = ctx;
+    (void)data;
+    if (s->count++ == 0)
+        snprintf(s->first_event, sizeof s->first_event, "%s", event);
+    snprintf(s->last_id, sizeof s->last_id, "%s", id);
+    return 0;
+}
+
+static int stop_at_first(void *ctx, const char *id, const char *event, const char *data)
+{
+    count_events(ctx, id, event, data);
+    return 1;
+}
+
+/* The real events stream: it ends when the job has ended; a callback can stop
+ * it early (an active job's stream would otherwise go on); Last-Event-ID resumes. */
+static void test_events_stream(void **state)
+{
+    served_t *s = *state;
+    bgb_client_t *client = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    const bgb_client_config_t config = {.url = s->url};
+    assert_int_equal(bgb_client_new(&config, &client, &err), BG_OK);
+    char id[32];
+    submit_box(s, client, id);
+    stream_seen_t first = {0};
+    assert_int_equal(bgb_client_events(client, id, NULL, stop_at_first, &first, &err), BG_OK);
+    assert_int_equal(first.count, 1);
+    cJSON *doc = NULL;
+    assert_int_equal(bgb_client_cancel_job(client, id, &doc, &err), BG_OK);
+    cJSON_Delete(doc);
+    /* Ended: the whole log (queued, plan, cancelled — in the store's order) then the end. */
+    stream_seen_t all = {0};
+    assert_int_equal(bgb_client_events(client, id, NULL, count_events, &all, &err), BG_OK);
+    assert_int_equal(all.count, 3);
+    stream_seen_t rest = {0};
+    assert_int_equal(bgb_client_events(client, id, first.last_id, count_events, &rest, &err),
+                     BG_OK);
+    assert_int_equal(rest.count, 2);
+    assert_string_equal(rest.last_id, all.last_id);
+    bg_error_t missing = BG_ERROR_INIT;
+    assert_int_equal(
+        bgb_client_events(client, "j0000000000000000", NULL, count_events, &all, &missing),
+        BG_ERR_NOT_FOUND);
+    bgb_client_destroy(&client);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -350,6 +502,8 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_pack_files, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_pack_errors, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_download_names, setup_folder, teardown_folder),
+        cmocka_unit_test_setup_teardown(test_caps_and_statuses, setup_server, teardown_server),
+        cmocka_unit_test_setup_teardown(test_events_stream, setup_server, teardown_server),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
