@@ -22,6 +22,7 @@
 #define CLIENT_DEFAULT_PAGE 100
 #define CLIENT_MAX_PAGE 500
 #define CLIENT_BAR_WIDTH 30
+#define CLIENT_WAIT_RETRIES 3
 
 #define BROKER_HELP                                                                                \
     "  --broker URL        the broker (default $" CLIENT_BROKER_ENV ", else the local grid's\n"    \
@@ -332,6 +333,7 @@ static void print_job(const cJSON *job)
 typedef struct follow {
     const char *id;
     int tty, json;
+    char last_id[64]; /* the last event seen, to resume a dropped stream after it */
     char state[32];
     double fraction;
     int bar_shown;
@@ -353,7 +355,7 @@ static void draw_bar(follow_t *f)
 static int on_event(void *ctx, const char *id, const char *event, const char *data)
 {
     follow_t *f = ctx;
-    (void)id;
+    snprintf(f->last_id, sizeof f->last_id, "%s", id);
     cJSON *doc = cJSON_Parse(data);
     if (strcmp(event, "state") == 0) {
         const char *state = string_of(doc, "state");
@@ -380,20 +382,49 @@ static int on_event(void *ctx, const char *id, const char *event, const char *da
     return 0;
 }
 
-/* Follows the job until it ends, then prints it; exit 0 only if it succeeded. */
+/*
+ * Follows the job until it ends, then prints it; exit 0 only if it
+ * succeeded. A stream that drops, or that the broker ends while the job is
+ * still active (a broker stopping), is resumed after the last event seen,
+ * a few times, a second apart.
+ */
 static int wait_for(const options_t *o, bgb_client_t *client, const char *id)
 {
     follow_t f = {.id = id, .tty = isatty(STDERR_FILENO), .json = o->json, .state = "queued"};
     bg_error_t err = BG_ERROR_INIT;
-    bg_status st = bgb_client_events(client, id, NULL, on_event, &f, &err);
+    cJSON *job = NULL;
+    const char *state = NULL;
+    for (int attempt = 0;; attempt++) {
+        bg_error_clear(&err);
+        bg_status st =
+            bgb_client_events(client, id, f.last_id[0] ? f.last_id : NULL, on_event, &f, &err);
+        if (st == BG_OK)
+            st = bgb_client_get_job(client, id, &job, &err);
+        if (st != BG_OK && st != BG_ERR_IO) {
+            if (f.bar_shown)
+                fputc('\n', stderr);
+            return fail(o, &err);
+        }
+        state = string_of(job, "state");
+        const int ended = state && strcmp(state, "queued") && strcmp(state, "allocating") &&
+                          strcmp(state, "running");
+        if (ended)
+            break;
+        if (st == BG_OK)
+            bg_error_set(&err, BG_ERR_IO,
+                         "the broker at %s closed the events stream while job %s is still %s",
+                         bgb_client_url(client), id, state ? state : "?");
+        cJSON_Delete(job);
+        job = NULL;
+        if (attempt == CLIENT_WAIT_RETRIES) {
+            if (f.bar_shown)
+                fputc('\n', stderr);
+            return fail(o, &err);
+        }
+        sleep(1);
+    }
     if (f.bar_shown)
         fputc('\n', stderr);
-    if (st != BG_OK)
-        return fail(o, &err);
-    cJSON *job = NULL;
-    if ((st = bgb_client_get_job(client, id, &job, &err)) != BG_OK)
-        return fail(o, &err);
-    const char *state = string_of(job, "state");
     const int ok = state && strcmp(state, "succeeded") == 0;
     if (o->json)
         return print_json(job) == BG_EXIT_OK && ok ? BG_EXIT_OK : BG_EXIT_FAILED;

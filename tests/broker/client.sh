@@ -205,6 +205,27 @@ wait "$pid" || fail "rest_host small exited $? on SIGTERM"
 check 1 "cannot reach the broker at http://127.0.0.1:$small_port .*biotgrid grid up" \
     "$bin" jobs --broker "http://127.0.0.1:$small_port"
 
+# A broker that stops while --wait follows a job: the stream is resumed a
+# few times, then the client says the broker cannot be reached (exit 1).
+start_host stopping
+stop_port=$port
+"$bin" submit "$tmp/hold.json" --wait --broker "http://127.0.0.1:$stop_port" \
+    >"$tmp/wait.out" 2>&1 &
+waiter=$!
+pids="$pids $waiter"
+i=0
+until grep -q "^submitted job" "$tmp/wait.out" || [ $i -ge 100 ]; do
+    sleep 0.05
+    i=$((i + 1))
+done
+kill "$pid_stopping"
+wait "$pid_stopping" || fail "rest_host stopping exited $? on SIGTERM"
+wait "$waiter"
+status=$?
+[ "$status" -eq 1 ] || fail "submit --wait on a stopped broker exited $status, expected 1"
+grep -q "cannot reach the broker at http://127.0.0.1:$stop_port" "$tmp/wait.out" ||
+    fail "submit --wait on a stopped broker: $(cat "$tmp/wait.out")"
+
 # Usage errors.
 check 2 "--mechanism: unknown mechanism 'bogus'" "$bin" submit "$tmp/ok.json" --mechanism bogus $b
 check 2 "--budget: '-3' is not a positive number" "$bin" submit "$tmp/ok.json" --budget -3 $b
