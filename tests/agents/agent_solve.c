@@ -1,5 +1,5 @@
 /*
- * agent_solve RUNDIR SCENE.json METHOD AGENTS...
+ * agent_solve RUNDIR SCENE.json METHOD [--max-iterations N] AGENTS...
  *
  * The same job solved in process and across agents: for each count N in
  * 1..(number of rotation-fit agents given) the scene's solver runs with
@@ -45,20 +45,24 @@ static int read_endpoint(const char *dir, const char *name, char *ep, size_t cap
     return ok ? 0 : -1;
 }
 
-static bg_status run(const bg_scene_t *scene, bg_method method, const bg_backend_t *backend,
-                     bg_solve_result_t *r, bg_error_t *err)
+/* cap: the iteration cap (per frame for a morph), 0 for the scene's; the
+ * sanitizer build needs it on the slow cases, and a capped run must match
+ * just as well. */
+static bg_status run(const bg_scene_t *scene, bg_method method, int cap,
+                     const bg_backend_t *backend, bg_solve_result_t *r, bg_error_t *err)
 {
     if (scene->task == BG_TASK_DYNAMIC) {
-        const bg_dynamic_options_t o = {.method = method, .backend = backend};
+        const bg_dynamic_options_t o = {.method = method, .max_iterations = cap, .backend = backend};
         return bg_dynamic_solve(scene, &o, r, err);
     }
     if (scene->task == BG_TASK_MORPH) {
-        const bg_morph_options_t o = {.method = method, .backend = backend};
+        const bg_morph_options_t o = {.method = method, .max_iterations = cap, .backend = backend};
         return bg_morph_solve(scene, &o, r, err);
     }
     const bg_solve_options_t o = {.method = method,
                                   .tolerance = scene->tolerance,
-                                  .max_iterations = bg_scene_max_iterations(scene, method),
+                                  .max_iterations =
+                                      cap > 0 ? cap : bg_scene_max_iterations(scene, method),
                                   .keep_orientation = scene->task == BG_TASK_PARAMETERIZE,
                                   .backend = backend};
     return bg_static_solve(scene, &o, r, err);
@@ -125,8 +129,15 @@ static int compare(const bg_scene_t *scene, const bg_solve_result_t *a, const bg
 
 int main(int argc, char **argv)
 {
-    if (argc < 5 || argc - 4 > MAX_AGENTS) {
-        fprintf(stderr, "usage: agent_solve RUNDIR SCENE.json METHOD ROTFIT-AGENT...\n");
+    int first = 4, cap = 0;
+    if (argc > 5 && strcmp(argv[4], "--max-iterations") == 0) {
+        cap = atoi(argv[5]);
+        first = 6;
+    }
+    if (argc <= first || argc - first > MAX_AGENTS || (first == 6 && cap < 1)) {
+        fprintf(stderr,
+                "usage: agent_solve RUNDIR SCENE.json METHOD [--max-iterations N] "
+                "ROTFIT-AGENT...\n");
         return 2;
     }
     const char *dir = argv[1];
@@ -137,9 +148,9 @@ int main(int argc, char **argv)
         return 2;
     }
     char eps[MAX_AGENTS][256], solve_ep[256];
-    const int nagents = argc - 4;
+    const int nagents = argc - first;
     for (int i = 0; i < nagents; i++)
-        if (read_endpoint(dir, argv[4 + i], eps[i], sizeof eps[i]) != 0)
+        if (read_endpoint(dir, argv[first + i], eps[i], sizeof eps[i]) != 0)
             return 1;
     if (read_endpoint(dir, "sv", solve_ep, sizeof solve_ep) != 0)
         return 1;
@@ -151,7 +162,7 @@ int main(int argc, char **argv)
     }
     bg_solve_result_t local = BG_SOLVE_RESULT_INIT;
     int bad = 0;
-    if (run(scene, method, NULL, &local, &err) != BG_OK) {
+    if (run(scene, method, cap, NULL, &local, &err) != BG_OK) {
         fprintf(stderr, "agent_solve: in process: %s\n", err.message);
         bad = 1;
     }
@@ -165,7 +176,7 @@ int main(int argc, char **argv)
         bga_backend_t *remote = NULL;
         bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
         if (bga_backend_new(&bc, &remote, &err) != BG_OK ||
-            run(scene, method, bga_backend_services(remote), &r, &err) != BG_OK) {
+            run(scene, method, cap, bga_backend_services(remote), &r, &err) != BG_OK) {
             printf("  %d agent(s): FAILED: %s\n", n, err.message);
             bad++;
         } else {
