@@ -1213,6 +1213,25 @@ static bg_status parse_handles(parser_t *p, const cJSON *item)
         if (st != BG_OK)
             goto out;
     }
+    /* A morph with nothing held has a rigid-motion null space: its
+     * Hessian is singular, and the Newton steps' components along that
+     * space are round-off amplified, so two evaluations that differ in the
+     * last bits (partial sums added in another order, as across agents)
+     * drift apart by a rigid motion and take other line-search paths. The
+     * energy is invariant under rigid motions, so holding the 3-2-1 mount
+     * at rest changes no frame's energy and removes that null space. */
+    if (s->task == BG_TASK_MORPH && count == 0) {
+        cJSON *mount = cJSON_Parse("{\"name\": \"rigid-mount\", \"select\": \"rigid-mount\"}");
+        if (!mount) {
+            st = fail(p, BG_ERR_NOMEM, "handles", "out of memory");
+            goto out;
+        }
+        st = parse_handle(p, mount, count, names);
+        cJSON_Delete(mount);
+        if (st != BG_OK)
+            goto out;
+        count++;
+    }
     s->handle_count = count;
     s->constrained_vertices = 0;
     for (int32_t v = 0; v < s->mesh->nv; v++) {

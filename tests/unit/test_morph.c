@@ -2,7 +2,8 @@
  * Morphing between the shared straight bar and its twisted pose: frame 0 is
  * the source itself, the last frame the target up to a rigid motion (its
  * energy vanishes and every element's edge lengths are the target's), and
- * the energy along the path has no jumps.
+ * the energy along the path has no jumps. Without handles the scene is held
+ * by the automatic 3-2-1 mount (no rigid-motion null space).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -44,6 +45,16 @@ static void bar_morph_newton(void **state)
     if (bg_scene_load(SCENES "bar-morph.json", &s, &err) != BG_OK)
         fail_msg("%s", err.message);
     assert_int_equal(s->task, BG_TASK_MORPH);
+    /* Nothing held: the parser adds the 3-2-1 mount, exactly six held
+     * components (3 + 2 + 1) at their rest values, which the t = 0 frame
+     * (the source itself) satisfies. */
+    int held = 0;
+    for (size_t i = 0; i < (size_t)s->mesh->nv * 3; i++)
+        if (s->constrained[i]) {
+            held++;
+            assert_true(s->target[i] == s->mesh->x[i]);
+        }
+    assert_int_equal(held, 6);
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     const bg_morph_options_t o = {.method = BG_METHOD_NEWTON, .frame = check_frame, .frame_ctx = s};
     frames_seen = 0;
