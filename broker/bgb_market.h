@@ -131,8 +131,9 @@ typedef void (*bgb_done_fn)(void *ctx, const bgb_outcome_t *outcome);
 typedef struct bgb_contract {
     uint64_t job;       /* request (the job id) */
     double time, start, end;
-    char buyer[BGB_MARKET_NAME_MAX];  /* "job-<id>" or a basic agent's name */
-    char seller[BGB_MARKET_NAME_MAX];
+    uint64_t buyer;     /* the job id (service layer) */
+    uint32_t seller;    /* the agent's directory id */
+    char seller_name[BGB_MARKET_NAME_MAX];
     int mechanism;
     int layer;          /* 0 service, 1 resource */
     int good;
