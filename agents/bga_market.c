@@ -1,11 +1,25 @@
 #include "bga_market.h"
 
 #include <errno.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <zmq.h>
 
 #include "bga_transport.h"
+#include "bgm_catallactic.h"
+
+#define NEGO_MAX 32
+#define SEEN_MAX 64
+#define SELLER_ROUNDS 12 /* the simulator's default catallactic.max_rounds */
+
+/* A bargain in progress with the broker's buyer for (job, good). */
+typedef struct nego {
+    int used;
+    uint64_t job;
+    int good;
+    bgm_nego_t side;
+} nego_t;
 
 typedef struct held {
     uint64_t job;
@@ -23,6 +37,11 @@ struct bga_market {
     double next_beat;
     held_t *held; /* slots entries, used first */
     int used;
+    nego_t nego[NEGO_MAX];
+    uint64_t seen[SEEN_MAX]; /* CFPs already handled: job * 8 + good */
+    int nseen;
+    bgm_rng_t rng;
+    bgm_genes_t genes;
 };
 
 void bga_market_config_default(bga_market_config_t *c)
@@ -131,6 +150,11 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
         goto fail;
     }
     m->next_beat = now; /* the first tick registers */
+    uint64_t seed = 1469598103934665603ull;
+    for (const char *p = m->name; *p; p++)
+        seed = (seed ^ (uint8_t)*p) * 1099511628211ull;
+    bgm_rng_seed(&m->rng, seed);
+    bgm_genes_random(&m->genes, &m->rng);
     *out = m;
     return BG_OK;
 fail:
@@ -169,6 +193,9 @@ bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err)
 
 static void release_job(bga_market_t *m, uint64_t job)
 {
+    for (int i = 0; i < NEGO_MAX; i++)
+        if (m->nego[i].job == job)
+            m->nego[i].used = 0;
     int j = 0;
     for (int i = 0; i < m->used; i++)
         if (m->held[i].job != job)
@@ -202,9 +229,117 @@ static bg_status on_order(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err
     return send_msg(m, &r, err);
 }
 
+static nego_t *nego_find(bga_market_t *m, uint64_t job, int good)
+{
+    for (int i = 0; i < NEGO_MAX; i++)
+        if (m->nego[i].used && m->nego[i].job == job && m->nego[i].good == good)
+            return &m->nego[i];
+    return NULL;
+}
+
+static bg_status reply_price(bga_market_t *m, int type, const bga_mmsg_t *in, double price,
+                             bg_error_t *err)
+{
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, type);
+    r.job = in->job;
+    r.good = in->good;
+    r.agent = m->id;
+    r.quantity = in->quantity;
+    r.price = price;
+    return send_msg(m, &r, err);
+}
+
+/* Catallactic discovery: propose if it can sell, and pass the call on to
+ * the overlay neighbours (relayed by the broker) while hops remain. Each
+ * (job, good) call is handled once, however many paths bring it. */
+static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err)
+{
+    const uint64_t key = (in->job * 1024 + (uint64_t)in->attempt) * 8 + (uint64_t)in->good;
+    for (int i = 0; i < m->nseen; i++)
+        if (m->seen[i] == key)
+            return BG_OK;
+    if (m->nseen == SEEN_MAX)
+        memmove(m->seen, m->seen + 1, (SEEN_MAX - 1) * sizeof *m->seen), m->nseen--;
+    m->seen[m->nseen++] = key;
+    bg_status st = BG_OK;
+    /* A new round means the buyer is no longer bargaining over this good
+     * (it starts one only when no bargain is pending): restart ours. */
+    nego_t *stale = nego_find(m, in->job, in->good);
+    if (stale)
+        stale->used = 0;
+    if (sells(m, in->good) && m->used < m->c.slots) {
+        nego_t *n = NULL;
+        for (int i = 0; i < NEGO_MAX && !n; i++)
+            if (!m->nego[i].used)
+                n = &m->nego[i];
+        if (n) {
+            const double floor_g = m->c.floor[in->good];
+            const double open = bgm_nego_opening(BGM_SIDE_SELLER, floor_g,
+                                                 bga_market_price(m, in->good), m->c.margin);
+            *n = (nego_t){1, in->job, in->good, {0}};
+            bgm_nego_open(&n->side, BGM_SIDE_SELLER, floor_g, open, &m->genes, SELLER_ROUNDS);
+            st = reply_price(m, BGA_MM_PROPOSE, in, n->side.current, err);
+        }
+    }
+    for (int i = 0; st == BG_OK && in->hops > 1 && i < m->nneighbours; i++) {
+        bga_mmsg_t r;
+        bga_mmsg_init(&r, BGA_MM_RELAY);
+        r.job = in->job;
+        r.good = in->good;
+        r.agent = m->id;
+        r.target = m->neighbours[i];
+        r.origin = in->origin ? in->origin : m->id;
+        r.hops = in->hops - 1;
+        r.attempt = in->attempt;
+        r.quantity = in->quantity;
+        st = send_msg(m, &r, err);
+    }
+    return st;
+}
+
+/* Commits to a bargain at `price`: a slot, then CONFIRM (or REFUSE). */
+static bg_status commit(bga_market_t *m, nego_t *n, const bga_mmsg_t *in, double price,
+                        bg_error_t *err)
+{
+    n->used = 0;
+    bga_mmsg_t o = *in;
+    o.price = price;
+    return on_order(m, &o, err);
+}
+
+static bg_status on_bargain(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err)
+{
+    nego_t *n = nego_find(m, in->job, in->good);
+    if (!n)
+        return in->type == BGA_MM_REJECT ? BG_OK : reply_price(m, BGA_MM_REJECT, in, 0, err);
+    if (in->type == BGA_MM_REJECT) {
+        n->used = 0;
+        return BG_OK;
+    }
+    if (in->type == BGA_MM_ACCEPT) /* the buyer took the seller's price */
+        return commit(m, n, in, n->side.current, err);
+    double reply = 0;
+    switch (bgm_nego_respond(&n->side, in->price, &m->rng, &reply)) {
+    case BGM_NEGO_ACCEPT:
+        return commit(m, n, in, reply, err);
+    case BGM_NEGO_COUNTER:
+        return reply_price(m, BGA_MM_OFFER, in, reply, err);
+    default:
+        n->used = 0;
+        return reply_price(m, BGA_MM_REJECT, in, 0, err);
+    }
+}
+
 static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
     switch (in->type) {
+    case BGA_MM_CFP:
+        return on_cfp(m, in, err);
+    case BGA_MM_OFFER:
+    case BGA_MM_ACCEPT:
+    case BGA_MM_REJECT:
+        return on_bargain(m, in, err);
     case BGA_MM_REGISTERED:
         m->id = in->agent;
         m->nneighbours = in->nneighbours;

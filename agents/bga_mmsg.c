@@ -38,6 +38,9 @@ static bg_status check(const bga_mmsg_t *m, bg_error_t *err)
         return bg_error_set(err, BG_ERR_INVALID, "market message: good %d is out of range", m->good);
     if (m->slots < 0 || m->slots > 4096 || m->free_slots < 0 || m->free_slots > m->slots)
         return bg_error_set(err, BG_ERR_INVALID, "market message: slots/free_slots out of range");
+    if (m->attempt < 0 || m->attempt > 1000)
+        return bg_error_set(err, BG_ERR_INVALID, "market message: attempt %d out of [0, 1000]",
+                            m->attempt);
     if (m->hops < 0 || m->hops > 16)
         return bg_error_set(err, BG_ERR_INVALID, "market message: hops %d out of [0, 16]", m->hops);
     if (m->nneighbours < 0 || m->nneighbours > BGA_MMSG_MAX_NEIGHBOURS)
@@ -97,7 +100,7 @@ bg_status bga_mmsg_encode(const bga_mmsg_t *m, bga_frames_t *out, bg_error_t *er
              add_num(o, "load_slope", m->load_slope) &&
              add_array(o, "prices", m->prices, BGA_MMSG_GOODS) && add_num(o, "cores", m->cores) &&
              add_num(o, "memory", m->memory) && add_num(o, "good", m->good) &&
-             add_num(o, "hops", m->hops) && add_num(o, "quantity", m->quantity) &&
+             add_num(o, "hops", m->hops) && add_num(o, "attempt", m->attempt) && add_num(o, "quantity", m->quantity) &&
              add_num(o, "price", m->price) && add_array(o, "neighbours", nb, m->nneighbours) &&
              cJSON_AddStringToObject(o, "reason", m->reason);
     if (ok)
@@ -184,7 +187,7 @@ static bg_status get_array(const cJSON *o, const char *k, double *v, int max, in
 static const char *const known_keys[] = {
     "job",    "agent", "target", "origin", "name",   "endpoint",   "services", "resource",
     "slots",  "free_slots", "floor", "margin", "load_slope", "prices", "cores", "memory",
-    "good",   "hops",  "quantity", "price", "neighbours", "reason"};
+    "good",   "hops", "attempt",  "quantity", "price", "neighbours", "reason"};
 
 bg_status bga_mmsg_decode(const bga_frame_t *frames, int nframes, bga_mmsg_t *m, bg_error_t *err)
 {
@@ -215,7 +218,7 @@ bg_status bga_mmsg_decode(const bga_frame_t *frames, int nframes, bga_mmsg_t *m,
             goto out;
         }
     }
-    double v[10], nb[BGA_MMSG_MAX_NEIGHBOURS];
+    double v[11], nb[BGA_MMSG_MAX_NEIGHBOURS];
     int n;
     const double id_max = 4294967295.0;
     if ((st = get_num(o, "job", 0, 9007199254740992.0, 1, &v[0], err)) ||
@@ -227,8 +230,10 @@ bg_status bga_mmsg_decode(const bga_frame_t *frames, int nframes, bga_mmsg_t *m,
         (st = get_num(o, "slots", 0, 4096, 1, &v[6], err)) ||
         (st = get_num(o, "free_slots", 0, 4096, 1, &v[7], err)) ||
         (st = get_num(o, "good", -1, BGA_MMSG_GOODS - 1, 1, &v[8], err)) ||
-        (st = get_num(o, "hops", 0, 16, 1, &v[9], err)))
+        (st = get_num(o, "hops", 0, 16, 1, &v[9], err)) ||
+        (st = get_num(o, "attempt", 0, 1000, 1, &v[10], err)))
         goto out;
+    m->attempt = (int)v[10];
     m->job = (uint64_t)v[0];
     m->agent = (uint32_t)v[1];
     m->target = (uint32_t)v[2];

@@ -67,6 +67,7 @@ typedef struct bga_mmsg {
     double cores, memory;
     int good;
     int hops;
+    int attempt; /* CFP: the buyer's discovery round (a fresh round is heard again) */
     double quantity, price;
     int nneighbours;
     uint32_t neighbours[BGA_MMSG_MAX_NEIGHBOURS];

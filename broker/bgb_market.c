@@ -6,11 +6,15 @@
 
 #include "bga_mmsg.h"
 #include "bgm_callmarket.h"
+#include "bgm_catallactic.h"
 #include "bgm_posted.h"
 
 #define MAX_UNITS 64
 #define MAX_TRIED 32
 #define MAX_JOBS 1024
+#define MAX_PROPOSALS 64
+#define MAX_ROUNDS_DISCOVERY 16
+#define BUYER_MARKUP 0.1 /* catallactic buyer's opening below the proposal */
 
 typedef struct agent {
     int used;
@@ -18,6 +22,8 @@ typedef struct agent {
     uint8_t identity[BGB_MARKET_IDENTITY_MAX];
     size_t idlen;
     int pending; /* orders in flight */
+    uint32_t nb[BGA_MMSG_MAX_NEIGHBOURS]; /* overlay neighbours (symmetric links) */
+    int nnb;
 } agent_t;
 
 typedef struct bidref bidref_t;
@@ -32,7 +38,14 @@ typedef struct unit {
     double price, seller_floor, deadline;
     uint32_t tried[MAX_TRIED];
     int ntried;
+    bgm_nego_t side; /* catallactic: the buyer's side of the bargain */
 } unit_t;
+
+typedef struct proposal {
+    uint32_t agent;
+    int good;
+    double price;
+} proposal_t;
 
 typedef struct job job_t;
 struct bidref {
@@ -50,6 +63,12 @@ struct job {
     uint32_t touched[MAX_UNITS]; /* agents that may hold a slot for it */
     int ntouched;
     int finished; /* outcome delivered; kept until release */
+    proposal_t props[MAX_PROPOSALS]; /* catallactic: proposals heard */
+    int nprops;
+    double discover_until;
+    int attempt; /* catallactic discovery rounds so far */
+    bgm_rng_t rng;
+    bgm_genes_t genes;
     bgb_done_fn done;
     void *ctx;
 };
@@ -104,7 +123,7 @@ void bgb_market_config_default(bgb_market_config_t *c)
     c->buy_timeout = 10.0;
     c->overlay_degree = 3;
     c->hops = 2;
-    c->max_rounds = 8;
+    c->max_rounds = 12;
     c->max_contracts = 100000;
 }
 
@@ -229,6 +248,23 @@ static void copy_status(agent_t *a, const bga_mmsg_t *in, double now)
     a->info.alive = 1;
 }
 
+static bg_status send_registered(bgb_market_t *m, agent_t *a, bg_error_t *err)
+{
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, BGA_MM_REGISTERED);
+    r.agent = a->info.id;
+    int n = 0;
+    for (int i = 0; i < a->nnb; i++) {
+        const agent_t *b = agent_by_id(m, a->nb[i]);
+        if (b)
+            a->nb[n++] = a->nb[i];
+    }
+    a->nnb = n;
+    r.nneighbours = n;
+    memcpy(r.neighbours, a->nb, (size_t)n * sizeof *a->nb);
+    return send_to(m, a, &r, err);
+}
+
 static bg_status on_register(bgb_market_t *m, const uint8_t *idn, size_t len,
                              const bga_mmsg_t *in, double now, bg_error_t *err)
 {
@@ -251,14 +287,21 @@ static bg_status on_register(bgb_market_t *m, const uint8_t *idn, size_t len,
     a->info.resource = in->resource;
     copy_status(a, in, now);
     sells_to_posted(m, a);
-    bga_mmsg_t r;
-    bga_mmsg_init(&r, BGA_MM_REGISTERED);
-    r.agent = a->info.id;
-    /* Overlay: the most recently registered other agents. */
-    for (int i = BGB_MARKET_MAX_AGENTS - 1; i >= 0 && r.nneighbours < m->c.overlay_degree; i--)
-        if (m->agents[i].used && &m->agents[i] != a)
-            r.neighbours[r.nneighbours++] = m->agents[i].info.id;
-    return send_to(m, a, &r, err);
+    /* Overlay: links to the most recently registered other agents, made
+     * symmetric (each of them gets this one too, while it has room), so
+     * that an agent registered early is reachable from later ones. */
+    if (a->nnb == 0)
+        for (int i = BGB_MARKET_MAX_AGENTS - 1; i >= 0 && a->nnb < m->c.overlay_degree; i--) {
+            agent_t *b = &m->agents[i];
+            if (!b->used || b == a)
+                continue;
+            a->nb[a->nnb++] = b->info.id;
+            if (b->nnb < BGA_MMSG_MAX_NEIGHBOURS) {
+                b->nb[b->nnb++] = a->info.id;
+                send_registered(m, b, NULL);
+            }
+        }
+    return send_registered(m, a, err);
 }
 
 static void drop_agent(bgb_market_t *m, agent_t *a)
@@ -502,6 +545,135 @@ static void central_clear(bgb_market_t *m, double now)
     }
 }
 
+static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, agent_t *a, int type,
+                            double price)
+{
+    bga_mmsg_t o;
+    bga_mmsg_init(&o, type);
+    o.job = j->id;
+    o.agent = a->info.id;
+    o.good = u->good;
+    o.quantity = u->quantity;
+    o.price = price;
+    return send_to(m, a, &o, NULL);
+}
+
+/* The buyer's answer to a seller's price (proposal or counter-offer):
+ * accept, counter or walk away, by the simulator's bargaining code. */
+static void bargain(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double their, double now)
+{
+    double reply = 0;
+    switch (bgm_nego_respond(&u->side, their, &j->rng, &reply)) {
+    case BGM_NEGO_ACCEPT:
+        send_price(m, j, u, a, BGA_MM_ACCEPT, their);
+        break;
+    case BGM_NEGO_COUNTER:
+        send_price(m, j, u, a, BGA_MM_OFFER, reply);
+        break;
+    default:
+        send_price(m, j, u, a, BGA_MM_REJECT, 0);
+        if (a->pending > 0)
+            a->pending--;
+        if (u->ntried < MAX_TRIED)
+            u->tried[u->ntried++] = a->info.id;
+        u->state = U_OPEN;
+        return;
+    }
+    u->deadline = now + m->c.reply_timeout;
+}
+
+static void finish(bgb_market_t *m, job_t *j, const char *reason, double now);
+static void send_cfps(bgb_market_t *m, job_t *j, double now);
+
+/* Catallactic: after discovery, each open unit bargains with the cheapest
+ * proposer it has not tried. With no proposer left, the job fails: on
+ * price ("budget") if sellers proposed, "no seller" if none did. */
+static void catallactic_step(bgb_market_t *m, job_t *j, double now)
+{
+    if (now < j->discover_until)
+        return;
+    for (int i = 0; i < j->nunits; i++) {
+        unit_t *u = &j->unit[i];
+        if (u->state != U_OPEN)
+            continue;
+        const proposal_t *best = NULL;
+        int heard = 0;
+        for (int k = 0; k < j->nprops; k++) {
+            const proposal_t *p = &j->props[k];
+            if (p->good != u->good)
+                continue;
+            heard++;
+            agent_t *a = agent_by_id(m, p->agent);
+            if (!a || !a->info.alive || tried(u, p->agent) || need_has(j, u, p->agent))
+                continue;
+            if (!best || p->price < best->price)
+                best = p;
+        }
+        if (!best) {
+            int waiting = 0;
+            for (int k = 0; k < j->nunits; k++)
+                waiting |= j->unit[k].state == U_ORDERED;
+            if (waiting)
+                return;
+            /* Sellers walk away at random (their genes): a new round of
+             * discovery, as the simulator's retry, a few times. */
+            if (j->attempt < MAX_ROUNDS_DISCOVERY) {
+                for (int k = 0; k < j->nunits; k++)
+                    j->unit[k].ntried = 0;
+                /* A strategy that failed every bargain is dropped for a
+                 * fresh draw (the simulator's agents learn across jobs; a
+                 * live job has only its own rounds). */
+                bgm_genes_random(&j->genes, &j->rng);
+                j->nprops = 0;
+                j->attempt++;
+                send_cfps(m, j, now);
+                return;
+            }
+            finish(m, j, heard ? "budget" : "no seller", now);
+            return;
+        }
+        agent_t *a = agent_by_id(m, best->agent);
+        /* As the simulator's buyer: open with its own offer below the
+         * proposal (the remembered price), then alternate. */
+        const double open = bgm_nego_opening(BGM_SIDE_BUYER, u->limit, best->price, BUYER_MARKUP);
+        bgm_nego_open(&u->side, BGM_SIDE_BUYER, u->limit, open, &j->genes, m->c.max_rounds);
+        u->state = U_ORDERED;
+        u->agent = a->info.id;
+        u->deadline = now + m->c.reply_timeout;
+        a->pending++;
+        touch(j, a->info.id);
+        send_price(m, j, u, a, BGA_MM_OFFER, u->side.current);
+    }
+}
+
+/* Calls for proposals to a few entry agents; the overlay carries them on. */
+static void send_cfps(bgb_market_t *m, job_t *j, double now)
+{
+    int sent = 0;
+    for (int k = 0; k < BGB_MARKET_MAX_AGENTS && sent < m->c.overlay_degree; k++) {
+        agent_t *a = &m->agents[(k + (int)(j->id % BGB_MARKET_MAX_AGENTS)) % BGB_MARKET_MAX_AGENTS];
+        if (!a->used || !a->info.alive)
+            continue;
+        for (int g = 0; g < 3; g++) {
+            int wanted = 0;
+            for (int i = 0; i < j->nunits; i++)
+                wanted |= j->unit[i].good == g;
+            if (!wanted)
+                continue;
+            bga_mmsg_t c;
+            bga_mmsg_init(&c, BGA_MM_CFP);
+            c.job = j->id;
+            c.agent = a->info.id;
+            c.good = g;
+            c.hops = m->c.hops;
+            c.attempt = j->attempt;
+            send_to(m, a, &c, NULL);
+        }
+        sent++;
+    }
+    j->discover_until = now + m->c.reply_timeout / 8;
+}
+
 static void check_done(bgb_market_t *m, job_t *j, double now)
 {
     for (int i = 0; i < j->nunits; i++)
@@ -531,6 +703,8 @@ static void step_job(bgb_market_t *m, job_t *j, double now)
     }
     if (j->mech == BGB_MECH_POSTED)
         posted_step(m, j, now);
+    else if (j->mech == BGB_MECH_CATALLACTIC)
+        catallactic_step(m, j, now);
 }
 
 bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism, double budget,
@@ -607,6 +781,11 @@ bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism,
             u->quantity = needs[i].quantity / needs[i].sellers;
             u->limit = ref[u->good] * budget / least;
         }
+    if (mechanism == BGB_MECH_CATALLACTIC) {
+        bgm_rng_seed(&j->rng, job);
+        bgm_genes_random(&j->genes, &j->rng);
+        send_cfps(m, j, now);
+    }
     step_job(m, j, now);
     return BG_OK;
 }
@@ -635,8 +814,20 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
     }
     if (a->pending > 0)
         a->pending--;
-    if (in->type == BGA_MM_CONFIRM) {
+    if (in->type == BGA_MM_CONFIRM && in->price > u->limit * (1 + 1e-12)) {
+        /* A seller confirming above the buyer's limit is not a contract. */
+        bga_mmsg_t r;
+        bga_mmsg_init(&r, BGA_MM_RELEASE);
+        r.job = in->job;
+        r.agent = a->info.id;
+        send_to(m, a, &r, NULL);
+        if (u->ntried < MAX_TRIED)
+            u->tried[u->ntried++] = a->info.id;
+        u->state = U_OPEN;
+        step_job(m, j, now);
+    } else if (in->type == BGA_MM_CONFIRM) {
         u->state = U_DONE;
+        u->price = in->price;
         u->seller_floor = in->floor[u->good];
         a->info.free_slots = in->free_slots;
         check_done(m, j, now);
@@ -646,6 +837,35 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
         u->state = U_OPEN;
         step_job(m, j, now);
     }
+}
+
+static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
+{
+    job_t *j = job_by_id(m, in->job);
+    if (!j || j->finished || j->mech != BGB_MECH_CATALLACTIC)
+        return;
+    if (in->type == BGA_MM_PROPOSE) {
+        if (j->nprops < MAX_PROPOSALS)
+            j->props[j->nprops++] = (proposal_t){a->info.id, in->good, in->price};
+        return;
+    }
+    unit_t *u = NULL;
+    for (int i = 0; i < j->nunits && !u; i++)
+        if (j->unit[i].state == U_ORDERED && j->unit[i].agent == a->info.id &&
+            j->unit[i].good == in->good)
+            u = &j->unit[i];
+    if (!u)
+        return;
+    if (in->type == BGA_MM_OFFER) {
+        bargain(m, j, u, a, in->price, now);
+    } else { /* the seller walked away */
+        if (a->pending > 0)
+            a->pending--;
+        if (u->ntried < MAX_TRIED)
+            u->tried[u->ntried++] = a->info.id;
+        u->state = U_OPEN;
+    }
+    step_job(m, j, now);
 }
 
 static bg_status reply_error(bgb_market_t *m, const uint8_t *idn, size_t len, const char *why,
@@ -684,6 +904,22 @@ bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t 
     case BGA_MM_REFUSE:
         on_answer(m, a, &in, now);
         break;
+    case BGA_MM_PROPOSE:
+    case BGA_MM_OFFER:
+    case BGA_MM_REJECT:
+        on_bargain_msg(m, a, &in, now);
+        break;
+    case BGA_MM_RELAY: {
+        agent_t *t = agent_by_id(m, in.target);
+        if (t && t->info.alive) {
+            bga_mmsg_t c = in;
+            c.type = BGA_MM_CFP;
+            c.agent = t->info.id;
+            c.target = 0;
+            send_to(m, t, &c, NULL);
+        }
+        break;
+    }
     default:
         break;
     }

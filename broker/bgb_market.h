@@ -90,7 +90,7 @@ typedef struct bgb_market_config {
 } bgb_market_config_t;
 
 /* Defaults: period 0.2 s, k 0.5, heartbeat timeout 3 s, reply timeout 2 s,
- * buy timeout 10 s, overlay degree 3, hops 2, 8 rounds, 100000 rows. */
+ * buy timeout 10 s, overlay degree 3, hops 2, 12 rounds, 100000 rows. */
 void bgb_market_config_default(bgb_market_config_t *c);
 
 /* One basic service a job needs. */

@@ -335,8 +335,8 @@ int main(int argc, char **argv)
     wait_agents(&h, nagents);
     pump(&h, 0.6, NULL); /* every agent has heartbeaten its prices */
 
-    const bgb_mechanism mechs[] = {BGB_MECH_POSTED, BGB_MECH_CENTRAL};
-    const int nmech = 2;
+    const bgb_mechanism mechs[] = {BGB_MECH_POSTED, BGB_MECH_CENTRAL, BGB_MECH_CATALLACTIC};
+    const int nmech = 3;
     if (strcmp(argv[1], "bench") == 0) {
         const int rounds = atoi(argv[4]);
         double *lat = calloc((size_t)rounds, sizeof *lat);
