@@ -341,17 +341,21 @@ static void touch(job_t *j, uint32_t agent)
         j->touched[j->ntouched++] = agent;
 }
 
+static void release_on(bgb_market_t *m, agent_t *a, uint64_t job)
+{
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, BGA_MM_RELEASE);
+    r.job = job;
+    r.agent = a->info.id;
+    send_to(m, a, &r, NULL);
+}
+
 static void send_release(bgb_market_t *m, job_t *j)
 {
     for (int i = 0; i < j->ntouched; i++) {
         agent_t *a = agent_by_id(m, j->touched[i]);
-        if (!a)
-            continue;
-        bga_mmsg_t r;
-        bga_mmsg_init(&r, BGA_MM_RELEASE);
-        r.job = j->id;
-        r.agent = a->info.id;
-        send_to(m, a, &r, NULL);
+        if (a)
+            release_on(m, a, j->id);
     }
     j->ntouched = 0;
 }
@@ -444,22 +448,28 @@ static int need_has(const job_t *j, const unit_t *u, uint32_t agent)
     return 0;
 }
 
-static bg_status order(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double price, double now)
+static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, agent_t *a, int type,
+                            double price)
 {
     bga_mmsg_t o;
-    bga_mmsg_init(&o, BGA_MM_ORDER);
+    bga_mmsg_init(&o, type);
     o.job = j->id;
     o.agent = a->info.id;
     o.good = u->good;
     o.quantity = u->quantity;
     o.price = price;
+    return send_to(m, a, &o, NULL);
+}
+
+static bg_status order(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double price, double now)
+{
     u->state = U_ORDERED;
     u->agent = a->info.id;
     u->price = price;
     u->deadline = now + m->c.reply_timeout;
     a->pending++;
     touch(j, a->info.id);
-    return send_to(m, a, &o, NULL);
+    return send_price(m, j, u, a, BGA_MM_ORDER, price);
 }
 
 typedef struct room_ctx {
@@ -543,19 +553,6 @@ static void central_clear(bgb_market_t *m, double now)
         }
         free(fills);
     }
-}
-
-static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, agent_t *a, int type,
-                            double price)
-{
-    bga_mmsg_t o;
-    bga_mmsg_init(&o, type);
-    o.job = j->id;
-    o.agent = a->info.id;
-    o.good = u->good;
-    o.quantity = u->quantity;
-    o.price = price;
-    return send_to(m, a, &o, NULL);
 }
 
 /* The buyer's answer to a seller's price (proposal or counter-offer):
@@ -803,24 +800,15 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
                 u = &j->unit[i];
     if (!u) {
         /* Late or unknown: a confirmation nobody wants is released. */
-        if (in->type == BGA_MM_CONFIRM && (!j || j->finished)) {
-            bga_mmsg_t r;
-            bga_mmsg_init(&r, BGA_MM_RELEASE);
-            r.job = in->job;
-            r.agent = a->info.id;
-            send_to(m, a, &r, NULL);
-        }
+        if (in->type == BGA_MM_CONFIRM && (!j || j->finished))
+            release_on(m, a, in->job);
         return;
     }
     if (a->pending > 0)
         a->pending--;
     if (in->type == BGA_MM_CONFIRM && in->price > u->limit * (1 + 1e-12)) {
         /* A seller confirming above the buyer's limit is not a contract. */
-        bga_mmsg_t r;
-        bga_mmsg_init(&r, BGA_MM_RELEASE);
-        r.job = in->job;
-        r.agent = a->info.id;
-        send_to(m, a, &r, NULL);
+        release_on(m, a, in->job);
         if (u->ntried < MAX_TRIED)
             u->tried[u->ntried++] = a->info.id;
         u->state = U_OPEN;

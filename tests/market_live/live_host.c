@@ -319,7 +319,7 @@ int main(int argc, char **argv)
     bgb_market_config_t mc;
     bgb_market_config_default(&mc);
     mc.name = "live-test";
-    mc.heartbeat_timeout = 1.5;
+    mc.heartbeat_timeout = 3.0;
     mc.period = 0.05;
     bgb_market_io_t io = {&h, host_send};
     bg_error_t err = BG_ERROR_INIT;
