@@ -57,4 +57,8 @@ PIDS=""
 for p in $ALL; do
     if kill -0 "$p" 2>/dev/null; then echo "live.sh: process $p is still running"; exit 1; fi
 done
+# A sanitizer build's agents report at exit; their findings fail the test.
+if grep -l -E "Sanitizer|runtime error" "$WORK"/*.log 2>/dev/null; then
+    echo "live.sh: an agent reported a sanitizer error"; exit 1
+fi
 exit $RC
