@@ -861,7 +861,7 @@ static bg_status reply_error(bgb_market_t *m, const uint8_t *idn, size_t len, co
 {
     bga_mmsg_t e;
     bga_mmsg_init(&e, BGA_MM_ERROR);
-    snprintf(e.reason, sizeof e.reason, "%s", why);
+    snprintf(e.reason, sizeof e.reason, "%.*s", (int)sizeof e.reason - 1, why);
     agent_t tmp = {0};
     memcpy(tmp.identity, idn, len);
     tmp.idlen = len;
