@@ -12,6 +12,7 @@
 struct bga_agent {
     void *ctx, *socket;
     bga_service_t *service;
+    bga_market_t *market;
     int poll_ms;
     char endpoint[BGA_AGENT_ENDPOINT_MAX];
 };
@@ -52,6 +53,13 @@ bg_status bga_agent_new(const bga_agent_config_t *config, bga_agent_t **out, bg_
             bg_error_set(err, BG_ERR_IO, "cannot read the bound endpoint: %s", zmq_strerror(errno));
         goto fail;
     }
+    if (config->market) {
+        bga_market_config_t mc = *config->market;
+        mc.endpoint = a->endpoint;
+        mc.name = config->service.name;
+        if ((st = bga_market_new(a->ctx, &mc, bg_clock_now(), &a->market, err)) != BG_OK)
+            goto fail;
+    }
     *out = a;
     return BG_OK;
 fail:
@@ -66,6 +74,7 @@ void bga_agent_destroy(bga_agent_t **pa)
     bga_agent_t *a = *pa;
     if (a->socket)
         zmq_close(a->socket);
+    bga_market_destroy(&a->market);
     if (a->ctx)
         zmq_ctx_term(a->ctx);
     bga_service_destroy(&a->service);
@@ -83,6 +92,31 @@ bga_service_stats_t bga_agent_stats(const bga_agent_t *agent)
     return bga_service_stats(agent->service);
 }
 
+const bga_market_t *bga_agent_market(const bga_agent_t *agent)
+{
+    return agent->market;
+}
+
+/* With a market, compute calls need a contract for their job. The header
+ * is read in place (job at byte 8, type at byte 6, little-endian); a
+ * malformed header is left to the codec's own error reply. Control
+ * messages (heartbeat, release) are always served. */
+static int refused_for_contract(const bga_agent_t *a, const bga_frame_t *views, int count,
+                                uint64_t *job)
+{
+    if (!a->market || count < 1 || views[0].size != BGA_WIRE_HEADER_BYTES)
+        return 0;
+    const uint8_t *h = views[0].data;
+    const unsigned type = h[6] | (unsigned)h[7] << 8;
+    if (type < 0x0100)
+        return 0;
+    uint64_t id = 0;
+    for (int i = 7; i >= 0; i--)
+        id = id << 8 | h[8 + i];
+    *job = id;
+    return !bga_market_holds(a->market, id);
+}
+
 /* One request: decode, compute, reply. A message with more parts than any
  * schema is answered here, without decoding. */
 static bg_status serve_one(bga_agent_t *a, bg_error_t *err)
@@ -97,6 +131,7 @@ static bg_status serve_one(bga_agent_t *a, bg_error_t *err)
     bga_frame_t views[BGA_WIRE_MAX_FRAMES + 1];
     bga_received_view(&r, views);
     bga_frames_t reply;
+    uint64_t job = 0;
     if (r.total > r.count) {
         bga_wire_error_t werr;
         bga_wire_fail(&werr, BGA_WIRE_FRAME_COUNT, -1, "",
@@ -104,6 +139,14 @@ static bg_status serve_one(bga_agent_t *a, bg_error_t *err)
                       "more than %d",
                       r.total, BGA_WIRE_MAX_FRAMES);
         st = bga_wire_error_reply(NULL, &werr, &reply, err);
+    } else if (refused_for_contract(a, views, r.count, &job)) {
+        bga_wire_error_t werr;
+        bga_header_t to = {0};
+        to.job = job;
+        bga_wire_fail(&werr, BGA_WIRE_NO_JOB, 0, "job",
+                      "agent holds no contract for job %llu: buy it on the market first",
+                      (unsigned long long)job);
+        st = bga_wire_error_reply(&to, &werr, &reply, err);
     } else {
         st = bga_service_handle(a->service, views, r.count, bg_clock_now(), &reply, err);
     }
@@ -121,17 +164,27 @@ static bg_status serve_one(bga_agent_t *a, bg_error_t *err)
 bg_status bga_agent_run(bga_agent_t *a, const volatile sig_atomic_t *stop, bg_error_t *err)
 {
     while (!*stop) {
-        zmq_pollitem_t item = {a->socket, 0, ZMQ_POLLIN, 0};
-        const int rc = zmq_poll(&item, 1, a->poll_ms);
+        zmq_pollitem_t items[2] = {{a->socket, 0, ZMQ_POLLIN, 0},
+                                   {a->market ? bga_market_socket(a->market) : NULL, 0,
+                                    ZMQ_POLLIN, 0}};
+        const int rc = zmq_poll(items, a->market ? 2 : 1, a->poll_ms);
         if (rc < 0) {
             if (errno == EINTR)
                 continue;
             return bg_error_set(err, BG_ERR_IO, "poll failed: %s", zmq_strerror(errno));
         }
-        if (rc > 0 && (item.revents & ZMQ_POLLIN)) {
+        if (rc > 0 && (items[0].revents & ZMQ_POLLIN)) {
             bg_status st = serve_one(a, err);
             if (st != BG_OK && st != BG_ERR_NOMEM)
                 return st;
+        }
+        if (a->market) {
+            /* The broker being away is not the agent's failure: it keeps
+             * serving and re-registers when the broker answers again. */
+            bg_error_t merr = BG_ERROR_INIT;
+            if (rc > 0 && (items[1].revents & ZMQ_POLLIN))
+                bga_market_on_readable(a->market, bg_clock_now(), &merr);
+            bga_market_tick(a->market, bg_clock_now(), &merr);
         }
         bga_service_expire(a->service, bg_clock_now());
     }

@@ -18,6 +18,7 @@
 #include <signal.h>
 
 #include "bg_error.h"
+#include "bga_market.h"
 #include "bga_service.h"
 
 #define BGA_AGENT_LINGER_MS 2000
@@ -30,6 +31,11 @@ typedef struct bga_agent_config {
     const char *listen; /* e.g. tcp://127.0.0.1:0 (an ephemeral port) */
     bga_service_config_t service;
     int poll_ms; /* how often leases and the stop flag are checked */
+    /* Sell on a broker's live market (NULL: serve anyone, as before). Its
+     * broker, slots and services are used; name and endpoint are the
+     * agent's own. With a market, a compute call for a job the agent holds
+     * no contract for gets a NO_JOB error naming the job. */
+    const bga_market_config_t *market;
 } bga_agent_config_t;
 
 /* Creates the job table and binds. Caller owns *out. */
@@ -46,5 +52,7 @@ const char *bga_agent_endpoint(const bga_agent_t *agent);
 bg_status bga_agent_run(bga_agent_t *agent, const volatile sig_atomic_t *stop, bg_error_t *err);
 
 bga_service_stats_t bga_agent_stats(const bga_agent_t *agent);
+/* The agent's market seller, NULL without --broker. */
+const bga_market_t *bga_agent_market(const bga_agent_t *agent);
 
 #endif

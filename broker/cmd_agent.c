@@ -1,7 +1,11 @@
 /*
  * biotgrid agent [--config FILE] [--listen ENDPOINT] [--services LIST] [--slots N]
  *                [--name NAME] [--ready-file FILE]
+ *                [--broker ENDPOINT [--floor X] [--margin X] [--load-slope X]]
  *
+ * With --broker the agent also sells on the broker's live market
+ * (bga_market): it registers, heartbeats, sells at its price policy and
+ * computes only for jobs whose contract it holds.
  * Binds, prints "agent NAME ready on ENDPOINT" (the resolved port) on
  * stdout, writes "ENDPOINT PID" to the ready file if asked (written to a
  * temporary name and renamed, so a reader never sees half of it), serves
@@ -33,11 +37,17 @@ static void on_signal(int sig)
 const char bg_cmd_agent_usage[] =
     "usage: biotgrid agent [--config FILE] [--listen ENDPOINT] [--services LIST]\n"
     "                      [--slots N] [--name NAME] [--ready-file FILE]\n"
+    "                      [--broker ENDPOINT [--floor X] [--margin X] [--load-slope X]]\n"
     "  --listen ENDPOINT   ZeroMQ endpoint to bind (default tcp://127.0.0.1:*,\n"
     "                      an ephemeral port; the resolved one is printed)\n"
     "  --services LIST     rotfit,solve,integ or all (default all)\n"
     "  --slots N           jobs held at once (default 4)\n"
-    "  --config FILE       JSON object with keys listen, services, slots, name\n";
+    "  --config FILE       JSON object with keys listen, services, slots, name\n"
+    "  --broker ENDPOINT   sell on the broker's market at that ZeroMQ endpoint; compute\n"
+    "                      only for jobs whose contract this agent holds\n"
+    "  --floor X           price floor per unit of work (default 1)\n"
+    "  --margin X          markup over the floor (default 0.2)\n"
+    "  --load-slope X      price rise at full load, relative (default 0.5)\n";
 
 static void usage(FILE *out)
 {
@@ -47,7 +57,22 @@ static void usage(FILE *out)
 typedef struct options {
     bg_agent_spec_t spec;
     const char *ready_file;
+    const char *broker;
+    double floor, margin, load_slope;
 } options;
+
+static int parse_money(const char *text, const char *opt, double *v)
+{
+    char *end;
+    errno = 0;
+    const double x = strtod(text, &end);
+    if (errno || *end || end == text || !(x >= 0 && x <= 1e9)) {
+        fprintf(stderr, "biotgrid agent: %s: '%s' is not a number in [0, 1e9]\n", opt, text);
+        return 2;
+    }
+    *v = x;
+    return 0;
+}
 
 void bg_agent_spec_default(bg_agent_spec_t *spec)
 {
@@ -191,6 +216,14 @@ static int parse_args(int argc, char **argv, options *o)
             rc = parse_slots(v, "--slots", &o->spec.slots);
         else if (strcmp(a, "--ready-file") == 0)
             o->ready_file = v;
+        else if (strcmp(a, "--broker") == 0)
+            o->broker = v;
+        else if (strcmp(a, "--floor") == 0)
+            rc = parse_money(v, "--floor", &o->floor);
+        else if (strcmp(a, "--margin") == 0)
+            rc = parse_money(v, "--margin", &o->margin);
+        else if (strcmp(a, "--load-slope") == 0)
+            rc = parse_money(v, "--load-slope", &o->load_slope);
         else {
             fprintf(stderr, "biotgrid agent: unknown option '%s'\n", a);
             usage(stderr);
@@ -205,8 +238,13 @@ static int parse_args(int argc, char **argv, options *o)
 int bg_cmd_agent(int argc, char **argv)
 {
     options o;
+    memset(&o, 0, sizeof o);
     bg_agent_spec_default(&o.spec);
-    o.ready_file = NULL;
+    bga_market_config_t mc;
+    bga_market_config_default(&mc);
+    o.floor = mc.floor[0];
+    o.margin = mc.margin;
+    o.load_slope = mc.load_slope;
     const int prc = parse_args(argc, argv, &o);
     if (prc != 0)
         return prc < 0 ? 0 : prc;
@@ -219,7 +257,17 @@ int bg_cmd_agent(int argc, char **argv)
     bg_agent_spec_t *sp = &o.spec;
     if (!sp->name[0])
         snprintf(sp->name, sizeof sp->name, "agent-%ld", (long)getpid());
-    bga_agent_config_t cfg = {sp->listen, {sp->slots, services, sp->name, {0, 0}}, 100};
+    bga_agent_config_t cfg = {sp->listen, {sp->slots, services, sp->name, {0, 0}}, 100, NULL};
+    if (o.broker) {
+        mc.broker = o.broker;
+        mc.services = services;
+        mc.slots = sp->slots;
+        for (int g = 0; g < BGA_MMSG_GOODS; g++)
+            mc.floor[g] = o.floor;
+        mc.margin = o.margin;
+        mc.load_slope = o.load_slope;
+        cfg.market = &mc;
+    }
     bga_agent_t *agent = NULL;
     if (bga_agent_new(&cfg, &agent, &err) != BG_OK) {
         fprintf(stderr, "biotgrid agent: %s\n", err.message);

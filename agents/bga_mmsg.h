@@ -1,0 +1,89 @@
+/*
+ * bga_mmsg — the live market's messages between the broker and the agents
+ * (registration, heartbeats, orders, call-market matches, catallactic
+ * bargaining), pure encode/decode with no sockets.
+ *
+ * A message is two frames: a 6-byte header ("bgmk", type u16 LE) and a
+ * JSON object of at most BGA_MMSG_MAX_BODY bytes. JSON rather than the
+ * binary bga_wire schemas because these messages are small, rare (a few
+ * per contract) and their field set differs per type; the strict decoder
+ * still checks every field's type and range and names the one at fault.
+ * The header magic differs from bga_wire's "bgwp", so a receiver tells the
+ * two protocols apart from frame 0.
+ *
+ * Ownership: a bga_mmsg_t is a plain value. bga_mmsg_encode fills a
+ * bga_frames_t that owns its buffers (bga_frames_free).
+ */
+#ifndef BGA_MMSG_H
+#define BGA_MMSG_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "bg_error.h"
+#include "bga_wire.h"
+
+#define BGA_MMSG_HEADER_BYTES 6
+#define BGA_MMSG_MAX_BODY 8192
+#define BGA_MMSG_GOODS 5
+#define BGA_MMSG_MAX_NEIGHBOURS 8
+#define BGA_MMSG_NAME_MAX 64
+#define BGA_MMSG_ENDPOINT_MAX 256
+#define BGA_MMSG_REASON_MAX 200
+
+typedef enum bga_mmsg_type {
+    BGA_MM_REGISTER = 1,   /* agent → broker: who it is, what it sells */
+    BGA_MM_REGISTERED = 2, /* broker → agent: its id and overlay neighbours */
+    BGA_MM_HEARTBEAT = 3,  /* agent → broker: free slots, current prices */
+    BGA_MM_ORDER = 4,      /* broker → seller: buy (job, good, quantity) at price */
+    BGA_MM_CONFIRM = 5,    /* seller → broker: contract made at price */
+    BGA_MM_REFUSE = 6,     /* seller → broker: no (reason) */
+    BGA_MM_RELEASE = 7,    /* broker → seller: the job ended, free its slots */
+    BGA_MM_CFP = 8,        /* call for proposals (job, good, hops, origin) */
+    BGA_MM_PROPOSE = 9,    /* seller → buyer: opening price */
+    BGA_MM_OFFER = 10,     /* either way: counter-offer at price */
+    BGA_MM_ACCEPT = 11,    /* buyer → seller: accepts the seller's price */
+    BGA_MM_REJECT = 12,    /* either way: bargaining ended */
+    BGA_MM_RELAY = 13,     /* agent → broker: deliver the CFP inside to agent `target` */
+    BGA_MM_ERROR = 14,     /* either way: a message was malformed (reason) */
+    BGA_MM_FIRST = BGA_MM_REGISTER,
+    BGA_MM_LAST = BGA_MM_ERROR
+} bga_mmsg_type;
+
+typedef struct bga_mmsg {
+    int type;
+    uint64_t job;
+    uint32_t agent;   /* the agent's directory id (0 before registration) */
+    uint32_t target;  /* RELAY: the neighbour to deliver to */
+    uint32_t origin;  /* CFP: the agent that first got it (0: the broker) */
+    char name[BGA_MMSG_NAME_MAX];
+    char endpoint[BGA_MMSG_ENDPOINT_MAX]; /* compute endpoint */
+    unsigned services;                    /* BGA_SERVICE_* bits */
+    int resource;                         /* sells cores and memory */
+    int slots, free_slots;
+    double floor[BGA_MMSG_GOODS];         /* price policy */
+    double margin, load_slope;
+    double prices[BGA_MMSG_GOODS];        /* current asking prices */
+    double cores, memory;
+    int good;
+    int hops;
+    int attempt; /* CFP: the buyer's discovery round (a fresh round is heard again) */
+    double quantity, price;
+    int nneighbours;
+    uint32_t neighbours[BGA_MMSG_MAX_NEIGHBOURS];
+    char reason[BGA_MMSG_REASON_MAX];
+} bga_mmsg_t;
+
+/* A zeroed message of the given type (good = -1). */
+void bga_mmsg_init(bga_mmsg_t *m, int type);
+const char *bga_mmsg_type_name(int type);
+
+/* Whether frames look like a market message (frame 0 magic). */
+int bga_mmsg_is_market(const bga_frame_t *frames, int nframes);
+
+/* BG_ERR_INVALID naming the field for an invalid message; BG_ERR_NOMEM. */
+bg_status bga_mmsg_encode(const bga_mmsg_t *m, bga_frames_t *out, bg_error_t *err);
+/* BG_ERR_PARSE / BG_ERR_INVALID / BG_ERR_LIMIT naming the frame or field. */
+bg_status bga_mmsg_decode(const bga_frame_t *frames, int nframes, bga_mmsg_t *m, bg_error_t *err);
+
+#endif

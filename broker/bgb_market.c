@@ -1,0 +1,1031 @@
+#include "bgb_market.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bga_mmsg.h"
+#include "bgm_callmarket.h"
+#include "bgm_catallactic.h"
+#include "bgm_posted.h"
+
+#define MAX_UNITS 64
+#define MAX_TRIED 32
+#define MAX_JOBS 1024
+#define MAX_PROPOSALS 64
+#define MAX_ROUNDS_DISCOVERY 16
+#define BUYER_MARKUP 0.1 /* catallactic buyer's opening below the proposal */
+
+typedef struct agent {
+    int used;
+    bgb_agent_info_t info;
+    uint8_t identity[BGB_MARKET_IDENTITY_MAX];
+    size_t idlen;
+    int pending; /* orders in flight */
+    uint32_t nb[BGA_MMSG_MAX_NEIGHBOURS]; /* overlay neighbours (symmetric links) */
+    int nnb;
+} agent_t;
+
+typedef struct bidref bidref_t;
+
+typedef enum unit_state { U_OPEN = 0, U_ORDERED = 1, U_DONE = 2 } unit_state;
+
+typedef struct unit {
+    int need, good;
+    double quantity, limit; /* limit: per unit of work */
+    unit_state state;
+    uint32_t agent;         /* ordered from / bought from */
+    double price, seller_floor, deadline;
+    uint32_t tried[MAX_TRIED];
+    int ntried;
+    bgm_nego_t side; /* catallactic: the buyer's side of the bargain */
+} unit_t;
+
+typedef struct proposal {
+    uint32_t agent;
+    int good;
+    double price;
+} proposal_t;
+
+typedef struct job job_t;
+struct bidref {
+    job_t *j;
+    unit_t *u;
+};
+
+struct job {
+    int used;
+    uint64_t id;
+    bgb_mechanism mech;
+    double budget, started, deadline;
+    unit_t unit[MAX_UNITS];
+    int nunits;
+    uint32_t touched[MAX_UNITS]; /* agents that may hold a slot for it */
+    int ntouched;
+    int finished; /* outcome delivered; kept until release */
+    proposal_t props[MAX_PROPOSALS]; /* catallactic: proposals heard */
+    int nprops;
+    double discover_until;
+    int attempt; /* catallactic discovery rounds so far */
+    bgm_rng_t rng;
+    bgm_genes_t genes;
+    bgb_done_fn done;
+    void *ctx;
+};
+
+struct bgb_market {
+    bgb_market_config_t c;
+    char name[BGB_MARKET_NAME_MAX];
+    bgb_market_io_t io;
+    agent_t *agents; /* BGB_MARKET_MAX_AGENTS */
+    uint32_t next_id;
+    job_t *jobs;     /* MAX_JOBS */
+    bgm_posted_t *posted;
+    bgm_callmarket_t *cm;
+    double next_clear;
+    bgb_contract_t *log; /* ring of c.max_contracts */
+    size_t log_head, log_count;
+    bgb_contract_fn on_contract;
+    void *on_contract_ctx;
+    struct bidref *refs; /* central: the book's bids, MAX_JOBS * MAX_UNITS */
+};
+
+static const char *const mech_names[] = {"central", "catallactic", "posted"};
+static const char *const good_names[] = {"rotation-fit", "sparse-solve", "integration-step",
+                                         "cores", "memory"};
+
+const char *bgb_mechanism_name(bgb_mechanism m)
+{
+    return (int)m >= 0 && m <= BGB_MECH_POSTED ? mech_names[m] : "unknown";
+}
+
+int bgb_mechanism_parse(const char *name)
+{
+    for (int i = 0; i < 3; i++)
+        if (name && strcmp(name, mech_names[i]) == 0)
+            return i;
+    return -1;
+}
+
+const char *bgb_good_name(int good)
+{
+    return good >= 0 && good < BGB_GOODS ? good_names[good] : "unknown";
+}
+
+void bgb_market_config_default(bgb_market_config_t *c)
+{
+    memset(c, 0, sizeof *c);
+    c->name = "broker";
+    c->period = 0.2;
+    c->k = 0.5;
+    c->heartbeat_timeout = 3.0;
+    c->reply_timeout = 2.0;
+    c->buy_timeout = 10.0;
+    c->overlay_degree = 3;
+    c->hops = 2;
+    c->max_rounds = 12;
+    c->max_contracts = 100000;
+}
+
+bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_t *io,
+                         bgb_market_t **out, bg_error_t *err)
+{
+    *out = NULL;
+    const bgb_market_config_t *c = config;
+    if (!(c->period > 0 && c->period < 3600))
+        return bg_error_set(err, BG_ERR_INVALID, "market: period must be in (0, 3600) s");
+    if (!(c->k >= 0 && c->k <= 1))
+        return bg_error_set(err, BG_ERR_INVALID, "market: k must be in [0, 1]");
+    if (!(c->heartbeat_timeout > 0) || !(c->reply_timeout > 0) || !(c->buy_timeout > 0))
+        return bg_error_set(err, BG_ERR_INVALID, "market: timeouts must be > 0");
+    if (c->overlay_degree < 1 || c->overlay_degree > BGA_MMSG_MAX_NEIGHBOURS || c->hops < 1 ||
+        c->hops > 16 || c->max_rounds < 1 || c->max_contracts < 1)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "market: overlay_degree in [1, %d], hops in [1, 16], max_rounds and "
+                            "max_contracts >= 1",
+                            BGA_MMSG_MAX_NEIGHBOURS);
+    if (!io || !io->send)
+        return bg_error_set(err, BG_ERR_INVALID, "market: io.send is required");
+    bgb_market_t *m = calloc(1, sizeof *m);
+    if (!m)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market");
+    m->c = *c;
+    snprintf(m->name, sizeof m->name, "%s", c->name ? c->name : "broker");
+    m->c.name = m->name;
+    m->io = *io;
+    m->next_id = 1;
+    m->agents = calloc(BGB_MARKET_MAX_AGENTS, sizeof *m->agents);
+    m->jobs = calloc(MAX_JOBS, sizeof *m->jobs);
+    m->log = calloc(c->max_contracts, sizeof *m->log);
+    m->posted = bgm_posted_new(BGB_MARKET_MAX_AGENTS * 3);
+    m->cm = bgm_callmarket_new(MAX_JOBS * MAX_UNITS);
+    m->refs = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->refs);
+    if (!m->refs || !m->agents || !m->jobs || !m->log || !m->posted || !m->cm) {
+        bgb_market_destroy(&m);
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market");
+    }
+    *out = m;
+    return BG_OK;
+}
+
+void bgb_market_destroy(bgb_market_t **pm)
+{
+    if (!pm || !*pm)
+        return;
+    bgb_market_t *m = *pm;
+    free(m->agents);
+    free(m->jobs);
+    free(m->log);
+    free(m->refs);
+    bgm_posted_destroy(&m->posted);
+    bgm_callmarket_destroy(&m->cm);
+    free(m);
+    *pm = NULL;
+}
+
+void bgb_market_on_contract(bgb_market_t *m, bgb_contract_fn fn, void *ctx)
+{
+    m->on_contract = fn;
+    m->on_contract_ctx = ctx;
+}
+
+/* ------------------------------------------------------------ directory */
+
+static agent_t *agent_by_id(bgb_market_t *m, uint32_t id)
+{
+    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
+        if (m->agents[i].used && m->agents[i].info.id == id)
+            return &m->agents[i];
+    return NULL;
+}
+
+static agent_t *agent_by_identity(bgb_market_t *m, const uint8_t *idn, size_t len)
+{
+    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
+        if (m->agents[i].used && m->agents[i].idlen == len &&
+            memcmp(m->agents[i].identity, idn, len) == 0)
+            return &m->agents[i];
+    return NULL;
+}
+
+static bg_status send_to(bgb_market_t *m, const agent_t *a, const bga_mmsg_t *msg, bg_error_t *err)
+{
+    bga_frames_t f;
+    bg_status st = bga_mmsg_encode(msg, &f, err);
+    if (st != BG_OK)
+        return st;
+    bga_frame_t v[BGA_WIRE_MAX_FRAMES];
+    bga_frames_view(&f, v);
+    st = m->io.send(m->io.ctx, a->identity, a->idlen, v, f.count);
+    bga_frames_free(&f);
+    if (st != BG_OK)
+        bg_error_set(err, st, "market: cannot send %s to agent %u", bga_mmsg_type_name(msg->type),
+                     a->info.id);
+    return st;
+}
+
+static void sells_to_posted(bgb_market_t *m, const agent_t *a)
+{
+    bgm_posted_withdraw(m->posted, a->info.id);
+    for (int g = 0; g < 3; g++)
+        if (a->info.services & (1u << g))
+            bgm_posted_post(m->posted, a->info.id, g, a->info.price[g]);
+}
+
+static void copy_status(agent_t *a, const bga_mmsg_t *in, double now)
+{
+    a->info.slots = in->slots;
+    a->info.free_slots = in->free_slots;
+    for (int g = 0; g < BGB_GOODS; g++) {
+        a->info.floor[g] = in->floor[g];
+        a->info.price[g] = in->prices[g];
+    }
+    a->info.margin = in->margin;
+    a->info.load_slope = in->load_slope;
+    a->info.cores = in->cores;
+    a->info.memory = in->memory;
+    a->info.last_heartbeat = now;
+    a->info.alive = 1;
+}
+
+static bg_status send_registered(bgb_market_t *m, agent_t *a, bg_error_t *err)
+{
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, BGA_MM_REGISTERED);
+    r.agent = a->info.id;
+    int n = 0;
+    for (int i = 0; i < a->nnb; i++) {
+        const agent_t *b = agent_by_id(m, a->nb[i]);
+        if (b)
+            a->nb[n++] = a->nb[i];
+    }
+    a->nnb = n;
+    r.nneighbours = n;
+    memcpy(r.neighbours, a->nb, (size_t)n * sizeof *a->nb);
+    return send_to(m, a, &r, err);
+}
+
+static bg_status on_register(bgb_market_t *m, const uint8_t *idn, size_t len,
+                             const bga_mmsg_t *in, double now, bg_error_t *err)
+{
+    agent_t *a = agent_by_identity(m, idn, len);
+    if (!a) {
+        for (int i = 0; i < BGB_MARKET_MAX_AGENTS && !a; i++)
+            if (!m->agents[i].used)
+                a = &m->agents[i];
+        if (!a)
+            return BG_OK; /* directory full: the agent keeps retrying */
+        memset(a, 0, sizeof *a);
+        a->used = 1;
+        a->info.id = m->next_id++;
+        memcpy(a->identity, idn, len);
+        a->idlen = len;
+    }
+    snprintf(a->info.name, sizeof a->info.name, "%s", in->name);
+    snprintf(a->info.endpoint, sizeof a->info.endpoint, "%s", in->endpoint);
+    a->info.services = in->services;
+    a->info.resource = in->resource;
+    copy_status(a, in, now);
+    sells_to_posted(m, a);
+    /* Overlay: links to the most recently registered other agents, made
+     * symmetric (each of them gets this one too, while it has room), so
+     * that an agent registered early is reachable from later ones. */
+    if (a->nnb == 0)
+        for (int i = BGB_MARKET_MAX_AGENTS - 1; i >= 0 && a->nnb < m->c.overlay_degree; i--) {
+            agent_t *b = &m->agents[i];
+            if (!b->used || b == a)
+                continue;
+            a->nb[a->nnb++] = b->info.id;
+            if (b->nnb < BGA_MMSG_MAX_NEIGHBOURS) {
+                b->nb[b->nnb++] = a->info.id;
+                send_registered(m, b, NULL);
+            }
+        }
+    return send_registered(m, a, err);
+}
+
+static void drop_agent(bgb_market_t *m, agent_t *a)
+{
+    bgm_posted_withdraw(m->posted, a->info.id);
+    a->used = 0;
+}
+
+/* ------------------------------------------------------------ contracts */
+
+static void log_contract(bgb_market_t *m, const bgb_contract_t *row)
+{
+    const size_t cap = m->c.max_contracts;
+    m->log[(m->log_head + m->log_count) % cap] = *row;
+    if (m->log_count < cap)
+        m->log_count++;
+    else
+        m->log_head = (m->log_head + 1) % cap;
+    if (m->on_contract)
+        m->on_contract(m->on_contract_ctx, row);
+}
+
+static job_t *job_by_id(bgb_market_t *m, uint64_t id)
+{
+    for (int i = 0; i < MAX_JOBS; i++)
+        if (m->jobs[i].used && m->jobs[i].id == id)
+            return &m->jobs[i];
+    return NULL;
+}
+
+static void touch(job_t *j, uint32_t agent)
+{
+    for (int i = 0; i < j->ntouched; i++)
+        if (j->touched[i] == agent)
+            return;
+    if (j->ntouched < MAX_UNITS)
+        j->touched[j->ntouched++] = agent;
+}
+
+static void release_on(bgb_market_t *m, agent_t *a, uint64_t job)
+{
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, BGA_MM_RELEASE);
+    r.job = job;
+    r.agent = a->info.id;
+    send_to(m, a, &r, NULL);
+}
+
+static void send_release(bgb_market_t *m, job_t *j)
+{
+    for (int i = 0; i < j->ntouched; i++) {
+        agent_t *a = agent_by_id(m, j->touched[i]);
+        if (a)
+            release_on(m, a, j->id);
+    }
+    j->ntouched = 0;
+}
+
+/* Delivers the outcome once. On success every unit becomes a contract row
+ * (rows are logged only then: a job that fails leaves none). */
+static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
+{
+    if (j->finished)
+        return;
+    j->finished = 1;
+    bgb_award_t aw[MAX_UNITS];
+    bgb_outcome_t o = {.job = j->id, .reason = reason, .awards = aw, .latency = now - j->started};
+    if (!reason) {
+        for (int i = 0; i < j->nunits; i++) {
+            const unit_t *u = &j->unit[i];
+            const agent_t *a = agent_by_id(m, u->agent);
+            bgb_award_t *w = &aw[o.nawards++];
+            memset(w, 0, sizeof *w);
+            w->good = u->good;
+            w->agent = u->agent;
+            if (a) {
+                snprintf(w->name, sizeof w->name, "%s", a->info.name);
+                snprintf(w->endpoint, sizeof w->endpoint, "%s", a->info.endpoint);
+            }
+            w->quantity = u->quantity;
+            w->price = u->price;
+            o.spent += u->quantity * u->price;
+            bgb_contract_t row = {.job = j->id, .time = now, .start = now, .end = INFINITY,
+                                  .buyer = j->id, .seller = u->agent, .mechanism = j->mech,
+                                  .layer = 0, .good = u->good, .quantity = u->quantity,
+                                  .price = u->price, .buyer_limit = u->limit,
+                                  .seller_limit = u->seller_floor};
+            snprintf(row.seller_name, sizeof row.seller_name, "%s", w->name);
+            log_contract(m, &row);
+        }
+    } else {
+        send_release(m, j);
+    }
+    if (j->done)
+        j->done(j->ctx, &o);
+    if (reason)
+        j->used = 0;
+}
+
+/* Contracts are open-ended until the job is released: closes them. */
+static void close_contracts(bgb_market_t *m, uint64_t job, double now)
+{
+    for (size_t i = 0; i < m->log_count; i++) {
+        bgb_contract_t *r = &m->log[(m->log_head + i) % m->c.max_contracts];
+        if (r->job == job && isinf(r->end))
+            r->end = now;
+    }
+}
+
+void bgb_market_release(bgb_market_t *m, uint64_t job, double now)
+{
+    job_t *j = job_by_id(m, job);
+    if (!j)
+        return;
+    close_contracts(m, job, now);
+    send_release(m, j);
+    j->used = 0;
+}
+
+/* ------------------------------------------------------------ buying */
+
+static int alive_seller(const agent_t *a, int good)
+{
+    return a->used && a->info.alive && good >= 0 && good < 3 && (a->info.services & (1u << good));
+}
+
+static int tried(const unit_t *u, uint32_t agent)
+{
+    for (int i = 0; i < u->ntried; i++)
+        if (u->tried[i] == agent)
+            return 1;
+    return 0;
+}
+
+/* Whether another unit of the same need already has (or is asking) this
+ * agent: a need split over n sellers goes to n distinct agents. */
+static int need_has(const job_t *j, const unit_t *u, uint32_t agent)
+{
+    for (int i = 0; i < j->nunits; i++) {
+        const unit_t *v = &j->unit[i];
+        if (v != u && v->need == u->need && v->state != U_OPEN && v->agent == agent)
+            return 1;
+    }
+    return 0;
+}
+
+static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, agent_t *a, int type,
+                            double price)
+{
+    bga_mmsg_t o;
+    bga_mmsg_init(&o, type);
+    o.job = j->id;
+    o.agent = a->info.id;
+    o.good = u->good;
+    o.quantity = u->quantity;
+    o.price = price;
+    return send_to(m, a, &o, NULL);
+}
+
+static bg_status order(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double price, double now)
+{
+    u->state = U_ORDERED;
+    u->agent = a->info.id;
+    u->price = price;
+    u->deadline = now + m->c.reply_timeout;
+    a->pending++;
+    touch(j, a->info.id);
+    return send_price(m, j, u, a, BGA_MM_ORDER, price);
+}
+
+typedef struct room_ctx {
+    bgb_market_t *m;
+    const job_t *j;
+    const unit_t *u;
+} room_ctx;
+
+static int has_room(void *ctx, const bgm_posting_t *p)
+{
+    room_ctx *r = ctx;
+    agent_t *a = agent_by_id(r->m, p->seller);
+    return a && a->info.alive && a->info.free_slots - a->pending > 0 && !tried(r->u, p->seller) &&
+           !need_has(r->j, r->u, p->seller);
+}
+
+/* Posted: each open unit orders from the first posting within its limit
+ * that has room. */
+static void posted_step(bgb_market_t *m, job_t *j, double now)
+{
+    for (int i = 0; i < j->nunits; i++) {
+        unit_t *u = &j->unit[i];
+        if (u->state != U_OPEN)
+            continue;
+        room_ctx rc = {m, j, u};
+        bgm_posting_t p;
+        if (bgm_posted_query_if(m->posted, u->good, u->limit, has_room, &rc, &p, 1) == 1) {
+            agent_t *a = agent_by_id(m, p.seller);
+            order(m, j, u, a, p.price, now);
+        }
+    }
+}
+
+
+/* Central: one call market per service good, bids = open units at their
+ * limit, asks = one free slot per live seller at its asking price. */
+static void central_clear(bgb_market_t *m, double now)
+{
+    bidref_t *refs = m->refs;
+    for (int g = 0; g < 3; g++) {
+        bgm_callmarket_reset(m->cm);
+        size_t nb = 0;
+        for (int ji = 0; ji < MAX_JOBS; ji++) {
+            job_t *j = &m->jobs[ji];
+            if (!j->used || j->finished || j->mech != BGB_MECH_CENTRAL)
+                continue;
+            for (int i = 0; i < j->nunits; i++) {
+                unit_t *u = &j->unit[i];
+                if (u->state != U_OPEN || u->good != g)
+                    continue;
+                refs[nb] = (bidref_t){j, u};
+                bgm_order_t o = {.ref = nb, .owner = (uint32_t)ji, .quantity = 1, .price = u->limit};
+                if (bgm_callmarket_bid(m->cm, &o) == BG_OK)
+                    nb++;
+            }
+        }
+        if (nb == 0)
+            continue;
+        for (int ai = 0; ai < BGB_MARKET_MAX_AGENTS; ai++) {
+            agent_t *a = &m->agents[ai];
+            if (!alive_seller(a, g) || a->info.free_slots - a->pending <= 0)
+                continue;
+            bgm_order_t o = {.ref = (uint64_t)ai, .owner = a->info.id, .quantity = 1,
+                             .price = a->info.price[g]};
+            bgm_callmarket_ask(m->cm, &o);
+        }
+        const size_t nbids = bgm_callmarket_bid_count(m->cm), nasks = bgm_callmarket_ask_count(m->cm);
+        if (nasks == 0)
+            continue;
+        bgm_fill_t *fills = malloc((nbids + nasks) * sizeof *fills);
+        bgm_clearing_t res;
+        if (fills && bgm_callmarket_clear(m->cm, m->c.k, &res, fills, nbids + nasks) == BG_OK) {
+            const bgm_order_t *bids = bgm_callmarket_bids(m->cm), *asks = bgm_callmarket_asks(m->cm);
+            for (size_t f = 0; f < res.fill_count; f++) {
+                bidref_t *r = &refs[bids[fills[f].bid].ref];
+                agent_t *a = &m->agents[asks[fills[f].ask].ref];
+                if (need_has(r->j, r->u, a->info.id))
+                    continue; /* stays open for the next call */
+                order(m, r->j, r->u, a, res.price, now);
+            }
+        }
+        free(fills);
+    }
+}
+
+/* The buyer's answer to a seller's price (proposal or counter-offer):
+ * accept, counter or walk away, by the simulator's bargaining code. */
+static void bargain(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double their, double now)
+{
+    double reply = 0;
+    switch (bgm_nego_respond(&u->side, their, &j->rng, &reply)) {
+    case BGM_NEGO_ACCEPT:
+        send_price(m, j, u, a, BGA_MM_ACCEPT, their);
+        break;
+    case BGM_NEGO_COUNTER:
+        send_price(m, j, u, a, BGA_MM_OFFER, reply);
+        break;
+    default:
+        send_price(m, j, u, a, BGA_MM_REJECT, 0);
+        if (a->pending > 0)
+            a->pending--;
+        if (u->ntried < MAX_TRIED)
+            u->tried[u->ntried++] = a->info.id;
+        u->state = U_OPEN;
+        return;
+    }
+    u->deadline = now + m->c.reply_timeout;
+}
+
+static void finish(bgb_market_t *m, job_t *j, const char *reason, double now);
+static void send_cfps(bgb_market_t *m, job_t *j, double now);
+
+/* Catallactic: after discovery, each open unit bargains with the cheapest
+ * proposer it has not tried. With no proposer left, the job fails: on
+ * price ("budget") if sellers proposed, "no seller" if none did. */
+static void catallactic_step(bgb_market_t *m, job_t *j, double now)
+{
+    if (now < j->discover_until)
+        return;
+    for (int i = 0; i < j->nunits; i++) {
+        unit_t *u = &j->unit[i];
+        if (u->state != U_OPEN)
+            continue;
+        const proposal_t *best = NULL;
+        int heard = 0;
+        for (int k = 0; k < j->nprops; k++) {
+            const proposal_t *p = &j->props[k];
+            if (p->good != u->good)
+                continue;
+            heard++;
+            agent_t *a = agent_by_id(m, p->agent);
+            if (!a || !a->info.alive || tried(u, p->agent) || need_has(j, u, p->agent))
+                continue;
+            if (!best || p->price < best->price)
+                best = p;
+        }
+        if (!best) {
+            int waiting = 0;
+            for (int k = 0; k < j->nunits; k++)
+                waiting |= j->unit[k].state == U_ORDERED;
+            if (waiting)
+                return;
+            /* Sellers walk away at random (their genes): a new round of
+             * discovery, as the simulator's retry, a few times. */
+            if (j->attempt < MAX_ROUNDS_DISCOVERY) {
+                for (int k = 0; k < j->nunits; k++)
+                    j->unit[k].ntried = 0;
+                /* A strategy that failed every bargain is dropped for a
+                 * fresh draw (the simulator's agents learn across jobs; a
+                 * live job has only its own rounds). */
+                bgm_genes_random(&j->genes, &j->rng);
+                j->nprops = 0;
+                j->attempt++;
+                send_cfps(m, j, now);
+                return;
+            }
+            finish(m, j, heard ? "budget" : "no seller", now);
+            return;
+        }
+        agent_t *a = agent_by_id(m, best->agent);
+        /* As the simulator's buyer: open with its own offer below the
+         * proposal (the remembered price), then alternate. */
+        const double open = bgm_nego_opening(BGM_SIDE_BUYER, u->limit, best->price, BUYER_MARKUP);
+        bgm_nego_open(&u->side, BGM_SIDE_BUYER, u->limit, open, &j->genes, m->c.max_rounds);
+        u->state = U_ORDERED;
+        u->agent = a->info.id;
+        u->deadline = now + m->c.reply_timeout;
+        a->pending++;
+        touch(j, a->info.id);
+        send_price(m, j, u, a, BGA_MM_OFFER, u->side.current);
+    }
+}
+
+/* Calls for proposals to a few entry agents; the overlay carries them on. */
+static void send_cfps(bgb_market_t *m, job_t *j, double now)
+{
+    int sent = 0;
+    for (int k = 0; k < BGB_MARKET_MAX_AGENTS && sent < m->c.overlay_degree; k++) {
+        agent_t *a = &m->agents[(k + (int)(j->id % BGB_MARKET_MAX_AGENTS)) % BGB_MARKET_MAX_AGENTS];
+        if (!a->used || !a->info.alive)
+            continue;
+        for (int g = 0; g < 3; g++) {
+            int wanted = 0;
+            for (int i = 0; i < j->nunits; i++)
+                wanted |= j->unit[i].good == g;
+            if (!wanted)
+                continue;
+            bga_mmsg_t c;
+            bga_mmsg_init(&c, BGA_MM_CFP);
+            c.job = j->id;
+            c.agent = a->info.id;
+            c.good = g;
+            c.hops = m->c.hops;
+            c.attempt = j->attempt;
+            send_to(m, a, &c, NULL);
+        }
+        sent++;
+    }
+    j->discover_until = now + m->c.reply_timeout / 8;
+}
+
+static void check_done(bgb_market_t *m, job_t *j, double now)
+{
+    for (int i = 0; i < j->nunits; i++)
+        if (j->unit[i].state != U_DONE)
+            return;
+    finish(m, j, NULL, now);
+}
+
+static void step_job(bgb_market_t *m, job_t *j, double now)
+{
+    if (j->finished)
+        return;
+    if (now >= j->deadline) {
+        finish(m, j, "timeout", now);
+        return;
+    }
+    for (int i = 0; i < j->nunits; i++) {
+        unit_t *u = &j->unit[i];
+        if (u->state == U_ORDERED && now >= u->deadline) {
+            agent_t *a = agent_by_id(m, u->agent);
+            if (a && a->pending > 0)
+                a->pending--;
+            if (u->ntried < MAX_TRIED)
+                u->tried[u->ntried++] = u->agent;
+            u->state = U_OPEN;
+        }
+    }
+    if (j->mech == BGB_MECH_POSTED)
+        posted_step(m, j, now);
+    else if (j->mech == BGB_MECH_CATALLACTIC)
+        catallactic_step(m, j, now);
+}
+
+bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism, double budget,
+                         const bgb_need_t *needs, int nneeds, double now, bgb_done_fn done,
+                         void *ctx, bg_error_t *err)
+{
+    if ((int)mechanism < 0 || mechanism > BGB_MECH_POSTED)
+        return bg_error_set(err, BG_ERR_INVALID, "mechanism: %d is unknown", (int)mechanism);
+    if (!(budget >= 0 && isfinite(budget)))
+        return bg_error_set(err, BG_ERR_INVALID, "budget: must be a finite number >= 0");
+    if (nneeds < 1 || nneeds > BGB_MARKET_MAX_NEEDS)
+        return bg_error_set(err, BG_ERR_INVALID, "needs: between 1 and %d", BGB_MARKET_MAX_NEEDS);
+    int nunits = 0;
+    for (int i = 0; i < nneeds; i++) {
+        if (needs[i].good < 0 || needs[i].good > BGB_GOOD_INTEG)
+            return bg_error_set(err, BG_ERR_INVALID, "needs[%d].good: %d is not a service", i,
+                                needs[i].good);
+        if (!(needs[i].quantity > 0 && isfinite(needs[i].quantity)))
+            return bg_error_set(err, BG_ERR_INVALID, "needs[%d].quantity: must be > 0", i);
+        if (needs[i].sellers < 1 || needs[i].sellers > 16)
+            return bg_error_set(err, BG_ERR_INVALID, "needs[%d].sellers: must be in [1, 16]", i);
+        nunits += needs[i].sellers;
+    }
+    if (nunits > MAX_UNITS)
+        return bg_error_set(err, BG_ERR_INVALID, "needs: more than %d sellers in all", MAX_UNITS);
+    if (job_by_id(m, job))
+        return bg_error_set(err, BG_ERR_CONFLICT, "job %llu is already buying",
+                            (unsigned long long)job);
+    job_t *j = NULL;
+    for (int i = 0; i < MAX_JOBS && !j; i++)
+        if (!m->jobs[i].used)
+            j = &m->jobs[i];
+    if (!j)
+        return bg_error_set(err, BG_ERR_LIMIT, "market: %d jobs buying at once", MAX_JOBS);
+    memset(j, 0, sizeof *j);
+    j->used = 1;
+    j->id = job;
+    j->mech = mechanism;
+    j->budget = budget;
+    j->started = now;
+    j->deadline = now + m->c.buy_timeout;
+    j->done = done;
+    j->ctx = ctx;
+    /* The cheapest asking price per good among live sellers: what the job
+     * must at least pay. It splits the budget into per-unit limits in
+     * proportion to those prices, so Σ quantity × limit = budget and no
+     * unit's price can push the total over it. */
+    double ref[3] = {INFINITY, INFINITY, INFINITY};
+    int count[3] = {0, 0, 0};
+    for (int ai = 0; ai < BGB_MARKET_MAX_AGENTS; ai++)
+        for (int g = 0; g < 3; g++)
+            if (alive_seller(&m->agents[ai], g)) {
+                count[g]++;
+                if (m->agents[ai].info.price[g] < ref[g])
+                    ref[g] = m->agents[ai].info.price[g];
+            }
+    double least = 0;
+    for (int i = 0; i < nneeds; i++) {
+        if (count[needs[i].good] < needs[i].sellers) {
+            finish(m, j, "no seller", now);
+            return BG_OK;
+        }
+        least += needs[i].quantity * ref[needs[i].good];
+    }
+    if (least > budget || least <= 0) {
+        finish(m, j, least > budget ? "budget" : "no seller", now);
+        return BG_OK;
+    }
+    for (int i = 0; i < nneeds; i++)
+        for (int s = 0; s < needs[i].sellers; s++) {
+            unit_t *u = &j->unit[j->nunits++];
+            u->need = i;
+            u->good = needs[i].good;
+            u->quantity = needs[i].quantity / needs[i].sellers;
+            u->limit = ref[u->good] * budget / least;
+        }
+    if (mechanism == BGB_MECH_CATALLACTIC) {
+        bgm_rng_seed(&j->rng, job);
+        bgm_genes_random(&j->genes, &j->rng);
+        send_cfps(m, j, now);
+    }
+    step_job(m, j, now);
+    return BG_OK;
+}
+
+/* ------------------------------------------------------------ messages */
+
+static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
+{
+    job_t *j = job_by_id(m, in->job);
+    unit_t *u = NULL;
+    if (j && !j->finished)
+        for (int i = 0; i < j->nunits && !u; i++)
+            if (j->unit[i].state == U_ORDERED && j->unit[i].agent == a->info.id &&
+                j->unit[i].good == in->good)
+                u = &j->unit[i];
+    if (!u) {
+        /* Late or unknown: a confirmation nobody wants is released. */
+        if (in->type == BGA_MM_CONFIRM && (!j || j->finished))
+            release_on(m, a, in->job);
+        return;
+    }
+    if (a->pending > 0)
+        a->pending--;
+    if (in->type == BGA_MM_CONFIRM && in->price > u->limit * (1 + 1e-12)) {
+        /* A seller confirming above the buyer's limit is not a contract. */
+        release_on(m, a, in->job);
+        if (u->ntried < MAX_TRIED)
+            u->tried[u->ntried++] = a->info.id;
+        u->state = U_OPEN;
+        step_job(m, j, now);
+    } else if (in->type == BGA_MM_CONFIRM) {
+        u->state = U_DONE;
+        u->price = in->price;
+        u->seller_floor = in->floor[u->good];
+        a->info.free_slots = in->free_slots;
+        check_done(m, j, now);
+    } else {
+        if (u->ntried < MAX_TRIED)
+            u->tried[u->ntried++] = a->info.id;
+        u->state = U_OPEN;
+        step_job(m, j, now);
+    }
+}
+
+static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
+{
+    job_t *j = job_by_id(m, in->job);
+    if (!j || j->finished || j->mech != BGB_MECH_CATALLACTIC)
+        return;
+    if (in->type == BGA_MM_PROPOSE) {
+        if (j->nprops < MAX_PROPOSALS)
+            j->props[j->nprops++] = (proposal_t){a->info.id, in->good, in->price};
+        return;
+    }
+    unit_t *u = NULL;
+    for (int i = 0; i < j->nunits && !u; i++)
+        if (j->unit[i].state == U_ORDERED && j->unit[i].agent == a->info.id &&
+            j->unit[i].good == in->good)
+            u = &j->unit[i];
+    if (!u)
+        return;
+    if (in->type == BGA_MM_OFFER) {
+        bargain(m, j, u, a, in->price, now);
+    } else { /* the seller walked away */
+        if (a->pending > 0)
+            a->pending--;
+        if (u->ntried < MAX_TRIED)
+            u->tried[u->ntried++] = a->info.id;
+        u->state = U_OPEN;
+    }
+    step_job(m, j, now);
+}
+
+static bg_status reply_error(bgb_market_t *m, const uint8_t *idn, size_t len, const char *why,
+                             bg_error_t *err)
+{
+    bga_mmsg_t e;
+    bga_mmsg_init(&e, BGA_MM_ERROR);
+    snprintf(e.reason, sizeof e.reason, "%.*s", (int)sizeof e.reason - 1, why);
+    agent_t tmp = {0};
+    memcpy(tmp.identity, idn, len);
+    tmp.idlen = len;
+    return send_to(m, &tmp, &e, err);
+}
+
+bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t identity_len,
+                               const bga_frame_t *frames, int nframes, double now,
+                               bg_error_t *err)
+{
+    if (identity_len == 0 || identity_len > BGB_MARKET_IDENTITY_MAX)
+        return BG_OK;
+    bga_mmsg_t in;
+    bg_error_t derr = BG_ERROR_INIT;
+    if (bga_mmsg_decode(frames, nframes, &in, &derr) != BG_OK)
+        return reply_error(m, identity, identity_len, derr.message, err);
+    if (in.type == BGA_MM_REGISTER)
+        return on_register(m, identity, identity_len, &in, now, err);
+    agent_t *a = agent_by_identity(m, identity, identity_len);
+    if (!a)
+        return reply_error(m, identity, identity_len, "unknown agent: register first", err);
+    switch (in.type) {
+    case BGA_MM_HEARTBEAT:
+        copy_status(a, &in, now);
+        sells_to_posted(m, a);
+        break;
+    case BGA_MM_CONFIRM:
+    case BGA_MM_REFUSE:
+        on_answer(m, a, &in, now);
+        break;
+    case BGA_MM_PROPOSE:
+    case BGA_MM_OFFER:
+    case BGA_MM_REJECT:
+        on_bargain_msg(m, a, &in, now);
+        break;
+    case BGA_MM_RELAY: {
+        agent_t *t = agent_by_id(m, in.target);
+        if (t && t->info.alive) {
+            bga_mmsg_t c = in;
+            c.type = BGA_MM_CFP;
+            c.agent = t->info.id;
+            c.target = 0;
+            send_to(m, t, &c, NULL);
+        }
+        break;
+    }
+    default:
+        break;
+    }
+    return BG_OK;
+}
+
+double bgb_market_tick(bgb_market_t *m, double now)
+{
+    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
+        if (m->agents[i].used && now - m->agents[i].info.last_heartbeat > m->c.heartbeat_timeout)
+            drop_agent(m, &m->agents[i]);
+    if (now >= m->next_clear) {
+        central_clear(m, now);
+        m->next_clear = now + m->c.period;
+    }
+    double next = m->next_clear;
+    for (int i = 0; i < MAX_JOBS; i++) {
+        job_t *j = &m->jobs[i];
+        if (!j->used || j->finished)
+            continue;
+        step_job(m, j, now);
+        if (j->used && !j->finished) {
+            if (j->deadline < next)
+                next = j->deadline;
+            for (int k = 0; k < j->nunits; k++)
+                if (j->unit[k].state == U_ORDERED && j->unit[k].deadline < next)
+                    next = j->unit[k].deadline;
+        }
+    }
+    const double beat = now + m->c.heartbeat_timeout / 4;
+    return beat < next ? beat : next;
+}
+
+/* ------------------------------------------------------------ snapshots */
+
+size_t bgb_market_agents(const bgb_market_t *m, bgb_agent_info_t *out, size_t max)
+{
+    size_t n = 0;
+    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
+        if (m->agents[i].used) {
+            if (n < max)
+                out[n] = m->agents[i].info;
+            n++;
+        }
+    return n;
+}
+
+int bgb_market_recent_price(const bgb_market_t *m, int good, bgb_mechanism mech, int window,
+                            double *mean)
+{
+    int n = 0;
+    double sum = 0;
+    for (size_t i = m->log_count; i-- > 0 && n < window;) {
+        const bgb_contract_t *r = &m->log[(m->log_head + i) % m->c.max_contracts];
+        if (r->good == good && r->mechanism == (int)mech) {
+            sum += r->price;
+            n++;
+        }
+    }
+    if (n)
+        *mean = sum / n;
+    return n;
+}
+
+void bgb_market_contracts(const bgb_market_t *m, bgb_contract_fn fn, void *ctx)
+{
+    for (size_t i = 0; i < m->log_count; i++)
+        fn(ctx, &m->log[(m->log_head + i) % m->c.max_contracts]);
+}
+
+typedef struct csv_ctx {
+    const bgb_market_t *m;
+    FILE *out;
+    int failed;
+} csv_ctx;
+
+static void write_row(void *ctx, const bgb_contract_t *r)
+{
+    csv_ctx *c = ctx;
+    /* An open contract (job still running) ends "now" for the audit: it
+     * is written with end = start + 1e9 rather than inf. */
+    const double end = isinf(r->end) ? r->start + 1e9 : r->end;
+    if (fprintf(c->out, "%s,0,%s,%s,%llu,%.9g,%.9g,%.9g,%llu,%u,%s,%.9g,%.9g,%.9g,%.9g\n",
+                c->m->name, bgb_mechanism_name((bgb_mechanism)r->mechanism),
+                r->layer ? "resource" : "service", (unsigned long long)r->job, r->time, r->start,
+                end, (unsigned long long)r->buyer, r->seller, bgb_good_name(r->good), r->quantity,
+                r->price, r->buyer_limit, r->seller_limit) < 0)
+        c->failed = 1;
+}
+
+bg_status bgb_market_write_contracts_csv(const bgb_market_t *m, FILE *out, bg_error_t *err)
+{
+    csv_ctx c = {m, out, 0};
+    if (fputs("scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,good,"
+              "quantity,price,buyer_limit,seller_limit\n",
+              out) < 0)
+        c.failed = 1;
+    bgb_market_contracts(m, write_row, &c);
+    if (c.failed || fflush(out) != 0)
+        return bg_error_set(err, BG_ERR_IO, "cannot write contracts.csv");
+    return BG_OK;
+}
+
+bg_status bgb_market_write_agents_csv(const bgb_market_t *m, FILE *out, bg_error_t *err)
+{
+    int failed = fputs("scenario,replication,mechanism,agent,role,good,capacity,limit\n", out) < 0;
+    for (int mech = 0; mech < 3; mech++)
+        for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++) {
+            const agent_t *a = &m->agents[i];
+            if (!a->used)
+                continue;
+            for (int g = 0; g < 3; g++)
+                if (a->info.services & (1u << g))
+                    failed |= fprintf(out, "%s,0,%s,%u,basic,%s,%d,%.9g\n", m->name,
+                                      mech_names[mech], a->info.id, good_names[g], a->info.slots,
+                                      a->info.floor[g]) < 0;
+        }
+    if (failed || fflush(out) != 0)
+        return bg_error_set(err, BG_ERR_IO, "cannot write agents.csv");
+    return BG_OK;
+}

@@ -1,0 +1,414 @@
+/*
+ * live_host — a small broker stand-in for the live-market tests and the
+ * latency benchmark: binds a ROUTER on loopback (port chosen by the
+ * kernel), runs bgb_market on it, and drives jobs through each mechanism.
+ *
+ *   live_host test  DIR NAGENTS   writes DIR/endpoint, waits for NAGENTS
+ *       agents, buys a static plan (rotation-fit ×2, sparse-solve ×1)
+ *       under each mechanism and checks the awards; a budget too small
+ *       fails with "budget" and adds no contract; a compute call for a job
+ *       an agent holds no contract for is refused naming the job; writes
+ *       DIR/contracts.csv and DIR/agents.csv and audits them (price within
+ *       both limits, no seller over its slots, money conserved, spending
+ *       within budget); then writes DIR/phase2 and waits for the directory
+ *       to lose one agent (the script kills one) and checks the survivors.
+ *   live_host bench DIR NAGENTS ROUNDS   prints allocation latency per
+ *       mechanism (submit → all services bought), median and max.
+ * Exits 0 when every check holds, 1 with the first failure otherwise.
+ */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <zmq.h>
+
+#include "bg_clock.h"
+#include "bga_transport.h"
+#include "bga_wire.h"
+#include "bgb_market.h"
+
+#define FAIL(...)                                                                                  \
+    do {                                                                                           \
+        fprintf(stderr, "live_host: FAIL: " __VA_ARGS__);                                          \
+        fputc('\n', stderr);                                                                       \
+        exit(1);                                                                                   \
+    } while (0)
+
+typedef struct host {
+    void *ctx, *router;
+    bgb_market_t *market;
+} host_t;
+
+static bg_status host_send(void *ctx, const uint8_t *idn, size_t len, const bga_frame_t *frames,
+                           int nframes)
+{
+    host_t *h = ctx;
+    if (zmq_send(h->router, idn, len, ZMQ_SNDMORE) < 0)
+        return BG_ERR_IO;
+    for (int i = 0; i < nframes; i++)
+        if (zmq_send(h->router, frames[i].data, frames[i].size, i + 1 < nframes ? ZMQ_SNDMORE : 0) <
+            0)
+            return BG_ERR_IO;
+    return BG_OK;
+}
+
+/* Runs the loop for at most `seconds`, or until *flag becomes non-zero. */
+static void pump(host_t *h, double seconds, const int *flag)
+{
+    const double end = bg_clock_now() + seconds;
+    while ((!flag || !*flag) && bg_clock_now() < end) {
+        double next = bgb_market_tick(h->market, bg_clock_now());
+        long ms = (long)ceil((next - bg_clock_now()) * 1000);
+        if (ms < 1)
+            ms = 1;
+        if (ms > 50)
+            ms = 50;
+        zmq_pollitem_t it = {h->router, 0, ZMQ_POLLIN, 0};
+        if (zmq_poll(&it, 1, ms) <= 0)
+            continue;
+        bga_received_t r;
+        if (bga_recv(h->router, 1, &r, NULL) != BG_OK)
+            continue;
+        bga_frame_t v[BGA_WIRE_MAX_FRAMES + 1];
+        bga_received_view(&r, v);
+        bg_error_t err = BG_ERROR_INIT;
+        if (bgb_market_on_frames(h->market, zmq_msg_data(&r.route), zmq_msg_size(&r.route), v,
+                                 r.count, bg_clock_now(), &err) != BG_OK)
+            FAIL("on_frames: %s", err.message);
+        bga_received_close(&r);
+    }
+}
+
+typedef struct outcome {
+    int done;
+    char reason[32];
+    bgb_award_t awards[16];
+    int nawards;
+    double spent, latency;
+} outcome_t;
+
+static void on_done(void *ctx, const bgb_outcome_t *o)
+{
+    outcome_t *out = ctx;
+    out->done = 1;
+    snprintf(out->reason, sizeof out->reason, "%s", o->reason ? o->reason : "");
+    out->nawards = o->nawards < 16 ? o->nawards : 16;
+    memcpy(out->awards, o->awards, (size_t)out->nawards * sizeof *o->awards);
+    out->spent = o->spent;
+    out->latency = o->latency;
+}
+
+static const bgb_need_t plan[2] = {{BGB_GOOD_ROTFIT, 2000.0, 2}, {BGB_GOOD_SOLVE, 500.0, 1}};
+
+static void buy(host_t *h, uint64_t job, bgb_mechanism mech, double budget, outcome_t *o)
+{
+    memset(o, 0, sizeof *o);
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgb_market_buy(h->market, job, mech, budget, plan, 2, bg_clock_now(), on_done, o, &err) !=
+        BG_OK)
+        FAIL("buy job %llu: %s", (unsigned long long)job, err.message);
+    pump(h, 20.0, &o->done);
+    if (!o->done)
+        FAIL("job %llu under %s: no outcome in 20 s", (unsigned long long)job,
+             bgb_mechanism_name(mech));
+}
+
+static size_t count_contracts_cb_n;
+static void count_cb(void *ctx, const bgb_contract_t *r)
+{
+    (void)ctx;
+    (void)r;
+    count_contracts_cb_n++;
+}
+static size_t contracts(host_t *h)
+{
+    count_contracts_cb_n = 0;
+    bgb_market_contracts(h->market, count_cb, NULL);
+    return count_contracts_cb_n;
+}
+
+static void wait_agents(host_t *h, size_t n)
+{
+    bgb_agent_info_t info[64];
+    const double end = bg_clock_now() + 30;
+    while (bg_clock_now() < end) {
+        pump(h, 0.1, NULL);
+        if (bgb_market_agents(h->market, info, 64) == n)
+            return;
+    }
+    FAIL("%zu agents did not all register within 30 s", n);
+}
+
+/* The awards of a successful static plan: 2 distinct rotation-fit agents
+ * with half the work each, 1 sparse-solve agent, every price within the
+ * agents' floors and the total within the budget. */
+static void check_awards(host_t *h, const outcome_t *o, double budget, const char *mech)
+{
+    if (o->reason[0])
+        FAIL("%s: job failed: %s", mech, o->reason);
+    if (o->nawards != 3)
+        FAIL("%s: %d awards (expected 3)", mech, o->nawards);
+    int rot = 0, solve = 0;
+    double spent = 0;
+    bgb_agent_info_t info[64];
+    const size_t na = bgb_market_agents(h->market, info, 64);
+    for (int i = 0; i < o->nawards; i++) {
+        const bgb_award_t *a = &o->awards[i];
+        rot += a->good == BGB_GOOD_ROTFIT;
+        solve += a->good == BGB_GOOD_SOLVE;
+        if (a->good == BGB_GOOD_INTEG)
+            FAIL("%s: a static plan bought integration-step", mech);
+        const double want = a->good == BGB_GOOD_ROTFIT ? 1000.0 : 500.0;
+        if (fabs(a->quantity - want) > 1e-9)
+            FAIL("%s: award %d quantity %g (expected %g)", mech, i, a->quantity, want);
+        if (strncmp(a->endpoint, "tcp://127.0.0.1:", 16) != 0)
+            FAIL("%s: award %d endpoint '%s'", mech, i, a->endpoint);
+        int found = 0;
+        for (size_t k = 0; k < na; k++)
+            if (info[k].id == a->agent) {
+                found = 1;
+                if (!(info[k].services & (1u << a->good)))
+                    FAIL("%s: agent %u does not sell %s", mech, a->agent, bgb_good_name(a->good));
+                if (a->price < info[k].floor[a->good] * (1 - 1e-12))
+                    FAIL("%s: price %g under agent %u's floor %g", mech, a->price, a->agent,
+                         info[k].floor[a->good]);
+            }
+        if (!found)
+            FAIL("%s: award names agent %u, not in the directory", mech, a->agent);
+        spent += a->quantity * a->price;
+    }
+    if (rot != 2 || solve != 1)
+        FAIL("%s: %d rotation-fit and %d sparse-solve awards", mech, rot, solve);
+    if (o->awards[0].agent == o->awards[1].agent)
+        FAIL("%s: both rotation-fit halves went to agent %u", mech, o->awards[0].agent);
+    if (fabs(spent - o->spent) > 1e-9 * (1 + spent) || spent > budget * (1 + 1e-12))
+        FAIL("%s: spent %g (outcome says %g), budget %g", mech, spent, o->spent, budget);
+}
+
+/* A compute call (rotfit-call header) for a job the agent holds no
+ * contract for must come back as a NO_JOB error naming the job. */
+static void check_refusal(void *ctx, const char *endpoint, uint64_t job)
+{
+    void *s = zmq_socket(ctx, ZMQ_DEALER);
+    const int linger = 0, tmo = 5000;
+    zmq_setsockopt(s, ZMQ_LINGER, &linger, sizeof linger);
+    zmq_setsockopt(s, ZMQ_RCVTIMEO, &tmo, sizeof tmo);
+    if (zmq_connect(s, endpoint) != 0)
+        FAIL("connect %s", endpoint);
+    bga_msg_t msg;
+    bga_msg_init(&msg, BGA_ROTFIT_CALL, job, 1);
+    msg.field[BGA_RC_WANT].i = BGA_WANT_GRADIENT;
+    const double pos[3] = {0, 0, 0};
+    msg.array[BGA_RC_POSITIONS] = (bga_array_t){pos, 3};
+    bga_frames_t f;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bga_wire_encode(&msg, &f, &err) != BG_OK || bga_send(s, NULL, &f, &err) != BG_OK)
+        FAIL("refusal probe: %s", err.message);
+    bga_frames_free(&f);
+    bga_received_t r;
+    if (bga_recv(s, 0, &r, &err) != BG_OK)
+        FAIL("refusal probe: no reply from %s: %s", endpoint, err.message);
+    bga_frame_t v[BGA_WIRE_MAX_FRAMES + 1];
+    bga_received_view(&r, v);
+    bga_msg_t rep;
+    bga_wire_error_t werr;
+    if (bga_wire_decode(v, r.count, NULL, &rep, &werr) != BGA_WIRE_OK ||
+        rep.header.type != BGA_ERROR || rep.field[BGA_ERR_CODE].i != BGA_WIRE_NO_JOB)
+        FAIL("refusal probe: the agent did not refuse job %llu with NO_JOB",
+             (unsigned long long)job);
+    char text[256] = {0}, want[64];
+    const size_t n = rep.array[BGA_ERR_MESSAGE].count < 255 ? rep.array[BGA_ERR_MESSAGE].count : 255;
+    memcpy(text, rep.array[BGA_ERR_MESSAGE].data, n);
+    snprintf(want, sizeof want, "job %llu", (unsigned long long)job);
+    if (!strstr(text, want))
+        FAIL("refusal message '%s' does not name %s", text, want);
+    bga_received_close(&r);
+    zmq_close(s);
+}
+
+/* ------------------------------------------------------------ audit */
+
+typedef struct rows {
+    bgb_contract_t r[256];
+    int n;
+} rows_t;
+
+static void collect(void *ctx, const bgb_contract_t *r)
+{
+    rows_t *rows = ctx;
+    if (rows->n < 256)
+        rows->r[rows->n++] = *r;
+}
+
+/* The simulator audit's rules, on the live log: price in [seller_limit,
+ * buyer_limit]; per seller, concurrent service contracts never above its
+ * slots (sweep over [start, end)); money paid = money received. */
+static void audit(host_t *h)
+{
+    static rows_t rows;
+    rows.n = 0;
+    bgb_market_contracts(h->market, collect, &rows);
+    bgb_agent_info_t info[64];
+    const size_t na = bgb_market_agents(h->market, info, 64);
+    double paid = 0, received = 0;
+    for (int i = 0; i < rows.n; i++) {
+        const bgb_contract_t *c = &rows.r[i];
+        if (c->price < c->seller_limit * (1 - 1e-9) || c->price > c->buyer_limit * (1 + 1e-9))
+            FAIL("audit: price %g outside [%g, %g]", c->price, c->seller_limit, c->buyer_limit);
+        paid += c->price * c->quantity;
+        int slots = -1;
+        for (size_t k = 0; k < na; k++)
+            if (info[k].id == c->seller)
+                slots = info[k].slots;
+        if (slots < 0)
+            FAIL("audit: seller %u not in the directory", c->seller);
+        int load = 0;
+        for (int j = 0; j < rows.n; j++)
+            if (rows.r[j].seller == c->seller && rows.r[j].start <= c->start &&
+                c->start < rows.r[j].end)
+                load++;
+        if (load > slots)
+            FAIL("audit: seller %u holds %d contracts at t=%g with %d slots", c->seller, load,
+                 c->start, slots);
+    }
+    for (int i = 0; i < rows.n; i++)
+        received += rows.r[i].price * rows.r[i].quantity;
+    if (fabs(paid - received) > 1e-9 * (1 + paid))
+        FAIL("audit: money not conserved");
+}
+
+static void write_csvs(host_t *h, const char *dir)
+{
+    char path[4096];
+    bg_error_t err = BG_ERROR_INIT;
+    snprintf(path, sizeof path, "%s/contracts.csv", dir);
+    FILE *f = fopen(path, "w");
+    if (!f || bgb_market_write_contracts_csv(h->market, f, &err) != BG_OK)
+        FAIL("cannot write %s", path);
+    fclose(f);
+    snprintf(path, sizeof path, "%s/agents.csv", dir);
+    f = fopen(path, "w");
+    if (!f || bgb_market_write_agents_csv(h->market, f, &err) != BG_OK)
+        FAIL("cannot write %s", path);
+    fclose(f);
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    const double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+int main(int argc, char **argv)
+{
+    if (argc < 4 || (strcmp(argv[1], "bench") == 0 && argc < 5))
+        FAIL("usage: live_host test|bench DIR NAGENTS [ROUNDS]");
+    const char *dir = argv[2];
+    const size_t nagents = (size_t)atoi(argv[3]);
+    host_t h = {0};
+    h.ctx = zmq_ctx_new();
+    h.router = zmq_socket(h.ctx, ZMQ_ROUTER);
+    const int linger = 0;
+    zmq_setsockopt(h.router, ZMQ_LINGER, &linger, sizeof linger);
+    if (zmq_bind(h.router, "tcp://127.0.0.1:*") != 0)
+        FAIL("bind: %s", zmq_strerror(errno));
+    char ep[256];
+    size_t len = sizeof ep;
+    zmq_getsockopt(h.router, ZMQ_LAST_ENDPOINT, ep, &len);
+    bgb_market_config_t mc;
+    bgb_market_config_default(&mc);
+    mc.name = "live-test";
+    mc.heartbeat_timeout = 3.0;
+    mc.period = 0.05;
+    bgb_market_io_t io = {&h, host_send};
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgb_market_new(&mc, &io, &h.market, &err) != BG_OK)
+        FAIL("market: %s", err.message);
+    char path[4096];
+    snprintf(path, sizeof path, "%s/endpoint", dir);
+    FILE *f = fopen(path, "w");
+    if (!f)
+        FAIL("cannot write %s", path);
+    fprintf(f, "%s\n", ep);
+    fclose(f);
+    wait_agents(&h, nagents);
+    pump(&h, 0.6, NULL); /* every agent has heartbeaten its prices */
+
+    const bgb_mechanism mechs[] = {BGB_MECH_POSTED, BGB_MECH_CENTRAL, BGB_MECH_CATALLACTIC};
+    const int nmech = 3;
+    if (strcmp(argv[1], "bench") == 0) {
+        const int rounds = atoi(argv[4]);
+        double *lat = calloc((size_t)rounds, sizeof *lat);
+        uint64_t job = 1;
+        printf("allocation latency, %zu agents on loopback, plan rotation-fit x2 + sparse-solve, "
+               "%d rounds\n",
+               nagents, rounds);
+        for (int mi = 0; mi < nmech; mi++) {
+            for (int r = 0; r < rounds; r++) {
+                outcome_t o;
+                buy(&h, job, mechs[mi], 1e6, &o);
+                if (o.reason[0])
+                    FAIL("bench: %s failed: %s", bgb_mechanism_name(mechs[mi]), o.reason);
+                lat[r] = o.latency;
+                bgb_market_release(h.market, job++, bg_clock_now());
+                pump(&h, 0.01, NULL);
+            }
+            qsort(lat, (size_t)rounds, sizeof *lat, cmp_double);
+            printf("%-12s median %8.3f ms  p90 %8.3f ms  max %8.3f ms\n",
+                   bgb_mechanism_name(mechs[mi]), lat[rounds / 2] * 1e3,
+                   lat[(rounds * 9) / 10] * 1e3, lat[rounds - 1] * 1e3);
+        }
+        free(lat);
+    } else {
+        uint64_t job = 100;
+        for (int mi = 0; mi < nmech; mi++) {
+            const double budget = 1e5;
+            outcome_t o;
+            buy(&h, job, mechs[mi], budget, &o);
+            check_awards(&h, &o, budget, bgb_mechanism_name(mechs[mi]));
+            printf("%s: 3 services bought for %.4g of %.4g in %.1f ms\n",
+                   bgb_mechanism_name(mechs[mi]), o.spent, budget, o.latency * 1e3);
+            /* While the contract holds, the agent computes for the job's id
+             * and refuses any other. */
+            check_refusal(h.ctx, o.awards[2].endpoint, job + 5000);
+            bgb_market_release(h.market, job, bg_clock_now());
+            job++;
+            /* Floors are 1 per unit: 2500 units cannot be bought for 100. */
+            const size_t before = contracts(&h);
+            buy(&h, job, mechs[mi], 100.0, &o);
+            if (strcmp(o.reason, "budget") != 0 || o.nawards != 0)
+                FAIL("%s: budget 100 gave '%s' with %d awards (expected 'budget', 0)",
+                     bgb_mechanism_name(mechs[mi]), o.reason, o.nawards);
+            if (contracts(&h) != before)
+                FAIL("%s: a failed job left contracts", bgb_mechanism_name(mechs[mi]));
+            job++;
+        }
+        pump(&h, 0.3, NULL);
+        audit(&h);
+        write_csvs(&h, dir);
+        /* Phase 2: the script kills one agent; the directory drops it. */
+        snprintf(path, sizeof path, "%s/phase2", dir);
+        f = fopen(path, "w");
+        if (f)
+            fclose(f);
+        bgb_agent_info_t info[64];
+        const double end = bg_clock_now() + 20;
+        size_t n = nagents;
+        while (bg_clock_now() < end && n == nagents) {
+            pump(&h, 0.1, NULL);
+            n = bgb_market_agents(h.market, info, 64);
+        }
+        if (n != nagents - 1)
+            FAIL("the killed agent was not dropped (%zu agents listed)", n);
+        /* The survivors still sell. */
+        outcome_t o;
+        buy(&h, job, BGB_MECH_POSTED, 1e5, &o);
+        check_awards(&h, &o, 1e5, "posted after a death");
+        printf("dead agent dropped; %zu agents left and still selling\n", n);
+    }
+    bgb_market_destroy(&h.market);
+    zmq_close(h.router);
+    zmq_ctx_term(h.ctx);
+    return 0;
+}
