@@ -296,6 +296,7 @@ typedef struct job_run {
     bgb_broker_t *broker;
     char id[BGB_JOB_ID_SIZE];
     double last_progress;
+    double allocation_latency; /* seconds from allocating to running */
 } job_run_t;
 
 static void on_progress(void *ctx, bg_method method, const bg_trace_point_t *p)
@@ -432,6 +433,60 @@ static int agent_lines(const bgb_broker_config_t *c, const int *role, const bga_
     return c->agent_count;
 }
 
+/*
+ * Adds the job's "market" section to DIR/report.json: mechanism, the
+ * contracts (service, agent, quantity, price), money spent against the
+ * budget, the allocation latency, and the error against run time and
+ * against money spent (money is spent when the services are bought, so
+ * every trace point has spent so far = the total). No market is attached
+ * in this build: no contracts, nothing spent.
+ */
+static bg_status add_market_section(const char *path, const bgb_job_t *job, double latency,
+                                    bg_error_t *err)
+{
+    cJSON *root = NULL;
+    bg_status st = bg_json_load(path, BROKER_MAX_RESULT_FILE, &root, err);
+    if (st != BG_OK)
+        return st;
+    char *text = NULL;
+    const double spent = 0.0;
+    cJSON *m = cJSON_AddObjectToObject(root, "market");
+    cJSON_AddStringToObject(m, "mechanism", job->mechanism);
+    cJSON_AddNullToObject(m, "market");
+    cJSON_AddStringToObject(m, "note", "no market is attached to this broker: the job ran on "
+                                       "its configured agents without contracts");
+    cJSON_AddArrayToObject(m, "contracts");
+    cJSON_AddNumberToObject(m, "budget", job->budget);
+    cJSON_AddNumberToObject(m, "spent", spent);
+    cJSON_AddNumberToObject(m, "allocation_latency_seconds", latency);
+    cJSON *curve = cJSON_AddArrayToObject(m, "error_vs_time_and_money");
+    const cJSON *runs = cJSON_GetObjectItemCaseSensitive(root, "runs");
+    const cJSON *trace = cJSON_GetObjectItemCaseSensitive(cJSON_GetArrayItem(runs, 0), "trace");
+    const cJSON *p;
+    cJSON_ArrayForEach(p, trace) {
+        cJSON *e = cJSON_CreateObject();
+        const cJSON *s = cJSON_GetObjectItemCaseSensitive(p, "seconds");
+        const cJSON *er = cJSON_GetObjectItemCaseSensitive(p, "error");
+        cJSON_AddNumberToObject(e, "seconds", cJSON_IsNumber(s) ? s->valuedouble : 0.0);
+        cJSON_AddNumberToObject(e, "spent", spent);
+        if (cJSON_IsNumber(er))
+            cJSON_AddNumberToObject(e, "error", er->valuedouble);
+        else
+            cJSON_AddNullToObject(e, "error");
+        cJSON_AddItemToArray(curve, e);
+    }
+    text = cJSON_Print(root);
+    if (!text) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory", path);
+        goto out;
+    }
+    st = write_file(path, (const uint8_t *)text, strlen(text), err);
+out:
+    free(text);
+    cJSON_Delete(root);
+    return st;
+}
+
 /* Runs the job on the configured agents into dir; the store gets its
  * results and trace. */
 static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job, const char *dir,
@@ -533,7 +588,8 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
     const int nlines = agent_lines(c, role, remote, lines);
     char paths[2 * BROKER_PATH_MAX + 64];
     snprintf(path, sizeof path, "%s/report.json", dir);
-    if ((st = bg_report_write_agents(path, scene, &plan, &run, 1, lines, nlines, err)) != BG_OK)
+    if ((st = bg_report_write_agents(path, scene, &plan, &run, 1, lines, nlines, err)) != BG_OK ||
+        (st = add_market_section(path, job, jr->allocation_latency, err)) != BG_OK)
         goto out;
     snprintf(path, sizeof path, "%s/error-vs-time.svg", dir);
     if ((st = bg_report_write_plot(path, scene, &run, 1, err)) != BG_OK ||
@@ -560,6 +616,7 @@ static void *coordinator(void *arg)
     bgb_broker_t *b = jr->broker;
     bg_error_t err = BG_ERROR_INIT;
     bgb_job_t job = BGB_JOB_INIT;
+    const double t0 = bg_clock_now();
     if (bgb_store_get(b->store, jr->id, &job, &err) != BG_OK)
         goto out;
     if (b->config.agent_count == 0) {
@@ -580,6 +637,7 @@ static void *coordinator(void *arg)
     if (bgb_store_transition(b->store, jr->id, MASK(BGB_JOB_ALLOCATING), BGB_JOB_RUNNING, NULL,
                              &err) != BG_OK)
         goto out; /* cancelled meanwhile */
+    jr->allocation_latency = bg_clock_now() - t0;
     char dir[BROKER_PATH_MAX];
     snprintf(dir, sizeof dir, "%s/jobs/%s", b->config.state_dir, jr->id);
     int converged = 0;
@@ -714,6 +772,28 @@ static void *loop_main(void *arg)
 
 /* ----------------------------------------------------------- lifecycle */
 
+/* The fixed pool for GET /v1/agents: endpoint and services of each. */
+static char *pool_json(const bgb_broker_config_t *c)
+{
+    cJSON *arr = cJSON_CreateArray();
+    for (int i = 0; arr && i < c->agent_count; i++) {
+        cJSON *a = cJSON_CreateObject();
+        cJSON_AddStringToObject(a, "endpoint", c->agents[i].endpoint);
+        cJSON *s = cJSON_AddArrayToObject(a, "services");
+        if (c->agents[i].services & BGA_SERVICE_ROTFIT)
+            cJSON_AddItemToArray(s, cJSON_CreateString("rotation-fit"));
+        if (c->agents[i].services & BGA_SERVICE_SOLVE)
+            cJSON_AddItemToArray(s, cJSON_CreateString("sparse-solve"));
+        if (c->agents[i].services & BGA_SERVICE_INTEG)
+            cJSON_AddItemToArray(s, cJSON_CreateString("integration-step"));
+        cJSON_AddStringToObject(a, "source", "config");
+        cJSON_AddItemToArray(arr, a);
+    }
+    char *text = arr ? cJSON_PrintUnformatted(arr) : NULL;
+    cJSON_Delete(arr);
+    return text;
+}
+
 /* Jobs a previous broker process left half done (see the header). */
 static bg_status recover(bgb_broker_t *b, bg_error_t *err)
 {
@@ -764,6 +844,7 @@ bg_status bgb_broker_start(const bgb_broker_config_t *config, bgb_broker_t **out
         free(b);
         return st;
     }
+    char *agents_json = NULL;
     char path[BROKER_PATH_MAX + 32];
     snprintf(path, sizeof path, "%s/jobs", b->config.state_dir);
     if ((st = make_dir(path, err)) != BG_OK)
@@ -790,7 +871,8 @@ bg_status bgb_broker_start(const bgb_broker_config_t *config, bgb_broker_t **out
     snprintf(path, sizeof path, "%s/uploads", b->config.state_dir);
     if ((st = make_dir(path, err)) != BG_OK)
         goto out;
-    const bgb_rest_config_t rc = {.address = b->config.address,
+    agents_json = pool_json(&b->config);
+    const bgb_rest_config_t rc = {.agents_json = agents_json,.address = b->config.address,
                                   .port = (uint16_t)b->config.port,
                                   .max_body = (size_t)b->config.max_body,
                                   .max_vertices = b->config.max_vertices,
@@ -810,6 +892,7 @@ bg_status bgb_broker_start(const bgb_broker_config_t *config, bgb_broker_t **out
     }
     b->dispatcher_started = 1;
 out:
+    free(agents_json);
     if (st != BG_OK)
         bgb_broker_stop(&b);
     *out = b;

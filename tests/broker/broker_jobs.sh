@@ -51,7 +51,18 @@ for scene in "$@"; do
   id=$(jq -r .id "$work/job$n.json")
   state=$(wait_job "$url" "$id" 300)
   [ "$state" = succeeded ]; check $? "$scene: job $id succeeded (got $state)"
+  curl -sf "$url/v1/jobs/$id" >"$work/detail$n.json"
+  jq -e '.trace | length > 1' "$work/detail$n.json" >/dev/null
+  check $? "$scene: the job resource holds the run's trace ($(jq '.trace | length' "$work/detail$n.json") points)"
   curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report$n.json"
+  jq -e --slurpfile r "$work/report$n.json" '(.trace | length) == ($r[0].runs[0].trace | length)' \
+    "$work/detail$n.json" >/dev/null
+  check $? "$scene: the job's trace has the report's points"
+  jq -e '.market.mechanism == "posted" and .market.budget == 100 and .market.spent == 0 and
+         (.market.contracts | length) == 0 and .market.allocation_latency_seconds >= 0 and
+         (.market.error_vs_time_and_money | length) == (.runs[0].trace | length)' \
+    "$work/report$n.json" >/dev/null
+  check $? "$scene: the report's market section (mechanism, budget, nothing spent, no contracts)"
   "$bin" solve "$scene" --quiet --out "$work/local$n" >/dev/null 2>&1
   jq -n --slurpfile a "$work/report$n.json" --slurpfile b "$work/local$n/report.json" \
     '($a[0].runs[0].energy - $b[0].runs[0].energy) | fabs <= 1e-10 * ($b[0].runs[0].energy | fabs)' \
@@ -89,6 +100,8 @@ for scene in "$@"; do
   code=$(curl -s -o /dev/null -w '%{http_code}' -X POST "$url/v1/jobs/$id/cancel")
   [ "$code" = 409 ]; check $? "$scene: cancelling an ended job is 409 (got $code)"
 done
+n=$(curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "config")] | length')
+[ "$n" = 4 ]; check $? "GET /v1/agents lists the broker's 4 agents (got $n)"
 code=$(curl -s -o /dev/null -w '%{http_code}' "$url/v1/jobs/j0000000000000000")
 [ "$code" = 404 ]; check $? "an unknown job is 404 (got $code)"
 
