@@ -12,8 +12,7 @@
 #include "bg_morph.h"
 #include "bg_param.h"
 
-/* dir + "/" + name into buf; -1 if it does not fit. */
-static int join_path(char *buf, size_t size, const char *dir, const char *name)
+int bgb_run_join_path(char *buf, size_t size, const char *dir, const char *name)
 {
     const size_t a = strlen(dir), b = strlen(name);
     if (a + 1 + b + 1 > size)
@@ -50,7 +49,7 @@ bg_status bgb_run_write_results(const char *dir, const bg_scene_t *scene,
         flag[v] = refs[v];
     }
     char vtu[4200], native[4200], name[32];
-    if (join_path(vtu, sizeof vtu, dir, "result.vtu") != 0) {
+    if (bgb_run_join_path(vtu, sizeof vtu, dir, "result.vtu") != 0) {
         st = bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
         goto out;
     }
@@ -62,7 +61,7 @@ bg_status bgb_run_write_results(const char *dir, const bg_scene_t *scene,
     bg_mesh_format format = scene->mesh_format == BG_FORMAT_UNKNOWN ? BG_FORMAT_MEDIT
                                                                      : scene->mesh_format;
     snprintf(name, sizeof name, "result.%s", bg_mesh_format_extension(format));
-    if (join_path(native, sizeof native, dir, name) != 0) {
+    if (bgb_run_join_path(native, sizeof native, dir, name) != 0) {
         st = bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
         goto out;
     }
@@ -114,7 +113,7 @@ static bg_status write_frame(void *ctx, int step, double time, const double *q, 
             f->displacement[3 * (size_t)v + c] = q[(size_t)v * n + c] - mesh->x[(size_t)v * n + c];
     char name[96], path[4400];
     snprintf(name, sizeof name, "%s%s-%06d.vtu", f->prefix, f->method, step);
-    if (join_path(path, sizeof path, f->dir, name) != 0)
+    if (bgb_run_join_path(path, sizeof path, f->dir, name) != 0)
         return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
     const bg_vtu_array_t point_data[1] = {{"displacement", 3, f->displacement}};
     bg_status st = bg_mesh_write_vtu(mesh, q, point_data, 1, NULL, 0, path, err);
@@ -130,7 +129,7 @@ static bg_status write_pvd(const frames_t *f, bg_error_t *err)
 {
     char name[96], path[4400];
     snprintf(name, sizeof name, "%s.pvd", f->method);
-    if (join_path(path, sizeof path, f->dir, name) != 0)
+    if (bgb_run_join_path(path, sizeof path, f->dir, name) != 0)
         return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
     FILE *out = fopen(path, "w");
     if (!out)
@@ -153,7 +152,7 @@ bg_status bgb_run_write_parameterization(const bg_scene_t *scene, bg_solve_resul
     char name[96], path[4400];
     bg_param_quality(scene, run->q, &run->map);
     snprintf(name, sizeof name, "%s-uv.obj", bg_method_name(run->method));
-    if (join_path(path, sizeof path, dir, name) != 0)
+    if (bgb_run_join_path(path, sizeof path, dir, name) != 0)
         return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
     return bg_param_write_obj(scene, run->q, path, err);
 }
@@ -181,7 +180,7 @@ bg_status bgb_run_series(const bg_scene_t *scene, bg_method method, double toler
         }
         memcpy(sub, frames_prefix, plen - 1);
         sub[plen - 1] = '\0';
-        if (join_path(frames_dir, sizeof frames_dir, dir, sub) != 0 ||
+        if (bgb_run_join_path(frames_dir, sizeof frames_dir, dir, sub) != 0 ||
             (mkdir(frames_dir, 0777) != 0 && errno != EEXIST)) {
             st = bg_error_set(err, BG_ERR_IO, "cannot create %s/%s: %s", dir, sub,
                               strerror(errno));

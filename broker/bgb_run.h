@@ -39,6 +39,9 @@ bg_status bgb_run_write_results(const char *dir, const bg_scene_t *scene,
                                 const bg_solve_result_t *run, char *paths, size_t paths_size,
                                 bg_error_t *err);
 
+/* dir + "/" + name into buf (size bytes); -1 if it does not fit. */
+int bgb_run_join_path(char *buf, size_t size, const char *dir, const char *name);
+
 /* A parameterization: fills run->map and writes DIR/<method>-uv.obj. */
 bg_status bgb_run_write_parameterization(const bg_scene_t *scene, bg_solve_result_t *run,
                                          const char *dir, bg_error_t *err);

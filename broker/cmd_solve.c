@@ -312,17 +312,6 @@ static void on_progress(void *ctx, bg_method method, const bg_trace_point_t *p)
     fflush(stderr);
 }
 
-/* dir + "/" + name into buf; -1 if it does not fit. */
-static int join_path(char *buf, size_t size, const char *dir, const char *name)
-{
-    const size_t a = strlen(dir), b = strlen(name);
-    if (a + 1 + b + 1 > size)
-        return -1;
-    memcpy(buf, dir, a);
-    buf[a] = '/';
-    memcpy(buf + a + 1, name, b + 1);
-    return 0;
-}
 
 
 /*
@@ -434,7 +423,7 @@ static int parse_agent_list(const char *list, cli_agent *agents, int *count)
 static int read_grid_agents(const char *dir, cli_agent *agents, int *count)
 {
     char path[4200];
-    if (join_path(path, sizeof path, dir, "grid.json") != 0) {
+    if (bgb_run_join_path(path, sizeof path, dir, "grid.json") != 0) {
         fprintf(stderr, "biotgrid solve: --grid: state directory name too long\n");
         return -1;
     }
@@ -743,8 +732,8 @@ int bg_cmd_solve(int argc, char **argv)
     }
     const int lines = remote ? agents_report(agents, agent_count, remote, agent_lines) : 0;
     char report_path[4200], plot_path[4200], result_paths[8500];
-    if (join_path(report_path, sizeof report_path, out_dir, "report.json") != 0 ||
-        join_path(plot_path, sizeof plot_path, out_dir, "error-vs-time.svg") != 0) {
+    if (bgb_run_join_path(report_path, sizeof report_path, out_dir, "report.json") != 0 ||
+        bgb_run_join_path(plot_path, sizeof plot_path, out_dir, "error-vs-time.svg") != 0) {
         fprintf(stderr, "biotgrid solve: output directory name too long\n");
         goto out;
     }

@@ -23,9 +23,6 @@ cleanup() {
   fi
 }
 trap 'cleanup; exit 1' INT TERM
-check() { # check CONDITION-EXIT MESSAGE
-  if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
-}
 
 sh "$scripts/start_agents.sh" "$bin" "$work/agents" r1:rotfit r2:rotfit sv:solve ig:integ \
   >"$work/agents.txt" || exit 1

@@ -3,6 +3,11 @@
 #   start_broker BIN DIR NAME CONFIG   → $DIR/$NAME.ready "URL ENDPOINT PID", $DIR/$NAME.rc at exit
 #   stop_broker DIR NAME               SIGTERM, SIGKILL after 10 s (and fail)
 #   wait_job URL ID SECONDS            prints the final state (or "timeout")
+#   check STATUS MESSAGE               "ok: MESSAGE", or "FAIL: MESSAGE" and fail=1
+check() {
+  if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
+}
+
 start_broker() {
   _bin=$1 _dir=$2 _name=$3 _config=$4
   rm -f "$_dir/$_name.ready" "$_dir/$_name.rc"

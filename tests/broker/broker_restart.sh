@@ -12,9 +12,6 @@ here=$(cd "$(dirname "$0")" && pwd)
 rm -rf "$work"
 mkdir -p "$work"
 fail=0
-check() {
-  if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
-}
 trap 'stop_broker "$work" b; exit 1' INT TERM
 cat >"$work/broker.json" <<JSON
 {"name": "restart", "port": 0, "endpoint": "tcp://127.0.0.1:*", "state_dir": "$work/state"}

@@ -7,13 +7,12 @@
 # of the grid is left.
 set -u
 bin=$1 scripts=$2 work=$3 config=$4 scene=$5
+here=$(cd "$(dirname "$0")" && pwd)
+. "$here/broker_lib.sh"
 rm -rf "$work"
 mkdir -p "$work"
 state="$work/grid"
 fail=0
-check() {
-  if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
-}
 trap '"$bin" grid down --state "$state" >/dev/null 2>&1; exit 1' INT TERM
 "$bin" grid up "$config" --state "$state" --broker-port 0 \
   --broker-endpoint 'tcp://127.0.0.1:*' >"$work/up.txt" 2>&1
