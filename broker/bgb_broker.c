@@ -382,29 +382,47 @@ static bg_status store_results(bgb_broker_t *b, const char *id, const char *dir,
     return st;
 }
 
-typedef struct input_ctx {
-    bgb_broker_t *broker;
-    const char *id;
-    const char *dir;
-    bg_status status;
-    bg_error_t *err;
-} input_ctx_t;
+/* The names of a job's input files: the store's listing calls back under
+ * its read lock, so files are read only after it returns. */
+typedef struct input_names {
+    char *names[BGB_STORE_MAX_FILES];
+    int count;
+    int overflow;
+} input_names_t;
 
-static void write_input(void *ctx, const char *name, size_t size)
+static void collect_input(void *ctx, const char *name, size_t size)
 {
     (void)size;
-    input_ctx_t *ic = ctx;
-    if (ic->status != BG_OK)
+    input_names_t *in = ctx;
+    if (in->count == BGB_STORE_MAX_FILES || !(in->names[in->count] = strdup(name))) {
+        in->overflow = 1;
         return;
-    uint8_t *data = NULL;
-    size_t n = 0;
-    ic->status = bgb_store_get_file(ic->broker->store, ic->id, "input", name, &data, &n, ic->err);
-    if (ic->status == BG_OK) {
-        char path[BROKER_PATH_MAX + 512];
-        snprintf(path, sizeof path, "%s/%s", ic->dir, name);
-        ic->status = write_file(path, data, n, ic->err);
     }
-    free(data);
+    in->count++;
+}
+
+/* Writes every input file of the job into dir. */
+static bg_status write_inputs(bgb_broker_t *b, const char *id, const char *dir, bg_error_t *err)
+{
+    input_names_t in;
+    memset(&in, 0, sizeof in);
+    bg_status st = bgb_store_list_files(b->store, id, "input", collect_input, &in, err);
+    if (st == BG_OK && in.overflow)
+        st = bg_error_set(err, BG_ERR_LIMIT, "job %s: cannot list its input files", id);
+    for (int i = 0; st == BG_OK && i < in.count; i++) {
+        uint8_t *data = NULL;
+        size_t n = 0;
+        st = bgb_store_get_file(b->store, id, "input", in.names[i], &data, &n, err);
+        if (st == BG_OK) {
+            char path[BROKER_PATH_MAX + 512];
+            snprintf(path, sizeof path, "%s/%s", dir, in.names[i]);
+            st = write_file(path, data, n, err);
+        }
+        free(data);
+    }
+    for (int i = 0; i < in.count; i++)
+        free(in.names[i]);
+    return st;
 }
 
 /* The pool's agents for the report, with what each did. */
@@ -502,11 +520,7 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
     snprintf(input, sizeof input, "%s/input", dir);
     if ((st = make_dir(input, err)) != BG_OK)
         goto out;
-    input_ctx_t ic = {b, job->id, input, BG_OK, err};
-    st = bgb_store_list_files(b->store, job->id, "input", write_input, &ic, err);
-    if (st == BG_OK)
-        st = ic.status;
-    if (st != BG_OK)
+    if ((st = write_inputs(b, job->id, input, err)) != BG_OK)
         goto out;
     snprintf(path, sizeof path, "%s/scene.json", input);
     const bg_scene_options_t so = {.max_vertices = c->max_vertices,

@@ -1,14 +1,15 @@
 #!/bin/sh
-# broker_jobs.sh BIOTGRID AGENT_SCRIPTS WORKDIR STATIC_SCENE DYNAMIC_SCENE
+# broker_jobs.sh BIOTGRID AGENT_SCRIPTS WORKDIR MESH STATIC_SCENE DYNAMIC_SCENE
 # A real broker process and real agents on ephemeral loopback ports: each
 # scene submitted through REST runs on the agents and its report's energy
-# equals `biotgrid solve` in process (1e-10 relative); the static job
+# equals `biotgrid solve` in process (1e-10 relative), and so does a
+# scene whose mesh file MESH is uploaded with it; the static job
 # never calls the integration-step agent; the dynamic one stores its .pvd
 # and frames; an unknown job is a 404, cancelling an ended one a 409.
 # Every process started here is stopped (trap), and none is left.
 set -u
-bin=$1 scripts=$2 work=$3
-shift 3
+bin=$1 scripts=$2 work=$3 mesh=$4
+shift 4
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
 rm -rf "$work"
@@ -97,6 +98,31 @@ for scene in "$@"; do
   code=$(curl -s -o /dev/null -w '%{http_code}' -X POST "$url/v1/jobs/$id/cancel")
   [ "$code" = 409 ]; check $? "$scene: cancelling an ended job is 409 (got $code)"
 done
+# A scene with its mesh uploaded: the coordinator unpacks it for the solve.
+mkdir -p "$work/upload"
+cp "$mesh" "$work/upload/"
+mname=$(basename "$mesh")
+cat >"$work/upload/scene.json" <<JSON
+{"mesh": "$mname", "material": {"mu": 1, "lambda": 1},
+ "handles": [{"name": "base", "select": {"vertices": [0, 1, 2]}},
+             {"name": "tip", "select": {"vertices": [4]}, "transform": {"translate": [0.1, 0, 0]}}],
+ "solver": {"method": "newton", "tolerance": 1e-10}}
+JSON
+base64 -w0 "$mesh" >"$work/upload/mesh.b64"
+jq -n --slurpfile s "$work/upload/scene.json" --rawfile b "$work/upload/mesh.b64" --arg n "$mname" \
+  '{scene: $s[0], files: [{name: $n, base64: $b}], mechanism: "central", budget: 5}' \
+  >"$work/upload/submit.json"
+id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/upload/submit.json" \
+  "$url/v1/jobs" | jq -r .id)
+state=$(wait_job "$url" "$id" 120)
+[ "$state" = succeeded ]; check $? "uploaded mesh: job $id succeeded (got $state)"
+curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/upload/report.json"
+"$bin" solve "$work/upload/scene.json" --quiet --out "$work/upload/local" >/dev/null 2>&1
+jq -n --slurpfile a "$work/upload/report.json" --slurpfile b "$work/upload/local/report.json" \
+  '($a[0].runs[0].energy - $b[0].runs[0].energy) | fabs <= 1e-10 * ($b[0].runs[0].energy | fabs)' \
+  | grep -q true
+check $? "uploaded mesh: energy equals solve's (1e-10 relative)"
+
 n=$(curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "config")] | length')
 [ "$n" = 4 ]; check $? "GET /v1/agents lists the broker's 4 agents (got $n)"
 code=$(curl -s -o /dev/null -w '%{http_code}' "$url/v1/jobs/j0000000000000000")
