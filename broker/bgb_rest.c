@@ -35,7 +35,7 @@ struct bgb_rest {
     struct MHD_Daemon *daemon;
     bgb_store_t *store;
     bgb_rest_config_t config;
-    char *address, *work_dir, *name;
+    char *address, *work_dir, *name, *agents_json, *market;
     uint16_t port;
     atomic_int stopping;
     atomic_llong responses[6]; /* by status class: index 1..5 */
@@ -132,9 +132,25 @@ static enum MHD_Result send_store_problem(bgb_rest_t *rest, struct MHD_Connectio
 
 /* ------------------------------------------------------------- job JSON */
 
+/* What the job resource shows from the job's events: the plan, the last
+ * allocation (contracts and what the market said), the last progress
+ * point, and the error-against-time trace so far (the progress points
+ * until the run's full "trace" event replaces them). */
+#define REST_MAX_TRACE_POINTS 10000
+
 typedef struct plan_capture {
-    cJSON *plan;
+    cJSON *plan, *allocation, *progress, *trace;
+    int final_trace;
 } plan_capture_t;
+
+static void replace_json(cJSON **slot, const char *json)
+{
+    cJSON *parsed = cJSON_Parse(json);
+    if (!parsed)
+        return;
+    cJSON_Delete(*slot);
+    *slot = parsed;
+}
 
 static void capture_plan(void *ctx, int64_t sequence, double time, const char *kind,
                          const char *json)
@@ -142,10 +158,39 @@ static void capture_plan(void *ctx, int64_t sequence, double time, const char *k
     plan_capture_t *pc = ctx;
     (void)sequence;
     (void)time;
-    if (strcmp(kind, "plan") != 0)
-        return;
+    if (strcmp(kind, "plan") == 0) {
+        replace_json(&pc->plan, json);
+    } else if (strcmp(kind, "allocation") == 0) {
+        replace_json(&pc->allocation, json);
+    } else if (strcmp(kind, "progress") == 0) {
+        replace_json(&pc->progress, json);
+        if (!pc->final_trace && pc->progress) {
+            if (!pc->trace)
+                pc->trace = cJSON_CreateArray();
+            if (pc->trace && cJSON_GetArraySize(pc->trace) < REST_MAX_TRACE_POINTS)
+                cJSON_AddItemToArray(pc->trace, cJSON_Duplicate(pc->progress, 1));
+        }
+    } else if (strcmp(kind, "trace") == 0) {
+        cJSON *t = cJSON_Parse(json);
+        cJSON *points = t ? cJSON_DetachItemFromObjectCaseSensitive(t, "points") : NULL;
+        cJSON_Delete(t);
+        if (cJSON_IsArray(points)) {
+            cJSON_Delete(pc->trace);
+            pc->trace = points;
+            pc->final_trace = 1;
+        } else {
+            cJSON_Delete(points);
+        }
+    }
+}
+
+static void plan_capture_release(plan_capture_t *pc)
+{
     cJSON_Delete(pc->plan);
-    pc->plan = cJSON_Parse(json);
+    cJSON_Delete(pc->allocation);
+    cJSON_Delete(pc->progress);
+    cJSON_Delete(pc->trace);
+    memset(pc, 0, sizeof *pc);
 }
 
 static void add_link(cJSON *links, const char *rel, const char *id, const char *suffix)
@@ -172,13 +217,37 @@ static cJSON *job_json(bgb_rest_t *rest, const bgb_job_t *job, int with_plan)
     else
         cJSON_AddNullToObject(o, "reason");
     if (with_plan) {
-        plan_capture_t pc = {NULL};
+        plan_capture_t pc = {NULL, NULL, NULL, NULL, 0};
         bg_error_t err = BG_ERROR_INIT;
-        if (bgb_store_events(rest->store, job->id, 0, capture_plan, &pc, &err) == BG_OK &&
-            pc.plan)
-            cJSON_AddItemToObject(o, "plan", pc.plan);
-        else
-            cJSON_Delete(pc.plan);
+        if (bgb_store_events(rest->store, job->id, 0, capture_plan, &pc, &err) == BG_OK) {
+            if (pc.plan) {
+                cJSON_AddItemToObject(o, "plan", pc.plan);
+                pc.plan = NULL;
+            }
+            cJSON *contracts =
+                pc.allocation ? cJSON_DetachItemFromObjectCaseSensitive(pc.allocation,
+                                                                        "contracts")
+                              : NULL;
+            cJSON_AddItemToObject(o, "contracts",
+                                  cJSON_IsArray(contracts) ? contracts : cJSON_CreateArray());
+            if (contracts && !cJSON_IsArray(contracts))
+                cJSON_Delete(contracts);
+            if (pc.allocation) {
+                cJSON_AddItemToObject(o, "allocation", pc.allocation);
+                pc.allocation = NULL;
+            } else {
+                cJSON_AddNullToObject(o, "allocation");
+            }
+            if (pc.progress) {
+                cJSON_AddItemToObject(o, "progress", pc.progress);
+                pc.progress = NULL;
+            } else {
+                cJSON_AddNullToObject(o, "progress");
+            }
+            cJSON_AddItemToObject(o, "trace", pc.trace ? pc.trace : cJSON_CreateArray());
+            pc.trace = NULL;
+        }
+        plan_capture_release(&pc);
     }
     cJSON *links = cJSON_AddObjectToObject(o, "links");
     if (links) {
@@ -896,6 +965,45 @@ static enum MHD_Result method_not_allowed(bgb_rest_t *rest, struct MHD_Connectio
                         "Method not allowed", NULL, "%s %s: use %s", method, url, allowed);
 }
 
+/* ---------------------------------------------------------------- market */
+
+static enum MHD_Result get_agents(bgb_rest_t *rest, struct MHD_Connection *c)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON *agents = cJSON_Parse(rest->agents_json);
+    cJSON_AddItemToObject(o, "agents", cJSON_IsArray(agents) ? agents : cJSON_CreateArray());
+    if (agents && !cJSON_IsArray(agents))
+        cJSON_Delete(agents);
+    return send_json(rest, c, MHD_HTTP_OK, o, "application/json", NULL);
+}
+
+static enum MHD_Result get_market(bgb_rest_t *rest, struct MHD_Connection *c)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "name", rest->name);
+    if (rest->market)
+        cJSON_AddStringToObject(o, "market", rest->market);
+    else
+        cJSON_AddNullToObject(o, "market");
+    cJSON *mechs = cJSON_AddArrayToObject(o, "mechanisms");
+    static const char *const names[] = {"central", "catallactic", "posted"};
+    for (int i = 0; mechs && i < 3; i++)
+        cJSON_AddItemToArray(mechs, cJSON_CreateString(names[i]));
+    /* Recent prices come from the live market; none is attached here. */
+    cJSON_AddArrayToObject(o, "prices");
+    return send_json(rest, c, MHD_HTTP_OK, o, "application/json", NULL);
+}
+
+/* The CSVs with the simulator's headers; without a market no row exists. */
+static enum MHD_Result get_csv(bgb_rest_t *rest, struct MHD_Connection *c, int contracts)
+{
+    const char *header =
+        contracts ? "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,"
+                    "good,quantity,price,buyer_limit,seller_limit\n"
+                  : "scenario,replication,mechanism,agent,role,good,capacity,limit\n";
+    return send_text(rest, c, MHD_HTTP_OK, "text/csv", header, strlen(header), NULL);
+}
+
 static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const char *url,
                              const char *method, const request_t *req)
 {
@@ -908,6 +1016,13 @@ static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const c
     if (strcmp(url, "/openapi.json") == 0)
         return get ? send_text(rest, c, MHD_HTTP_OK, "application/json", bgb_rest_openapi(),
                                strlen(bgb_rest_openapi()), NULL)
+                   : method_not_allowed(rest, c, method, url, "GET");
+    if (strcmp(url, "/v1/agents") == 0)
+        return get ? get_agents(rest, c) : method_not_allowed(rest, c, method, url, "GET");
+    if (strcmp(url, "/v1/market") == 0)
+        return get ? get_market(rest, c) : method_not_allowed(rest, c, method, url, "GET");
+    if (strcmp(url, "/v1/market/contracts.csv") == 0 || strcmp(url, "/v1/market/agents.csv") == 0)
+        return get ? get_csv(rest, c, strcmp(url, "/v1/market/contracts.csv") == 0)
                    : method_not_allowed(rest, c, method, url, "GET");
     if (strcmp(url, "/v1/jobs") == 0) {
         if (post)
@@ -1031,8 +1146,11 @@ bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bg
     rest->address = strdup(config->address ? config->address : "127.0.0.1");
     rest->work_dir = strdup(config->work_dir ? config->work_dir : "/tmp");
     rest->name = strdup(config->name ? config->name : "biotgrid");
+    rest->agents_json = strdup(config->agents_json ? config->agents_json : "[]");
+    rest->market = config->market ? strdup(config->market) : NULL;
     bg_status st = BG_OK;
-    if (!rest->address || !rest->work_dir || !rest->name) {
+    if (!rest->address || !rest->work_dir || !rest->name || !rest->agents_json ||
+        (config->market && !rest->market)) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the REST server");
         goto out;
     }
@@ -1082,6 +1200,8 @@ void bgb_rest_stop(bgb_rest_t **restp)
     free(rest->address);
     free(rest->work_dir);
     free(rest->name);
+    free(rest->agents_json);
+    free(rest->market);
     free(rest);
     *restp = NULL;
 }

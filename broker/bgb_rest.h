@@ -6,11 +6,18 @@
  *                                 "mechanism", "budget"}; 202 + Location (200 when an
  *                                 Idempotency-Key replays an earlier submit)
  *   GET  /v1/jobs                 ?state=S&limit=N&cursor=C, oldest first
- *   GET  /v1/jobs/{id}            the job: state, plan, reason, links
+ *   GET  /v1/jobs/{id}            the job: state, plan, reason, contracts, allocation,
+ *                                 progress, the error-against-time trace so far, links
  *   GET  /v1/jobs/{id}/events     server-sent events of the job's log until it ends
  *   POST /v1/jobs/{id}/cancel     409 once the job has ended
  *   GET  /v1/jobs/{id}/result     the result's file list (409 until the job succeeded)
  *   GET  /v1/jobs/{id}/result/{file}
+ *   GET  /v1/agents               the agents the broker knows (and, with a market, their
+ *                                 slots and prices)
+ *   GET  /v1/market               recent prices per good and mechanism
+ *   GET  /v1/market/contracts.csv the contract log, agents.csv the agent table, with the
+ *                                 simulator's columns (scenario = the broker's name,
+ *                                 replication 0)
  *   GET  /healthz, /metrics (Prometheus text), /openapi.json
  *
  * A submitted scene is validated exactly as `biotgrid validate` does —
@@ -42,6 +49,10 @@ typedef struct bgb_rest_config {
     const char *work_dir;    /* where submitted scenes are unpacked to be validated; NULL: /tmp */
     const char *name;        /* the broker's name in /healthz and /metrics; NULL: "biotgrid" */
     unsigned connection_limit; /* concurrent connections (0: 256) */
+    const char *agents_json; /* the agents known to the broker, a JSON array (copied);
+                                NULL: none */
+    const char *market;      /* the live market attached, or NULL: none (then /v1/market
+                                has no prices and the CSVs only their header) */
 } bgb_rest_config_t;
 
 #define BGB_REST_DEFAULT_MAX_BODY ((size_t)64 << 20)

@@ -9,6 +9,7 @@
 
 #include "cmd.h"
 #include "cmd_agent.h"
+#include "cmd_broker.h"
 #include "cmd_client.h"
 #include "cmd_grid.h"
 #include "cmd_solve.h"
@@ -39,6 +40,8 @@ static const command_t COMMANDS[] = {
 #endif
     {"agent", "agent [options]", "run an agent daemon serving basic services", bg_cmd_agent,
      bg_cmd_agent_usage},
+    {"broker", "broker [options]", "run the broker: REST jobs, the store, the agents' endpoint",
+     bg_cmd_broker, bg_cmd_broker_usage},
     {"grid", "grid up|status|down [options]", "a local grid of agents on loopback", bg_cmd_grid,
      bg_cmd_grid_usage},
     {"submit", "submit SCENE.json [options]", "submit a job to a broker", bg_cmd_submit,

@@ -1,10 +1,19 @@
 /*
- * biotgrid grid up [FILE] [--state DIR]    start the grid's agents
- * biotgrid grid status [--state DIR]       ping every recorded agent
+ * biotgrid grid up [FILE] [--state DIR] [--broker-port N] [--broker-endpoint EP]
+ *                                          start the grid's agents and broker
+ * biotgrid grid status [--state DIR]       ping every recorded agent, the broker
  * biotgrid grid down [--state DIR] [--grace SECONDS]
  *
  * FILE (default configs/grids/local.json) is {"name": ..., "agents":
- * [{"name", "services", "slots", "listen"}, ...]}. `up` starts each agent
+ * [{"name", "services", "slots", "listen"}, ...], "broker": {"port",
+ * "endpoint"}}. With a "broker" object (or a --broker-* option), `up`
+ * starts `biotgrid broker` once every agent is ready, with a config in
+ * DIR/broker.json that names the agents as its pool, its store in
+ * DIR/broker/, and records its URL, endpoint and PID in the state file;
+ * `down` stops it before the agents (its running jobs need them).
+ * The agents are not yet given `--broker ENDPOINT`: that flag comes with
+ * the live market (agents register there); until then the broker's
+ * config lists them. `up` starts each agent
  * as its own process (this executable, `agent --ready-file
  * DIR/NAME.ready`, in a new session so a terminal's signals do not reach
  * it), waits until each has written its endpoint and answers a heartbeat,
@@ -52,7 +61,14 @@ typedef struct grid {
     char name[64];
     int count;
     grid_agent agent[GRID_MAX_AGENTS];
+    int has_broker;
+    grid_agent broker; /* spec.name "broker", spec.listen its ZeroMQ endpoint */
+    int broker_port;
+    char broker_url[128];
 } grid;
+
+/* The broker's name among the grid's processes (its ready and log files). */
+#define GRID_BROKER_NAME "broker"
 
 static void sleep_ms(long ms)
 {
@@ -83,6 +99,38 @@ static cJSON *read_json(const char *path, size_t cap)
     if (!root)
         fprintf(stderr, "biotgrid grid: %s: malformed JSON\n", path);
     return root;
+}
+
+static void broker_defaults(grid *g)
+{
+    g->has_broker = 1;
+    snprintf(g->broker.spec.name, sizeof g->broker.spec.name, "%s", GRID_BROKER_NAME);
+    if (!g->broker.spec.listen[0])
+        snprintf(g->broker.spec.listen, sizeof g->broker.spec.listen, "tcp://127.0.0.1:5570");
+}
+
+/* The "broker" object: port (0: ephemeral) and endpoint. */
+static int read_broker_config(const cJSON *obj, const char *path, grid *g)
+{
+    g->broker_port = 8080;
+    for (const cJSON *k = obj->child; k; k = k->next) {
+        if (strcmp(k->string, "port") == 0 && cJSON_IsNumber(k) && k->valuedouble >= 0 &&
+            k->valuedouble <= 65535 && k->valuedouble == (double)(int)k->valuedouble) {
+            g->broker_port = (int)k->valuedouble;
+        } else if (strcmp(k->string, "endpoint") == 0 && cJSON_IsString(k) &&
+                   strncmp(k->valuestring, "tcp://", 6) == 0 &&
+                   strlen(k->valuestring) < sizeof g->broker.spec.listen) {
+            snprintf(g->broker.spec.listen, sizeof g->broker.spec.listen, "%s", k->valuestring);
+        } else {
+            fprintf(stderr,
+                    "biotgrid grid: %s: broker.%s: unknown key or wrong value (port: integer "
+                    "in [0, 65535], endpoint: tcp://HOST:PORT)\n",
+                    path, k->string);
+            return 2;
+        }
+    }
+    broker_defaults(g);
+    return 0;
 }
 
 /* The grid config: names unique and usable as file names. */
@@ -126,6 +174,11 @@ static int read_grid_config(const char *path, grid *g)
                             where, ga->spec.name);
                     rc = 2;
                 }
+                if (rc == 0 && strcmp(ga->spec.name, GRID_BROKER_NAME) == 0) {
+                    fprintf(stderr, "biotgrid grid: %s: the name '%s' is the broker's\n", where,
+                            GRID_BROKER_NAME);
+                    rc = 2;
+                }
                 for (int j = 0; rc == 0 && j < g->count; j++)
                     if (strcmp(g->agent[j].spec.name, ga->spec.name) == 0) {
                         fprintf(stderr, "biotgrid grid: %s: name '%s' repeats agents[%d]\n", where,
@@ -134,10 +187,12 @@ static int read_grid_config(const char *path, grid *g)
                     }
                 g->count++;
             }
+        } else if (strcmp(it->string, "broker") == 0 && cJSON_IsObject(it)) {
+            rc = read_broker_config(it, path, g);
         } else {
             fprintf(stderr,
                     "biotgrid grid: %s: unknown key or wrong type '%s' (name: string, "
-                    "agents: array)\n",
+                    "agents: array, broker: object)\n",
                     path, it->string);
             rc = 2;
         }
@@ -186,10 +241,31 @@ static int is_our_agent(long pid, const char *dir, const char *name)
  * only by its PID and command line. A stopped agent's pid becomes 0. */
 static int still_runs(grid_agent *a, const char *dir, int children);
 
+/* SIGTERM to the broker, SIGKILL after grace seconds; 1 if it needed SIGKILL. */
+static int stop_broker(grid *g, const char *dir, double grace, int children)
+{
+    grid_agent *a = &g->broker;
+    if (!g->has_broker || !still_runs(a, dir, children))
+        return 0;
+    kill((pid_t)a->pid, SIGTERM);
+    const double deadline = bg_clock_now() + grace;
+    while (still_runs(a, dir, children) && bg_clock_now() < deadline)
+        sleep_ms(20);
+    if (!still_runs(a, dir, children))
+        return 0;
+    fprintf(stderr, "biotgrid grid: the broker (pid %ld) still runs %.1f s after SIGTERM: SIGKILL\n",
+            a->pid, grace);
+    kill((pid_t)a->pid, SIGKILL);
+    while (still_runs(a, dir, children))
+        sleep_ms(10);
+    return 1;
+}
+
 /* SIGTERM, then SIGKILL after grace seconds, for every agent of g still
- * running. Returns how many needed SIGKILL. */
+ * running, after the broker. Returns how many agents needed SIGKILL. */
 static int stop_agents(grid *g, const char *dir, double grace, int children)
 {
+    stop_broker(g, dir, grace, children);
     for (int i = 0; i < g->count; i++)
         if (still_runs(&g->agent[i], dir, children))
             kill((pid_t)g->agent[i].pid, SIGTERM);
@@ -226,6 +302,12 @@ static int write_state(const grid *g, const char *dir)
         cJSON_AddStringToObject(a, "services", g->agent[i].spec.services);
         cJSON_AddNumberToObject(a, "slots", g->agent[i].spec.slots);
         cJSON_AddItemToArray(arr, a);
+    }
+    if (g->has_broker) {
+        cJSON *br = cJSON_AddObjectToObject(root, "broker");
+        cJSON_AddStringToObject(br, "url", g->broker_url);
+        cJSON_AddStringToObject(br, "endpoint", g->broker.endpoint);
+        cJSON_AddNumberToObject(br, "pid", (double)g->broker.pid);
     }
     char *text = cJSON_Print(root);
     cJSON_Delete(root);
@@ -280,24 +362,47 @@ static int read_state(const char *dir, grid *g)
         snprintf(ga->endpoint, sizeof ga->endpoint, "%s", e->valuestring);
         ga->pid = (long)p->valuedouble;
     }
+    const cJSON *br = cJSON_GetObjectItemCaseSensitive(root, "broker");
+    if (rc == 0 && br) {
+        const cJSON *u = cJSON_GetObjectItemCaseSensitive(br, "url");
+        const cJSON *e = cJSON_GetObjectItemCaseSensitive(br, "endpoint");
+        const cJSON *p = cJSON_GetObjectItemCaseSensitive(br, "pid");
+        if (cJSON_IsString(u) && cJSON_IsString(e) && cJSON_IsNumber(p)) {
+            broker_defaults(g);
+            snprintf(g->broker_url, sizeof g->broker_url, "%s", u->valuestring);
+            snprintf(g->broker.endpoint, sizeof g->broker.endpoint, "%s", e->valuestring);
+            g->broker.pid = (long)p->valuedouble;
+        } else {
+            rc = 2;
+        }
+    }
     if (rc == 2)
         fprintf(stderr, "biotgrid grid: %s: not a grid state file\n", path);
     cJSON_Delete(root);
     return rc;
 }
 
-/* Forks `self agent ...` for agent a in its own session, output to
- * DIR/NAME.log. */
-static long spawn_agent(const char *self, const char *dir, const grid_agent *a)
+/* Forks `self ARGS... --ready-file DIR/NAME.ready` in its own session,
+ * output to DIR/NAME.log; the ready file comes last so that is_our_agent
+ * finds it in the command line. */
+static long spawn_process(const char *self, const char *dir, const char *name,
+                          const char *const *args)
 {
-    char ready[PATH_MAX], log[PATH_MAX], slots[16], tmp[PATH_MAX];
-    snprintf(tmp, sizeof tmp, "%s.ready", a->spec.name);
+    char ready[PATH_MAX], log[PATH_MAX], tmp[PATH_MAX];
+    snprintf(tmp, sizeof tmp, "%s.ready", name);
     if (path_join(ready, sizeof ready, dir, tmp))
         return -1;
-    snprintf(tmp, sizeof tmp, "%s.log", a->spec.name);
+    snprintf(tmp, sizeof tmp, "%s.log", name);
     if (path_join(log, sizeof log, dir, tmp))
         return -1;
-    snprintf(slots, sizeof slots, "%d", a->spec.slots);
+    const char *argv[24];
+    int n = 0;
+    argv[n++] = self;
+    for (int i = 0; args[i] && n < 21; i++)
+        argv[n++] = args[i];
+    argv[n++] = "--ready-file";
+    argv[n++] = ready;
+    argv[n] = NULL;
     unlink(ready);
     fflush(NULL);
     const pid_t pid = fork();
@@ -312,9 +417,48 @@ static long spawn_agent(const char *self, const char *dir, const grid_agent *a)
     }
     if (null >= 0)
         dup2(null, 0);
-    execl(self, self, "agent", "--listen", a->spec.listen, "--services", a->spec.services,
-          "--slots", slots, "--name", a->spec.name, "--ready-file", ready, (char *)NULL);
+    execv(self, (char *const *)argv);
     _exit(127);
+}
+
+static long spawn_agent(const char *self, const char *dir, const grid_agent *a)
+{
+    char slots[16];
+    snprintf(slots, sizeof slots, "%d", a->spec.slots);
+    const char *args[] = {"agent", "--listen", a->spec.listen, "--services", a->spec.services,
+                          "--slots", slots, "--name", a->spec.name, NULL};
+    return spawn_process(self, dir, a->spec.name, args);
+}
+
+/* DIR/broker.json: the broker's settings and the grid's agents as its pool. */
+static int write_broker_config(const grid *g, const char *dir, char *path, size_t cap)
+{
+    char store[PATH_MAX];
+    if (path_join(path, cap, dir, "broker.json") || path_join(store, sizeof store, dir, "broker"))
+        return -1;
+    cJSON *root = cJSON_CreateObject();
+    cJSON_AddStringToObject(root, "name", g->name);
+    cJSON_AddNumberToObject(root, "port", g->broker_port);
+    cJSON_AddStringToObject(root, "endpoint", g->broker.spec.listen);
+    cJSON_AddStringToObject(root, "state_dir", store);
+    cJSON *arr = cJSON_AddArrayToObject(root, "agents");
+    for (int i = 0; arr && i < g->count; i++) {
+        cJSON *a = cJSON_CreateObject();
+        cJSON_AddStringToObject(a, "name", g->agent[i].spec.name);
+        cJSON_AddStringToObject(a, "endpoint", g->agent[i].endpoint);
+        cJSON_AddStringToObject(a, "services", g->agent[i].spec.services);
+        cJSON_AddItemToArray(arr, a);
+    }
+    char *text = cJSON_Print(root);
+    cJSON_Delete(root);
+    FILE *f = text ? fopen(path, "w") : NULL;
+    int ok = f && fputs(text, f) >= 0;
+    if (f && fclose(f) != 0)
+        ok = 0;
+    free(text);
+    if (!ok)
+        fprintf(stderr, "biotgrid grid: cannot write %s: %s\n", path, strerror(errno));
+    return ok ? 0 : -1;
 }
 
 /* For `up`, whose children the agents are: whether child pid has exited
@@ -352,6 +496,21 @@ static int read_ready_file(const char *dir, grid_agent *a)
     return n == 2 && pid == a->pid ? 0 : -1;
 }
 
+/* The broker's ready file: "URL ENDPOINT PID". */
+static int read_broker_ready(const char *dir, grid *g)
+{
+    char path[PATH_MAX];
+    if (path_join(path, sizeof path, dir, GRID_BROKER_NAME ".ready"))
+        return -1;
+    FILE *f = fopen(path, "r");
+    if (!f)
+        return -1;
+    long pid = 0;
+    const int n = fscanf(f, "%127s %255s %ld", g->broker_url, g->broker.endpoint, &pid);
+    fclose(f);
+    return n == 3 && pid == g->broker.pid ? 0 : -1;
+}
+
 static int ping(const grid_agent *a, bga_agent_status_t *st, char *msg, size_t cap)
 {
     bga_client_t *c = NULL;
@@ -373,12 +532,52 @@ static int any_alive(const grid *g, const char *dir)
     return 0;
 }
 
-static int grid_up(const char *file, const char *dir)
+/* Starts the broker once the agents are ready; 1 on failure (the caller stops everything). */
+static int start_broker(grid *g, const char *self, const char *dir)
+{
+    char config[PATH_MAX];
+    if (write_broker_config(g, dir, config, sizeof config) != 0)
+        return 1;
+    const char *args[] = {"broker", "--config", config, NULL};
+    g->broker.pid = spawn_process(self, dir, GRID_BROKER_NAME, args);
+    if (g->broker.pid < 0) {
+        fprintf(stderr, "biotgrid grid: cannot start the broker: %s\n", strerror(errno));
+        g->broker.pid = 0;
+        return 1;
+    }
+    const double deadline = bg_clock_now() + GRID_READY_SECONDS;
+    int exited = 0;
+    while (read_broker_ready(dir, g) != 0 && bg_clock_now() < deadline &&
+           !(exited = child_exited(g->broker.pid)))
+        sleep_ms(20);
+    if (exited)
+        g->broker.pid = 0;
+    if (read_broker_ready(dir, g) != 0) {
+        fprintf(stderr, "biotgrid grid: the broker %s (see %s/%s.log)\n",
+                exited ? "exited before it was ready" : "did not become ready within 10 s", dir,
+                GRID_BROKER_NAME);
+        return 1;
+    }
+    printf("%-12s %-28s pid %-7ld REST %s\n", GRID_BROKER_NAME, g->broker.endpoint,
+           g->broker.pid, g->broker_url);
+    return 0;
+}
+
+static int grid_up(const char *file, const char *dir, int broker_port, const char *broker_ep)
 {
     grid g;
     int rc = read_grid_config(file, &g);
     if (rc)
         return rc;
+    if (broker_port >= 0 || broker_ep) {
+        if (!g.has_broker)
+            g.broker_port = 8080;
+        if (broker_ep)
+            snprintf(g.broker.spec.listen, sizeof g.broker.spec.listen, "%s", broker_ep);
+        broker_defaults(&g);
+        if (broker_port >= 0)
+            g.broker_port = broker_port;
+    }
     grid old;
     if (read_state(dir, &old) == 0 && any_alive(&old, dir)) {
         fprintf(stderr,
@@ -432,13 +631,19 @@ static int grid_up(const char *file, const char *dir)
                    a->pid, a->spec.services, (long long)st.slots);
         }
     }
+    if (rc == 0 && g.has_broker)
+        rc = start_broker(&g, self, dir);
     if (rc == 0 && write_state(&g, dir) != 0)
         rc = 1;
     if (rc != 0) {
         stop_agents(&g, dir, 5.0, 1);
         return rc;
     }
-    printf("grid %s up: %d agents, state in %s/grid.json\n", g.name, g.count, dir);
+    if (g.has_broker)
+        printf("grid %s up: %d agents, broker on %s, state in %s/grid.json\n", g.name, g.count,
+               g.broker_url, dir);
+    else
+        printf("grid %s up: %d agents, state in %s/grid.json\n", g.name, g.count, dir);
     return 0;
 }
 
@@ -470,6 +675,16 @@ static int grid_status(const char *dir)
                    (long long)st.slots);
         }
     }
+    if (g.has_broker) {
+        if (!is_our_agent(g.broker.pid, dir, GRID_BROKER_NAME)) {
+            printf("%-12s %-28s pid %-7ld not running\n", GRID_BROKER_NAME, g.broker.endpoint,
+                   g.broker.pid);
+            bad = 1;
+        } else {
+            printf("%-12s %-28s pid %-7ld up, REST %s\n", GRID_BROKER_NAME, g.broker.endpoint,
+                   g.broker.pid, g.broker_url);
+        }
+    }
     printf("grid %s: %s\n", g.name, bad ? "degraded" : "up");
     return bad;
 }
@@ -484,19 +699,26 @@ static int grid_down(const char *dir, double grace)
     }
     if (rc)
         return rc;
+    const int broker_killed = stop_broker(&g, dir, grace, 0);
     const int killed = stop_agents(&g, dir, grace, 0);
     char path[PATH_MAX];
     if (path_join(path, sizeof path, dir, "grid.json") == 0)
         unlink(path);
+    if (g.has_broker)
+        printf("grid %s down: the broker stopped%s\n", g.name,
+               broker_killed ? " (with SIGKILL)" : "");
     printf("grid %s down: %d agents stopped (%d with SIGKILL)\n", g.name, g.count, killed);
     return 0;
 }
 
 const char bg_cmd_grid_usage[] =
-    "usage: biotgrid grid up [FILE] [--state DIR]\n"
+    "usage: biotgrid grid up [FILE] [--state DIR] [--broker-port N] [--broker-endpoint EP]\n"
     "       biotgrid grid status [--state DIR]\n"
     "       biotgrid grid down [--state DIR] [--grace SECONDS]\n"
-    "FILE defaults to configs/grids/local.json, DIR to $BIOTGRID_GRID_DIR or out/grid.\n";
+    "FILE defaults to configs/grids/local.json, DIR to $BIOTGRID_GRID_DIR or out/grid.\n"
+    "With a \"broker\" object in FILE (or a --broker-* option) `up` also starts the\n"
+    "broker (REST on --broker-port, 0: an ephemeral port; agents' endpoint\n"
+    "--broker-endpoint) and `down` stops it first.\n";
 
 static void usage(FILE *out)
 {
@@ -512,6 +734,8 @@ int bg_cmd_grid(int argc, char **argv)
     const char *sub = argv[1], *file = "configs/grids/local.json";
     const char *dir = getenv("BIOTGRID_GRID_DIR") ? getenv("BIOTGRID_GRID_DIR") : "out/grid";
     double grace = 5.0;
+    int broker_port = -1;
+    const char *broker_ep = NULL;
     if (strcmp(sub, "--help") == 0 || strcmp(sub, "-h") == 0) {
         usage(stdout);
         return 0;
@@ -529,6 +753,24 @@ int bg_cmd_grid(int argc, char **argv)
                         argv[i]);
                 return 2;
             }
+        } else if (strcmp(argv[i], "--broker-port") == 0 && i + 1 < argc &&
+                   strcmp(sub, "up") == 0) {
+            char *end;
+            const long p = strtol(argv[++i], &end, 10);
+            if (*end || p < 0 || p > 65535) {
+                fprintf(stderr, "biotgrid grid: --broker-port '%s' is not a port in [0, 65535]\n",
+                        argv[i]);
+                return 2;
+            }
+            broker_port = (int)p;
+        } else if (strcmp(argv[i], "--broker-endpoint") == 0 && i + 1 < argc &&
+                   strcmp(sub, "up") == 0) {
+            broker_ep = argv[++i];
+            if (strncmp(broker_ep, "tcp://", 6) != 0 || strlen(broker_ep) >= BGA_AGENT_ENDPOINT_MAX) {
+                fprintf(stderr, "biotgrid grid: --broker-endpoint '%s' is not tcp://HOST:PORT\n",
+                        broker_ep);
+                return 2;
+            }
         } else if (argv[i][0] != '-' && strcmp(sub, "up") == 0 && i == 2) {
             file = argv[i];
         } else {
@@ -538,7 +780,7 @@ int bg_cmd_grid(int argc, char **argv)
         }
     }
     if (strcmp(sub, "up") == 0)
-        return grid_up(file, dir);
+        return grid_up(file, dir, broker_port, broker_ep);
     if (strcmp(sub, "status") == 0)
         return grid_status(dir);
     if (strcmp(sub, "down") == 0)

@@ -21,6 +21,7 @@
 #include "bg_scene.h"
 #include "bg_static.h"
 #include "bga_backend.h"
+#include "bgb_run.h"
 #include "bga_client.h"
 #include "bga_service.h"
 
@@ -311,198 +312,7 @@ static void on_progress(void *ctx, bg_method method, const bg_trace_point_t *p)
     fflush(stderr);
 }
 
-/* dir + "/" + name into buf; -1 if it does not fit. */
-static int join_path(char *buf, size_t size, const char *dir, const char *name)
-{
-    const size_t a = strlen(dir), b = strlen(name);
-    if (a + 1 + b + 1 > size)
-        return -1;
-    memcpy(buf, dir, a);
-    buf[a] = '/';
-    memcpy(buf + a + 1, name, b + 1);
-    return 0;
-}
 
-/* Result files of the first run: result.vtu with displacement, the
- * constrained flag and ψ per element, and result.<input format> with the
- * constrained flag as the MEDIT vertex reference. */
-static bg_status write_results(const char *dir, const bg_scene_t *scene,
-                               const bg_solve_result_t *run, char *paths, size_t paths_size,
-                               bg_error_t *err)
-{
-    const bg_mesh_t *mesh = scene->mesh;
-    const int n = mesh->dim;
-    bg_status st = BG_OK;
-    double *disp = calloc((size_t)mesh->nv * 3 + 1, sizeof *disp);
-    double *flag = calloc((size_t)mesh->nv + 1, sizeof *flag);
-    int32_t *refs = calloc((size_t)mesh->nv + 1, sizeof *refs);
-    if (!disp || !flag || !refs) {
-        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory writing results");
-        goto out;
-    }
-    for (int32_t v = 0; v < mesh->nv; v++) {
-        for (int c = 0; c < n; c++) {
-            disp[3 * (size_t)v + c] = run->q[(size_t)v * n + c] - mesh->x[(size_t)v * n + c];
-            if (scene->constrained[(size_t)v * n + c])
-                refs[v] = 1;
-        }
-        flag[v] = refs[v];
-    }
-    char vtu[4200], native[4200], name[32];
-    if (join_path(vtu, sizeof vtu, dir, "result.vtu") != 0) {
-        st = bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
-        goto out;
-    }
-    const bg_vtu_array_t point_data[2] = {{"displacement", 3, disp}, {"constrained", 1, flag}};
-    const bg_vtu_array_t cell_data[1] = {{"energy_density", 1, run->energy_density}};
-    st = bg_mesh_write_vtu(mesh, run->q, point_data, 2, cell_data, 1, vtu, err);
-    if (st != BG_OK)
-        goto out;
-    bg_mesh_format format = scene->mesh_format == BG_FORMAT_UNKNOWN ? BG_FORMAT_MEDIT
-                                                                     : scene->mesh_format;
-    snprintf(name, sizeof name, "result.%s", bg_mesh_format_extension(format));
-    if (join_path(native, sizeof native, dir, name) != 0) {
-        st = bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
-        goto out;
-    }
-    bg_mesh_t marked = *mesh;
-    marked.vertex_ref = refs;
-    st = bg_mesh_write(&marked, run->q, format, native, err);
-    if (st != BG_OK)
-        goto out;
-    snprintf(paths, paths_size, "%s\n  %s", vtu, native);
-out:
-    free(disp);
-    free(flag);
-    free(refs);
-    return st;
-}
-
-/* Frames of a dynamic run: DIR/frames/<method>-<step>.vtu and the
- * collection DIR/<method>.pvd that ParaView plays as a time series. */
-typedef struct frames {
-    const bg_scene_t *scene;
-    const char *dir;
-    const char *method;
-    double *displacement;
-    int *steps;
-    double *times;
-    int count, cap;
-} frames_t;
-
-static bg_status write_frame(void *ctx, int step, double time, const double *q, bg_error_t *err)
-{
-    frames_t *f = ctx;
-    const bg_mesh_t *mesh = f->scene->mesh;
-    const int n = mesh->dim;
-    if (f->count == f->cap) {
-        int grown = f->cap ? 2 * f->cap : 64;
-        int *steps = realloc(f->steps, (size_t)grown * sizeof *steps);
-        if (steps)
-            f->steps = steps;
-        double *times = realloc(f->times, (size_t)grown * sizeof *times);
-        if (times)
-            f->times = times;
-        if (!steps || !times)
-            return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the frame list");
-        f->cap = grown;
-    }
-    for (int32_t v = 0; v < mesh->nv; v++)
-        for (int c = 0; c < n; c++)
-            f->displacement[3 * (size_t)v + c] = q[(size_t)v * n + c] - mesh->x[(size_t)v * n + c];
-    char name[96], path[4400];
-    snprintf(name, sizeof name, "frames/%s-%06d.vtu", f->method, step);
-    if (join_path(path, sizeof path, f->dir, name) != 0)
-        return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
-    const bg_vtu_array_t point_data[1] = {{"displacement", 3, f->displacement}};
-    bg_status st = bg_mesh_write_vtu(mesh, q, point_data, 1, NULL, 0, path, err);
-    if (st != BG_OK)
-        return st;
-    f->steps[f->count] = step;
-    f->times[f->count] = time;
-    f->count++;
-    return BG_OK;
-}
-
-static bg_status write_pvd(const frames_t *f, bg_error_t *err)
-{
-    char name[96], path[4400];
-    snprintf(name, sizeof name, "%s.pvd", f->method);
-    if (join_path(path, sizeof path, f->dir, name) != 0)
-        return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
-    FILE *out = fopen(path, "w");
-    if (!out)
-        return bg_error_set(err, BG_ERR_IO, "%s: cannot write: %s", path, strerror(errno));
-    fprintf(out, "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\">\n"
-                 "  <Collection>\n");
-    for (int i = 0; i < f->count; i++)
-        fprintf(out, "    <DataSet timestep=\"%.17g\" file=\"frames/%s-%06d.vtu\"/>\n", f->times[i],
-                f->method, f->steps[i]);
-    fprintf(out, "  </Collection>\n</VTKFile>\n");
-    if (fclose(out) != 0)
-        return bg_error_set(err, BG_ERR_IO, "%s: write failed", path);
-    return BG_OK;
-}
-
-/* The surface with its UVs (DIR/<method>-uv.obj) and the map's quality. */
-static bg_status write_parameterization(const bg_scene_t *scene, bg_solve_result_t *run,
-                                        const char *dir, bg_error_t *err)
-{
-    char name[96], path[4400];
-    bg_param_quality(scene, run->q, &run->map);
-    snprintf(name, sizeof name, "%s-uv.obj", bg_method_name(run->method));
-    if (join_path(path, sizeof path, dir, name) != 0)
-        return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
-    return bg_param_write_obj(scene, run->q, path, err);
-}
-
-/* A dynamic run or a morph: a series of frames written as it goes. */
-static bg_status run_series(const bg_scene_t *scene, bg_method method, double tolerance,
-                            int max_iterations, const char *dir, progress_t *pr,
-                            const bg_backend_t *backend, bg_solve_result_t *run, bg_error_t *err)
-{
-    frames_t f = {scene, dir, bg_method_name(method), NULL, NULL, NULL, 0, 0};
-    char frames_dir[4200];
-    bg_status st = BG_OK;
-    f.displacement = calloc((size_t)scene->mesh->nv * 3 + 1, sizeof *f.displacement);
-    if (!f.displacement) {
-        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for frames");
-        goto out;
-    }
-    if (join_path(frames_dir, sizeof frames_dir, dir, "frames") != 0 ||
-        bg_cmd_make_directories(frames_dir) != 0) {
-        st = bg_error_set(err, BG_ERR_IO, "cannot create %s/frames", dir);
-        goto out;
-    }
-    if (scene->task == BG_TASK_DYNAMIC) {
-        const bg_dynamic_options_t opt = {.method = method,
-                                          .tolerance = tolerance,
-                                          .max_iterations = max_iterations,
-                                          .frame = write_frame,
-                                          .frame_ctx = &f,
-                                          .progress = on_progress,
-                                          .progress_ctx = pr,
-                                          .backend = backend};
-        st = bg_dynamic_solve(scene, &opt, run, err);
-    } else {
-        const bg_morph_options_t opt = {.method = method,
-                                        .tolerance = tolerance,
-                                        .max_iterations = max_iterations,
-                                        .frame = write_frame,
-                                        .frame_ctx = &f,
-                                        .progress = on_progress,
-                                        .progress_ctx = pr,
-                                        .backend = backend};
-        st = bg_morph_solve(scene, &opt, run, err);
-    }
-    if (st == BG_OK)
-        st = write_pvd(&f, err);
-out:
-    free(f.displacement);
-    free(f.steps);
-    free(f.times);
-    return st;
-}
 
 /*
  * For a static comparison: which method reached each accuracy first. Rows
@@ -613,7 +423,7 @@ static int parse_agent_list(const char *list, cli_agent *agents, int *count)
 static int read_grid_agents(const char *dir, cli_agent *agents, int *count)
 {
     char path[4200];
-    if (join_path(path, sizeof path, dir, "grid.json") != 0) {
+    if (bgb_run_join_path(path, sizeof path, dir, "grid.json") != 0) {
         fprintf(stderr, "biotgrid solve: --grid: state directory name too long\n");
         return -1;
     }
@@ -861,8 +671,8 @@ int bg_cmd_solve(int argc, char **argv)
                                        ? o.max_iterations
                                        : bg_scene_max_iterations(scene, o.methods[i]);
         if (dynamic || scene->task == BG_TASK_MORPH) {
-            st = run_series(scene, o.methods[i], tolerance, max_iterations, out_dir, &pr,
-                            backend, &runs[i], &err);
+            st = bgb_run_series(scene, o.methods[i], tolerance, max_iterations, out_dir,
+                                "frames/", on_progress, &pr, backend, &runs[i], &err);
         } else {
             const bg_solve_options_t so = {.method = o.methods[i],
                                            .tolerance = tolerance,
@@ -877,7 +687,7 @@ int bg_cmd_solve(int argc, char **argv)
                      ? bg_surface_arap_solve(scene, &so, &runs[i], &err)
                      : bg_static_solve(scene, &so, &runs[i], &err);
             if (st == BG_OK && scene->task == BG_TASK_PARAMETERIZE)
-                st = write_parameterization(scene, &runs[i], out_dir, &err);
+                st = bgb_run_write_parameterization(scene, &runs[i], out_dir, &err);
         }
         if (st != BG_OK) {
             if (pr.tty && !o.quiet)
@@ -922,15 +732,16 @@ int bg_cmd_solve(int argc, char **argv)
     }
     const int lines = remote ? agents_report(agents, agent_count, remote, agent_lines) : 0;
     char report_path[4200], plot_path[4200], result_paths[8500];
-    if (join_path(report_path, sizeof report_path, out_dir, "report.json") != 0 ||
-        join_path(plot_path, sizeof plot_path, out_dir, "error-vs-time.svg") != 0) {
+    if (bgb_run_join_path(report_path, sizeof report_path, out_dir, "report.json") != 0 ||
+        bgb_run_join_path(plot_path, sizeof plot_path, out_dir, "error-vs-time.svg") != 0) {
         fprintf(stderr, "biotgrid solve: output directory name too long\n");
         goto out;
     }
     if (bg_report_write_agents(report_path, scene, &plan, runs, run_count,
                                remote ? agent_lines : NULL, lines, &err) != BG_OK ||
         bg_report_write_plot(plot_path, scene, runs, run_count, &err) != BG_OK ||
-        write_results(out_dir, scene, &runs[0], result_paths, sizeof result_paths, &err) !=
+        bgb_run_write_results(out_dir, scene, &runs[0], result_paths, sizeof result_paths,
+                              &err) !=
             BG_OK) {
         fprintf(stderr, "biotgrid solve: %s\n", err.message);
         exit_code = BG_EXIT_FAILED;

@@ -289,6 +289,74 @@ static void test_health_metrics_openapi(void **state)
     release(&r);
 }
 
+/* The market endpoints with no market attached: documented, empty, and
+ * the CSVs carry the simulator's headers. The job resource shows the
+ * progress and the trace the coordinator wrote as events. */
+static void test_market_endpoints(void **state)
+{
+    fixture_t *f = *state;
+    response_t r = request(f, "GET", "/v1/agents", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/agents", "GET", &r);
+    assert_non_null(strstr(r.body, "\"agents\":[]"));
+    release(&r);
+    r = request(f, "GET", "/v1/market", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/market", "GET", &r);
+    assert_non_null(strstr(r.body, "\"market\":null"));
+    assert_non_null(strstr(r.body, "\"prices\":[]"));
+    release(&r);
+    r = request(f, "GET", "/v1/market/contracts.csv", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/market/contracts.csv", "GET", &r);
+    assert_string_equal(r.body, "scenario,replication,mechanism,layer,request,time,start,end,"
+                                "buyer,seller,good,quantity,price,buyer_limit,seller_limit\n");
+    release(&r);
+    r = request(f, "GET", "/v1/market/agents.csv", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/market/agents.csv", "GET", &r);
+    assert_string_equal(r.body, "scenario,replication,mechanism,agent,role,good,capacity,limit\n");
+    release(&r);
+    r = request(f, "POST", "/v1/market", "{}", NULL);
+    assert_int_equal(r.status, 405);
+    release(&r);
+
+    char *id = submit_small(f, NULL);
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_add_event(f->store, id, "progress",
+                                         "{\"iteration\":1,\"seconds\":0.5,\"error\":0.25}",
+                                         &err),
+                     BG_OK);
+    char path[96];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    r = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/jobs/{id}", "GET", &r);
+    cJSON *doc = cJSON_Parse(r.body);
+    assert_non_null(doc);
+    const cJSON *trace = cJSON_GetObjectItemCaseSensitive(doc, "trace");
+    assert_int_equal(cJSON_GetArraySize(trace), 1);
+    assert_true(cJSON_GetObjectItemCaseSensitive(cJSON_GetArrayItem(trace, 0), "error")
+                    ->valuedouble == 0.25);
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(doc, "contracts")), 0);
+    cJSON_Delete(doc);
+    release(&r);
+    /* The run's full trace replaces the progress points. */
+    assert_int_equal(bgb_store_add_event(f->store, id, "trace",
+                                         "{\"points\":[{\"iteration\":0,\"seconds\":0},"
+                                         "{\"iteration\":1,\"seconds\":0.5},"
+                                         "{\"iteration\":2,\"seconds\":0.9}]}",
+                                         &err),
+                     BG_OK);
+    r = request(f, "GET", path, NULL, NULL);
+    doc = cJSON_Parse(r.body);
+    assert_non_null(doc);
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(doc, "trace")), 3);
+    cJSON_Delete(doc);
+    release(&r);
+    free(id);
+}
+
 static void test_submit_and_read(void **state)
 {
     fixture_t *f = *state;
@@ -596,6 +664,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(test_health_metrics_openapi, setup, teardown),
         cmocka_unit_test_setup_teardown(test_submit_and_read, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_market_endpoints, setup, teardown),
         cmocka_unit_test_setup_teardown(test_uploaded_files_only, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bad_requests, setup, teardown),
         cmocka_unit_test_setup_teardown(test_idempotent_resubmit, setup, teardown),

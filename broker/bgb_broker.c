@@ -1,0 +1,954 @@
+#include "bgb_broker.h"
+
+#include <cjson/cJSON.h>
+#include <dirent.h>
+#include <errno.h>
+#include <math.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <zmq.h>
+
+#include "bg_clock.h"
+#include "bg_json.h"
+#include "bg_plan.h"
+#include "bg_report.h"
+#include "bg_scene.h"
+#include "bg_static.h"
+#include "bg_surface_arap.h"
+#include "bga_backend.h"
+#include "bga_service.h"
+#include "bga_wire.h"
+#include "bgb_rest.h"
+#include "bgb_run.h"
+#include "bgb_store.h"
+
+#define BROKER_CONFIG_MAX_BYTES (1 << 20)
+#define BROKER_PATH_MAX 4096
+#define BROKER_MAX_JOBS 64
+/* The dispatcher looks for queued jobs this often. */
+#define BROKER_POLL_MS 100
+/* At most one progress event per job this often (each is a commit). */
+#define BROKER_PROGRESS_SECONDS 0.25
+/* The reference of a static scene, as `biotgrid solve` computes it. */
+#define BROKER_REFERENCE_TOLERANCE 1e-13
+#define BROKER_REFERENCE_MAX_ITERATIONS 200
+#define BROKER_AGENT_LEASE_MS 600000
+#define BROKER_MAX_RESULT_FILE ((size_t)1 << 30)
+
+struct bgb_broker {
+    bgb_broker_config_t config;
+    bgb_store_t *store;
+    bgb_rest_t *rest;
+    void *zmq;
+    void *router;
+    char endpoint[256];
+    pthread_t loop, dispatcher;
+    int loop_started, dispatcher_started;
+    pthread_mutex_t lock;
+    pthread_cond_t changed;
+    int stopping;
+    int running; /* coordinators alive */
+    int64_t agent_messages; /* frames sets received on the ROUTER socket */
+};
+
+/* ------------------------------------------------------------ config */
+
+static char *dup_or_null(const char *s)
+{
+    return s ? strdup(s) : NULL;
+}
+
+bg_status bgb_broker_config_init(bgb_broker_config_t *c, bg_error_t *err)
+{
+    memset(c, 0, sizeof *c);
+    c->name = strdup("biotgrid");
+    c->address = strdup("127.0.0.1");
+    c->endpoint = strdup("tcp://127.0.0.1:5570");
+    c->state_dir = strdup("out/broker");
+    c->port = 8080;
+    c->max_jobs = 4;
+    c->agent_timeout_ms = 10000;
+    if (!c->name || !c->address || !c->endpoint || !c->state_dir) {
+        bgb_broker_config_release(c);
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the broker's configuration");
+    }
+    return BG_OK;
+}
+
+void bgb_broker_config_release(bgb_broker_config_t *c)
+{
+    if (!c)
+        return;
+    free(c->name);
+    free(c->address);
+    free(c->endpoint);
+    free(c->state_dir);
+    for (int i = 0; i < c->agent_count; i++)
+        free(c->agents[i].endpoint);
+    memset(c, 0, sizeof *c);
+}
+
+static bg_status replace_string(char **slot, const cJSON *item, const char *path,
+                                const char *field, bg_error_t *err)
+{
+    const char *s = NULL;
+    bg_status st = bg_json_string(item, path, field, &s, err);
+    if (st != BG_OK)
+        return st;
+    if (!*s)
+        return bg_json_fail(err, BG_ERR_INVALID, path, field, "must not be empty");
+    char *copy = strdup(s);
+    if (!copy)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory");
+    free(*slot);
+    *slot = copy;
+    return BG_OK;
+}
+
+static bg_status read_agents(const cJSON *arr, const char *path, bgb_broker_config_t *c,
+                             bg_error_t *err)
+{
+    if (!cJSON_IsArray(arr))
+        return bg_json_fail(err, BG_ERR_INVALID, path, "agents", "expected an array, got %s",
+                            bg_json_type_name(arr));
+    static const char *const keys[] = {"endpoint", "services", "name", NULL};
+    int i = 0;
+    const cJSON *e;
+    cJSON_ArrayForEach(e, arr) {
+        char field[BG_JSON_PATH_MAX], sub[BG_JSON_PATH_MAX];
+        bg_json_path_index(field, "agents", i);
+        if (i >= BGB_BROKER_MAX_AGENTS)
+            return bg_json_fail(err, BG_ERR_INVALID, path, field, "more than %d agents",
+                                BGB_BROKER_MAX_AGENTS);
+        bg_status st = bg_json_expect_object(e, path, field, err);
+        if (st == BG_OK)
+            st = bg_json_check_keys(e, path, field, keys, err);
+        if (st != BG_OK)
+            return st;
+        const char *ep = NULL, *services = NULL;
+        bg_json_path_key(sub, field, "endpoint");
+        st = bg_json_string(cJSON_GetObjectItemCaseSensitive(e, "endpoint"), path, sub, &ep, err);
+        if (st != BG_OK)
+            return st;
+        if (strncmp(ep, "tcp://", 6) != 0 || strlen(ep) > 200)
+            return bg_json_fail(err, BG_ERR_INVALID, path, sub,
+                                "'%s' is not tcp://HOST:PORT (at most 200 bytes)", ep);
+        bg_json_path_key(sub, field, "services");
+        st = bg_json_string(cJSON_GetObjectItemCaseSensitive(e, "services"), path, sub,
+                            &services, err);
+        if (st != BG_OK)
+            return st;
+        bg_error_t perr = BG_ERROR_INIT;
+        const unsigned bits = bga_service_parse_list(services, &perr);
+        if (bits == 0)
+            return bg_json_fail(err, BG_ERR_INVALID, path, sub, "%s", perr.message);
+        c->agents[i].endpoint = strdup(ep);
+        if (!c->agents[i].endpoint)
+            return bg_error_set(err, BG_ERR_NOMEM, "out of memory");
+        c->agents[i].services = bits;
+        c->agent_count = ++i;
+    }
+    return BG_OK;
+}
+
+bg_status bgb_broker_config_read(const char *path, bgb_broker_config_t *c, bg_error_t *err)
+{
+    cJSON *root = NULL;
+    bg_status st = bg_json_load(path, BROKER_CONFIG_MAX_BYTES, &root, err);
+    if (st != BG_OK)
+        goto out;
+    static const char *const keys[] = {"name",         "address",      "port",
+                                       "endpoint",     "state_dir",    "max_body",
+                                       "max_vertices", "max_elements", "max_jobs",
+                                       "agent_timeout_ms", "agents",   NULL};
+    if ((st = bg_json_expect_object(root, path, NULL, err)) != BG_OK ||
+        (st = bg_json_check_keys(root, path, NULL, keys, err)) != BG_OK)
+        goto out;
+    const cJSON *item;
+    cJSON_ArrayForEach(item, root) {
+        const char *k = item->string;
+        int64_t v = 0;
+        if (strcmp(k, "name") == 0)
+            st = replace_string(&c->name, item, path, k, err);
+        else if (strcmp(k, "address") == 0)
+            st = replace_string(&c->address, item, path, k, err);
+        else if (strcmp(k, "endpoint") == 0)
+            st = replace_string(&c->endpoint, item, path, k, err);
+        else if (strcmp(k, "state_dir") == 0)
+            st = replace_string(&c->state_dir, item, path, k, err);
+        else if (strcmp(k, "agents") == 0)
+            st = read_agents(item, path, c, err);
+        else if (strcmp(k, "port") == 0) {
+            st = bg_json_integer(item, path, k, 0, 65535, &v, err);
+            c->port = (int)v;
+        } else if (strcmp(k, "max_jobs") == 0) {
+            st = bg_json_integer(item, path, k, 1, BROKER_MAX_JOBS, &v, err);
+            c->max_jobs = (int)v;
+        } else if (strcmp(k, "agent_timeout_ms") == 0) {
+            st = bg_json_integer(item, path, k, 1, 3600000, &v, err);
+            c->agent_timeout_ms = (int)v;
+        } else {
+            st = bg_json_integer(item, path, k, 0, 1e15, &v, err);
+            if (strcmp(k, "max_body") == 0)
+                c->max_body = v;
+            else if (strcmp(k, "max_vertices") == 0)
+                c->max_vertices = v;
+            else
+                c->max_elements = v;
+        }
+        if (st != BG_OK)
+            goto out;
+    }
+out:
+    cJSON_Delete(root);
+    return st;
+}
+
+static bg_status copy_config(bgb_broker_config_t *to, const bgb_broker_config_t *from,
+                             bg_error_t *err)
+{
+    *to = *from;
+    to->name = dup_or_null(from->name);
+    to->address = dup_or_null(from->address);
+    to->endpoint = dup_or_null(from->endpoint);
+    to->state_dir = dup_or_null(from->state_dir);
+    int ok = to->name && to->address && to->endpoint && to->state_dir;
+    for (int i = 0; i < from->agent_count; i++) {
+        to->agents[i].endpoint = dup_or_null(from->agents[i].endpoint);
+        ok &= to->agents[i].endpoint != NULL;
+    }
+    if (!ok) {
+        bgb_broker_config_release(to);
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the broker's configuration");
+    }
+    return BG_OK;
+}
+
+/* ------------------------------------------------------- file helpers */
+
+static bg_status make_dir(const char *path, bg_error_t *err)
+{
+    char buf[BROKER_PATH_MAX];
+    const size_t n = strlen(path);
+    if (n >= sizeof buf)
+        return bg_error_set(err, BG_ERR_INVALID, "%s: path too long", path);
+    memcpy(buf, path, n + 1);
+    for (size_t i = 1; i <= n; i++) {
+        if (buf[i] != '/' && buf[i] != '\0')
+            continue;
+        const char c = buf[i];
+        buf[i] = '\0';
+        if (mkdir(buf, 0777) != 0 && errno != EEXIST)
+            return bg_error_set(err, BG_ERR_IO, "%s: cannot create: %s", buf, strerror(errno));
+        buf[i] = c;
+    }
+    return BG_OK;
+}
+
+static bg_status write_file(const char *path, const uint8_t *data, size_t size, bg_error_t *err)
+{
+    FILE *f = fopen(path, "wb");
+    if (!f)
+        return bg_error_set(err, BG_ERR_IO, "%s: cannot write: %s", path, strerror(errno));
+    const size_t done = size ? fwrite(data, 1, size, f) : 0;
+    if (fclose(f) != 0 || done != size)
+        return bg_error_set(err, BG_ERR_IO, "%s: write failed", path);
+    return BG_OK;
+}
+
+static bg_status read_file(const char *path, uint8_t **data, size_t *size, bg_error_t *err)
+{
+    *data = NULL;
+    bg_status st = BG_OK;
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return bg_error_set(err, BG_ERR_IO, "%s: cannot read: %s", path, strerror(errno));
+    struct stat sb;
+    if (fstat(fileno(f), &sb) != 0 || sb.st_size < 0 ||
+        (size_t)sb.st_size > BROKER_MAX_RESULT_FILE) {
+        st = bg_error_set(err, BG_ERR_LIMIT, "%s: not a readable file of at most %zu bytes", path,
+                          BROKER_MAX_RESULT_FILE);
+        goto out;
+    }
+    *size = (size_t)sb.st_size;
+    *data = malloc(*size + 1);
+    if (!*data) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory", path);
+        goto out;
+    }
+    if (fread(*data, 1, *size, f) != *size) {
+        st = bg_error_set(err, BG_ERR_IO, "%s: read failed", path);
+        free(*data);
+        *data = NULL;
+    }
+out:
+    fclose(f);
+    return st;
+}
+
+/* --------------------------------------------------------- coordinator */
+
+typedef struct job_run {
+    bgb_broker_t *broker;
+    char id[BGB_JOB_ID_SIZE];
+    double last_progress;
+    double allocation_latency; /* seconds from allocating to running */
+} job_run_t;
+
+static void on_progress(void *ctx, bg_method method, const bg_trace_point_t *p)
+{
+    job_run_t *jr = ctx;
+    const double now = bg_clock_now();
+    if (now - jr->last_progress < BROKER_PROGRESS_SECONDS)
+        return;
+    jr->last_progress = now;
+    char json[512];
+    char error[32] = "null";
+    if (isfinite(p->error))
+        snprintf(error, sizeof error, "%.17g", p->error);
+    snprintf(json, sizeof json,
+             "{\"method\":\"%s\",\"iteration\":%d,\"seconds\":%.6f,\"energy\":%.17g,"
+             "\"relative_gradient\":%.17g,\"error\":%s}",
+             bg_method_name(method), p->iteration, p->seconds,
+             isfinite(p->energy) ? p->energy : 0.0,
+             isfinite(p->relative_gradient) ? p->relative_gradient : 0.0, error);
+    bg_error_t err = BG_ERROR_INIT;
+    (void)bgb_store_add_event(jr->broker->store, jr->id, "progress", json, &err);
+}
+
+/* The run's error-against-time trace as a "trace" event's JSON. */
+static char *trace_json(const bg_solve_result_t *run)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON *points = cJSON_AddArrayToObject(o, "points");
+    cJSON_AddStringToObject(o, "method", bg_method_name(run->method));
+    for (int k = 0; points && k < run->trace_count; k++) {
+        const bg_trace_point_t *p = &run->trace[k];
+        cJSON *e = cJSON_CreateObject();
+        cJSON_AddNumberToObject(e, "iteration", p->iteration);
+        cJSON_AddNumberToObject(e, "seconds", p->seconds);
+        if (isfinite(p->energy))
+            cJSON_AddNumberToObject(e, "energy", p->energy);
+        if (isfinite(p->relative_gradient))
+            cJSON_AddNumberToObject(e, "relative_gradient", p->relative_gradient);
+        if (isfinite(p->error))
+            cJSON_AddNumberToObject(e, "error", p->error);
+        else
+            cJSON_AddNullToObject(e, "error");
+        cJSON_AddItemToArray(points, e);
+    }
+    char *s = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return s;
+}
+
+/* Every regular file of dir into the store as the job's results. */
+static bg_status store_results(bgb_broker_t *b, const char *id, const char *dir,
+                               bg_error_t *err)
+{
+    DIR *d = opendir(dir);
+    if (!d)
+        return bg_error_set(err, BG_ERR_IO, "%s: cannot list: %s", dir, strerror(errno));
+    bg_status st = BG_OK;
+    struct dirent *e;
+    int count = 0;
+    while (st == BG_OK && (e = readdir(d)) != NULL) {
+        if (e->d_name[0] == '.' || strcmp(e->d_name, "input") == 0)
+            continue;
+        char path[BROKER_PATH_MAX + 512];
+        snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
+        struct stat sb;
+        if (stat(path, &sb) != 0 || !S_ISREG(sb.st_mode))
+            continue;
+        if (++count > BGB_STORE_MAX_FILES * 16) {
+            st = bg_error_set(err, BG_ERR_LIMIT, "%s: more than %d result files", dir,
+                              BGB_STORE_MAX_FILES * 16);
+            break;
+        }
+        uint8_t *data = NULL;
+        size_t size = 0;
+        st = read_file(path, &data, &size, err);
+        if (st == BG_OK) {
+            const bgb_file_t f = {e->d_name, data, size};
+            st = bgb_store_put_file(b->store, id, "result", &f, err);
+        }
+        free(data);
+    }
+    closedir(d);
+    return st;
+}
+
+/* The names of a job's input files: the store's listing calls back under
+ * its read lock, so files are read only after it returns. */
+typedef struct input_names {
+    char *names[BGB_STORE_MAX_FILES];
+    int count;
+    int overflow;
+} input_names_t;
+
+static void collect_input(void *ctx, const char *name, size_t size)
+{
+    (void)size;
+    input_names_t *in = ctx;
+    if (in->count == BGB_STORE_MAX_FILES || !(in->names[in->count] = strdup(name))) {
+        in->overflow = 1;
+        return;
+    }
+    in->count++;
+}
+
+/* Writes every input file of the job into dir. */
+static bg_status write_inputs(bgb_broker_t *b, const char *id, const char *dir, bg_error_t *err)
+{
+    input_names_t in;
+    memset(&in, 0, sizeof in);
+    bg_status st = bgb_store_list_files(b->store, id, "input", collect_input, &in, err);
+    if (st == BG_OK && in.overflow)
+        st = bg_error_set(err, BG_ERR_LIMIT, "job %s: cannot list its input files", id);
+    for (int i = 0; st == BG_OK && i < in.count; i++) {
+        uint8_t *data = NULL;
+        size_t n = 0;
+        st = bgb_store_get_file(b->store, id, "input", in.names[i], &data, &n, err);
+        if (st == BG_OK) {
+            char path[BROKER_PATH_MAX + 512];
+            snprintf(path, sizeof path, "%s/%s", dir, in.names[i]);
+            st = write_file(path, data, n, err);
+        }
+        free(data);
+    }
+    for (int i = 0; i < in.count; i++)
+        free(in.names[i]);
+    return st;
+}
+
+/* The pool's agents for the report, with what each did. */
+static int agent_lines(const bgb_broker_config_t *c, const int *role, const bga_backend_t *backend,
+                       bg_report_agent_t *out)
+{
+    const int nrotfit = bga_backend_agents(backend) - 1;
+    for (int i = 0; i < c->agent_count; i++) {
+        bg_report_agent_t *r = &out[i];
+        memset(r, 0, sizeof *r);
+        r->endpoint = c->agents[i].endpoint;
+        r->service = c->agents[i].services == BGA_SERVICE_INTEG ? "integration-step"
+                                                                : "several services";
+        if (role[i] == -1)
+            continue;
+        const bga_agent_usage_t u = bga_backend_usage(backend, role[i] == -2 ? nrotfit : role[i]);
+        r->service = u.service;
+        r->calls = u.traffic.requests;
+        r->contacted = r->calls > 0;
+        r->bytes_sent = u.traffic.bytes_sent;
+        r->bytes_received = u.traffic.bytes_received;
+        r->compute_seconds = u.traffic.agent_seconds;
+        r->encode_seconds = u.traffic.encode_seconds;
+        r->wait_seconds = u.traffic.wait_seconds;
+    }
+    return c->agent_count;
+}
+
+/*
+ * Adds the job's "market" section to DIR/report.json: mechanism, the
+ * contracts (service, agent, quantity, price), money spent against the
+ * budget, the allocation latency, and the error against run time and
+ * against money spent (money is spent when the services are bought, so
+ * every trace point has spent so far = the total). No market is attached
+ * in this build: no contracts, nothing spent.
+ */
+static bg_status add_market_section(const char *path, const bgb_job_t *job, double latency,
+                                    bg_error_t *err)
+{
+    cJSON *root = NULL;
+    bg_status st = bg_json_load(path, BROKER_MAX_RESULT_FILE, &root, err);
+    if (st != BG_OK)
+        return st;
+    char *text = NULL;
+    const double spent = 0.0;
+    cJSON *m = cJSON_AddObjectToObject(root, "market");
+    cJSON_AddStringToObject(m, "mechanism", job->mechanism);
+    cJSON_AddNullToObject(m, "market");
+    cJSON_AddStringToObject(m, "note", "no market is attached to this broker: the job ran on "
+                                       "its configured agents without contracts");
+    cJSON_AddArrayToObject(m, "contracts");
+    cJSON_AddNumberToObject(m, "budget", job->budget);
+    cJSON_AddNumberToObject(m, "spent", spent);
+    cJSON_AddNumberToObject(m, "allocation_latency_seconds", latency);
+    cJSON *curve = cJSON_AddArrayToObject(m, "error_vs_time_and_money");
+    const cJSON *runs = cJSON_GetObjectItemCaseSensitive(root, "runs");
+    const cJSON *trace = cJSON_GetObjectItemCaseSensitive(cJSON_GetArrayItem(runs, 0), "trace");
+    const cJSON *p;
+    cJSON_ArrayForEach(p, trace) {
+        cJSON *e = cJSON_CreateObject();
+        const cJSON *s = cJSON_GetObjectItemCaseSensitive(p, "seconds");
+        const cJSON *er = cJSON_GetObjectItemCaseSensitive(p, "error");
+        cJSON_AddNumberToObject(e, "seconds", cJSON_IsNumber(s) ? s->valuedouble : 0.0);
+        cJSON_AddNumberToObject(e, "spent", spent);
+        if (cJSON_IsNumber(er))
+            cJSON_AddNumberToObject(e, "error", er->valuedouble);
+        else
+            cJSON_AddNullToObject(e, "error");
+        cJSON_AddItemToArray(curve, e);
+    }
+    text = cJSON_Print(root);
+    if (!text) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory", path);
+        goto out;
+    }
+    st = write_file(path, (const uint8_t *)text, strlen(text), err);
+out:
+    free(text);
+    cJSON_Delete(root);
+    return st;
+}
+
+/* Runs the job on the configured agents into dir; the store gets its
+ * results and trace. */
+static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job, const char *dir,
+                           int *converged, bg_error_t *err)
+{
+    const bgb_broker_config_t *c = &b->config;
+    bg_scene_t *scene = NULL;
+    bga_backend_t *remote = NULL;
+    bg_solve_result_t run = BG_SOLVE_RESULT_INIT, reference = BG_SOLVE_RESULT_INIT;
+    char *trace = NULL;
+    bg_status st;
+    char input[BROKER_PATH_MAX + 16], path[BROKER_PATH_MAX + 96];
+    snprintf(input, sizeof input, "%s/input", dir);
+    if ((st = make_dir(input, err)) != BG_OK)
+        goto out;
+    if ((st = write_inputs(b, job->id, input, err)) != BG_OK)
+        goto out;
+    snprintf(path, sizeof path, "%s/scene.json", input);
+    const bg_scene_options_t so = {.max_vertices = c->max_vertices,
+                                   .max_elements = c->max_elements,
+                                   .confined = 1,
+                                   .display_name = "scene"};
+    if ((st = bg_scene_parse_with(job->scene, job->scene_size, path, &so, &scene, err)) != BG_OK ||
+        (st = bg_scene_prepare(scene, err)) != BG_OK)
+        goto out;
+
+    /* The pool: every rotation-fit agent but a dedicated sparse-solve one. */
+    const char *rotfit[BGB_BROKER_MAX_AGENTS], *solver = NULL;
+    int role[BGB_BROKER_MAX_AGENTS], nrotfit = 0, s = -1;
+    for (int i = 0; i < c->agent_count; i++) {
+        role[i] = -1;
+        if ((c->agents[i].services & BGA_SERVICE_SOLVE) &&
+            (s < 0 || c->agents[i].services == BGA_SERVICE_SOLVE))
+            s = s >= 0 && c->agents[s].services == BGA_SERVICE_SOLVE ? s : i;
+    }
+    for (int i = 0; i < c->agent_count; i++)
+        if (i != s && (c->agents[i].services & BGA_SERVICE_ROTFIT)) {
+            role[i] = nrotfit;
+            rotfit[nrotfit++] = c->agents[i].endpoint;
+        }
+    if (nrotfit == 0 && s >= 0 && (c->agents[s].services & BGA_SERVICE_ROTFIT)) {
+        role[s] = 0;
+        rotfit[nrotfit++] = c->agents[s].endpoint;
+    }
+    if (s < 0 || nrotfit == 0) {
+        st = bg_error_set(err, BG_ERR_INVALID, "the broker's agents serve no %s",
+                          s < 0 ? "sparse-solve" : "rotation-fit");
+        goto out;
+    }
+    if (role[s] == -1)
+        role[s] = -2;
+    solver = c->agents[s].endpoint;
+    const bga_backend_config_t bc = {rotfit, nrotfit, solver, c->agent_timeout_ms,
+                                     BROKER_AGENT_LEASE_MS};
+    if ((st = bga_backend_new(&bc, &remote, err)) != BG_OK)
+        goto out;
+    /* surface-edit's per-vertex rotations have no agent service yet. */
+    const bg_backend_t *backend =
+        scene->task == BG_TASK_SURFACE_EDIT ? NULL : bga_backend_services(remote);
+
+    const bg_method method = scene->method;
+    const int max_iterations = bg_scene_max_iterations(scene, method);
+    if (scene->task == BG_TASK_DYNAMIC || scene->task == BG_TASK_MORPH) {
+        st = bgb_run_series(scene, method, scene->tolerance, max_iterations, dir, "",
+                            on_progress, jr, backend, &run, err);
+    } else {
+        const double *ref = scene->reference;
+        if (scene->reference_kind == BG_REFERENCE_NEWTON && scene->task == BG_TASK_STATIC) {
+            const bg_solve_options_t ro = {.method = BG_METHOD_NEWTON,
+                                           .tolerance = BROKER_REFERENCE_TOLERANCE,
+                                           .max_iterations = BROKER_REFERENCE_MAX_ITERATIONS};
+            if ((st = bg_static_solve(scene, &ro, &reference, err)) != BG_OK)
+                goto out;
+            ref = reference.q;
+        }
+        const bg_solve_options_t opt = {.method = method,
+                                        .tolerance = scene->tolerance,
+                                        .max_iterations = max_iterations,
+                                        .reference = ref,
+                                        .progress = on_progress,
+                                        .progress_ctx = jr,
+                                        .keep_orientation = scene->task == BG_TASK_PARAMETERIZE,
+                                        .backend = backend};
+        st = scene->task == BG_TASK_SURFACE_EDIT ? bg_surface_arap_solve(scene, &opt, &run, err)
+                                                 : bg_static_solve(scene, &opt, &run, err);
+        if (st == BG_OK && scene->task == BG_TASK_PARAMETERIZE)
+            st = bgb_run_write_parameterization(scene, &run, dir, err);
+    }
+    if (st != BG_OK)
+        goto out;
+    *converged = run.converged;
+    bg_plan_t plan;
+    bg_plan_for_scene(scene, &method, 1, &plan);
+    bg_report_agent_t lines[BGB_BROKER_MAX_AGENTS];
+    const int nlines = agent_lines(c, role, remote, lines);
+    char paths[2 * BROKER_PATH_MAX + 64];
+    snprintf(path, sizeof path, "%s/report.json", dir);
+    if ((st = bg_report_write_agents(path, scene, &plan, &run, 1, lines, nlines, err)) != BG_OK ||
+        (st = add_market_section(path, job, jr->allocation_latency, err)) != BG_OK)
+        goto out;
+    snprintf(path, sizeof path, "%s/error-vs-time.svg", dir);
+    if ((st = bg_report_write_plot(path, scene, &run, 1, err)) != BG_OK ||
+        (st = bgb_run_write_results(dir, scene, &run, paths, sizeof paths, err)) != BG_OK)
+        goto out;
+    trace = trace_json(&run);
+    if (trace && (st = bgb_store_add_event(b->store, job->id, "trace", trace, err)) != BG_OK)
+        goto out;
+    st = store_results(b, job->id, dir, err);
+out:
+    free(trace);
+    bg_solve_result_release(&run);
+    bg_solve_result_release(&reference);
+    bga_backend_destroy(&remote);
+    bg_scene_destroy(&scene);
+    return st;
+}
+
+#define MASK(s) (1u << (s))
+
+static void *coordinator(void *arg)
+{
+    job_run_t *jr = arg;
+    bgb_broker_t *b = jr->broker;
+    bg_error_t err = BG_ERROR_INIT;
+    bgb_job_t job = BGB_JOB_INIT;
+    const double t0 = bg_clock_now();
+    if (bgb_store_get(b->store, jr->id, &job, &err) != BG_OK)
+        goto out;
+    if (b->config.agent_count == 0) {
+        /* No live market in this build and no fixed pool: nothing is
+         * bought, and the job waits in allocating. */
+        (void)bgb_store_add_event(b->store, jr->id, "allocation",
+                                  "{\"market\":null,\"contracts\":[],\"message\":\"no market is "
+                                  "attached to this broker: nothing was bought; the job waits "
+                                  "in allocating\"}",
+                                  &err);
+        goto out;
+    }
+    (void)bgb_store_add_event(b->store, jr->id, "allocation",
+                              "{\"market\":null,\"contracts\":[],\"spent\":0,\"message\":\"no "
+                              "market is attached to this broker: the job runs on the broker's "
+                              "configured agents, without contracts\"}",
+                              &err);
+    if (bgb_store_transition(b->store, jr->id, MASK(BGB_JOB_ALLOCATING), BGB_JOB_RUNNING, NULL,
+                             &err) != BG_OK)
+        goto out; /* cancelled meanwhile */
+    jr->allocation_latency = bg_clock_now() - t0;
+    char dir[BROKER_PATH_MAX];
+    snprintf(dir, sizeof dir, "%s/jobs/%s", b->config.state_dir, jr->id);
+    int converged = 0;
+    bg_status st = make_dir(dir, &err);
+    if (st == BG_OK)
+        st = solve_job(b, jr, &job, dir, &converged, &err);
+    bg_error_t terr = BG_ERROR_INIT;
+    if (st == BG_OK) {
+        (void)bgb_store_add_event(b->store, jr->id, "solved",
+                                  converged ? "{\"converged\":true}" : "{\"converged\":false}",
+                                  &terr);
+        (void)bgb_store_transition(b->store, jr->id, MASK(BGB_JOB_RUNNING), BGB_JOB_SUCCEEDED,
+                                   NULL, &terr);
+    } else {
+        (void)bgb_store_transition(b->store, jr->id, MASK(BGB_JOB_RUNNING), BGB_JOB_FAILED,
+                                   err.message, &terr);
+    }
+out:
+    bgb_job_release(&job);
+    pthread_mutex_lock(&b->lock);
+    b->running--;
+    pthread_cond_broadcast(&b->changed);
+    pthread_mutex_unlock(&b->lock);
+    free(jr);
+    return NULL;
+}
+
+/* Starts a coordinator for each queued job while there is room. */
+static void dispatch(bgb_broker_t *b)
+{
+    bgb_job_t jobs[8];
+    int count = 0;
+    int64_t next = 0;
+    bg_error_t err = BG_ERROR_INIT;
+    pthread_mutex_lock(&b->lock);
+    const int room = b->config.max_jobs - b->running;
+    pthread_mutex_unlock(&b->lock);
+    if (room <= 0)
+        return;
+    if (bgb_store_list(b->store, BGB_JOB_QUEUED, 0, room < 8 ? room : 8, jobs, &count, &next,
+                       &err) != BG_OK)
+        return;
+    for (int i = 0; i < count; i++) {
+        job_run_t *jr = calloc(1, sizeof *jr);
+        /* Taking it out of queued here makes each job start once. */
+        if (!jr || bgb_store_transition(b->store, jobs[i].id, MASK(BGB_JOB_QUEUED),
+                                        BGB_JOB_ALLOCATING, NULL, &err) != BG_OK) {
+            free(jr);
+            continue;
+        }
+        jr->broker = b;
+        memcpy(jr->id, jobs[i].id, sizeof jr->id);
+        pthread_attr_t attr;
+        pthread_attr_init(&attr);
+        pthread_attr_setdetachstate(&attr, PTHREAD_CREATE_DETACHED);
+        pthread_mutex_lock(&b->lock);
+        b->running++;
+        pthread_mutex_unlock(&b->lock);
+        pthread_t t;
+        if (pthread_create(&t, &attr, coordinator, jr) != 0) {
+            pthread_mutex_lock(&b->lock);
+            b->running--;
+            pthread_mutex_unlock(&b->lock);
+            (void)bgb_store_transition(b->store, jobs[i].id, MASK(BGB_JOB_ALLOCATING),
+                                       BGB_JOB_QUEUED, NULL, &err);
+            free(jr);
+        }
+        pthread_attr_destroy(&attr);
+    }
+    for (int i = 0; i < count; i++)
+        bgb_job_release(&jobs[i]);
+}
+
+static void *dispatcher_main(void *arg)
+{
+    bgb_broker_t *b = arg;
+    pthread_mutex_lock(&b->lock);
+    while (!b->stopping) {
+        pthread_mutex_unlock(&b->lock);
+        dispatch(b);
+        pthread_mutex_lock(&b->lock);
+        struct timespec ts;
+        clock_gettime(CLOCK_REALTIME, &ts);
+        ts.tv_nsec += BROKER_POLL_MS * 1000000L;
+        if (ts.tv_nsec >= 1000000000L) {
+            ts.tv_sec++;
+            ts.tv_nsec -= 1000000000L;
+        }
+        if (!b->stopping)
+            pthread_cond_timedwait(&b->changed, &b->lock, &ts);
+    }
+    pthread_mutex_unlock(&b->lock);
+    return NULL;
+}
+
+/* --------------------------------------------------------- ZeroMQ loop */
+
+/* The only thread that touches the ROUTER socket. Without a market every
+ * agent message is counted and dropped (a market would get it here). */
+static void *loop_main(void *arg)
+{
+    bgb_broker_t *b = arg;
+    for (;;) {
+        pthread_mutex_lock(&b->lock);
+        const int stop = b->stopping;
+        pthread_mutex_unlock(&b->lock);
+        if (stop)
+            break;
+        zmq_pollitem_t item = {b->router, 0, ZMQ_POLLIN, 0};
+        if (zmq_poll(&item, 1, BROKER_POLL_MS) <= 0 || !(item.revents & ZMQ_POLLIN))
+            continue;
+        int more = 1, frames = 0;
+        while (more) {
+            zmq_msg_t m;
+            zmq_msg_init(&m);
+            if (zmq_msg_recv(&m, b->router, ZMQ_DONTWAIT) < 0) {
+                zmq_msg_close(&m);
+                break;
+            }
+            more = zmq_msg_more(&m);
+            zmq_msg_close(&m);
+            frames++;
+        }
+        if (frames > 0) {
+            pthread_mutex_lock(&b->lock);
+            b->agent_messages++;
+            pthread_mutex_unlock(&b->lock);
+        }
+    }
+    return NULL;
+}
+
+/* ----------------------------------------------------------- lifecycle */
+
+/* The fixed pool for GET /v1/agents: endpoint and services of each. */
+static char *pool_json(const bgb_broker_config_t *c)
+{
+    cJSON *arr = cJSON_CreateArray();
+    for (int i = 0; arr && i < c->agent_count; i++) {
+        cJSON *a = cJSON_CreateObject();
+        cJSON_AddStringToObject(a, "endpoint", c->agents[i].endpoint);
+        cJSON *s = cJSON_AddArrayToObject(a, "services");
+        if (c->agents[i].services & BGA_SERVICE_ROTFIT)
+            cJSON_AddItemToArray(s, cJSON_CreateString("rotation-fit"));
+        if (c->agents[i].services & BGA_SERVICE_SOLVE)
+            cJSON_AddItemToArray(s, cJSON_CreateString("sparse-solve"));
+        if (c->agents[i].services & BGA_SERVICE_INTEG)
+            cJSON_AddItemToArray(s, cJSON_CreateString("integration-step"));
+        cJSON_AddStringToObject(a, "source", "config");
+        cJSON_AddItemToArray(arr, a);
+    }
+    char *text = arr ? cJSON_PrintUnformatted(arr) : NULL;
+    cJSON_Delete(arr);
+    return text;
+}
+
+/* Jobs a previous broker process left half done (see the header). */
+static bg_status recover(bgb_broker_t *b, bg_error_t *err)
+{
+    for (int state = BGB_JOB_ALLOCATING; state <= BGB_JOB_RUNNING; state++) {
+        for (;;) {
+            bgb_job_t jobs[16];
+            int count = 0;
+            int64_t next = 0;
+            bg_status st = bgb_store_list(b->store, state, 0, 16, jobs, &count, &next, err);
+            if (st != BG_OK)
+                return st;
+            for (int i = 0; i < count && st == BG_OK; i++) {
+                st = state == BGB_JOB_ALLOCATING
+                         ? bgb_store_transition(b->store, jobs[i].id, MASK(BGB_JOB_ALLOCATING),
+                                                BGB_JOB_QUEUED,
+                                                "the broker restarted before the job's services "
+                                                "were bought: queued again",
+                                                err)
+                         : bgb_store_transition(b->store, jobs[i].id, MASK(BGB_JOB_RUNNING),
+                                                BGB_JOB_FAILED,
+                                                "the broker restarted while the job was running",
+                                                err);
+            }
+            for (int i = 0; i < count; i++)
+                bgb_job_release(&jobs[i]);
+            if (st != BG_OK)
+                return st;
+            if (count == 0)
+                break;
+        }
+    }
+    return BG_OK;
+}
+
+bg_status bgb_broker_start(const bgb_broker_config_t *config, bgb_broker_t **out,
+                           bg_error_t *err)
+{
+    *out = NULL;
+    bgb_broker_t *b = calloc(1, sizeof *b);
+    if (!b)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the broker");
+    pthread_mutex_init(&b->lock, NULL);
+    pthread_cond_init(&b->changed, NULL);
+    bg_status st = copy_config(&b->config, config, err);
+    if (st != BG_OK) {
+        pthread_mutex_destroy(&b->lock);
+        pthread_cond_destroy(&b->changed);
+        free(b);
+        return st;
+    }
+    char *agents_json = NULL;
+    char path[BROKER_PATH_MAX + 32];
+    snprintf(path, sizeof path, "%s/jobs", b->config.state_dir);
+    if ((st = make_dir(path, err)) != BG_OK)
+        goto out;
+    snprintf(path, sizeof path, "%s/broker.sqlite", b->config.state_dir);
+    if ((st = bgb_store_open(path, &b->store, err)) != BG_OK || (st = recover(b, err)) != BG_OK)
+        goto out;
+    b->zmq = zmq_ctx_new();
+    b->router = b->zmq ? zmq_socket(b->zmq, ZMQ_ROUTER) : NULL;
+    if (!b->router) {
+        st = bg_error_set(err, BG_ERR_IO, "cannot create the agents' ZeroMQ socket: %s",
+                          zmq_strerror(zmq_errno()));
+        goto out;
+    }
+    const int linger = 0;
+    zmq_setsockopt(b->router, ZMQ_LINGER, &linger, sizeof linger);
+    size_t len = sizeof b->endpoint;
+    if (zmq_bind(b->router, b->config.endpoint) != 0 ||
+        zmq_getsockopt(b->router, ZMQ_LAST_ENDPOINT, b->endpoint, &len) != 0) {
+        st = bg_error_set(err, BG_ERR_IO, "endpoint: cannot bind %s: %s", b->config.endpoint,
+                          zmq_strerror(zmq_errno()));
+        goto out;
+    }
+    snprintf(path, sizeof path, "%s/uploads", b->config.state_dir);
+    if ((st = make_dir(path, err)) != BG_OK)
+        goto out;
+    agents_json = pool_json(&b->config);
+    const bgb_rest_config_t rc = {.agents_json = agents_json,.address = b->config.address,
+                                  .port = (uint16_t)b->config.port,
+                                  .max_body = (size_t)b->config.max_body,
+                                  .max_vertices = b->config.max_vertices,
+                                  .max_elements = b->config.max_elements,
+                                  .work_dir = path,
+                                  .name = b->config.name};
+    if ((st = bgb_rest_start(&rc, b->store, &b->rest, err)) != BG_OK)
+        goto out;
+    if (pthread_create(&b->loop, NULL, loop_main, b) != 0) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "cannot start the broker's loop thread");
+        goto out;
+    }
+    b->loop_started = 1;
+    if (pthread_create(&b->dispatcher, NULL, dispatcher_main, b) != 0) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "cannot start the broker's dispatcher");
+        goto out;
+    }
+    b->dispatcher_started = 1;
+out:
+    free(agents_json);
+    if (st != BG_OK)
+        bgb_broker_stop(&b);
+    *out = b;
+    return st;
+}
+
+uint16_t bgb_broker_rest_port(const bgb_broker_t *b)
+{
+    return bgb_rest_port(b->rest);
+}
+
+const char *bgb_broker_endpoint(const bgb_broker_t *b)
+{
+    return b->endpoint;
+}
+
+void bgb_broker_stop(bgb_broker_t **bp)
+{
+    bgb_broker_t *b = bp ? *bp : NULL;
+    if (!b)
+        return;
+    bgb_rest_stop(&b->rest);
+    pthread_mutex_lock(&b->lock);
+    b->stopping = 1;
+    pthread_cond_broadcast(&b->changed);
+    pthread_mutex_unlock(&b->lock);
+    if (b->dispatcher_started)
+        pthread_join(b->dispatcher, NULL);
+    if (b->loop_started)
+        pthread_join(b->loop, NULL);
+    pthread_mutex_lock(&b->lock);
+    while (b->running > 0)
+        pthread_cond_wait(&b->changed, &b->lock);
+    pthread_mutex_unlock(&b->lock);
+    if (b->router)
+        zmq_close(b->router);
+    if (b->zmq)
+        zmq_ctx_term(b->zmq);
+    bgb_store_destroy(&b->store);
+    bgb_broker_config_release(&b->config);
+    pthread_mutex_destroy(&b->lock);
+    pthread_cond_destroy(&b->changed);
+    free(b);
+    *bp = NULL;
+}

@@ -1,0 +1,153 @@
+/*
+ * biotgrid broker [--config FILE] [--port N] [--endpoint EP] [--state-dir DIR]
+ *                 [--ready-file FILE]
+ *
+ * Starts the broker, prints "broker NAME ready on http://ADDR:PORT, agents
+ * at ENDPOINT", writes "http://ADDR:PORT ENDPOINT PID" to the ready file
+ * if asked (written to a temporary name and renamed, so a reader never
+ * sees half a line), and runs until SIGTERM or SIGINT.
+ */
+#include "cmd_broker.h"
+
+#include "cmd.h"
+
+#include <limits.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "bgb_broker.h"
+
+static volatile sig_atomic_t stop_requested;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    stop_requested = 1;
+}
+
+const char bg_cmd_broker_usage[] =
+    "usage: biotgrid broker [--config FILE] [--port N] [--endpoint ENDPOINT]\n"
+    "                       [--state-dir DIR] [--ready-file FILE]\n"
+    "Runs the broker: the REST API (default http://127.0.0.1:8080), the job store\n"
+    "(STATE_DIR/broker.sqlite, default out/broker) and the ZeroMQ endpoint agents\n"
+    "connect to (default tcp://127.0.0.1:5570), until SIGTERM or SIGINT.\n"
+    "  --config FILE       JSON object with keys name, address, port, endpoint,\n"
+    "                      state_dir, max_body, max_vertices, max_elements, max_jobs,\n"
+    "                      agent_timeout_ms, agents ([{\"endpoint\", \"services\"}])\n"
+    "  --port N            REST port (0: an ephemeral one); overrides the config\n"
+    "  --endpoint EP       ZeroMQ ROUTER endpoint (port * : an ephemeral one)\n"
+    "  --state-dir DIR     where the store and the jobs' folders live\n"
+    "  --ready-file FILE   write \"URL ENDPOINT PID\" there once serving\n"
+    "No live market is attached in this build: with agents in the config a job runs\n"
+    "on them without contracts; without, it waits in allocating.\n";
+
+static int write_ready_file(const char *path, const char *url, const char *endpoint)
+{
+    char tmp[PATH_MAX];
+    if (snprintf(tmp, sizeof tmp, "%s.tmp", path) >= (int)sizeof tmp)
+        return -1;
+    FILE *f = fopen(tmp, "w");
+    if (!f)
+        return -1;
+    const int ok = fprintf(f, "%s %s %ld\n", url, endpoint, (long)getpid()) > 0;
+    if (fclose(f) != 0 || !ok)
+        return -1;
+    return rename(tmp, path);
+}
+
+static int set_string(char **slot, const char *value)
+{
+    char *copy = strdup(value);
+    if (!copy)
+        return -1;
+    free(*slot);
+    *slot = copy;
+    return 0;
+}
+
+int bg_cmd_broker(int argc, char **argv)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    bgb_broker_config_t config;
+    bgb_broker_t *broker = NULL;
+    const char *ready_file = NULL;
+    int rc = BG_EXIT_BAD_INPUT;
+    if (bgb_broker_config_init(&config, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid broker: %s\n", err.message);
+        return BG_EXIT_FAILED;
+    }
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            fputs(bg_cmd_broker_usage, stdout);
+            rc = BG_EXIT_OK;
+            goto out;
+        }
+        if (strcmp(a, "--config") != 0 && strcmp(a, "--port") != 0 &&
+            strcmp(a, "--endpoint") != 0 && strcmp(a, "--state-dir") != 0 &&
+            strcmp(a, "--ready-file") != 0) {
+            fprintf(stderr, "biotgrid broker: unknown option '%s' (see biotgrid broker --help)\n",
+                    a);
+            goto out;
+        }
+        if (i + 1 == argc) {
+            fprintf(stderr, "biotgrid broker: %s needs a value\n", a);
+            goto out;
+        }
+        const char *v = argv[++i];
+        if (strcmp(a, "--config") == 0) {
+            if (bgb_broker_config_read(v, &config, &err) != BG_OK) {
+                fprintf(stderr, "biotgrid broker: %s\n", err.message);
+                goto out;
+            }
+        } else if (strcmp(a, "--port") == 0) {
+            char *end = NULL;
+            const long p = strtol(v, &end, 10);
+            if (!end || *end || p < 0 || p > 65535) {
+                fprintf(stderr, "biotgrid broker: --port '%s' must be an integer in [0, 65535]\n",
+                        v);
+                goto out;
+            }
+            config.port = (int)p;
+        } else if (strcmp(a, "--ready-file") == 0) {
+            ready_file = v;
+        } else if (set_string(strcmp(a, "--endpoint") == 0 ? &config.endpoint
+                                                           : &config.state_dir,
+                              v) != 0) {
+            fprintf(stderr, "biotgrid broker: out of memory\n");
+            rc = BG_EXIT_FAILED;
+            goto out;
+        }
+    }
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGINT, &sa, NULL);
+    if (bgb_broker_start(&config, &broker, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid broker: %s\n", err.message);
+        rc = err.status == BG_ERR_INVALID ? BG_EXIT_BAD_INPUT : BG_EXIT_FAILED;
+        goto out;
+    }
+    char url[128];
+    snprintf(url, sizeof url, "http://%s:%u", config.address,
+             (unsigned)bgb_broker_rest_port(broker));
+    if (ready_file && write_ready_file(ready_file, url, bgb_broker_endpoint(broker)) != 0) {
+        fprintf(stderr, "biotgrid broker: cannot write the ready file %s\n", ready_file);
+        rc = BG_EXIT_FAILED;
+        goto out;
+    }
+    printf("broker %s ready on %s, agents at %s\n", config.name, url,
+           bgb_broker_endpoint(broker));
+    fflush(stdout);
+    while (!stop_requested)
+        pause();
+    rc = BG_EXIT_OK;
+out:
+    bgb_broker_stop(&broker);
+    bgb_broker_config_release(&config);
+    return rc;
+}

@@ -1,0 +1,60 @@
+# broker_lib.sh — sourced by the broker's process tests: start and stop
+# `biotgrid broker` daemons on ephemeral loopback ports, and poll jobs.
+#   start_broker BIN DIR NAME CONFIG   → $DIR/$NAME.ready "URL ENDPOINT PID", $DIR/$NAME.rc at exit
+#   stop_broker DIR NAME               SIGTERM, SIGKILL after 10 s (and fail)
+#   wait_job URL ID SECONDS            prints the final state (or "timeout")
+#   check STATUS MESSAGE               "ok: MESSAGE", or "FAIL: MESSAGE" and fail=1
+check() {
+  if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
+}
+
+start_broker() {
+  _bin=$1 _dir=$2 _name=$3 _config=$4
+  rm -f "$_dir/$_name.ready" "$_dir/$_name.rc"
+  ( "$_bin" broker --config "$_config" --ready-file "$_dir/$_name.ready" \
+      >"$_dir/$_name.log" 2>&1 </dev/null
+    echo $? >"$_dir/$_name.rc" ) >/dev/null 2>&1 </dev/null &
+  _i=0
+  while [ ! -s "$_dir/$_name.ready" ] && [ ! -s "$_dir/$_name.rc" ] && [ $_i -lt 100 ]; do
+    sleep 0.1
+    _i=$((_i + 1))
+  done
+  if [ ! -s "$_dir/$_name.ready" ]; then
+    echo "start_broker: $_name did not become ready" >&2
+    cat "$_dir/$_name.log" >&2
+    return 1
+  fi
+}
+
+stop_broker() {
+  _dir=$1 _name=$2
+  [ -s "$_dir/$_name.ready" ] || return 0
+  _pid=$(cut -d' ' -f3 "$_dir/$_name.ready")
+  [ -s "$_dir/$_name.rc" ] || kill -TERM "$_pid" 2>/dev/null
+  _i=0
+  while [ ! -s "$_dir/$_name.rc" ] && [ $_i -lt 100 ]; do
+    sleep 0.1
+    _i=$((_i + 1))
+  done
+  if [ ! -s "$_dir/$_name.rc" ]; then
+    echo "stop_broker: $_name (pid $_pid) ignored SIGTERM for 10 s: SIGKILL" >&2
+    kill -KILL "$_pid" 2>/dev/null
+    return 1
+  fi
+  _rc=$(cat "$_dir/$_name.rc")
+  [ "$_rc" = 0 ] || { echo "stop_broker: $_name exited with $_rc" >&2; return 1; }
+}
+
+wait_job() {
+  _url=$1 _id=$2 _limit=$3
+  _i=0
+  while [ $_i -lt $((_limit * 10)) ]; do
+    _state=$(curl -sf "$_url/v1/jobs/$_id" | jq -r .state)
+    case $_state in
+      succeeded|failed|cancelled) echo "$_state"; return 0 ;;
+    esac
+    sleep 0.1
+    _i=$((_i + 1))
+  done
+  echo timeout
+}
