@@ -31,13 +31,14 @@
     "  --json              print the broker's JSON document instead of text\n"
 
 const char bg_cmd_submit_usage[] =
-    "usage: biotgrid submit SCENE.json [--mechanism M] [--budget B] [--wait] [options]\n"
+    "usage: biotgrid submit SCENE.json [--mechanism M] [--budget B] [--wait] [--out DIR] [options]\n"
     "Submits the scene and every mesh or data file it names (found as `solve` finds\n"
     "them) to the broker, and prints the new job's id.\n"
     "  --mechanism M       central, catallactic or posted (default: the broker's, central)\n"
     "  --budget B          money the job may spend (default: the broker's, 1000)\n"
     "  --wait              follow the job's events until it ends (a progress bar on a\n"
     "                      terminal, plain lines otherwise); exit 1 unless it succeeded\n"
+    "  --out DIR           with --wait (implied): download the result's files into DIR\n"
     "  --idempotency-key K a resubmit with the same key returns the same job\n"
     "  --mesh-path DIR     also look for the scene's files in DIR (repeatable; then\n"
     "                      $" BG_CMD_MESH_PATH_ENV ")\n" BROKER_HELP;
@@ -81,6 +82,7 @@ enum {
     OPT_LIMIT = 1 << 6,
     OPT_PAGE = 1 << 7,
     OPT_OUT = 1 << 8,
+    OPT_OUT_REQUIRED = 1 << 9, /* result needs --out; submit takes it optionally */
 };
 
 typedef struct options {
@@ -200,7 +202,7 @@ static int parse(int argc, char **argv, unsigned allowed, int positional, const 
     }
     if (positional && !o->positional)
         return bad_usage(o, "missing %s", what);
-    if ((allowed & OPT_OUT) && !o->out)
+    if ((allowed & OPT_OUT_REQUIRED) && !o->out)
         return bad_usage(o, "missing --out DIR%s", "");
     if ((allowed & OPT_MESH_PATH) &&
         bg_cmd_mesh_path_finish(o->mesh_path, sizeof o->mesh_path) != 0)
@@ -436,11 +438,14 @@ static int wait_for(const options_t *o, bgb_client_t *client, const char *id)
     return ok ? BG_EXIT_OK : BG_EXIT_FAILED;
 }
 
+static int download_result(const options_t *o, bgb_client_t *client, const char *id, int report);
+
 int bg_cmd_submit(int argc, char **argv)
 {
     options_t o;
     bgb_client_t *client = NULL;
-    int rc = start(argc, argv, OPT_MECHANISM | OPT_BUDGET | OPT_WAIT | OPT_KEY | OPT_MESH_PATH, 1,
+    int rc = start(argc, argv,
+                   OPT_MECHANISM | OPT_BUDGET | OPT_WAIT | OPT_KEY | OPT_MESH_PATH | OPT_OUT, 1,
                    "SCENE.json", bg_cmd_submit_usage, &o, &client);
     if (rc >= 0)
         return rc;
@@ -463,10 +468,13 @@ int bg_cmd_submit(int argc, char **argv)
     }
     char job_id[64];
     snprintf(job_id, sizeof job_id, "%s", id);
-    if (o.wait) {
+    if (o.wait || o.out) {
         if (!o.json)
             printf("submitted job %s to %s\n", job_id, bgb_client_url(client));
         rc = wait_for(&o, client, job_id);
+        if (rc == BG_EXIT_OK && o.out)
+            /* With --json, stdout holds the job document alone. */
+            rc = download_result(&o, client, job_id, !o.json);
     } else if (o.json) {
         rc = print_json(job);
         job = NULL;
@@ -602,21 +610,19 @@ int bg_cmd_cancel(int argc, char **argv)
 
 /* -------------------------------------------------------------- result */
 
-int bg_cmd_result(int argc, char **argv)
+/* Downloads job id's result files into o->out; with report, prints what it
+ * wrote (the file list document with --json). */
+static int download_result(const options_t *o, bgb_client_t *client, const char *id, int report)
 {
-    options_t o;
-    bgb_client_t *client = NULL;
-    int rc = start(argc, argv, OPT_OUT, 1, "ID", bg_cmd_result_usage, &o, &client);
-    if (rc >= 0)
-        return rc;
     cJSON *doc = NULL;
     bg_error_t err = BG_ERROR_INIT;
-    if (bgb_client_result(client, o.positional, &doc, &err) != BG_OK) {
-        rc = fail(&o, &err);
+    int rc;
+    if (bgb_client_result(client, id, &doc, &err) != BG_OK) {
+        rc = fail(o, &err);
         goto out;
     }
-    if (bg_cmd_make_directories(o.out) != 0) {
-        fprintf(stderr, "biotgrid result: --out %s: %s\n", o.out, strerror(errno));
+    if (bg_cmd_make_directories(o->out) != 0) {
+        fprintf(stderr, "biotgrid %s: --out %s: %s\n", o->command, o->out, strerror(errno));
         rc = BG_EXIT_BAD_INPUT;
         goto out;
     }
@@ -629,28 +635,42 @@ int bg_cmd_result(int argc, char **argv)
         const char *name = string_of(file, "name");
         size_t size = 0;
         if (!name) {
-            fprintf(stderr, "biotgrid result: the broker's file list has an entry without a "
-                            "name\n");
+            fprintf(stderr, "biotgrid %s: the broker's file list has an entry without a name\n",
+                    o->command);
             rc = BG_EXIT_FAILED;
             goto out;
         }
-        if (bgb_client_download(client, o.positional, name, o.out, &size, &err) != BG_OK) {
-            rc = fail(&o, &err);
+        if (bgb_client_download(client, id, name, o->out, &size, &err) != BG_OK) {
+            rc = fail(o, &err);
             goto out;
         }
-        if (!o.json)
-            printf("%s/%s (%zu bytes)\n", o.out, name, size);
+        if (report && !o->json)
+            printf("%s/%s (%zu bytes)\n", o->out, name, size);
         count++;
     }
-    if (o.json) {
-        cJSON_AddStringToObject(doc, "out", o.out);
+    if (!report) {
+        rc = BG_EXIT_OK;
+    } else if (o->json) {
+        cJSON_AddStringToObject(doc, "out", o->out);
         rc = print_json(doc);
         doc = NULL;
     } else {
-        printf("job %s: %d file%s in %s\n", o.positional, count, count == 1 ? "" : "s", o.out);
+        printf("job %s: %d file%s in %s\n", id, count, count == 1 ? "" : "s", o->out);
     }
 out:
     cJSON_Delete(doc);
+    return rc;
+}
+
+int bg_cmd_result(int argc, char **argv)
+{
+    options_t o;
+    bgb_client_t *client = NULL;
+    int rc = start(argc, argv, OPT_OUT | OPT_OUT_REQUIRED, 1, "ID", bg_cmd_result_usage, &o,
+                   &client);
+    if (rc >= 0)
+        return rc;
+    rc = download_result(&o, client, o.positional, 1);
     bgb_client_destroy(&client);
     return rc;
 }

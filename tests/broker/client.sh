@@ -113,6 +113,13 @@ printf '%s\n' "$out" | grep -Eq "^job j[0-9a-f]{16}: running$" ||
     fail "submit --wait: no 'running' line: $out"
 check 0 '"state"' "$bin" submit "$tmp/ok.json" --wait --json $b
 [ "$(get state)" = succeeded ] || fail "submit --wait --json: state $(get state)"
+# --out waits and downloads the result: the files `result` lists, and with
+# --json stdout is the job document alone.
+check 0 "^$tmp/res/w/report\\.json \\([0-9]+ bytes\\)" "$bin" submit "$tmp/ok.json" --out "$tmp/res/w" $b
+[ -s "$tmp/res/w/report.json" ] || fail "submit --out: no report.json in $tmp/res/w"
+check 0 '"state"' "$bin" submit "$tmp/ok.json" --out "$tmp/res/wj" --json $b
+[ "$(get state)" = succeeded ] || fail "submit --out --json: state $(get state)"
+[ -s "$tmp/res/wj/report.json" ] || fail "submit --out --json: no report.json"
 
 # On a terminal (a pseudo-terminal from script(1), util-linux) --wait draws a
 # progress bar fed by the events instead of the lines.
@@ -179,7 +186,7 @@ check 0 '"mechanisms"' "$bin" market --json $b
 check 0 '"jobs"' "$bin" jobs --json --page 500 $b
 all=$(get jobs)
 total=$(get jobs.#)
-[ "$total" = 7 ] || fail "jobs: $total jobs, expected 7"
+[ "$total" = 9 ] || fail "jobs: $total jobs, expected 9"
 check 0 '"jobs"' "$bin" jobs --json --page 2 $b
 [ "$(get jobs)" = "$all" ] || fail "jobs in pages of 2 differ from one page"
 [ "$(get jobs.0.id)" = "$id1" ] || fail "jobs: first is $(get jobs.0.id), expected $id1"
@@ -187,14 +194,14 @@ check 0 '"jobs"' "$bin" jobs --json --limit 3 --page 2 $b
 [ "$(get jobs.#)" = 3 ] || fail "jobs --limit 3: $(get jobs.#) jobs"
 check 0 '"jobs"' "$bin" jobs --json --state cancelled $b
 [ "$(get jobs.#)" = 1 ] && [ "$(get jobs.0.id)" = "$hold" ] || fail "jobs --state cancelled: $out"
-check 0 "^7 jobs$" "$bin" jobs $b
+check 0 "^9 jobs$" "$bin" jobs $b
 
 # The broker from the environment, then from the local grid's state file.
-check 0 "^7 jobs$" env BIOTGRID_BROKER="http://127.0.0.1:$main_port" "$bin" jobs
+check 0 "^9 jobs$" env BIOTGRID_BROKER="http://127.0.0.1:$main_port" "$bin" jobs
 mkdir -p "$tmp/grid"
 printf '{"name": "local", "broker": {"url": "http://127.0.0.1:%s"}, "agents": []}\n' \
     "$main_port" >"$tmp/grid/grid.json"
-check 0 "^7 jobs$" env -u BIOTGRID_BROKER BIOTGRID_GRID_DIR="$tmp/grid" "$bin" jobs
+check 0 "^9 jobs$" env -u BIOTGRID_BROKER BIOTGRID_GRID_DIR="$tmp/grid" "$bin" jobs
 
 # An oversized body: 413 from a host with a small cap.
 start_host small --max-body 300
