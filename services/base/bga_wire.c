@@ -6,8 +6,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bg_mesh.h"
-
 static const uint8_t MAGIC[4] = {'b', 'g', 'w', 'p'};
 
 enum { KIND_I64 = 1, KIND_F64 = 2 };
@@ -87,9 +85,9 @@ static const field_spec ack_fields[] = {I64F("type", 0, 65535)};
 
 static const field_spec rs_fields[] = {I64F("dim", 2, 3),
                                        I64F("nodes_per_element", 3, 4),
-                                       I64F("vertices", 1, BG_MESH_MAX_VERTICES),
-                                       I64F("elements", 1, BG_MESH_MAX_ELEMENTS),
-                                       I64F("global_vertices", 1, BG_MESH_MAX_VERTICES),
+                                       I64F("vertices", 1, BGA_WIRE_MAX_VERTICES),
+                                       I64F("elements", 1, BGA_WIRE_MAX_ELEMENTS),
+                                       I64F("global_vertices", 1, BGA_WIRE_MAX_VERTICES),
                                        F64F("mu", 0.0, 1e300),
                                        F64F("lambda", -1e300, 1e300),
                                        F64F("barrier", 0.0, 1e300),
@@ -132,7 +130,7 @@ static const array_spec sr_arrays[] = {F64FREE("rhs", 1)};
 static const field_spec sx_fields[] = {F64F("seconds", 0.0, 1e300)};
 static const array_spec sx_arrays[] = {F64FREE("x", 0)};
 
-static const field_spec is_fields[] = {I64F("dim", 2, 3), I64F("vertices", 1, BG_MESH_MAX_VERTICES),
+static const field_spec is_fields[] = {I64F("dim", 2, 3), I64F("vertices", 1, BGA_WIRE_MAX_VERTICES),
                                        F64F("h", 0.0, 1e6), F64F("damping", 0.0, 1e6),
                                        I64F("lease_ms", 0, LEASE_MAX_MS)};
 static const array_spec is_arrays[] = {

@@ -46,6 +46,11 @@
 #define BGA_WIRE_MAX_FRAME_BYTES ((size_t)256 << 20)
 #define BGA_WIRE_MAX_MESSAGE_BYTES ((size_t)1 << 30)
 #define BGA_WIRE_MAX_TEXT 4096
+/* Mesh sizes a message may describe: the engine's caps (BG_MESH_MAX_VERTICES,
+ * BG_MESH_MAX_ELEMENTS in bg_mesh.h; a test checks they agree), repeated
+ * here so the codec needs no engine header. */
+#define BGA_WIRE_MAX_VERTICES 50000000
+#define BGA_WIRE_MAX_ELEMENTS 200000000
 
 typedef enum bga_type {
     BGA_HEARTBEAT = 0x0001,      /* ping, and the agent's status as the pong */
