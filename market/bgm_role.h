@@ -150,6 +150,28 @@ typedef struct bgm_rm_rpart {
     double quantity, duration, rate, buyer_limit, start;
 } bgm_rm_rpart_t;
 
+/* The payload of a message, by type. */
+typedef union bgm_role_payload {
+    bgm_rm_bid_t bid;
+    bgm_rm_ask_t ask;
+    bgm_rm_match_t match;
+    bgm_rm_rbid_t rbid;
+    bgm_rm_rask_t rask;
+    bgm_rm_rfree_t rfree;
+    bgm_rm_raward_t raward;
+    bgm_rm_rconfirm_t rconfirm;
+    bgm_rm_confirm_t confirm;
+    bgm_rm_cfp_t cfp;
+    bgm_rm_propose_t propose;
+    bgm_rm_price_t price; /* OFFER, ACCEPT */
+    bgm_rm_genes_t genes;
+    bgm_rm_query_t query;
+    bgm_rm_list_t list;
+    bgm_rm_order_t order;
+    bgm_rm_avail_t avail;
+    bgm_rm_rpart_t rpart;
+} bgm_role_payload_t;
+
 /* One message between roles: header (who, about which request) + payload. */
 typedef struct bgm_role_msg {
     uint16_t type; /* bgm_role_msg_type */
@@ -157,26 +179,7 @@ typedef struct bgm_role_msg {
     uint32_t req;     /* the request this message is about (sender's numbering) */
     uint32_t attempt; /* stale attempts are ignored */
     uint64_t job;     /* live grid: the broker's job id; 0 in the simulator */
-    union {
-        bgm_rm_bid_t bid;
-        bgm_rm_ask_t ask;
-        bgm_rm_match_t match;
-        bgm_rm_rbid_t rbid;
-        bgm_rm_rask_t rask;
-        bgm_rm_rfree_t rfree;
-        bgm_rm_raward_t raward;
-        bgm_rm_rconfirm_t rconfirm;
-        bgm_rm_confirm_t confirm;
-        bgm_rm_cfp_t cfp;
-        bgm_rm_propose_t propose;
-        bgm_rm_price_t price; /* OFFER, ACCEPT */
-        bgm_rm_genes_t genes;
-        bgm_rm_query_t query;
-        bgm_rm_list_t list;
-        bgm_rm_order_t order;
-        bgm_rm_avail_t avail;
-        bgm_rm_rpart_t rpart;
-    } u;
+    bgm_role_payload_t u;
 } bgm_role_msg_t;
 
 /* How a role emits: messages (copied by the host) and its own timers. */
@@ -186,7 +189,7 @@ typedef struct bgm_role_sink {
     void (*timer)(void *ctx, uint32_t self, double at, int kind, uint64_t arg);
 } bgm_role_sink_t;
 
-typedef struct bgm_role bgm_role_t;
+typedef struct bgm_role_machine bgm_role_t;
 
 /* ------------------------------------------------------------ parameters */
 

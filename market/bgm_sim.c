@@ -118,8 +118,11 @@ static int run_child(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_
     double end_time = 0.0;
     if (o->inprocess) {
         bgm_evq_stats_t es;
-        st = bgm_evq_run_world(w, cfg->network.latency * 2.0, cfg->network.bandwidth, &es);
-        if (st)
+        if (o->wire)
+            st = bgm_evq_run_world_wire(w, cfg->network.latency * 2.0, cfg->network.bandwidth,
+                                        &es, &err);
+        else if ((st = bgm_evq_run_world(w, cfg->network.latency * 2.0, cfg->network.bandwidth,
+                                         &es)))
             bg_error_set(&err, st, "simulation failed: %s", bg_strerror(st));
         messages = es.messages;
         end_time = es.end_time;
