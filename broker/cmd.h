@@ -29,7 +29,8 @@ int bg_cmd_mesh_path_finish(char *buf, size_t size);
     "  The public meshes the shipped scenes use are listed in README.md (\"Meshes\"). Put "    \
     "them in a folder\n  and pass --mesh-path DIR or set " BG_CMD_MESH_PATH_ENV "=DIR.\n"
 
-/* mkdir -p: creates path and its missing parents (mode 0755); -1 on failure (errno set). */
+/* mkdir -p (bg_file_make_directories): creates path and its missing parents (mode
+ * 0755); -1 on failure (errno set). */
 int bg_cmd_make_directories(const char *path);
 
 #endif

@@ -24,9 +24,12 @@ const char bg_cmd_sim_usage[] =
     "  --out DIR                   output folder (default out/sim/<experiment name>)\n"
     "  --jobs N                    runs at a time, 1 to 256 (default 1); each run is\n"
     "                              its own process\n"
-    "  --engine simgrid|inprocess  simgrid (default): the platform's latency, bandwidth\n"
+    "  --engine simgrid|inprocess|wire\n"
+    "                              simgrid (default): the platform's latency, bandwidth\n"
     "                              and contention; inprocess: the same world on a\n"
-    "                              fixed-latency event queue (a cross-check)\n"
+    "                              fixed-latency event queue (a cross-check); wire:\n"
+    "                              inprocess with every message encoded and decoded by\n"
+    "                              the wire codec (same output files as inprocess)\n"
     "  --timing                    per run on stderr: wall time, messages, messages\n"
     "                              per second, peak memory (never in the outputs)\n"
     "  --quiet                     no progress bar or summary lines\n"
@@ -81,10 +84,14 @@ static int parse_args(int argc, char **argv, args_t *a)
             a->run.jobs = (int)v;
         } else if (strcmp(s, "--engine") == 0) {
             const char *e = argv[++i];
+            a->run.inprocess = a->run.wire = 0;
             if (strcmp(e, "inprocess") == 0) {
                 a->run.inprocess = 1;
+            } else if (strcmp(e, "wire") == 0) {
+                a->run.inprocess = a->run.wire = 1;
             } else if (strcmp(e, "simgrid") != 0) {
-                fprintf(stderr, "biotgrid sim: --engine '%s' must be simgrid or inprocess\n", e);
+                fprintf(stderr, "biotgrid sim: --engine '%s' must be simgrid, inprocess or wire\n",
+                        e);
                 return -1;
             }
         } else if (strcmp(s, "--timing") == 0) {

@@ -7,7 +7,7 @@
 #include <string.h>
 
 #include "bg_json.h"
-#include "bg_mesh_io.h"
+#include "bg_file.h"
 
 const char *const bgm_service_names[BGM_SERVICE_TYPES] = {"rotation-fit", "sparse-solve",
                                                           "integration-step"};

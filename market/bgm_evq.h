@@ -28,6 +28,13 @@ typedef struct bgm_evq_stats {
 /* Runs the world from time 0 to its horizon. */
 bg_status bgm_evq_run_world(bgm_world_t *w, double latency, double bandwidth,
                             bgm_evq_stats_t *stats);
+/* The same, with every message encoded and decoded by bgm_codec between
+ * sender and receiver (`biotgrid sim --engine wire`): the receiver sees
+ * only what the wire carries, so the outputs equal bgm_evq_run_world's
+ * exactly when the codec loses nothing. A message the codec refuses stops
+ * the run with BG_ERR_INVALID, described in *err (may be NULL). */
+bg_status bgm_evq_run_world_wire(bgm_world_t *w, double latency, double bandwidth,
+                                 bgm_evq_stats_t *stats, bg_error_t *err);
 
 /* A bare queue for driving hand-written state machines in tests: the sink
  * pushes into the heap with the given fixed delay. Caller owns the heap. */

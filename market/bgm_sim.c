@@ -8,13 +8,13 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/resource.h>
-#include <sys/stat.h>
 #include <sys/types.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "bg_error.h"
+#include "bg_file.h"
 #include "bgm_config.h"
 #include "bgm_evq.h"
 #include "bgm_platform.h"
@@ -40,23 +40,6 @@ static void part_path(char *buf, size_t n, const char *out, const run_id_t *r, c
 {
     snprintf(buf, n, "%s/.parts/s%03d_m%d_r%03d.%s", out, r->scenario, r->mechanism,
              r->replication, ext);
-}
-
-static int make_dirs(const char *path)
-{
-    char tmp[2 * BGM_PATH_MAX];
-    snprintf(tmp, sizeof tmp, "%s", path);
-    for (char *p = tmp + 1; *p; p++) {
-        if (*p != '/')
-            continue;
-        *p = '\0';
-        if (mkdir(tmp, 0755) != 0 && errno != EEXIST)
-            return -1;
-        *p = '/';
-    }
-    if (mkdir(tmp, 0755) != 0 && errno != EEXIST)
-        return -1;
-    return 0;
 }
 
 /* ------------------------------------------------------------ child side */
@@ -135,8 +118,11 @@ static int run_child(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_
     double end_time = 0.0;
     if (o->inprocess) {
         bgm_evq_stats_t es;
-        st = bgm_evq_run_world(w, cfg->network.latency * 2.0, cfg->network.bandwidth, &es);
-        if (st)
+        if (o->wire)
+            st = bgm_evq_run_world_wire(w, cfg->network.latency * 2.0, cfg->network.bandwidth,
+                                        &es, &err);
+        else if ((st = bgm_evq_run_world(w, cfg->network.latency * 2.0, cfg->network.bandwidth,
+                                         &es)))
             bg_error_set(&err, st, "simulation failed: %s", bg_strerror(st));
         messages = es.messages;
         end_time = es.end_time;
@@ -718,7 +704,7 @@ bg_status bgm_sim_run(const bgm_config_t *cfg, bgm_sim_options_t *o,
         snprintf(o->out, sizeof o->out, "out/sim/%s", cfg->name);
     char parts[BGM_PATH_MAX + 256];
     snprintf(parts, sizeof parts, "%s/.parts", o->out);
-    if (make_dirs(parts))
+    if (bg_file_make_directories(parts))
         return bg_error_set(err, BG_ERR_IO, "%s: cannot create the output folder: %s", o->out,
                             strerror(errno));
     runs = malloc((size_t)total * sizeof *runs);

@@ -24,6 +24,8 @@ typedef struct bgm_sim_options {
     char out[BGM_PATH_MAX]; /* output folder; "" means out/sim/<config name> (filled in) */
     int jobs;               /* runs at a time, 1..BGM_SIM_MAX_JOBS */
     int inprocess;          /* 1: the in-process engine instead of SimGrid */
+    int wire;               /* with inprocess: every message through bgm_codec; the
+                             * outputs (summary "engine" included) equal inprocess's */
 } bgm_sim_options_t;
 
 /* One finished run, for the observer. Wall time, messages and peak

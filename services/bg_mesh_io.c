@@ -27,7 +27,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 
 /* Longest numeric token accepted (%.17g needs at most 24 characters). */
 #define NUMBER_MAX_CHARS 128
@@ -43,8 +42,6 @@
 #define WRITE_BUFFER_BYTES ((size_t)1 << 20)
 /* First capacity of a growing list; it doubles from there. */
 #define LIST_FIRST_CAPACITY 1024
-/* Initial buffer for reading a file whose size stat cannot tell. */
-#define READ_CHUNK_BYTES ((size_t)1 << 16)
 /* Relative tolerance of bg_mesh_to_planar (see the header). */
 #define PLANAR_TOLERANCE 1e-12
 /* Exact round trips need 17 significant digits. */
@@ -2677,86 +2674,5 @@ bg_status bg_selection_read(const char *path, int32_t nv, int32_t *labels, bg_er
     if (st == BG_OK)
         st = bg_selection_parse(text, length, path, nv, labels, err);
     free(text);
-    return st;
-}
-
-bg_status bg_file_read_all(const char *path, size_t max_bytes, char **text, size_t *length,
-                           bg_error_t *err)
-{
-    FILE *f = NULL;
-    char *buf = NULL;
-    size_t n = 0, cap = READ_CHUNK_BYTES;
-    struct stat info;
-    bg_status st = BG_OK;
-    *text = NULL;
-    *length = 0;
-    if (!path)
-        return bg_error_set(err, BG_ERR_INVALID, "bg_file_read_all: NULL path");
-    /* Keeps max_bytes + 1 (the NUL) and the doubling below from overflowing. */
-    if (max_bytes > SIZE_MAX / 4)
-        max_bytes = SIZE_MAX / 4;
-    f = fopen(path, "rb");
-    if (!f)
-        return bg_error_set(err, BG_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
-    if (fstat(fileno(f), &info) == 0) {
-        if (S_ISDIR(info.st_mode)) {
-            st = bg_error_set(err, BG_ERR_IO, "%s: is a directory", path);
-            goto out;
-        }
-        /* A regular file's size is known: refuse early, allocate once. */
-        if (S_ISREG(info.st_mode)) {
-            if ((uint64_t)info.st_size > (uint64_t)max_bytes) {
-                st = bg_error_set(err, BG_ERR_LIMIT, "%s: %lld bytes exceed the limit of %zu bytes",
-                                  path, (long long)info.st_size, max_bytes);
-                goto out;
-            }
-            cap = (size_t)info.st_size + 1;
-        }
-    }
-    if (cap > max_bytes + 1)
-        cap = max_bytes + 1;
-    buf = malloc(cap);
-    if (!buf) {
-        st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory reading %zu bytes", path, cap);
-        goto out;
-    }
-    for (;;) {
-        if (n == cap - 1) {
-            /* Full: only grow when there is more to read. */
-            int c = fgetc(f);
-            if (c == EOF)
-                break;
-            if (n >= max_bytes) {
-                st = bg_error_set(err, BG_ERR_LIMIT, "%s: longer than the limit of %zu bytes", path,
-                                  max_bytes);
-                goto out;
-            }
-            size_t grown = cap > (max_bytes + 1) / 2 ? max_bytes + 1 : 2 * cap;
-            char *p = realloc(buf, grown);
-            if (!p) {
-                st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory reading %zu bytes", path,
-                                  grown);
-                goto out;
-            }
-            buf = p;
-            cap = grown;
-            buf[n++] = (char)c;
-        }
-        size_t got = fread(buf + n, 1, cap - 1 - n, f);
-        n += got;
-        if (got == 0 && n < cap - 1)
-            break;
-    }
-    if (ferror(f)) {
-        st = bg_error_set(err, BG_ERR_IO, "%s: read failed: %s", path, strerror(errno));
-        goto out;
-    }
-    buf[n] = '\0';
-    *text = buf;
-    *length = n;
-    buf = NULL;
-out:
-    free(buf);
-    fclose(f);
     return st;
 }

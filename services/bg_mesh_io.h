@@ -30,6 +30,7 @@
 #include <stdint.h>
 
 #include "bg_error.h"
+#include "bg_file.h" /* bg_file_read_all, for the readers' callers */
 #include "bg_mesh.h"
 
 /* Mesh files larger than this are refused before reading. */
@@ -129,12 +130,5 @@ bg_status bg_positions_read(const char *path, int32_t nv, int dim, double *out, 
 bg_status bg_selection_parse(const char *text, size_t length, const char *name, int32_t nv,
                              int32_t *labels, bg_error_t *err);
 bg_status bg_selection_read(const char *path, int32_t nv, int32_t *labels, bg_error_t *err);
-
-/*
- * Reads a whole file into a NUL-terminated buffer of at most max_bytes.
- * Caller frees *text. Messages name the path and the OS error.
- */
-bg_status bg_file_read_all(const char *path, size_t max_bytes, char **text, size_t *length,
-                           bg_error_t *err);
 
 #endif

@@ -9,6 +9,10 @@
 #                speeds set the run times.
 #   audit-detects: the audit fails on a doctored log (a double purchase,
 #                a memory part shorter than its service).
+#   wire:        smoke.json and a shortened shock.json (one replication, the
+#                shock kept) under --engine inprocess and --engine wire: every
+#                output file equal byte for byte (cmp), and the audit (AUDIT)
+#                holds for both.
 #   call-audit:  smoke.json's central market with per-type call markets for
 #                the resources, on SimGrid; the audit (market_audit, AUDIT)
 #                must hold and bundles must have been rented.
@@ -161,6 +165,31 @@ call-audit)
         echo "FAIL: the combinatorial exchange ran in call mode"; exit 1
     fi
     echo "call-audit: ok"
+    ;;
+wire)
+    AUDIT=$5
+    sed -e 's/"replications": *[0-9]*/"replications": 1/' \
+        -e 's/"duration": *[0-9]*/"duration": 360/' \
+        "$SRC/configs/experiments/shock.json" > "$WORK/shock-short.json"
+    grep -q '"shock"' "$WORK/shock-short.json" || { echo "FAIL: the shortened shock lost its shock"; exit 1; }
+    for exp in "$SMOKE" "$WORK/shock-short.json"; do
+        name=$(basename "$exp" .json)
+        rm -rf "$WORK/$name-inprocess" "$WORK/$name-wire"
+        "$BIN" sim "$exp" --out "$WORK/$name-inprocess" --engine inprocess --jobs 2 --quiet
+        "$BIN" sim "$exp" --out "$WORK/$name-wire" --engine wire --jobs 2 --quiet
+        n=0
+        for f in "$WORK/$name-inprocess"/*; do
+            b=$(basename "$f")
+            cmp "$f" "$WORK/$name-wire/$b" || { echo "FAIL: $name: $b differs between engines"; exit 1; }
+            n=$((n + 1))
+        done
+        m=$(ls "$WORK/$name-wire" | wc -l)
+        [ "$n" -eq "$m" ] || { echo "FAIL: $name: $n files inprocess, $m wire"; exit 1; }
+        [ "$n" -ge 5 ] || { echo "FAIL: $name: only $n output files"; exit 1; }
+        "$AUDIT" "$WORK/$name-inprocess"
+        "$AUDIT" "$WORK/$name-wire"
+        echo "wire: $name: $n files identical, audit ok"
+    done
     ;;
 *)
     echo "unknown case $CASE"; exit 2 ;;

@@ -6,8 +6,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bg_mesh.h"
-
 static const uint8_t MAGIC[4] = {'b', 'g', 'w', 'p'};
 
 enum { KIND_I64 = 1, KIND_F64 = 2 };
@@ -87,9 +85,9 @@ static const field_spec ack_fields[] = {I64F("type", 0, 65535)};
 
 static const field_spec rs_fields[] = {I64F("dim", 2, 3),
                                        I64F("nodes_per_element", 3, 4),
-                                       I64F("vertices", 1, BG_MESH_MAX_VERTICES),
-                                       I64F("elements", 1, BG_MESH_MAX_ELEMENTS),
-                                       I64F("global_vertices", 1, BG_MESH_MAX_VERTICES),
+                                       I64F("vertices", 1, BGA_WIRE_MAX_VERTICES),
+                                       I64F("elements", 1, BGA_WIRE_MAX_ELEMENTS),
+                                       I64F("global_vertices", 1, BGA_WIRE_MAX_VERTICES),
                                        F64F("mu", 0.0, 1e300),
                                        F64F("lambda", -1e300, 1e300),
                                        F64F("barrier", 0.0, 1e300),
@@ -132,7 +130,7 @@ static const array_spec sr_arrays[] = {F64FREE("rhs", 1)};
 static const field_spec sx_fields[] = {F64F("seconds", 0.0, 1e300)};
 static const array_spec sx_arrays[] = {F64FREE("x", 0)};
 
-static const field_spec is_fields[] = {I64F("dim", 2, 3), I64F("vertices", 1, BG_MESH_MAX_VERTICES),
+static const field_spec is_fields[] = {I64F("dim", 2, 3), I64F("vertices", 1, BGA_WIRE_MAX_VERTICES),
                                        F64F("h", 0.0, 1e6), F64F("damping", 0.0, 1e6),
                                        I64F("lease_ms", 0, LEASE_MAX_MS)};
 static const array_spec is_arrays[] = {
@@ -147,6 +145,37 @@ static const array_spec iu_arrays[] = {F64FREE("q_star", 1), F64FREE("gradient",
 
 static const field_spec it_fields[] = {F64F("kinetic", 0.0, 1e300), I64F("steps", 0, INT64_MAX)};
 static const array_spec it_arrays[] = {F64FREE("q", 1), F64FREE("p", 1)};
+
+/* Market role messages (0x1001..0x1017, bgm_codec): one schema for all.
+ * good −1 is a resource bundle; the numbers may be ±Inf (an unbounded limit
+ * or deadline) but never NaN; candidates are fixed-size arrays so every
+ * type's numbers survive a round trip unchanged. Agent ids stay below
+ * 2^24 (the market caps agents far lower). */
+static const field_spec mk_fields[] = {
+    I64F("good", -1, 4),        I64F("hops", 0, 65535),       I64F("ncand", 0, BGA_MARKET_CANDIDATES),
+    I64F("req", 0, UINT32_MAX), I64F("attempt", 0, UINT32_MAX), I64F("origin", 0, UINT32_MAX),
+    F64ANY("price"),            F64ANY("a"),                  F64ANY("b"),
+    F64ANY("c")};
+static const array_spec mk_arrays[] = {
+    {"cand", BGA_ELEM_I32, 0, BGA_MARKET_CANDIDATES, -1, -1, -1, 0, 0, 0, -1, 0},
+    {"cand_price", BGA_ELEM_F64, 0, BGA_MARKET_CANDIDATES, -1, -1, -1, 0, 1, NO_IDX},
+    {"cand_speed", BGA_ELEM_F64, 0, BGA_MARKET_CANDIDATES, -1, -1, -1, 0, 1, NO_IDX}};
+
+static bga_wire_code check_market(const bga_msg_t *m, bga_wire_error_t *werr)
+{
+    if (m->header.sender > BGA_MARKET_MAX_AGENT || m->header.receiver > BGA_MARKET_MAX_AGENT)
+        return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 0, "receiver",
+                             "sender %llu or receiver %llu is not an agent id (< %d)",
+                             (unsigned long long)m->header.sender,
+                             (unsigned long long)m->header.receiver, BGA_MARKET_MAX_AGENT);
+    for (size_t i = 0; i < m->array[BGA_MK_CAND].count; i++) {
+        int32_t v = bga_msg_i32(m, BGA_MK_CAND, i);
+        if (v < 0 || v > BGA_MARKET_MAX_AGENT)
+            return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 2 + BGA_MK_CAND, "cand",
+                                 "cand[%zu] = %d is not an agent id", i, (int)v);
+    }
+    return BGA_WIRE_OK;
+}
 
 static bga_wire_code check_heartbeat(const bga_msg_t *m, bga_wire_error_t *werr)
 {
@@ -304,6 +333,29 @@ static const schema SCHEMAS[] = {
     SCHEMA(BGA_INTEG_INERTIA, "integ-inertia", ii_fields, ii_arrays, NULL),
     {BGA_INTEG_UPDATE, "integ-update", 0, NULL, 2, iu_arrays, check_integ_update},
     SCHEMA(BGA_INTEG_STATE, "integ-state", it_fields, it_arrays, NULL),
+    SCHEMA(0x1001, "market-bid", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1002, "market-ask", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1003, "market-free", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1004, "market-match", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1005, "market-rbid", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1006, "market-rask", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1007, "market-rfree", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1008, "market-raward", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1009, "market-rfail", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x100a, "market-rconfirm", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x100b, "market-confirm", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x100c, "market-cancel", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x100d, "market-cfp", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x100e, "market-propose", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x100f, "market-offer", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1010, "market-accept", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1011, "market-reject", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1012, "market-genes", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1013, "market-query", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1014, "market-list", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1015, "market-order", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1016, "market-avail", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1017, "market-rpart", mk_fields, mk_arrays, check_market),
 };
 
 static const schema *find_schema(uint16_t type)

@@ -22,7 +22,7 @@
  * checks all of it plus a per-type consistency check, and fails with a
  * bga_wire_error_t naming the frame and field. Types 0x0001–0x00ff are
  * control, 0x01xx rotation-fit, 0x02xx sparse-solve, 0x03xx integration
- * step; 0x10xx–0x1fff are kept for the market roles (next issue).
+ * step; 0x10xx market roles (0x1001–0x1017, bgm_codec).
  *
  * Ownership: a decoded bga_msg_t only points into the caller's frames
  * (valid while they are); nothing is allocated. bga_wire_encode fills a
@@ -46,6 +46,11 @@
 #define BGA_WIRE_MAX_FRAME_BYTES ((size_t)256 << 20)
 #define BGA_WIRE_MAX_MESSAGE_BYTES ((size_t)1 << 30)
 #define BGA_WIRE_MAX_TEXT 4096
+/* Mesh sizes a message may describe: the engine's caps (BG_MESH_MAX_VERTICES,
+ * BG_MESH_MAX_ELEMENTS in bg_mesh.h; a test checks they agree), repeated
+ * here so the codec needs no engine header. */
+#define BGA_WIRE_MAX_VERTICES 50000000
+#define BGA_WIRE_MAX_ELEMENTS 200000000
 
 typedef enum bga_type {
     BGA_HEARTBEAT = 0x0001,      /* ping, and the agent's status as the pong */
@@ -233,6 +238,27 @@ enum { /* INTEG_INERTIA arrays */ BGA_II_Q, BGA_II_PREDICT, BGA_II_NARRAYS };
 enum { /* INTEG_UPDATE arrays */ BGA_IU_QSTAR, BGA_IU_GRAD, BGA_IU_NARRAYS };
 enum { /* INTEG_STATE */ BGA_IT_KINETIC, BGA_IT_STEPS, BGA_IT_NFIELDS };
 enum { /* INTEG_STATE arrays */ BGA_IT_Q, BGA_IT_P, BGA_IT_NARRAYS };
+
+/* Market role messages, types 0x1001..0x1017 (see market/bgm_codec.h for
+ * their meaning): all share one schema. */
+#define BGA_MARKET_FIRST 0x1001
+#define BGA_MARKET_LAST 0x1017
+#define BGA_MARKET_CANDIDATES 8
+#define BGA_MARKET_MAX_AGENT ((1 << 24) - 1)
+enum { /* market */
+       BGA_MK_GOOD,
+       BGA_MK_HOPS,
+       BGA_MK_NCAND,
+       BGA_MK_REQ,
+       BGA_MK_ATTEMPT,
+       BGA_MK_ORIGIN,
+       BGA_MK_PRICE,
+       BGA_MK_A,
+       BGA_MK_B,
+       BGA_MK_C,
+       BGA_MK_NFIELDS
+};
+enum { /* market arrays */ BGA_MK_CAND, BGA_MK_CAND_PRICE, BGA_MK_CAND_SPEED, BGA_MK_NARRAYS };
 
 /* ROTFIT_CALL want bits. */
 #define BGA_WANT_GRADIENT 1

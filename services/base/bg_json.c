@@ -6,7 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bg_mesh_io.h"
+#include "bg_file.h"
 
 /* Objects with more members than this are checked for repeated keys by
  * sorting (n log n) instead of pairwise: a 1 MiB file can hold an object

@@ -1,0 +1,294 @@
+/*
+ * bgm_role — the market's roles as separate sans-I/O state machines that
+ * share no memory: the market agent (central auctioneer and posted-price
+ * directory), the complex-service buyer (one per job), the basic-service
+ * seller (which also buys resources) and the resource seller.
+ *
+ * STATUS (first published version, session 4): this header fixes the API
+ * shape the live grid builds on. The simulator's world (bgm_world.c) still
+ * hosts the roles in one object; messages between them already cross the
+ * typed message below and the pure codec (bgm_codec.h) with
+ * `biotgrid sim --engine wire`. The per-role objects behind this API are
+ * being split out of bgm_world.c; until then the constructors below are
+ * declared but not yet defined by the library.
+ *
+ * A role machine consumes one event at a time — a message delivered to it
+ * or one of its timers firing — at a time given by its host, and emits
+ * messages and timers only through its bgm_role_sink_t. It never reads a
+ * clock, a socket or a file. Every message carries what its receiver
+ * reads (no role reads another's memory), so a role may live in another
+ * process, with the messages carried by bgm_codec over ZeroMQ.
+ *
+ * Ownership: a role machine owns its parameters' copies (arrays in the
+ * params are copied by _new); messages passed to on_message are borrowed
+ * for the call; the sink's send copies what it needs.
+ */
+#ifndef BGM_ROLE_H
+#define BGM_ROLE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "bg_error.h"
+
+/* Goods: the three basic services, then the two resources. */
+#define BGM_GOOD_ROTFIT 0
+#define BGM_GOOD_SOLVE 1
+#define BGM_GOOD_INTEG 2
+#define BGM_GOOD_CORES_ID 3
+#define BGM_GOOD_MEMORY_ID 4
+#define BGM_ROLE_GOODS 5
+
+/* Caps of the variable parts of messages and parameters. */
+#define BGM_ROLE_CANDIDATES 8 /* = BGM_MSG_CANDIDATES */
+#define BGM_ROLE_MAX_NEEDS 16 /* services a buyer buys for one job */
+#define BGM_ROLE_GENES 5
+
+/*
+ * Message types: the wire type is 0x1000 + the simulator's message number
+ * (the same numbers as bgm_world.c's M_* enum), so the simulator's flow
+ * and the live grid's flow are one protocol.
+ */
+typedef enum bgm_role_msg_type {
+    BGM_RM_BID = 0x1001,      /* buyer → market: service bid */
+    BGM_RM_ASK = 0x1002,      /* basic seller → market: reservation, slots */
+    BGM_RM_FREE = 0x1003,     /* basic seller → market: one slot free again */
+    BGM_RM_MATCH = 0x1004,    /* market → basic seller: a matched bid */
+    BGM_RM_RBID = 0x1005,     /* basic seller → market: resource bid */
+    BGM_RM_RASK = 0x1006,     /* resource seller → market: registration */
+    BGM_RM_RFREE = 0x1007,    /* resource seller → market: capacity freed */
+    BGM_RM_RAWARD = 0x1008,   /* market → resource seller: a resource award */
+    BGM_RM_RFAIL = 0x1009,    /* market|resource seller → basic seller: resource failed */
+    BGM_RM_RCONFIRM = 0x100a, /* resource seller → basic seller: resources rented */
+    BGM_RM_CONFIRM = 0x100b,  /* basic seller → buyer: service contract */
+    BGM_RM_CANCEL = 0x100c,   /* basic seller → buyer: agreed service lost its resources */
+    BGM_RM_CFP = 0x100d,      /* call for proposals (catallactic, hop-limited) */
+    BGM_RM_PROPOSE = 0x100e,  /* seller → buyer: opening price */
+    BGM_RM_OFFER = 0x100f,    /* either way: counter-offer */
+    BGM_RM_ACCEPT = 0x1010,   /* either way: price agreed */
+    BGM_RM_REJECT = 0x1011,   /* either way: bargaining ended */
+    BGM_RM_GENES = 0x1012,    /* catallactic learning: strategy genes, fitness */
+    BGM_RM_QUERY = 0x1013,    /* posted: buyer → directory */
+    BGM_RM_LIST = 0x1014,     /* posted: directory → buyer: candidates */
+    BGM_RM_ORDER = 0x1015,    /* posted: buyer → seller at the posted price */
+    BGM_RM_AVAIL = 0x1016,    /* posted: seller → directory: free capacity */
+    BGM_RM_RPART = 0x1017,    /* call markets: market → resource seller, one part */
+    BGM_RM_FIRST = BGM_RM_BID,
+    BGM_RM_LAST = BGM_RM_RPART
+} bgm_role_msg_type;
+
+/* Typed payloads (what the receiver reads; units as in bgm_world.c). */
+typedef struct bgm_rm_bid {
+    int good;
+    double price_per_unit, work, deadline;
+} bgm_rm_bid_t;
+typedef struct bgm_rm_ask {
+    int good;
+    double reservation_per_unit, slots;
+} bgm_rm_ask_t;
+typedef struct bgm_rm_match {
+    int good;
+    uint32_t buyer;
+    double price_per_unit, work, deadline, buyer_valuation;
+} bgm_rm_match_t;
+typedef struct bgm_rm_rbid {
+    double cores, memory, flops, limit_total;
+} bgm_rm_rbid_t;
+typedef struct bgm_rm_rask {
+    double cores, memory, speed, cost_rate_per_core;
+} bgm_rm_rask_t;
+typedef struct bgm_rm_rfree {
+    double cores, memory;
+} bgm_rm_rfree_t;
+typedef struct bgm_rm_raward {
+    uint32_t buyer;
+    double rate, cores, memory, flops, seller_limit;
+} bgm_rm_raward_t;
+typedef struct bgm_rm_rconfirm {
+    int good; /* cores|memory for one part of a call-market bundle, else −1 */
+    int parts;
+    double rate, start, end, seller_limit_rate;
+    double part_quantity, part_buyer_limit, part_seller_cost;
+} bgm_rm_rconfirm_t;
+typedef struct bgm_rm_confirm {
+    double price_per_unit, start, end;
+} bgm_rm_confirm_t;
+typedef struct bgm_rm_cfp {
+    int good, hops;
+    uint32_t origin;
+    double work_or_cores, memory, flops;
+} bgm_rm_cfp_t;
+typedef struct bgm_rm_propose {
+    double price, speed;
+} bgm_rm_propose_t;
+typedef struct bgm_rm_price {
+    double price;
+} bgm_rm_price_t; /* OFFER, ACCEPT (REJECT carries none) */
+typedef struct bgm_rm_genes {
+    double genes[BGM_ROLE_GENES], fitness;
+    int request; /* 1 request, 0 reply */
+} bgm_rm_genes_t;
+typedef struct bgm_rm_query {
+    int good; /* −1: a resource bundle */
+    double limit;
+} bgm_rm_query_t;
+typedef struct bgm_rm_list {
+    int ncand;
+    uint32_t cand[BGM_ROLE_CANDIDATES];
+    double cand_price[BGM_ROLE_CANDIDATES], cand_speed[BGM_ROLE_CANDIDATES];
+} bgm_rm_list_t;
+typedef struct bgm_rm_order {
+    int good;
+    double price, work_or_cores, memory, flops;
+} bgm_rm_order_t;
+typedef struct bgm_rm_avail {
+    double free_a, free_b;
+} bgm_rm_avail_t;
+typedef struct bgm_rm_rpart {
+    int good, parts;
+    uint32_t buyer;
+    double quantity, duration, rate, buyer_limit, start;
+} bgm_rm_rpart_t;
+
+/* The payload of a message, by type. */
+typedef union bgm_role_payload {
+    bgm_rm_bid_t bid;
+    bgm_rm_ask_t ask;
+    bgm_rm_match_t match;
+    bgm_rm_rbid_t rbid;
+    bgm_rm_rask_t rask;
+    bgm_rm_rfree_t rfree;
+    bgm_rm_raward_t raward;
+    bgm_rm_rconfirm_t rconfirm;
+    bgm_rm_confirm_t confirm;
+    bgm_rm_cfp_t cfp;
+    bgm_rm_propose_t propose;
+    bgm_rm_price_t price; /* OFFER, ACCEPT */
+    bgm_rm_genes_t genes;
+    bgm_rm_query_t query;
+    bgm_rm_list_t list;
+    bgm_rm_order_t order;
+    bgm_rm_avail_t avail;
+    bgm_rm_rpart_t rpart;
+} bgm_role_payload_t;
+
+/* One message between roles: header (who, about which request) + payload. */
+typedef struct bgm_role_msg {
+    uint16_t type; /* bgm_role_msg_type */
+    uint32_t from, to;
+    uint32_t req;     /* the request this message is about (sender's numbering) */
+    uint32_t attempt; /* stale attempts are ignored */
+    uint64_t job;     /* live grid: the broker's job id; 0 in the simulator */
+    bgm_role_payload_t u;
+} bgm_role_msg_t;
+
+/* How a role emits: messages (copied by the host) and its own timers. */
+typedef struct bgm_role_sink {
+    void *ctx;
+    void (*send)(void *ctx, const bgm_role_msg_t *msg);
+    void (*timer)(void *ctx, uint32_t self, double at, int kind, uint64_t arg);
+} bgm_role_sink_t;
+
+typedef struct bgm_role_machine bgm_role_t;
+
+/* ------------------------------------------------------------ parameters */
+
+/* One service a buyer needs for its job. */
+typedef struct bgm_role_need {
+    int good;        /* BGM_GOOD_ROTFIT..INTEG */
+    double work;     /* quantity of work (units) */
+    int sellers;     /* how many sellers share it (e.g. rotation fit over 2 agents) */
+} bgm_role_need_t;
+
+typedef struct bgm_buyer_params {
+    uint32_t self;       /* this role's id (address on the wire) */
+    uint32_t market;     /* the market agent's id */
+    uint64_t job;        /* job id */
+    int mechanism;       /* bgm_mechanism */
+    const bgm_role_need_t *needs; /* copied */
+    int nneeds;          /* 1..BGM_ROLE_MAX_NEEDS */
+    double budget;       /* money the job may spend (its valuation) */
+    double deadline;     /* absolute time by which every need is bought */
+    const uint32_t *neighbours; /* catallactic: overlay neighbours (copied) */
+    int nneighbours;
+    int hops;            /* catallactic: CFP hop limit */
+} bgm_buyer_params_t;
+
+/* A buyer's outcome once it has ended. */
+typedef enum bgm_buyer_state {
+    BGM_BUYER_RUNNING = 0,
+    BGM_BUYER_DONE = 1,   /* every need has a contract */
+    BGM_BUYER_FAILED = 2, /* see reason */
+} bgm_buyer_state;
+
+typedef struct bgm_award {
+    int good;
+    uint32_t seller;
+    double quantity, price_per_unit, start, end;
+} bgm_award_t;
+
+typedef struct bgm_buyer_outcome {
+    bgm_buyer_state state;
+    const char *reason; /* "budget", "no seller", "timeout"; NULL when not failed */
+    const bgm_award_t *awards; /* borrowed, valid until the role is destroyed */
+    int nawards;
+    double spent;
+} bgm_buyer_outcome_t;
+
+typedef struct bgm_price_policy {
+    double floor;       /* cost of the resources one unit needs (money/unit) */
+    double margin;      /* relative markup over the floor */
+    double load_slope;  /* price rises by floor*load_slope*(used/slots) */
+} bgm_price_policy_t;
+
+typedef struct bgm_basic_params {
+    uint32_t self, market;
+    int mechanism;
+    int sells[3];       /* 1 if it sells that service good */
+    int slots;          /* concurrent contracts it can serve */
+    bgm_price_policy_t policy[3];
+    double cores_per_slot, memory_per_slot;
+    double speed;       /* units of work per second per slot */
+    const uint32_t *neighbours; /* catallactic overlay (copied) */
+    int nneighbours;
+} bgm_basic_params_t;
+
+typedef struct bgm_resource_params {
+    uint32_t self, market;
+    int mechanism;
+    double cores, memory;        /* of its host */
+    double price_per_core_second;
+    double price_per_memory_second;
+    double speed;                /* flops per core */
+} bgm_resource_params_t;
+
+typedef struct bgm_market_params {
+    uint32_t self;
+    int mechanism;               /* bgm_mechanism: central or posted directory */
+    double period;               /* call-market clearing period (s) */
+    int candidates;              /* posted: candidates per list (≤ BGM_ROLE_CANDIDATES) */
+} bgm_market_params_t;
+
+/* ------------------------------------------------------------ machines */
+
+/* Constructors (NULL on failure, err set; invalid params: BG_ERR_INVALID
+ * naming the field). */
+bgm_role_t *bgm_role_buyer_new(const bgm_buyer_params_t *p, bg_error_t *err);
+bgm_role_t *bgm_role_basic_new(const bgm_basic_params_t *p, bg_error_t *err);
+bgm_role_t *bgm_role_resource_new(const bgm_resource_params_t *p, bg_error_t *err);
+bgm_role_t *bgm_role_market_new(const bgm_market_params_t *p, bg_error_t *err);
+void bgm_role_destroy(bgm_role_t **r);
+
+/* Emits the role's first messages and timers. The sink is copied. */
+bg_status bgm_role_start(bgm_role_t *r, const bgm_role_sink_t *sink, double now);
+/* Delivers one message addressed to this role (borrowed). */
+bg_status bgm_role_on_message(bgm_role_t *r, const bgm_role_msg_t *msg, double now);
+/* Fires one of this role's timers. */
+bg_status bgm_role_on_timer(bgm_role_t *r, int kind, uint64_t arg, double now);
+
+/* Buyer only: its outcome so far (BG_ERR_INVALID for another role). */
+bg_status bgm_role_buyer_outcome(const bgm_role_t *r, bgm_buyer_outcome_t *out);
+/* Basic or resource seller: releases what a job's contract held. */
+bg_status bgm_role_release(bgm_role_t *r, uint32_t req, double now);
+
+#endif

@@ -1,0 +1,122 @@
+#include "bg_file.h"
+
+#include <errno.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/types.h>
+
+/* Initial buffer for reading a file whose size stat cannot tell. */
+#define READ_CHUNK_BYTES ((size_t)1 << 16)
+#define PATH_BYTES 4096
+
+int bg_file_make_directories(const char *path)
+{
+    char buf[PATH_BYTES];
+    size_t len = path ? strlen(path) : 0;
+    if (len == 0 || len >= sizeof buf) {
+        errno = len == 0 ? ENOENT : ENAMETOOLONG;
+        return -1;
+    }
+    memcpy(buf, path, len + 1);
+    for (size_t i = 1; i <= len; i++) {
+        if (buf[i] == '/' || buf[i] == '\0') {
+            char saved = buf[i];
+            buf[i] = '\0';
+            if (mkdir(buf, 0755) != 0 && errno != EEXIST)
+                return -1;
+            buf[i] = saved;
+        }
+    }
+    struct stat st;
+    if (stat(path, &st) != 0)
+        return -1;
+    if (!S_ISDIR(st.st_mode)) {
+        errno = ENOTDIR;
+        return -1;
+    }
+    return 0;
+}
+
+bg_status bg_file_read_all(const char *path, size_t max_bytes, char **text, size_t *length,
+                           bg_error_t *err)
+{
+    FILE *f = NULL;
+    char *buf = NULL;
+    size_t n = 0, cap = READ_CHUNK_BYTES;
+    struct stat info;
+    bg_status st = BG_OK;
+    *text = NULL;
+    *length = 0;
+    if (!path)
+        return bg_error_set(err, BG_ERR_INVALID, "bg_file_read_all: NULL path");
+    /* Keeps max_bytes + 1 (the NUL) and the doubling below from overflowing. */
+    if (max_bytes > SIZE_MAX / 4)
+        max_bytes = SIZE_MAX / 4;
+    f = fopen(path, "rb");
+    if (!f)
+        return bg_error_set(err, BG_ERR_IO, "%s: cannot open: %s", path, strerror(errno));
+    if (fstat(fileno(f), &info) == 0) {
+        if (S_ISDIR(info.st_mode)) {
+            st = bg_error_set(err, BG_ERR_IO, "%s: is a directory", path);
+            goto out;
+        }
+        /* A regular file's size is known: refuse early, allocate once. */
+        if (S_ISREG(info.st_mode)) {
+            if ((uint64_t)info.st_size > (uint64_t)max_bytes) {
+                st = bg_error_set(err, BG_ERR_LIMIT, "%s: %lld bytes exceed the limit of %zu bytes",
+                                  path, (long long)info.st_size, max_bytes);
+                goto out;
+            }
+            cap = (size_t)info.st_size + 1;
+        }
+    }
+    if (cap > max_bytes + 1)
+        cap = max_bytes + 1;
+    buf = malloc(cap);
+    if (!buf) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory reading %zu bytes", path, cap);
+        goto out;
+    }
+    for (;;) {
+        if (n == cap - 1) {
+            /* Full: only grow when there is more to read. */
+            int c = fgetc(f);
+            if (c == EOF)
+                break;
+            if (n >= max_bytes) {
+                st = bg_error_set(err, BG_ERR_LIMIT, "%s: longer than the limit of %zu bytes", path,
+                                  max_bytes);
+                goto out;
+            }
+            size_t grown = cap > (max_bytes + 1) / 2 ? max_bytes + 1 : 2 * cap;
+            char *p = realloc(buf, grown);
+            if (!p) {
+                st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory reading %zu bytes", path,
+                                  grown);
+                goto out;
+            }
+            buf = p;
+            cap = grown;
+            buf[n++] = (char)c;
+        }
+        size_t got = fread(buf + n, 1, cap - 1 - n, f);
+        n += got;
+        if (got == 0 && n < cap - 1)
+            break;
+    }
+    if (ferror(f)) {
+        st = bg_error_set(err, BG_ERR_IO, "%s: read failed: %s", path, strerror(errno));
+        goto out;
+    }
+    buf[n] = '\0';
+    *text = buf;
+    *length = n;
+    buf = NULL;
+out:
+    free(buf);
+    fclose(f);
+    return st;
+}
