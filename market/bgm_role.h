@@ -1,27 +1,20 @@
 /*
- * bgm_role — the market's roles as separate sans-I/O state machines that
- * share no memory: the market agent (central auctioneer and posted-price
- * directory), the complex-service buyer (one per job), the basic-service
- * seller (which also buys resources) and the resource seller.
+ * bgm_role — the typed messages between the market's roles: the market
+ * agent (central auctioneer and posted-price directory), the
+ * complex-service buyer (one per job), the basic-service seller (which
+ * also buys resources) and the resource seller.
  *
- * STATUS (first published version, session 4): this header fixes the API
- * shape the live grid builds on. The simulator's world (bgm_world.c) still
- * hosts the roles in one object; messages between them already cross the
- * typed message below and the pure codec (bgm_codec.h) with
- * `biotgrid sim --engine wire`. The per-role objects behind this API are
- * being split out of bgm_world.c; until then the constructors below are
- * declared but not yet defined by the library.
+ * Status: the simulator's world (bgm_world.c) still hosts the four roles
+ * in one object; the messages between them cross the typed message below
+ * and the pure codec (bgm_codec.h) with `biotgrid sim --engine wire`. One
+ * state machine per role (constructors, start/on_message/on_timer over a
+ * sink) is the next step; market/README.md says what of the split is left.
  *
- * A role machine consumes one event at a time — a message delivered to it
- * or one of its timers firing — at a time given by its host, and emits
- * messages and timers only through its bgm_role_sink_t. It never reads a
- * clock, a socket or a file. Every message carries what its receiver
- * reads (no role reads another's memory), so a role may live in another
- * process, with the messages carried by bgm_codec over ZeroMQ.
- *
- * Ownership: a role machine owns its parameters' copies (arrays in the
- * params are copied by _new); messages passed to on_message are borrowed
- * for the call; the sink's send copies what it needs.
+ * The payloads are meant to carry everything a receiver reads, so that a
+ * role can live in another process with its messages carried by bgm_codec
+ * over ZeroMQ; today's world still reads some records of the sender
+ * directly (market/README.md lists where). Messages are plain data,
+ * copied by value.
  */
 #ifndef BGM_ROLE_H
 #define BGM_ROLE_H
@@ -41,7 +34,6 @@
 
 /* Caps of the variable parts of messages and parameters. */
 #define BGM_ROLE_CANDIDATES 8 /* = BGM_MSG_CANDIDATES */
-#define BGM_ROLE_MAX_NEEDS 16 /* services a buyer buys for one job */
 #define BGM_ROLE_GENES 5
 
 /*
@@ -181,114 +173,5 @@ typedef struct bgm_role_msg {
     uint64_t job;     /* live grid: the broker's job id; 0 in the simulator */
     bgm_role_payload_t u;
 } bgm_role_msg_t;
-
-/* How a role emits: messages (copied by the host) and its own timers. */
-typedef struct bgm_role_sink {
-    void *ctx;
-    void (*send)(void *ctx, const bgm_role_msg_t *msg);
-    void (*timer)(void *ctx, uint32_t self, double at, int kind, uint64_t arg);
-} bgm_role_sink_t;
-
-typedef struct bgm_role_machine bgm_role_t;
-
-/* ------------------------------------------------------------ parameters */
-
-/* One service a buyer needs for its job. */
-typedef struct bgm_role_need {
-    int good;        /* BGM_GOOD_ROTFIT..INTEG */
-    double work;     /* quantity of work (units) */
-    int sellers;     /* how many sellers share it (e.g. rotation fit over 2 agents) */
-} bgm_role_need_t;
-
-typedef struct bgm_buyer_params {
-    uint32_t self;       /* this role's id (address on the wire) */
-    uint32_t market;     /* the market agent's id */
-    uint64_t job;        /* job id */
-    int mechanism;       /* bgm_mechanism */
-    const bgm_role_need_t *needs; /* copied */
-    int nneeds;          /* 1..BGM_ROLE_MAX_NEEDS */
-    double budget;       /* money the job may spend (its valuation) */
-    double deadline;     /* absolute time by which every need is bought */
-    const uint32_t *neighbours; /* catallactic: overlay neighbours (copied) */
-    int nneighbours;
-    int hops;            /* catallactic: CFP hop limit */
-} bgm_buyer_params_t;
-
-/* A buyer's outcome once it has ended. */
-typedef enum bgm_buyer_state {
-    BGM_BUYER_RUNNING = 0,
-    BGM_BUYER_DONE = 1,   /* every need has a contract */
-    BGM_BUYER_FAILED = 2, /* see reason */
-} bgm_buyer_state;
-
-typedef struct bgm_award {
-    int good;
-    uint32_t seller;
-    double quantity, price_per_unit, start, end;
-} bgm_award_t;
-
-typedef struct bgm_buyer_outcome {
-    bgm_buyer_state state;
-    const char *reason; /* "budget", "no seller", "timeout"; NULL when not failed */
-    const bgm_award_t *awards; /* borrowed, valid until the role is destroyed */
-    int nawards;
-    double spent;
-} bgm_buyer_outcome_t;
-
-typedef struct bgm_price_policy {
-    double floor;       /* cost of the resources one unit needs (money/unit) */
-    double margin;      /* relative markup over the floor */
-    double load_slope;  /* price rises by floor*load_slope*(used/slots) */
-} bgm_price_policy_t;
-
-typedef struct bgm_basic_params {
-    uint32_t self, market;
-    int mechanism;
-    int sells[3];       /* 1 if it sells that service good */
-    int slots;          /* concurrent contracts it can serve */
-    bgm_price_policy_t policy[3];
-    double cores_per_slot, memory_per_slot;
-    double speed;       /* units of work per second per slot */
-    const uint32_t *neighbours; /* catallactic overlay (copied) */
-    int nneighbours;
-} bgm_basic_params_t;
-
-typedef struct bgm_resource_params {
-    uint32_t self, market;
-    int mechanism;
-    double cores, memory;        /* of its host */
-    double price_per_core_second;
-    double price_per_memory_second;
-    double speed;                /* flops per core */
-} bgm_resource_params_t;
-
-typedef struct bgm_market_params {
-    uint32_t self;
-    int mechanism;               /* bgm_mechanism: central or posted directory */
-    double period;               /* call-market clearing period (s) */
-    int candidates;              /* posted: candidates per list (≤ BGM_ROLE_CANDIDATES) */
-} bgm_market_params_t;
-
-/* ------------------------------------------------------------ machines */
-
-/* Constructors (NULL on failure, err set; invalid params: BG_ERR_INVALID
- * naming the field). */
-bgm_role_t *bgm_role_buyer_new(const bgm_buyer_params_t *p, bg_error_t *err);
-bgm_role_t *bgm_role_basic_new(const bgm_basic_params_t *p, bg_error_t *err);
-bgm_role_t *bgm_role_resource_new(const bgm_resource_params_t *p, bg_error_t *err);
-bgm_role_t *bgm_role_market_new(const bgm_market_params_t *p, bg_error_t *err);
-void bgm_role_destroy(bgm_role_t **r);
-
-/* Emits the role's first messages and timers. The sink is copied. */
-bg_status bgm_role_start(bgm_role_t *r, const bgm_role_sink_t *sink, double now);
-/* Delivers one message addressed to this role (borrowed). */
-bg_status bgm_role_on_message(bgm_role_t *r, const bgm_role_msg_t *msg, double now);
-/* Fires one of this role's timers. */
-bg_status bgm_role_on_timer(bgm_role_t *r, int kind, uint64_t arg, double now);
-
-/* Buyer only: its outcome so far (BG_ERR_INVALID for another role). */
-bg_status bgm_role_buyer_outcome(const bgm_role_t *r, bgm_buyer_outcome_t *out);
-/* Basic or resource seller: releases what a job's contract held. */
-bg_status bgm_role_release(bgm_role_t *r, uint32_t req, double now);
 
 #endif
