@@ -1,0 +1,34 @@
+#!/bin/sh
+# readme_grid.sh BIOTGRID GRID_CONFIG SCENE WORKDIR NO_AGENTS_LEFT
+# The README's first command after the install — grid up, submit the
+# default scene through REST and wait for its result, grid down — on the
+# default grid config, with the broker on ephemeral loopback ports and the
+# state in WORKDIR (the only changes from the README's line). It must exit
+# 0, leave the result's report with a converged run, print the job's
+# contracts, and leave no process of the grid behind.
+set -u
+bin=$1 config=$2 scene=$3 work=$4 no_left=$5
+rm -rf "$work"
+mkdir -p "$work"
+state="$work/grid"
+fails=0
+fail() { echo "FAIL: $*"; fails=$((fails + 1)); }
+trap '"$bin" grid down --state "$state" >/dev/null 2>&1; exit 1' INT TERM
+
+BIOTGRID_GRID_DIR=$state
+export BIOTGRID_GRID_DIR
+"$bin" grid up "$config" --state "$state" --broker-port 0 \
+    --broker-endpoint 'tcp://127.0.0.1:*' >"$work/up.txt" 2>&1 &&
+    { "$bin" submit "$scene" --out "$work/first-job" >"$work/submit.txt" 2>&1; s=$?
+      "$bin" grid down --state "$state" >"$work/down.txt" 2>&1 && [ $s -eq 0 ]; }
+rc=$?
+cat "$work/up.txt" "$work/submit.txt" "$work/down.txt" 2>/dev/null
+[ $rc -eq 0 ] || fail "the README's first command exited $rc"
+grep -Eq "^job j[0-9a-f]{16}: succeeded" "$work/submit.txt" || fail "no 'succeeded' line"
+grep -q "report\\.json (" "$work/submit.txt" || fail "the result's files were not listed"
+[ "$(jq -r '.runs[0].converged' "$work/first-job/report.json" 2>/dev/null)" = true ] ||
+    fail "report.json has no converged run"
+[ "$(jq -r '.market.mechanism' "$work/first-job/report.json" 2>/dev/null)" != null ] ||
+    fail "report.json has no market section"
+sh "$no_left" "$state" || fail "a process of the grid is left"
+exit $fails
