@@ -390,6 +390,26 @@ static int on_event(void *ctx, const char *id, const char *event, const char *da
  * still active (a broker stopping), is resumed after the last event seen,
  * a few times, a second apart.
  */
+/* The job's market side in plain lines: each contract (service, agent,
+ * quantity, price) and the money spent against the budget. */
+static void print_market_side(const cJSON *job)
+{
+    const cJSON *contracts = cJSON_GetObjectItemCaseSensitive(job, "contracts");
+    const cJSON *c;
+    cJSON_ArrayForEach(c, contracts)
+    {
+        printf("  contract: %s from %s, quantity %g, price %g\n",
+               string_of(c, "service") ? string_of(c, "service") : "?",
+               string_of(c, "agent") ? string_of(c, "agent") : "?", number_of(c, "quantity"),
+               number_of(c, "price"));
+    }
+    const cJSON *allocation = cJSON_GetObjectItemCaseSensitive(job, "allocation");
+    const cJSON *spent = cJSON_GetObjectItemCaseSensitive(allocation, "spent");
+    if (cJSON_IsNumber(spent))
+        printf("  spent %g of budget %g (%s)\n", spent->valuedouble, number_of(job, "budget"),
+               string_of(job, "mechanism") ? string_of(job, "mechanism") : "?");
+}
+
 static int wait_for(const options_t *o, bgb_client_t *client, const char *id)
 {
     follow_t f = {.id = id, .tty = isatty(STDERR_FILENO), .json = o->json, .state = "queued"};
@@ -432,7 +452,8 @@ static int wait_for(const options_t *o, bgb_client_t *client, const char *id)
         return print_json(job) == BG_EXIT_OK && ok ? BG_EXIT_OK : BG_EXIT_FAILED;
     const char *reason = string_of(job, "reason");
     printf("job %s: %s%s%s\n", id, state ? state : "?", reason ? ": " : "", reason ? reason : "");
-    if (ok)
+    print_market_side(job);
+    if (ok && !o->out)
         printf("  its files: biotgrid result %s --out DIR\n", id);
     cJSON_Delete(job);
     return ok ? BG_EXIT_OK : BG_EXIT_FAILED;
