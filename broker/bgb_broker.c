@@ -1026,6 +1026,20 @@ static void publish(bgb_broker_t *b)
     free(aj), free(mj), free(cc), free(ac);
 }
 
+/* bgb_rest's view: copies of the loop's latest snapshots (REST threads). */
+static char *rest_view(void *ctx, int what)
+{
+    bgb_broker_t *b = ctx;
+    pthread_mutex_lock(&b->lock);
+    const char *src = what == BGB_REST_VIEW_AGENTS      ? b->agents_json
+                      : what == BGB_REST_VIEW_MARKET    ? b->market_json
+                      : what == BGB_REST_VIEW_CONTRACTS ? b->contracts_csv
+                                                        : b->agents_csv;
+    char *copy = src ? strdup(src) : NULL;
+    pthread_mutex_unlock(&b->lock);
+    return copy;
+}
+
 /* Rotation-fit is split over the live rotation-fit sellers, keeping one
  * agent for the sparse solve when there are several. */
 static int rotfit_sellers(const bgb_market_t *m, bgb_agent_info_t *live)
@@ -1265,7 +1279,10 @@ bg_status bgb_broker_start(const bgb_broker_config_t *config, bgb_broker_t **out
                                   .max_vertices = b->config.max_vertices,
                                   .max_elements = b->config.max_elements,
                                   .work_dir = path,
-                                  .name = b->config.name};
+                                  .name = b->config.name,
+                                  .market = "live",
+                                  .view = rest_view,
+                                  .view_ctx = b};
     if ((st = bgb_rest_start(&rc, b->store, &b->rest, err)) != BG_OK)
         goto out;
     bgb_market_config_t mc;
