@@ -1,5 +1,5 @@
 #!/bin/sh
-# market_jobs.sh BIOTGRID AGENT_SCRIPTS WORKDIR GRID_CONFIG SCENE
+# market_jobs.sh BIOTGRID AGENT_SCRIPTS WORKDIR GRID_CONFIG SCENE DYNAMIC_SCENE
 # The live market end to end: `grid up` starts a broker and agents that
 # register on it with --broker (ephemeral loopback ports). The scene is
 # submitted under each mechanism; each job succeeds with `biotgrid
@@ -7,9 +7,10 @@
 # rotation-fit and sparse-solve and no integration-step (a static scene).
 # A budget under the sellers' floors fails with a reason naming the
 # budget; contracts.csv has one row per contract, each price within both
-# limits. `grid down` leaves no process.
+# limits. A dynamic scene's plan lists integration-step: its job buys one.
+# `grid down` leaves no process.
 set -u
-bin=$1 scripts=$2 work=$3 config=$4 scene=$5
+bin=$1 scripts=$2 work=$3 config=$4 scene=$5 dynamic=$6
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
 rm -rf "$work"
@@ -79,6 +80,18 @@ case $reason in *budget*) r=0 ;; *) r=1 ;; esac
 check $r "its reason names the budget ($reason)"
 curl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-poor.txt"
 [ "$(contracts "$work/events-poor.txt" | wc -l)" -eq 0 ]; check $? "the poor job made no contract"
+
+jq -n --slurpfile s "$dynamic" '{scene: $s[0], mechanism: "central", budget: 100}' \
+  >"$work/submit-dynamic.json"
+id=$(curl -sf -X POST -H 'Content-Type: application/json' \
+  --data-binary @"$work/submit-dynamic.json" "$url/v1/jobs" | jq -r .id)
+st=$(wait_job "$url" "$id" 300)
+[ "$st" = succeeded ]; check $? "the dynamic scene's job succeeded (got $st)"
+curl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-dynamic.txt"
+contracts "$work/events-dynamic.txt" >"$work/contracts-dynamic.txt"
+grep -q '"service":"integration-step"' "$work/contracts-dynamic.txt"
+check $? "the dynamic scene's job bought integration-step"
+total=$((total + $(wc -l <"$work/contracts-dynamic.txt")))
 
 # Releases reach the agents a little after the jobs end; the log is final.
 curl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
