@@ -253,6 +253,8 @@ bg_status bga_backend_new(const bga_backend_config_t *cfg, bga_backend_t **out, 
      * process's id and the clock, so two jobs never meet on an agent. */
     b->sessions = ((uint64_t)getpid() << 20 | ((uint64_t)(bg_clock_now() * 1e3) & 0xfffffu))
                   << 16;
+    if (cfg->job_base)
+        b->sessions = cfg->job_base >> BACKEND_JOB_SHIFT;
     b->services = (bg_backend_t){&agents_ops, b};
     *out = b;
     return BG_OK;

@@ -35,6 +35,9 @@ typedef struct bga_backend_config {
     const char *solve;         /* the sparse-solve endpoint */
     int timeout_ms;            /* per request */
     int64_t lease_ms;          /* job lease on the agents (0: none) */
+    uint64_t job_base;         /* 0: job ids from this process and the clock; else every
+                                  compute job id lies in job_base + [16, 2^32), the range a
+                                  market contract for job_base covers (bga_market.h) */
 } bga_backend_config_t;
 
 typedef struct bga_backend bga_backend_t;

@@ -81,7 +81,7 @@ uint32_t bga_market_id(const bga_market_t *m)
 int bga_market_holds(const bga_market_t *m, uint64_t job)
 {
     for (int i = 0; i < m->used; i++)
-        if (m->held[i].job == job)
+        if (job >= m->held[i].job && job - m->held[i].job < BGA_MARKET_JOB_SPAN)
             return 1;
     return 0;
 }

@@ -52,7 +52,12 @@ bg_status bga_market_on_readable(bga_market_t *m, double now, bg_error_t *err);
 /* Heartbeats and re-registration when due. */
 bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err);
 
-/* Whether the agent holds a contract for this job (any good). */
+/* A contract for market job J covers the compute job ids J .. J + SPAN − 1:
+ * a solver opens several sessions (and matrices) per job, each with its
+ * own compute job id, all drawn from that range (bga_backend job_base). */
+#define BGA_MARKET_JOB_SPAN ((uint64_t)1 << 32)
+
+/* Whether the agent holds a contract (any good) covering this compute job id. */
 int bga_market_holds(const bga_market_t *m, uint64_t job);
 /* Directory id once registered (0 before). */
 uint32_t bga_market_id(const bga_market_t *m);

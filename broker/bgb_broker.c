@@ -22,6 +22,9 @@
 #include "bga_backend.h"
 #include "bga_service.h"
 #include "bga_wire.h"
+#include "bga_market.h"
+#include "bga_transport.h"
+#include "bgb_market.h"
 #include "bgb_rest.h"
 #include "bgb_run.h"
 #include "bgb_store.h"
@@ -38,6 +41,34 @@
 #define BROKER_REFERENCE_MAX_ITERATIONS 200
 #define BROKER_AGENT_LEASE_MS 600000
 #define BROKER_MAX_RESULT_FILE ((size_t)1 << 30)
+/* The loop thread looks at the buy queue at least this often. */
+#define BROKER_LOOP_MS 10
+/* Rotation-fit is split over at most this many agents. */
+#define BROKER_MAX_ROTFIT 4
+#define BROKER_MAX_AWARDS (BROKER_MAX_ROTFIT + 2)
+
+/*
+ * One job's purchase, handed from its coordinator to the loop thread
+ * through broker.reqs (under broker.lock). The coordinator fills the
+ * request and links it; the loop calls bgb_market_buy, the done callback
+ * fills the outcome and signals `changed`. When the job ends the
+ * coordinator sets `release`; the loop then releases the contracts,
+ * unlinks and frees the request. Once the loop has exited (loop_gone) the
+ * coordinator unlinks and frees it itself.
+ */
+typedef struct buy_req {
+    struct buy_req *next;
+    uint64_t job;               /* market job id: a multiple of BGA_MARKET_JOB_SPAN */
+    char id[BGB_JOB_ID_SIZE];   /* the store's job id */
+    bgb_mechanism mechanism;
+    double budget;
+    int integ;                  /* the plan lists integration-step */
+    int submitted, done, release;
+    char reason[64];            /* failure reason; "" on success */
+    bgb_award_t awards[BROKER_MAX_AWARDS];
+    int nawards;
+    double spent, latency;
+} buy_req_t;
 
 struct bgb_broker {
     bgb_broker_config_t config;
@@ -53,6 +84,13 @@ struct bgb_broker {
     int stopping;
     int running; /* coordinators alive */
     int64_t agent_messages; /* frames sets received on the ROUTER socket */
+    bgb_market_t *market;   /* the loop thread's alone */
+    bgb_agent_info_t *live; /* directory snapshot buffer, BGB_MARKET_MAX_AGENTS rows, loop's */
+    buy_req_t *reqs;        /* under lock */
+    uint64_t next_job;      /* under lock */
+    int loop_gone;          /* under lock */
+    int market_agents;      /* live agents in the directory, published by the loop */
+    char *agents_json, *market_json, *contracts_csv, *agents_csv; /* snapshots, under lock */
 };
 
 /* ------------------------------------------------------------ config */
@@ -459,21 +497,37 @@ static int agent_lines(const bgb_broker_config_t *c, const int *role, const bga_
  * every trace point has spent so far = the total). No market is attached
  * in this build: no contracts, nothing spent.
  */
-static bg_status add_market_section(const char *path, const bgb_job_t *job, double latency,
-                                    bg_error_t *err)
+static bg_status add_market_section(const char *path, const bgb_job_t *job,
+                                    const buy_req_t *bought, double latency, bg_error_t *err)
 {
     cJSON *root = NULL;
     bg_status st = bg_json_load(path, BROKER_MAX_RESULT_FILE, &root, err);
     if (st != BG_OK)
         return st;
     char *text = NULL;
-    const double spent = 0.0;
+    const double spent = bought ? bought->spent : 0.0;
     cJSON *m = cJSON_AddObjectToObject(root, "market");
     cJSON_AddStringToObject(m, "mechanism", job->mechanism);
-    cJSON_AddNullToObject(m, "market");
-    cJSON_AddStringToObject(m, "note", "no market is attached to this broker: the job ran on "
-                                       "its configured agents without contracts");
-    cJSON_AddArrayToObject(m, "contracts");
+    cJSON *contracts = NULL;
+    if (bought) {
+        cJSON_AddStringToObject(m, "market", "live");
+        contracts = cJSON_AddArrayToObject(m, "contracts");
+        for (int i = 0; i < bought->nawards; i++) {
+            const bgb_award_t *a = &bought->awards[i];
+            cJSON *e = cJSON_CreateObject();
+            cJSON_AddStringToObject(e, "service", bgb_good_name(a->good));
+            cJSON_AddStringToObject(e, "agent", a->name);
+            cJSON_AddStringToObject(e, "endpoint", a->endpoint);
+            cJSON_AddNumberToObject(e, "quantity", a->quantity);
+            cJSON_AddNumberToObject(e, "price", a->price);
+            cJSON_AddItemToArray(contracts, e);
+        }
+    } else {
+        cJSON_AddNullToObject(m, "market");
+        cJSON_AddStringToObject(m, "note", "no agent is registered on the market: the job ran "
+                                           "on the broker's configured agents without contracts");
+        cJSON_AddArrayToObject(m, "contracts");
+    }
     cJSON_AddNumberToObject(m, "budget", job->budget);
     cJSON_AddNumberToObject(m, "spent", spent);
     cJSON_AddNumberToObject(m, "allocation_latency_seconds", latency);
@@ -507,29 +561,47 @@ out:
 
 /* Runs the job on the configured agents into dir; the store gets its
  * results and trace. */
-static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job, const char *dir,
-                           int *converged, bg_error_t *err)
+static bg_status load_scene(bgb_broker_t *b, const bgb_job_t *job, const char *dir,
+                            bg_scene_t **scene, bg_error_t *err)
 {
     const bgb_broker_config_t *c = &b->config;
-    bg_scene_t *scene = NULL;
-    bga_backend_t *remote = NULL;
-    bg_solve_result_t run = BG_SOLVE_RESULT_INIT, reference = BG_SOLVE_RESULT_INIT;
-    char *trace = NULL;
     bg_status st;
     char input[BROKER_PATH_MAX + 16], path[BROKER_PATH_MAX + 96];
     snprintf(input, sizeof input, "%s/input", dir);
-    if ((st = make_dir(input, err)) != BG_OK)
-        goto out;
-    if ((st = write_inputs(b, job->id, input, err)) != BG_OK)
-        goto out;
+    if ((st = make_dir(input, err)) != BG_OK || (st = write_inputs(b, job->id, input, err)) != BG_OK)
+        return st;
     snprintf(path, sizeof path, "%s/scene.json", input);
     const bg_scene_options_t so = {.max_vertices = c->max_vertices,
                                    .max_elements = c->max_elements,
                                    .confined = 1,
                                    .display_name = "scene"};
-    if ((st = bg_scene_parse_with(job->scene, job->scene_size, path, &so, &scene, err)) != BG_OK ||
-        (st = bg_scene_prepare(scene, err)) != BG_OK)
-        goto out;
+    if ((st = bg_scene_parse_with(job->scene, job->scene_size, path, &so, scene, err)) == BG_OK)
+        st = bg_scene_prepare(*scene, err);
+    return st;
+}
+
+/* What the job bought (NULL: the fixed pool, nothing bought). */
+typedef struct job_alloc {
+    const bgb_broker_agent_t *pool;
+    int npool;
+    const buy_req_t *bought;
+} job_alloc_t;
+
+/* Runs the job on its agents into dir; the store gets its results and
+ * trace. scene is borrowed. */
+static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job, const char *dir,
+                           bg_scene_t *scene, const job_alloc_t *alloc, int *converged,
+                           bg_error_t *err)
+{
+    bgb_broker_config_t pool = b->config;
+    memcpy(pool.agents, alloc->pool, (size_t)alloc->npool * sizeof *alloc->pool);
+    pool.agent_count = alloc->npool;
+    const bgb_broker_config_t *c = &pool;
+    bga_backend_t *remote = NULL;
+    bg_solve_result_t run = BG_SOLVE_RESULT_INIT, reference = BG_SOLVE_RESULT_INIT;
+    char *trace = NULL;
+    bg_status st;
+    char path[BROKER_PATH_MAX + 96];
 
     /* The pool: every rotation-fit agent but a dedicated sparse-solve one. */
     const char *rotfit[BGB_BROKER_MAX_AGENTS], *solver = NULL;
@@ -558,7 +630,8 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
         role[s] = -2;
     solver = c->agents[s].endpoint;
     const bga_backend_config_t bc = {rotfit, nrotfit, solver, c->agent_timeout_ms,
-                                     BROKER_AGENT_LEASE_MS};
+                                     BROKER_AGENT_LEASE_MS,
+                                     alloc->bought ? alloc->bought->job : 0};
     if ((st = bga_backend_new(&bc, &remote, err)) != BG_OK)
         goto out;
     /* surface-edit's per-vertex rotations have no agent service yet. */
@@ -603,7 +676,7 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
     char paths[2 * BROKER_PATH_MAX + 64];
     snprintf(path, sizeof path, "%s/report.json", dir);
     if ((st = bg_report_write_agents(path, scene, &plan, &run, 1, lines, nlines, err)) != BG_OK ||
-        (st = add_market_section(path, job, jr->allocation_latency, err)) != BG_OK)
+        (st = add_market_section(path, job, alloc->bought, jr->allocation_latency, err)) != BG_OK)
         goto out;
     snprintf(path, sizeof path, "%s/error-vs-time.svg", dir);
     if ((st = bg_report_write_plot(path, scene, &run, 1, err)) != BG_OK ||
@@ -618,7 +691,6 @@ out:
     bg_solve_result_release(&run);
     bg_solve_result_release(&reference);
     bga_backend_destroy(&remote);
-    bg_scene_destroy(&scene);
     return st;
 }
 
@@ -628,37 +700,103 @@ static void *coordinator(void *arg)
 {
     job_run_t *jr = arg;
     bgb_broker_t *b = jr->broker;
-    bg_error_t err = BG_ERROR_INIT;
+    bg_error_t err = BG_ERROR_INIT, terr = BG_ERROR_INIT;
     bgb_job_t job = BGB_JOB_INIT;
+    bg_scene_t *scene = NULL;
+    buy_req_t *req = NULL;
+    bgb_broker_agent_t bought[BROKER_MAX_AWARDS];
+    job_alloc_t alloc = {b->config.agents, b->config.agent_count, NULL};
     const double t0 = bg_clock_now();
+    const unsigned live_or_fail = MASK(BGB_JOB_ALLOCATING) | MASK(BGB_JOB_RUNNING);
     if (bgb_store_get(b->store, jr->id, &job, &err) != BG_OK)
         goto out;
-    if (b->config.agent_count == 0) {
-        /* No live market in this build and no fixed pool: nothing is
-         * bought, and the job waits in allocating. */
+    pthread_mutex_lock(&b->lock);
+    const int registered = b->market_agents;
+    pthread_mutex_unlock(&b->lock);
+    if (registered == 0 && b->config.agent_count == 0) {
+        /* Nobody to buy from and no fixed pool: the job waits in allocating. */
         (void)bgb_store_add_event(b->store, jr->id, "allocation",
-                                  "{\"market\":null,\"contracts\":[],\"message\":\"no market is "
-                                  "attached to this broker: nothing was bought; the job waits "
-                                  "in allocating\"}",
+                                  "{\"market\":\"live\",\"contracts\":[],\"message\":\"no agent "
+                                  "is registered on the market and the broker has no configured "
+                                  "agents: nothing was bought; the job waits in allocating\"}",
                                   &err);
         goto out;
     }
-    (void)bgb_store_add_event(b->store, jr->id, "allocation",
-                              "{\"market\":null,\"contracts\":[],\"spent\":0,\"message\":\"no "
-                              "market is attached to this broker: the job runs on the broker's "
-                              "configured agents, without contracts\"}",
-                              &err);
+    char dir[BROKER_PATH_MAX];
+    snprintf(dir, sizeof dir, "%s/jobs/%s", b->config.state_dir, jr->id);
+    bg_status st = make_dir(dir, &err);
+    if (st == BG_OK)
+        st = load_scene(b, &job, dir, &scene, &err);
+    if (st != BG_OK) {
+        (void)bgb_store_transition(b->store, jr->id, live_or_fail, BGB_JOB_FAILED, err.message,
+                                   &terr);
+        goto out;
+    }
+    if (registered == 0) {
+        (void)bgb_store_add_event(b->store, jr->id, "allocation",
+                                  "{\"market\":null,\"contracts\":[],\"spent\":0,\"message\":\"no "
+                                  "agent is registered on the market: the job runs on the "
+                                  "broker's configured agents, without contracts\"}",
+                                  &err);
+    } else {
+        const int mech = bgb_mechanism_parse(job.mechanism);
+        bg_plan_t plan;
+        const bg_method method = scene->method;
+        bg_plan_for_scene(scene, &method, 1, &plan);
+        if (!(req = calloc(1, sizeof *req))) {
+            (void)bgb_store_transition(b->store, jr->id, live_or_fail, BGB_JOB_FAILED,
+                                       "out of memory", &terr);
+            goto out;
+        }
+        memcpy(req->id, jr->id, sizeof req->id);
+        req->mechanism = mech < 0 ? BGB_MECH_CENTRAL : (bgb_mechanism)mech;
+        req->budget = job.budget;
+        for (int i = 0; i < plan.service_count; i++)
+            req->integ |= strcmp(plan.services[i].service, "integration-step") == 0;
+        pthread_mutex_lock(&b->lock);
+        req->job = ++b->next_job * BGA_MARKET_JOB_SPAN;
+        req->next = b->reqs;
+        b->reqs = req;
+        while (!req->done && !b->loop_gone && !b->stopping)
+            pthread_cond_wait(&b->changed, &b->lock);
+        const int done = req->done;
+        pthread_mutex_unlock(&b->lock);
+        if (!done)
+            goto out; /* stopping: left in allocating, queued again at restart */
+        if (req->reason[0]) {
+            char reason[160];
+            snprintf(reason, sizeof reason, "the market could not buy the job's services: %s",
+                     req->reason);
+            (void)bgb_store_add_event(b->store, jr->id, "allocation",
+                                      "{\"market\":\"live\",\"contracts\":[],\"failed\":true}",
+                                      &err);
+            (void)bgb_store_transition(b->store, jr->id, live_or_fail, BGB_JOB_FAILED, reason,
+                                       &terr);
+            goto out;
+        }
+        int n = 0;
+        for (int i = 0; i < req->nawards; i++) {
+            const bgb_award_t *a = &req->awards[i];
+            if (a->good == BGB_GOOD_INTEG)
+                continue; /* bought for the plan; the backend drives rotation-fit and solve */
+            bought[n].endpoint = req->awards[i].endpoint;
+            bought[n++].services = a->good == BGB_GOOD_ROTFIT ? BGA_SERVICE_ROTFIT
+                                                              : BGA_SERVICE_SOLVE;
+        }
+        alloc = (job_alloc_t){bought, n, req};
+        char json[256];
+        snprintf(json, sizeof json,
+                 "{\"market\":\"live\",\"mechanism\":\"%s\",\"contracts\":%d,\"spent\":%.17g,"
+                 "\"latency_seconds\":%.6f}",
+                 bgb_mechanism_name(req->mechanism), req->nawards, req->spent, req->latency);
+        (void)bgb_store_add_event(b->store, jr->id, "allocation", json, &err);
+    }
     if (bgb_store_transition(b->store, jr->id, MASK(BGB_JOB_ALLOCATING), BGB_JOB_RUNNING, NULL,
                              &err) != BG_OK)
         goto out; /* cancelled meanwhile */
     jr->allocation_latency = bg_clock_now() - t0;
-    char dir[BROKER_PATH_MAX];
-    snprintf(dir, sizeof dir, "%s/jobs/%s", b->config.state_dir, jr->id);
     int converged = 0;
-    bg_status st = make_dir(dir, &err);
-    if (st == BG_OK)
-        st = solve_job(b, jr, &job, dir, &converged, &err);
-    bg_error_t terr = BG_ERROR_INIT;
+    st = solve_job(b, jr, &job, dir, scene, &alloc, &converged, &err);
     if (st == BG_OK) {
         (void)bgb_store_add_event(b->store, jr->id, "solved",
                                   converged ? "{\"converged\":true}" : "{\"converged\":false}",
@@ -670,8 +808,19 @@ static void *coordinator(void *arg)
                                    err.message, &terr);
     }
 out:
+    bg_scene_destroy(&scene);
     bgb_job_release(&job);
     pthread_mutex_lock(&b->lock);
+    if (req && b->loop_gone) {
+        for (buy_req_t **p = &b->reqs; *p; p = &(*p)->next)
+            if (*p == req) {
+                *p = req->next;
+                break;
+            }
+        free(req);
+    } else if (req) {
+        req->release = 1; /* the loop releases the contracts and frees it */
+    }
     b->running--;
     pthread_cond_broadcast(&b->changed);
     pthread_mutex_unlock(&b->lock);
@@ -749,58 +898,296 @@ static void *dispatcher_main(void *arg)
 
 /* --------------------------------------------------------- ZeroMQ loop */
 
-/* The only thread that touches the ROUTER socket. Without a market every
- * agent message is counted and dropped (a market would get it here). */
+static bg_status router_send(void *ctx, const uint8_t *identity, size_t identity_len,
+                             const bga_frame_t *frames, int nframes)
+{
+    bgb_broker_t *b = ctx;
+    if (zmq_send(b->router, identity, identity_len, ZMQ_SNDMORE | ZMQ_DONTWAIT) < 0)
+        return BG_ERR_IO;
+    for (int i = 0; i < nframes; i++)
+        if (zmq_send(b->router, frames[i].data, frames[i].size,
+                     (i + 1 < nframes ? ZMQ_SNDMORE : 0) | ZMQ_DONTWAIT) < 0)
+            return BG_ERR_IO;
+    return BG_OK;
+}
+
+/* done_fn: the outcome into the request, and the coordinator woken. */
+static void on_bought(void *ctx, const bgb_outcome_t *o)
+{
+    buy_req_t *r = ctx;
+    r->reason[0] = '\0';
+    if (o->reason)
+        snprintf(r->reason, sizeof r->reason, "%s", o->reason);
+    r->nawards = 0;
+    for (int i = 0; !o->reason && i < o->nawards && i < BROKER_MAX_AWARDS; i++)
+        r->awards[r->nawards++] = o->awards[i];
+    r->spent = o->spent;
+    r->latency = o->latency;
+}
+
+/* contract_fn: every contract is a "contract" event of its job. */
+static void on_contract(void *ctx, const bgb_contract_t *row)
+{
+    bgb_broker_t *b = ctx;
+    char id[BGB_JOB_ID_SIZE] = "";
+    pthread_mutex_lock(&b->lock);
+    for (const buy_req_t *r = b->reqs; r; r = r->next)
+        if (r->job == row->job)
+            memcpy(id, r->id, sizeof id);
+    pthread_mutex_unlock(&b->lock);
+    if (!id[0])
+        return;
+    char json[768];
+    snprintf(json, sizeof json,
+             "{\"service\":\"%s\",\"agent\":%u,\"agent_name\":\"%s\",\"mechanism\":\"%s\","
+             "\"quantity\":%.17g,\"price\":%.17g,\"buyer_limit\":%.17g,\"seller_limit\":%.17g,"
+             "\"time\":%.6f}",
+             bgb_good_name(row->good), row->seller, row->seller_name,
+             bgb_mechanism_name((bgb_mechanism)row->mechanism), row->quantity, row->price,
+             row->buyer_limit, row->seller_limit, row->time);
+    bg_error_t err = BG_ERROR_INIT;
+    (void)bgb_store_add_event(b->store, id, "contract", json, &err);
+}
+
+/* The directory, recent prices and the CSVs as text for the REST thread. */
+static char *csv_text(const bgb_market_t *m, int contracts)
+{
+    char *buf = NULL;
+    size_t len = 0;
+    FILE *f = open_memstream(&buf, &len);
+    if (!f)
+        return NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    const bg_status st = contracts ? bgb_market_write_contracts_csv(m, f, &err)
+                                   : bgb_market_write_agents_csv(m, f, &err);
+    fclose(f);
+    if (st != BG_OK) {
+        free(buf);
+        return NULL;
+    }
+    return buf;
+}
+
+static void add_services(cJSON *a, unsigned services)
+{
+    cJSON *s = cJSON_AddArrayToObject(a, "services");
+    if (services & BGA_SERVICE_ROTFIT)
+        cJSON_AddItemToArray(s, cJSON_CreateString("rotation-fit"));
+    if (services & BGA_SERVICE_SOLVE)
+        cJSON_AddItemToArray(s, cJSON_CreateString("sparse-solve"));
+    if (services & BGA_SERVICE_INTEG)
+        cJSON_AddItemToArray(s, cJSON_CreateString("integration-step"));
+}
+
+static char *pool_json(const bgb_broker_config_t *c, const bgb_agent_info_t *live, size_t nlive);
+
+static char *market_json(const bgb_market_t *m)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "market", "live");
+    cJSON *prices = cJSON_AddArrayToObject(o, "prices");
+    for (int mech = BGB_MECH_CENTRAL; mech <= BGB_MECH_POSTED; mech++)
+        for (int g = BGB_GOOD_ROTFIT; g <= BGB_GOOD_INTEG; g++) {
+            double mean = 0;
+            const int n = bgb_market_recent_price(m, g, (bgb_mechanism)mech, 20, &mean);
+            if (n == 0)
+                continue;
+            cJSON *e = cJSON_CreateObject();
+            cJSON_AddStringToObject(e, "mechanism", bgb_mechanism_name((bgb_mechanism)mech));
+            cJSON_AddStringToObject(e, "service", bgb_good_name(g));
+            cJSON_AddNumberToObject(e, "mean_price", mean);
+            cJSON_AddNumberToObject(e, "contracts", n);
+            cJSON_AddItemToArray(prices, e);
+        }
+    char *text = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    return text;
+}
+
+static void publish(bgb_broker_t *b)
+{
+    bgb_agent_info_t *live = b->live;
+    size_t n = bgb_market_agents(b->market, live, BGB_MARKET_MAX_AGENTS);
+    if (n > BGB_MARKET_MAX_AGENTS)
+        n = BGB_MARKET_MAX_AGENTS;
+    int alive = 0;
+    for (size_t i = 0; i < n; i++)
+        alive += live[i].alive != 0;
+    char *aj = pool_json(&b->config, live, n), *mj = market_json(b->market);
+    char *cc = csv_text(b->market, 1), *ac = csv_text(b->market, 0);
+    pthread_mutex_lock(&b->lock);
+    b->market_agents = alive;
+    if (aj && mj && cc && ac) {
+        char *old[4] = {b->agents_json, b->market_json, b->contracts_csv, b->agents_csv};
+        b->agents_json = aj, b->market_json = mj, b->contracts_csv = cc, b->agents_csv = ac;
+        aj = old[0], mj = old[1], cc = old[2], ac = old[3];
+    }
+    pthread_mutex_unlock(&b->lock);
+    free(aj), free(mj), free(cc), free(ac);
+}
+
+/* bgb_rest's view: copies of the loop's latest snapshots (REST threads). */
+static char *rest_view(void *ctx, int what)
+{
+    bgb_broker_t *b = ctx;
+    pthread_mutex_lock(&b->lock);
+    const char *src = what == BGB_REST_VIEW_AGENTS      ? b->agents_json
+                      : what == BGB_REST_VIEW_MARKET    ? b->market_json
+                      : what == BGB_REST_VIEW_CONTRACTS ? b->contracts_csv
+                                                        : b->agents_csv;
+    char *copy = src ? strdup(src) : NULL;
+    pthread_mutex_unlock(&b->lock);
+    return copy;
+}
+
+/* Rotation-fit is split over the live rotation-fit sellers, keeping one
+ * agent for the sparse solve when there are several. */
+static int rotfit_sellers(const bgb_market_t *m, bgb_agent_info_t *live)
+{
+    size_t n = bgb_market_agents(m, live, BGB_MARKET_MAX_AGENTS);
+    int count = 0, agents = 0;
+    for (size_t i = 0; i < n && i < BGB_MARKET_MAX_AGENTS; i++) {
+        agents += live[i].alive != 0;
+        count += live[i].alive && (live[i].services & BGA_SERVICE_ROTFIT);
+    }
+    if (count > 1 && agents <= count)
+        count--;
+    return count < 1 ? 1 : count > BROKER_MAX_ROTFIT ? BROKER_MAX_ROTFIT : count;
+}
+
+/* Submits new requests and releases ended ones (loop thread). */
+static void serve_requests(bgb_broker_t *b, double now)
+{
+    for (;;) {
+        buy_req_t *todo = NULL, **link = NULL;
+        pthread_mutex_lock(&b->lock);
+        for (buy_req_t **p = &b->reqs; *p; p = &(*p)->next)
+            if (!(*p)->submitted || (*p)->release) {
+                todo = *p;
+                link = p;
+                break;
+            }
+        if (todo && todo->release)
+            *link = todo->next;
+        pthread_mutex_unlock(&b->lock);
+        if (!todo)
+            return;
+        if (todo->release) {
+            bgb_market_release(b->market, todo->job, now);
+            free(todo);
+            continue;
+        }
+        const int n = rotfit_sellers(b->market, b->live);
+        bgb_need_t needs[3] = {{BGB_GOOD_ROTFIT, (double)n, n}, {BGB_GOOD_SOLVE, 1.0, 1},
+                               {BGB_GOOD_INTEG, 1.0, 1}};
+        bg_error_t err = BG_ERROR_INIT;
+        pthread_mutex_lock(&b->lock);
+        todo->submitted = 1;
+        pthread_mutex_unlock(&b->lock);
+        /* The outcome may be written from inside this call: the lock is
+         * not held, and `done` is set only once it is complete. */
+        const bg_status st =
+            bgb_market_buy(b->market, todo->job, todo->mechanism, todo->budget, needs,
+                           todo->integ ? 3 : 2, now, on_bought, todo, &err);
+        pthread_mutex_lock(&b->lock);
+        if (st != BG_OK)
+            snprintf(todo->reason, sizeof todo->reason, "%.63s", err.message);
+        pthread_mutex_unlock(&b->lock);
+    }
+}
+
+/* The only thread that touches the ROUTER socket and the market. */
 static void *loop_main(void *arg)
 {
     bgb_broker_t *b = arg;
+    double next_tick = 0, next_publish = 0;
     for (;;) {
         pthread_mutex_lock(&b->lock);
         const int stop = b->stopping;
         pthread_mutex_unlock(&b->lock);
         if (stop)
             break;
-        zmq_pollitem_t item = {b->router, 0, ZMQ_POLLIN, 0};
-        if (zmq_poll(&item, 1, BROKER_POLL_MS) <= 0 || !(item.revents & ZMQ_POLLIN))
-            continue;
-        int more = 1, frames = 0;
-        while (more) {
-            zmq_msg_t m;
-            zmq_msg_init(&m);
-            if (zmq_msg_recv(&m, b->router, ZMQ_DONTWAIT) < 0) {
-                zmq_msg_close(&m);
-                break;
-            }
-            more = zmq_msg_more(&m);
-            zmq_msg_close(&m);
-            frames++;
+        double now = bg_clock_now();
+        serve_requests(b, now);
+        if (now >= next_tick)
+            next_tick = bgb_market_tick(b->market, now);
+        if (now >= next_publish) {
+            publish(b);
+            next_publish = now + 0.1;
         }
-        if (frames > 0) {
+        /* Requests whose outcome came in since: wake their coordinators. */
+        pthread_mutex_lock(&b->lock);
+        int woke = 0;
+        for (buy_req_t *r = b->reqs; r; r = r->next)
+            if (r->submitted && !r->done && (r->nawards > 0 || r->reason[0])) {
+                r->done = 1;
+                woke = 1;
+            }
+        if (woke)
+            pthread_cond_broadcast(&b->changed);
+        pthread_mutex_unlock(&b->lock);
+        int wait_ms = (int)((next_tick - now) * 1e3);
+        wait_ms = wait_ms < 0 ? 0 : wait_ms > BROKER_LOOP_MS ? BROKER_LOOP_MS : wait_ms;
+        zmq_pollitem_t item = {b->router, 0, ZMQ_POLLIN, 0};
+        if (zmq_poll(&item, 1, wait_ms) <= 0 || !(item.revents & ZMQ_POLLIN))
+            continue;
+        for (int k = 0; k < 64; k++) {
+            zmq_pollitem_t again = {b->router, 0, ZMQ_POLLIN, 0};
+            if (k > 0 && (zmq_poll(&again, 1, 0) <= 0 || !(again.revents & ZMQ_POLLIN)))
+                break;
+            bga_received_t r;
+            bg_error_t err = BG_ERROR_INIT;
+            if (bga_recv(b->router, 1, &r, &err) != BG_OK)
+                break;
+            bga_frame_t views[BGA_WIRE_MAX_FRAMES + 1];
+            bga_received_view(&r, views);
+            if (r.total == r.count)
+                (void)bgb_market_on_frames(b->market, zmq_msg_data(&r.route),
+                                           zmq_msg_size(&r.route), views, r.count, bg_clock_now(),
+                                           &err);
+            bga_received_close(&r);
             pthread_mutex_lock(&b->lock);
             b->agent_messages++;
             pthread_mutex_unlock(&b->lock);
         }
+        next_tick = 0; /* a message may have changed what is due */
     }
+    pthread_mutex_lock(&b->lock);
+    b->loop_gone = 1;
+    pthread_cond_broadcast(&b->changed);
+    pthread_mutex_unlock(&b->lock);
     return NULL;
 }
 
 /* ----------------------------------------------------------- lifecycle */
 
-/* The fixed pool for GET /v1/agents: endpoint and services of each. */
-static char *pool_json(const bgb_broker_config_t *c)
+/* GET /v1/agents: the fixed pool (source "config") and the market's
+ * directory (source "market", with slots and prices). */
+static char *pool_json(const bgb_broker_config_t *c, const bgb_agent_info_t *live, size_t nlive)
 {
     cJSON *arr = cJSON_CreateArray();
     for (int i = 0; arr && i < c->agent_count; i++) {
         cJSON *a = cJSON_CreateObject();
         cJSON_AddStringToObject(a, "endpoint", c->agents[i].endpoint);
-        cJSON *s = cJSON_AddArrayToObject(a, "services");
-        if (c->agents[i].services & BGA_SERVICE_ROTFIT)
-            cJSON_AddItemToArray(s, cJSON_CreateString("rotation-fit"));
-        if (c->agents[i].services & BGA_SERVICE_SOLVE)
-            cJSON_AddItemToArray(s, cJSON_CreateString("sparse-solve"));
-        if (c->agents[i].services & BGA_SERVICE_INTEG)
-            cJSON_AddItemToArray(s, cJSON_CreateString("integration-step"));
+        add_services(a, c->agents[i].services);
         cJSON_AddStringToObject(a, "source", "config");
+        cJSON_AddItemToArray(arr, a);
+    }
+    for (size_t i = 0; arr && i < nlive; i++) {
+        const bgb_agent_info_t *l = &live[i];
+        cJSON *a = cJSON_CreateObject();
+        cJSON_AddNumberToObject(a, "id", l->id);
+        cJSON_AddStringToObject(a, "name", l->name);
+        cJSON_AddStringToObject(a, "endpoint", l->endpoint);
+        add_services(a, l->services);
+        cJSON_AddStringToObject(a, "source", "market");
+        cJSON_AddBoolToObject(a, "alive", l->alive != 0);
+        cJSON_AddNumberToObject(a, "slots", l->slots);
+        cJSON_AddNumberToObject(a, "free_slots", l->free_slots);
+        cJSON *p = cJSON_AddObjectToObject(a, "prices");
+        for (int g = BGB_GOOD_ROTFIT; g <= BGB_GOOD_INTEG; g++)
+            if (l->price[g] > 0)
+                cJSON_AddNumberToObject(p, bgb_good_name(g), l->price[g]);
         cJSON_AddItemToArray(arr, a);
     }
     char *text = arr ? cJSON_PrintUnformatted(arr) : NULL;
@@ -885,16 +1272,30 @@ bg_status bgb_broker_start(const bgb_broker_config_t *config, bgb_broker_t **out
     snprintf(path, sizeof path, "%s/uploads", b->config.state_dir);
     if ((st = make_dir(path, err)) != BG_OK)
         goto out;
-    agents_json = pool_json(&b->config);
+    agents_json = pool_json(&b->config, NULL, 0);
     const bgb_rest_config_t rc = {.agents_json = agents_json,.address = b->config.address,
                                   .port = (uint16_t)b->config.port,
                                   .max_body = (size_t)b->config.max_body,
                                   .max_vertices = b->config.max_vertices,
                                   .max_elements = b->config.max_elements,
                                   .work_dir = path,
-                                  .name = b->config.name};
+                                  .name = b->config.name,
+                                  .market = "live",
+                                  .view = rest_view,
+                                  .view_ctx = b};
     if ((st = bgb_rest_start(&rc, b->store, &b->rest, err)) != BG_OK)
         goto out;
+    bgb_market_config_t mc;
+    bgb_market_config_default(&mc);
+    mc.name = b->config.name;
+    const bgb_market_io_t io = {b, router_send};
+    if (!(b->live = calloc(BGB_MARKET_MAX_AGENTS, sizeof *b->live))) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the agents' directory");
+        goto out;
+    }
+    if ((st = bgb_market_new(&mc, &io, &b->market, err)) != BG_OK)
+        goto out;
+    bgb_market_on_contract(b->market, on_contract, b);
     if (pthread_create(&b->loop, NULL, loop_main, b) != 0) {
         st = bg_error_set(err, BG_ERR_NOMEM, "cannot start the broker's loop thread");
         goto out;
@@ -941,6 +1342,17 @@ void bgb_broker_stop(bgb_broker_t **bp)
     while (b->running > 0)
         pthread_cond_wait(&b->changed, &b->lock);
     pthread_mutex_unlock(&b->lock);
+    while (b->reqs) {
+        buy_req_t *r = b->reqs;
+        b->reqs = r->next;
+        free(r);
+    }
+    bgb_market_destroy(&b->market);
+    free(b->live);
+    free(b->agents_json);
+    free(b->market_json);
+    free(b->contracts_csv);
+    free(b->agents_csv);
     if (b->router)
         zmq_close(b->router);
     if (b->zmq)

@@ -10,14 +10,20 @@
  * before a restart is found the same way); one coordinator per job.
  *
  * A job's coordinator: queued → allocating → running → succeeded/failed.
- * Allocation: this broker has no live market attached yet (bgb_market is
- * not in this build). With no agents configured, nothing is bought: the
- * job stays in allocating with an "allocation" event saying no market is
- * attached. With agents in the configuration ("agents": the grid's fixed
- * pool, as `biotgrid solve --agents` uses them), the job runs on them with
- * no contracts and no money spent, and the event says so. Running drives
- * the solve through the same remote backend (bga_backend) as `solve
- * --agents`; progress and the error-against-time trace are events; the
+ * Allocation: the loop thread hosts the live market (bgb_market). The
+ * coordinator builds the job's needs from its plan (rotation-fit split
+ * over up to 4 live rotation-fit sellers, one unit of work per seller;
+ * sparse-solve ×1; integration-step ×1 only when the plan lists it),
+ * hands the purchase to the loop (a queue under the broker's lock) and
+ * waits for the outcome. Each contract is a "contract" event of the job;
+ * a market failure ("budget", "no seller", "timeout") fails the job
+ * before any agent computes; the contracts are released when the job
+ * ends. With no agent registered on the market but agents in the
+ * configuration ("agents": a fixed pool), the job runs on the pool with
+ * no contracts and the "allocation" event says so; with neither, the job
+ * waits in allocating. Running drives the solve through the same remote
+ * backend (bga_backend) as `solve --agents`, on the awarded agents;
+ * progress and the error-against-time trace are events; the
  * result files (report.json, error-vs-time.svg, result.vtu and the native
  * mesh, <method>.pvd and its frames) go into the store.
  *

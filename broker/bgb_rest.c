@@ -36,6 +36,8 @@ struct bgb_rest {
     bgb_store_t *store;
     bgb_rest_config_t config;
     char *address, *work_dir, *name, *agents_json, *market;
+    char *(*view)(void *ctx, int what);
+    void *view_ctx;
     uint16_t port;
     atomic_int stopping;
     atomic_llong responses[6]; /* by status class: index 1..5 */
@@ -967,10 +969,18 @@ static enum MHD_Result method_not_allowed(bgb_rest_t *rest, struct MHD_Connectio
 
 /* ---------------------------------------------------------------- market */
 
+/* A live view's text (malloc'd), or NULL: use the static one. */
+static char *view_text(bgb_rest_t *rest, int what)
+{
+    return rest->view ? rest->view(rest->view_ctx, what) : NULL;
+}
+
 static enum MHD_Result get_agents(bgb_rest_t *rest, struct MHD_Connection *c)
 {
     cJSON *o = cJSON_CreateObject();
-    cJSON *agents = cJSON_Parse(rest->agents_json);
+    char *live = view_text(rest, BGB_REST_VIEW_AGENTS);
+    cJSON *agents = cJSON_Parse(live ? live : rest->agents_json);
+    free(live);
     cJSON_AddItemToObject(o, "agents", cJSON_IsArray(agents) ? agents : cJSON_CreateArray());
     if (agents && !cJSON_IsArray(agents))
         cJSON_Delete(agents);
@@ -979,9 +989,15 @@ static enum MHD_Result get_agents(bgb_rest_t *rest, struct MHD_Connection *c)
 
 static enum MHD_Result get_market(bgb_rest_t *rest, struct MHD_Connection *c)
 {
+    char *live = view_text(rest, BGB_REST_VIEW_MARKET);
+    cJSON *view = live ? cJSON_Parse(live) : NULL;
+    free(live);
     cJSON *o = cJSON_CreateObject();
     cJSON_AddStringToObject(o, "name", rest->name);
-    if (rest->market)
+    const cJSON *vm = cJSON_GetObjectItemCaseSensitive(view, "market");
+    if (cJSON_IsString(vm))
+        cJSON_AddStringToObject(o, "market", vm->valuestring);
+    else if (rest->market)
         cJSON_AddStringToObject(o, "market", rest->market);
     else
         cJSON_AddNullToObject(o, "market");
@@ -989,14 +1005,25 @@ static enum MHD_Result get_market(bgb_rest_t *rest, struct MHD_Connection *c)
     static const char *const names[] = {"central", "catallactic", "posted"};
     for (int i = 0; mechs && i < 3; i++)
         cJSON_AddItemToArray(mechs, cJSON_CreateString(names[i]));
-    /* Recent prices come from the live market; none is attached here. */
-    cJSON_AddArrayToObject(o, "prices");
+    /* Recent prices come from the live market's view (none without one). */
+    cJSON *prices = cJSON_DetachItemFromObjectCaseSensitive(view, "prices");
+    cJSON_AddItemToObject(o, "prices", cJSON_IsArray(prices) ? prices : cJSON_CreateArray());
+    if (prices && !cJSON_IsArray(prices))
+        cJSON_Delete(prices);
+    cJSON_Delete(view);
     return send_json(rest, c, MHD_HTTP_OK, o, "application/json", NULL);
 }
 
 /* The CSVs with the simulator's headers; without a market no row exists. */
 static enum MHD_Result get_csv(bgb_rest_t *rest, struct MHD_Connection *c, int contracts)
 {
+    char *live = view_text(rest, contracts ? BGB_REST_VIEW_CONTRACTS : BGB_REST_VIEW_AGENTS_CSV);
+    if (live) {
+        const enum MHD_Result r =
+            send_text(rest, c, MHD_HTTP_OK, "text/csv", live, strlen(live), NULL);
+        free(live);
+        return r;
+    }
     const char *header =
         contracts ? "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,"
                     "good,quantity,price,buyer_limit,seller_limit\n"
@@ -1148,6 +1175,8 @@ bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bg
     rest->name = strdup(config->name ? config->name : "biotgrid");
     rest->agents_json = strdup(config->agents_json ? config->agents_json : "[]");
     rest->market = config->market ? strdup(config->market) : NULL;
+    rest->view = config->view;
+    rest->view_ctx = config->view_ctx;
     bg_status st = BG_OK;
     if (!rest->address || !rest->work_dir || !rest->name || !rest->agents_json ||
         (config->market && !rest->market)) {

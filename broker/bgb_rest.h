@@ -53,7 +53,20 @@ typedef struct bgb_rest_config {
                                 NULL: none */
     const char *market;      /* the live market attached, or NULL: none (then /v1/market
                                 has no prices and the CSVs only their header) */
+    /* Live views, or NULL: the static ones above. view(view_ctx, what)
+     * returns a malloc'd text the server frees, or NULL (then the static one); it
+     * is called from the server's threads and must be thread-safe. */
+    char *(*view)(void *view_ctx, int what);
+    void *view_ctx;
 } bgb_rest_config_t;
+
+/* What a view is asked for. */
+enum {
+    BGB_REST_VIEW_AGENTS = 0,    /* JSON array of agents */
+    BGB_REST_VIEW_MARKET = 1,    /* JSON object: "market" and "prices" */
+    BGB_REST_VIEW_CONTRACTS = 2, /* contracts.csv */
+    BGB_REST_VIEW_AGENTS_CSV = 3 /* agents.csv */
+};
 
 #define BGB_REST_DEFAULT_MAX_BODY ((size_t)64 << 20)
 

@@ -7,13 +7,12 @@
  * FILE (default configs/grids/local.json) is {"name": ..., "agents":
  * [{"name", "services", "slots", "listen"}, ...], "broker": {"port",
  * "endpoint"}}. With a "broker" object (or a --broker-* option), `up`
- * starts `biotgrid broker` once every agent is ready, with a config in
- * DIR/broker.json that names the agents as its pool, its store in
- * DIR/broker/, and records its URL, endpoint and PID in the state file;
- * `down` stops it before the agents (its running jobs need them).
- * The agents are not yet given `--broker ENDPOINT`: that flag comes with
- * the live market (agents register there); until then the broker's
- * config lists them. `up` starts each agent
+ * starts `biotgrid broker` first, with a config in DIR/broker.json (no
+ * fixed pool) and its store in DIR/broker/, records its URL, endpoint and
+ * PID in the state file, and gives every agent `--broker ENDPOINT` (the
+ * endpoint the broker actually bound), so the agents register and sell on
+ * its live market; `down` stops it before the agents (its running jobs
+ * need them). `up` starts each agent
  * as its own process (this executable, `agent --ready-file
  * DIR/NAME.ready`, in a new session so a terminal's signals do not reach
  * it), waits until each has written its endpoint and answers a heartbeat,
@@ -421,16 +420,20 @@ static long spawn_process(const char *self, const char *dir, const char *name,
     _exit(127);
 }
 
-static long spawn_agent(const char *self, const char *dir, const grid_agent *a)
+/* broker: the broker's ROUTER endpoint the agent sells on, or NULL. */
+static long spawn_agent(const char *self, const char *dir, const grid_agent *a,
+                        const char *broker)
 {
     char slots[16];
     snprintf(slots, sizeof slots, "%d", a->spec.slots);
     const char *args[] = {"agent", "--listen", a->spec.listen, "--services", a->spec.services,
-                          "--slots", slots, "--name", a->spec.name, NULL};
+                          "--slots", slots, "--name", a->spec.name,
+                          broker ? "--broker" : NULL, broker, NULL};
     return spawn_process(self, dir, a->spec.name, args);
 }
 
-/* DIR/broker.json: the broker's settings and the grid's agents as its pool. */
+/* DIR/broker.json: the broker's settings. It has no fixed pool: the
+ * agents, started after it, register on its market. */
 static int write_broker_config(const grid *g, const char *dir, char *path, size_t cap)
 {
     char store[PATH_MAX];
@@ -441,14 +444,6 @@ static int write_broker_config(const grid *g, const char *dir, char *path, size_
     cJSON_AddNumberToObject(root, "port", g->broker_port);
     cJSON_AddStringToObject(root, "endpoint", g->broker.spec.listen);
     cJSON_AddStringToObject(root, "state_dir", store);
-    cJSON *arr = cJSON_AddArrayToObject(root, "agents");
-    for (int i = 0; arr && i < g->count; i++) {
-        cJSON *a = cJSON_CreateObject();
-        cJSON_AddStringToObject(a, "name", g->agent[i].spec.name);
-        cJSON_AddStringToObject(a, "endpoint", g->agent[i].endpoint);
-        cJSON_AddStringToObject(a, "services", g->agent[i].spec.services);
-        cJSON_AddItemToArray(arr, a);
-    }
     char *text = cJSON_Print(root);
     cJSON_Delete(root);
     FILE *f = text ? fopen(path, "w") : NULL;
@@ -597,8 +592,12 @@ static int grid_up(const char *file, const char *dir, int broker_port, const cha
         return 1;
     }
     self[n] = 0;
+    if (g.has_broker && start_broker(&g, self, dir) != 0) {
+        stop_agents(&g, dir, 5.0, 1);
+        return 1;
+    }
     for (int i = 0; i < g.count; i++) {
-        g.agent[i].pid = spawn_agent(self, dir, &g.agent[i]);
+        g.agent[i].pid = spawn_agent(self, dir, &g.agent[i], g.has_broker ? g.broker.endpoint : NULL);
         if (g.agent[i].pid < 0) {
             fprintf(stderr, "biotgrid grid: cannot start %s: %s\n", g.agent[i].spec.name,
                     strerror(errno));
@@ -631,8 +630,6 @@ static int grid_up(const char *file, const char *dir, int broker_port, const cha
                    a->pid, a->spec.services, (long long)st.slots);
         }
     }
-    if (rc == 0 && g.has_broker)
-        rc = start_broker(&g, self, dir);
     if (rc == 0 && write_state(&g, dir) != 0)
         rc = 1;
     if (rc != 0) {

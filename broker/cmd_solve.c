@@ -624,7 +624,7 @@ int bg_cmd_solve(int argc, char **argv)
             goto out;
         }
         const bga_backend_config_t bc = {rotfit, nrotfit, solve, o.agent_timeout_ms,
-                                         CLI_AGENT_LEASE_MS};
+                                         CLI_AGENT_LEASE_MS, 0};
         if (bga_backend_new(&bc, &remote, &err) != BG_OK) {
             fprintf(stderr, "biotgrid solve: %s\n", err.message);
             goto out;

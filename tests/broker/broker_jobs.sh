@@ -91,8 +91,8 @@ for scene in "$@"; do
     check $? "$scene: result has $f"
   done
   curl -sf "$url/v1/jobs/$id/events" --max-time 10 >"$work/events$n.txt"
-  grep -q '"no market is attached' "$work/events$n.txt"
-  check $? "$scene: the allocation event says no market is attached"
+  grep -q '"no agent is registered on the market' "$work/events$n.txt"
+  check $? "$scene: the allocation event says no agent is registered on the market"
   grep -q '^event: trace' "$work/events$n.txt" || grep -q '"points"' "$work/events$n.txt"
   check $? "$scene: the trace is an event"
   code=$(curl -s -o /dev/null -w '%{http_code}' -X POST "$url/v1/jobs/$id/cancel")

@@ -29,8 +29,8 @@ sleep 0.5
 state=$(curl -sf "$url/v1/jobs/$(head -1 "$work/ids")" | jq -r .state)
 [ "$state" = allocating ]; check $? "without a market a job waits in allocating (got $state)"
 curl -sf --max-time 2 "$url/v1/jobs/$(head -1 "$work/ids")/events" >"$work/events.txt"
-grep -q 'no market is attached' "$work/events.txt"
-check $? "its allocation event says no market is attached"
+grep -q 'no agent is registered on the market' "$work/events.txt"
+check $? "its allocation event says no agent is registered on the market"
 
 listed() { curl -sf "$url/v1/jobs?limit=100" | jq -r '.jobs[].id' | sort; }
 stop_broker "$work" b; check $? "the broker stops on SIGTERM with status 0"

@@ -1,0 +1,113 @@
+#!/bin/sh
+# market_jobs.sh BIOTGRID AGENT_SCRIPTS WORKDIR GRID_CONFIG SCENE DYNAMIC_SCENE
+# The live market end to end: `grid up` starts a broker and agents that
+# register on it with --broker (ephemeral loopback ports). The scene is
+# submitted under each mechanism; each job succeeds with `biotgrid
+# solve`'s energy (1e-10 relative), its contracts (events and report) list
+# rotation-fit and sparse-solve and no integration-step (a static scene).
+# A budget under the sellers' floors fails with a reason naming the
+# budget; contracts.csv has one row per contract, each price within both
+# limits. A dynamic scene's plan lists integration-step: its job buys one.
+# `grid down` leaves no process.
+set -u
+bin=$1 scripts=$2 work=$3 config=$4 scene=$5 dynamic=$6
+here=$(cd "$(dirname "$0")" && pwd)
+. "$here/broker_lib.sh"
+rm -rf "$work"
+mkdir -p "$work"
+state="$work/grid"
+fail=0
+# The data lines of a server-sent event log's "contract" events.
+contracts() { awk '/^event: / { e = $2 } /^data: / && e == "contract" { print }' "$1"; }
+cleanup() { "$bin" grid down --state "$state" >/dev/null 2>&1; }
+trap 'cleanup; exit 1' INT TERM
+"$bin" grid up "$config" --state "$state" --broker-port 0 \
+  --broker-endpoint 'tcp://127.0.0.1:*' >"$work/up.txt" 2>&1
+check $? "grid up"
+url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
+[ -n "$url" ]; check $? "the state file records the broker ($url)"
+nagents=$(jq '.agents | length' "$config")
+i=0 live=0
+while [ $i -lt 100 ]; do
+  live=$(curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive)] | length')
+  [ "${live:-0}" -ge "$nagents" ] && break
+  sleep 0.1
+  i=$((i + 1))
+done
+[ "${live:-0}" -eq "$nagents" ]; check $? "all $nagents agents registered on the market (got $live)"
+
+"$bin" solve "$scene" --quiet --out "$work/local" >/dev/null 2>&1
+check $? "biotgrid solve (the reference)"
+total=0
+for mech in central catallactic posted; do
+  jq -n --slurpfile s "$scene" --arg m "$mech" '{scene: $s[0], mechanism: $m, budget: 100}' \
+    >"$work/submit-$mech.json"
+  id=$(curl -sf -X POST -H 'Content-Type: application/json' \
+    --data-binary @"$work/submit-$mech.json" "$url/v1/jobs" | jq -r .id)
+  st=$(wait_job "$url" "$id" 300)
+  [ "$st" = succeeded ]; check $? "$mech: the job succeeded (got $st)"
+  [ "$st" = succeeded ] || curl -sf "$url/v1/jobs/$id" >&2
+  curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report-$mech.json"
+  jq -n --slurpfile a "$work/report-$mech.json" --slurpfile b "$work/local/report.json" \
+    '($a[0].runs[0].energy - $b[0].runs[0].energy) | fabs <= 1e-10 * ($b[0].runs[0].energy | fabs)' \
+    | grep -q true
+  check $? "$mech: its energy equals biotgrid solve's (1e-10 relative)"
+  jq -e '[.market.contracts[].service] as $s | ($s | index("rotation-fit")) != null and
+         ($s | index("sparse-solve")) != null and ($s | index("integration-step")) == null' \
+    "$work/report-$mech.json" >/dev/null
+  check $? "$mech: the report's contracts list rotation-fit and sparse-solve, no integration-step"
+  jq -e --arg m "$mech" '.market.market == "live" and .market.mechanism == $m and
+         .market.spent > 0 and .market.spent <= .market.budget' "$work/report-$mech.json" >/dev/null
+  check $? "$mech: the report's market section (live, mechanism, 0 < spent <= budget)"
+  curl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-$mech.txt"
+  contracts "$work/events-$mech.txt" >"$work/contracts-$mech.txt"
+  n=$(wc -l <"$work/contracts-$mech.txt")
+  [ "$n" -gt 0 ] && grep -q '"service":"rotation-fit"' "$work/contracts-$mech.txt" &&
+    grep -q '"service":"sparse-solve"' "$work/contracts-$mech.txt" &&
+    ! grep -q '"service":"integration-step"' "$work/contracts-$mech.txt"
+  check $? "$mech: the job's $n contract events list rotation-fit and sparse-solve only"
+  total=$((total + n))
+done
+
+jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "posted", budget: 0.001}' \
+  >"$work/submit-poor.json"
+id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit-poor.json" \
+  "$url/v1/jobs" | jq -r .id)
+st=$(wait_job "$url" "$id" 60)
+reason=$(curl -sf "$url/v1/jobs/$id" | jq -r .reason)
+[ "$st" = failed ]; check $? "a budget of 0.001 fails the job (got $st)"
+case $reason in *budget*) r=0 ;; *) r=1 ;; esac
+check $r "its reason names the budget ($reason)"
+curl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-poor.txt"
+[ "$(contracts "$work/events-poor.txt" | wc -l)" -eq 0 ]; check $? "the poor job made no contract"
+
+jq -n --slurpfile s "$dynamic" '{scene: $s[0], mechanism: "central", budget: 100}' \
+  >"$work/submit-dynamic.json"
+id=$(curl -sf -X POST -H 'Content-Type: application/json' \
+  --data-binary @"$work/submit-dynamic.json" "$url/v1/jobs" | jq -r .id)
+st=$(wait_job "$url" "$id" 300)
+[ "$st" = succeeded ]; check $? "the dynamic scene's job succeeded (got $st)"
+curl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-dynamic.txt"
+contracts "$work/events-dynamic.txt" >"$work/contracts-dynamic.txt"
+grep -q '"service":"integration-step"' "$work/contracts-dynamic.txt"
+check $? "the dynamic scene's job bought integration-step"
+total=$((total + $(wc -l <"$work/contracts-dynamic.txt")))
+
+# Releases reach the agents a little after the jobs end; the log is final.
+curl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
+head -1 "$work/contracts.csv" | grep -q '^scenario,replication,mechanism,layer,request,'
+check $? "contracts.csv has the simulator's header"
+rows=$(($(wc -l <"$work/contracts.csv") - 1))
+[ "$rows" -eq "$total" ]; check $? "contracts.csv has one row per contract ($rows rows, $total events)"
+awk -F, 'NR > 1 { if (!($13 <= $14 + 1e-12 && $13 >= $15 - 1e-12)) bad++ }
+         END { exit bad > 0 }' "$work/contracts.csv"
+check $? "every contract's price lies within the buyer's and the seller's limits"
+curl -sf "$url/v1/market" | jq -e '.market == "live" and (.prices | length) > 0' >/dev/null
+check $? "/v1/market reports the live market's recent prices"
+curl -sf "$url/v1/market/agents.csv" >"$work/agents.csv"
+[ "$(($(wc -l <"$work/agents.csv") - 1))" -ge "$nagents" ]; check $? "agents.csv lists the agents"
+
+"$bin" grid down --state "$state" >"$work/down.txt" 2>&1
+check $? "grid down"
+sh "$scripts/no_agents_left.sh" "$state"; check $? "no process of the grid is left"
+exit $fail
