@@ -668,7 +668,12 @@ static void send_cfps(bgb_market_t *m, job_t *j, double now)
         }
         sent++;
     }
-    j->discover_until = now + m->c.reply_timeout / 8;
+    /* Proposals of an earlier round are stale once the next starts, so a
+     * round whose sellers answered late (a loaded host) would repeat
+     * forever with one fixed window: each retry doubles it, up to the
+     * reply timeout. */
+    const int doublings = j->attempt < 3 ? j->attempt : 3;
+    j->discover_until = now + m->c.reply_timeout / 8 * (double)(1 << doublings);
 }
 
 static void check_done(bgb_market_t *m, job_t *j, double now)
