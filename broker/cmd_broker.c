@@ -41,8 +41,10 @@ const char bg_cmd_broker_usage[] =
     "  --endpoint EP       ZeroMQ ROUTER endpoint (port * : an ephemeral one)\n"
     "  --state-dir DIR     where the store and the jobs' folders live\n"
     "  --ready-file FILE   write \"URL ENDPOINT PID\" there once serving\n"
-    "No live market is attached in this build: with agents in the config a job runs\n"
-    "on them without contracts; without, it waits in allocating.\n";
+    "Agents started with `biotgrid agent --broker ENDPOINT` sell on its live market;\n"
+    "each job buys its plan's services there (its mechanism: central, catallactic or\n"
+    "posted; at most its budget) and runs on the agents it bought. With no agent on\n"
+    "the market, a job runs on the config's agents without contracts, or waits.\n";
 
 static int write_ready_file(const char *path, const char *url, const char *endpoint)
 {
