@@ -937,16 +937,26 @@ static void on_contract(void *ctx, const bgb_contract_t *row)
     pthread_mutex_unlock(&b->lock);
     if (!id[0])
         return;
-    char json[768];
-    snprintf(json, sizeof json,
-             "{\"service\":\"%s\",\"agent\":%u,\"agent_name\":\"%s\",\"mechanism\":\"%s\","
-             "\"quantity\":%.17g,\"price\":%.17g,\"buyer_limit\":%.17g,\"seller_limit\":%.17g,"
-             "\"time\":%.6f}",
-             bgb_good_name(row->good), row->seller, row->seller_name,
-             bgb_mechanism_name((bgb_mechanism)row->mechanism), row->quantity, row->price,
-             row->buyer_limit, row->seller_limit, row->time);
+    /* Built with cJSON: an agent's name is the agent's own text. */
+    cJSON *o = cJSON_CreateObject();
+    if (!o)
+        return;
+    cJSON_AddStringToObject(o, "service", bgb_good_name(row->good));
+    cJSON_AddNumberToObject(o, "agent_id", row->seller);
+    cJSON_AddStringToObject(o, "agent", row->seller_name);
+    cJSON_AddStringToObject(o, "mechanism", bgb_mechanism_name((bgb_mechanism)row->mechanism));
+    cJSON_AddNumberToObject(o, "quantity", row->quantity);
+    cJSON_AddNumberToObject(o, "price", row->price);
+    cJSON_AddNumberToObject(o, "buyer_limit", row->buyer_limit);
+    cJSON_AddNumberToObject(o, "seller_limit", row->seller_limit);
+    cJSON_AddNumberToObject(o, "time", row->time);
+    char *json = cJSON_PrintUnformatted(o);
+    cJSON_Delete(o);
+    if (!json)
+        return;
     bg_error_t err = BG_ERROR_INIT;
     (void)bgb_store_add_event(b->store, id, "contract", json, &err);
+    free(json);
 }
 
 /* The directory, recent prices and the CSVs as text for the REST thread. */

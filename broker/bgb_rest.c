@@ -142,6 +142,7 @@ static enum MHD_Result send_store_problem(bgb_rest_t *rest, struct MHD_Connectio
 
 typedef struct plan_capture {
     cJSON *plan, *allocation, *progress, *trace;
+    cJSON *contracts; /* the job's "contract" events, in order */
     int final_trace;
 } plan_capture_t;
 
@@ -164,6 +165,15 @@ static void capture_plan(void *ctx, int64_t sequence, double time, const char *k
         replace_json(&pc->plan, json);
     } else if (strcmp(kind, "allocation") == 0) {
         replace_json(&pc->allocation, json);
+    } else if (strcmp(kind, "contract") == 0) {
+        cJSON *contract = cJSON_Parse(json);
+        if (!pc->contracts)
+            pc->contracts = cJSON_CreateArray();
+        if (contract && pc->contracts &&
+            cJSON_GetArraySize(pc->contracts) < REST_MAX_TRACE_POINTS)
+            cJSON_AddItemToArray(pc->contracts, contract);
+        else
+            cJSON_Delete(contract);
     } else if (strcmp(kind, "progress") == 0) {
         replace_json(&pc->progress, json);
         if (!pc->final_trace && pc->progress) {
@@ -192,6 +202,7 @@ static void plan_capture_release(plan_capture_t *pc)
     cJSON_Delete(pc->allocation);
     cJSON_Delete(pc->progress);
     cJSON_Delete(pc->trace);
+    cJSON_Delete(pc->contracts);
     memset(pc, 0, sizeof *pc);
 }
 
@@ -219,21 +230,27 @@ static cJSON *job_json(bgb_rest_t *rest, const bgb_job_t *job, int with_plan)
     else
         cJSON_AddNullToObject(o, "reason");
     if (with_plan) {
-        plan_capture_t pc = {NULL, NULL, NULL, NULL, 0};
+        plan_capture_t pc = {NULL, NULL, NULL, NULL, NULL, 0};
         bg_error_t err = BG_ERROR_INIT;
         if (bgb_store_events(rest->store, job->id, 0, capture_plan, &pc, &err) == BG_OK) {
             if (pc.plan) {
                 cJSON_AddItemToObject(o, "plan", pc.plan);
                 pc.plan = NULL;
             }
-            cJSON *contracts =
-                pc.allocation ? cJSON_DetachItemFromObjectCaseSensitive(pc.allocation,
-                                                                        "contracts")
-                              : NULL;
-            cJSON_AddItemToObject(o, "contracts",
-                                  cJSON_IsArray(contracts) ? contracts : cJSON_CreateArray());
-            if (contracts && !cJSON_IsArray(contracts))
-                cJSON_Delete(contracts);
+            /* The live market records each contract as its own event; the
+             * allocation event lists them only when it has them at hand. */
+            cJSON *contracts = NULL;
+            if (pc.contracts) {
+                contracts = pc.contracts;
+                pc.contracts = NULL;
+            } else if (pc.allocation) {
+                contracts = cJSON_GetObjectItemCaseSensitive(pc.allocation, "contracts");
+                contracts = cJSON_IsArray(contracts)
+                                ? cJSON_DetachItemFromObjectCaseSensitive(pc.allocation,
+                                                                          "contracts")
+                                : NULL;
+            }
+            cJSON_AddItemToObject(o, "contracts", contracts ? contracts : cJSON_CreateArray());
             if (pc.allocation) {
                 cJSON_AddItemToObject(o, "allocation", pc.allocation);
                 pc.allocation = NULL;

@@ -66,6 +66,10 @@ for mech in central catallactic posted; do
     grep -q '"service":"sparse-solve"' "$work/contracts-$mech.txt" &&
     ! grep -q '"service":"integration-step"' "$work/contracts-$mech.txt"
   check $? "$mech: the job's $n contract events list rotation-fit and sparse-solve only"
+  curl -sf "$url/v1/jobs/$id" | jq -e --argjson n "$n" '(.contracts | length) == $n and
+      all(.contracts[]; (.agent | type) == "string" and .price >= .seller_limit and
+          .price <= .buyer_limit)' >/dev/null
+  check $? "$mech: GET /v1/jobs/{id} lists its $n contracts, each price within both limits"
   total=$((total + n))
 done
 

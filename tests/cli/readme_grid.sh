@@ -26,6 +26,11 @@ cat "$work/up.txt" "$work/submit.txt" "$work/down.txt" 2>/dev/null
 [ $rc -eq 0 ] || fail "the README's first command exited $rc"
 grep -Eq "^job j[0-9a-f]{16}: succeeded" "$work/submit.txt" || fail "no 'succeeded' line"
 grep -q "report\\.json (" "$work/submit.txt" || fail "the result's files were not listed"
+grep -q "^  contract: rotation-fit from " "$work/submit.txt" || fail "no rotation-fit contract shown"
+grep -q "^  contract: sparse-solve from " "$work/submit.txt" || fail "no sparse-solve contract shown"
+grep -q "^  contract: integration-step" "$work/submit.txt" && fail "a static job bought an integration step"
+grep -Eq "^  spent [0-9.e+]+ of budget 1000 \\(central\\)" "$work/submit.txt" ||
+    fail "the money spent against the budget is not shown"
 [ "$(jq -r '.runs[0].converged' "$work/first-job/report.json" 2>/dev/null)" = true ] ||
     fail "report.json has no converged run"
 [ "$(jq -r '.market.mechanism' "$work/first-job/report.json" 2>/dev/null)" != null ] ||
