@@ -67,6 +67,7 @@ struct job {
     int nprops;
     double discover_until;
     int attempt; /* catallactic discovery rounds so far */
+    int quiet;   /* of those, rounds in which no seller proposed */
     bgm_rng_t rng;
     bgm_genes_t genes;
     bgb_done_fn done;
@@ -621,6 +622,8 @@ static void catallactic_step(bgb_market_t *m, job_t *j, double now)
                  * fresh draw (the simulator's agents learn across jobs; a
                  * live job has only its own rounds). */
                 bgm_genes_random(&j->genes, &j->rng);
+                if (j->nprops == 0)
+                    j->quiet++;
                 j->nprops = 0;
                 j->attempt++;
                 send_cfps(m, j, now);
@@ -668,11 +671,12 @@ static void send_cfps(bgb_market_t *m, job_t *j, double now)
         }
         sent++;
     }
-    /* Proposals of an earlier round are stale once the next starts, so a
-     * round whose sellers answered late (a loaded host) would repeat
-     * forever with one fixed window: each retry doubles it, up to the
-     * reply timeout. */
-    const int doublings = j->attempt < 3 ? j->attempt : 3;
+    /* Proposals of an earlier round are stale once the next starts, so
+     * rounds whose sellers answered too late (a loaded host) would repeat
+     * with one fixed window until the buy times out: each round that heard
+     * no proposal doubles the window, up to the reply timeout. Rounds
+     * whose bargains failed keep it short: they retry with new genes. */
+    const int doublings = j->quiet < 3 ? j->quiet : 3;
     j->discover_until = now + m->c.reply_timeout / 8 * (double)(1 << doublings);
 }
 
