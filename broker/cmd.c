@@ -1,5 +1,7 @@
 #include "cmd.h"
 
+#include <limits.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -27,4 +29,36 @@ int bg_cmd_mesh_path_finish(char *buf, size_t size)
 int bg_cmd_make_directories(const char *path)
 {
     return bg_file_make_directories(path);
+}
+
+volatile sig_atomic_t bg_cmd_stop_requested;
+
+static void on_stop_signal(int sig)
+{
+    (void)sig;
+    bg_cmd_stop_requested = 1;
+}
+
+void bg_cmd_stop_on_signals(void)
+{
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_stop_signal; /* no SA_RESTART: see cmd.h */
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGINT, &sa, NULL);
+}
+
+int bg_cmd_write_ready_file(const char *path, const char *line)
+{
+    char tmp[PATH_MAX];
+    if (snprintf(tmp, sizeof tmp, "%s.tmp", path) >= (int)sizeof tmp)
+        return -1;
+    FILE *f = fopen(tmp, "w");
+    if (!f)
+        return -1;
+    const int ok = fputs(line, f) >= 0;
+    if (fclose(f) != 0 || !ok)
+        return -1;
+    return rename(tmp, path);
 }

@@ -5,6 +5,7 @@
 #ifndef BG_CMD_H
 #define BG_CMD_H
 
+#include <signal.h>
 #include <stddef.h>
 
 /* Exit statuses of every subcommand. */
@@ -32,5 +33,19 @@ int bg_cmd_mesh_path_finish(char *buf, size_t size);
 /* mkdir -p (bg_file_make_directories): creates path and its missing parents (mode
  * 0755); -1 on failure (errno set). */
 int bg_cmd_make_directories(const char *path);
+
+/*
+ * Daemons (agent, broker): SIGTERM and SIGINT set bg_cmd_stop_requested,
+ * without SA_RESTART so a blocking poll returns EINTR at once and the
+ * daemon finishes the call in progress and exits.
+ */
+extern volatile sig_atomic_t bg_cmd_stop_requested;
+void bg_cmd_stop_on_signals(void);
+
+/*
+ * Writes line to path atomically (path.tmp, then rename), so a process
+ * waiting for the file never reads half of it. Returns 0, or -1 with errno.
+ */
+int bg_cmd_write_ready_file(const char *path, const char *line);
 
 #endif

@@ -16,8 +16,6 @@
 
 #include <cjson/cJSON.h>
 #include <errno.h>
-#include <limits.h>
-#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -25,14 +23,7 @@
 
 #include "bg_mesh_io.h"
 #include "bga_agent.h"
-
-static volatile sig_atomic_t stop_requested;
-
-static void on_signal(int sig)
-{
-    (void)sig;
-    stop_requested = 1;
-}
+#include "cmd.h"
 
 const char bg_cmd_agent_usage[] =
     "usage: biotgrid agent [--config FILE] [--listen ENDPOINT] [--services LIST]\n"
@@ -168,20 +159,6 @@ static int read_config(const char *path, options *o)
     return rc;
 }
 
-static int write_ready_file(const char *path, const char *endpoint)
-{
-    char tmp[PATH_MAX];
-    if (snprintf(tmp, sizeof tmp, "%s.tmp", path) >= (int)sizeof tmp)
-        return -1;
-    FILE *f = fopen(tmp, "w");
-    if (!f)
-        return -1;
-    const int ok = fprintf(f, "%s %ld\n", endpoint, (long)getpid()) > 0;
-    if (fclose(f) != 0 || !ok)
-        return -1;
-    return rename(tmp, path);
-}
-
 static int parse_args(int argc, char **argv, options *o)
 {
     const char *config = NULL;
@@ -273,14 +250,13 @@ int bg_cmd_agent(int argc, char **argv)
         fprintf(stderr, "biotgrid agent: %s\n", err.message);
         return err.status == BG_ERR_IO ? 2 : 1;
     }
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_signal; /* no SA_RESTART: zmq_poll returns EINTR at once */
-    sigemptyset(&sa.sa_mask);
-    sigaction(SIGTERM, &sa, NULL);
-    sigaction(SIGINT, &sa, NULL);
+    bg_cmd_stop_on_signals();
     int rc = 0;
-    if (o.ready_file && write_ready_file(o.ready_file, bga_agent_endpoint(agent)) != 0) {
+    char ready[1024];
+    const int ready_length =
+        snprintf(ready, sizeof ready, "%s %ld\n", bga_agent_endpoint(agent), (long)getpid());
+    if (o.ready_file && (ready_length >= (int)sizeof ready ||
+                         bg_cmd_write_ready_file(o.ready_file, ready) != 0)) {
         fprintf(stderr, "biotgrid agent: cannot write the ready file %s: %s\n", o.ready_file,
                 strerror(errno));
         rc = 1;
@@ -289,7 +265,7 @@ int bg_cmd_agent(int argc, char **argv)
     printf("agent %s ready on %s (services %s, %d slots)\n", sp->name, bga_agent_endpoint(agent),
            sp->services, sp->slots);
     fflush(stdout);
-    if (bga_agent_run(agent, &stop_requested, &err) != BG_OK) {
+    if (bga_agent_run(agent, &bg_cmd_stop_requested, &err) != BG_OK) {
         fprintf(stderr, "biotgrid agent %s: %s\n", sp->name, err.message);
         rc = 1;
     }

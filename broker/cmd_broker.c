@@ -11,22 +11,12 @@
 
 #include "cmd.h"
 
-#include <limits.h>
-#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
 #include "bgb_broker.h"
-
-static volatile sig_atomic_t stop_requested;
-
-static void on_signal(int sig)
-{
-    (void)sig;
-    stop_requested = 1;
-}
 
 const char bg_cmd_broker_usage[] =
     "usage: biotgrid broker [--config FILE] [--port N] [--endpoint ENDPOINT]\n"
@@ -45,20 +35,6 @@ const char bg_cmd_broker_usage[] =
     "each job buys its plan's services there (its mechanism: central, catallactic or\n"
     "posted; at most its budget) and runs on the agents it bought. With no agent on\n"
     "the market, a job runs on the config's agents without contracts, or waits.\n";
-
-static int write_ready_file(const char *path, const char *url, const char *endpoint)
-{
-    char tmp[PATH_MAX];
-    if (snprintf(tmp, sizeof tmp, "%s.tmp", path) >= (int)sizeof tmp)
-        return -1;
-    FILE *f = fopen(tmp, "w");
-    if (!f)
-        return -1;
-    const int ok = fprintf(f, "%s %s %ld\n", url, endpoint, (long)getpid()) > 0;
-    if (fclose(f) != 0 || !ok)
-        return -1;
-    return rename(tmp, path);
-}
 
 static int set_string(char **slot, const char *value)
 {
@@ -124,11 +100,7 @@ int bg_cmd_broker(int argc, char **argv)
             goto out;
         }
     }
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_signal;
-    sigaction(SIGTERM, &sa, NULL);
-    sigaction(SIGINT, &sa, NULL);
+    bg_cmd_stop_on_signals();
     if (bgb_broker_start(&config, &broker, &err) != BG_OK) {
         fprintf(stderr, "biotgrid broker: %s\n", err.message);
         rc = err.status == BG_ERR_INVALID ? BG_EXIT_BAD_INPUT : BG_EXIT_FAILED;
@@ -137,7 +109,11 @@ int bg_cmd_broker(int argc, char **argv)
     char url[128];
     snprintf(url, sizeof url, "http://%s:%u", config.address,
              (unsigned)bgb_broker_rest_port(broker));
-    if (ready_file && write_ready_file(ready_file, url, bgb_broker_endpoint(broker)) != 0) {
+    char ready[1024];
+    const int ready_length = snprintf(ready, sizeof ready, "%s %s %ld\n", url,
+                                      bgb_broker_endpoint(broker), (long)getpid());
+    if (ready_file && (ready_length >= (int)sizeof ready ||
+                       bg_cmd_write_ready_file(ready_file, ready) != 0)) {
         fprintf(stderr, "biotgrid broker: cannot write the ready file %s\n", ready_file);
         rc = BG_EXIT_FAILED;
         goto out;
@@ -145,7 +121,7 @@ int bg_cmd_broker(int argc, char **argv)
     printf("broker %s ready on %s, agents at %s\n", config.name, url,
            bgb_broker_endpoint(broker));
     fflush(stdout);
-    while (!stop_requested)
+    while (!bg_cmd_stop_requested)
         pause();
     rc = BG_EXIT_OK;
 out:
