@@ -12,11 +12,13 @@
  * (s << 4) + 8 + system id for its matrices. */
 #define BACKEND_JOB_SHIFT 4
 #define BACKEND_SYSTEM_JOB 8
+#define BACKEND_STEP_JOB 2
 
 struct bga_backend {
     bg_backend_t services;
     char endpoint[BGA_BACKEND_MAX_AGENTS][BACKEND_ENDPOINT_MAX];
     int nrotfit;
+    int has_integ; /* endpoint[nrotfit + 1] is the integration-step agent */
     int timeout_ms;
     int64_t lease_ms;
     uint64_t sessions;
@@ -33,6 +35,12 @@ typedef struct session {
     bg_sparse_t *sys[BG_BACKEND_MAX_SYSTEMS];
     int set_up[BG_BACKEND_MAX_SYSTEMS];
     double flops[BG_BACKEND_MAX_SYSTEMS], nonzeros[BG_BACKEND_MAX_SYSTEMS]; /* the agent's */
+    /* integration-step: on the agent (integ, with reply buffers), or in
+     * this process when the backend has no such agent (local_step) */
+    bga_client_t *integ;
+    bga_step_buffers_t sbuf;
+    double *sblock;
+    bg_step_t *local_step;
     bg_status failed;
     bg_error_t fail_err;
 } session;
@@ -100,6 +108,16 @@ static void session_destroy(void *ctx, void *opaque)
         add_traffic(&b->usage[b->nrotfit].traffic, bga_client_traffic(s->solver));
         bga_client_destroy(&s->solver);
     }
+    if (s->integ) {
+        if (s->failed == BG_OK) {
+            bg_error_t ignored = BG_ERROR_INIT; /* best effort: the lease frees it otherwise */
+            bga_client_release(s->integ, s->job + BACKEND_STEP_JOB, &ignored);
+        }
+        add_traffic(&b->usage[b->nrotfit + 1].traffic, bga_client_traffic(s->integ));
+        bga_client_destroy(&s->integ);
+    }
+    bg_step_destroy(&s->local_step);
+    free(s->sblock);
     free(s);
 }
 
@@ -221,18 +239,104 @@ static void solve_cost(void *opaque, int id, double *flops, double *nonzeros)
     *nonzeros = s->nonzeros[id];
 }
 
+static bg_status step_open(void *opaque, const bg_step_setup_t *setup, bg_step_motion_t *motion,
+                           bg_error_t *err)
+{
+    session *s = opaque;
+    bga_backend_t *b = s->b;
+    bg_status st = check(s, err);
+    if (st != BG_OK)
+        return st;
+    if (s->integ || s->local_step)
+        return bg_error_set(err, BG_ERR_INVALID, "this session already holds a step state");
+    if (!b->has_integ) {
+        st = bg_step_new(setup, &s->local_step, err);
+        if (st == BG_OK)
+            bg_step_motion(s->local_step, motion);
+        return st == BG_OK ? BG_OK : fail(s, st, err);
+    }
+    const size_t ndof = (size_t)setup->nv * (size_t)setup->dim;
+    s->sblock = malloc((4 + BG_STEP_MAX_CANDIDATES) * ndof * sizeof *s->sblock + 1);
+    if (!s->sblock)
+        return fail(s, bg_error_set(err, BG_ERR_NOMEM, "out of memory for the step buffers"),
+                    err);
+    s->sbuf = (bga_step_buffers_t){ndof,           s->sblock,        s->sblock + ndof,
+                                   s->sblock + 2 * ndof, s->sblock + 4 * ndof, s->sblock + 3 * ndof};
+    st = bga_client_new(b->endpoint[b->nrotfit + 1], "integration-step", b->timeout_ms, &s->integ,
+                        err);
+    if (st == BG_OK)
+        st = bga_client_step_setup(s->integ, s->job + BACKEND_STEP_JOB, setup, b->lease_ms,
+                                   &s->sbuf, motion, err);
+    return st == BG_OK ? BG_OK : fail(s, st, err);
+}
+
+static bg_status no_step(session *s, bg_error_t *err)
+{
+    return fail(s, bg_error_set(err, BG_ERR_INVALID, "integration step called before step_open"),
+                err);
+}
+
+static bg_status step_predict(void *opaque, const bg_step_request_t *req,
+                              bg_step_prediction_t *out, bg_error_t *err)
+{
+    session *s = opaque;
+    bg_status st = check(s, err);
+    if (st != BG_OK)
+        return st;
+    if (s->local_step)
+        st = bg_step_predict(s->local_step, req, out, err);
+    else if (s->integ)
+        st = bga_client_step_predict(s->integ, s->job + BACKEND_STEP_JOB, req, &s->sbuf, out, err);
+    else
+        return no_step(s, err);
+    return st == BG_OK ? BG_OK : fail(s, st, err);
+}
+
+static bg_status step_update(void *opaque, const double *q_star, const double *grad_star,
+                             bg_step_trial_t *out, bg_error_t *err)
+{
+    session *s = opaque;
+    bg_status st = check(s, err);
+    if (st != BG_OK)
+        return st;
+    if (s->local_step)
+        st = bg_step_update(s->local_step, q_star, grad_star, out, err);
+    else if (s->integ)
+        st = bga_client_step_update(s->integ, s->job + BACKEND_STEP_JOB, q_star, grad_star,
+                                    &s->sbuf, out, err);
+    else
+        return no_step(s, err);
+    return st == BG_OK ? BG_OK : fail(s, st, err);
+}
+
+static bg_status step_accept(void *opaque, bg_step_motion_t *motion, bg_error_t *err)
+{
+    session *s = opaque;
+    bg_status st = check(s, err);
+    if (st != BG_OK)
+        return st;
+    if (s->local_step)
+        st = bg_step_accept(s->local_step, motion, err);
+    else if (s->integ)
+        st = bga_client_step_accept(s->integ, s->job + BACKEND_STEP_JOB, &s->sbuf, motion, err);
+    else
+        return no_step(s, err);
+    return st == BG_OK ? BG_OK : fail(s, st, err);
+}
+
 static const bg_backend_ops_t agents_ops = {
-    "agents", session_new, session_destroy, fit_open, fit_eval, fit_hessian,
-    solve_open, solve_factor, solve, solve_cost,
+    "agents",    session_new, session_destroy, fit_open,     fit_eval,     fit_hessian,
+    solve_open,  solve_factor, solve,          solve_cost,   step_open,    step_predict,
+    step_update, step_accept,
 };
 
 bg_status bga_backend_new(const bga_backend_config_t *cfg, bga_backend_t **out, bg_error_t *err)
 {
     *out = NULL;
-    if (cfg->nrotfit < 1 || cfg->nrotfit >= BGA_BACKEND_MAX_AGENTS || !cfg->solve)
+    if (cfg->nrotfit < 1 || cfg->nrotfit >= BGA_BACKEND_MAX_AGENTS - 1 || !cfg->solve)
         return bg_error_set(err, BG_ERR_INVALID,
                             "agents: %d rotation-fit agents (1 to %d) and %s sparse-solve agent",
-                            cfg->nrotfit, BGA_BACKEND_MAX_AGENTS - 1, cfg->solve ? "a" : "no");
+                            cfg->nrotfit, BGA_BACKEND_MAX_AGENTS - 2, cfg->solve ? "a" : "no");
     bga_backend_t *b = calloc(1, sizeof *b);
     if (!b)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the agents backend");
@@ -260,6 +364,17 @@ bg_status bga_backend_new(const bga_backend_config_t *cfg, bga_backend_t **out, 
     return BG_OK;
 }
 
+bg_status bga_backend_set_integ(bga_backend_t *b, const char *endpoint, bg_error_t *err)
+{
+    if (strlen(endpoint) >= BACKEND_ENDPOINT_MAX)
+        return bg_error_set(err, BG_ERR_INVALID, "agent endpoint too long: %.40s...", endpoint);
+    const int i = b->nrotfit + 1;
+    strcpy(b->endpoint[i], endpoint);
+    b->usage[i] = (bga_agent_usage_t){b->endpoint[i], "integration-step", 0, {0}};
+    b->has_integ = 1;
+    return BG_OK;
+}
+
 void bga_backend_destroy(bga_backend_t **backend)
 {
     if (!backend || !*backend)
@@ -281,4 +396,12 @@ int bga_backend_agents(const bga_backend_t *backend)
 bga_agent_usage_t bga_backend_usage(const bga_backend_t *backend, int agent)
 {
     return backend->usage[agent];
+}
+
+int bga_backend_integ_usage(const bga_backend_t *backend, bga_agent_usage_t *usage)
+{
+    if (!backend->has_integ)
+        return 0;
+    *usage = backend->usage[backend->nrotfit + 1];
+    return 1;
 }

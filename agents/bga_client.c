@@ -424,3 +424,123 @@ bg_status bga_client_release(bga_client_t *c, uint64_t job, bg_error_t *err)
     bga_msg_init(&m, BGA_RELEASE, job, 0);
     return simple(c, &m, err);
 }
+
+/* An INTEG_STATE reply into *motion (q into buf->q). */
+static bg_status take_state(bga_client_t *c, const bga_reply_t *rep, const bga_step_buffers_t *buf,
+                            bg_step_motion_t *mo, bg_error_t *err)
+{
+    const bga_msg_t *m = &rep->msg;
+    memset(mo, 0, sizeof *mo);
+    mo->kinetic = m->field[BGA_IT_KINETIC].f;
+    for (int k = 0; k < 3; k++) {
+        mo->linear[k] = m->field[BGA_IT_LINEAR_X + k].f;
+        mo->angular[k] = m->field[BGA_IT_ANGULAR_X + k].f;
+    }
+    mo->steps = m->field[BGA_IT_STEPS].i;
+    mo->q = buf->q;
+    c->traffic.agent_seconds += m->field[BGA_IT_SECONDS].f;
+    return take_f64(c, rep, BGA_IT_Q, buf->q, buf->ndof, "positions", err);
+}
+
+bg_status bga_client_step_setup(bga_client_t *c, uint64_t job, const bg_step_setup_t *setup,
+                                int64_t lease_ms, const bga_step_buffers_t *buf,
+                                bg_step_motion_t *motion, bg_error_t *err)
+{
+    const size_t ndof = buf->ndof;
+    int32_t *flags = malloc(ndof * sizeof *flags + 1);
+    if (!flags)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the constraint flags");
+    for (size_t i = 0; i < ndof; i++)
+        flags[i] = setup->constrained[i] != 0;
+    bga_msg_t m;
+    bga_reply_t rep;
+    bga_msg_init(&m, BGA_INTEG_SETUP, job, 0);
+    m.field[BGA_IS_DIM].i = setup->dim;
+    m.field[BGA_IS_NV].i = setup->nv;
+    m.field[BGA_IS_H].f = setup->h;
+    m.field[BGA_IS_DAMPING].f = setup->damping;
+    m.field[BGA_IS_LEASE_MS].i = lease_ms;
+    m.array[BGA_IS_MASS] = (bga_array_t){setup->mass, (size_t)setup->nv};
+    m.array[BGA_IS_Q] = (bga_array_t){setup->q, ndof};
+    m.array[BGA_IS_VELOCITY] = (bga_array_t){setup->velocity, ndof};
+    m.array[BGA_IS_T0] = (bga_array_t){setup->t0, ndof};
+    m.array[BGA_IS_CONSTRAINED] = (bga_array_t){flags, ndof};
+    m.array[BGA_IS_GRAVITY] = (bga_array_t){setup->gravity, (size_t)setup->dim};
+    bg_status st = exchange(c, &m, BGA_INTEG_STATE, &rep, err);
+    free(flags);
+    if (st != BG_OK)
+        return st;
+    st = take_state(c, &rep, buf, motion, err);
+    bga_reply_close(&rep);
+    return st;
+}
+
+bg_status bga_client_step_predict(bga_client_t *c, uint64_t job, const bg_step_request_t *req,
+                                  const bga_step_buffers_t *buf, bg_step_prediction_t *out,
+                                  bg_error_t *err)
+{
+    bga_msg_t m;
+    bga_reply_t rep;
+    bga_msg_init(&m, BGA_INTEG_PREDICT, job, 0);
+    m.field[BGA_IP_VARIATIONAL].i = req->variational != 0;
+    m.field[BGA_IP_TRIAL].i = req->trial != 0;
+    m.field[BGA_IP_PREDICTOR].i = req->predictor;
+    m.array[BGA_IP_T1] = (bga_array_t){req->t1, buf->ndof};
+    bg_status st = exchange(c, &m, BGA_INTEG_INERTIA, &rep, err);
+    if (st != BG_OK)
+        return st;
+    memset(out, 0, sizeof *out);
+    out->coefficient = rep.msg.field[BGA_II_COEF].f;
+    out->state_scale = rep.msg.field[BGA_II_STATE_SCALE].f;
+    out->ncandidates = (int)rep.msg.field[BGA_II_NCAND].i;
+    c->traffic.agent_seconds += rep.msg.field[BGA_II_SECONDS].f;
+    const double t0 = bg_clock_now();
+    st = take_f64(c, &rep, BGA_II_PREDICT, buf->y, buf->ndof, "prediction", err);
+    if (st == BG_OK)
+        st = take_f64(c, &rep, BGA_II_TARGETS, buf->targets, buf->ndof, "targets", err);
+    if (st == BG_OK)
+        st = take_f64(c, &rep, BGA_II_CANDIDATES, buf->candidates,
+                      buf->ndof * (size_t)out->ncandidates, "candidates", err);
+    c->traffic.encode_seconds += bg_clock_now() - t0;
+    bga_reply_close(&rep);
+    out->y = buf->y;
+    out->targets = buf->targets;
+    for (int k = 0; k < out->ncandidates; k++)
+        out->candidate[k] = buf->candidates + (size_t)k * buf->ndof;
+    return st;
+}
+
+bg_status bga_client_step_update(bga_client_t *c, uint64_t job, const double *q_star,
+                                 const double *grad_star, const bga_step_buffers_t *buf,
+                                 bg_step_trial_t *out, bg_error_t *err)
+{
+    bga_msg_t m;
+    bga_reply_t rep;
+    bga_msg_init(&m, BGA_INTEG_UPDATE, job, 0);
+    m.array[BGA_IU_QSTAR] = (bga_array_t){q_star, buf->ndof};
+    m.array[BGA_IU_GRAD] = (bga_array_t){grad_star, buf->ndof};
+    bg_status st = exchange(c, &m, BGA_INTEG_TRIAL, &rep, err);
+    if (st != BG_OK)
+        return st;
+    out->kinetic = rep.msg.field[BGA_IR_KINETIC].f;
+    out->handle_work = rep.msg.field[BGA_IR_WORK].f;
+    out->q_next = buf->q_next;
+    c->traffic.agent_seconds += rep.msg.field[BGA_IR_SECONDS].f;
+    st = take_f64(c, &rep, BGA_IR_QNEXT, buf->q_next, buf->ndof, "trial positions", err);
+    bga_reply_close(&rep);
+    return st;
+}
+
+bg_status bga_client_step_accept(bga_client_t *c, uint64_t job, const bga_step_buffers_t *buf,
+                                 bg_step_motion_t *motion, bg_error_t *err)
+{
+    bga_msg_t m;
+    bga_reply_t rep;
+    bga_msg_init(&m, BGA_INTEG_ACCEPT, job, 0);
+    bg_status st = exchange(c, &m, BGA_INTEG_STATE, &rep, err);
+    if (st != BG_OK)
+        return st;
+    st = take_state(c, &rep, buf, motion, err);
+    bga_reply_close(&rep);
+    return st;
+}

@@ -18,6 +18,7 @@
 
 #include "bg_error.h"
 #include "bg_rotfit.h"
+#include "bg_step.h"
 #include "bga_transport.h"
 #include "bga_wire.h"
 
@@ -131,5 +132,29 @@ bg_status bga_client_solve_factor_cost(bga_client_t *c, uint64_t job, const doub
 bg_status bga_client_solve(bga_client_t *c, uint64_t job, const double *rhs, int32_t n, int nrhs,
                            double *x, bg_error_t *err);
 bg_status bga_client_release(bga_client_t *c, uint64_t job, bg_error_t *err);
+
+/*
+ * integration-step: the calls of bg_step (bg_step.h) on the agent's copy
+ * of the run's state. The replies' arrays are copied into the caller's
+ * buffers (ndof values each; `candidates` holds BG_STEP_MAX_CANDIDATES·ndof)
+ * and the outputs point into them. A reply whose arrays do not have the
+ * state's size is BG_ERR_PARSE.
+ */
+typedef struct bga_step_buffers {
+    size_t ndof;
+    double *q, *y, *targets, *candidates, *q_next;
+} bga_step_buffers_t;
+
+bg_status bga_client_step_setup(bga_client_t *c, uint64_t job, const bg_step_setup_t *setup,
+                                int64_t lease_ms, const bga_step_buffers_t *buf,
+                                bg_step_motion_t *motion, bg_error_t *err);
+bg_status bga_client_step_predict(bga_client_t *c, uint64_t job, const bg_step_request_t *req,
+                                  const bga_step_buffers_t *buf, bg_step_prediction_t *out,
+                                  bg_error_t *err);
+bg_status bga_client_step_update(bga_client_t *c, uint64_t job, const double *q_star,
+                                 const double *grad_star, const bga_step_buffers_t *buf,
+                                 bg_step_trial_t *out, bg_error_t *err);
+bg_status bga_client_step_accept(bga_client_t *c, uint64_t job, const bga_step_buffers_t *buf,
+                                 bg_step_motion_t *motion, bg_error_t *err);
 
 #endif

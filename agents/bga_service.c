@@ -9,6 +9,7 @@
 #include "bg_elastic.h"
 #include "bg_mesh.h"
 #include "bg_sparse.h"
+#include "bg_step.h"
 
 /* One job's state on this agent; a slot is free when id == 0. */
 typedef struct job {
@@ -25,12 +26,10 @@ typedef struct job {
     bg_sparse_t *sys;
     int factored; /* the last factorization succeeded */
     double *x;
-    /* integration step */
-    int idim;
-    int32_t inv;
-    double h, damping;
-    double *mass, *iq, *ip, *scratch;
-    int64_t steps;
+    /* integration step: the run's state (bg_step) and host copies of a
+     * request's arrays (two position vectors) */
+    bg_step_t *step;
+    double *iin;
 } job;
 
 struct bga_service {
@@ -63,13 +62,9 @@ static void free_solve(job *j)
 
 static void free_integ(job *j)
 {
-    free(j->mass);
-    free(j->iq);
-    free(j->ip);
-    free(j->scratch);
-    j->mass = j->iq = j->ip = j->scratch = NULL;
-    j->inv = 0;
-    j->steps = 0;
+    bg_step_destroy(&j->step);
+    free(j->iin);
+    j->iin = NULL;
 }
 
 static void free_job(job *j)
@@ -83,7 +78,7 @@ static void free_job(job *j)
 /* A job whose only set-up failed holds nothing: give its slot back. */
 static void free_job_if_empty(job *j)
 {
-    if (!j->model && !j->sys && !j->mass)
+    if (!j->model && !j->sys && !j->step)
         free_job(j);
 }
 
@@ -518,6 +513,21 @@ static bga_wire_code solve_rhs(job *j, const bga_msg_t *m, bga_msg_t *rep,
     return BGA_WIRE_OK;
 }
 
+/* The committed state as the reply to a set-up or an accept. */
+static void reply_state(const bga_msg_t *m, const bg_step_motion_t *mo, size_t ndof,
+                        double seconds, bga_msg_t *rep)
+{
+    bga_msg_init(rep, BGA_INTEG_STATE, m->header.job, m->header.seq);
+    rep->field[BGA_IT_KINETIC].f = mo->kinetic;
+    for (int c = 0; c < 3; c++) {
+        rep->field[BGA_IT_LINEAR_X + c].f = mo->linear[c];
+        rep->field[BGA_IT_ANGULAR_X + c].f = mo->angular[c];
+    }
+    rep->field[BGA_IT_STEPS].i = mo->steps;
+    rep->field[BGA_IT_SECONDS].f = seconds;
+    rep->array[BGA_IT_Q] = (bga_array_t){mo->q, ndof};
+}
+
 static bga_wire_code integ_setup(bga_service_t *svc, const bga_msg_t *m, double now, bga_msg_t *rep,
                                  bga_wire_error_t *werr)
 {
@@ -526,77 +536,144 @@ static bga_wire_code integ_setup(bga_service_t *svc, const bga_msg_t *m, double 
         begin_setup(svc, m, now, m->field[BGA_IS_LEASE_MS].i, free_integ, &j, werr);
     if (wc != BGA_WIRE_OK)
         return wc;
-    j->idim = (int)m->field[BGA_IS_DIM].i;
-    j->inv = (int32_t)m->field[BGA_IS_NV].i;
-    j->h = m->field[BGA_IS_H].f;
-    j->damping = m->field[BGA_IS_DAMPING].f;
-    const size_t ndof = (size_t)j->inv * j->idim;
-    j->mass = malloc((size_t)j->inv * sizeof *j->mass);
-    j->iq = malloc(ndof * sizeof *j->iq);
-    j->ip = malloc(ndof * sizeof *j->ip);
-    j->scratch = malloc(ndof * sizeof *j->scratch);
-    if (!j->mass || !j->iq || !j->ip || !j->scratch) {
+    const double t0 = bg_clock_now();
+    const int dim = (int)m->field[BGA_IS_DIM].i;
+    const int32_t nv = (int32_t)m->field[BGA_IS_NV].i;
+    const size_t ndof = (size_t)nv * (size_t)dim;
+    /* Host copies of the set-up's arrays (the wire's are little-endian views). */
+    double *mass = malloc((size_t)nv * sizeof *mass + 1), *arrays = malloc(3 * ndof * sizeof *arrays + 1);
+    int32_t *flags = malloc(ndof * sizeof *flags + 1);
+    uint8_t *constrained = malloc(ndof + 1);
+    j->iin = malloc(2 * ndof * sizeof *j->iin + 1);
+    bg_error_t e = BG_ERROR_INIT;
+    bg_status st = mass && arrays && flags && constrained && j->iin ? BG_OK : BG_ERR_NOMEM;
+    if (st == BG_OK) {
+        double gravity[3] = {0, 0, 0};
+        bga_msg_copy_f64(m, BGA_IS_MASS, mass);
+        bga_msg_copy_f64(m, BGA_IS_Q, arrays);
+        bga_msg_copy_f64(m, BGA_IS_VELOCITY, arrays + ndof);
+        bga_msg_copy_f64(m, BGA_IS_T0, arrays + 2 * ndof);
+        bga_msg_copy_i32(m, BGA_IS_CONSTRAINED, flags);
+        bga_msg_copy_f64(m, BGA_IS_GRAVITY, gravity);
+        for (size_t i = 0; i < ndof; i++)
+            constrained[i] = flags[i] != 0;
+        const bg_step_setup_t setup = {dim,          nv,          m->field[BGA_IS_H].f,
+                                       m->field[BGA_IS_DAMPING].f, mass, arrays,
+                                       arrays + ndof, arrays + 2 * ndof, constrained, gravity};
+        st = bg_step_new(&setup, &j->step, &e);
+    }
+    free(mass);
+    free(arrays);
+    free(flags);
+    free(constrained);
+    if (st != BG_OK) {
         free_integ(j);
         free_job_if_empty(j);
-        return bga_wire_fail(werr, BGA_WIRE_INTERNAL, -1, "",
-                             "out of memory for the "
-                             "integrator state of %d vertices",
-                             (int)m->field[BGA_IS_NV].i);
+        return bga_wire_fail(werr, st == BG_ERR_NOMEM ? BGA_WIRE_INTERNAL : BGA_WIRE_OUT_OF_RANGE,
+                             st == BG_ERR_NOMEM ? -1 : 1, "",
+                             "integration-step set-up of %d vertices: %s", (int)nv,
+                             e.message[0] ? e.message : "out of memory");
     }
-    bga_msg_copy_f64(m, BGA_IS_MASS, j->mass);
-    bga_msg_copy_f64(m, BGA_IS_Q, j->iq);
-    bga_msg_copy_f64(m, BGA_IS_P, j->ip);
-    reply_ack(rep, m);
+    bg_step_motion_t mo;
+    bg_step_motion(j->step, &mo);
+    const double seconds = bg_clock_now() - t0;
+    svc->stats.compute_seconds += seconds;
+    reply_state(m, &mo, ndof, seconds, rep);
     return BGA_WIRE_OK;
 }
 
-static bga_wire_code integ_predict(job *j, const bga_msg_t *m, bga_msg_t *rep,
-                                   bga_wire_error_t *werr)
+/* A request's position vector of the state's size, or BAD_LENGTH. */
+static bga_wire_code need_dofs(const job *j, const bga_msg_t *m, int array, const char *name,
+                               bga_wire_error_t *werr)
 {
-    if (!j->mass)
+    const size_t ndof = bg_step_dofs(j->step);
+    if (m->array[array].count == ndof)
+        return BGA_WIRE_OK;
+    return bga_wire_fail(werr, BGA_WIRE_BAD_LENGTH, 2 + array, name,
+                         "%zu values, the state has %zu", m->array[array].count, ndof);
+}
+
+/* bg_step refuses calls out of order (BG_ERR_INVALID): the peer's state is wrong. */
+static bga_wire_code step_failed(bg_status st, const bg_error_t *e, bga_wire_error_t *werr)
+{
+    return bga_wire_fail(werr, st == BG_ERR_INVALID ? BGA_WIRE_WRONG_STATE : BGA_WIRE_INTERNAL, 0,
+                         "type", "%s", e->message);
+}
+
+static bga_wire_code integ_predict(job *j, const bga_msg_t *m, bga_msg_t *rep,
+                                   bga_service_stats_t *stats, bga_wire_error_t *werr)
+{
+    if (!j->step)
         return no_state(j, "integrator state", werr);
-    /* The step energy's inertia part (2/h²)|q − q_k|²_M − (2/h)p_kᵀ(q − q_k)
-     * equals (c/2)|q − prediction|²_M + const with c = 4/h² and
-     * prediction = q_k + (h/2) M⁻¹ p_k. */
-    const size_t ndof = (size_t)j->inv * j->idim;
-    for (size_t i = 0; i < ndof; i++)
-        j->scratch[i] = j->iq[i] + 0.5 * j->h * j->ip[i] / j->mass[i / (size_t)j->idim];
+    bga_wire_code wc = need_dofs(j, m, BGA_IP_T1, "t1", werr);
+    if (wc != BGA_WIRE_OK)
+        return wc;
+    const double t0 = bg_clock_now();
+    const size_t ndof = bg_step_dofs(j->step);
+    bga_msg_copy_f64(m, BGA_IP_T1, j->iin);
+    const bg_step_request_t req = {(int)m->field[BGA_IP_VARIATIONAL].i,
+                                   (int)m->field[BGA_IP_TRIAL].i,
+                                   (int)m->field[BGA_IP_PREDICTOR].i, j->iin};
+    bg_step_prediction_t pr;
+    bg_error_t e = BG_ERROR_INIT;
+    const bg_status st = bg_step_predict(j->step, &req, &pr, &e);
+    if (st != BG_OK)
+        return step_failed(st, &e, werr);
+    const double seconds = bg_clock_now() - t0;
+    stats->compute_seconds += seconds;
     bga_msg_init(rep, BGA_INTEG_INERTIA, m->header.job, m->header.seq);
-    rep->field[BGA_II_COEF].f = 4.0 / (j->h * j->h);
-    rep->array[BGA_II_Q].data = j->iq;
-    rep->array[BGA_II_Q].count = ndof;
-    rep->array[BGA_II_PREDICT].data = j->scratch;
-    rep->array[BGA_II_PREDICT].count = ndof;
+    rep->field[BGA_II_COEF].f = pr.coefficient;
+    rep->field[BGA_II_STATE_SCALE].f = pr.state_scale;
+    rep->field[BGA_II_NCAND].i = pr.ncandidates;
+    rep->field[BGA_II_SECONDS].f = seconds;
+    rep->array[BGA_II_PREDICT] = (bga_array_t){pr.y, ndof};
+    rep->array[BGA_II_TARGETS] = (bga_array_t){pr.targets, ndof};
+    rep->array[BGA_II_CANDIDATES] =
+        (bga_array_t){pr.candidate[0], ndof * (size_t)pr.ncandidates};
     return BGA_WIRE_OK;
 }
 
 static bga_wire_code integ_update(job *j, const bga_msg_t *m, bga_msg_t *rep,
-                                  bga_wire_error_t *werr)
+                                  bga_service_stats_t *stats, bga_wire_error_t *werr)
 {
-    if (!j->mass)
+    if (!j->step)
         return no_state(j, "integrator state", werr);
-    const size_t ndof = (size_t)j->inv * j->idim;
-    if (m->array[BGA_IU_QSTAR].count != ndof)
-        return bga_wire_fail(werr, BGA_WIRE_BAD_LENGTH, 2 + BGA_IU_QSTAR, "q_star",
-                             "%zu values, the state has %zu", m->array[BGA_IU_QSTAR].count, ndof);
-    const double decay = exp(-j->damping * j->h);
-    double kinetic = 0.0;
-    for (size_t i = 0; i < ndof; i++) {
-        const double qs = bga_msg_f64(m, BGA_IU_QSTAR, i), g = bga_msg_f64(m, BGA_IU_GRAD, i);
-        const double mass = j->mass[i / (size_t)j->idim];
-        const double p = decay * (mass * (2.0 / j->h) * (qs - j->iq[i]) - 0.5 * j->h * g);
-        j->iq[i] = 2.0 * qs - j->iq[i];
-        j->ip[i] = p;
-        kinetic += 0.5 * p * p / mass;
-    }
-    j->steps++;
-    bga_msg_init(rep, BGA_INTEG_STATE, m->header.job, m->header.seq);
-    rep->field[BGA_IT_KINETIC].f = kinetic;
-    rep->field[BGA_IT_STEPS].i = j->steps;
-    rep->array[BGA_IT_Q].data = j->iq;
-    rep->array[BGA_IT_Q].count = ndof;
-    rep->array[BGA_IT_P].data = j->ip;
-    rep->array[BGA_IT_P].count = ndof;
+    bga_wire_code wc = need_dofs(j, m, BGA_IU_QSTAR, "q_star", werr);
+    if (wc != BGA_WIRE_OK)
+        return wc;
+    const double t0 = bg_clock_now();
+    const size_t ndof = bg_step_dofs(j->step);
+    bga_msg_copy_f64(m, BGA_IU_QSTAR, j->iin);
+    bga_msg_copy_f64(m, BGA_IU_GRAD, j->iin + ndof);
+    bg_step_trial_t tr;
+    bg_error_t e = BG_ERROR_INIT;
+    const bg_status st = bg_step_update(j->step, j->iin, j->iin + ndof, &tr, &e);
+    if (st != BG_OK)
+        return step_failed(st, &e, werr);
+    const double seconds = bg_clock_now() - t0;
+    stats->compute_seconds += seconds;
+    bga_msg_init(rep, BGA_INTEG_TRIAL, m->header.job, m->header.seq);
+    rep->field[BGA_IR_KINETIC].f = tr.kinetic;
+    rep->field[BGA_IR_WORK].f = tr.handle_work;
+    rep->field[BGA_IR_SECONDS].f = seconds;
+    rep->array[BGA_IR_QNEXT] = (bga_array_t){tr.q_next, ndof};
+    return BGA_WIRE_OK;
+}
+
+static bga_wire_code integ_accept(job *j, const bga_msg_t *m, bga_msg_t *rep,
+                                  bga_service_stats_t *stats, bga_wire_error_t *werr)
+{
+    if (!j->step)
+        return no_state(j, "integrator state", werr);
+    const double t0 = bg_clock_now();
+    bg_step_motion_t mo;
+    bg_error_t e = BG_ERROR_INIT;
+    const bg_status st = bg_step_accept(j->step, &mo, &e);
+    if (st != BG_OK)
+        return step_failed(st, &e, werr);
+    const double seconds = bg_clock_now() - t0;
+    stats->compute_seconds += seconds;
+    reply_state(m, &mo, bg_step_dofs(j->step), seconds, rep);
     return BGA_WIRE_OK;
 }
 
@@ -644,6 +721,7 @@ static bga_wire_code dispatch(bga_service_t *svc, const bga_msg_t *m, double now
     case BGA_SOLVE_RHS:
     case BGA_INTEG_PREDICT:
     case BGA_INTEG_UPDATE:
+    case BGA_INTEG_ACCEPT:
         break;
     default:
         return bga_wire_fail(werr, BGA_WIRE_UNEXPECTED, 0, "type",
@@ -669,9 +747,11 @@ static bga_wire_code dispatch(bga_service_t *svc, const bga_msg_t *m, double now
     case BGA_SOLVE_RHS:
         return solve_rhs(j, m, rep, &svc->stats, werr);
     case BGA_INTEG_PREDICT:
-        return integ_predict(j, m, rep, werr);
+        return integ_predict(j, m, rep, &svc->stats, werr);
+    case BGA_INTEG_UPDATE:
+        return integ_update(j, m, rep, &svc->stats, werr);
     default:
-        return integ_update(j, m, rep, werr);
+        return integ_accept(j, m, rep, &svc->stats, werr);
     }
 }
 

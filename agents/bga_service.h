@@ -14,10 +14,16 @@
  *                   pattern (CHOLMOD analyses on the first factor, once);
  *                   SOLVE_FACTOR factors values + shift·I and keeps the
  *                   factor; SOLVE_RHS solves with it, as often as asked.
- *   integration     INTEG_SETUP keeps masses, q_k, p_k, h and damping;
- *                   INTEG_PREDICT returns the inertia term's data;
- *                   INTEG_UPDATE takes q* and ∇W(q*) and advances
- *                   q_{k+1} = 2q* − q_k, p_{k+1} = e^{−γh}(M(2/h)(q* − q_k) − (h/2)∇W(q*)).
+ *   integration     INTEG_SETUP keeps a dynamic run's state (bg_step: masses,
+ *                   q_k, p_k, velocities, targets, constraints, h, damping)
+ *                   and answers its motion summary (INTEG_STATE);
+ *                   INTEG_PREDICT (a step, or trial 1: the backward-Euler
+ *                   redo of the step just tried) answers the inertia data
+ *                   and candidate starts (INTEG_INERTIA); INTEG_UPDATE takes
+ *                   q* and ∇W(q*) and answers the trial end state
+ *                   (INTEG_TRIAL); INTEG_ACCEPT commits it (INTEG_STATE).
+ *                   The formulas are bg_step's, the coordinator's own:
+ *                   the same numbers bit for bit. Out of order: WRONG_STATE.
  *   control         HEARTBEAT answers the agent's status (and renews the
  *                   lease of the job named in the header, if any); RELEASE
  *                   frees the job.

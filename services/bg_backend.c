@@ -7,6 +7,7 @@
 typedef struct local_session {
     bg_elastic_t *fit[BG_BACKEND_MAX_FITS];
     bg_sparse_t *sys[BG_BACKEND_MAX_SYSTEMS];
+    bg_step_t *step;
 } local_session;
 
 static bg_status local_session_new(void *ctx, void **session, bg_error_t *err)
@@ -22,7 +23,10 @@ static bg_status local_session_new(void *ctx, void **session, bg_error_t *err)
 static void local_session_destroy(void *ctx, void *session)
 {
     (void)ctx;
-    free(session);
+    local_session *s = session;
+    if (s)
+        bg_step_destroy(&s->step);
+    free(s);
 }
 
 static bg_status local_fit_open(void *session, int id, const bg_backend_fit_t *fit,
@@ -76,10 +80,48 @@ static void local_solve_cost(void *session, int id, double *flops, double *nonze
     *nonzeros = bg_sparse_factor_nonzeros(sys);
 }
 
+static bg_status local_step_open(void *session, const bg_step_setup_t *setup,
+                                 bg_step_motion_t *motion, bg_error_t *err)
+{
+    local_session *s = session;
+    if (s->step)
+        return bg_error_set(err, BG_ERR_INVALID, "this session already holds a step state");
+    bg_status st = bg_step_new(setup, &s->step, err);
+    if (st == BG_OK)
+        bg_step_motion(s->step, motion);
+    return st;
+}
+
+static bg_status no_step(bg_error_t *err)
+{
+    return bg_error_set(err, BG_ERR_INVALID, "integration step called before step_open");
+}
+
+static bg_status local_step_predict(void *session, const bg_step_request_t *req,
+                                    bg_step_prediction_t *out, bg_error_t *err)
+{
+    local_session *s = session;
+    return s->step ? bg_step_predict(s->step, req, out, err) : no_step(err);
+}
+
+static bg_status local_step_update(void *session, const double *q_star, const double *grad_star,
+                                   bg_step_trial_t *out, bg_error_t *err)
+{
+    local_session *s = session;
+    return s->step ? bg_step_update(s->step, q_star, grad_star, out, err) : no_step(err);
+}
+
+static bg_status local_step_accept(void *session, bg_step_motion_t *motion, bg_error_t *err)
+{
+    local_session *s = session;
+    return s->step ? bg_step_accept(s->step, motion, err) : no_step(err);
+}
+
 static const bg_backend_ops_t local_ops = {
-    "in-process",     local_session_new, local_session_destroy, local_fit_open,
-    local_fit_eval,   local_fit_hessian, local_solve_open,      local_solve_factor,
-    local_solve,      local_solve_cost,
+    "in-process",       local_session_new,  local_session_destroy, local_fit_open,
+    local_fit_eval,     local_fit_hessian,  local_solve_open,      local_solve_factor,
+    local_solve,        local_solve_cost,   local_step_open,       local_step_predict,
+    local_step_update,  local_step_accept,
 };
 
 static const bg_backend_t local_backend = {&local_ops, NULL};

@@ -22,6 +22,15 @@
  * plus shift·I is not positive definite (the caller may retry with a
  * larger shift). A failed call may leave the session unusable: every later
  * call then fails with the same error, promptly (never another timeout).
+ *
+ * integration-step: step_open sets up a dynamic run's state (bg_step.h)
+ * where the backend keeps it — in this process (local) or on an
+ * integration-step agent — and step_predict / step_update / step_accept
+ * have the contracts of bg_step_predict / _update / _accept. The arrays
+ * in their outputs are borrowed from the session until its next step
+ * call. A session opens at most one step state; bg_dynamics uses a session
+ * of its own for it, so a static job never opens one (and never contacts
+ * an integration-step agent).
  */
 #ifndef BG_BACKEND_H
 #define BG_BACKEND_H
@@ -33,6 +42,7 @@
 #include "bg_error.h"
 #include "bg_mesh.h"
 #include "bg_sparse.h"
+#include "bg_step.h"
 
 #define BG_BACKEND_MAX_FITS 2
 #define BG_BACKEND_MAX_SYSTEMS 4
@@ -64,6 +74,14 @@ typedef struct bg_backend_ops {
      * _nonzeros of whoever factors it; 0 before the first factor): the
      * solver's refactoring rule must see the same figures either way. */
     void (*solve_cost)(void *session, int id, double *flops, double *nonzeros);
+    /* motion: the start state's summary (bg_step_motion). */
+    bg_status (*step_open)(void *session, const bg_step_setup_t *setup, bg_step_motion_t *motion,
+                           bg_error_t *err);
+    bg_status (*step_predict)(void *session, const bg_step_request_t *req,
+                              bg_step_prediction_t *out, bg_error_t *err);
+    bg_status (*step_update)(void *session, const double *q_star, const double *grad_star,
+                             bg_step_trial_t *out, bg_error_t *err);
+    bg_status (*step_accept)(void *session, bg_step_motion_t *motion, bg_error_t *err);
 } bg_backend_ops_t;
 
 typedef struct bg_backend {

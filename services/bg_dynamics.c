@@ -15,32 +15,29 @@
  * modes grows the energy by factors within a few steps. */
 #define DYNAMICS_ENERGY_SLACK 1e-2
 
+/* The coordinator's side of a run: the integration-step state (q_k, p_k,
+ * velocities) lives behind the backend's step service; this keeps what
+ * the inner solve and the records need. */
 typedef struct state {
     size_t ndof;
     int n;
-    int32_t nv;
     const double *mass;
-    double *q, *p, *v, *v_prev, *y, *t0, *t1, *targets, *grad, *start, *work, *candidate;
-    double *q_next, *p_next, *grad_next; /* a step's result before it is accepted */
+    const bg_backend_t *backend;
+    void *session; /* the step service's own session */
+    double *q;     /* q_k, copied from the service's last motion summary */
+    double *t1, *grad, *grad_next, *work;
+    double step_seconds; /* in the step service's calls */
 } state_t;
 
 static void state_release(state_t *s)
 {
+    if (s->session)
+        s->backend->ops->session_destroy(s->backend->ctx, s->session);
     free(s->q);
-    free(s->p);
-    free(s->v);
-    free(s->v_prev);
-    free(s->y);
-    free(s->t0);
     free(s->t1);
-    free(s->targets);
     free(s->grad);
-    free(s->start);
-    free(s->work);
-    free(s->candidate);
-    free(s->q_next);
-    free(s->p_next);
     free(s->grad_next);
+    free(s->work);
 }
 
 /* Euclidean norm over free coordinates. */
@@ -53,38 +50,19 @@ static double free_norm(const bg_scene_t *scene, const double *x, size_t n, doub
     return scale * sqrt(sum);
 }
 
-/*
- * The force scale a step's residual is measured against: the load
- * ‖M g‖, the momentum flux (2/h)‖p‖ and the current net force ‖∇W(q_k)‖
- * (s->grad holds ∇W at q_k after record()). A residual τ times this
- * changes momentum by at most 2τ‖p‖ + hτ(…) per step, so τ sets the
- * accuracy of the integration independently of how good the start is.
- */
-static double force_scale(const state_t *s, const bg_scene_t *scene, double h, double *work)
+/* Copies the service's motion summary into s->q and the record (the
+ * potential at q_k, with ∇W(q_k) into s->grad). */
+static void record(state_t *s, bg_solver_t *solver, const bg_step_motion_t *motion, double time,
+                   bg_step_record_t *rec)
 {
-    for (size_t i = 0; i < s->ndof; i++)
-        work[i] = s->mass[i / (size_t)s->n] * scene->gravity[i % (size_t)s->n];
-    return free_norm(scene, work, s->ndof, 1.0) + free_norm(scene, s->p, s->ndof, 2.0 / h) +
-           free_norm(scene, s->grad, s->ndof, 1.0);
-}
-
-static void record(const state_t *s, bg_solver_t *solver, double time, bg_step_record_t *rec)
-{
+    memcpy(s->q, motion->q, s->ndof * sizeof *s->q);
     memset(rec, 0, sizeof *rec);
     rec->time = time;
     rec->potential = bg_solver_potential(solver, s->q, s->grad);
-    for (int32_t v = 0; v < s->nv; v++) {
-        const double *q = s->q + (size_t)v * s->n, *p = s->p + (size_t)v * s->n;
-        double r[3] = {0, 0, 0}, m[3] = {0, 0, 0};
-        for (int c = 0; c < s->n; c++) {
-            rec->kinetic += 0.5 * p[c] * p[c] / s->mass[v];
-            rec->linear_momentum[c] += p[c];
-            r[c] = q[c];
-            m[c] = p[c];
-        }
-        rec->angular_momentum[0] += r[1] * m[2] - r[2] * m[1];
-        rec->angular_momentum[1] += r[2] * m[0] - r[0] * m[2];
-        rec->angular_momentum[2] += r[0] * m[1] - r[1] * m[0];
+    rec->kinetic = motion->kinetic;
+    for (int c = 0; c < 3; c++) {
+        rec->linear_momentum[c] = motion->linear[c];
+        rec->angular_momentum[c] = motion->angular[c];
     }
     rec->total_energy = rec->kinetic + rec->potential;
 }
@@ -115,78 +93,49 @@ static bg_status push(bg_solve_result_t *res, int *trace_cap, int *step_cap,
 
 /* The step's ancillary energy ε(x) = W(x) + (c/2) Σ m |x − y|² (up to a
  * constant), x's constrained coordinates already at their targets. */
-static double ancillary(const state_t *s, bg_solver_t *solver, double c, const double *x)
+static double ancillary(const state_t *s, bg_solver_t *solver, double c, const double *y,
+                        const double *x)
 {
     double e = bg_solver_potential(solver, x, s->work);
     for (size_t i = 0; i < s->ndof; i++) {
-        const double d = x[i] - s->y[i];
+        const double d = x[i] - y[i];
         e += 0.5 * c * s->mass[i / (size_t)s->n] * d * d;
     }
     return e;
 }
 
 /*
- * The start of a step's solve. Candidates: the last positions q_k; the
- * inertial prediction y plus the known load (under a constant load the step
- * lands on y + (h²/4)g for the midpoint rule, y + h²g for Euler); and, from
- * the second step on, a velocity extrapolation from the last two steps,
- * which carries every force to second order. Which one is closest depends
- * on the motion — extrapolation wins on smooth rigid motion, q_k on a soft
- * body whose finest modes ring (ωh ≫ 1), where extrapolating their
- * velocities overshoots — so BG_PREDICTOR_BEST evaluates ε at each and
- * keeps the lowest: a few energy evaluations, against tens of iterations a
- * poor start costs.
+ * The start of a step's solve among the service's candidates (bg_step.c:
+ * the velocity extrapolation, the inertial prediction plus the load, q_k).
+ * Which one is closest depends on the motion — extrapolation wins on
+ * smooth rigid motion, q_k on a soft body whose finest modes ring
+ * (ωh ≫ 1), where extrapolating their velocities overshoots — so
+ * BG_PREDICTOR_BEST evaluates ε at each and keeps the lowest (the first
+ * of equals): a few energy evaluations, against tens of iterations a poor
+ * start costs.
  */
-static void choose_start(state_t *s, bg_solver_t *solver, const bg_scene_t *scene, double c,
-                         int variational, double h, int k, bg_predictor predictor)
+static const double *choose_start(const state_t *s, bg_solver_t *solver,
+                                  const bg_step_prediction_t *pr, bg_predictor predictor)
 {
-    static const bg_predictor kinds[3] = {BG_PREDICTOR_EXTRAPOLATE, BG_PREDICTOR_INERTIAL,
-                                          BG_PREDICTOR_LAST};
-    const double reach = variational ? 0.5 * h : h, load = (variational ? 0.25 : 1.0) * h * h;
-    /* The first step has no velocity history: extrapolation is the load. */
-    if (predictor == BG_PREDICTOR_EXTRAPOLATE && k == 0)
-        predictor = BG_PREDICTOR_INERTIAL;
+    if (predictor != BG_PREDICTOR_BEST)
+        return pr->candidate[0];
+    const double *start = NULL;
     double best = INFINITY;
-    int have = 0;
-    for (int j = 0; j < 3; j++) {
-        const bg_predictor kind = kinds[j];
-        if ((predictor != BG_PREDICTOR_BEST && predictor != kind) ||
-            (kind == BG_PREDICTOR_EXTRAPOLATE && k == 0))
+    for (int j = 0; j < pr->ncandidates; j++) {
+        const double e = ancillary(s, solver, pr->coefficient, pr->y, pr->candidate[j]);
+        if (start && !(e < best))
             continue;
-        for (size_t i = 0; i < s->ndof; i++) {
-            double x;
-            if (scene->constrained[i])
-                x = s->targets[i];
-            else if (kind == BG_PREDICTOR_EXTRAPOLATE)
-                x = s->q[i] + reach * (s->v[i] + 0.5 * reach / h * (s->v[i] - s->v_prev[i]) *
-                                                     (variational ? 1.0 : 2.0));
-            else if (kind == BG_PREDICTOR_INERTIAL)
-                x = s->y[i] + load * scene->gravity[i % (size_t)s->n];
-            else
-                x = s->q[i];
-            s->candidate[i] = x;
-        }
-        if (predictor == BG_PREDICTOR_BEST) {
-            const double e = ancillary(s, solver, c, s->candidate);
-            if (have && !(e < best))
-                continue;
-            best = e;
-        }
-        have = 1;
-        double *swap = s->start;
-        s->start = s->candidate;
-        s->candidate = swap;
+        best = e;
+        start = pr->candidate[j];
     }
+    return start;
 }
 
-/* Σ p²/2m + W(x): the total energy of a state (s->work as scratch). */
-static double total_energy(const state_t *s, bg_solver_t *solver, const double *x,
-                           const double *p)
+/* W(x) + K: the total energy of a trial state whose kinetic energy the
+ * step service computed (s->work as scratch). */
+static double total_energy(const state_t *s, bg_solver_t *solver, const double *x, double kinetic)
 {
-    double e = bg_solver_potential(solver, x, s->work);
-    for (size_t i = 0; i < s->ndof; i++)
-        e += 0.5 * p[i] * p[i] / s->mass[i / (size_t)s->n];
-    return e;
+    return bg_solver_potential(solver, x, s->work) + kinetic;
 }
 
 /* Σ_v m_v g·x_v: what W subtracts from the elastic energy. */
@@ -199,72 +148,52 @@ static double gravity_work(const state_t *s, const bg_scene_t *scene, const doub
 }
 
 /*
- * One step from (q_k, p_k, v_k) = (s->q, s->p, s->v) with targets s->t0 →
- * s->t1: the variational midpoint rule or backward Euler, into s->q_next
- * and s->p_next (before damping). *handle_work is the work the handles did
- * on the body over the step: with R the force they exert, the discrete
- * balance at a constrained coordinate reads (2/h)(m v̄ − p_k) = −∂W/∂q + R
- * (midpoint; (1/h)(m v − p_k) for Euler), and the work is R·(q_{k+1} − q_k).
+ * One trial of the step from the committed state to the targets s->t1:
+ * the midpoint rule or backward Euler (trial 1: the redo of a rejected
+ * first trial). The step service predicts, the inner Newton solve
+ * minimises the step energy, the service computes the trial end state
+ * into *trial (not committed: the caller accepts it or redoes the step).
  */
 static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scene,
-                         const bg_dynamic_options_t *opt, int variational, double h, int k,
-                         bg_solve_result_t *inner, double *handle_work, bg_error_t *err)
+                         const bg_dynamic_options_t *opt, int variational, int redo,
+                         bg_solve_result_t *inner, bg_step_trial_t *trial, bg_error_t *err)
 {
-    const double c = variational ? 4.0 / (h * h) : 1.0 / (h * h);
+    const bg_backend_ops_t *ops = s->backend->ops;
+    const bg_step_request_t req = {variational, redo, (int)opt->predictor, s->t1};
+    bg_step_prediction_t pr;
     double tv = bg_clock_now();
-    /* y is the inertial prediction (the minimiser without forces); the
-     * constrained coordinates sit at the midpoint of their prescribed path
-     * (variational) or at its end (Euler). */
-    for (size_t i = 0; i < s->ndof; i++) {
-        const double m = s->mass[i / (size_t)s->n];
-        s->y[i] = variational ? s->q[i] + 0.5 * h * s->p[i] / m : s->q[i] + h * s->v[i];
-        s->targets[i] = variational ? 0.5 * (s->t0[i] + s->t1[i]) : s->t1[i];
-    }
-    const double t_loops = bg_clock_now() - tv;
-    choose_start(s, solver, scene, c, variational, h, k, opt->predictor);
+    bg_status st = ops->step_predict(s->session, &req, &pr, err);
+    s->step_seconds += bg_clock_now() - tv;
+    if (st != BG_OK)
+        return st;
+    const double *start = choose_start(s, solver, &pr, opt->predictor);
     const double tau = opt->tolerance > 0.0 ? opt->tolerance : scene->tolerance;
-    const bg_inertia_t inertia = {c, s->y};
+    const bg_inertia_t inertia = {pr.coefficient, pr.y};
+    /* The force scale a step's residual is measured against: the load
+     * ‖M g‖, the momentum flux (2/h)‖p‖ (the service's part) and the
+     * current net force ‖∇W(q_k)‖. A residual τ times this changes
+     * momentum by at most 2τ‖p‖ + hτ(…) per step, so τ sets the accuracy
+     * of the integration independently of how good the start is. */
+    const double force_scale = pr.state_scale + free_norm(scene, s->grad, s->ndof, 1.0);
     const bg_solve_options_t so = {
         .method = BG_METHOD_NEWTON,
         .tolerance = 0.0, /* the absolute, force-scaled test decides */
         .max_iterations =
             opt->max_iterations > 0 ? opt->max_iterations : DYNAMICS_DEFAULT_MAX_ITERATIONS,
-        .absolute_tolerance = tau * force_scale(s, scene, h, s->work),
-        .targets = s->targets,
+        .absolute_tolerance = tau * force_scale,
+        .targets = pr.targets,
         .inertia = &inertia,
-        .start = s->start,
+        .start = start,
         .reuse_factor = !opt->fresh_factor,
     };
-    bg_status st = bg_solver_minimize(solver, &so, inner, err);
+    st = bg_solver_minimize(solver, &so, inner, err);
     if (st != BG_OK)
         return st;
-    const double *qs = inner->q;
-    bg_solver_potential(solver, qs, s->grad_next);
+    bg_solver_potential(solver, inner->q, s->grad_next);
     tv = bg_clock_now();
-    double work = 0.0;
-    for (size_t i = 0; i < s->ndof; i++) {
-        const double m = s->mass[i / (size_t)s->n];
-        if (variational) {
-            /* p_{k+1} = M v̄ − (h/2) ∇W(q*) on free coordinates. */
-            const double vbar = 2.0 * (qs[i] - s->q[i]) / h;
-            s->q_next[i] = 2.0 * qs[i] - s->q[i];
-            if (scene->constrained[i]) {
-                s->p_next[i] = m * vbar;
-                work += ((2.0 / h) * (m * vbar - s->p[i]) + s->grad_next[i]) * h * vbar;
-            } else {
-                s->p_next[i] = m * vbar - 0.5 * h * s->grad_next[i];
-            }
-        } else {
-            const double v = (qs[i] - s->q[i]) / h;
-            s->q_next[i] = qs[i];
-            s->p_next[i] = m * v;
-            if (scene->constrained[i])
-                work += ((m * v - s->p[i]) / h + s->grad_next[i]) * h * v;
-        }
-    }
-    *handle_work = work;
-    inner->vector_seconds += t_loops + (bg_clock_now() - tv);
-    return BG_OK;
+    st = ops->step_update(s->session, inner->q, s->grad_next, trial, err);
+    s->step_seconds += bg_clock_now() - tv;
+    return st;
 }
 
 bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *opt,
@@ -277,6 +206,7 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     bg_solver_t *solver = NULL;
     bg_status st = BG_OK;
     int trace_cap = 0, step_cap = 0;
+    double *velocity = NULL, *t0 = NULL;
     const int variational = opt->method == BG_METHOD_VARIATIONAL;
     if (!bg_method_is_dynamic(opt->method))
         return bg_error_set(err, BG_ERR_INVALID, "%s is not a time integrator (use variational "
@@ -291,23 +221,19 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     const int every = opt->output_every > 0          ? opt->output_every
                       : scene->dynamic.output_every > 0 ? scene->dynamic.output_every
                                                          : 1;
-    const double decay = exp(-scene->dynamic.damping * h);
     const int limit = variational && scene->dynamic.energy_limit;
 
     st = bg_solver_new_on(scene, BG_METHOD_NEWTON, opt->backend, &solver, err);
     if (st != BG_OK)
         goto out;
     s.n = scene->mesh->dim;
-    s.nv = scene->mesh->nv;
-    s.ndof = (size_t)s.nv * s.n;
+    s.ndof = (size_t)scene->mesh->nv * s.n;
     s.mass = bg_solver_mass(solver);
     if (!s.mass) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the mass matrix");
         goto out;
     }
-    double **arrays[] = {&s.q,    &s.p,       &s.v,      &s.v_prev,    &s.y,
-                         &s.t0,   &s.t1,      &s.targets, &s.grad,     &s.start,
-                         &s.work, &s.candidate, &s.q_next, &s.p_next, &s.grad_next};
+    double **arrays[] = {&s.q, &s.t1, &s.grad, &s.grad_next, &s.work, &velocity, &t0};
     for (size_t i = 0; i < sizeof arrays / sizeof *arrays; i++) {
         *arrays[i] = calloc(s.ndof + 1, sizeof(double));
         if (!*arrays[i]) {
@@ -315,15 +241,29 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
             goto out;
         }
     }
-    bg_scene_targets_at(scene, 0.0, s.t0);
+    /* The step service gets a session of its own: its state is the run's,
+     * not the solver's, and only a dynamic run opens it. */
+    s.backend = opt->backend ? opt->backend : bg_backend_local();
+    double tv = bg_clock_now();
+    st = s.backend->ops->session_new(s.backend->ctx, &s.session, err);
+    if (st != BG_OK)
+        goto out;
+    bg_scene_targets_at(scene, 0.0, t0);
     for (size_t i = 0; i < s.ndof; i++) {
-        s.q[i] = scene->constrained[i] ? s.t0[i] : scene->initial[i];
-        s.v[i] = scene->velocity && !scene->constrained[i] ? scene->velocity[i] : 0.0;
-        s.p[i] = s.mass[i / (size_t)s.n] * s.v[i];
+        s.q[i] = scene->constrained[i] ? t0[i] : scene->initial[i];
+        velocity[i] = scene->velocity && !scene->constrained[i] ? scene->velocity[i] : 0.0;
     }
+    const bg_step_setup_t setup = {s.n,      scene->mesh->nv,     h,      scene->dynamic.damping,
+                                   s.mass,   s.q,                 velocity, t0,
+                                   scene->constrained, scene->gravity};
+    bg_step_motion_t motion;
+    st = s.backend->ops->step_open(s.session, &setup, &motion, err);
+    s.step_seconds += bg_clock_now() - tv;
+    if (st != BG_OK)
+        goto out;
 
     bg_step_record_t rec;
-    record(&s, solver, 0.0, &rec);
+    record(&s, solver, &motion, 0.0, &rec);
     const double E0 = rec.total_energy;
     bg_trace_point_t pt = {bg_clock_now() - t_start, 0, E0, 0.0, 0.0, 0.0};
     if (push(res, &trace_cap, &step_cap, &pt, &rec) != BG_OK) {
@@ -345,37 +285,39 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     for (int k = 0; k < steps; k++) {
         const double t_step = bg_clock_now();
         const double t1 = (k + 1) * h;
-        double tv = bg_clock_now();
+        tv = bg_clock_now();
         bg_scene_targets_at(scene, t1, s.t1);
         res->vector_seconds += bg_clock_now() - tv;
         bg_solve_result_t inner = BG_SOLVE_RESULT_INIT;
-        double work = 0.0;
-        st = advance(&s, solver, scene, opt, variational, h, k, &inner, &work, err);
+        bg_step_trial_t trial;
+        st = advance(&s, solver, scene, opt, variational, 0, &inner, &trial, err);
         if (st != BG_OK)
             goto out;
         int limited = 0;
-        const double E_next = limit ? total_energy(&s, solver, s.q_next, s.p_next) : 0.0;
+        const double E_next =
+            limit ? total_energy(&s, solver, trial.q_next, trial.kinetic) : 0.0;
         /* The mechanical energy the step ends with counts in the scale: a
          * body starting at rest has none before its first step. */
-        const double mechanical = E_next + gravity_work(&s, scene, s.q_next);
-        if (limit && E_next > budget + work + DYNAMICS_ENERGY_SLACK * fmax(scale, mechanical)) {
+        const double mechanical = E_next + gravity_work(&s, scene, trial.q_next);
+        if (limit &&
+            E_next > budget + trial.handle_work + DYNAMICS_ENERGY_SLACK * fmax(scale, mechanical)) {
             /* The midpoint rule conserves a quadratic energy exactly but can
              * pump energy into stiff nonlinear modes (Simo and Tarnow 1992):
              * this step would have created energy, so it is redone with
              * backward Euler from the same state, which dissipates. */
             bg_solve_result_accumulate(res, &inner);
             bg_solve_result_release(&inner);
-            st = advance(&s, solver, scene, opt, 0, h, k, &inner, &work, err);
+            st = advance(&s, solver, scene, opt, 0, 1, &inner, &trial, err);
             if (st != BG_OK)
                 goto out;
             limited = 1;
             res->limited_steps++;
         }
-        budget += work;
+        budget += trial.handle_work;
         /* Energy the limiter removed stays removed: the budget ratchets
          * down to the energy after a dissipative step. */
         if (limited)
-            budget = fmin(budget, total_energy(&s, solver, s.q_next, s.p_next));
+            budget = fmin(budget, total_energy(&s, solver, trial.q_next, trial.kinetic));
         const int settled = inner.converged || inner.roundoff_floor;
         if (!settled && res->converged) {
             res->converged = 0;
@@ -383,19 +325,17 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
         }
         bg_solve_result_accumulate(res, &inner);
         tv = bg_clock_now();
-        memcpy(s.v_prev, s.v, s.ndof * sizeof *s.v);
-        for (size_t i = 0; i < s.ndof; i++) {
-            s.q[i] = scene->constrained[i] ? s.t1[i] : s.q_next[i];
-            s.p[i] = decay * s.p_next[i];
-            s.v[i] = s.p[i] / s.mass[i / (size_t)s.n];
+        st = s.backend->ops->step_accept(s.session, &motion, err);
+        s.step_seconds += bg_clock_now() - tv;
+        if (st != BG_OK) {
+            bg_solve_result_release(&inner);
+            goto out;
         }
-        memcpy(s.t0, s.t1, s.ndof * sizeof *s.t0);
         const double inner_gradient = inner.gradient_norm, inner_relative = inner.relative_gradient;
         const int inner_iterations = inner.iterations;
         bg_solve_result_release(&inner);
 
-        res->vector_seconds += bg_clock_now() - tv;
-        record(&s, solver, t1, &rec);
+        record(&s, solver, &motion, t1, &rec);
         tv = bg_clock_now();
         rec.iterations = inner_iterations;
         rec.limited = limited;
@@ -442,11 +382,16 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     memcpy(res->energy_density, bg_solver_energy_density(solver),
            (size_t)scene->mesh->ne * sizeof *res->energy_density);
     bg_solver_report(solver, res);
+    /* The step service's calls (the integration-step agent's round trips
+     * on a remote backend) count with the vector work. */
+    res->vector_seconds += s.step_seconds;
     res->wall_seconds = bg_clock_now() - t_start;
     bg_solve_result_add_scene_prep(res, scene);
 out:
     bg_solver_destroy(&solver);
     state_release(&s);
+    free(velocity);
+    free(t0);
     if (st != BG_OK)
         bg_solve_result_release(res);
     return st;

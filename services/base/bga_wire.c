@@ -136,15 +136,35 @@ static const field_spec is_fields[] = {I64F("dim", 2, 3), I64F("vertices", 1, BG
 static const array_spec is_arrays[] = {
     {"mass", BGA_ELEM_F64, 0, 1, BGA_IS_NV, -1, -1, 0, 1, NO_IDX},
     {"q", BGA_ELEM_F64, 0, 1, BGA_IS_NV, BGA_IS_DIM, -1, 0, 1, NO_IDX},
-    {"p", BGA_ELEM_F64, 0, 1, BGA_IS_NV, BGA_IS_DIM, -1, 0, 1, NO_IDX}};
+    {"velocity", BGA_ELEM_F64, 0, 1, BGA_IS_NV, BGA_IS_DIM, -1, 0, 1, NO_IDX},
+    {"t0", BGA_ELEM_F64, 0, 1, BGA_IS_NV, BGA_IS_DIM, -1, 0, 1, NO_IDX},
+    {"constrained", BGA_ELEM_I32, 0, 1, BGA_IS_NV, BGA_IS_DIM, -1, 0, 0, NO_IDX},
+    {"gravity", BGA_ELEM_F64, 0, 1, BGA_IS_DIM, -1, -1, 0, 1, NO_IDX}};
 
-static const field_spec ii_fields[] = {F64F("coefficient", 0.0, 1e300)};
-static const array_spec ii_arrays[] = {F64FREE("q", 1), F64FREE("prediction", 1)};
+static const field_spec ip_fields[] = {I64F("variational", 0, 1), I64F("trial", 0, 1),
+                                       I64F("predictor", 0, 3)};
+static const array_spec ip_arrays[] = {F64FREE("t1", 1)};
+
+static const field_spec ii_fields[] = {F64F("coefficient", 0.0, 1e300),
+                                       F64F("state_scale", 0.0, 1e300), I64F("candidates", 1, 3),
+                                       F64F("seconds", 0.0, 1e300)};
+static const array_spec ii_arrays[] = {F64FREE("prediction", 1), F64FREE("targets", 1),
+                                       F64FREE("candidates", 1)};
 
 static const array_spec iu_arrays[] = {F64FREE("q_star", 1), F64FREE("gradient", 1)};
 
-static const field_spec it_fields[] = {F64F("kinetic", 0.0, 1e300), I64F("steps", 0, INT64_MAX)};
-static const array_spec it_arrays[] = {F64FREE("q", 1), F64FREE("p", 1)};
+static const field_spec it_fields[] = {
+    F64F("kinetic", 0.0, 1e300),      F64F("linear_x", -1e300, 1e300),
+    F64F("linear_y", -1e300, 1e300),  F64F("linear_z", -1e300, 1e300),
+    F64F("angular_x", -1e300, 1e300), F64F("angular_y", -1e300, 1e300),
+    F64F("angular_z", -1e300, 1e300), I64F("steps", 0, INT64_MAX),
+    F64F("seconds", 0.0, 1e300)};
+static const array_spec it_arrays[] = {F64FREE("q", 1)};
+
+static const field_spec ir_fields[] = {F64F("kinetic", 0.0, 1e300),
+                                       F64F("handle_work", -1e300, 1e300),
+                                       F64F("seconds", 0.0, 1e300)};
+static const array_spec ir_arrays[] = {F64FREE("q_next", 1)};
 
 /* Market role messages (0x1001..0x1017, bgm_codec): one schema for all.
  * good −1 is a resource bundle; the numbers may be ±Inf (an unbounded limit
@@ -294,6 +314,13 @@ static bga_wire_code check_integ_setup(const bga_msg_t *m, bga_wire_error_t *wer
             return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 2 + BGA_IS_MASS, "mass",
                                  "mass[%zu] = %g is not positive", v,
                                  bga_msg_f64(m, BGA_IS_MASS, v));
+    for (size_t i = 0; i < m->array[BGA_IS_CONSTRAINED].count; i++) {
+        const int32_t c = bga_msg_i32(m, BGA_IS_CONSTRAINED, i);
+        if (c != 0 && c != 1)
+            return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 2 + BGA_IS_CONSTRAINED,
+                                 "constrained", "constrained[%zu] = %d, must be 0 or 1", i,
+                                 (int)c);
+    }
     return BGA_WIRE_OK;
 }
 
@@ -303,6 +330,20 @@ static bga_wire_code check_integ_update(const bga_msg_t *m, bga_wire_error_t *we
         return bga_wire_fail(werr, BGA_WIRE_BAD_LENGTH, 2 + BGA_IU_GRAD, "gradient",
                              "%zu gradient values for %zu positions", m->array[BGA_IU_GRAD].count,
                              m->array[BGA_IU_QSTAR].count);
+    return BGA_WIRE_OK;
+}
+
+/* The candidates are whole position vectors, as many as announced. */
+static bga_wire_code check_integ_inertia(const bga_msg_t *m, bga_wire_error_t *werr)
+{
+    const size_t n = m->array[BGA_II_PREDICT].count;
+    if (m->array[BGA_II_TARGETS].count != n ||
+        m->array[BGA_II_CANDIDATES].count != n * (size_t)m->field[BGA_II_NCAND].i)
+        return bga_wire_fail(werr, BGA_WIRE_BAD_LENGTH, 2 + BGA_II_CANDIDATES, "candidates",
+                             "%zu targets and %zu candidate values for %lld candidates of %zu "
+                             "positions",
+                             m->array[BGA_II_TARGETS].count, m->array[BGA_II_CANDIDATES].count,
+                             (long long)m->field[BGA_II_NCAND].i, n);
     return BGA_WIRE_OK;
 }
 
@@ -329,10 +370,12 @@ static const schema SCHEMAS[] = {
     SCHEMA(BGA_SOLVE_RHS, "solve-rhs", sr_fields, sr_arrays, check_solve_rhs),
     SCHEMA(BGA_SOLVE_RESULT, "solve-result", sx_fields, sx_arrays, NULL),
     SCHEMA(BGA_INTEG_SETUP, "integ-setup", is_fields, is_arrays, check_integ_setup),
-    {BGA_INTEG_PREDICT, "integ-predict", 0, NULL, 0, NULL, NULL},
-    SCHEMA(BGA_INTEG_INERTIA, "integ-inertia", ii_fields, ii_arrays, NULL),
+    SCHEMA(BGA_INTEG_PREDICT, "integ-predict", ip_fields, ip_arrays, NULL),
+    SCHEMA(BGA_INTEG_INERTIA, "integ-inertia", ii_fields, ii_arrays, check_integ_inertia),
     {BGA_INTEG_UPDATE, "integ-update", 0, NULL, 2, iu_arrays, check_integ_update},
     SCHEMA(BGA_INTEG_STATE, "integ-state", it_fields, it_arrays, NULL),
+    SCHEMA(BGA_INTEG_TRIAL, "integ-trial", ir_fields, ir_arrays, NULL),
+    {BGA_INTEG_ACCEPT, "integ-accept", 0, NULL, 0, NULL, NULL},
     SCHEMA(0x1001, "market-bid", mk_fields, mk_arrays, check_market),
     SCHEMA(0x1002, "market-ask", mk_fields, mk_arrays, check_market),
     SCHEMA(0x1003, "market-free", mk_fields, mk_arrays, check_market),

@@ -65,11 +65,13 @@ typedef enum bga_type {
     BGA_SOLVE_FACTORED = 0x0203, /* factorization outcome */
     BGA_SOLVE_RHS = 0x0204,      /* right-hand sides → solve */
     BGA_SOLVE_RESULT = 0x0205,   /* solutions */
-    BGA_INTEG_SETUP = 0x0301,    /* masses, q, p, h, damping */
-    BGA_INTEG_PREDICT = 0x0302,  /* ask for the step's inertia data */
-    BGA_INTEG_INERTIA = 0x0303,  /* q_k, the inertial prediction, inertia coefficient */
-    BGA_INTEG_UPDATE = 0x0304,   /* q* and ∇W(q*) in → state advanced */
-    BGA_INTEG_STATE = 0x0305,    /* q, p, kinetic energy after the step */
+    BGA_INTEG_SETUP = 0x0301,    /* masses, q, velocities, targets, constraints, h, damping */
+    BGA_INTEG_PREDICT = 0x0302,  /* a step's (or a redo's) end targets → its inertia data */
+    BGA_INTEG_INERTIA = 0x0303,  /* prediction y, coefficient, solve targets, candidate starts */
+    BGA_INTEG_UPDATE = 0x0304,   /* q* and ∇W(q*) in → the trial end state */
+    BGA_INTEG_STATE = 0x0305,    /* the committed state: q, kinetic energy, momenta */
+    BGA_INTEG_TRIAL = 0x0306,    /* a trial end state: q_next, kinetic energy, handle work */
+    BGA_INTEG_ACCEPT = 0x0307,   /* commit the trial (answered with INTEG_STATE) */
 } bga_type;
 
 /* What went wrong, carried by BGA_ERROR replies (stable numbers). */
@@ -232,12 +234,38 @@ enum { /* INTEG_SETUP */ BGA_IS_DIM,
        BGA_IS_DAMPING,
        BGA_IS_LEASE_MS,
        BGA_IS_NFIELDS };
-enum { /* INTEG_SETUP arrays */ BGA_IS_MASS, BGA_IS_Q, BGA_IS_P, BGA_IS_NARRAYS };
-enum { /* INTEG_INERTIA */ BGA_II_COEF, BGA_II_NFIELDS };
-enum { /* INTEG_INERTIA arrays */ BGA_II_Q, BGA_II_PREDICT, BGA_II_NARRAYS };
+enum { /* INTEG_SETUP arrays */ BGA_IS_MASS,
+       BGA_IS_Q,
+       BGA_IS_VELOCITY,
+       BGA_IS_T0,
+       BGA_IS_CONSTRAINED,
+       BGA_IS_GRAVITY,
+       BGA_IS_NARRAYS };
+enum { /* INTEG_PREDICT */ BGA_IP_VARIATIONAL, BGA_IP_TRIAL, BGA_IP_PREDICTOR, BGA_IP_NFIELDS };
+enum { /* INTEG_PREDICT arrays */ BGA_IP_T1, BGA_IP_NARRAYS };
+enum { /* INTEG_INERTIA */ BGA_II_COEF,
+       BGA_II_STATE_SCALE,
+       BGA_II_NCAND,
+       BGA_II_SECONDS,
+       BGA_II_NFIELDS };
+enum { /* INTEG_INERTIA arrays */ BGA_II_PREDICT,
+       BGA_II_TARGETS,
+       BGA_II_CANDIDATES,
+       BGA_II_NARRAYS };
 enum { /* INTEG_UPDATE arrays */ BGA_IU_QSTAR, BGA_IU_GRAD, BGA_IU_NARRAYS };
-enum { /* INTEG_STATE */ BGA_IT_KINETIC, BGA_IT_STEPS, BGA_IT_NFIELDS };
-enum { /* INTEG_STATE arrays */ BGA_IT_Q, BGA_IT_P, BGA_IT_NARRAYS };
+enum { /* INTEG_STATE */ BGA_IT_KINETIC,
+       BGA_IT_LINEAR_X,
+       BGA_IT_LINEAR_Y,
+       BGA_IT_LINEAR_Z,
+       BGA_IT_ANGULAR_X,
+       BGA_IT_ANGULAR_Y,
+       BGA_IT_ANGULAR_Z,
+       BGA_IT_STEPS,
+       BGA_IT_SECONDS,
+       BGA_IT_NFIELDS };
+enum { /* INTEG_STATE arrays */ BGA_IT_Q, BGA_IT_NARRAYS };
+enum { /* INTEG_TRIAL */ BGA_IR_KINETIC, BGA_IR_WORK, BGA_IR_SECONDS, BGA_IR_NFIELDS };
+enum { /* INTEG_TRIAL arrays */ BGA_IR_QNEXT, BGA_IR_NARRAYS };
 
 /* Market role messages, types 0x1001..0x1017 (see market/bgm_codec.h for
  * their meaning): all share one schema. */

@@ -396,7 +396,11 @@ static void test_integration_step_closed_form(void **state)
     (void)state;
     const double h = 0.1, gamma = 0.3;
     const double mass[2] = {2.0, 4.0};
-    const double q0[4] = {0, 0, 1, 1}, p0[4] = {2, -4, 0, 8};
+    const double q0[4] = {0, 0, 1, 1}, v0[4] = {1, -1, 0, 2}, zero[4] = {0, 0, 0, 0};
+    const int32_t free4[4] = {0, 0, 0, 0};
+    double p0[4];
+    for (int i = 0; i < 4; i++)
+        p0[i] = mass[i / 2] * v0[i];
     bga_service_t *svc = service(1, BGA_SERVICE_INTEG);
     bga_msg_t m, rep;
     bga_frames_t keep;
@@ -407,17 +411,41 @@ static void test_integration_step_closed_form(void **state)
     m.field[BGA_IS_DAMPING].f = gamma;
     m.array[BGA_IS_MASS] = (bga_array_t){mass, 2};
     m.array[BGA_IS_Q] = (bga_array_t){q0, 4};
-    m.array[BGA_IS_P] = (bga_array_t){p0, 4};
-    expect_reply(svc, &m, 0.0, BGA_ACK);
-    bga_msg_init(&m, BGA_INTEG_PREDICT, 3, 2);
+    m.array[BGA_IS_VELOCITY] = (bga_array_t){v0, 4};
+    m.array[BGA_IS_T0] = (bga_array_t){q0, 4};
+    m.array[BGA_IS_CONSTRAINED] = (bga_array_t){free4, 4};
+    m.array[BGA_IS_GRAVITY] = (bga_array_t){zero, 2};
     assert_int_equal(call(svc, &m, 0.0, &rep, &keep), BGA_WIRE_OK);
+    assert_int_equal(rep.header.type, BGA_INTEG_STATE);
+    double k0 = 0.0;
+    for (int i = 0; i < 4; i++)
+        k0 += 0.5 * p0[i] * p0[i] / mass[i / 2];
+    assert_true(fabs(rep.field[BGA_IT_KINETIC].f - k0) <= 1e-14 * k0);
+    assert_int_equal(rep.field[BGA_IT_STEPS].i, 0);
+    bga_frames_free(&keep);
+    /* An accept before any trial is refused: the state expects a predict. */
+    bga_msg_init(&m, BGA_INTEG_ACCEPT, 3, 2);
+    expect_code(svc, &m, 0.0, BGA_WIRE_WRONG_STATE, "accept while ready for a new step");
+    bga_msg_init(&m, BGA_INTEG_PREDICT, 3, 3);
+    m.field[BGA_IP_VARIATIONAL].i = 1;
+    m.field[BGA_IP_TRIAL].i = 1;
+    m.array[BGA_IP_T1] = (bga_array_t){q0, 4};
+    expect_code(svc, &m, 0.0, BGA_WIRE_WRONG_STATE, "redo while ready");
+    m.field[BGA_IP_TRIAL].i = 0;
+    m.field[BGA_IP_PREDICTOR].i = 1; /* the last positions: one candidate, q_k */
+    assert_int_equal(call(svc, &m, 0.0, &rep, &keep), BGA_WIRE_OK);
+    assert_int_equal(rep.header.type, BGA_INTEG_INERTIA);
     assert_true(fabs(rep.field[BGA_II_COEF].f - 4.0 / (h * h)) <= 1e-12 * 400.0);
+    assert_int_equal(rep.field[BGA_II_NCAND].i, 1);
     double pred[4];
     for (int i = 0; i < 4; i++) {
         pred[i] = q0[i] + 0.5 * h * p0[i] / mass[i / 2];
         assert_true(fabs(bga_msg_f64(&rep, BGA_II_PREDICT, (size_t)i) - pred[i]) <= 1e-15);
-        assert_true(bga_msg_f64(&rep, BGA_II_Q, (size_t)i) == q0[i]);
+        assert_true(bga_msg_f64(&rep, BGA_II_CANDIDATES, (size_t)i) == q0[i]);
     }
+    /* No gravity: the state's force scale is (2/h)|p|. */
+    const double pn = sqrt(p0[0] * p0[0] + p0[1] * p0[1] + p0[2] * p0[2] + p0[3] * p0[3]);
+    assert_true(fabs(rep.field[BGA_II_STATE_SCALE].f - 2.0 / h * pn) <= 1e-13 * pn / h);
     bga_frames_free(&keep);
     /* With a constant force f = −∇W the minimiser of the step energy is
      * q* = prediction + (h²/4) M⁻¹ f; the midpoint update then gives
@@ -428,32 +456,43 @@ static void test_integration_step_closed_form(void **state)
         qs[i] = pred[i] + 0.25 * h * h * f[i] / mass[i / 2];
         g[i] = -f[i];
     }
-    bga_msg_init(&m, BGA_INTEG_UPDATE, 3, 3);
-    m.array[BGA_IU_QSTAR] = (bga_array_t){qs, 4};
-    m.array[BGA_IU_GRAD] = (bga_array_t){g, 4};
-    assert_int_equal(call(svc, &m, 0.0, &rep, &keep), BGA_WIRE_OK);
-    assert_int_equal(rep.header.type, BGA_INTEG_STATE);
-    assert_int_equal(rep.field[BGA_IT_STEPS].i, 1);
-    double kinetic = 0.0;
-    for (int i = 0; i < 4; i++) {
-        const double q1 = q0[i] + h * p0[i] / mass[i / 2] + 0.5 * h * h * f[i] / mass[i / 2];
-        const double p1 = exp(-gamma * h) * (p0[i] + h * f[i]);
-        assert_true(fabs(bga_msg_f64(&rep, BGA_IT_Q, (size_t)i) - q1) <= 1e-13);
-        assert_true(fabs(bga_msg_f64(&rep, BGA_IT_P, (size_t)i) - p1) <= 1e-13);
-        kinetic += 0.5 * p1 * p1 / mass[i / 2];
-    }
-    assert_true(fabs(rep.field[BGA_IT_KINETIC].f - kinetic) <= 1e-12 * kinetic);
-    bga_frames_free(&keep);
     bga_msg_init(&m, BGA_INTEG_UPDATE, 3, 4);
     m.array[BGA_IU_QSTAR] = (bga_array_t){qs, 2};
     m.array[BGA_IU_GRAD] = (bga_array_t){g, 2};
     expect_code(svc, &m, 0.0, BGA_WIRE_BAD_LENGTH, "2 values, the state has 4");
+    m.array[BGA_IU_QSTAR] = (bga_array_t){qs, 4};
+    m.array[BGA_IU_GRAD] = (bga_array_t){g, 4};
+    assert_int_equal(call(svc, &m, 0.0, &rep, &keep), BGA_WIRE_OK);
+    assert_int_equal(rep.header.type, BGA_INTEG_TRIAL);
+    double q1[4], kt = 0.0, k1 = 0.0, lin[2] = {0, 0};
+    for (int i = 0; i < 4; i++) {
+        q1[i] = q0[i] + h * p0[i] / mass[i / 2] + 0.5 * h * h * f[i] / mass[i / 2];
+        const double pt = p0[i] + h * f[i], p1 = exp(-gamma * h) * pt;
+        assert_true(fabs(bga_msg_f64(&rep, BGA_IR_QNEXT, (size_t)i) - q1[i]) <= 1e-13);
+        kt += 0.5 * pt * pt / mass[i / 2];
+        k1 += 0.5 * p1 * p1 / mass[i / 2];
+        lin[i % 2] += p1;
+    }
+    assert_true(fabs(rep.field[BGA_IR_KINETIC].f - kt) <= 1e-12 * kt);
+    assert_true(rep.field[BGA_IR_WORK].f == 0.0); /* no constrained coordinate */
+    bga_frames_free(&keep);
+    bga_msg_init(&m, BGA_INTEG_ACCEPT, 3, 5);
+    assert_int_equal(call(svc, &m, 0.0, &rep, &keep), BGA_WIRE_OK);
+    assert_int_equal(rep.header.type, BGA_INTEG_STATE);
+    assert_int_equal(rep.field[BGA_IT_STEPS].i, 1);
+    assert_true(fabs(rep.field[BGA_IT_KINETIC].f - k1) <= 1e-12 * k1);
+    assert_true(fabs(rep.field[BGA_IT_LINEAR_X].f - lin[0]) <= 1e-13);
+    assert_true(fabs(rep.field[BGA_IT_LINEAR_Y].f - lin[1]) <= 1e-13);
+    for (int i = 0; i < 4; i++)
+        assert_true(fabs(bga_msg_f64(&rep, BGA_IT_Q, (size_t)i) - q1[i]) <= 1e-13);
+    bga_frames_free(&keep);
     bga_service_destroy(&svc);
 }
 
 static void integ_setup(bga_msg_t *m, uint64_t job, int64_t lease_ms)
 {
     static const double mass[1] = {1.0}, zero[2] = {0.0, 0.0};
+    static const int32_t none[2] = {0, 0};
     bga_msg_init(m, BGA_INTEG_SETUP, job, 1);
     m->field[BGA_IS_DIM].i = 2;
     m->field[BGA_IS_NV].i = 1;
@@ -461,7 +500,10 @@ static void integ_setup(bga_msg_t *m, uint64_t job, int64_t lease_ms)
     m->field[BGA_IS_LEASE_MS].i = lease_ms;
     m->array[BGA_IS_MASS] = (bga_array_t){mass, 1};
     m->array[BGA_IS_Q] = (bga_array_t){zero, 2};
-    m->array[BGA_IS_P] = (bga_array_t){zero, 2};
+    m->array[BGA_IS_VELOCITY] = (bga_array_t){zero, 2};
+    m->array[BGA_IS_T0] = (bga_array_t){zero, 2};
+    m->array[BGA_IS_CONSTRAINED] = (bga_array_t){none, 2};
+    m->array[BGA_IS_GRAVITY] = (bga_array_t){zero, 2};
 }
 
 static void test_slots_release_and_leases(void **state)
@@ -470,9 +512,9 @@ static void test_slots_release_and_leases(void **state)
     bga_service_t *svc = service(2, BGA_SERVICE_INTEG);
     bga_msg_t m;
     integ_setup(&m, 1, 0);
-    expect_reply(svc, &m, 0.0, BGA_ACK);
+    expect_reply(svc, &m, 0.0, BGA_INTEG_STATE);
     integ_setup(&m, 2, 1000);
-    expect_reply(svc, &m, 0.0, BGA_ACK);
+    expect_reply(svc, &m, 0.0, BGA_INTEG_STATE);
     integ_setup(&m, 3, 0);
     expect_code(svc, &m, 0.0, BGA_WIRE_BUSY, "no free slot: 2 of 2");
     integ_setup(&m, 0, 0);

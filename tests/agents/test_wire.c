@@ -23,7 +23,7 @@ static const uint16_t TYPES[] = {
     BGA_HEARTBEAT,    BGA_ERROR,         BGA_RELEASE,     BGA_ACK,           BGA_ROTFIT_SETUP,
     BGA_ROTFIT_CALL,  BGA_ROTFIT_RESULT, BGA_SOLVE_SETUP, BGA_SOLVE_FACTOR,  BGA_SOLVE_FACTORED,
     BGA_SOLVE_RHS,    BGA_SOLVE_RESULT,  BGA_INTEG_SETUP, BGA_INTEG_PREDICT, BGA_INTEG_INERTIA,
-    BGA_INTEG_UPDATE, BGA_INTEG_STATE};
+    BGA_INTEG_UPDATE, BGA_INTEG_STATE,   BGA_INTEG_TRIAL, BGA_INTEG_ACCEPT};
 #define NTYPES (sizeof TYPES / sizeof TYPES[0])
 
 /* Data the sample messages point at: one tetrahedron (2D: a triangle
@@ -36,6 +36,10 @@ static const int32_t COLPTR[4] = {0, 3, 5, 6}; /* 3x3 lower triangle, full */
 static const int32_t ROWIDX[6] = {0, 1, 2, 1, 2, 2};
 static const double VEC[12] = {0.1, -2, 3e10, 4, 5, 6, 7, 8, 9, 10, 11, -12.5};
 static const double MASS[4] = {1, 2, 3, 4};
+static const int32_t FIXED[12] = {1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+static const double GRAVITY[3] = {0, 0, -9.81};
+static const double CAND[24] = {1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12,
+                                -1, -2, -3, -4, -5, -6, -7, -8, -9, -10, -11, -12};
 
 /* A valid message of `type` with every field and array set. */
 static void sample(uint16_t type, bga_msg_t *m)
@@ -116,12 +120,23 @@ static void sample(uint16_t type, bga_msg_t *m)
         m->field[BGA_IS_DAMPING].f = 0.5;
         m->array[BGA_IS_MASS] = (bga_array_t){MASS, 4};
         m->array[BGA_IS_Q] = (bga_array_t){VEC, 12};
-        m->array[BGA_IS_P] = (bga_array_t){REST, 12};
+        m->array[BGA_IS_VELOCITY] = (bga_array_t){REST, 12};
+        m->array[BGA_IS_T0] = (bga_array_t){VEC, 12};
+        m->array[BGA_IS_CONSTRAINED] = (bga_array_t){FIXED, 12};
+        m->array[BGA_IS_GRAVITY] = (bga_array_t){GRAVITY, 3};
+        break;
+    case BGA_INTEG_PREDICT:
+        m->field[BGA_IP_VARIATIONAL].i = 1;
+        m->field[BGA_IP_PREDICTOR].i = 3;
+        m->array[BGA_IP_T1] = (bga_array_t){VEC, 12};
         break;
     case BGA_INTEG_INERTIA:
         m->field[BGA_II_COEF].f = 40000.0;
-        m->array[BGA_II_Q] = (bga_array_t){VEC, 12};
-        m->array[BGA_II_PREDICT] = (bga_array_t){REST, 12};
+        m->field[BGA_II_STATE_SCALE].f = 3.5;
+        m->field[BGA_II_NCAND].i = 2;
+        m->array[BGA_II_PREDICT] = (bga_array_t){VEC, 12};
+        m->array[BGA_II_TARGETS] = (bga_array_t){REST, 12};
+        m->array[BGA_II_CANDIDATES] = (bga_array_t){CAND, 24};
         break;
     case BGA_INTEG_UPDATE:
         m->array[BGA_IU_QSTAR] = (bga_array_t){VEC, 12};
@@ -129,9 +144,15 @@ static void sample(uint16_t type, bga_msg_t *m)
         break;
     case BGA_INTEG_STATE:
         m->field[BGA_IT_KINETIC].f = 2.0;
+        m->field[BGA_IT_LINEAR_Z].f = -1.5;
+        m->field[BGA_IT_ANGULAR_X].f = 0.25;
         m->field[BGA_IT_STEPS].i = 3;
         m->array[BGA_IT_Q] = (bga_array_t){VEC, 12};
-        m->array[BGA_IT_P] = (bga_array_t){REST, 12};
+        break;
+    case BGA_INTEG_TRIAL:
+        m->field[BGA_IR_KINETIC].f = 2.0;
+        m->field[BGA_IR_WORK].f = -0.125;
+        m->array[BGA_IR_QNEXT] = (bga_array_t){VEC, 12};
         break;
     default:
         break;
@@ -146,7 +167,7 @@ static size_t elem_bytes(uint16_t type, int a)
         return 1;
     if ((type == BGA_ROTFIT_SETUP &&
          (a == BGA_RS_ELEMENTS || a == BGA_RS_LOCAL_TO_GLOBAL || a == BGA_RS_SCATTER)) ||
-        type == BGA_SOLVE_SETUP)
+        type == BGA_SOLVE_SETUP || (type == BGA_INTEG_SETUP && a == BGA_IS_CONSTRAINED))
         return 4;
     return 8;
 }
@@ -410,6 +431,24 @@ static void test_malformed_cases(void **state)
     m.array[BGA_RC_POSITIONS] = (bga_array_t){bad, 2};
     assert_int_equal(bga_wire_encode(&m, &fr, &err), BG_ERR_INVALID);
     assert_non_null(strstr(err.message, "positions[1] is inf"));
+    bg_error_clear(&err);
+    /* Integration step: a constraint flag other than 0/1, candidates that
+     * are not whole position vectors, a trial flag out of range. */
+    sample(BGA_INTEG_SETUP, &m);
+    static const int32_t two[12] = {0, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+    m.array[BGA_IS_CONSTRAINED] = (bga_array_t){two, 12};
+    assert_int_equal(bga_wire_encode(&m, &fr, &err), BG_ERR_INVALID);
+    assert_non_null(strstr(err.message, "constrained[1] = 2, must be 0 or 1"));
+    bg_error_clear(&err);
+    sample(BGA_INTEG_INERTIA, &m);
+    m.array[BGA_II_CANDIDATES].count = 23;
+    assert_int_equal(bga_wire_encode(&m, &fr, &err), BG_ERR_INVALID);
+    assert_non_null(strstr(err.message, "23 candidate values for 2 candidates of 12"));
+    bg_error_clear(&err);
+    sample(BGA_INTEG_PREDICT, &m);
+    m.field[BGA_IP_TRIAL].i = 2;
+    assert_int_equal(bga_wire_encode(&m, &fr, &err), BG_ERR_INVALID);
+    assert_non_null(strstr(err.message, "trial"));
 }
 
 static void test_caps(void **state)
