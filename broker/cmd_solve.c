@@ -63,10 +63,11 @@ typedef struct cli_agent {
     char endpoint[CLI_ENDPOINT_MAX];
     unsigned services;     /* BGA_SERVICE_* bits; 0 until known */
     int contacted;         /* a heartbeat or a service call went to it */
-    int role;              /* rotation-fit index, CLI_ROLE_SOLVE, or CLI_ROLE_NONE */
+    int role;              /* rotation-fit index, CLI_ROLE_SOLVE, _INTEG or _NONE */
 } cli_agent;
 #define CLI_ROLE_NONE (-1)
 #define CLI_ROLE_SOLVE (-2)
+#define CLI_ROLE_INTEG (-3)
 
 typedef struct progress {
     int tty;
@@ -537,8 +538,9 @@ static int agents_report(const cli_agent *agents, int count, const bga_backend_t
         r->service = service_names(a->services);
         if (a->role == CLI_ROLE_NONE)
             continue;
-        const bga_agent_usage_t u =
-            bga_backend_usage(backend, a->role == CLI_ROLE_SOLVE ? nrotfit : a->role);
+        bga_agent_usage_t u;
+        if (a->role != CLI_ROLE_INTEG || !bga_backend_integ_usage(backend, &u))
+            u = bga_backend_usage(backend, a->role == CLI_ROLE_SOLVE ? nrotfit : a->role);
         r->service = u.service;
         r->calls = u.traffic.requests;
         r->contacted |= r->calls > 0;
@@ -629,6 +631,17 @@ int bg_cmd_solve(int argc, char **argv)
             fprintf(stderr, "biotgrid solve: %s\n", err.message);
             goto out;
         }
+        /* The time loop's state goes to the first integration-step agent
+         * (a static job never opens it, so never contacts that agent). */
+        for (int i = 0; i < agent_count; i++)
+            if (agents[i].role == CLI_ROLE_NONE && (agents[i].services & BGA_SERVICE_INTEG)) {
+                if (bga_backend_set_integ(remote, agents[i].endpoint, &err) != BG_OK) {
+                    fprintf(stderr, "biotgrid solve: %s\n", err.message);
+                    goto out;
+                }
+                agents[i].role = CLI_ROLE_INTEG;
+                break;
+            }
         /* surface-edit's per-vertex rotations have no agent service yet. */
         if (scene->task != BG_TASK_SURFACE_EDIT)
             backend = bga_backend_services(remote);

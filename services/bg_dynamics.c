@@ -243,7 +243,7 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     }
     /* The step service gets a session of its own: its state is the run's,
      * not the solver's, and only a dynamic run opens it. */
-    s.backend = opt->backend ? opt->backend : bg_backend_local();
+    s.backend = opt->backend && opt->backend->ops->step_open ? opt->backend : bg_backend_local();
     double tv = bg_clock_now();
     st = s.backend->ops->session_new(s.backend->ctx, &s.session, err);
     if (st != BG_OK)

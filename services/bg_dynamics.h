@@ -11,7 +11,10 @@
  * band. Backward Euler: q_{k+1} = argmin (1/2h²)|q − q_k − h v_k|²_M + W(q),
  * first order, dissipative.
  * Each step is a static Newton solve with an inertia term (bg_solver_t),
- * so one CHOLMOD analysis serves the whole run. Optional damping scales
+ * so one CHOLMOD analysis serves the whole run. The coordinator runs the
+ * inner solve and the energy limiter's decisions; q_k, p_k and the step
+ * formulas are the integration-step service's (bg_step, through the
+ * backend: in process, or on an agent). Optional damping scales
  * the momentum by exp(−γh) per step: a decay rate independent of h.
  */
 #ifndef BG_DYNAMICS_H
@@ -46,8 +49,10 @@ typedef struct bg_dynamic_options {
     void *frame_ctx;
     bg_progress_fn progress;  /* called after each step with the step's trace point */
     void *progress_ctx;
-    const bg_backend_t *backend; /* basic services (borrowed), NULL: in-process; the time loop
-                                    itself (integration-step) runs in this process */
+    const bg_backend_t *backend; /* basic services (borrowed), NULL: in-process. The time
+                                    loop's state and step formulas (integration-step, bg_step)
+                                    live behind its step ops, in a session of their own; a
+                                    backend without step ops keeps them in this process */
 } bg_dynamic_options_t;
 
 /*

@@ -1,5 +1,5 @@
 /*
- * agent_solve RUNDIR SCENE.json METHOD [--max-iterations N] AGENTS...
+ * agent_solve RUNDIR SCENE.json METHOD [--max-iterations N] [--steps N] AGENTS...
  *
  * The same job solved in process and across agents: for each count N in
  * 1..(number of rotation-fit agents given) the scene's solver runs with
@@ -12,6 +12,11 @@
  * their own previous fits at the same positions. Exit 0 when every case
  * matches, 1 otherwise (each mismatch printed). Energies of a series are
  * compared relative to its largest one (see rel_differs).
+ *
+ * A dynamic scene's time loop runs on RUNDIR's `ig` integration-step agent
+ * (its state, q and p, lives there): the run must show calls to it, and a
+ * static one none. --steps N shortens a dynamic run (the same override on
+ * both sides; the test that passes it says why).
  */
 #include <math.h>
 #include <stdio.h>
@@ -48,11 +53,12 @@ static int read_endpoint(const char *dir, const char *name, char *ep, size_t cap
 /* cap: the iteration cap (per frame for a morph), 0 for the scene's; the
  * sanitizer build needs it on the slow cases, and a capped run must match
  * just as well. */
-static bg_status run(const bg_scene_t *scene, bg_method method, int cap,
+static bg_status run(const bg_scene_t *scene, bg_method method, int cap, int steps,
                      const bg_backend_t *backend, bg_solve_result_t *r, bg_error_t *err)
 {
     if (scene->task == BG_TASK_DYNAMIC) {
-        const bg_dynamic_options_t o = {.method = method, .max_iterations = cap, .backend = backend};
+        const bg_dynamic_options_t o = {
+            .method = method, .max_iterations = cap, .steps = steps, .backend = backend};
         return bg_dynamic_solve(scene, &o, r, err);
     }
     if (scene->task == BG_TASK_MORPH) {
@@ -127,19 +133,52 @@ static int compare(const bg_scene_t *scene, const bg_solve_result_t *a, const bg
     return bad;
 }
 
+/* The integration-step agent's usage: a dynamic run calls it (set-up,
+ * then predict, update and accept per step, plus each redo), a static
+ * one never. */
+static int check_integ(const bga_backend_t *remote, int dynamic, int step_count, int limited)
+{
+    bga_agent_usage_t u;
+    if (!bga_backend_integ_usage(remote, &u)) {
+        printf("    MISMATCH: the backend has no integration-step agent\n");
+        return 1;
+    }
+    printf("    integration-step %s: %lld calls (%d limited steps), compute %.6f s, sent %lld B, "
+           "received %lld B\n",
+           u.endpoint, (long long)u.traffic.requests, limited, u.traffic.agent_seconds,
+           (long long)u.traffic.bytes_sent, (long long)u.traffic.bytes_received);
+    /* step_count includes the initial state; each step is 3 calls
+     * (predict, update, accept), each limiter redo 2 more (predict,
+     * update), and the set-up and the release add 2. */
+    const int64_t want = dynamic ? 3 * (int64_t)(step_count - 1) + 2 * (int64_t)limited + 2 : 0;
+    if (u.traffic.requests != want || (dynamic && !(u.traffic.agent_seconds > 0.0))) {
+        printf("    MISMATCH: %lld integration-step calls (expected %lld), compute %g s\n",
+               (long long)u.traffic.requests, (long long)want, u.traffic.agent_seconds);
+        return 1;
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
-    int first = 4, cap = 0;
-    if (argc > 5 && strcmp(argv[4], "--max-iterations") == 0) {
-        cap = atoi(argv[5]);
-        first = 6;
+    int first = 4, cap = -1, steps = -1;
+    while (argc > first + 1 && strncmp(argv[first], "--", 2) == 0) {
+        int *into = strcmp(argv[first], "--max-iterations") == 0 ? &cap
+                    : strcmp(argv[first], "--steps") == 0        ? &steps
+                                                                 : NULL;
+        if (!into || atoi(argv[first + 1]) < 1)
+            break;
+        *into = atoi(argv[first + 1]);
+        first += 2;
     }
-    if (argc <= first || argc - first > MAX_AGENTS || (first == 6 && cap < 1)) {
+    if (argc <= first || argc - first > MAX_AGENTS || strncmp(argv[first], "--", 2) == 0) {
         fprintf(stderr,
-                "usage: agent_solve RUNDIR SCENE.json METHOD [--max-iterations N] "
+                "usage: agent_solve RUNDIR SCENE.json METHOD [--max-iterations N] [--steps N] "
                 "ROTFIT-AGENT...\n");
         return 2;
     }
+    cap = cap < 0 ? 0 : cap;
+    steps = steps < 0 ? 0 : steps;
     const char *dir = argv[1];
     bg_method method;
     bg_error_t perr = BG_ERROR_INIT;
@@ -152,7 +191,9 @@ int main(int argc, char **argv)
     for (int i = 0; i < nagents; i++)
         if (read_endpoint(dir, argv[first + i], eps[i], sizeof eps[i]) != 0)
             return 1;
-    if (read_endpoint(dir, "sv", solve_ep, sizeof solve_ep) != 0)
+    char integ_ep[256];
+    if (read_endpoint(dir, "sv", solve_ep, sizeof solve_ep) != 0 ||
+        read_endpoint(dir, "ig", integ_ep, sizeof integ_ep) != 0)
         return 1;
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *scene = NULL;
@@ -162,7 +203,9 @@ int main(int argc, char **argv)
     }
     bg_solve_result_t local = BG_SOLVE_RESULT_INIT;
     int bad = 0;
-    if (run(scene, method, cap, NULL, &local, &err) != BG_OK) {
+    if (steps > 0)
+        printf("override: %d steps instead of the scene's %d\n", steps, scene->dynamic.steps);
+    if (run(scene, method, cap, steps, NULL, &local, &err) != BG_OK) {
         fprintf(stderr, "agent_solve: in process: %s\n", err.message);
         bad = 1;
     }
@@ -176,11 +219,19 @@ int main(int argc, char **argv)
         bga_backend_t *remote = NULL;
         bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
         if (bga_backend_new(&bc, &remote, &err) != BG_OK ||
-            run(scene, method, cap, bga_backend_services(remote), &r, &err) != BG_OK) {
+            bga_backend_set_integ(remote, integ_ep, &err) != BG_OK ||
+            run(scene, method, cap, steps, bga_backend_services(remote), &r, &err) != BG_OK) {
             printf("  %d agent(s): FAILED: %s\n", n, err.message);
             bad++;
         } else {
             bad += compare(scene, &local, &r, n);
+            bad += check_integ(remote, scene->task == BG_TASK_DYNAMIC, r.step_count,
+                               r.limited_steps);
+            if (r.limited_steps != local.limited_steps) {
+                printf("    MISMATCH: %d limited steps vs %d in process\n", r.limited_steps,
+                       local.limited_steps);
+                bad++;
+            }
         }
         bg_solve_result_release(&r);
         bga_backend_destroy(&remote);
