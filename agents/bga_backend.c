@@ -1,5 +1,6 @@
 #include "bga_backend.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
@@ -202,16 +203,28 @@ static bg_status solve_factor(void *opaque, int id, double shift, bg_error_t *er
     bg_sparse_t *sys = s->sys[id];
     const uint64_t job = s->job + BACKEND_SYSTEM_JOB + (uint64_t)id;
     bg_status st = check(s, err);
+    const double t_setup = bg_clock_now();
     if (st == BG_OK && !s->set_up[id]) {
         st = bga_client_solve_setup(s->solver, job, bg_sparse_size(sys), bg_sparse_colptr(sys),
                                     bg_sparse_rowidx(sys), s->b->lease_ms, err);
         s->set_up[id] = st == BG_OK;
     }
     int posdef = 0;
+    bga_factor_cost_t cost = {0};
+    const double t0 = bg_clock_now();
     if (st == BG_OK)
         st = bga_client_solve_factor_cost(s->solver, job, bg_sparse_values(sys),
-                                          bg_sparse_nonzeros(sys), shift, &posdef,
-                                          &s->flops[id], &s->nonzeros[id], err);
+                                          bg_sparse_nonzeros(sys), shift, &posdef, &cost, err);
+    s->flops[id] = cost.flops;
+    s->nonzeros[id] = cost.nonzeros;
+    /* The round trips count as the solver's factor time, the pattern's
+     * upload and the agent's analysis of it as analysis, as a local
+     * factor's would. */
+    const double elapsed = bg_clock_now() - t0;
+    const double analyze = fmin(cost.analyze_seconds, elapsed);
+    const bg_sparse_timing_t spent = {analyze + (t0 - t_setup), elapsed - analyze, 0.0,
+                                      st == BG_OK, 0};
+    bg_sparse_add_timing(sys, &spent);
     if (st != BG_OK)
         return fail(s, st, err);
     if (!posdef)
@@ -226,9 +239,12 @@ static bg_status solve(void *opaque, int id, const double *rhs, double *x, bg_er
 {
     session *s = opaque;
     bg_status st = check(s, err);
+    const double t0 = bg_clock_now();
     if (st == BG_OK)
         st = bga_client_solve(s->solver, s->job + BACKEND_SYSTEM_JOB + (uint64_t)id, rhs,
                               bg_sparse_size(s->sys[id]), 1, x, err);
+    const bg_sparse_timing_t spent = {0.0, 0.0, bg_clock_now() - t0, 0, st == BG_OK};
+    bg_sparse_add_timing(s->sys[id], &spent);
     return st == BG_OK ? BG_OK : fail(s, st, err);
 }
 

@@ -375,12 +375,12 @@ bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const
 bg_status bga_client_solve_factor(bga_client_t *c, uint64_t job, const double *values, size_t nnz,
                                   double shift, int *posdef, bg_error_t *err)
 {
-    return bga_client_solve_factor_cost(c, job, values, nnz, shift, posdef, NULL, NULL, err);
+    return bga_client_solve_factor_cost(c, job, values, nnz, shift, posdef, NULL, err);
 }
 
 bg_status bga_client_solve_factor_cost(bga_client_t *c, uint64_t job, const double *values,
-                                       size_t nnz, double shift, int *posdef, double *flops,
-                                       double *nonzeros, bg_error_t *err)
+                                       size_t nnz, double shift, int *posdef,
+                                       bga_factor_cost_t *cost, bg_error_t *err)
 {
     bga_msg_t m;
     bga_reply_t rep;
@@ -391,10 +391,11 @@ bg_status bga_client_solve_factor_cost(bga_client_t *c, uint64_t job, const doub
     if (st != BG_OK)
         return st;
     *posdef = (int)rep.msg.field[BGA_SD_POSDEF].i;
-    if (flops)
-        *flops = rep.msg.field[BGA_SD_FLOPS].f;
-    if (nonzeros)
-        *nonzeros = rep.msg.field[BGA_SD_FACTOR_NONZEROS].f;
+    if (cost) {
+        cost->flops = rep.msg.field[BGA_SD_FLOPS].f;
+        cost->nonzeros = rep.msg.field[BGA_SD_FACTOR_NONZEROS].f;
+        cost->analyze_seconds = rep.msg.field[BGA_SD_ANALYZE_SECONDS].f;
+    }
     c->traffic.agent_seconds +=
         rep.msg.field[BGA_SD_ANALYZE_SECONDS].f + rep.msg.field[BGA_SD_FACTOR_SECONDS].f;
     bga_reply_close(&rep);

@@ -124,10 +124,16 @@ bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const
 bg_status bga_client_solve_factor(bga_client_t *c, uint64_t job, const double *values, size_t nnz,
                                   double shift, int *posdef, bg_error_t *err);
 /* The same, also returning the cost model of the agent's analysis
- * (bg_sparse_factor_flops / _nonzeros there); flops, nonzeros may be NULL. */
+ * (bg_sparse_factor_flops / _nonzeros there) and the seconds the agent
+ * spent analysing the pattern in this call (the first factor's);
+ * cost may be NULL. */
+typedef struct bga_factor_cost {
+    double flops, nonzeros;
+    double analyze_seconds;
+} bga_factor_cost_t;
 bg_status bga_client_solve_factor_cost(bga_client_t *c, uint64_t job, const double *values,
-                                       size_t nnz, double shift, int *posdef, double *flops,
-                                       double *nonzeros, bg_error_t *err);
+                                       size_t nnz, double shift, int *posdef,
+                                       bga_factor_cost_t *cost, bg_error_t *err);
 /* x = A⁻¹ rhs for nrhs right-hand sides of n values each (column blocks). */
 bg_status bga_client_solve(bga_client_t *c, uint64_t job, const double *rhs, int32_t n, int nrhs,
                            double *x, bg_error_t *err);

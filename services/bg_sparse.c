@@ -388,6 +388,15 @@ bg_sparse_timing_t bg_sparse_timing(const bg_sparse_t *sys)
     return sys->timing;
 }
 
+void bg_sparse_add_timing(bg_sparse_t *sys, const bg_sparse_timing_t *extra)
+{
+    sys->timing.analyze_seconds += extra->analyze_seconds;
+    sys->timing.factor_seconds += extra->factor_seconds;
+    sys->timing.solve_seconds += extra->solve_seconds;
+    sys->timing.factorizations += extra->factorizations;
+    sys->timing.solves += extra->solves;
+}
+
 double bg_sparse_factor_flops(const bg_sparse_t *sys)
 {
     return sys->factor_flops;

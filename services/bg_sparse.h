@@ -85,6 +85,10 @@ bg_status bg_sparse_solve(bg_sparse_t *sys, const double *rhs, double *x, bg_err
 void bg_sparse_multiply(const bg_sparse_t *sys, const double *x, double *y);
 
 bg_sparse_timing_t bg_sparse_timing(const bg_sparse_t *sys);
+/* Adds extra to the system's timing: a backend that factors and solves
+ * the system elsewhere (a sparse-solve agent) credits its calls' time
+ * here, so the solver's time split still covers them. */
+void bg_sparse_add_timing(bg_sparse_t *sys, const bg_sparse_timing_t *extra);
 
 /* Floating-point operations of one numeric factorization and the nonzeros
  * of the factor, as CHOLMOD's analysis counts them (0 before the first

@@ -133,6 +133,32 @@ static int compare(const bg_scene_t *scene, const bg_solve_result_t *a, const bg
     return bad;
 }
 
+/* The time split of a run must account for its wall time as the report
+ * claims (bg_solve_result_t): rotation fit, assembly, analysis, factor,
+ * solve, vector work, output and set-up within SPLIT_TOL of wall_seconds
+ * — on the agents too, where factor and solve are round trips to the
+ * sparse-solve agent. A gap under SPLIT_FLOOR seconds is bookkeeping
+ * noise on a run too short to measure a fraction of. */
+#define SPLIT_TOL 0.05
+#define SPLIT_FLOOR 0.02
+static int check_split(const char *what, const bg_solve_result_t *r)
+{
+    const double sum = r->rotfit_seconds + r->assembly_seconds + r->analyze_seconds +
+                       r->factor_seconds + r->solve_seconds + r->vector_seconds +
+                       r->output_seconds + r->setup.seconds;
+    const double gap = fabs(r->wall_seconds - sum);
+    printf("    %s time split: rotation fit %.4f, assembly %.4f, analyze %.4f, factor %.4f, "
+           "solve %.4f, vector %.4f, output %.4f, set-up %.4f = %.4f s of %.4f s wall\n",
+           what, r->rotfit_seconds, r->assembly_seconds, r->analyze_seconds, r->factor_seconds,
+           r->solve_seconds, r->vector_seconds, r->output_seconds, r->setup.seconds, sum,
+           r->wall_seconds);
+    if (gap > SPLIT_TOL * r->wall_seconds && gap > SPLIT_FLOOR) {
+        printf("    MISMATCH: the %s time split misses %.4f s of the wall time\n", what, gap);
+        return 1;
+    }
+    return 0;
+}
+
 /* The integration-step agent's usage: a dynamic run calls it (set-up,
  * then predict, update and accept per step, plus each redo), a static
  * one never. */
@@ -211,6 +237,8 @@ int main(int argc, char **argv)
     }
     printf("%s, %s: in process %d iterations (%s)\n", scene->name, bg_method_name(method),
            local.iterations, local.stop_reason ? local.stop_reason : "-");
+    if (!bad)
+        bad += check_split("in-process", &local);
     for (int n = 1; n <= nagents && !bad; n++) {
         const char *rot[MAX_AGENTS];
         for (int i = 0; i < n; i++)
@@ -225,6 +253,7 @@ int main(int argc, char **argv)
             bad++;
         } else {
             bad += compare(scene, &local, &r, n);
+            bad += check_split("agents'", &r);
             bad += check_integ(remote, scene->task == BG_TASK_DYNAMIC, r.step_count,
                                r.limited_steps);
             if (r.limited_steps != local.limited_steps) {
