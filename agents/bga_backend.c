@@ -14,6 +14,7 @@
 #define BACKEND_JOB_SHIFT 4
 #define BACKEND_SYSTEM_JOB 8
 #define BACKEND_STEP_JOB 2
+#define BACKEND_SURFACE_JOB 3
 
 struct bga_backend {
     bg_backend_t services;
@@ -42,6 +43,7 @@ typedef struct session {
     bga_step_buffers_t sbuf;
     double *sblock;
     bg_step_t *local_step;
+    bga_rotfit_pool_t *surface; /* the surface editor's cells over the rotation-fit agents */
     bg_status failed;
     bg_error_t fail_err;
 } session;
@@ -108,6 +110,16 @@ static void session_destroy(void *ctx, void *opaque)
             }
         add_traffic(&b->usage[b->nrotfit].traffic, bga_client_traffic(s->solver));
         bga_client_destroy(&s->solver);
+    }
+    if (s->surface) {
+        for (int i = 0; i < b->nrotfit; i++) {
+            add_traffic(&b->usage[i].traffic, bga_rotfit_pool_traffic(s->surface, i));
+            b->usage[i].elements += bga_rotfit_pool_elements(s->surface, i);
+        }
+        if (s->failed == BG_OK)
+            bga_rotfit_pool_destroy(&s->surface);
+        else
+            bga_rotfit_pool_abandon(&s->surface);
     }
     if (s->integ) {
         if (s->failed == BG_OK) {
@@ -340,10 +352,47 @@ static bg_status step_accept(void *opaque, bg_step_motion_t *motion, bg_error_t 
     return st == BG_OK ? BG_OK : fail(s, st, err);
 }
 
+static bg_status surface_open(void *opaque, const bg_mesh_t *mesh, bg_error_t *err)
+{
+    session *s = opaque;
+    bga_backend_t *b = s->b;
+    bg_status st = check(s, err);
+    if (st != BG_OK)
+        return st;
+    if (s->surface)
+        return bg_error_set(err, BG_ERR_INVALID, "this session already holds a surface");
+    const char *eps[BGA_BACKEND_MAX_AGENTS];
+    for (int i = 0; i < b->nrotfit; i++)
+        eps[i] = b->endpoint[i];
+    const bga_pool_config_t cfg = {.mesh = mesh,
+                                   .endpoints = eps,
+                                   .nagents = b->nrotfit,
+                                   .job = s->job + BACKEND_SURFACE_JOB,
+                                   .timeout_ms = b->timeout_ms,
+                                   .lease_ms = b->lease_ms,
+                                   .surface = 1};
+    st = bga_rotfit_pool_new(&cfg, &s->surface, err);
+    return st == BG_OK ? BG_OK : fail(s, st, err);
+}
+
+static bg_status surface_eval(void *opaque, const double *q, double *energy, double *grad,
+                              bg_rotfit_stats_t *stats, bg_error_t *err)
+{
+    (void)stats; /* the fit counts stay on the agents */
+    session *s = opaque;
+    bg_status st = check(s, err);
+    if (st != BG_OK)
+        return st;
+    if (!s->surface)
+        return fail(s, bg_error_set(err, BG_ERR_INVALID, "surface fit before surface_open"), err);
+    st = bga_rotfit_pool_eval(s->surface, q, energy, grad, NULL, 0, err);
+    return st == BG_OK ? BG_OK : fail(s, st, err);
+}
+
 static const bg_backend_ops_t agents_ops = {
     "agents",    session_new, session_destroy, fit_open,     fit_eval,     fit_hessian,
     solve_open,  solve_factor, solve,          solve_cost,   step_open,    step_predict,
-    step_update, step_accept,
+    step_update, step_accept,  surface_open, surface_eval,
 };
 
 bg_status bga_backend_new(const bga_backend_config_t *cfg, bga_backend_t **out, bg_error_t *err)

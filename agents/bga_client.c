@@ -310,6 +310,23 @@ bg_status bga_client_rotfit_setup(bga_client_t *c, uint64_t job, const bga_parti
     return simple(c, &m, err);
 }
 
+bg_status bga_client_surface_setup(bga_client_t *c, uint64_t job, const bga_surface_part_t *p,
+                                   bg_error_t *err)
+{
+    bga_msg_t m;
+    bga_msg_init(&m, BGA_SURF_SETUP, job, 0);
+    m.field[BGA_SU_NV].i = p->nv;
+    m.field[BGA_SU_NE].i = p->ne;
+    m.field[BGA_SU_NGLOBAL].i = p->nglobal;
+    m.field[BGA_SU_NOWNED].i = p->nowned;
+    m.field[BGA_SU_LEASE_MS].i = p->lease_ms;
+    m.array[BGA_SU_TRIANGLES] = (bga_array_t){p->triangles, (size_t)p->ne * 3};
+    m.array[BGA_SU_LOCAL_TO_GLOBAL] = (bga_array_t){p->local_to_global, (size_t)p->nv};
+    m.array[BGA_SU_REST_POSITIONS] = (bga_array_t){p->rest_positions, (size_t)p->nv * 3};
+    m.array[BGA_SU_OWNED] = (bga_array_t){p->owned, (size_t)p->nowned};
+    return simple(c, &m, err);
+}
+
 bg_status bga_client_rotfit_start(bga_client_t *c, uint64_t job, const double *positions,
                                   size_t count, unsigned want, bg_error_t *err)
 {

@@ -100,6 +100,23 @@ typedef struct bga_partition {
 bg_status bga_client_rotfit_setup(bga_client_t *c, uint64_t job, const bga_partition_t *p,
                                   bg_error_t *err);
 
+/* A surface partition for the spokes-and-rims rotation fit (arrays
+ * borrowed for the call): the triangles of the owned vertices' cells in
+ * local numbering, the local vertices' rest positions (nv*3) and global
+ * numbers, and the owned local vertices. Calls are bga_client_rotfit with
+ * BGA_WANT_GRADIENT (no Hessian). */
+typedef struct bga_surface_part {
+    int32_t nv, ne, nglobal, nowned;
+    const int32_t *triangles;       /* ne*3 */
+    const int32_t *local_to_global; /* nv */
+    const double *rest_positions;   /* nv*3 */
+    const int32_t *owned;           /* nowned */
+    int64_t lease_ms;
+} bga_surface_part_t;
+
+bg_status bga_client_surface_setup(bga_client_t *c, uint64_t job, const bga_surface_part_t *p,
+                                   bg_error_t *err);
+
 typedef struct bga_rotfit_out {
     double energy;
     double *gradient; /* nv*dim, filled when want has BGA_WANT_GRADIENT */

@@ -118,11 +118,81 @@ out:
     return st;
 }
 
+/* Vertices [v0, v1) of a surface as a partition: the triangles around
+ * them (in mesh order), local vertices in order of first use, and the
+ * owned ones. Sets the partition up on p->client. */
+static bg_status setup_surface_part(const bga_pool_config_t *cfg, int32_t v0, int32_t v1, part *p,
+                                    bg_error_t *err)
+{
+    const bg_mesh_t *mesh = cfg->mesh;
+    bg_status st = BG_OK;
+    int32_t *g2l = malloc((size_t)mesh->nv * sizeof *g2l);
+    int32_t *tris = malloc((size_t)mesh->ne * 3 * sizeof *tris + 1);
+    int32_t *owned = malloc((size_t)(v1 - v0) * sizeof *owned + 1);
+    double *rest = NULL;
+    p->local_to_global = malloc((size_t)mesh->nv * sizeof *p->local_to_global + 1);
+    if (!g2l || !tris || !owned || !p->local_to_global) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory partitioning %d vertices",
+                          (int)(v1 - v0));
+        goto out;
+    }
+    for (int32_t v = 0; v < mesh->nv; v++)
+        g2l[v] = -1;
+    int32_t nowned = 0;
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        const int32_t *el = mesh->elements + 3 * (size_t)e;
+        int in = 0;
+        for (int c = 0; c < 3; c++)
+            in |= el[c] >= v0 && el[c] < v1;
+        if (!in)
+            continue;
+        for (int c = 0; c < 3; c++) {
+            if (g2l[el[c]] < 0) {
+                g2l[el[c]] = p->nv;
+                p->local_to_global[p->nv++] = el[c];
+            }
+            tris[(size_t)p->ne * 3 + c] = g2l[el[c]];
+        }
+        p->ne++;
+    }
+    for (int32_t v = v0; v < v1; v++)
+        if (g2l[v] >= 0) /* a vertex in no triangle has an empty cell */
+            owned[nowned++] = g2l[v];
+    const size_t ndof = (size_t)p->nv * 3;
+    rest = malloc(ndof * sizeof *rest + 1);
+    p->q = malloc(ndof * sizeof *p->q + 1);
+    p->grad = malloc(ndof * sizeof *p->grad + 1);
+    p->hess = malloc(sizeof *p->hess);
+    if (!rest || !p->q || !p->grad || !p->hess) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for a partition of %d vertices",
+                          (int)p->nv);
+        goto out;
+    }
+    for (int32_t v = 0; v < p->nv; v++)
+        memcpy(rest + (size_t)v * 3, mesh->x + (size_t)p->local_to_global[v] * 3,
+               3 * sizeof *rest);
+    if (p->ne == 0 || nowned == 0) {
+        st = bg_error_set(err, BG_ERR_INVALID, "vertices %d to %d lie in no triangle",
+                          (int)v0, (int)v1 - 1);
+        goto out;
+    }
+    const bga_surface_part_t sp = {p->nv, p->ne, mesh->nv, nowned, tris,
+                                   p->local_to_global, rest, owned, cfg->lease_ms};
+    st = bga_client_surface_setup(p->client, cfg->job, &sp, err);
+out:
+    free(g2l);
+    free(tris);
+    free(owned);
+    free(rest);
+    return st;
+}
+
 bg_status bga_rotfit_pool_new(const bga_pool_config_t *cfg, bga_rotfit_pool_t **out,
                               bg_error_t *err)
 {
     *out = NULL;
-    if (cfg->nagents < 1 || cfg->nagents > cfg->mesh->ne)
+    if (cfg->nagents < 1 || cfg->nagents > cfg->mesh->ne ||
+        (cfg->surface && cfg->nagents > cfg->mesh->nv))
         return bg_error_set(err, BG_ERR_INVALID, "%d rotation-fit agents for %d elements",
                             cfg->nagents, (int)cfg->mesh->ne);
     bga_rotfit_pool_t *pool = calloc(1, sizeof *pool);
@@ -135,9 +205,17 @@ bg_status bga_rotfit_pool_new(const bga_pool_config_t *cfg, bga_rotfit_pool_t **
     pool->dim = cfg->mesh->dim;
     pool->ndof = (size_t)cfg->mesh->nv * (size_t)cfg->mesh->dim;
     pool->job = cfg->job;
-    pool->has_hessian = cfg->scatter != NULL;
+    pool->has_hessian = cfg->scatter != NULL && !cfg->surface;
     bg_status st = BG_OK;
-    for (int i = 0; i < pool->n && st == BG_OK; i++) {
+    for (int i = 0; i < pool->n && st == BG_OK && cfg->surface; i++) {
+        part *p = &pool->parts[i];
+        const int32_t v0 = (int32_t)((int64_t)cfg->mesh->nv * i / pool->n);
+        const int32_t v1 = (int32_t)((int64_t)cfg->mesh->nv * (i + 1) / pool->n);
+        st = bga_client_new(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms, &p->client, err);
+        if (st == BG_OK)
+            st = setup_surface_part(cfg, v0, v1, p, err);
+    }
+    for (int i = 0; i < pool->n && st == BG_OK && !cfg->surface; i++) {
         part *p = &pool->parts[i];
         const int32_t e0 = (int32_t)((int64_t)cfg->mesh->ne * i / pool->n);
         const int32_t e1 = (int32_t)((int64_t)cfg->mesh->ne * (i + 1) / pool->n);

@@ -39,6 +39,9 @@ typedef struct bga_pool_config {
     int timeout_ms;
     int64_t lease_ms;
     const double *rest_edges; /* ne*dim*dim rest edge matrices, or NULL; read during _new */
+    int surface; /* 1: a surface (BG_MESH_SURFACE) for the spokes-and-rims energy: balanced
+                    vertex ranges, each agent owning its range's cells (the triangles around
+                    them); material, scatter and rest_edges unused, no Hessian */
 } bga_pool_config_t;
 
 /* Connects, partitions and sets up every agent. Caller owns *out. */

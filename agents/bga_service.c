@@ -10,6 +10,7 @@
 #include "bg_mesh.h"
 #include "bg_sparse.h"
 #include "bg_step.h"
+#include "bg_surface_arap.h"
 
 /* One job's state on this agent; a slot is free when id == 0. */
 typedef struct job {
@@ -19,6 +20,7 @@ typedef struct job {
     /* rotation-fit */
     bg_mesh_t *mesh;
     bg_elastic_t *model;
+    bg_surface_cells_t *cells; /* a surface partition instead of model (SURF_SETUP) */
     int32_t *scatter; /* ne*T into hess, identity when the set-up sent none */
     size_t nhess;
     double *q, *grad, *hess;
@@ -41,6 +43,7 @@ struct bga_service {
 
 static void free_rotfit(job *j)
 {
+    bg_surface_cells_destroy(&j->cells);
     bg_elastic_destroy(&j->model);
     bg_mesh_destroy(&j->mesh);
     free(j->scatter);
@@ -78,7 +81,7 @@ static void free_job(job *j)
 /* A job whose only set-up failed holds nothing: give its slot back. */
 static void free_job_if_empty(job *j)
 {
-    if (!j->model && !j->sys && !j->step)
+    if (!j->model && !j->cells && !j->sys && !j->step)
         free_job(j);
 }
 
@@ -353,9 +356,83 @@ fail:
     return wc;
 }
 
+/* A surface partition's call: its cells' rotations fitted, their energy
+ * and gradient (no Hessian: the surface editor's matrix is constant). */
+static bga_wire_code surface_call(job *j, const bga_msg_t *m, bga_msg_t *rep,
+                                  bga_service_stats_t *stats, bga_wire_error_t *werr)
+{
+    const size_t ndof = (size_t)j->mesh->nv * 3;
+    const int64_t want = m->field[BGA_RC_WANT].i;
+    if (want & BGA_WANT_HESSIAN)
+        return bga_wire_fail(werr, BGA_WIRE_WRONG_STATE, 1, "want",
+                             "a surface partition has no Hessian to send");
+    if (m->array[BGA_RC_POSITIONS].count != ndof)
+        return bga_wire_fail(werr, BGA_WIRE_BAD_LENGTH, 2 + BGA_RC_POSITIONS, "positions",
+                             "%zu position values, the partition has %d vertices x 3 = %zu",
+                             m->array[BGA_RC_POSITIONS].count, (int)j->mesh->nv, ndof);
+    bga_msg_copy_f64(m, BGA_RC_POSITIONS, j->q);
+    const double t0 = bg_clock_now();
+    bg_rotfit_stats_t rs = {0};
+    const double energy =
+        bg_surface_cells_eval(j->cells, j->q, (want & BGA_WANT_GRADIENT) ? j->grad : NULL, &rs);
+    const double seconds = bg_clock_now() - t0;
+    stats->compute_seconds += seconds;
+    bga_msg_init(rep, BGA_ROTFIT_RESULT, m->header.job, m->header.seq);
+    rep->field[BGA_RR_ENERGY].f = isnan(energy) ? INFINITY : energy;
+    rep->field[BGA_RR_FITS].i = rs.calls;
+    rep->field[BGA_RR_WARM].i = rs.warm;
+    rep->field[BGA_RR_POLAR].i = rs.polar;
+    rep->field[BGA_RR_SVD].i = rs.svd;
+    rep->field[BGA_RR_SECONDS].f = seconds;
+    if (want & BGA_WANT_GRADIENT)
+        rep->array[BGA_RR_GRADIENT] = (bga_array_t){j->grad, ndof};
+    return BGA_WIRE_OK;
+}
+
+static bga_wire_code surf_setup(bga_service_t *svc, const bga_msg_t *m, double now, bga_msg_t *rep,
+                                bga_wire_error_t *werr)
+{
+    job *j;
+    bga_wire_code wc = begin_setup(svc, m, now, m->field[BGA_SU_LEASE_MS].i, free_rotfit, &j, werr);
+    if (wc != BGA_WIRE_OK)
+        return wc;
+    const int32_t nv = (int32_t)m->field[BGA_SU_NV].i, ne = (int32_t)m->field[BGA_SU_NE].i;
+    const size_t nowned = m->array[BGA_SU_OWNED].count;
+    bg_error_t e = BG_ERROR_INIT;
+    uint8_t *owned = calloc((size_t)nv + 1, 1);
+    int32_t *list = malloc(nowned * sizeof *list + 1);
+    bg_status st = owned && list ? BG_OK : BG_ERR_NOMEM;
+    if (st == BG_OK)
+        st = bg_mesh_new(BG_MESH_SURFACE, nv, ne, &j->mesh, &e);
+    if (st == BG_OK) {
+        bga_msg_copy_i32(m, BGA_SU_TRIANGLES, j->mesh->elements);
+        bga_msg_copy_f64(m, BGA_SU_REST_POSITIONS, j->mesh->x);
+        bga_msg_copy_i32(m, BGA_SU_OWNED, list);
+        for (size_t i = 0; i < nowned; i++)
+            owned[list[i]] = 1;
+        j->q = malloc((size_t)nv * 3 * sizeof *j->q + 1);
+        j->grad = malloc((size_t)nv * 3 * sizeof *j->grad + 1);
+        st = j->q && j->grad ? bg_surface_cells_new(j->mesh, owned, &j->cells, &e) : BG_ERR_NOMEM;
+    }
+    free(owned);
+    free(list);
+    if (st != BG_OK) {
+        free_rotfit(j);
+        free_job_if_empty(j);
+        return bga_wire_fail(werr, st == BG_ERR_NOMEM ? BGA_WIRE_INTERNAL : BGA_WIRE_INCONSISTENT,
+                             st == BG_ERR_NOMEM ? -1 : 2 + BGA_SU_TRIANGLES, "triangles",
+                             "surface set-up of %d vertices: %s", (int)nv,
+                             e.message[0] ? e.message : "out of memory");
+    }
+    reply_ack(rep, m);
+    return BGA_WIRE_OK;
+}
+
 static bga_wire_code rotfit_call(job *j, const bga_msg_t *m, bga_msg_t *rep,
                                  bga_service_stats_t *stats, bga_wire_error_t *werr)
 {
+    if (j->cells)
+        return surface_call(j, m, rep, stats, werr);
     if (!j->model)
         return no_state(j, "rotation-fit partition", werr);
     const int dim = j->mesh->dim;
@@ -707,6 +784,10 @@ static bga_wire_code dispatch(bga_service_t *svc, const bga_msg_t *m, double now
         if ((wc = need_service(svc, BGA_SERVICE_ROTFIT, "rotation-fit", werr)) != BGA_WIRE_OK)
             return wc;
         return rotfit_setup(svc, m, now, rep, werr);
+    case BGA_SURF_SETUP:
+        if ((wc = need_service(svc, BGA_SERVICE_ROTFIT, "rotation-fit", werr)) != BGA_WIRE_OK)
+            return wc;
+        return surf_setup(svc, m, now, rep, werr);
     case BGA_SOLVE_SETUP:
         if ((wc = need_service(svc, BGA_SERVICE_SOLVE, "sparse-solve", werr)) != BGA_WIRE_OK)
             return wc;

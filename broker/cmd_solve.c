@@ -642,9 +642,7 @@ int bg_cmd_solve(int argc, char **argv)
                 agents[i].role = CLI_ROLE_INTEG;
                 break;
             }
-        /* surface-edit's per-vertex rotations have no agent service yet. */
-        if (scene->task != BG_TASK_SURFACE_EDIT)
-            backend = bga_backend_services(remote);
+        backend = bga_backend_services(remote);
     }
     const double tolerance = o.tolerance > 0 ? o.tolerance : scene->tolerance;
     char out_dir[4096];

@@ -2,12 +2,15 @@
 
 #include <stdlib.h>
 
+#include "bg_surface_arap.h"
+
 /* The in-process backend: the solver's own models and systems, called
  * directly. A session only remembers which object serves which id. */
 typedef struct local_session {
     bg_elastic_t *fit[BG_BACKEND_MAX_FITS];
     bg_sparse_t *sys[BG_BACKEND_MAX_SYSTEMS];
     bg_step_t *step;
+    bg_surface_cells_t *cells;
 } local_session;
 
 static bg_status local_session_new(void *ctx, void **session, bg_error_t *err)
@@ -24,8 +27,10 @@ static void local_session_destroy(void *ctx, void *session)
 {
     (void)ctx;
     local_session *s = session;
-    if (s)
+    if (s) {
         bg_step_destroy(&s->step);
+        bg_surface_cells_destroy(&s->cells);
+    }
     free(s);
 }
 
@@ -117,11 +122,28 @@ static bg_status local_step_accept(void *session, bg_step_motion_t *motion, bg_e
     return s->step ? bg_step_accept(s->step, motion, err) : no_step(err);
 }
 
+static bg_status local_surface_open(void *session, const bg_mesh_t *mesh, bg_error_t *err)
+{
+    local_session *s = session;
+    bg_surface_cells_destroy(&s->cells);
+    return bg_surface_cells_new(mesh, NULL, &s->cells, err);
+}
+
+static bg_status local_surface_eval(void *session, const double *q, double *energy, double *grad,
+                                    bg_rotfit_stats_t *stats, bg_error_t *err)
+{
+    local_session *s = session;
+    if (!s->cells)
+        return bg_error_set(err, BG_ERR_INVALID, "surface rotation fit before surface_open");
+    *energy = bg_surface_cells_eval(s->cells, q, grad, stats);
+    return BG_OK;
+}
+
 static const bg_backend_ops_t local_ops = {
     "in-process",       local_session_new,  local_session_destroy, local_fit_open,
     local_fit_eval,     local_fit_hessian,  local_solve_open,      local_solve_factor,
     local_solve,        local_solve_cost,   local_step_open,       local_step_predict,
-    local_step_update,  local_step_accept,
+    local_step_update,  local_step_accept,  local_surface_open,    local_surface_eval,
 };
 
 static const bg_backend_t local_backend = {&local_ops, NULL};

@@ -41,6 +41,7 @@
 #include "bg_elastic.h"
 #include "bg_error.h"
 #include "bg_mesh.h"
+#include "bg_rotfit.h"
 #include "bg_sparse.h"
 #include "bg_step.h"
 
@@ -82,6 +83,13 @@ typedef struct bg_backend_ops {
     bg_status (*step_update)(void *session, const double *q_star, const double *grad_star,
                              bg_step_trial_t *out, bg_error_t *err);
     bg_status (*step_accept)(void *session, bg_step_motion_t *motion, bg_error_t *err);
+    /* The surface editor's rotation fit (bg_surface_arap.h): the cells of
+     * every vertex of mesh (borrowed for the session's life; rest positions
+     * in mesh->x), evaluated with the contract of bg_surface_cells_eval
+     * (energy, gradient overwritten; stats may stay 0 when remote). */
+    bg_status (*surface_open)(void *session, const bg_mesh_t *mesh, bg_error_t *err);
+    bg_status (*surface_eval)(void *session, const double *q, double *energy, double *grad,
+                              bg_rotfit_stats_t *stats, bg_error_t *err);
 } bg_backend_ops_t;
 
 typedef struct bg_backend {

@@ -4,23 +4,27 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bg_backend.h"
 #include "bg_clock.h"
 #include "bg_elastic.h"
 #include "bg_rotfit.h"
 #include "bg_sparse.h"
 
-typedef struct model {
+struct bg_surface_cells {
     const bg_mesh_t *mesh;
+    uint8_t *owned;     /* nv: 1 for the vertices whose cells are evaluated */
     double *weight;     /* ne·3: weight of the edge opposite corner c */
     double *rest_edge;  /* ne·3·3: rest vector p_j − p_k of the edge opposite corner c */
     int32_t *start;     /* nv+1: vertex → incident triangles (CSR) */
     int32_t *triangles;
     double *quat;       /* nv·4 warm starts */
     double *rotation;   /* nv·9 fitted rotations */
-} model_t;
+};
+typedef struct bg_surface_cells model_t;
 
 static void model_release(model_t *m)
 {
+    free(m->owned);
     free(m->weight);
     free(m->rest_edge);
     free(m->start);
@@ -29,11 +33,17 @@ static void model_release(model_t *m)
     free(m->rotation);
 }
 
-static bg_status model_init(model_t *m, const bg_mesh_t *mesh, bg_error_t *err)
+static bg_status model_init(model_t *m, const bg_mesh_t *mesh, const uint8_t *owned,
+                            bg_error_t *err)
 {
     memset(m, 0, sizeof *m);
     m->mesh = mesh;
     const int32_t nv = mesh->nv, ne = mesh->ne;
+    m->owned = malloc((size_t)nv + 1);
+    if (!m->owned)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the surface model");
+    for (int32_t v = 0; v < nv; v++)
+        m->owned[v] = owned ? owned[v] != 0 : 1;
     m->weight = malloc(((size_t)ne * 3 + 1) * sizeof *m->weight);
     m->rest_edge = malloc(((size_t)ne * 9 + 1) * sizeof *m->rest_edge);
     m->start = calloc((size_t)nv + 1, sizeof *m->start);
@@ -97,6 +107,8 @@ static void cell_edge(const model_t *m, const double *q, int32_t e, int c, int32
 static void fit_rotations(model_t *m, const double *q, bg_rotfit_stats_t *stats)
 {
     for (int32_t i = 0; i < m->mesh->nv; i++) {
+        if (!m->owned[i])
+            continue;
         double M[9] = {0};
         for (int32_t t = m->start[i]; t < m->start[i + 1]; t++)
             for (int c = 0; c < 3; c++) {
@@ -122,6 +134,8 @@ static double energy_with_rotations(const model_t *m, const double *q, double *g
     if (grad)
         memset(grad, 0, (size_t)mesh->nv * 3 * sizeof *grad);
     for (int32_t i = 0; i < mesh->nv; i++) {
+        if (!m->owned[i])
+            continue;
         const double *R = m->rotation + 9 * (size_t)i;
         for (int32_t t = m->start[i]; t < m->start[i + 1]; t++)
             for (int c = 0; c < 3; c++) {
@@ -143,12 +157,45 @@ static double energy_with_rotations(const model_t *m, const double *q, double *g
     return E;
 }
 
+bg_status bg_surface_cells_new(const bg_mesh_t *mesh, const uint8_t *owned,
+                               bg_surface_cells_t **out, bg_error_t *err)
+{
+    *out = NULL;
+    model_t *m = malloc(sizeof *m);
+    if (!m)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the surface model");
+    const bg_status st = model_init(m, mesh, owned, err);
+    if (st != BG_OK) {
+        model_release(m);
+        free(m);
+        return st;
+    }
+    *out = m;
+    return BG_OK;
+}
+
+void bg_surface_cells_destroy(bg_surface_cells_t **pm)
+{
+    if (!pm || !*pm)
+        return;
+    model_release(*pm);
+    free(*pm);
+    *pm = NULL;
+}
+
+double bg_surface_cells_eval(bg_surface_cells_t *m, const double *q, double *grad,
+                             bg_rotfit_stats_t *stats)
+{
+    fit_rotations(m, q, stats);
+    return energy_with_rotations(m, q, grad);
+}
+
 double bg_surface_arap_energy(const bg_scene_t *scene, const double *q, double *grad)
 {
     model_t m;
     bg_rotfit_stats_t stats = {0};
     double E = NAN;
-    if (model_init(&m, scene->mesh, NULL) == BG_OK) {
+    if (model_init(&m, scene->mesh, NULL, NULL) == BG_OK) {
         fit_rotations(&m, q, &stats);
         E = energy_with_rotations(&m, q, grad);
     }
@@ -169,14 +216,24 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
     const int32_t nv = mesh->nv;
     const size_t ndof = (size_t)nv * 3;
     model_t m;
+    /* The basic services: the cells' rotation fit and the three
+     * coordinate systems' factor and solves (in process or on agents). */
+    const bg_backend_t *be =
+        opt->backend && opt->backend->ops->surface_open ? opt->backend : bg_backend_local();
+    const bg_backend_ops_t *ops = be->ops;
+    void *session = NULL;
     bg_sparse_t *sys[3] = {NULL, NULL, NULL};
     int32_t *index[3] = {NULL, NULL, NULL};
     double *q = malloc(ndof * sizeof *q + 1), *grad = malloc(ndof * sizeof *grad + 1);
     double *rhs = malloc(((size_t)nv + 1) * sizeof *rhs), *x = malloc(((size_t)nv + 1) * sizeof *x);
     int trace_cap = 0;
-    bg_status st = model_init(&m, mesh, err);
+    bg_status st = model_init(&m, mesh, NULL, err);
     if (st == BG_OK && (!q || !grad || !rhs || !x))
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the surface edit");
+    if (st == BG_OK)
+        st = ops->session_new(be->ctx, &session, err);
+    if (st == BG_OK)
+        st = ops->surface_open(session, mesh, err);
     if (st != BG_OK)
         goto out;
     /* K = ∂²E/∂q² per coordinate: each triangle lies in the cells of its
@@ -214,7 +271,9 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
                 if (pab >= 0)
                     values[pab] -= w;
             }
-        st = bg_sparse_factorize(sys[c], 0.0, err);
+        st = ops->solve_open(session, c, sys[c], err);
+        if (st == BG_OK)
+            st = ops->solve_factor(session, c, 0.0, err);
         if (st != BG_OK)
             goto out;
     }
@@ -232,8 +291,9 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
     double g0 = 0.0, gnorm = 0.0, E = 0.0;
     for (int it = 0;; it++) {
         double t0 = bg_clock_now();
-        fit_rotations(&m, q, &res->rotfit);
-        E = energy_with_rotations(&m, q, grad);
+        st = ops->surface_eval(session, q, &E, grad, &res->rotfit, err);
+        if (st != BG_OK)
+            goto out;
         const double t1 = bg_clock_now();
         res->rotfit_seconds += t1 - t0;
         gnorm = 0.0;
@@ -276,7 +336,7 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
                 if (index[c][v] >= 0)
                     rhs[index[c][v]] = grad[3 * (size_t)v + c];
             res->vector_seconds += bg_clock_now() - tv;
-            st = bg_sparse_solve(sys[c], rhs, x, err);
+            st = ops->solve(session, c, rhs, x, err);
             if (st != BG_OK)
                 goto out;
             tv = bg_clock_now();
@@ -307,6 +367,8 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
     res->wall_seconds = bg_clock_now() - t_start;
     bg_solve_result_add_scene_prep(res, scene);
 out:
+    if (session)
+        ops->session_destroy(be->ctx, session);
     model_release(&m);
     for (int c = 0; c < 3; c++) {
         bg_sparse_destroy(&sys[c]);

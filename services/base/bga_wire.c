@@ -101,6 +101,17 @@ static const array_spec rs_arrays[] = {
     {"rest_edges", BGA_ELEM_F64, 1, 1, BGA_RS_NE, BGA_RS_DIM, BGA_RS_DIM, 0, 1, NO_IDX},
     {"scatter", BGA_ELEM_I32, 1, 1, BGA_RS_NE, BGA_RS_BLOCK, -1, 0, 0, -1, BGA_RS_NVAL, 0}};
 
+static const field_spec su_fields[] = {I64F("vertices", 3, BGA_WIRE_MAX_VERTICES),
+                                       I64F("triangles", 1, BGA_WIRE_MAX_ELEMENTS),
+                                       I64F("global_vertices", 3, BGA_WIRE_MAX_VERTICES),
+                                       I64F("owned", 1, BGA_WIRE_MAX_VERTICES),
+                                       I64F("lease_ms", 0, LEASE_MAX_MS)};
+static const array_spec su_arrays[] = {
+    {"triangles", BGA_ELEM_I32, 0, 3, BGA_SU_NE, -1, -1, 0, 0, 0, BGA_SU_NV, 0},
+    {"local_to_global", BGA_ELEM_I32, 0, 1, BGA_SU_NV, -1, -1, 0, 0, 0, BGA_SU_NGLOBAL, 0},
+    {"rest_positions", BGA_ELEM_F64, 0, 3, BGA_SU_NV, -1, -1, 0, 1, NO_IDX},
+    {"owned", BGA_ELEM_I32, 0, 1, BGA_SU_NOWNED, -1, -1, 0, 0, 0, BGA_SU_NV, 0}};
+
 static const field_spec rc_fields[] = {I64F("want", 0, 7)};
 static const array_spec rc_arrays[] = {F64FREE("positions", 1)};
 
@@ -250,6 +261,15 @@ static bga_wire_code check_rotfit_setup(const bga_msg_t *m, bga_wire_error_t *we
     return BGA_WIRE_OK;
 }
 
+static bga_wire_code check_surf_setup(const bga_msg_t *m, bga_wire_error_t *werr)
+{
+    if (m->field[BGA_SU_NOWNED].i > m->field[BGA_SU_NV].i)
+        return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 1, "owned",
+                             "%lld owned vertices of %lld", (long long)m->field[BGA_SU_NOWNED].i,
+                             (long long)m->field[BGA_SU_NV].i);
+    return BGA_WIRE_OK;
+}
+
 static bga_wire_code check_rotfit_call(const bga_msg_t *m, bga_wire_error_t *werr)
 {
     const int64_t want = m->field[BGA_RC_WANT].i;
@@ -364,6 +384,7 @@ static const schema SCHEMAS[] = {
     SCHEMA(BGA_ROTFIT_SETUP, "rotfit-setup", rs_fields, rs_arrays, check_rotfit_setup),
     SCHEMA(BGA_ROTFIT_CALL, "rotfit-call", rc_fields, rc_arrays, check_rotfit_call),
     SCHEMA(BGA_ROTFIT_RESULT, "rotfit-result", rr_fields, rr_arrays, NULL),
+    SCHEMA(BGA_SURF_SETUP, "surface-setup", su_fields, su_arrays, check_surf_setup),
     SCHEMA(BGA_SOLVE_SETUP, "solve-setup", ss_fields, ss_arrays, check_solve_setup),
     SCHEMA(BGA_SOLVE_FACTOR, "solve-factor", sf_fields, sf_arrays, NULL),
     SCHEMA(BGA_SOLVE_FACTORED, "solve-factored", sd_fields, sd_arrays, NULL),

@@ -60,6 +60,7 @@ typedef enum bga_type {
     BGA_ROTFIT_SETUP = 0x0101,   /* a partition: elements, rest data, map, material */
     BGA_ROTFIT_CALL = 0x0102,    /* positions in */
     BGA_ROTFIT_RESULT = 0x0103,  /* energy, gradient, Hessian values out */
+    BGA_SURF_SETUP = 0x0104,     /* a surface's vertex partition for the spokes-and-rims fit */
     BGA_SOLVE_SETUP = 0x0201,    /* lower-triangle CSC pattern */
     BGA_SOLVE_FACTOR = 0x0202,   /* values (+ shift) → factor */
     BGA_SOLVE_FACTORED = 0x0203, /* factorization outcome */
@@ -199,6 +200,17 @@ enum { /* ROTFIT_SETUP arrays */
        BGA_RS_SCATTER,
        BGA_RS_NARRAYS
 };
+enum { /* SURF_SETUP */ BGA_SU_NV,
+       BGA_SU_NE,
+       BGA_SU_NGLOBAL,
+       BGA_SU_NOWNED,
+       BGA_SU_LEASE_MS,
+       BGA_SU_NFIELDS };
+enum { /* SURF_SETUP arrays */ BGA_SU_TRIANGLES,
+       BGA_SU_LOCAL_TO_GLOBAL,
+       BGA_SU_REST_POSITIONS,
+       BGA_SU_OWNED,
+       BGA_SU_NARRAYS };
 enum { /* ROTFIT_CALL */ BGA_RC_WANT, BGA_RC_NFIELDS };
 enum { /* ROTFIT_CALL arrays */ BGA_RC_POSITIONS, BGA_RC_NARRAYS };
 enum { /* ROTFIT_RESULT */

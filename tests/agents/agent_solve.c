@@ -27,6 +27,7 @@
 #include "bg_morph.h"
 #include "bg_scene.h"
 #include "bg_static.h"
+#include "bg_surface_arap.h"
 #include "bga_backend.h"
 
 #define MAX_AGENTS 8
@@ -71,7 +72,8 @@ static bg_status run(const bg_scene_t *scene, bg_method method, int cap, int ste
                                       cap > 0 ? cap : bg_scene_max_iterations(scene, method),
                                   .keep_orientation = scene->task == BG_TASK_PARAMETERIZE,
                                   .backend = backend};
-    return bg_static_solve(scene, &o, r, err);
+    return scene->task == BG_TASK_SURFACE_EDIT ? bg_surface_arap_solve(scene, &o, r, err)
+                                               : bg_static_solve(scene, &o, r, err);
 }
 
 /* a and b differ by more than tol relative to the larger of them and
@@ -140,7 +142,7 @@ static int compare(const bg_scene_t *scene, const bg_solve_result_t *a, const bg
  * sparse-solve agent. A gap under SPLIT_FLOOR seconds is bookkeeping
  * noise on a run too short to measure a fraction of. */
 #define SPLIT_TOL 0.05
-#define SPLIT_FLOOR 0.02
+#define SPLIT_FLOOR 0.05
 static int check_split(const char *what, const bg_solve_result_t *r)
 {
     const double sum = r->rotfit_seconds + r->assembly_seconds + r->analyze_seconds +
