@@ -356,6 +356,24 @@ fail:
     return wc;
 }
 
+/* A ROTFIT_RESULT: energy, fit counts, compute seconds and, when grad is
+ * non-NULL, the gradient (ndof values, a job buffer). */
+static void reply_rotfit(const bga_msg_t *m, double energy, const bg_rotfit_stats_t *rs,
+                         double seconds, const double *grad, size_t ndof, bga_msg_t *rep)
+{
+    bga_msg_init(rep, BGA_ROTFIT_RESULT, m->header.job, m->header.seq);
+    /* NaN cannot travel (the decoder refuses it); a NaN energy means a
+     * non-finite input reached the kernel, reported as +Inf. */
+    rep->field[BGA_RR_ENERGY].f = isnan(energy) ? INFINITY : energy;
+    rep->field[BGA_RR_FITS].i = rs->calls;
+    rep->field[BGA_RR_WARM].i = rs->warm;
+    rep->field[BGA_RR_POLAR].i = rs->polar;
+    rep->field[BGA_RR_SVD].i = rs->svd;
+    rep->field[BGA_RR_SECONDS].f = seconds;
+    if (grad)
+        rep->array[BGA_RR_GRADIENT] = (bga_array_t){grad, ndof};
+}
+
 /* A surface partition's call: its cells' rotations fitted, their energy
  * and gradient (no Hessian: the surface editor's matrix is constant). */
 static bga_wire_code surface_call(job *j, const bga_msg_t *m, bga_msg_t *rep,
@@ -377,15 +395,7 @@ static bga_wire_code surface_call(job *j, const bga_msg_t *m, bga_msg_t *rep,
         bg_surface_cells_eval(j->cells, j->q, (want & BGA_WANT_GRADIENT) ? j->grad : NULL, &rs);
     const double seconds = bg_clock_now() - t0;
     stats->compute_seconds += seconds;
-    bga_msg_init(rep, BGA_ROTFIT_RESULT, m->header.job, m->header.seq);
-    rep->field[BGA_RR_ENERGY].f = isnan(energy) ? INFINITY : energy;
-    rep->field[BGA_RR_FITS].i = rs.calls;
-    rep->field[BGA_RR_WARM].i = rs.warm;
-    rep->field[BGA_RR_POLAR].i = rs.polar;
-    rep->field[BGA_RR_SVD].i = rs.svd;
-    rep->field[BGA_RR_SECONDS].f = seconds;
-    if (want & BGA_WANT_GRADIENT)
-        rep->array[BGA_RR_GRADIENT] = (bga_array_t){j->grad, ndof};
+    reply_rotfit(m, energy, &rs, seconds, (want & BGA_WANT_GRADIENT) ? j->grad : NULL, ndof, rep);
     return BGA_WIRE_OK;
 }
 
@@ -455,19 +465,7 @@ static bga_wire_code rotfit_call(job *j, const bga_msg_t *m, bga_msg_t *rep,
     const double seconds = bg_clock_now() - t0;
     stats->compute_seconds += seconds;
     const bg_rotfit_stats_t rs = bg_elastic_rotfit_stats(j->model);
-    bga_msg_init(rep, BGA_ROTFIT_RESULT, m->header.job, m->header.seq);
-    /* NaN cannot travel (the decoder refuses it); a NaN energy means a
-     * non-finite input reached the kernel, reported as +Inf. */
-    rep->field[BGA_RR_ENERGY].f = isnan(energy) ? INFINITY : energy;
-    rep->field[BGA_RR_FITS].i = rs.calls;
-    rep->field[BGA_RR_WARM].i = rs.warm;
-    rep->field[BGA_RR_POLAR].i = rs.polar;
-    rep->field[BGA_RR_SVD].i = rs.svd;
-    rep->field[BGA_RR_SECONDS].f = seconds;
-    if (want & BGA_WANT_GRADIENT) {
-        rep->array[BGA_RR_GRADIENT].data = j->grad;
-        rep->array[BGA_RR_GRADIENT].count = ndof;
-    }
+    reply_rotfit(m, energy, &rs, seconds, (want & BGA_WANT_GRADIENT) ? j->grad : NULL, ndof, rep);
     if (want & BGA_WANT_HESSIAN) {
         rep->array[BGA_RR_HESSIAN].data = j->hess;
         rep->array[BGA_RR_HESSIAN].count = j->nhess;
