@@ -244,15 +244,27 @@ static void pool_free(bga_rotfit_pool_t **ppool, int release)
     if (!ppool || !*ppool)
         return;
     bga_rotfit_pool_t *pool = *ppool;
+    /* Every release is posted before any reply is awaited: the job's end
+     * costs one round trip, not one per agent. Best effort: a job whose
+     * release fails is freed by its lease. */
+    int *posted = calloc((size_t)pool->n + 1, sizeof *posted);
+    for (int i = 0; i < pool->n && release && posted; i++) {
+        part *p = &pool->parts[i];
+        bga_msg_t m;
+        bga_msg_init(&m, BGA_RELEASE, pool->job, 0);
+        bg_error_t ignored = BG_ERROR_INIT;
+        posted[i] = p->client && p->local_to_global && bga_client_post(p->client, &m, &ignored) == BG_OK;
+    }
     for (int i = 0; i < pool->n; i++) {
         part *p = &pool->parts[i];
-        if (release && p->client && p->local_to_global) {
-            bg_error_t ignored = BG_ERROR_INIT; /* best effort: the lease frees it otherwise */
-            bga_client_release(p->client, pool->job, &ignored);
-        }
+        bga_reply_t rep;
+        bg_error_t ignored = BG_ERROR_INIT;
+        if (posted && posted[i] && bga_client_collect(p->client, &rep, &ignored) == BG_OK)
+            bga_reply_close(&rep);
         bga_client_destroy(&p->client);
         part_free(p);
     }
+    free(posted);
     free(pool->parts);
     free(pool);
     *ppool = NULL;
