@@ -213,8 +213,49 @@ static void add_link(cJSON *links, const char *rel, const char *id, const char *
     cJSON_AddStringToObject(links, rel, href);
 }
 
-/* The job resource; with_plan reads the plan from the job's events. */
-static cJSON *job_json(bgb_rest_t *rest, const bgb_job_t *job, int with_plan)
+/* Adds what the job's events show (plan, contracts, allocation, progress,
+ * trace) to the job resource o, taking them out of pc. */
+static void add_event_views(cJSON *o, plan_capture_t *pc)
+{
+    if (pc->plan) {
+        cJSON_AddItemToObject(o, "plan", pc->plan);
+        pc->plan = NULL;
+    }
+    /* The live market records each contract as its own event; the
+     * allocation event lists them only when it has them at hand. */
+    cJSON *contracts = NULL;
+    if (pc->contracts) {
+        contracts = pc->contracts;
+        pc->contracts = NULL;
+    } else if (pc->allocation) {
+        contracts = cJSON_GetObjectItemCaseSensitive(pc->allocation, "contracts");
+        contracts = cJSON_IsArray(contracts)
+                        ? cJSON_DetachItemFromObjectCaseSensitive(pc->allocation, "contracts")
+                        : NULL;
+    }
+    cJSON_AddItemToObject(o, "contracts", contracts ? contracts : cJSON_CreateArray());
+    if (pc->allocation) {
+        cJSON_AddItemToObject(o, "allocation", pc->allocation);
+        pc->allocation = NULL;
+    } else {
+        cJSON_AddNullToObject(o, "allocation");
+    }
+    if (pc->progress) {
+        cJSON_AddItemToObject(o, "progress", pc->progress);
+        pc->progress = NULL;
+    } else {
+        cJSON_AddNullToObject(o, "progress");
+    }
+    cJSON_AddItemToObject(o, "trace", pc->trace ? pc->trace : cJSON_CreateArray());
+    pc->trace = NULL;
+}
+
+/* The job resource. with_plan reads the views from the job's events;
+ * views (when with_plan is 0 and views is not NULL) gives them instead:
+ * a job just stored has only its plan, and reading it back would cost as
+ * much again as storing it. */
+static cJSON *job_json(bgb_rest_t *rest, const bgb_job_t *job, int with_plan,
+                       plan_capture_t *views)
 {
     cJSON *o = cJSON_CreateObject();
     if (!o)
@@ -232,41 +273,11 @@ static cJSON *job_json(bgb_rest_t *rest, const bgb_job_t *job, int with_plan)
     if (with_plan) {
         plan_capture_t pc = {NULL, NULL, NULL, NULL, NULL, 0};
         bg_error_t err = BG_ERROR_INIT;
-        if (bgb_store_events(rest->store, job->id, 0, capture_plan, &pc, &err) == BG_OK) {
-            if (pc.plan) {
-                cJSON_AddItemToObject(o, "plan", pc.plan);
-                pc.plan = NULL;
-            }
-            /* The live market records each contract as its own event; the
-             * allocation event lists them only when it has them at hand. */
-            cJSON *contracts = NULL;
-            if (pc.contracts) {
-                contracts = pc.contracts;
-                pc.contracts = NULL;
-            } else if (pc.allocation) {
-                contracts = cJSON_GetObjectItemCaseSensitive(pc.allocation, "contracts");
-                contracts = cJSON_IsArray(contracts)
-                                ? cJSON_DetachItemFromObjectCaseSensitive(pc.allocation,
-                                                                          "contracts")
-                                : NULL;
-            }
-            cJSON_AddItemToObject(o, "contracts", contracts ? contracts : cJSON_CreateArray());
-            if (pc.allocation) {
-                cJSON_AddItemToObject(o, "allocation", pc.allocation);
-                pc.allocation = NULL;
-            } else {
-                cJSON_AddNullToObject(o, "allocation");
-            }
-            if (pc.progress) {
-                cJSON_AddItemToObject(o, "progress", pc.progress);
-                pc.progress = NULL;
-            } else {
-                cJSON_AddNullToObject(o, "progress");
-            }
-            cJSON_AddItemToObject(o, "trace", pc.trace ? pc.trace : cJSON_CreateArray());
-            pc.trace = NULL;
-        }
+        if (bgb_store_events(rest->store, job->id, 0, capture_plan, &pc, &err) == BG_OK)
+            add_event_views(o, &pc);
         plan_capture_release(&pc);
+    } else if (views) {
+        add_event_views(o, views);
     }
     cJSON *links = cJSON_AddObjectToObject(o, "links");
     if (links) {
@@ -549,8 +560,12 @@ static cJSON *plan_json(const bg_scene_t *scene)
 static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
                                   const request_t *req)
 {
+    /* Only what submission_release reads is cleared: the file table is
+     * 17 KB, and clearing it cost more than parsing a small request. */
     submission_t s;
-    memset(&s, 0, sizeof s);
+    s.scene = NULL;
+    s.file_count = 0;
+    s.dir[0] = '\0';
     enum MHD_Result sent = MHD_NO;
     bg_scene_t *scene = NULL;
     cJSON *plan = NULL;
@@ -608,23 +623,40 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
         .plan = plan_text};
     char id[BGB_JOB_ID_SIZE];
     int created = 0;
-    if (bgb_store_submit(rest->store, &job, id, &created, &err) != BG_OK) {
+    double stored_at = 0.0;
+    if (bgb_store_submit_at(rest->store, &job, id, &created, &stored_at, &err) != BG_OK) {
         sent = err.status == BG_ERR_IO
                    ? send_store_problem(rest, c, BG_ERR_IO, &err)
                    : send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
                                   "Invalid request", NULL, "%s", err.message);
         goto out;
     }
-    bgb_job_t stored = BGB_JOB_INIT;
-    if (bgb_store_get(rest->store, id, &stored, &err) != BG_OK) {
-        sent = send_store_problem(rest, c, BG_ERR_IO, &err);
-        goto out;
-    }
     char location[64];
     snprintf(location, sizeof location, "/v1/jobs/%s", id);
-    sent = send_json(rest, c, created ? MHD_HTTP_ACCEPTED : MHD_HTTP_OK,
-                     job_json(rest, &stored, 1), "application/json", location);
-    bgb_job_release(&stored);
+    if (created) {
+        /* The new job is exactly what was just committed: queued, its plan
+         * its only view. */
+        bgb_job_t stored = BGB_JOB_INIT;
+        memcpy(stored.id, id, BGB_JOB_ID_SIZE);
+        stored.mechanism = (char *)s.mechanism;
+        stored.budget = s.budget;
+        stored.created = stored.updated = stored_at;
+        plan_capture_t views = {plan, NULL, NULL, NULL, NULL, 0};
+        plan = NULL;
+        sent = send_json(rest, c, MHD_HTTP_ACCEPTED, job_json(rest, &stored, 0, &views),
+                         "application/json", location);
+        plan_capture_release(&views);
+    } else {
+        /* An Idempotency-Key replay: the earlier job as it is now. */
+        bgb_job_t stored = BGB_JOB_INIT;
+        if (bgb_store_get(rest->store, id, &stored, &err) != BG_OK) {
+            sent = send_store_problem(rest, c, BG_ERR_IO, &err);
+            goto out;
+        }
+        sent = send_json(rest, c, MHD_HTTP_OK, job_json(rest, &stored, 1, NULL),
+                         "application/json", location);
+        bgb_job_release(&stored);
+    }
 out:
     free(plan_text);
     cJSON_Delete(plan);
@@ -643,7 +675,7 @@ static enum MHD_Result get_job(bgb_rest_t *rest, struct MHD_Connection *c, const
     if (st != BG_OK)
         return send_store_problem(rest, c, st, &err);
     const enum MHD_Result sent =
-        send_json(rest, c, MHD_HTTP_OK, job_json(rest, &job, 1), "application/json", NULL);
+        send_json(rest, c, MHD_HTTP_OK, job_json(rest, &job, 1, NULL), "application/json", NULL);
     bgb_job_release(&job);
     return sent;
 }
@@ -694,7 +726,7 @@ static enum MHD_Result list_jobs(bgb_rest_t *rest, struct MHD_Connection *c)
     cJSON *doc = cJSON_CreateObject();
     cJSON *array = cJSON_AddArrayToObject(doc, "jobs");
     for (int i = 0; i < count; i++) {
-        cJSON_AddItemToArray(array, job_json(rest, &jobs[i], 0));
+        cJSON_AddItemToArray(array, job_json(rest, &jobs[i], 0, NULL));
         bgb_job_release(&jobs[i]);
     }
     free(jobs);

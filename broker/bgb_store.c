@@ -57,6 +57,7 @@ typedef struct pending {
     const bgb_submit_t *job;
     char id[BGB_JOB_ID_SIZE];
     int created;
+    double time; /* when it was stored, if created */
     bg_status status;
     bg_error_t err;
     int done;
@@ -198,17 +199,67 @@ static bg_status new_id(char id[BGB_JOB_ID_SIZE], bg_error_t *err)
     unsigned char bytes[8];
     if (getrandom(bytes, sizeof bytes, 0) != (ssize_t)sizeof bytes)
         return bg_error_set(err, BG_ERR_IO, "job store: no random bytes for a job id");
+    static const char hex[] = "0123456789abcdef";
     id[0] = 'j';
-    for (int i = 0; i < 8; i++)
-        snprintf(id + 1 + 2 * i, 3, "%02x", bytes[i]);
+    for (int i = 0; i < 8; i++) {
+        id[1 + 2 * i] = hex[bytes[i] >> 4];
+        id[2 + 2 * i] = hex[bytes[i] & 15];
+    }
+    id[BGB_JOB_ID_SIZE - 1] = '\0';
     return BG_OK;
 }
 
+/*
+ * A statement for sql on db, prepared once per connection: the connection
+ * keeps its statements (sqlite3_next_stmt lists them), so a statement that
+ * is not in use is found by its text and reused. Compiling SQL cost more
+ * than the rest of a submit's writes together (a quarter of all the
+ * instructions of a REST submit). Every statement got here is handed back
+ * with finish(), never finalized; the connection's statements are
+ * finalized when it is closed (close_connection).
+ */
 static bg_status prepare(sqlite3 *db, const char *sql, sqlite3_stmt **stmt, bg_error_t *err)
 {
-    if (sqlite3_prepare_v2(db, sql, -1, stmt, NULL) != SQLITE_OK)
+    for (sqlite3_stmt *s = sqlite3_next_stmt(db, NULL); s; s = sqlite3_next_stmt(db, s))
+        if (!sqlite3_stmt_busy(s) && strcmp(sqlite3_sql(s), sql) == 0) {
+            *stmt = s;
+            return BG_OK;
+        }
+    if (sqlite3_prepare_v3(db, sql, -1, SQLITE_PREPARE_PERSISTENT, stmt, NULL) != SQLITE_OK)
         return sql_fail(db, err, "prepare");
     return BG_OK;
+}
+
+/* Hands a statement from prepare() back: reset (ending its read, if any)
+ * and unbound, ready for the next use. Accepts NULL. */
+static void finish(sqlite3_stmt *s)
+{
+    if (!s)
+        return;
+    sqlite3_reset(s);
+    sqlite3_clear_bindings(s);
+}
+
+/* Runs one statement without parameters or rows (BEGIN, COMMIT, ...). */
+static bg_status run(sqlite3 *db, const char *sql, bg_error_t *err)
+{
+    sqlite3_stmt *s = NULL;
+    bg_status st = prepare(db, sql, &s, err);
+    if (st != BG_OK)
+        return st;
+    if (sqlite3_step(s) != SQLITE_DONE)
+        st = sql_fail(db, err, sql);
+    finish(s);
+    return st;
+}
+
+static void close_connection(sqlite3 *db)
+{
+    if (!db)
+        return;
+    for (sqlite3_stmt *s; (s = sqlite3_next_stmt(db, NULL)) != NULL;)
+        sqlite3_finalize(s);
+    sqlite3_close(db);
 }
 
 static bg_status insert_event(sqlite3 *db, const char *id, double time, const char *kind,
@@ -225,7 +276,7 @@ static bg_status insert_event(sqlite3 *db, const char *id, double time, const ch
     sqlite3_bind_text(s, 4, json, -1, SQLITE_STATIC);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "insert event");
-    sqlite3_finalize(s);
+    finish(s);
     return st;
 }
 
@@ -244,7 +295,7 @@ static bg_status insert_file(sqlite3 *db, const char *id, const char *kind, cons
                         SQLITE_STATIC);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "insert file");
-    sqlite3_finalize(s);
+    finish(s);
     return st;
 }
 
@@ -267,7 +318,7 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
         } else if (rc != SQLITE_DONE) {
             st = sql_fail(db, err, "look up the idempotency key");
         }
-        sqlite3_finalize(s);
+        finish(s);
         s = NULL;
         if (st != BG_OK || rc == SQLITE_ROW)
             return st;
@@ -293,7 +344,7 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
     sqlite3_bind_blob64(s, 8, job->scene, job->scene_size, SQLITE_STATIC);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "insert job");
-    sqlite3_finalize(s);
+    finish(s);
     for (int i = 0; st == BG_OK && i < job->file_count; i++)
         st = insert_file(db, p->id, "input", &job->files[i], err);
     if (st == BG_OK)
@@ -301,6 +352,7 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
     if (st == BG_OK && job->plan)
         st = insert_event(db, p->id, now, "plan", job->plan, err);
     p->created = st == BG_OK;
+    p->time = now;
     return st;
 }
 
@@ -311,7 +363,7 @@ static void write_batch(bgb_store_t *store, pending_t *batch)
     sqlite3 *db = store->writer;
     bg_error_t begin_err = BG_ERROR_INIT;
     pthread_mutex_lock(&store->write_lock);
-    bg_status st = exec(db, "BEGIN IMMEDIATE", &begin_err);
+    bg_status st = run(db, "BEGIN IMMEDIATE", &begin_err);
     int64_t written = 0;
     for (pending_t *p = batch; p; p = p->next) {
         if (st != BG_OK) {
@@ -319,19 +371,20 @@ static void write_batch(bgb_store_t *store, pending_t *batch)
             continue;
         }
         bg_error_t sp = BG_ERROR_INIT;
-        p->status = exec(db, "SAVEPOINT submit", &sp);
+        p->status = run(db, "SAVEPOINT submit", &sp);
         if (p->status == BG_OK)
             p->status = write_submit(db, p);
         else
             bg_error_set(&p->err, p->status, "%s", sp.message);
-        exec(db, p->status == BG_OK ? "RELEASE submit" : "ROLLBACK TO submit; RELEASE submit",
-             &sp);
+        if (p->status != BG_OK)
+            run(db, "ROLLBACK TO submit", &sp);
+        run(db, "RELEASE submit", &sp);
         written += p->status == BG_OK && p->created;
     }
     if (st == BG_OK) {
         bg_error_t commit_err = BG_ERROR_INIT;
-        if (exec(db, "COMMIT", &commit_err) != BG_OK) {
-            exec(db, "ROLLBACK", NULL);
+        if (run(db, "COMMIT", &commit_err) != BG_OK) {
+            run(db, "ROLLBACK", NULL);
             for (pending_t *p = batch; p; p = p->next)
                 if (p->status == BG_OK) {
                     p->status = bg_error_set(&p->err, BG_ERR_IO, "%s", commit_err.message);
@@ -411,7 +464,7 @@ bg_status bgb_store_open(const char *path, bgb_store_t **out, bg_error_t *err)
     if ((st = prepare(store->writer, "PRAGMA user_version", &s, err)) != BG_OK)
         goto out;
     const int version = sqlite3_step(s) == SQLITE_ROW ? sqlite3_column_int(s, 0) : -1;
-    sqlite3_finalize(s);
+    finish(s);
     if (version != 0 && version != STORE_SCHEMA_VERSION) {
         st = bg_error_set(err, BG_ERR_UNSUPPORTED,
                           "job store %s: schema version %d, this broker reads version %d", path,
@@ -449,8 +502,8 @@ void bgb_store_destroy(bgb_store_t **storep)
         pthread_mutex_unlock(&store->queue_lock);
         pthread_join(store->thread, NULL);
     }
-    sqlite3_close(store->reader);
-    sqlite3_close(store->writer);
+    close_connection(store->reader);
+    close_connection(store->writer);
     pthread_mutex_destroy(&store->write_lock);
     pthread_mutex_destroy(&store->read_lock);
     pthread_mutex_destroy(&store->queue_lock);
@@ -464,7 +517,16 @@ void bgb_store_destroy(bgb_store_t **storep)
 bg_status bgb_store_submit(bgb_store_t *store, const bgb_submit_t *job,
                            char id[BGB_JOB_ID_SIZE], int *created, bg_error_t *err)
 {
+    double stored_at = 0.0;
+    return bgb_store_submit_at(store, job, id, created, &stored_at, err);
+}
+
+bg_status bgb_store_submit_at(bgb_store_t *store, const bgb_submit_t *job,
+                              char id[BGB_JOB_ID_SIZE], int *created, double *stored_at,
+                              bg_error_t *err)
+{
     *created = 0;
+    *stored_at = 0.0;
     id[0] = '\0';
     bg_status st = check_submit(job, err);
     if (st != BG_OK)
@@ -485,6 +547,7 @@ bg_status bgb_store_submit(bgb_store_t *store, const bgb_submit_t *job,
         return bg_error_set(err, p.status, "%s", p.err.message);
     memcpy(id, p.id, BGB_JOB_ID_SIZE);
     *created = p.created;
+    *stored_at = p.created ? p.time : 0.0;
     return BG_OK;
 }
 
@@ -542,7 +605,7 @@ bg_status bgb_store_get(bgb_store_t *store, const char *id, bgb_job_t *out, bg_e
         else
             st = sql_fail(store->reader, err, "read job");
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     return st;
 }
@@ -580,7 +643,7 @@ bg_status bgb_store_list(bgb_store_t *store, int state, int64_t after, int limit
         if (st == BG_OK && rc != SQLITE_ROW && rc != SQLITE_DONE)
             st = sql_fail(store->reader, err, "list jobs");
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     if (st != BG_OK) {
         for (int i = 0; i < *count; i++)
@@ -599,7 +662,7 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
     sqlite3 *db = store->writer;
     sqlite3_stmt *s = NULL;
     pthread_mutex_lock(&store->write_lock);
-    bg_status st = exec(db, "BEGIN IMMEDIATE", err);
+    bg_status st = run(db, "BEGIN IMMEDIATE", err);
     if (st != BG_OK)
         goto unlock;
     if ((st = prepare(db, "SELECT state FROM jobs WHERE id = ?", &s, err)) != BG_OK)
@@ -607,7 +670,7 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
     sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
     const int rc = sqlite3_step(s);
     const int current = rc == SQLITE_ROW ? sqlite3_column_int(s, 0) : -1;
-    sqlite3_finalize(s);
+    finish(s);
     s = NULL;
     if (rc == SQLITE_DONE) {
         st = bg_error_set(err, BG_ERR_NOT_FOUND, "no job '%s'", id);
@@ -635,19 +698,19 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
     sqlite3_bind_text(s, 4, id, -1, SQLITE_STATIC);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "update job state");
-    sqlite3_finalize(s);
+    finish(s);
     if (st == BG_OK) {
         char json[128];
         snprintf(json, sizeof json, "{\"state\":\"%s\"}", bgb_job_state_name(to));
         st = insert_event(db, id, now, "state", json, err);
     }
     if (st == BG_OK) {
-        st = exec(db, "COMMIT", err);
+        st = run(db, "COMMIT", err);
         if (st == BG_OK)
             goto unlock;
     }
 rollback:
-    exec(db, "ROLLBACK", NULL);
+    run(db, "ROLLBACK", NULL);
 unlock:
     pthread_mutex_unlock(&store->write_lock);
     return st;
@@ -662,7 +725,7 @@ static bg_status job_exists(sqlite3 *db, const char *id, bg_error_t *err)
         return st;
     sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
     const int rc = sqlite3_step(s);
-    sqlite3_finalize(s);
+    finish(s);
     if (rc == SQLITE_ROW)
         return BG_OK;
     if (rc == SQLITE_DONE)
@@ -702,7 +765,7 @@ bg_status bgb_store_events(bgb_store_t *store, const char *id, int64_t after, bg
         if (rc != SQLITE_DONE)
             st = sql_fail(store->reader, err, "read events");
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     return st;
 }
@@ -758,7 +821,7 @@ bg_status bgb_store_get_file(bgb_store_t *store, const char *id, const char *kin
             st = sql_fail(store->reader, err, "read file");
         }
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     return st;
 }
@@ -786,7 +849,7 @@ bg_status bgb_store_list_files(bgb_store_t *store, const char *id, const char *k
         if (rc != SQLITE_DONE)
             st = sql_fail(store->reader, err, "list files");
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     return st;
 }
@@ -810,7 +873,7 @@ bg_status bgb_store_count(bgb_store_t *store, int64_t counts[BGB_JOB_STATE_COUNT
         if (rc != SQLITE_DONE)
             st = sql_fail(store->reader, err, "count jobs");
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     return st;
 }

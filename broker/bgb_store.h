@@ -109,6 +109,16 @@ void bgb_store_destroy(bgb_store_t **store);
 bg_status bgb_store_submit(bgb_store_t *store, const bgb_submit_t *job,
                            char id[BGB_JOB_ID_SIZE], int *created, bg_error_t *err);
 
+/*
+ * bgb_store_submit that also tells when a new job was stored (its created
+ * and updated time, seconds since the epoch) in *stored_at, so that the
+ * caller can describe the new job without reading it back; *stored_at is
+ * 0 when *created is 0 (read the earlier job with bgb_store_get).
+ */
+bg_status bgb_store_submit_at(bgb_store_t *store, const bgb_submit_t *job,
+                              char id[BGB_JOB_ID_SIZE], int *created, double *stored_at,
+                              bg_error_t *err);
+
 /* The job with this id; BG_ERR_NOT_FOUND if there is none. */
 bg_status bgb_store_get(bgb_store_t *store, const char *id, bgb_job_t *out, bg_error_t *err);
 
