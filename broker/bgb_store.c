@@ -20,7 +20,8 @@
  * that happened to arrive during the previous fsync. A lone caller never
  * waits (its batches hold one submit). */
 #define STORE_GATHER_NS 1000000L
-#define STORE_GATHER_MAX 256
+/* Submits per transaction at most, by default. */
+#define STORE_DEFAULT_MAX_BATCH 256
 
 static const char SCHEMA[] =
     "CREATE TABLE IF NOT EXISTS jobs("
@@ -61,6 +62,7 @@ typedef struct pending {
     bg_status status;
     bg_error_t err;
     int done;
+    pthread_cond_t wake; /* signalled (under queue_lock) once done is set */
     struct pending *next;
 } pending_t;
 
@@ -69,8 +71,9 @@ struct bgb_store {
     sqlite3 *writer; /* every write, under write_lock */
     sqlite3 *reader; /* every read, under read_lock */
     pthread_mutex_t write_lock, read_lock, queue_lock;
-    pthread_cond_t queue_ready, batch_done;
+    pthread_cond_t queue_ready;
     pending_t *queue, *queue_tail;
+    int max_batch;   /* submits per transaction at most */
     int queued;      /* submits in queue */
     int last_batch;  /* submits in the last batch written */
     int stopping;
@@ -130,7 +133,8 @@ static bg_status exec(sqlite3 *db, const char *sql, bg_error_t *err)
     return st;
 }
 
-static bg_status open_connection(const char *path, sqlite3 **db, bg_error_t *err)
+static bg_status open_connection(const char *path, bgb_store_durability durability,
+                                 sqlite3 **db, bg_error_t *err)
 {
     if (sqlite3_open_v2(path, db, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX,
                         NULL) != SQLITE_OK) {
@@ -141,7 +145,10 @@ static bg_status open_connection(const char *path, sqlite3 **db, bg_error_t *err
         return st;
     }
     sqlite3_busy_timeout(*db, STORE_BUSY_TIMEOUT_MS);
-    return exec(*db, "PRAGMA journal_mode=WAL; PRAGMA synchronous=FULL; PRAGMA foreign_keys=ON;",
+    return exec(*db,
+                durability == BGB_STORE_PROCESS_SAFE
+                    ? "PRAGMA journal_mode=WAL; PRAGMA synchronous=NORMAL; PRAGMA foreign_keys=ON;"
+                    : "PRAGMA journal_mode=WAL; PRAGMA synchronous=FULL; PRAGMA foreign_keys=ON;",
                 err);
 }
 
@@ -417,25 +424,37 @@ static void *writer_main(void *arg)
             }
             /* Aim past the last batch so that batches can grow to the
              * callers' concurrency; the deadline bounds the wait. */
-            const int target = store->last_batch < STORE_GATHER_MAX / 2 ? 2 * store->last_batch
-                                                                        : STORE_GATHER_MAX;
+            const int target = store->last_batch < store->max_batch / 2 ? 2 * store->last_batch
+                                                                        : store->max_batch;
             while (store->queued < target && !store->stopping &&
                    pthread_cond_timedwait(&store->queue_ready, &store->queue_lock, &deadline) ==
                        0)
                 ;
         }
-        pending_t *batch = store->queue;
-        store->last_batch = store->queued;
-        store->queue = store->queue_tail = NULL;
-        store->queued = 0;
+        /* Take up to max_batch submits off the queue, in order. */
+        pending_t *batch = store->queue, *last = batch;
+        int taken = 1;
+        while (taken < store->max_batch && last->next) {
+            last = last->next;
+            taken++;
+        }
+        store->queue = last->next;
+        if (!store->queue)
+            store->queue_tail = NULL;
+        last->next = NULL;
+        store->queued -= taken;
+        store->last_batch = taken;
         pthread_mutex_unlock(&store->queue_lock);
         write_batch(store, batch);
         pthread_mutex_lock(&store->queue_lock);
+        /* Wake exactly the callers of this batch (a broadcast would also
+         * wake every caller queued for the next one, only to wait again).
+         * A caller may return as soon as done is set, so next is read first. */
         for (pending_t *p = batch, *next; p; p = next) {
             next = p->next;
             p->done = 1;
+            pthread_cond_signal(&p->wake);
         }
-        pthread_cond_broadcast(&store->batch_done);
     }
     pthread_mutex_unlock(&store->queue_lock);
     return NULL;
@@ -443,7 +462,19 @@ static void *writer_main(void *arg)
 
 bg_status bgb_store_open(const char *path, bgb_store_t **out, bg_error_t *err)
 {
+    return bgb_store_open_with(path, NULL, out, err);
+}
+
+bg_status bgb_store_open_with(const char *path, const bgb_store_options_t *options,
+                              bgb_store_t **out, bg_error_t *err)
+{
+    const bgb_store_options_t defaults = {BGB_STORE_POWER_SAFE, 0};
+    if (!options)
+        options = &defaults;
     *out = NULL;
+    if (options->max_batch < 0 || (options->durability != BGB_STORE_POWER_SAFE &&
+                                   options->durability != BGB_STORE_PROCESS_SAFE))
+        return bg_error_set(err, BG_ERR_INVALID, "job store: bad options");
     bgb_store_t *store = calloc(1, sizeof *store);
     if (!store)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the job store");
@@ -451,14 +482,14 @@ bg_status bgb_store_open(const char *path, bgb_store_t **out, bg_error_t *err)
     pthread_mutex_init(&store->read_lock, NULL);
     pthread_mutex_init(&store->queue_lock, NULL);
     pthread_cond_init(&store->queue_ready, NULL);
-    pthread_cond_init(&store->batch_done, NULL);
     bg_status st = BG_OK;
     store->path = strdup(path);
     if (!store->path) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the job store");
         goto out;
     }
-    if ((st = open_connection(path, &store->writer, err)) != BG_OK)
+    store->max_batch = options->max_batch ? options->max_batch : STORE_DEFAULT_MAX_BATCH;
+    if ((st = open_connection(path, options->durability, &store->writer, err)) != BG_OK)
         goto out;
     sqlite3_stmt *s = NULL;
     if ((st = prepare(store->writer, "PRAGMA user_version", &s, err)) != BG_OK)
@@ -476,7 +507,7 @@ bg_status bgb_store_open(const char *path, bgb_store_t **out, bg_error_t *err)
     if ((st = exec(store->writer, SCHEMA, err)) != BG_OK ||
         (st = exec(store->writer, pragma, err)) != BG_OK)
         goto out;
-    if ((st = open_connection(path, &store->reader, err)) != BG_OK)
+    if ((st = open_connection(path, options->durability, &store->reader, err)) != BG_OK)
         goto out;
     if (pthread_create(&store->thread, NULL, writer_main, store) != 0) {
         st = bg_error_set(err, BG_ERR_NOMEM, "job store: cannot start the writer thread");
@@ -508,7 +539,6 @@ void bgb_store_destroy(bgb_store_t **storep)
     pthread_mutex_destroy(&store->read_lock);
     pthread_mutex_destroy(&store->queue_lock);
     pthread_cond_destroy(&store->queue_ready);
-    pthread_cond_destroy(&store->batch_done);
     free(store->path);
     free(store);
     *storep = NULL;
@@ -532,6 +562,7 @@ bg_status bgb_store_submit_at(bgb_store_t *store, const bgb_submit_t *job,
     if (st != BG_OK)
         return st;
     pending_t p = {.job = job, .status = BG_OK, .err = BG_ERROR_INIT};
+    pthread_cond_init(&p.wake, NULL);
     pthread_mutex_lock(&store->queue_lock);
     if (store->queue_tail)
         store->queue_tail->next = &p;
@@ -541,8 +572,9 @@ bg_status bgb_store_submit_at(bgb_store_t *store, const bgb_submit_t *job,
     store->queued++;
     pthread_cond_signal(&store->queue_ready);
     while (!p.done)
-        pthread_cond_wait(&store->batch_done, &store->queue_lock);
+        pthread_cond_wait(&p.wake, &store->queue_lock);
     pthread_mutex_unlock(&store->queue_lock);
+    pthread_cond_destroy(&p.wake);
     if (p.status != BG_OK)
         return bg_error_set(err, p.status, "%s", p.err.message);
     memcpy(id, p.id, BGB_JOB_ID_SIZE);

@@ -401,6 +401,57 @@ static void test_submit_and_read(void **state)
     free(id);
 }
 
+/* The 202 body of a new job is the job resource GET shows right after, the
+ * scene is stored as the client wrote it (blanks and all), and a scene key
+ * spelled with an escape is the same key. */
+static void test_submit_answer_is_the_resource(void **state)
+{
+    fixture_t *f = *state;
+    const char *body = "{ \"budget\" : 7.25, \"scene\" :\n  " SMALL_BOX " ,\"mechanism\":"
+                       "\"catallactic\" }  \n";
+    response_t posted = request(f, "POST", "/v1/jobs", body, NULL);
+    assert_int_equal(posted.status, 202);
+    conforms(f, "/v1/jobs", "POST", &posted);
+    char *id = field_of(&posted, "id");
+    assert_non_null(id);
+    char path[96];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    response_t got = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(got.status, 200);
+    cJSON *a = cJSON_Parse(posted.body), *b = cJSON_Parse(got.body);
+    assert_non_null(a);
+    assert_non_null(b);
+    if (!cJSON_Compare(a, b, 1))
+        fail_msg("POST answered %s\nGET shows %s", posted.body, got.body);
+    assert_true(cJSON_GetObjectItemCaseSensitive(a, "budget")->valuedouble == 7.25);
+    assert_non_null(cJSON_GetObjectItemCaseSensitive(a, "plan"));
+    cJSON_Delete(a);
+    cJSON_Delete(b);
+    bgb_job_t job = BGB_JOB_INIT;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_get(f->store, id, &job, &err), BG_OK);
+    assert_string_equal(job.scene, SMALL_BOX);
+    assert_string_equal(job.mechanism, "catallactic");
+    bgb_job_release(&job);
+    release(&posted);
+    release(&got);
+    free(id);
+    /* "sc\u0065ne" is "scene": cJSON's tree is printed instead. */
+    char *escaped = strdup("{\"sc\\u0065ne\":" SMALL_BOX "}");
+    posted = request(f, "POST", "/v1/jobs", escaped, NULL);
+    free(escaped);
+    assert_int_equal(posted.status, 202);
+    id = field_of(&posted, "id");
+    assert_int_equal(bgb_store_get(f->store, id, &job, &err), BG_OK);
+    cJSON *stored = cJSON_Parse(job.scene), *sent = cJSON_Parse(SMALL_BOX);
+    assert_true(cJSON_Compare(stored, sent, 1));
+    cJSON_Delete(stored);
+    cJSON_Delete(sent);
+    bgb_job_release(&job);
+    release(&posted);
+    free(id);
+}
+
 static void test_uploaded_files_only(void **state)
 {
     fixture_t *f = *state;
@@ -464,6 +515,8 @@ static void test_bad_requests(void **state)
     } cases[] = {
         {"{\"scene\": {\"mesh\": ", 400, NULL, "malformed JSON at line 1, column 19"},
         {"", 400, NULL, "empty body"},
+        {"{\"scene\":" SMALL_BOX "}\n{\"scene\":" SMALL_BOX "}", 400, NULL,
+         "text after the JSON document at line 2, column 1"},
         {"[1,2]", 422, NULL, "must be a JSON object"},
         {"{\"scene\":{},\"colour\":1}", 422, "colour", "unknown key 'colour'"},
         {"{\"budget\":1}", 422, "scene", "scene: missing"},
@@ -664,6 +717,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(test_health_metrics_openapi, setup, teardown),
         cmocka_unit_test_setup_teardown(test_submit_and_read, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_submit_answer_is_the_resource, setup, teardown),
         cmocka_unit_test_setup_teardown(test_market_endpoints, setup, teardown),
         cmocka_unit_test_setup_teardown(test_uploaded_files_only, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bad_requests, setup, teardown),
