@@ -7,6 +7,7 @@
 #include <math.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
+#include <poll.h>
 #include <stdarg.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -41,6 +42,7 @@ struct bgb_rest {
     uint16_t port;
     atomic_int stopping;
     atomic_llong responses[6]; /* by status class: index 1..5 */
+    atomic_llong event_streams; /* event streams open now (for /metrics) */
 };
 
 /* A request's state across MHD's calls: the body as it arrives. */
@@ -932,6 +934,7 @@ static enum MHD_Result get_result(bgb_rest_t *rest, struct MHD_Connection *c, co
 
 typedef struct stream {
     bgb_rest_t *rest;
+    int fd; /* the client's socket, watched for its end; -1: unknown */
     char id[BGB_JOB_ID_SIZE];
     int64_t last;
     char *pending; /* formatted events not yet sent */
@@ -994,6 +997,35 @@ static void refill(stream_t *s)
         s->ended = 1;
 }
 
+/*
+ * Waits one poll interval, watching the client's socket: 1 when the client
+ * has gone (it closed its side or the connection broke), 0 otherwise. MHD
+ * would only notice when a write fails, at the next keep-alive 15 s later,
+ * holding a thread all along; the socket says so at once. A client that
+ * sends more bytes while it listens (a pipelined request) is not gone: the
+ * bytes stay for MHD, and the rest of the interval is slept.
+ */
+static int client_gone(const stream_t *s)
+{
+    const struct timespec pause = {0, REST_EVENT_POLL_NS};
+    if (s->fd < 0) {
+        nanosleep(&pause, NULL);
+        return 0;
+    }
+    struct pollfd pfd = {.fd = s->fd, .events = POLLIN};
+    const int n = poll(&pfd, 1, (int)(REST_EVENT_POLL_NS / 1000000L));
+    if (n <= 0)
+        return 0;
+    if (pfd.revents & (POLLERR | POLLHUP | POLLNVAL))
+        return 1;
+    char byte;
+    const ssize_t got = recv(s->fd, &byte, 1, MSG_PEEK);
+    if (got == 0 || (got < 0 && errno != EINTR && errno != EAGAIN))
+        return 1;
+    nanosleep(&pause, NULL);
+    return 0;
+}
+
 static ssize_t read_events(void *cls, uint64_t pos, char *buf, size_t max)
 {
     stream_t *s = cls;
@@ -1015,17 +1047,18 @@ static ssize_t read_events(void *cls, uint64_t pos, char *buf, size_t max)
             memcpy(buf, keepalive, n);
             return (ssize_t)n;
         }
-        if (polls > 0) {
-            const struct timespec pause = {0, REST_EVENT_POLL_NS};
-            nanosleep(&pause, NULL);
-        }
+        if (polls > 0 && client_gone(s))
+            return MHD_CONTENT_READER_END_WITH_ERROR;
         refill(s);
     }
 }
 
+/* MHD frees the response (and so the stream) once its connection is done
+ * with it, however it ended. */
 static void free_stream(void *cls)
 {
     stream_t *s = cls;
+    atomic_fetch_sub(&s->rest->event_streams, 1);
     free(s->pending);
     free(s);
 }
@@ -1043,6 +1076,10 @@ static enum MHD_Result stream_events(bgb_rest_t *rest, struct MHD_Connection *c,
         return send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
                             "Internal error", NULL, "out of memory");
     s->rest = rest;
+    atomic_fetch_add(&rest->event_streams, 1);
+    const union MHD_ConnectionInfo *info =
+        MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
+    s->fd = info ? info->connect_fd : -1;
     snprintf(s->id, sizeof s->id, "%s", id);
     const char *resume = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Last-Event-ID");
     if (resume)
@@ -1099,10 +1136,14 @@ static enum MHD_Result metrics(bgb_rest_t *rest, struct MHD_Connection *c)
                           "# HELP biotgrid_store_submits_total Jobs stored.\n"
                           "# TYPE biotgrid_store_submits_total counter\n"
                           "biotgrid_store_submits_total %lld\n"
+                          "# HELP biotgrid_event_streams_open Job event streams open now.\n"
+                          "# TYPE biotgrid_event_streams_open gauge\n"
+                          "biotgrid_event_streams_open %lld\n"
                           "# HELP biotgrid_http_responses_total Responses sent, by status "
                           "class.\n"
                           "# TYPE biotgrid_http_responses_total counter\n",
-                          (long long)commits, (long long)submits);
+                          (long long)commits, (long long)submits,
+                          (long long)atomic_load(&rest->event_streams));
     for (int k = 1; k <= 5; k++)
         n += (size_t)snprintf(text + n, sizeof text - n,
                               "biotgrid_http_responses_total{class=\"%dxx\"} %lld\n", k,

@@ -14,12 +14,15 @@
 
 #include <cJSON.h>
 #include <curl/curl.h>
+#include <fcntl.h>
 #include <pthread.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
 #include <time.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include "bgb_base64.h"
@@ -711,6 +714,82 @@ static void test_live_event_stream(void **state)
     free(id);
 }
 
+/* The value of a metric without labels in /metrics, or -1. */
+static long long metric(const fixture_t *f, const char *name)
+{
+    response_t r = request(f, "GET", "/metrics", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    char key[128];
+    snprintf(key, sizeof key, "\n%s ", name);
+    const char *at = strstr(r.body, key);
+    const long long value = at ? strtoll(at + strlen(key), NULL, 10) : -1;
+    release(&r);
+    return value;
+}
+
+/* Polls metric name until it equals want; 1 if it did within seconds. */
+static int metric_becomes(const fixture_t *f, const char *name, long long want, double seconds)
+{
+    struct timespec t0, t;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    for (;;) {
+        if (metric(f, name) == want)
+            return 1;
+        clock_gettime(CLOCK_MONOTONIC, &t);
+        if ((double)(t.tv_sec - t0.tv_sec) + 1e-9 * (double)(t.tv_nsec - t0.tv_nsec) > seconds)
+            return 0;
+        const struct timespec pause = {0, 20000000L};
+        nanosleep(&pause, NULL);
+    }
+}
+
+/*
+ * A client that drops an open event stream frees it promptly: curl (a
+ * real process) listens to a queued job's events, is killed, and the
+ * broker's count of open streams goes back to 0 well before the 15 s
+ * keep-alive write that would otherwise be the first to notice.
+ */
+static void test_dropped_event_stream(void **state)
+{
+    fixture_t *f = *state;
+    char *id = submit_small(f, NULL);
+    char url[160];
+    snprintf(url, sizeof url, "%s/v1/jobs/%s/events", f->base, id);
+    assert_int_equal(metric(f, "biotgrid_event_streams_open"), 0);
+    const pid_t curl = fork();
+    assert_true(curl >= 0);
+    if (curl == 0) {
+        const int null = open("/dev/null", O_WRONLY);
+        if (null >= 0) {
+            dup2(null, STDOUT_FILENO);
+            dup2(null, STDERR_FILENO);
+        }
+        execlp("curl", "curl", "-sN", "--max-time", "60", url, (char *)NULL);
+        _exit(127);
+    }
+    const int opened = metric_becomes(f, "biotgrid_event_streams_open", 1, 30.0);
+    kill(curl, SIGKILL);
+    int status = 0;
+    assert_int_equal(waitpid(curl, &status, 0), curl);
+    assert_true(opened);
+    /* The stream sends a keep-alive only after 15 s of silence: a count
+     * back at 0 within 10 s means the disconnect itself was seen. */
+    assert_true(metric_becomes(f, "biotgrid_event_streams_open", 0, 10.0));
+    /* The job is untouched and the server still answers its stream. */
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_transition(f->store, id, 1u << BGB_JOB_QUEUED, BGB_JOB_CANCELLED,
+                                          NULL, &err),
+                     BG_OK);
+    char path[96];
+    snprintf(path, sizeof path, "/v1/jobs/%s/events", id);
+    response_t r = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 200);
+    assert_non_null(strstr(r.body, "{\"state\":\"cancelled\"}"));
+    release(&r);
+    assert_int_equal(metric(f, "biotgrid_event_streams_open"), 0);
+    free(id);
+}
+
 int main(void)
 {
     curl_global_init(CURL_GLOBAL_DEFAULT);
@@ -724,6 +803,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_idempotent_resubmit, setup, teardown),
         cmocka_unit_test_setup_teardown(test_list_cancel_events_restart, setup, teardown),
         cmocka_unit_test_setup_teardown(test_live_event_stream, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_dropped_event_stream, setup, teardown),
     };
     const int failed = cmocka_run_group_tests(tests, NULL, NULL);
     curl_global_cleanup();
