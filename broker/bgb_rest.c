@@ -692,6 +692,13 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
     bg_scene_t *scene = NULL;
     cJSON *plan = NULL;
     char *plan_text = NULL;
+    const char *key = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Idempotency-Key");
+    if (key && strlen(key) > BGB_STORE_MAX_KEY) {
+        sent = send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "invalid-header", "Invalid header",
+                            "Idempotency-Key", "Idempotency-Key: longer than %d bytes",
+                            BGB_STORE_MAX_KEY);
+        goto out;
+    }
     if (!read_submission(rest, c, req, &s, &sent))
         goto out;
     /* A job without uploads needs no folder: its scene is parsed as if it
@@ -735,7 +742,7 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
         files[i].size = s.files[i].size;
     }
     const bgb_submit_t job = {
-        .idempotency_key = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Idempotency-Key"),
+        .idempotency_key = key,
         .scene = s.scene,
         .scene_size = strlen(s.scene),
         .mechanism = s.mechanism,

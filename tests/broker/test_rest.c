@@ -177,17 +177,24 @@ static void release(response_t *r)
     r->body = NULL;
 }
 
-static void start(fixture_t *f)
+/* Starts the store and the server with these job size caps. */
+static void start_capped(fixture_t *f, int64_t max_vertices, int64_t max_elements)
 {
     bg_error_t err = BG_ERROR_INIT;
     assert_int_equal(bgb_store_open(f->path, &f->store, &err), BG_OK);
-    const bgb_rest_config_t config = {.port = 0, .max_body = MAX_BODY, .max_vertices = 100000,
-                                      .max_elements = 500000, .work_dir = f->dir,
+    const bgb_rest_config_t config = {.port = 0, .max_body = MAX_BODY,
+                                      .max_vertices = max_vertices,
+                                      .max_elements = max_elements, .work_dir = f->dir,
                                       .name = "test-broker"};
     if (bgb_rest_start(&config, f->store, &f->rest, &err) != BG_OK)
         fail_msg("%s", err.message);
     assert_true(bgb_rest_port(f->rest) > 0);
     snprintf(f->base, sizeof f->base, "http://127.0.0.1:%u", (unsigned)bgb_rest_port(f->rest));
+}
+
+static void start(fixture_t *f)
+{
+    start_capped(f, 100000, 500000);
 }
 
 static void stop(fixture_t *f)
@@ -714,6 +721,234 @@ static void test_live_event_stream(void **state)
     free(id);
 }
 
+/* The job paths with an unknown (or malformed) id are 404 problems; a
+ * succeeded job serves its result's list and files, with their types; a
+ * job that has not succeeded has no result (409), an ended one cannot be
+ * cancelled (409). Every answer is the one the document gives. */
+static void test_job_paths_and_results(void **state)
+{
+    fixture_t *f = *state;
+    static const struct {
+        const char *method, *path, *template;
+    } unknown[] = {
+        {"GET", "/v1/jobs/j0123456789abcdef", "/v1/jobs/{id}"},
+        {"GET", "/v1/jobs/j0123456789abcdef/events", "/v1/jobs/{id}/events"},
+        {"POST", "/v1/jobs/j0123456789abcdef/cancel", "/v1/jobs/{id}/cancel"},
+        {"GET", "/v1/jobs/j0123456789abcdef/result", "/v1/jobs/{id}/result"},
+        {"GET", "/v1/jobs/j0123456789abcdef/result/report.json", "/v1/jobs/{id}/result/{file}"},
+        {"GET", "/v1/jobs/not-an-id", "/v1/jobs/{id}"},
+    };
+    for (size_t i = 0; i < sizeof unknown / sizeof unknown[0]; i++) {
+        response_t r = request(f, unknown[i].method, unknown[i].path,
+                               strcmp(unknown[i].method, "POST") == 0 ? "" : NULL, NULL);
+        if (r.status != 404)
+            fail_msg("%s %s: %ld %s", unknown[i].method, unknown[i].path, r.status, r.body);
+        assert_string_equal(r.type, "application/problem+json");
+        conforms(f, unknown[i].template, unknown[i].method, &r);
+        release(&r);
+    }
+    char *id = submit_small(f, NULL);
+    char path[160];
+    snprintf(path, sizeof path, "/v1/jobs/%s/result/report.json", id);
+    response_t r = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 409);
+    conforms(f, "/v1/jobs/{id}/result/{file}", "GET", &r);
+    release(&r);
+    /* What a coordinator does: run, write the result's files, succeed. */
+    bg_error_t err = BG_ERROR_INIT;
+    const char *report = "{\"energy\":0.125}";
+    const char *svg = "<svg xmlns=\"http://www.w3.org/2000/svg\"/>";
+    const bgb_file_t files[] = {{"report.json", (const uint8_t *)report, strlen(report)},
+                                {"trace.svg", (const uint8_t *)svg, strlen(svg)}};
+    assert_int_equal(bgb_store_transition(f->store, id, 1u << BGB_JOB_QUEUED, BGB_JOB_RUNNING,
+                                          NULL, &err),
+                     BG_OK);
+    for (int i = 0; i < 2; i++)
+        assert_int_equal(bgb_store_put_file(f->store, id, "result", &files[i], &err), BG_OK);
+    assert_int_equal(bgb_store_transition(f->store, id, 1u << BGB_JOB_RUNNING, BGB_JOB_SUCCEEDED,
+                                          NULL, &err),
+                     BG_OK);
+    snprintf(path, sizeof path, "/v1/jobs/%s/result", id);
+    r = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/jobs/{id}/result", "GET", &r);
+    cJSON *doc = cJSON_Parse(r.body);
+    const cJSON *list = cJSON_GetObjectItemCaseSensitive(doc, "files");
+    assert_int_equal(cJSON_GetArraySize(list), 2);
+    for (int i = 0; i < 2; i++) {
+        const cJSON *item = cJSON_GetArrayItem(list, i);
+        assert_string_equal(cJSON_GetObjectItemCaseSensitive(item, "name")->valuestring,
+                            files[i].name);
+        assert_true(cJSON_GetObjectItemCaseSensitive(item, "size")->valuedouble ==
+                    (double)files[i].size);
+    }
+    cJSON_Delete(doc);
+    release(&r);
+    static const char *const types[] = {"application/json", "image/svg+xml"};
+    for (int i = 0; i < 2; i++) {
+        snprintf(path, sizeof path, "/v1/jobs/%s/result/%s", id, files[i].name);
+        r = request(f, "GET", path, NULL, NULL);
+        assert_int_equal(r.status, 200);
+        conforms(f, "/v1/jobs/{id}/result/{file}", "GET", &r);
+        assert_string_equal(r.type, types[i]);
+        assert_int_equal(r.size, files[i].size);
+        assert_memory_equal(r.body, files[i].data, files[i].size);
+        release(&r);
+    }
+    snprintf(path, sizeof path, "/v1/jobs/%s/result/frame-0.vtu", id);
+    r = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 404);
+    conforms(f, "/v1/jobs/{id}/result/{file}", "GET", &r);
+    release(&r);
+    snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
+    r = request(f, "POST", path, "", NULL);
+    assert_int_equal(r.status, 409);
+    conforms(f, "/v1/jobs/{id}/cancel", "POST", &r);
+    assert_non_null(strstr(r.body, "is succeeded"));
+    release(&r);
+    free(id);
+}
+
+/* The state filter and the cursor together: each page holds only jobs in
+ * that state, in submission order, and the pages hold all of them. */
+static void test_filter_with_pagination(void **state)
+{
+    fixture_t *f = *state;
+    char *ids[7];
+    bg_error_t err = BG_ERROR_INIT;
+    for (int i = 0; i < 7; i++) {
+        ids[i] = submit_small(f, NULL);
+        if (i % 3 == 1)
+            assert_int_equal(bgb_store_transition(f->store, ids[i], 1u << BGB_JOB_QUEUED,
+                                                  BGB_JOB_CANCELLED, NULL, &err),
+                             BG_OK);
+    }
+    static const struct {
+        const char *state;
+        int want[7], count;
+    } cases[] = {{"queued", {0, 2, 3, 5, 6}, 5}, {"cancelled", {1, 4}, 2}, {"running", {0}, 0}};
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
+        int seen = 0, pages = 0;
+        char cursor[32] = "";
+        for (;; pages++) {
+            assert_true(pages < 10);
+            char path[128];
+            snprintf(path, sizeof path, "/v1/jobs?state=%s&limit=2%s%s", cases[c].state,
+                     cursor[0] ? "&cursor=" : "", cursor);
+            response_t r = request(f, "GET", path, NULL, NULL);
+            assert_int_equal(r.status, 200);
+            conforms(f, "/v1/jobs", "GET", &r);
+            cJSON *doc = cJSON_Parse(r.body);
+            const cJSON *jobs = cJSON_GetObjectItemCaseSensitive(doc, "jobs");
+            assert_true(cJSON_GetArraySize(jobs) <= 2);
+            for (const cJSON *j = jobs->child; j; j = j->next, seen++) {
+                assert_true(seen < cases[c].count);
+                assert_string_equal(cJSON_GetObjectItemCaseSensitive(j, "id")->valuestring,
+                                    ids[cases[c].want[seen]]);
+                assert_string_equal(cJSON_GetObjectItemCaseSensitive(j, "state")->valuestring,
+                                    cases[c].state);
+            }
+            const cJSON *next = cJSON_GetObjectItemCaseSensitive(doc, "next");
+            const int more = cJSON_IsString(next);
+            if (more)
+                snprintf(cursor, sizeof cursor, "%s", next->valuestring);
+            else
+                assert_true(cJSON_IsNull(next));
+            cJSON_Delete(doc);
+            release(&r);
+            if (!more)
+                break;
+        }
+        assert_int_equal(seen, cases[c].count);
+    }
+    response_t r = request(f, "GET", "/v1/jobs?cursor=abc", NULL, NULL);
+    assert_int_equal(r.status, 400);
+    conforms(f, "/v1/jobs", "GET", &r);
+    assert_non_null(strstr(r.body, "\"field\":\"cursor\""));
+    release(&r);
+    r = request(f, "GET", "/v1/jobs?limit=501", NULL, NULL);
+    assert_int_equal(r.status, 400);
+    assert_non_null(strstr(r.body, "\"field\":\"limit\""));
+    release(&r);
+    for (int i = 0; i < 7; i++)
+        free(ids[i]);
+}
+
+/* The caps hold for an uploaded mesh as for a generated one, a body sent
+ * in chunks (no Content-Length) over the cap is a 413 too, an
+ * Idempotency-Key over its cap is a 400 naming the header, and a key
+ * names one job forever: a second submit with it and another body gets
+ * the first job. */
+static void test_caps_and_keys(void **state)
+{
+    fixture_t *f = *state;
+    stop(f);
+    start_capped(f, 4, 500000);
+    const char *mesh = "MeshVersionFormatted 1\nDimension 3\nVertices\n5\n0 0 0 0\n1 0 0 0\n"
+                       "0 1 0 0\n0 0 1 0\n1 1 1 0\nTetrahedra\n2\n1 2 3 4 0\n2 3 4 5 0\nEnd\n";
+    char *b64 = bgb_base64_encode((const uint8_t *)mesh, strlen(mesh));
+    char body[1024];
+    snprintf(body, sizeof body,
+             "{\"scene\":{\"mesh\":\"two.mesh\",\"material\":{\"mu\":1,\"lambda\":1}},"
+             "\"files\":[{\"name\":\"two.mesh\",\"base64\":\"%s\"}]}",
+             b64);
+    free(b64);
+    response_t r = request(f, "POST", "/v1/jobs", body, NULL);
+    if (r.status != 422 || !strstr(r.body, "\"type\":\"/problems/job-too-large\""))
+        fail_msg("a 5-vertex mesh under a 4-vertex cap: %ld %s", r.status, r.body);
+    conforms(f, "/v1/jobs", "POST", &r);
+    char *field = field_of(&r, "field");
+    assert_non_null(field);
+    assert_true(strncmp(field, "scene.mesh", 10) == 0);
+    free(field);
+    release(&r);
+    stop(f);
+    start(f);
+
+    char *big = malloc(MAX_BODY + 64);
+    assert_non_null(big);
+    memset(big, ' ', MAX_BODY + 63);
+    big[MAX_BODY + 63] = '\0';
+    big[0] = '{';
+    big[MAX_BODY + 62] = '}';
+    r = request(f, "POST", "/v1/jobs", big, "Transfer-Encoding: chunked");
+    free(big);
+    assert_int_equal(r.status, 413);
+    conforms(f, "/v1/jobs", "POST", &r);
+    release(&r);
+
+    char key[320] = "Idempotency-Key: ";
+    memset(key + strlen(key), 'k', 300);
+    key[sizeof key - 1] = '\0';
+    char *small = submission(SMALL_BOX, NULL);
+    r = request(f, "POST", "/v1/jobs", small, key);
+    assert_int_equal(r.status, 400);
+    conforms(f, "/v1/jobs", "POST", &r);
+    assert_non_null(strstr(r.body, "\"field\":\"Idempotency-Key\""));
+    release(&r);
+    free(small);
+
+    char *first = submit_small(f, "Idempotency-Key: once");
+    char *other = submission(SMALL_BOX, "\"budget\":99");
+    r = request(f, "POST", "/v1/jobs", other, "Idempotency-Key: once");
+    free(other);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/jobs", "POST", &r);
+    char *again = field_of(&r, "id");
+    assert_string_equal(again, first);
+    assert_non_null(strstr(r.body, "\"budget\":12.5"));
+    char location[96];
+    snprintf(location, sizeof location, "/v1/jobs/%s", first);
+    assert_string_equal(r.location, location);
+    release(&r);
+    free(again);
+    free(first);
+    int64_t counts[BGB_JOB_STATE_COUNT];
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_count(f->store, counts, &err), BG_OK);
+    assert_int_equal(counts[BGB_JOB_QUEUED], 1);
+}
+
 /* The value of a metric without labels in /metrics, or -1. */
 static long long metric(const fixture_t *f, const char *name)
 {
@@ -804,6 +1039,9 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_list_cancel_events_restart, setup, teardown),
         cmocka_unit_test_setup_teardown(test_live_event_stream, setup, teardown),
         cmocka_unit_test_setup_teardown(test_dropped_event_stream, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_job_paths_and_results, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_filter_with_pagination, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_caps_and_keys, setup, teardown),
     };
     const int failed = cmocka_run_group_tests(tests, NULL, NULL);
     curl_global_cleanup();
