@@ -74,6 +74,7 @@ struct bgb_store {
     pthread_cond_t queue_ready;
     pending_t *queue, *queue_tail;
     int max_batch;   /* submits per transaction at most */
+    int wake_at;     /* the writer waits for this many queued submits (0: it is not waiting) */
     int queued;      /* submits in queue */
     int last_batch;  /* submits in the last batch written */
     int stopping;
@@ -410,6 +411,9 @@ static void *writer_main(void *arg)
     bgb_store_t *store = arg;
     pthread_mutex_lock(&store->queue_lock);
     for (;;) {
+        /* Submitters signal only when the queue reaches wake_at, so that
+         * gathering a batch costs the writer one wake-up, not one per submit. */
+        store->wake_at = 1;
         while (!store->queue && !store->stopping)
             pthread_cond_wait(&store->queue_ready, &store->queue_lock);
         if (!store->queue && store->stopping)
@@ -426,11 +430,13 @@ static void *writer_main(void *arg)
              * callers' concurrency; the deadline bounds the wait. */
             const int target = store->last_batch < store->max_batch / 2 ? 2 * store->last_batch
                                                                         : store->max_batch;
+            store->wake_at = target;
             while (store->queued < target && !store->stopping &&
                    pthread_cond_timedwait(&store->queue_ready, &store->queue_lock, &deadline) ==
                        0)
                 ;
         }
+        store->wake_at = 0;
         /* Take up to max_batch submits off the queue, in order. */
         pending_t *batch = store->queue, *last = batch;
         int taken = 1;
@@ -570,7 +576,8 @@ bg_status bgb_store_submit_at(bgb_store_t *store, const bgb_submit_t *job,
         store->queue = &p;
     store->queue_tail = &p;
     store->queued++;
-    pthread_cond_signal(&store->queue_ready);
+    if (store->wake_at && store->queued >= store->wake_at)
+        pthread_cond_signal(&store->queue_ready);
     while (!p.done)
         pthread_cond_wait(&p.wake, &store->queue_lock);
     pthread_mutex_unlock(&store->queue_lock);
