@@ -249,6 +249,31 @@ static char *field_of(const response_t *r, const char *key)
     return out;
 }
 
+/* A request whose answer must have this status, be the one the document
+ * gives for template, and (words not NULL) hold these words. */
+static void expect(const fixture_t *f, const char *method, const char *path, const char *body,
+                   long status, const char *template, const char *words)
+{
+    response_t r = request(f, method, path, body, NULL);
+    if (r.status != status || (words && !strstr(r.body, words)))
+        fail_msg("%s %s: %ld %s (expected %ld with '%s')", method, path, r.status, r.body, status,
+                 words ? words : "");
+    conforms(f, template, method, &r);
+    release(&r);
+}
+
+/* "{ ... }" of MAX_BODY + 63 bytes, blanks inside (caller frees). */
+static char *oversized_body(void)
+{
+    char *big = malloc(MAX_BODY + 64);
+    assert_non_null(big);
+    memset(big, ' ', MAX_BODY + 63);
+    big[MAX_BODY + 63] = '\0';
+    big[0] = '{';
+    big[MAX_BODY + 62] = '}';
+    return big;
+}
+
 /* Submits SMALL_BOX and returns the new job's id (caller frees). */
 static char *submit_small(const fixture_t *f, const char *header)
 {
@@ -561,12 +586,7 @@ static void test_bad_requests(void **state)
         release(&r);
     }
     /* A body over the cap is refused before it is read. */
-    char *big = malloc(MAX_BODY + 64);
-    assert_non_null(big);
-    memset(big, ' ', MAX_BODY + 63);
-    big[MAX_BODY + 63] = '\0';
-    big[0] = '{';
-    big[MAX_BODY + 62] = '}';
+    char *big = oversized_body();
     response_t r = request(f, "POST", "/v1/jobs", big, NULL);
     free(big);
     assert_int_equal(r.status, 413);
@@ -738,22 +758,14 @@ static void test_job_paths_and_results(void **state)
         {"GET", "/v1/jobs/j0123456789abcdef/result/report.json", "/v1/jobs/{id}/result/{file}"},
         {"GET", "/v1/jobs/not-an-id", "/v1/jobs/{id}"},
     };
-    for (size_t i = 0; i < sizeof unknown / sizeof unknown[0]; i++) {
-        response_t r = request(f, unknown[i].method, unknown[i].path,
-                               strcmp(unknown[i].method, "POST") == 0 ? "" : NULL, NULL);
-        if (r.status != 404)
-            fail_msg("%s %s: %ld %s", unknown[i].method, unknown[i].path, r.status, r.body);
-        assert_string_equal(r.type, "application/problem+json");
-        conforms(f, unknown[i].template, unknown[i].method, &r);
-        release(&r);
-    }
+    for (size_t i = 0; i < sizeof unknown / sizeof unknown[0]; i++)
+        expect(f, unknown[i].method, unknown[i].path,
+               strcmp(unknown[i].method, "POST") == 0 ? "" : NULL, 404, unknown[i].template,
+               "\"status\":404");
     char *id = submit_small(f, NULL);
     char path[160];
     snprintf(path, sizeof path, "/v1/jobs/%s/result/report.json", id);
-    response_t r = request(f, "GET", path, NULL, NULL);
-    assert_int_equal(r.status, 409);
-    conforms(f, "/v1/jobs/{id}/result/{file}", "GET", &r);
-    release(&r);
+    expect(f, "GET", path, NULL, 409, "/v1/jobs/{id}/result/{file}", "has no result yet");
     /* What a coordinator does: run, write the result's files, succeed. */
     bg_error_t err = BG_ERROR_INIT;
     const char *report = "{\"energy\":0.125}";
@@ -769,7 +781,7 @@ static void test_job_paths_and_results(void **state)
                                           NULL, &err),
                      BG_OK);
     snprintf(path, sizeof path, "/v1/jobs/%s/result", id);
-    r = request(f, "GET", path, NULL, NULL);
+    response_t r = request(f, "GET", path, NULL, NULL);
     assert_int_equal(r.status, 200);
     conforms(f, "/v1/jobs/{id}/result", "GET", &r);
     cJSON *doc = cJSON_Parse(r.body);
@@ -796,16 +808,9 @@ static void test_job_paths_and_results(void **state)
         release(&r);
     }
     snprintf(path, sizeof path, "/v1/jobs/%s/result/frame-0.vtu", id);
-    r = request(f, "GET", path, NULL, NULL);
-    assert_int_equal(r.status, 404);
-    conforms(f, "/v1/jobs/{id}/result/{file}", "GET", &r);
-    release(&r);
+    expect(f, "GET", path, NULL, 404, "/v1/jobs/{id}/result/{file}", "has no result file");
     snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
-    r = request(f, "POST", path, "", NULL);
-    assert_int_equal(r.status, 409);
-    conforms(f, "/v1/jobs/{id}/cancel", "POST", &r);
-    assert_non_null(strstr(r.body, "is succeeded"));
-    release(&r);
+    expect(f, "POST", path, "", 409, "/v1/jobs/{id}/cancel", "is succeeded");
     free(id);
 }
 
@@ -861,15 +866,8 @@ static void test_filter_with_pagination(void **state)
         }
         assert_int_equal(seen, cases[c].count);
     }
-    response_t r = request(f, "GET", "/v1/jobs?cursor=abc", NULL, NULL);
-    assert_int_equal(r.status, 400);
-    conforms(f, "/v1/jobs", "GET", &r);
-    assert_non_null(strstr(r.body, "\"field\":\"cursor\""));
-    release(&r);
-    r = request(f, "GET", "/v1/jobs?limit=501", NULL, NULL);
-    assert_int_equal(r.status, 400);
-    assert_non_null(strstr(r.body, "\"field\":\"limit\""));
-    release(&r);
+    expect(f, "GET", "/v1/jobs?cursor=abc", NULL, 400, "/v1/jobs", "\"field\":\"cursor\"");
+    expect(f, "GET", "/v1/jobs?limit=501", NULL, 400, "/v1/jobs", "\"field\":\"limit\"");
     for (int i = 0; i < 7; i++)
         free(ids[i]);
 }
@@ -905,12 +903,7 @@ static void test_caps_and_keys(void **state)
     stop(f);
     start(f);
 
-    char *big = malloc(MAX_BODY + 64);
-    assert_non_null(big);
-    memset(big, ' ', MAX_BODY + 63);
-    big[MAX_BODY + 63] = '\0';
-    big[0] = '{';
-    big[MAX_BODY + 62] = '}';
+    char *big = oversized_body();
     r = request(f, "POST", "/v1/jobs", big, "Transfer-Encoding: chunked");
     free(big);
     assert_int_equal(r.status, 413);

@@ -331,19 +331,25 @@ static void *submit_many(void *arg)
     return NULL;
 }
 
-static void test_concurrent_submits(void **state)
+/* THREADS workers submit_many into store at once; waits for them all. */
+static void run_workers(bgb_store_t *store, worker_t workers[THREADS])
 {
-    fixture_t *f = *state;
-    worker_t workers[THREADS];
     pthread_t threads[THREADS];
     for (int t = 0; t < THREADS; t++) {
         memset(&workers[t], 0, sizeof workers[t]);
-        workers[t].store = f->store;
+        workers[t].store = store;
         workers[t].index = t;
         assert_int_equal(pthread_create(&threads[t], NULL, submit_many, &workers[t]), 0);
     }
     for (int t = 0; t < THREADS; t++)
         assert_int_equal(pthread_join(threads[t], NULL), 0);
+}
+
+static void test_concurrent_submits(void **state)
+{
+    fixture_t *f = *state;
+    worker_t workers[THREADS];
+    run_workers(f->store, workers);
     for (int t = 0; t < THREADS; t++) {
         assert_int_equal(workers[t].failures, 0);
         for (int i = PER_THREAD / 2; i < PER_THREAD; i++)
@@ -373,17 +379,9 @@ static void test_options(void **state)
     bg_error_t err = BG_ERROR_INIT;
     assert_int_equal(bgb_store_open_with(path, &single, &f->store, &err), BG_OK);
     worker_t workers[THREADS];
-    pthread_t threads[THREADS];
-    for (int t = 0; t < THREADS; t++) {
-        memset(&workers[t], 0, sizeof workers[t]);
-        workers[t].store = f->store;
-        workers[t].index = t;
-        assert_int_equal(pthread_create(&threads[t], NULL, submit_many, &workers[t]), 0);
-    }
-    for (int t = 0; t < THREADS; t++) {
-        assert_int_equal(pthread_join(threads[t], NULL), 0);
+    run_workers(f->store, workers);
+    for (int t = 0; t < THREADS; t++)
         assert_int_equal(workers[t].failures, 0);
-    }
     int64_t commits = 0, submits = 0;
     bgb_store_commit_stats(f->store, &commits, &submits);
     assert_int_equal(submits, THREADS * PER_THREAD / 2);
