@@ -7,6 +7,7 @@
 #include <math.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
+#include <poll.h>
 #include <stdarg.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -41,6 +42,7 @@ struct bgb_rest {
     uint16_t port;
     atomic_int stopping;
     atomic_llong responses[6]; /* by status class: index 1..5 */
+    atomic_llong event_streams; /* event streams open now (for /metrics) */
 };
 
 /* A request's state across MHD's calls: the body as it arrives. */
@@ -213,7 +215,44 @@ static void add_link(cJSON *links, const char *rel, const char *id, const char *
     cJSON_AddStringToObject(links, rel, href);
 }
 
-/* The job resource; with_plan reads the plan from the job's events. */
+/* Adds what the job's events show (plan, contracts, allocation, progress,
+ * trace) to the job resource o, taking them out of pc. */
+static void add_event_views(cJSON *o, plan_capture_t *pc)
+{
+    if (pc->plan) {
+        cJSON_AddItemToObject(o, "plan", pc->plan);
+        pc->plan = NULL;
+    }
+    /* The live market records each contract as its own event; the
+     * allocation event lists them only when it has them at hand. */
+    cJSON *contracts = NULL;
+    if (pc->contracts) {
+        contracts = pc->contracts;
+        pc->contracts = NULL;
+    } else if (pc->allocation) {
+        contracts = cJSON_GetObjectItemCaseSensitive(pc->allocation, "contracts");
+        contracts = cJSON_IsArray(contracts)
+                        ? cJSON_DetachItemFromObjectCaseSensitive(pc->allocation, "contracts")
+                        : NULL;
+    }
+    cJSON_AddItemToObject(o, "contracts", contracts ? contracts : cJSON_CreateArray());
+    if (pc->allocation) {
+        cJSON_AddItemToObject(o, "allocation", pc->allocation);
+        pc->allocation = NULL;
+    } else {
+        cJSON_AddNullToObject(o, "allocation");
+    }
+    if (pc->progress) {
+        cJSON_AddItemToObject(o, "progress", pc->progress);
+        pc->progress = NULL;
+    } else {
+        cJSON_AddNullToObject(o, "progress");
+    }
+    cJSON_AddItemToObject(o, "trace", pc->trace ? pc->trace : cJSON_CreateArray());
+    pc->trace = NULL;
+}
+
+/* The job resource; with_plan adds the views of the job's events. */
 static cJSON *job_json(bgb_rest_t *rest, const bgb_job_t *job, int with_plan)
 {
     cJSON *o = cJSON_CreateObject();
@@ -232,40 +271,8 @@ static cJSON *job_json(bgb_rest_t *rest, const bgb_job_t *job, int with_plan)
     if (with_plan) {
         plan_capture_t pc = {NULL, NULL, NULL, NULL, NULL, 0};
         bg_error_t err = BG_ERROR_INIT;
-        if (bgb_store_events(rest->store, job->id, 0, capture_plan, &pc, &err) == BG_OK) {
-            if (pc.plan) {
-                cJSON_AddItemToObject(o, "plan", pc.plan);
-                pc.plan = NULL;
-            }
-            /* The live market records each contract as its own event; the
-             * allocation event lists them only when it has them at hand. */
-            cJSON *contracts = NULL;
-            if (pc.contracts) {
-                contracts = pc.contracts;
-                pc.contracts = NULL;
-            } else if (pc.allocation) {
-                contracts = cJSON_GetObjectItemCaseSensitive(pc.allocation, "contracts");
-                contracts = cJSON_IsArray(contracts)
-                                ? cJSON_DetachItemFromObjectCaseSensitive(pc.allocation,
-                                                                          "contracts")
-                                : NULL;
-            }
-            cJSON_AddItemToObject(o, "contracts", contracts ? contracts : cJSON_CreateArray());
-            if (pc.allocation) {
-                cJSON_AddItemToObject(o, "allocation", pc.allocation);
-                pc.allocation = NULL;
-            } else {
-                cJSON_AddNullToObject(o, "allocation");
-            }
-            if (pc.progress) {
-                cJSON_AddItemToObject(o, "progress", pc.progress);
-                pc.progress = NULL;
-            } else {
-                cJSON_AddNullToObject(o, "progress");
-            }
-            cJSON_AddItemToObject(o, "trace", pc.trace ? pc.trace : cJSON_CreateArray());
-            pc.trace = NULL;
-        }
+        if (bgb_store_events(rest->store, job->id, 0, capture_plan, &pc, &err) == BG_OK)
+            add_event_views(o, &pc);
         plan_capture_release(&pc);
     }
     cJSON *links = cJSON_AddObjectToObject(o, "links");
@@ -353,6 +360,83 @@ static void locate(const char *text, size_t offset, int *line, int *column)
     }
 }
 
+/* JSON text scanning for scene_span, on a document cJSON has accepted. */
+static const char *skip_space(const char *p, const char *end)
+{
+    while (p < end && (*p == ' ' || *p == '\t' || *p == '\n' || *p == '\r'))
+        p++;
+    return p;
+}
+
+/* p at a '"': just past the closing quote. */
+static const char *skip_string(const char *p, const char *end)
+{
+    for (p++; p < end; p++) {
+        if (*p == '\\')
+            p++;
+        else if (*p == '"')
+            return p + 1;
+    }
+    return end;
+}
+
+static const char *skip_value(const char *p, const char *end)
+{
+    if (p < end && *p == '"')
+        return skip_string(p, end);
+    if (p < end && (*p == '{' || *p == '[')) {
+        int depth = 0;
+        while (p < end) {
+            if (*p == '"') {
+                p = skip_string(p, end);
+                continue;
+            }
+            if (*p == '{' || *p == '[')
+                depth++;
+            else if ((*p == '}' || *p == ']') && --depth == 0)
+                return p + 1;
+            p++;
+        }
+        return end;
+    }
+    while (p < end && !strchr(",}] \t\r\n", *p))
+        p++;
+    return p;
+}
+
+/*
+ * The bytes of the top-level "scene" value of a request cJSON has parsed
+ * (so valid JSON, no repeated key): the scene is stored and validated as
+ * the client wrote it, instead of printing cJSON's tree again (printing
+ * its numbers was the most expensive step of a small submit). 0 when the
+ * key is not found as plain text (a key spelled with escapes): then the
+ * caller prints the tree.
+ */
+static int scene_span(const char *body, size_t size, const char **start, size_t *length)
+{
+    const char *end = body + size, *p = skip_space(body, end);
+    if (p >= end || *p != '{')
+        return 0;
+    for (p = skip_space(p + 1, end); p < end && *p == '"';) {
+        const char *key = p + 1, *after = skip_string(p, end);
+        const int is_scene = after - key == 6 && memcmp(key, "scene\"", 6) == 0;
+        p = skip_space(after, end);
+        if (p >= end || *p != ':')
+            return 0;
+        const char *value = skip_space(p + 1, end), *value_end = skip_value(value, end);
+        if (is_scene) {
+            *start = value;
+            *length = (size_t)(value_end - value);
+            return value_end > value;
+        }
+        p = skip_space(value_end, end);
+        if (p >= end || *p != ',')
+            return 0;
+        p = skip_space(p + 1, end);
+    }
+    return 0;
+}
+
 /* Reads the request document into s; on a problem sends it and returns 0. */
 static int read_submission(bgb_rest_t *rest, struct MHD_Connection *c, const request_t *req,
                            submission_t *s, enum MHD_Result *sent)
@@ -371,6 +455,19 @@ static int read_submission(bgb_rest_t *rest, struct MHD_Connection *c, const req
                              NULL, "%s at line %d, column %d",
                              req->size ? "malformed JSON" : "empty body", line, column);
         return 0;
+    }
+    /* cJSON stops after the document; anything but blanks after it is as
+     * malformed as a document cut short. */
+    const char *body_end = req->body + req->size;
+    const char *rest_of = end && end >= req->body && end <= body_end ? skip_space(end, body_end)
+                                                                     : body_end;
+    if (rest_of != body_end) {
+        int line = 0, column = 0;
+        locate(req->body, (size_t)(rest_of - req->body), &line, &column);
+        *sent = send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "malformed-json", "Malformed JSON",
+                             NULL, "text after the JSON document at line %d, column %d", line,
+                             column);
+        goto out;
     }
     const char *repeated = NULL;
     if (!cJSON_IsObject(root)) {
@@ -403,7 +500,17 @@ static int read_submission(bgb_rest_t *rest, struct MHD_Connection *c, const req
                                    : "scene: missing (required)");
         goto out;
     }
-    s->scene = cJSON_PrintUnformatted(scene);
+    const char *span = NULL;
+    size_t span_length = 0;
+    if (scene_span(req->body, req->size, &span, &span_length)) {
+        s->scene = malloc(span_length + 1);
+        if (s->scene) {
+            memcpy(s->scene, span, span_length);
+            s->scene[span_length] = '\0';
+        }
+    } else {
+        s->scene = cJSON_PrintUnformatted(scene);
+    }
     const cJSON *mechanism = cJSON_GetObjectItemCaseSensitive(root, "mechanism");
     s->mechanism = "central";
     if (mechanism) {
@@ -546,15 +653,52 @@ static cJSON *plan_json(const bg_scene_t *scene)
     return o;
 }
 
+/*
+ * The resource of a job just stored, as GET /v1/jobs/{id} shows it then
+ * (queued, its plan its only event view), written directly: the job is
+ * exactly what was committed, and reading it back and printing it with
+ * cJSON cost as much as storing it. mechanism is one of the three names,
+ * id hex, plan_text JSON (NULL: none), budget and time finite; a test
+ * checks that this text and GET's document are the same JSON.
+ */
+static char *new_job_text(const char *id, const char *mechanism, double budget, double time,
+                          const char *plan_text)
+{
+    const size_t n = 512 + 4 * BGB_JOB_ID_SIZE + (plan_text ? strlen(plan_text) : 0);
+    char *text = malloc(n);
+    if (!text)
+        return NULL;
+    snprintf(text, n,
+             "{\"id\":\"%s\",\"state\":\"queued\",\"mechanism\":\"%s\",\"budget\":%.17g,"
+             "\"created\":%.17g,\"updated\":%.17g,\"reason\":null%s%s,\"contracts\":[],"
+             "\"allocation\":null,\"progress\":null,\"trace\":[],\"links\":{\"self\":"
+             "\"/v1/jobs/%s\",\"events\":\"/v1/jobs/%s/events\",\"cancel\":"
+             "\"/v1/jobs/%s/cancel\",\"result\":\"/v1/jobs/%s/result\"}}",
+             id, mechanism, budget, time, time, plan_text ? ",\"plan\":" : "",
+             plan_text ? plan_text : "", id, id, id, id);
+    return text;
+}
+
 static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
                                   const request_t *req)
 {
+    /* Only what submission_release reads is cleared: the file table is
+     * 17 KB, and clearing it cost more than parsing a small request. */
     submission_t s;
-    memset(&s, 0, sizeof s);
+    s.scene = NULL;
+    s.file_count = 0;
+    s.dir[0] = '\0';
     enum MHD_Result sent = MHD_NO;
     bg_scene_t *scene = NULL;
     cJSON *plan = NULL;
     char *plan_text = NULL;
+    const char *key = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Idempotency-Key");
+    if (key && strlen(key) > BGB_STORE_MAX_KEY) {
+        sent = send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "invalid-header", "Invalid header",
+                            "Idempotency-Key", "Idempotency-Key: longer than %d bytes",
+                            BGB_STORE_MAX_KEY);
+        goto out;
+    }
     if (!read_submission(rest, c, req, &s, &sent))
         goto out;
     /* A job without uploads needs no folder: its scene is parsed as if it
@@ -598,7 +742,7 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
         files[i].size = s.files[i].size;
     }
     const bgb_submit_t job = {
-        .idempotency_key = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Idempotency-Key"),
+        .idempotency_key = key,
         .scene = s.scene,
         .scene_size = strlen(s.scene),
         .mechanism = s.mechanism,
@@ -608,23 +752,34 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
         .plan = plan_text};
     char id[BGB_JOB_ID_SIZE];
     int created = 0;
-    if (bgb_store_submit(rest->store, &job, id, &created, &err) != BG_OK) {
+    double stored_at = 0.0;
+    if (bgb_store_submit_at(rest->store, &job, id, &created, &stored_at, &err) != BG_OK) {
         sent = err.status == BG_ERR_IO
                    ? send_store_problem(rest, c, BG_ERR_IO, &err)
                    : send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
                                   "Invalid request", NULL, "%s", err.message);
         goto out;
     }
-    bgb_job_t stored = BGB_JOB_INIT;
-    if (bgb_store_get(rest->store, id, &stored, &err) != BG_OK) {
-        sent = send_store_problem(rest, c, BG_ERR_IO, &err);
-        goto out;
-    }
     char location[64];
     snprintf(location, sizeof location, "/v1/jobs/%s", id);
-    sent = send_json(rest, c, created ? MHD_HTTP_ACCEPTED : MHD_HTTP_OK,
-                     job_json(rest, &stored, 1), "application/json", location);
-    bgb_job_release(&stored);
+    if (created) {
+        char *text = new_job_text(id, s.mechanism, s.budget, stored_at, plan_text);
+        sent = text ? send_text(rest, c, MHD_HTTP_ACCEPTED, "application/json", text,
+                                strlen(text), location)
+                    : send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
+                                   "Internal error", NULL, "out of memory");
+        free(text);
+    } else {
+        /* An Idempotency-Key replay: the earlier job as it is now. */
+        bgb_job_t stored = BGB_JOB_INIT;
+        if (bgb_store_get(rest->store, id, &stored, &err) != BG_OK) {
+            sent = send_store_problem(rest, c, BG_ERR_IO, &err);
+            goto out;
+        }
+        sent = send_json(rest, c, MHD_HTTP_OK, job_json(rest, &stored, 1),
+                         "application/json", location);
+        bgb_job_release(&stored);
+    }
 out:
     free(plan_text);
     cJSON_Delete(plan);
@@ -786,6 +941,7 @@ static enum MHD_Result get_result(bgb_rest_t *rest, struct MHD_Connection *c, co
 
 typedef struct stream {
     bgb_rest_t *rest;
+    int fd; /* the client's socket, watched for its end; -1: unknown */
     char id[BGB_JOB_ID_SIZE];
     int64_t last;
     char *pending; /* formatted events not yet sent */
@@ -848,6 +1004,35 @@ static void refill(stream_t *s)
         s->ended = 1;
 }
 
+/*
+ * Waits one poll interval, watching the client's socket: 1 when the client
+ * has gone (it closed its side or the connection broke), 0 otherwise. MHD
+ * would only notice when a write fails, at the next keep-alive 15 s later,
+ * holding a thread all along; the socket says so at once. A client that
+ * sends more bytes while it listens (a pipelined request) is not gone: the
+ * bytes stay for MHD, and the rest of the interval is slept.
+ */
+static int client_gone(const stream_t *s)
+{
+    const struct timespec pause = {0, REST_EVENT_POLL_NS};
+    if (s->fd < 0) {
+        nanosleep(&pause, NULL);
+        return 0;
+    }
+    struct pollfd pfd = {.fd = s->fd, .events = POLLIN};
+    const int n = poll(&pfd, 1, (int)(REST_EVENT_POLL_NS / 1000000L));
+    if (n <= 0)
+        return 0;
+    if (pfd.revents & (POLLERR | POLLHUP | POLLNVAL))
+        return 1;
+    char byte;
+    const ssize_t got = recv(s->fd, &byte, 1, MSG_PEEK);
+    if (got == 0 || (got < 0 && errno != EINTR && errno != EAGAIN))
+        return 1;
+    nanosleep(&pause, NULL);
+    return 0;
+}
+
 static ssize_t read_events(void *cls, uint64_t pos, char *buf, size_t max)
 {
     stream_t *s = cls;
@@ -869,17 +1054,18 @@ static ssize_t read_events(void *cls, uint64_t pos, char *buf, size_t max)
             memcpy(buf, keepalive, n);
             return (ssize_t)n;
         }
-        if (polls > 0) {
-            const struct timespec pause = {0, REST_EVENT_POLL_NS};
-            nanosleep(&pause, NULL);
-        }
+        if (polls > 0 && client_gone(s))
+            return MHD_CONTENT_READER_END_WITH_ERROR;
         refill(s);
     }
 }
 
+/* MHD frees the response (and so the stream) once its connection is done
+ * with it, however it ended. */
 static void free_stream(void *cls)
 {
     stream_t *s = cls;
+    atomic_fetch_sub(&s->rest->event_streams, 1);
     free(s->pending);
     free(s);
 }
@@ -897,6 +1083,10 @@ static enum MHD_Result stream_events(bgb_rest_t *rest, struct MHD_Connection *c,
         return send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
                             "Internal error", NULL, "out of memory");
     s->rest = rest;
+    atomic_fetch_add(&rest->event_streams, 1);
+    const union MHD_ConnectionInfo *info =
+        MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
+    s->fd = info ? info->connect_fd : -1;
     snprintf(s->id, sizeof s->id, "%s", id);
     const char *resume = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Last-Event-ID");
     if (resume)
@@ -953,10 +1143,14 @@ static enum MHD_Result metrics(bgb_rest_t *rest, struct MHD_Connection *c)
                           "# HELP biotgrid_store_submits_total Jobs stored.\n"
                           "# TYPE biotgrid_store_submits_total counter\n"
                           "biotgrid_store_submits_total %lld\n"
+                          "# HELP biotgrid_event_streams_open Job event streams open now.\n"
+                          "# TYPE biotgrid_event_streams_open gauge\n"
+                          "biotgrid_event_streams_open %lld\n"
                           "# HELP biotgrid_http_responses_total Responses sent, by status "
                           "class.\n"
                           "# TYPE biotgrid_http_responses_total counter\n",
-                          (long long)commits, (long long)submits);
+                          (long long)commits, (long long)submits,
+                          (long long)atomic_load(&rest->event_streams));
     for (int k = 1; k <= 5; k++)
         n += (size_t)snprintf(text + n, sizeof text - n,
                               "biotgrid_http_responses_total{class=\"%dxx\"} %lld\n", k,

@@ -20,7 +20,8 @@
  * that happened to arrive during the previous fsync. A lone caller never
  * waits (its batches hold one submit). */
 #define STORE_GATHER_NS 1000000L
-#define STORE_GATHER_MAX 256
+/* Submits per transaction at most, by default. */
+#define STORE_DEFAULT_MAX_BATCH 256
 
 static const char SCHEMA[] =
     "CREATE TABLE IF NOT EXISTS jobs("
@@ -57,9 +58,11 @@ typedef struct pending {
     const bgb_submit_t *job;
     char id[BGB_JOB_ID_SIZE];
     int created;
+    double time; /* when it was stored, if created */
     bg_status status;
     bg_error_t err;
     int done;
+    pthread_cond_t wake; /* signalled (under queue_lock) once done is set */
     struct pending *next;
 } pending_t;
 
@@ -68,8 +71,10 @@ struct bgb_store {
     sqlite3 *writer; /* every write, under write_lock */
     sqlite3 *reader; /* every read, under read_lock */
     pthread_mutex_t write_lock, read_lock, queue_lock;
-    pthread_cond_t queue_ready, batch_done;
+    pthread_cond_t queue_ready;
     pending_t *queue, *queue_tail;
+    int max_batch;   /* submits per transaction at most */
+    int wake_at;     /* the writer waits for this many queued submits (0: it is not waiting) */
     int queued;      /* submits in queue */
     int last_batch;  /* submits in the last batch written */
     int stopping;
@@ -129,7 +134,8 @@ static bg_status exec(sqlite3 *db, const char *sql, bg_error_t *err)
     return st;
 }
 
-static bg_status open_connection(const char *path, sqlite3 **db, bg_error_t *err)
+static bg_status open_connection(const char *path, bgb_store_durability durability,
+                                 sqlite3 **db, bg_error_t *err)
 {
     if (sqlite3_open_v2(path, db, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX,
                         NULL) != SQLITE_OK) {
@@ -140,7 +146,10 @@ static bg_status open_connection(const char *path, sqlite3 **db, bg_error_t *err
         return st;
     }
     sqlite3_busy_timeout(*db, STORE_BUSY_TIMEOUT_MS);
-    return exec(*db, "PRAGMA journal_mode=WAL; PRAGMA synchronous=FULL; PRAGMA foreign_keys=ON;",
+    return exec(*db,
+                durability == BGB_STORE_PROCESS_SAFE
+                    ? "PRAGMA journal_mode=WAL; PRAGMA synchronous=NORMAL; PRAGMA foreign_keys=ON;"
+                    : "PRAGMA journal_mode=WAL; PRAGMA synchronous=FULL; PRAGMA foreign_keys=ON;",
                 err);
 }
 
@@ -198,17 +207,67 @@ static bg_status new_id(char id[BGB_JOB_ID_SIZE], bg_error_t *err)
     unsigned char bytes[8];
     if (getrandom(bytes, sizeof bytes, 0) != (ssize_t)sizeof bytes)
         return bg_error_set(err, BG_ERR_IO, "job store: no random bytes for a job id");
+    static const char hex[] = "0123456789abcdef";
     id[0] = 'j';
-    for (int i = 0; i < 8; i++)
-        snprintf(id + 1 + 2 * i, 3, "%02x", bytes[i]);
+    for (int i = 0; i < 8; i++) {
+        id[1 + 2 * i] = hex[bytes[i] >> 4];
+        id[2 + 2 * i] = hex[bytes[i] & 15];
+    }
+    id[BGB_JOB_ID_SIZE - 1] = '\0';
     return BG_OK;
 }
 
+/*
+ * A statement for sql on db, prepared once per connection: the connection
+ * keeps its statements (sqlite3_next_stmt lists them), so a statement that
+ * is not in use is found by its text and reused. Compiling SQL cost more
+ * than the rest of a submit's writes together (a quarter of all the
+ * instructions of a REST submit). Every statement got here is handed back
+ * with finish(), never finalized; the connection's statements are
+ * finalized when it is closed (close_connection).
+ */
 static bg_status prepare(sqlite3 *db, const char *sql, sqlite3_stmt **stmt, bg_error_t *err)
 {
-    if (sqlite3_prepare_v2(db, sql, -1, stmt, NULL) != SQLITE_OK)
+    for (sqlite3_stmt *s = sqlite3_next_stmt(db, NULL); s; s = sqlite3_next_stmt(db, s))
+        if (!sqlite3_stmt_busy(s) && strcmp(sqlite3_sql(s), sql) == 0) {
+            *stmt = s;
+            return BG_OK;
+        }
+    if (sqlite3_prepare_v3(db, sql, -1, SQLITE_PREPARE_PERSISTENT, stmt, NULL) != SQLITE_OK)
         return sql_fail(db, err, "prepare");
     return BG_OK;
+}
+
+/* Hands a statement from prepare() back: reset (ending its read, if any)
+ * and unbound, ready for the next use. Accepts NULL. */
+static void finish(sqlite3_stmt *s)
+{
+    if (!s)
+        return;
+    sqlite3_reset(s);
+    sqlite3_clear_bindings(s);
+}
+
+/* Runs one statement without parameters or rows (BEGIN, COMMIT, ...). */
+static bg_status run(sqlite3 *db, const char *sql, bg_error_t *err)
+{
+    sqlite3_stmt *s = NULL;
+    bg_status st = prepare(db, sql, &s, err);
+    if (st != BG_OK)
+        return st;
+    if (sqlite3_step(s) != SQLITE_DONE)
+        st = sql_fail(db, err, sql);
+    finish(s);
+    return st;
+}
+
+static void close_connection(sqlite3 *db)
+{
+    if (!db)
+        return;
+    for (sqlite3_stmt *s; (s = sqlite3_next_stmt(db, NULL)) != NULL;)
+        sqlite3_finalize(s);
+    sqlite3_close(db);
 }
 
 static bg_status insert_event(sqlite3 *db, const char *id, double time, const char *kind,
@@ -225,7 +284,7 @@ static bg_status insert_event(sqlite3 *db, const char *id, double time, const ch
     sqlite3_bind_text(s, 4, json, -1, SQLITE_STATIC);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "insert event");
-    sqlite3_finalize(s);
+    finish(s);
     return st;
 }
 
@@ -244,7 +303,7 @@ static bg_status insert_file(sqlite3 *db, const char *id, const char *kind, cons
                         SQLITE_STATIC);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "insert file");
-    sqlite3_finalize(s);
+    finish(s);
     return st;
 }
 
@@ -267,7 +326,7 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
         } else if (rc != SQLITE_DONE) {
             st = sql_fail(db, err, "look up the idempotency key");
         }
-        sqlite3_finalize(s);
+        finish(s);
         s = NULL;
         if (st != BG_OK || rc == SQLITE_ROW)
             return st;
@@ -293,7 +352,7 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
     sqlite3_bind_blob64(s, 8, job->scene, job->scene_size, SQLITE_STATIC);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "insert job");
-    sqlite3_finalize(s);
+    finish(s);
     for (int i = 0; st == BG_OK && i < job->file_count; i++)
         st = insert_file(db, p->id, "input", &job->files[i], err);
     if (st == BG_OK)
@@ -301,6 +360,7 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
     if (st == BG_OK && job->plan)
         st = insert_event(db, p->id, now, "plan", job->plan, err);
     p->created = st == BG_OK;
+    p->time = now;
     return st;
 }
 
@@ -311,7 +371,7 @@ static void write_batch(bgb_store_t *store, pending_t *batch)
     sqlite3 *db = store->writer;
     bg_error_t begin_err = BG_ERROR_INIT;
     pthread_mutex_lock(&store->write_lock);
-    bg_status st = exec(db, "BEGIN IMMEDIATE", &begin_err);
+    bg_status st = run(db, "BEGIN IMMEDIATE", &begin_err);
     int64_t written = 0;
     for (pending_t *p = batch; p; p = p->next) {
         if (st != BG_OK) {
@@ -319,19 +379,20 @@ static void write_batch(bgb_store_t *store, pending_t *batch)
             continue;
         }
         bg_error_t sp = BG_ERROR_INIT;
-        p->status = exec(db, "SAVEPOINT submit", &sp);
+        p->status = run(db, "SAVEPOINT submit", &sp);
         if (p->status == BG_OK)
             p->status = write_submit(db, p);
         else
             bg_error_set(&p->err, p->status, "%s", sp.message);
-        exec(db, p->status == BG_OK ? "RELEASE submit" : "ROLLBACK TO submit; RELEASE submit",
-             &sp);
+        if (p->status != BG_OK)
+            run(db, "ROLLBACK TO submit", &sp);
+        run(db, "RELEASE submit", &sp);
         written += p->status == BG_OK && p->created;
     }
     if (st == BG_OK) {
         bg_error_t commit_err = BG_ERROR_INIT;
-        if (exec(db, "COMMIT", &commit_err) != BG_OK) {
-            exec(db, "ROLLBACK", NULL);
+        if (run(db, "COMMIT", &commit_err) != BG_OK) {
+            run(db, "ROLLBACK", NULL);
             for (pending_t *p = batch; p; p = p->next)
                 if (p->status == BG_OK) {
                     p->status = bg_error_set(&p->err, BG_ERR_IO, "%s", commit_err.message);
@@ -350,6 +411,9 @@ static void *writer_main(void *arg)
     bgb_store_t *store = arg;
     pthread_mutex_lock(&store->queue_lock);
     for (;;) {
+        /* Submitters signal only when the queue reaches wake_at, so that
+         * gathering a batch costs the writer one wake-up, not one per submit. */
+        store->wake_at = 1;
         while (!store->queue && !store->stopping)
             pthread_cond_wait(&store->queue_ready, &store->queue_lock);
         if (!store->queue && store->stopping)
@@ -364,25 +428,39 @@ static void *writer_main(void *arg)
             }
             /* Aim past the last batch so that batches can grow to the
              * callers' concurrency; the deadline bounds the wait. */
-            const int target = store->last_batch < STORE_GATHER_MAX / 2 ? 2 * store->last_batch
-                                                                        : STORE_GATHER_MAX;
+            const int target = store->last_batch < store->max_batch / 2 ? 2 * store->last_batch
+                                                                        : store->max_batch;
+            store->wake_at = target;
             while (store->queued < target && !store->stopping &&
                    pthread_cond_timedwait(&store->queue_ready, &store->queue_lock, &deadline) ==
                        0)
                 ;
         }
-        pending_t *batch = store->queue;
-        store->last_batch = store->queued;
-        store->queue = store->queue_tail = NULL;
-        store->queued = 0;
+        store->wake_at = 0;
+        /* Take up to max_batch submits off the queue, in order. */
+        pending_t *batch = store->queue, *last = batch;
+        int taken = 1;
+        while (taken < store->max_batch && last->next) {
+            last = last->next;
+            taken++;
+        }
+        store->queue = last->next;
+        if (!store->queue)
+            store->queue_tail = NULL;
+        last->next = NULL;
+        store->queued -= taken;
+        store->last_batch = taken;
         pthread_mutex_unlock(&store->queue_lock);
         write_batch(store, batch);
         pthread_mutex_lock(&store->queue_lock);
+        /* Wake exactly the callers of this batch (a broadcast would also
+         * wake every caller queued for the next one, only to wait again).
+         * A caller may return as soon as done is set, so next is read first. */
         for (pending_t *p = batch, *next; p; p = next) {
             next = p->next;
             p->done = 1;
+            pthread_cond_signal(&p->wake);
         }
-        pthread_cond_broadcast(&store->batch_done);
     }
     pthread_mutex_unlock(&store->queue_lock);
     return NULL;
@@ -390,7 +468,19 @@ static void *writer_main(void *arg)
 
 bg_status bgb_store_open(const char *path, bgb_store_t **out, bg_error_t *err)
 {
+    return bgb_store_open_with(path, NULL, out, err);
+}
+
+bg_status bgb_store_open_with(const char *path, const bgb_store_options_t *options,
+                              bgb_store_t **out, bg_error_t *err)
+{
+    const bgb_store_options_t defaults = {BGB_STORE_POWER_SAFE, 0};
+    if (!options)
+        options = &defaults;
     *out = NULL;
+    if (options->max_batch < 0 || (options->durability != BGB_STORE_POWER_SAFE &&
+                                   options->durability != BGB_STORE_PROCESS_SAFE))
+        return bg_error_set(err, BG_ERR_INVALID, "job store: bad options");
     bgb_store_t *store = calloc(1, sizeof *store);
     if (!store)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the job store");
@@ -398,20 +488,20 @@ bg_status bgb_store_open(const char *path, bgb_store_t **out, bg_error_t *err)
     pthread_mutex_init(&store->read_lock, NULL);
     pthread_mutex_init(&store->queue_lock, NULL);
     pthread_cond_init(&store->queue_ready, NULL);
-    pthread_cond_init(&store->batch_done, NULL);
     bg_status st = BG_OK;
     store->path = strdup(path);
     if (!store->path) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the job store");
         goto out;
     }
-    if ((st = open_connection(path, &store->writer, err)) != BG_OK)
+    store->max_batch = options->max_batch ? options->max_batch : STORE_DEFAULT_MAX_BATCH;
+    if ((st = open_connection(path, options->durability, &store->writer, err)) != BG_OK)
         goto out;
     sqlite3_stmt *s = NULL;
     if ((st = prepare(store->writer, "PRAGMA user_version", &s, err)) != BG_OK)
         goto out;
     const int version = sqlite3_step(s) == SQLITE_ROW ? sqlite3_column_int(s, 0) : -1;
-    sqlite3_finalize(s);
+    finish(s);
     if (version != 0 && version != STORE_SCHEMA_VERSION) {
         st = bg_error_set(err, BG_ERR_UNSUPPORTED,
                           "job store %s: schema version %d, this broker reads version %d", path,
@@ -423,7 +513,7 @@ bg_status bgb_store_open(const char *path, bgb_store_t **out, bg_error_t *err)
     if ((st = exec(store->writer, SCHEMA, err)) != BG_OK ||
         (st = exec(store->writer, pragma, err)) != BG_OK)
         goto out;
-    if ((st = open_connection(path, &store->reader, err)) != BG_OK)
+    if ((st = open_connection(path, options->durability, &store->reader, err)) != BG_OK)
         goto out;
     if (pthread_create(&store->thread, NULL, writer_main, store) != 0) {
         st = bg_error_set(err, BG_ERR_NOMEM, "job store: cannot start the writer thread");
@@ -449,13 +539,12 @@ void bgb_store_destroy(bgb_store_t **storep)
         pthread_mutex_unlock(&store->queue_lock);
         pthread_join(store->thread, NULL);
     }
-    sqlite3_close(store->reader);
-    sqlite3_close(store->writer);
+    close_connection(store->reader);
+    close_connection(store->writer);
     pthread_mutex_destroy(&store->write_lock);
     pthread_mutex_destroy(&store->read_lock);
     pthread_mutex_destroy(&store->queue_lock);
     pthread_cond_destroy(&store->queue_ready);
-    pthread_cond_destroy(&store->batch_done);
     free(store->path);
     free(store);
     *storep = NULL;
@@ -464,12 +553,22 @@ void bgb_store_destroy(bgb_store_t **storep)
 bg_status bgb_store_submit(bgb_store_t *store, const bgb_submit_t *job,
                            char id[BGB_JOB_ID_SIZE], int *created, bg_error_t *err)
 {
+    double stored_at = 0.0;
+    return bgb_store_submit_at(store, job, id, created, &stored_at, err);
+}
+
+bg_status bgb_store_submit_at(bgb_store_t *store, const bgb_submit_t *job,
+                              char id[BGB_JOB_ID_SIZE], int *created, double *stored_at,
+                              bg_error_t *err)
+{
     *created = 0;
+    *stored_at = 0.0;
     id[0] = '\0';
     bg_status st = check_submit(job, err);
     if (st != BG_OK)
         return st;
     pending_t p = {.job = job, .status = BG_OK, .err = BG_ERROR_INIT};
+    pthread_cond_init(&p.wake, NULL);
     pthread_mutex_lock(&store->queue_lock);
     if (store->queue_tail)
         store->queue_tail->next = &p;
@@ -477,14 +576,17 @@ bg_status bgb_store_submit(bgb_store_t *store, const bgb_submit_t *job,
         store->queue = &p;
     store->queue_tail = &p;
     store->queued++;
-    pthread_cond_signal(&store->queue_ready);
+    if (store->wake_at && store->queued >= store->wake_at)
+        pthread_cond_signal(&store->queue_ready);
     while (!p.done)
-        pthread_cond_wait(&store->batch_done, &store->queue_lock);
+        pthread_cond_wait(&p.wake, &store->queue_lock);
     pthread_mutex_unlock(&store->queue_lock);
+    pthread_cond_destroy(&p.wake);
     if (p.status != BG_OK)
         return bg_error_set(err, p.status, "%s", p.err.message);
     memcpy(id, p.id, BGB_JOB_ID_SIZE);
     *created = p.created;
+    *stored_at = p.created ? p.time : 0.0;
     return BG_OK;
 }
 
@@ -542,7 +644,7 @@ bg_status bgb_store_get(bgb_store_t *store, const char *id, bgb_job_t *out, bg_e
         else
             st = sql_fail(store->reader, err, "read job");
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     return st;
 }
@@ -580,7 +682,7 @@ bg_status bgb_store_list(bgb_store_t *store, int state, int64_t after, int limit
         if (st == BG_OK && rc != SQLITE_ROW && rc != SQLITE_DONE)
             st = sql_fail(store->reader, err, "list jobs");
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     if (st != BG_OK) {
         for (int i = 0; i < *count; i++)
@@ -599,7 +701,7 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
     sqlite3 *db = store->writer;
     sqlite3_stmt *s = NULL;
     pthread_mutex_lock(&store->write_lock);
-    bg_status st = exec(db, "BEGIN IMMEDIATE", err);
+    bg_status st = run(db, "BEGIN IMMEDIATE", err);
     if (st != BG_OK)
         goto unlock;
     if ((st = prepare(db, "SELECT state FROM jobs WHERE id = ?", &s, err)) != BG_OK)
@@ -607,7 +709,7 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
     sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
     const int rc = sqlite3_step(s);
     const int current = rc == SQLITE_ROW ? sqlite3_column_int(s, 0) : -1;
-    sqlite3_finalize(s);
+    finish(s);
     s = NULL;
     if (rc == SQLITE_DONE) {
         st = bg_error_set(err, BG_ERR_NOT_FOUND, "no job '%s'", id);
@@ -635,19 +737,19 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
     sqlite3_bind_text(s, 4, id, -1, SQLITE_STATIC);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "update job state");
-    sqlite3_finalize(s);
+    finish(s);
     if (st == BG_OK) {
         char json[128];
         snprintf(json, sizeof json, "{\"state\":\"%s\"}", bgb_job_state_name(to));
         st = insert_event(db, id, now, "state", json, err);
     }
     if (st == BG_OK) {
-        st = exec(db, "COMMIT", err);
+        st = run(db, "COMMIT", err);
         if (st == BG_OK)
             goto unlock;
     }
 rollback:
-    exec(db, "ROLLBACK", NULL);
+    run(db, "ROLLBACK", NULL);
 unlock:
     pthread_mutex_unlock(&store->write_lock);
     return st;
@@ -662,7 +764,7 @@ static bg_status job_exists(sqlite3 *db, const char *id, bg_error_t *err)
         return st;
     sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
     const int rc = sqlite3_step(s);
-    sqlite3_finalize(s);
+    finish(s);
     if (rc == SQLITE_ROW)
         return BG_OK;
     if (rc == SQLITE_DONE)
@@ -702,7 +804,7 @@ bg_status bgb_store_events(bgb_store_t *store, const char *id, int64_t after, bg
         if (rc != SQLITE_DONE)
             st = sql_fail(store->reader, err, "read events");
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     return st;
 }
@@ -758,7 +860,7 @@ bg_status bgb_store_get_file(bgb_store_t *store, const char *id, const char *kin
             st = sql_fail(store->reader, err, "read file");
         }
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     return st;
 }
@@ -786,7 +888,7 @@ bg_status bgb_store_list_files(bgb_store_t *store, const char *id, const char *k
         if (rc != SQLITE_DONE)
             st = sql_fail(store->reader, err, "list files");
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     return st;
 }
@@ -810,7 +912,7 @@ bg_status bgb_store_count(bgb_store_t *store, int64_t counts[BGB_JOB_STATE_COUNT
         if (rc != SQLITE_DONE)
             st = sql_fail(store->reader, err, "count jobs");
     }
-    sqlite3_finalize(s);
+    finish(s);
     pthread_mutex_unlock(&store->read_lock);
     return st;
 }

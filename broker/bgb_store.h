@@ -4,11 +4,17 @@
  * for them, their events and their market contracts.
  *
  * Durability: bgb_store_submit returns only after the transaction holding
- * the job is committed with synchronous=FULL. Submits from many threads
- * are group-committed: a single writer thread takes every submit that is
- * waiting, writes them in one transaction and wakes their callers, so one
- * fsync serves a whole batch (what bounds throughput is the fsync rate
- * times the batch size, not one fsync per job).
+ * the job is committed. By default (BGB_STORE_POWER_SAFE) the commit is
+ * fsynced (WAL, synchronous=FULL): an acknowledged job survives a crash of
+ * the broker process and a power loss or kernel crash, as far as the disk
+ * honours its flushes. BGB_STORE_PROCESS_SAFE (synchronous=NORMAL) writes
+ * the commit to the WAL file without an fsync: it survives a crash of the
+ * process (the kernel holds the write), not a power loss, which may take
+ * the last commits back (the database stays consistent either way).
+ * Submits from many threads are group-committed: a single writer thread
+ * takes the submits that are waiting, writes them in one transaction and
+ * wakes their callers, so one fsync serves a whole batch (what bounds
+ * throughput is the fsync rate times the batch size, not one fsync per job).
  *
  * Thread safety: every function may be called from any thread; reads use
  * their own connection, serialised by a mutex (SQLite's WAL lets them run
@@ -91,11 +97,25 @@ typedef struct bgb_job {
 
 void bgb_job_release(bgb_job_t *job);
 
+typedef enum bgb_store_durability {
+    BGB_STORE_POWER_SAFE = 0,   /* fsync per commit (synchronous=FULL), the default */
+    BGB_STORE_PROCESS_SAFE = 1, /* no fsync per commit (synchronous=NORMAL) */
+} bgb_store_durability;
+
+typedef struct bgb_store_options {
+    bgb_store_durability durability;
+    int max_batch; /* submits per transaction at most; 0: 256; 1: one commit per submit */
+} bgb_store_options_t;
+
 /*
  * Opens (creating if needed) the store at path and starts its writer
- * thread. Caller owns *out (bgb_store_destroy).
+ * thread, with the default options. Caller owns *out (bgb_store_destroy).
  */
 bg_status bgb_store_open(const char *path, bgb_store_t **out, bg_error_t *err);
+
+/* bgb_store_open with options (NULL: the defaults). */
+bg_status bgb_store_open_with(const char *path, const bgb_store_options_t *options,
+                              bgb_store_t **out, bg_error_t *err);
 
 /* Stops the writer (after committing what is queued) and closes; accepts NULL. */
 void bgb_store_destroy(bgb_store_t **store);
@@ -108,6 +128,16 @@ void bgb_store_destroy(bgb_store_t **store);
  */
 bg_status bgb_store_submit(bgb_store_t *store, const bgb_submit_t *job,
                            char id[BGB_JOB_ID_SIZE], int *created, bg_error_t *err);
+
+/*
+ * bgb_store_submit that also tells when a new job was stored (its created
+ * and updated time, seconds since the epoch) in *stored_at, so that the
+ * caller can describe the new job without reading it back; *stored_at is
+ * 0 when *created is 0 (read the earlier job with bgb_store_get).
+ */
+bg_status bgb_store_submit_at(bgb_store_t *store, const bgb_submit_t *job,
+                              char id[BGB_JOB_ID_SIZE], int *created, double *stored_at,
+                              bg_error_t *err);
 
 /* The job with this id; BG_ERR_NOT_FOUND if there is none. */
 bg_status bgb_store_get(bgb_store_t *store, const char *id, bgb_job_t *out, bg_error_t *err);

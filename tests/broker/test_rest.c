@@ -14,12 +14,15 @@
 
 #include <cJSON.h>
 #include <curl/curl.h>
+#include <fcntl.h>
 #include <pthread.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
 #include <time.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include "bgb_base64.h"
@@ -174,17 +177,24 @@ static void release(response_t *r)
     r->body = NULL;
 }
 
-static void start(fixture_t *f)
+/* Starts the store and the server with these job size caps. */
+static void start_capped(fixture_t *f, int64_t max_vertices, int64_t max_elements)
 {
     bg_error_t err = BG_ERROR_INIT;
     assert_int_equal(bgb_store_open(f->path, &f->store, &err), BG_OK);
-    const bgb_rest_config_t config = {.port = 0, .max_body = MAX_BODY, .max_vertices = 100000,
-                                      .max_elements = 500000, .work_dir = f->dir,
+    const bgb_rest_config_t config = {.port = 0, .max_body = MAX_BODY,
+                                      .max_vertices = max_vertices,
+                                      .max_elements = max_elements, .work_dir = f->dir,
                                       .name = "test-broker"};
     if (bgb_rest_start(&config, f->store, &f->rest, &err) != BG_OK)
         fail_msg("%s", err.message);
     assert_true(bgb_rest_port(f->rest) > 0);
     snprintf(f->base, sizeof f->base, "http://127.0.0.1:%u", (unsigned)bgb_rest_port(f->rest));
+}
+
+static void start(fixture_t *f)
+{
+    start_capped(f, 100000, 500000);
 }
 
 static void stop(fixture_t *f)
@@ -237,6 +247,31 @@ static char *field_of(const response_t *r, const char *key)
     char *out = cJSON_IsString(v) ? strdup(v->valuestring) : NULL;
     cJSON_Delete(doc);
     return out;
+}
+
+/* A request whose answer must have this status, be the one the document
+ * gives for template, and (words not NULL) hold these words. */
+static void expect(const fixture_t *f, const char *method, const char *path, const char *body,
+                   long status, const char *template, const char *words)
+{
+    response_t r = request(f, method, path, body, NULL);
+    if (r.status != status || (words && !strstr(r.body, words)))
+        fail_msg("%s %s: %ld %s (expected %ld with '%s')", method, path, r.status, r.body, status,
+                 words ? words : "");
+    conforms(f, template, method, &r);
+    release(&r);
+}
+
+/* "{ ... }" of MAX_BODY + 63 bytes, blanks inside (caller frees). */
+static char *oversized_body(void)
+{
+    char *big = malloc(MAX_BODY + 64);
+    assert_non_null(big);
+    memset(big, ' ', MAX_BODY + 63);
+    big[MAX_BODY + 63] = '\0';
+    big[0] = '{';
+    big[MAX_BODY + 62] = '}';
+    return big;
 }
 
 /* Submits SMALL_BOX and returns the new job's id (caller frees). */
@@ -401,6 +436,57 @@ static void test_submit_and_read(void **state)
     free(id);
 }
 
+/* The 202 body of a new job is the job resource GET shows right after, the
+ * scene is stored as the client wrote it (blanks and all), and a scene key
+ * spelled with an escape is the same key. */
+static void test_submit_answer_is_the_resource(void **state)
+{
+    fixture_t *f = *state;
+    const char *body = "{ \"budget\" : 7.25, \"scene\" :\n  " SMALL_BOX " ,\"mechanism\":"
+                       "\"catallactic\" }  \n";
+    response_t posted = request(f, "POST", "/v1/jobs", body, NULL);
+    assert_int_equal(posted.status, 202);
+    conforms(f, "/v1/jobs", "POST", &posted);
+    char *id = field_of(&posted, "id");
+    assert_non_null(id);
+    char path[96];
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    response_t got = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(got.status, 200);
+    cJSON *a = cJSON_Parse(posted.body), *b = cJSON_Parse(got.body);
+    assert_non_null(a);
+    assert_non_null(b);
+    if (!cJSON_Compare(a, b, 1))
+        fail_msg("POST answered %s\nGET shows %s", posted.body, got.body);
+    assert_true(cJSON_GetObjectItemCaseSensitive(a, "budget")->valuedouble == 7.25);
+    assert_non_null(cJSON_GetObjectItemCaseSensitive(a, "plan"));
+    cJSON_Delete(a);
+    cJSON_Delete(b);
+    bgb_job_t job = BGB_JOB_INIT;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_get(f->store, id, &job, &err), BG_OK);
+    assert_string_equal(job.scene, SMALL_BOX);
+    assert_string_equal(job.mechanism, "catallactic");
+    bgb_job_release(&job);
+    release(&posted);
+    release(&got);
+    free(id);
+    /* "sc\u0065ne" is "scene": cJSON's tree is printed instead. */
+    char *escaped = strdup("{\"sc\\u0065ne\":" SMALL_BOX "}");
+    posted = request(f, "POST", "/v1/jobs", escaped, NULL);
+    free(escaped);
+    assert_int_equal(posted.status, 202);
+    id = field_of(&posted, "id");
+    assert_int_equal(bgb_store_get(f->store, id, &job, &err), BG_OK);
+    cJSON *stored = cJSON_Parse(job.scene), *sent = cJSON_Parse(SMALL_BOX);
+    assert_true(cJSON_Compare(stored, sent, 1));
+    cJSON_Delete(stored);
+    cJSON_Delete(sent);
+    bgb_job_release(&job);
+    release(&posted);
+    free(id);
+}
+
 static void test_uploaded_files_only(void **state)
 {
     fixture_t *f = *state;
@@ -464,6 +550,8 @@ static void test_bad_requests(void **state)
     } cases[] = {
         {"{\"scene\": {\"mesh\": ", 400, NULL, "malformed JSON at line 1, column 19"},
         {"", 400, NULL, "empty body"},
+        {"{\"scene\":" SMALL_BOX "}\n{\"scene\":" SMALL_BOX "}", 400, NULL,
+         "text after the JSON document at line 2, column 1"},
         {"[1,2]", 422, NULL, "must be a JSON object"},
         {"{\"scene\":{},\"colour\":1}", 422, "colour", "unknown key 'colour'"},
         {"{\"budget\":1}", 422, "scene", "scene: missing"},
@@ -498,12 +586,7 @@ static void test_bad_requests(void **state)
         release(&r);
     }
     /* A body over the cap is refused before it is read. */
-    char *big = malloc(MAX_BODY + 64);
-    assert_non_null(big);
-    memset(big, ' ', MAX_BODY + 63);
-    big[MAX_BODY + 63] = '\0';
-    big[0] = '{';
-    big[MAX_BODY + 62] = '}';
+    char *big = oversized_body();
     response_t r = request(f, "POST", "/v1/jobs", big, NULL);
     free(big);
     assert_int_equal(r.status, 413);
@@ -658,18 +741,301 @@ static void test_live_event_stream(void **state)
     free(id);
 }
 
+/* The job paths with an unknown (or malformed) id are 404 problems; a
+ * succeeded job serves its result's list and files, with their types; a
+ * job that has not succeeded has no result (409), an ended one cannot be
+ * cancelled (409). Every answer is the one the document gives. */
+static void test_job_paths_and_results(void **state)
+{
+    fixture_t *f = *state;
+    static const struct {
+        const char *method, *path, *template;
+    } unknown[] = {
+        {"GET", "/v1/jobs/j0123456789abcdef", "/v1/jobs/{id}"},
+        {"GET", "/v1/jobs/j0123456789abcdef/events", "/v1/jobs/{id}/events"},
+        {"POST", "/v1/jobs/j0123456789abcdef/cancel", "/v1/jobs/{id}/cancel"},
+        {"GET", "/v1/jobs/j0123456789abcdef/result", "/v1/jobs/{id}/result"},
+        {"GET", "/v1/jobs/j0123456789abcdef/result/report.json", "/v1/jobs/{id}/result/{file}"},
+        {"GET", "/v1/jobs/not-an-id", "/v1/jobs/{id}"},
+    };
+    for (size_t i = 0; i < sizeof unknown / sizeof unknown[0]; i++)
+        expect(f, unknown[i].method, unknown[i].path,
+               strcmp(unknown[i].method, "POST") == 0 ? "" : NULL, 404, unknown[i].template,
+               "\"status\":404");
+    char *id = submit_small(f, NULL);
+    char path[160];
+    snprintf(path, sizeof path, "/v1/jobs/%s/result/report.json", id);
+    expect(f, "GET", path, NULL, 409, "/v1/jobs/{id}/result/{file}", "has no result yet");
+    /* What a coordinator does: run, write the result's files, succeed. */
+    bg_error_t err = BG_ERROR_INIT;
+    const char *report = "{\"energy\":0.125}";
+    const char *svg = "<svg xmlns=\"http://www.w3.org/2000/svg\"/>";
+    const bgb_file_t files[] = {{"report.json", (const uint8_t *)report, strlen(report)},
+                                {"trace.svg", (const uint8_t *)svg, strlen(svg)}};
+    assert_int_equal(bgb_store_transition(f->store, id, 1u << BGB_JOB_QUEUED, BGB_JOB_RUNNING,
+                                          NULL, &err),
+                     BG_OK);
+    for (int i = 0; i < 2; i++)
+        assert_int_equal(bgb_store_put_file(f->store, id, "result", &files[i], &err), BG_OK);
+    assert_int_equal(bgb_store_transition(f->store, id, 1u << BGB_JOB_RUNNING, BGB_JOB_SUCCEEDED,
+                                          NULL, &err),
+                     BG_OK);
+    snprintf(path, sizeof path, "/v1/jobs/%s/result", id);
+    response_t r = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/jobs/{id}/result", "GET", &r);
+    cJSON *doc = cJSON_Parse(r.body);
+    const cJSON *list = cJSON_GetObjectItemCaseSensitive(doc, "files");
+    assert_int_equal(cJSON_GetArraySize(list), 2);
+    for (int i = 0; i < 2; i++) {
+        const cJSON *item = cJSON_GetArrayItem(list, i);
+        assert_string_equal(cJSON_GetObjectItemCaseSensitive(item, "name")->valuestring,
+                            files[i].name);
+        assert_true(cJSON_GetObjectItemCaseSensitive(item, "size")->valuedouble ==
+                    (double)files[i].size);
+    }
+    cJSON_Delete(doc);
+    release(&r);
+    static const char *const types[] = {"application/json", "image/svg+xml"};
+    for (int i = 0; i < 2; i++) {
+        snprintf(path, sizeof path, "/v1/jobs/%s/result/%s", id, files[i].name);
+        r = request(f, "GET", path, NULL, NULL);
+        assert_int_equal(r.status, 200);
+        conforms(f, "/v1/jobs/{id}/result/{file}", "GET", &r);
+        assert_string_equal(r.type, types[i]);
+        assert_int_equal(r.size, files[i].size);
+        assert_memory_equal(r.body, files[i].data, files[i].size);
+        release(&r);
+    }
+    snprintf(path, sizeof path, "/v1/jobs/%s/result/frame-0.vtu", id);
+    expect(f, "GET", path, NULL, 404, "/v1/jobs/{id}/result/{file}", "has no result file");
+    snprintf(path, sizeof path, "/v1/jobs/%s/cancel", id);
+    expect(f, "POST", path, "", 409, "/v1/jobs/{id}/cancel", "is succeeded");
+    free(id);
+}
+
+/* The state filter and the cursor together: each page holds only jobs in
+ * that state, in submission order, and the pages hold all of them. */
+static void test_filter_with_pagination(void **state)
+{
+    fixture_t *f = *state;
+    char *ids[7];
+    bg_error_t err = BG_ERROR_INIT;
+    for (int i = 0; i < 7; i++) {
+        ids[i] = submit_small(f, NULL);
+        if (i % 3 == 1)
+            assert_int_equal(bgb_store_transition(f->store, ids[i], 1u << BGB_JOB_QUEUED,
+                                                  BGB_JOB_CANCELLED, NULL, &err),
+                             BG_OK);
+    }
+    static const struct {
+        const char *state;
+        int want[7], count;
+    } cases[] = {{"queued", {0, 2, 3, 5, 6}, 5}, {"cancelled", {1, 4}, 2}, {"running", {0}, 0}};
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
+        int seen = 0, pages = 0;
+        char cursor[32] = "";
+        for (;; pages++) {
+            assert_true(pages < 10);
+            char path[128];
+            snprintf(path, sizeof path, "/v1/jobs?state=%s&limit=2%s%s", cases[c].state,
+                     cursor[0] ? "&cursor=" : "", cursor);
+            response_t r = request(f, "GET", path, NULL, NULL);
+            assert_int_equal(r.status, 200);
+            conforms(f, "/v1/jobs", "GET", &r);
+            cJSON *doc = cJSON_Parse(r.body);
+            const cJSON *jobs = cJSON_GetObjectItemCaseSensitive(doc, "jobs");
+            assert_true(cJSON_GetArraySize(jobs) <= 2);
+            for (const cJSON *j = jobs->child; j; j = j->next, seen++) {
+                assert_true(seen < cases[c].count);
+                assert_string_equal(cJSON_GetObjectItemCaseSensitive(j, "id")->valuestring,
+                                    ids[cases[c].want[seen]]);
+                assert_string_equal(cJSON_GetObjectItemCaseSensitive(j, "state")->valuestring,
+                                    cases[c].state);
+            }
+            const cJSON *next = cJSON_GetObjectItemCaseSensitive(doc, "next");
+            const int more = cJSON_IsString(next);
+            if (more)
+                snprintf(cursor, sizeof cursor, "%s", next->valuestring);
+            else
+                assert_true(cJSON_IsNull(next));
+            cJSON_Delete(doc);
+            release(&r);
+            if (!more)
+                break;
+        }
+        assert_int_equal(seen, cases[c].count);
+    }
+    expect(f, "GET", "/v1/jobs?cursor=abc", NULL, 400, "/v1/jobs", "\"field\":\"cursor\"");
+    expect(f, "GET", "/v1/jobs?limit=501", NULL, 400, "/v1/jobs", "\"field\":\"limit\"");
+    for (int i = 0; i < 7; i++)
+        free(ids[i]);
+}
+
+/* The caps hold for an uploaded mesh as for a generated one, a body sent
+ * in chunks (no Content-Length) over the cap is a 413 too, an
+ * Idempotency-Key over its cap is a 400 naming the header, and a key
+ * names one job forever: a second submit with it and another body gets
+ * the first job. */
+static void test_caps_and_keys(void **state)
+{
+    fixture_t *f = *state;
+    stop(f);
+    start_capped(f, 4, 500000);
+    const char *mesh = "MeshVersionFormatted 1\nDimension 3\nVertices\n5\n0 0 0 0\n1 0 0 0\n"
+                       "0 1 0 0\n0 0 1 0\n1 1 1 0\nTetrahedra\n2\n1 2 3 4 0\n2 3 4 5 0\nEnd\n";
+    char *b64 = bgb_base64_encode((const uint8_t *)mesh, strlen(mesh));
+    char body[1024];
+    snprintf(body, sizeof body,
+             "{\"scene\":{\"mesh\":\"two.mesh\",\"material\":{\"mu\":1,\"lambda\":1}},"
+             "\"files\":[{\"name\":\"two.mesh\",\"base64\":\"%s\"}]}",
+             b64);
+    free(b64);
+    response_t r = request(f, "POST", "/v1/jobs", body, NULL);
+    if (r.status != 422 || !strstr(r.body, "\"type\":\"/problems/job-too-large\""))
+        fail_msg("a 5-vertex mesh under a 4-vertex cap: %ld %s", r.status, r.body);
+    conforms(f, "/v1/jobs", "POST", &r);
+    char *field = field_of(&r, "field");
+    assert_non_null(field);
+    assert_true(strncmp(field, "scene.mesh", 10) == 0);
+    free(field);
+    release(&r);
+    stop(f);
+    start(f);
+
+    char *big = oversized_body();
+    r = request(f, "POST", "/v1/jobs", big, "Transfer-Encoding: chunked");
+    free(big);
+    assert_int_equal(r.status, 413);
+    conforms(f, "/v1/jobs", "POST", &r);
+    release(&r);
+
+    char key[320] = "Idempotency-Key: ";
+    memset(key + strlen(key), 'k', 300);
+    key[sizeof key - 1] = '\0';
+    char *small = submission(SMALL_BOX, NULL);
+    r = request(f, "POST", "/v1/jobs", small, key);
+    assert_int_equal(r.status, 400);
+    conforms(f, "/v1/jobs", "POST", &r);
+    assert_non_null(strstr(r.body, "\"field\":\"Idempotency-Key\""));
+    release(&r);
+    free(small);
+
+    char *first = submit_small(f, "Idempotency-Key: once");
+    char *other = submission(SMALL_BOX, "\"budget\":99");
+    r = request(f, "POST", "/v1/jobs", other, "Idempotency-Key: once");
+    free(other);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/jobs", "POST", &r);
+    char *again = field_of(&r, "id");
+    assert_string_equal(again, first);
+    assert_non_null(strstr(r.body, "\"budget\":12.5"));
+    char location[96];
+    snprintf(location, sizeof location, "/v1/jobs/%s", first);
+    assert_string_equal(r.location, location);
+    release(&r);
+    free(again);
+    free(first);
+    int64_t counts[BGB_JOB_STATE_COUNT];
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_count(f->store, counts, &err), BG_OK);
+    assert_int_equal(counts[BGB_JOB_QUEUED], 1);
+}
+
+/* The value of a metric without labels in /metrics, or -1. */
+static long long metric(const fixture_t *f, const char *name)
+{
+    response_t r = request(f, "GET", "/metrics", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    char key[128];
+    snprintf(key, sizeof key, "\n%s ", name);
+    const char *at = strstr(r.body, key);
+    const long long value = at ? strtoll(at + strlen(key), NULL, 10) : -1;
+    release(&r);
+    return value;
+}
+
+/* Polls metric name until it equals want; 1 if it did within seconds. */
+static int metric_becomes(const fixture_t *f, const char *name, long long want, double seconds)
+{
+    struct timespec t0, t;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    for (;;) {
+        if (metric(f, name) == want)
+            return 1;
+        clock_gettime(CLOCK_MONOTONIC, &t);
+        if ((double)(t.tv_sec - t0.tv_sec) + 1e-9 * (double)(t.tv_nsec - t0.tv_nsec) > seconds)
+            return 0;
+        const struct timespec pause = {0, 20000000L};
+        nanosleep(&pause, NULL);
+    }
+}
+
+/*
+ * A client that drops an open event stream frees it promptly: curl (a
+ * real process) listens to a queued job's events, is killed, and the
+ * broker's count of open streams goes back to 0 well before the 15 s
+ * keep-alive write that would otherwise be the first to notice.
+ */
+static void test_dropped_event_stream(void **state)
+{
+    fixture_t *f = *state;
+    char *id = submit_small(f, NULL);
+    char url[160];
+    snprintf(url, sizeof url, "%s/v1/jobs/%s/events", f->base, id);
+    assert_int_equal(metric(f, "biotgrid_event_streams_open"), 0);
+    const pid_t curl = fork();
+    assert_true(curl >= 0);
+    if (curl == 0) {
+        const int null = open("/dev/null", O_WRONLY);
+        if (null >= 0) {
+            dup2(null, STDOUT_FILENO);
+            dup2(null, STDERR_FILENO);
+        }
+        execlp("curl", "curl", "-sN", "--max-time", "60", url, (char *)NULL);
+        _exit(127);
+    }
+    const int opened = metric_becomes(f, "biotgrid_event_streams_open", 1, 30.0);
+    kill(curl, SIGKILL);
+    int status = 0;
+    assert_int_equal(waitpid(curl, &status, 0), curl);
+    assert_true(opened);
+    /* The stream sends a keep-alive only after 15 s of silence: a count
+     * back at 0 within 10 s means the disconnect itself was seen. */
+    assert_true(metric_becomes(f, "biotgrid_event_streams_open", 0, 10.0));
+    /* The job is untouched and the server still answers its stream. */
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_transition(f->store, id, 1u << BGB_JOB_QUEUED, BGB_JOB_CANCELLED,
+                                          NULL, &err),
+                     BG_OK);
+    char path[96];
+    snprintf(path, sizeof path, "/v1/jobs/%s/events", id);
+    response_t r = request(f, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 200);
+    assert_non_null(strstr(r.body, "{\"state\":\"cancelled\"}"));
+    release(&r);
+    /* MHD frees the ended stream just after its last bytes reach us. */
+    assert_true(metric_becomes(f, "biotgrid_event_streams_open", 0, 10.0));
+    free(id);
+}
+
 int main(void)
 {
     curl_global_init(CURL_GLOBAL_DEFAULT);
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(test_health_metrics_openapi, setup, teardown),
         cmocka_unit_test_setup_teardown(test_submit_and_read, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_submit_answer_is_the_resource, setup, teardown),
         cmocka_unit_test_setup_teardown(test_market_endpoints, setup, teardown),
         cmocka_unit_test_setup_teardown(test_uploaded_files_only, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bad_requests, setup, teardown),
         cmocka_unit_test_setup_teardown(test_idempotent_resubmit, setup, teardown),
         cmocka_unit_test_setup_teardown(test_list_cancel_events_restart, setup, teardown),
         cmocka_unit_test_setup_teardown(test_live_event_stream, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_dropped_event_stream, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_job_paths_and_results, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_filter_with_pagination, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_caps_and_keys, setup, teardown),
     };
     const int failed = cmocka_run_group_tests(tests, NULL, NULL);
     curl_global_cleanup();

@@ -331,19 +331,25 @@ static void *submit_many(void *arg)
     return NULL;
 }
 
-static void test_concurrent_submits(void **state)
+/* THREADS workers submit_many into store at once; waits for them all. */
+static void run_workers(bgb_store_t *store, worker_t workers[THREADS])
 {
-    fixture_t *f = *state;
-    worker_t workers[THREADS];
     pthread_t threads[THREADS];
     for (int t = 0; t < THREADS; t++) {
         memset(&workers[t], 0, sizeof workers[t]);
-        workers[t].store = f->store;
+        workers[t].store = store;
         workers[t].index = t;
         assert_int_equal(pthread_create(&threads[t], NULL, submit_many, &workers[t]), 0);
     }
     for (int t = 0; t < THREADS; t++)
         assert_int_equal(pthread_join(threads[t], NULL), 0);
+}
+
+static void test_concurrent_submits(void **state)
+{
+    fixture_t *f = *state;
+    worker_t workers[THREADS];
+    run_workers(f->store, workers);
     for (int t = 0; t < THREADS; t++) {
         assert_int_equal(workers[t].failures, 0);
         for (int i = PER_THREAD / 2; i < PER_THREAD; i++)
@@ -358,6 +364,59 @@ static void test_concurrent_submits(void **state)
     assert_true(commits >= 1 && commits <= THREADS * PER_THREAD);
 }
 
+/*
+ * Store options: with max_batch 1 every submit (a replay too) is its own
+ * transaction, so the commits count them all; the process-safe store keeps
+ * what it committed across a reopen; bad options are refused.
+ */
+static void test_options(void **state)
+{
+    fixture_t *f = *state;
+    bgb_store_destroy(&f->store);
+    char path[160];
+    snprintf(path, sizeof path, "%s/single.db", f->dir);
+    const bgb_store_options_t single = {BGB_STORE_POWER_SAFE, 1};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_store_open_with(path, &single, &f->store, &err), BG_OK);
+    worker_t workers[THREADS];
+    run_workers(f->store, workers);
+    for (int t = 0; t < THREADS; t++)
+        assert_int_equal(workers[t].failures, 0);
+    int64_t commits = 0, submits = 0;
+    bgb_store_commit_stats(f->store, &commits, &submits);
+    assert_int_equal(submits, THREADS * PER_THREAD / 2);
+    assert_int_equal(commits, THREADS * PER_THREAD);
+    bgb_store_destroy(&f->store);
+
+    snprintf(path, sizeof path, "%s/process-safe.db", f->dir);
+    const bgb_store_options_t fast = {BGB_STORE_PROCESS_SAFE, 0};
+    assert_int_equal(bgb_store_open_with(path, &fast, &f->store, &err), BG_OK);
+    const bgb_submit_t j = plain_job();
+    char id[BGB_JOB_ID_SIZE];
+    int created = 0;
+    double stored_at = 0.0;
+    assert_int_equal(bgb_store_submit_at(f->store, &j, id, &created, &stored_at, &err), BG_OK);
+    assert_true(created);
+    bgb_store_destroy(&f->store);
+    assert_int_equal(bgb_store_open_with(path, &fast, &f->store, &err), BG_OK);
+    bgb_job_t job = BGB_JOB_INIT;
+    assert_int_equal(bgb_store_get(f->store, id, &job, &err), BG_OK);
+    /* submit_at told the time the store recorded. */
+    assert_true(job.created == stored_at && job.updated == stored_at);
+    bgb_job_release(&job);
+    bgb_store_destroy(&f->store);
+
+    const bgb_store_options_t bad[] = {{BGB_STORE_POWER_SAFE, -1}, {(bgb_store_durability)7, 0}};
+    for (int i = 0; i < 2; i++) {
+        bg_error_t e = BG_ERROR_INIT;
+        bgb_store_t *s = NULL;
+        assert_int_equal(bgb_store_open_with(path, &bad[i], &s, &e), BG_ERR_INVALID);
+        assert_null(s);
+    }
+    /* teardown destroys f->store: leave an open default store. */
+    assert_int_equal(bgb_store_open(f->path, &f->store, &err), BG_OK);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -367,6 +426,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_transitions_and_events, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pagination, setup, teardown),
         cmocka_unit_test_setup_teardown(test_concurrent_submits, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_options, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
