@@ -1,5 +1,6 @@
 #include "bga_market.h"
 
+#include <dlfcn.h>
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -68,6 +69,12 @@ struct bga_market {
     int nseen;
     bgm_rng_t rng;
     bgm_genes_t genes;
+    /* The process's compute thread pools (OpenBLAS, OpenMP: CHOLMOD's
+     * factorization and the BLAS under it), if linked, and their sizes at
+     * start: a job's cap never raises them. */
+    void (*blas_set)(int);
+    void (*omp_set)(int);
+    int blas_max, omp_max;
 };
 
 static double host_cores(void)
@@ -181,6 +188,51 @@ int bga_market_holds(const bga_market_t *m, uint64_t job)
         if (covers(&m->held[i], job))
             return 1;
     return 0;
+}
+
+/* A function of the running process by name (NULL if none); memcpy, as
+ * ISO C has no cast from an object pointer to a function pointer. */
+static void *lookup(const char *name)
+{
+    void *self = dlopen(NULL, RTLD_LAZY);
+    void *f = self ? dlsym(self, name) : NULL;
+    if (self)
+        dlclose(self);
+    return f;
+}
+
+static void find_thread_pools(bga_market_t *m)
+{
+    void *p = lookup("openblas_set_num_threads");
+    int (*get)(void) = NULL;
+    void *g = lookup("openblas_get_num_threads");
+    if (p && g) {
+        memcpy(&m->blas_set, &p, sizeof p);
+        memcpy(&get, &g, sizeof g);
+        m->blas_max = get();
+    }
+    p = lookup("omp_set_num_threads");
+    g = lookup("omp_get_max_threads");
+    if (p && g) {
+        memcpy(&m->omp_set, &p, sizeof p);
+        memcpy(&get, &g, sizeof g);
+        m->omp_max = get();
+    }
+}
+
+int bga_market_admit(bga_market_t *m, uint64_t job)
+{
+    if (!bga_market_holds(m, job))
+        return 0;
+    const double cores = bga_market_cores(m, job);
+    if (cores >= 1) {
+        const int n = cores < 4096 ? (int)cores : 4096;
+        if (m->blas_set && m->blas_max > 0)
+            m->blas_set(n < m->blas_max ? n : m->blas_max);
+        if (m->omp_set && m->omp_max > 0)
+            m->omp_set(n < m->omp_max ? n : m->omp_max);
+    }
+    return 1;
 }
 
 double bga_market_cores(const bga_market_t *m, uint64_t job)
@@ -311,6 +363,7 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
         seed = (seed ^ (uint8_t)*p) * 1099511628211ull;
     bgm_rng_seed(&m->rng, seed);
     bgm_genes_random(&m->genes, &m->rng);
+    find_thread_pools(m);
     *out = m;
     return BG_OK;
 fail:

@@ -91,6 +91,14 @@ bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err);
 int bga_market_holds(const bga_market_t *m, uint64_t job);
 /* Cores bought for the contracts covering this compute job id (0: none). */
 double bga_market_cores(const bga_market_t *m, uint64_t job);
+/* Called before each compute call: whether the agent may compute for this
+ * job id (bga_market_holds), and if so it caps the process's compute
+ * threads — OpenBLAS's and OpenMP's pools (CHOLMOD's factorization and the
+ * BLAS under it), where linked — at the cores bought for the job, never
+ * above their sizes when the market was created (OPENBLAS_NUM_THREADS,
+ * OMP_NUM_THREADS). The daemon computes one call at a time, so the cap
+ * is that job's. */
+int bga_market_admit(bga_market_t *m, uint64_t job);
 /* Directory ids once registered (0 before): the basic seller's and the
  * resource seller's. */
 uint32_t bga_market_id(const bga_market_t *m);
