@@ -493,14 +493,20 @@ static held_t *held_find(bga_market_t *m, uint64_t job, int good, held_state sta
     return NULL;
 }
 
+/* The basic seller's answer about a service contract it agreed to. */
+static void about_held(const bga_market_t *m, bga_mmsg_t *r, int type, const held_t *h)
+{
+    init_from(m, r, type, ROLE_BASIC);
+    r->job = h->job;
+    r->good = h->good;
+    r->quantity = h->quantity;
+    r->price = h->price;
+}
+
 static bg_status confirm(bga_market_t *m, const held_t *h, bg_error_t *err)
 {
     bga_mmsg_t r;
-    init_from(m, &r, BGA_MM_CONFIRM, ROLE_BASIC);
-    r.job = h->job;
-    r.good = h->good;
-    r.quantity = h->quantity;
-    r.price = h->price;
+    about_held(m, &r, BGA_MM_CONFIRM, h);
     r.slots = m->c.slots;
     r.free_slots = m->c.slots - m->used;
     r.floor[h->good] = h->floor;
@@ -568,11 +574,7 @@ static bg_status on_rfail(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err
     if (!h)
         return BG_OK;
     bga_mmsg_t r;
-    init_from(m, &r, BGA_MM_REFUSE, ROLE_BASIC);
-    r.job = h->job;
-    r.good = h->good;
-    r.quantity = h->quantity;
-    r.price = h->price;
+    about_held(m, &r, BGA_MM_REFUSE, h);
     snprintf(r.reason, sizeof r.reason, "no resources: %.150s", in->reason);
     drop_held(m, (int)(h - m->held));
     return send_msg(m, &r, err);

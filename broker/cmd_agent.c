@@ -195,6 +195,24 @@ static int parse_args(int argc, char **argv, options *o)
         }
         const char *v = argv[++i];
         int rc = 0;
+        /* The price policy and the resource role: numbers in [0, 1e9]. */
+        const struct {
+            const char *flag;
+            double *dst;
+        } numbers[] = {{"--floor", &o->floor},
+                       {"--margin", &o->margin},
+                       {"--load-slope", &o->load_slope},
+                       {"--cores", &o->cores},
+                       {"--memory", &o->memory},
+                       {"--core-floor", &o->core_floor},
+                       {"--memory-floor", &o->memory_floor},
+                       {"--resource-margin", &o->res_margin},
+                       {"--resource-load-slope", &o->res_load_slope},
+                       {"--lease", &o->lease}};
+        double *money = NULL;
+        for (size_t k = 0; k < sizeof numbers / sizeof *numbers; k++)
+            if (strcmp(a, numbers[k].flag) == 0)
+                money = numbers[k].dst;
         if (strcmp(a, "--config") == 0)
             continue;
         else if (strcmp(a, "--listen") == 0)
@@ -210,26 +228,8 @@ static int parse_args(int argc, char **argv, options *o)
             o->ready_file = v;
         else if (strcmp(a, "--broker") == 0)
             o->broker = v;
-        else if (strcmp(a, "--floor") == 0)
-            rc = parse_money(v, "--floor", &o->floor);
-        else if (strcmp(a, "--margin") == 0)
-            rc = parse_money(v, "--margin", &o->margin);
-        else if (strcmp(a, "--load-slope") == 0)
-            rc = parse_money(v, "--load-slope", &o->load_slope);
-        else if (strcmp(a, "--cores") == 0)
-            rc = parse_money(v, "--cores", &o->cores);
-        else if (strcmp(a, "--memory") == 0)
-            rc = parse_money(v, "--memory", &o->memory);
-        else if (strcmp(a, "--core-floor") == 0)
-            rc = parse_money(v, "--core-floor", &o->core_floor);
-        else if (strcmp(a, "--memory-floor") == 0)
-            rc = parse_money(v, "--memory-floor", &o->memory_floor);
-        else if (strcmp(a, "--resource-margin") == 0)
-            rc = parse_money(v, "--resource-margin", &o->res_margin);
-        else if (strcmp(a, "--resource-load-slope") == 0)
-            rc = parse_money(v, "--resource-load-slope", &o->res_load_slope);
-        else if (strcmp(a, "--lease") == 0)
-            rc = parse_money(v, "--lease", &o->lease);
+        else if (money)
+            rc = parse_money(v, a, money);
         else {
             fprintf(stderr, "biotgrid agent: unknown option '%s'\n", a);
             usage(stderr);
@@ -261,8 +261,9 @@ int bg_cmd_agent(int argc, char **argv)
     const int prc = parse_args(argc, argv, &o);
     if (prc != 0)
         return prc < 0 ? 0 : prc;
-    if (!(o.lease > 0)) {
-        fprintf(stderr, "biotgrid agent: --lease: must be > 0 seconds\n");
+    if (!(o.lease > 0 && o.lease <= 1e7) || o.cores > 1e6) {
+        fprintf(stderr, "biotgrid agent: %s\n",
+                o.cores > 1e6 ? "--cores: at most 1e6" : "--lease: must be in (0, 1e7] seconds");
         return 2;
     }
     bg_error_t err = BG_ERROR_INIT;
