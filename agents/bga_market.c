@@ -26,6 +26,7 @@ typedef struct nego {
     int used;
     uint64_t job;
     int good;
+    double at; /* when it proposed */
     bgm_nego_t side;
 } nego_t;
 
@@ -622,7 +623,7 @@ static double role_floor(const bga_market_t *m, int good)
  * the call on to that role's overlay neighbours (relayed by the broker)
  * while hops remain. Each (job, attempt, good) call is handled once per
  * role, however many paths bring it. */
-static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err)
+static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
     const int role = in->resource ? ROLE_RESOURCE : ROLE_BASIC;
     const uint64_t key =
@@ -641,19 +642,19 @@ static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err)
     if (stale)
         stale->used = 0;
     if (can_propose(m, in)) {
-        nego_t *n = NULL;
-        for (int i = 0; i < NEGO_MAX && !n; i++)
-            if (!m->nego[i].used)
+        /* A buyer that took another proposer never says so: when the table
+         * is full the oldest proposal is forgotten. */
+        nego_t *n = &m->nego[0];
+        for (int i = 0; i < NEGO_MAX && n->used; i++)
+            if (!m->nego[i].used || m->nego[i].at < n->at)
                 n = &m->nego[i];
-        if (n) {
-            const double floor_g = role_floor(m, in->good);
-            const double margin = in->resource ? m->c.res_margin : m->c.margin;
-            const double open =
-                bgm_nego_opening(BGM_SIDE_SELLER, floor_g, bga_market_price(m, in->good), margin);
-            *n = (nego_t){1, in->job, in->good, {0}};
-            bgm_nego_open(&n->side, BGM_SIDE_SELLER, floor_g, open, &m->genes, SELLER_ROUNDS);
-            st = reply_price(m, BGA_MM_PROPOSE, in, n->side.current, err);
-        }
+        const double floor_g = role_floor(m, in->good);
+        const double margin = in->resource ? m->c.res_margin : m->c.margin;
+        const double open =
+            bgm_nego_opening(BGM_SIDE_SELLER, floor_g, bga_market_price(m, in->good), margin);
+        *n = (nego_t){1, in->job, in->good, now, {0}};
+        bgm_nego_open(&n->side, BGM_SIDE_SELLER, floor_g, open, &m->genes, SELLER_ROUNDS);
+        st = reply_price(m, BGA_MM_PROPOSE, in, n->side.current, err);
     }
     const role_t *me = &m->role[role];
     for (int i = 0; st == BG_OK && in->hops > 1 && i < me->nneighbours; i++) {
@@ -710,7 +711,7 @@ static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_er
     const int role = in->resource ? ROLE_RESOURCE : ROLE_BASIC;
     switch (in->type) {
     case BGA_MM_CFP:
-        return on_cfp(m, in, err);
+        return on_cfp(m, in, now, err);
     case BGA_MM_OFFER:
     case BGA_MM_ACCEPT:
     case BGA_MM_REJECT:

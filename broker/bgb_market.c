@@ -828,7 +828,7 @@ static void catallactic_step(bgb_market_t *m, job_t *j, double now)
         if (u->state != U_OPEN)
             continue;
         const proposal_t *best = NULL;
-        int heard = 0;
+        int heard = 0, ties = 0;
         for (int k = 0; k < j->nprops; k++) {
             const proposal_t *p = &j->props[k];
             if (p->good != u->good)
@@ -838,8 +838,16 @@ static void catallactic_step(bgb_market_t *m, job_t *j, double now)
             if (!a || !a->info.alive || !on_host(j, a) || tried(u, p->agent) ||
                 need_has(j, u, p->agent))
                 continue;
-            if (!best || p->price < best->price)
+            /* Sellers at one price (idle ones at the same policy) are
+             * taken at random, so the buyers of one job's sub-jobs do not
+             * all bargain with the first proposer and refuse each other. */
+            if (!best || p->price < best->price * (1 - 1e-12)) {
                 best = p;
+                ties = 1;
+            } else if (p->price <= best->price * (1 + 1e-12) &&
+                       bgm_rng_uniform(&j->rng) * ++ties < 1.0) {
+                best = p;
+            }
         }
         if (!best) {
             int waiting = 0;
