@@ -114,7 +114,7 @@ static int refused_for_contract(const bga_agent_t *a, const bga_frame_t *views, 
     for (int i = 7; i >= 0; i--)
         id = id << 8 | h[8 + i];
     *job = id;
-    return !bga_market_holds(a->market, id);
+    return !bga_market_admit(a->market, id);
 }
 
 /* One request: decode, compute, reply. A message with more parts than any

@@ -1,48 +1,106 @@
 #include "bga_market.h"
 
+#include <dlfcn.h>
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include <zmq.h>
 
 #include "bga_transport.h"
 #include "bgm_catallactic.h"
 
-#define NEGO_MAX 32
-#define SEEN_MAX 64
+#define NEGO_MAX 64
+#define SEEN_MAX 128
+#define RES_MAX 256
 #define SELLER_ROUNDS 12 /* the simulator's default catallactic.max_rounds */
+#define BUY_WAIT 10.0    /* s: a resource purchase the broker never answers is dropped */
+#define RATE_WEIGHT 0.5  /* weight of the last paid rate in the expected one */
 
-/* A bargain in progress with the broker's buyer for (job, good). */
+enum { ROLE_BASIC = 0, ROLE_RESOURCE = 1 };
+
+/* A bargain in progress with the broker's buyer for (job, good); the good
+ * tells the role (services 0..2, resources 3..4). */
 typedef struct nego {
     int used;
     uint64_t job;
     int good;
+    double at; /* when it proposed */
     bgm_nego_t side;
 } nego_t;
 
+typedef enum held_state { H_BUYING = 1, H_HELD = 2 } held_state;
+
+/* A service contract: agreed and buying its resources, or held. */
 typedef struct held {
+    held_state state;
     uint64_t job;
     int good;
-    double quantity, price;
+    double quantity, price, floor, cores, until;
 } held_t;
+
+/* Cores or memory the resource seller has sold, until released or `until`. */
+typedef struct rheld {
+    uint64_t job;
+    int good;
+    double quantity, until;
+} rheld_t;
+
+typedef struct role {
+    uint32_t id;
+    uint32_t neighbours[BGA_MMSG_MAX_NEIGHBOURS];
+    int nneighbours;
+} role_t;
 
 struct bga_market {
     bga_market_config_t c;
     char name[BGA_MMSG_NAME_MAX], endpoint[BGA_MMSG_ENDPOINT_MAX];
     void *socket;
-    uint32_t id;
-    uint32_t neighbours[BGA_MMSG_MAX_NEIGHBOURS];
-    int nneighbours;
+    role_t role[2];
     double next_beat;
     held_t *held; /* slots entries, used first */
     int used;
+    rheld_t rheld[RES_MAX];
+    int nrheld;
+    double used_res[2]; /* cores, GiB sold */
+    double rate[2];     /* expected resource rates: per core-second, per GiB-second */
     nego_t nego[NEGO_MAX];
-    uint64_t seen[SEEN_MAX]; /* CFPs already handled: job * 8 + good */
+    uint64_t seen[SEEN_MAX]; /* CFPs already handled: ((job·1024 + attempt)·8 + good)·2 + role */
     int nseen;
     bgm_rng_t rng;
     bgm_genes_t genes;
+    /* The process's compute thread pools (OpenBLAS, OpenMP: CHOLMOD's
+     * factorization and the BLAS under it), if linked, and their sizes at
+     * start: a job's cap never raises them. */
+    void (*blas_set)(int);
+    void (*omp_set)(int);
+    int blas_max, omp_max;
 };
+
+static double host_cores(void)
+{
+    const long n = sysconf(_SC_NPROCESSORS_ONLN);
+    return n > 0 ? (double)n : 1.0;
+}
+
+/* MemTotal in GiB; 1 if /proc/meminfo cannot be read. */
+static double host_memory(void)
+{
+    FILE *f = fopen("/proc/meminfo", "r");
+    double gib = 1.0;
+    char line[256];
+    while (f && fgets(line, sizeof line, f)) {
+        unsigned long long kib = 0;
+        if (sscanf(line, "MemTotal: %llu kB", &kib) == 1) {
+            gib = (double)kib / (1024.0 * 1024.0);
+            break;
+        }
+    }
+    if (f)
+        fclose(f);
+    return gib;
+}
 
 void bga_market_config_default(bga_market_config_t *c)
 {
@@ -53,18 +111,50 @@ void bga_market_config_default(bga_market_config_t *c)
     c->load_slope = 0.5;
     c->heartbeat = 0.5;
     c->slots = 4;
+    const double cores[3] = {1, 2, 1}, memory[3] = {1, 4, 2};
+    memcpy(c->unit_cores, cores, sizeof cores);
+    memcpy(c->unit_memory, memory, sizeof memory);
+    c->lease = 3600;
+    c->cores = host_cores();
+    c->memory = host_memory();
+    c->res_floor[0] = 1e-5;
+    c->res_floor[1] = 2e-6;
+    c->res_margin = 0.2;
+    c->res_load_slope = 0.5;
 }
 
 static int sells(const bga_market_t *m, int good)
 {
+    if (good == BGA_MMSG_GOODS - 2)
+        return m->c.cores > 0;
+    if (good == BGA_MMSG_GOODS - 1)
+        return m->c.cores > 0 && m->c.memory > 0;
     return good >= 0 && good < 3 && (m->c.services & (1u << good));
+}
+
+/* The service floor: own cost plus one contract's resources at the
+ * expected rates over one lease. */
+static double service_floor(const bga_market_t *m, int good)
+{
+    return m->c.floor[good] +
+           (m->rate[0] * m->c.unit_cores[good] + m->rate[1] * m->c.unit_memory[good]) * m->c.lease;
+}
+
+static double capacity(const bga_market_t *m, int k)
+{
+    return k == 0 ? m->c.cores : m->c.memory;
 }
 
 double bga_market_price(const bga_market_t *m, int good)
 {
     if (!sells(m, good))
         return 0;
-    return m->c.floor[good] * (1 + m->c.margin) *
+    if (good >= 3) {
+        const int k = good - 3;
+        return m->c.res_floor[k] * (1 + m->c.res_margin) *
+               (1 + m->c.res_load_slope * m->used_res[k] / capacity(m, k));
+    }
+    return service_floor(m, good) * (1 + m->c.margin) *
            (1 + m->c.load_slope * (double)m->used / (double)m->c.slots);
 }
 
@@ -73,17 +163,86 @@ int bga_market_used(const bga_market_t *m)
     return m->used;
 }
 
+double bga_market_cores_used(const bga_market_t *m)
+{
+    return m->used_res[0];
+}
+
 uint32_t bga_market_id(const bga_market_t *m)
 {
-    return m->id;
+    return m->role[ROLE_BASIC].id;
+}
+
+uint32_t bga_market_resource_id(const bga_market_t *m)
+{
+    return m->role[ROLE_RESOURCE].id;
+}
+
+static int covers(const held_t *h, uint64_t job)
+{
+    return h->state == H_HELD && job >= h->job && job - h->job < BGA_MARKET_JOB_SPAN;
 }
 
 int bga_market_holds(const bga_market_t *m, uint64_t job)
 {
     for (int i = 0; i < m->used; i++)
-        if (job >= m->held[i].job && job - m->held[i].job < BGA_MARKET_JOB_SPAN)
+        if (covers(&m->held[i], job))
             return 1;
     return 0;
+}
+
+/* A function of the running process by name (NULL if none); memcpy, as
+ * ISO C has no cast from an object pointer to a function pointer. */
+static void *lookup(const char *name)
+{
+    void *self = dlopen(NULL, RTLD_LAZY);
+    void *f = self ? dlsym(self, name) : NULL;
+    if (self)
+        dlclose(self);
+    return f;
+}
+
+static void find_thread_pools(bga_market_t *m)
+{
+    void *p = lookup("openblas_set_num_threads");
+    int (*get)(void) = NULL;
+    void *g = lookup("openblas_get_num_threads");
+    if (p && g) {
+        memcpy(&m->blas_set, &p, sizeof p);
+        memcpy(&get, &g, sizeof g);
+        m->blas_max = get();
+    }
+    p = lookup("omp_set_num_threads");
+    g = lookup("omp_get_max_threads");
+    if (p && g) {
+        memcpy(&m->omp_set, &p, sizeof p);
+        memcpy(&get, &g, sizeof g);
+        m->omp_max = get();
+    }
+}
+
+int bga_market_admit(bga_market_t *m, uint64_t job)
+{
+    if (!bga_market_holds(m, job))
+        return 0;
+    const double cores = bga_market_cores(m, job);
+    if (cores >= 1) {
+        const int n = cores < 4096 ? (int)cores : 4096;
+        if (m->blas_set && m->blas_max > 0)
+            m->blas_set(n < m->blas_max ? n : m->blas_max);
+        if (m->omp_set && m->omp_max > 0)
+            m->omp_set(n < m->omp_max ? n : m->omp_max);
+    }
+    return 1;
+}
+
+double bga_market_cores(const bga_market_t *m, uint64_t job)
+{
+    double cores = 0;
+    for (int i = 0; i < m->used; i++)
+        if (covers(&m->held[i], job))
+            cores += m->held[i].cores;
+    return cores;
 }
 
 static bg_status send_msg(bga_market_t *m, const bga_mmsg_t *msg, bg_error_t *err)
@@ -97,17 +256,41 @@ static bg_status send_msg(bga_market_t *m, const bga_mmsg_t *msg, bg_error_t *er
     return st;
 }
 
-/* What the seller says about itself in REGISTER and HEARTBEAT. */
-static void describe(const bga_market_t *m, bga_mmsg_t *msg)
+/* A message from one of the roles: its id and role flag set. */
+static void init_from(const bga_market_t *m, bga_mmsg_t *msg, int type, int role)
 {
-    msg->agent = m->id;
+    bga_mmsg_init(msg, type);
+    msg->agent = m->role[role].id;
+    msg->resource = role;
+}
+
+/* What a role says about itself in REGISTER and HEARTBEAT. */
+static void describe(const bga_market_t *m, int role, bga_mmsg_t *msg)
+{
     snprintf(msg->name, sizeof msg->name, "%s", m->name);
     snprintf(msg->endpoint, sizeof msg->endpoint, "%s", m->endpoint);
+    if (role == ROLE_RESOURCE) {
+        msg->cores = m->c.cores;
+        msg->memory = m->c.memory;
+        msg->free_cores = m->c.cores - m->used_res[0];
+        msg->free_memory = m->c.memory - m->used_res[1];
+        if (msg->free_cores < 0)
+            msg->free_cores = 0;
+        if (msg->free_memory < 0)
+            msg->free_memory = 0;
+        for (int k = 0; k < 2; k++) {
+            msg->floor[3 + k] = m->c.res_floor[k];
+            msg->prices[3 + k] = bga_market_price(m, 3 + k);
+        }
+        msg->margin = m->c.res_margin;
+        msg->load_slope = m->c.res_load_slope;
+        return;
+    }
     msg->services = m->c.services;
     msg->slots = m->c.slots;
     msg->free_slots = m->c.slots - m->used;
-    for (int g = 0; g < BGA_MMSG_GOODS; g++) {
-        msg->floor[g] = sells(m, g) ? m->c.floor[g] : 0;
+    for (int g = 0; g < 3; g++) {
+        msg->floor[g] = sells(m, g) ? service_floor(m, g) : 0;
         msg->prices[g] = bga_market_price(m, g);
     }
     msg->margin = m->c.margin;
@@ -119,24 +302,50 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
 {
     *out = NULL;
     bg_status st = BG_OK;
-    if (config->slots < 1 || config->slots > 4096 || !(config->heartbeat > 0) || !config->broker)
+    const bga_market_config_t *c = config;
+    if (c->slots < 1 || c->slots > 4096 || !(c->heartbeat > 0) || !c->broker)
         return bg_error_set(err, BG_ERR_INVALID, "market seller: slots, heartbeat or broker invalid");
     for (int g = 0; g < BGA_MMSG_GOODS; g++)
-        if (!(config->floor[g] >= 0 && config->floor[g] < 1e12))
+        if (!(c->floor[g] >= 0 && c->floor[g] < 1e12))
             return bg_error_set(err, BG_ERR_INVALID, "market seller: floor[%d] out of range", g);
-    if (!(config->margin >= 0 && config->margin < 1e6) ||
-        !(config->load_slope >= 0 && config->load_slope < 1e6))
+    if (!(c->margin >= 0 && c->margin < 1e6) || !(c->load_slope >= 0 && c->load_slope < 1e6) ||
+        !(c->res_margin >= 0 && c->res_margin < 1e6) ||
+        !(c->res_load_slope >= 0 && c->res_load_slope < 1e6))
         return bg_error_set(err, BG_ERR_INVALID, "market seller: margin or load slope out of range");
+    if (!(c->cores >= 0 && c->cores <= 1e6) || !(c->memory >= 0 && c->memory <= 1e9) ||
+        !(c->lease > 0 && c->lease <= 1e7))
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "market seller: cores in [0, 1e6], memory in [0, 1e9] GiB, lease in "
+                            "(0, 1e7] s");
+    for (int k = 0; k < 2; k++)
+        if (!(c->res_floor[k] >= 0 && c->res_floor[k] < 1e12))
+            return bg_error_set(err, BG_ERR_INVALID, "market seller: resource floor out of range");
+    for (int g = 0; g < 3; g++)
+        if (!(c->unit_cores[g] >= 0 && c->unit_cores[g] <= 1e6) ||
+            !(c->unit_memory[g] >= 0 && c->unit_memory[g] <= 1e9))
+            return bg_error_set(err, BG_ERR_INVALID, "market seller: unit_cores/unit_memory[%d]", g);
     bga_market_t *m = calloc(1, sizeof *m);
     if (!m)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market seller");
-    m->c = *config;
-    snprintf(m->name, sizeof m->name, "%s", config->name ? config->name : "agent");
-    snprintf(m->endpoint, sizeof m->endpoint, "%s", config->endpoint ? config->endpoint : "");
+    m->c = *c;
+    snprintf(m->name, sizeof m->name, "%s", c->name ? c->name : "agent");
+    snprintf(m->endpoint, sizeof m->endpoint, "%s", c->endpoint ? c->endpoint : "");
     m->c.name = m->name;
     m->c.endpoint = m->endpoint;
     m->c.broker = NULL;
-    m->held = calloc((size_t)config->slots, sizeof *m->held);
+    /* A unit never needs more than this daemon's host offers, so a small
+     * host still serves every good it sells. */
+    const double cap_cores = c->cores > 0 ? c->cores : host_cores();
+    const double cap_memory = c->cores > 0 && c->memory > 0 ? c->memory : host_memory();
+    for (int g = 0; g < 3; g++) {
+        if (m->c.unit_cores[g] > cap_cores)
+            m->c.unit_cores[g] = cap_cores;
+        if (m->c.unit_memory[g] > cap_memory)
+            m->c.unit_memory[g] = cap_memory;
+    }
+    for (int k = 0; k < 2; k++)
+        m->rate[k] = c->res_floor[k] * (1 + c->res_margin);
+    m->held = calloc((size_t)c->slots, sizeof *m->held);
     m->socket = zmq_socket(zmq_ctx, ZMQ_DEALER);
     if (!m->held || !m->socket) {
         st = bg_error_set(err, BG_ERR_NOMEM, "cannot create the market seller's socket");
@@ -155,6 +364,7 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
         seed = (seed ^ (uint8_t)*p) * 1099511628211ull;
     bgm_rng_seed(&m->rng, seed);
     bgm_genes_random(&m->genes, &m->rng);
+    find_thread_pools(m);
     *out = m;
     return BG_OK;
 fail:
@@ -178,55 +388,202 @@ void *bga_market_socket(const bga_market_t *m)
     return m->socket;
 }
 
+static void drop_held(bga_market_t *m, int i)
+{
+    m->held[i] = m->held[--m->used];
+}
+
+static void drop_rheld(bga_market_t *m, int i)
+{
+    const int k = m->rheld[i].good - 3;
+    m->used_res[k] -= m->rheld[i].quantity;
+    if (m->used_res[k] < 1e-12)
+        m->used_res[k] = 0;
+    m->rheld[i] = m->rheld[--m->nrheld];
+}
+
+/* Leases that ran out end their contracts; a purchase never answered is
+ * given up. */
+static void expire(bga_market_t *m, double now)
+{
+    for (int i = m->used; i-- > 0;)
+        if (now >= m->held[i].until)
+            drop_held(m, i);
+    for (int i = m->nrheld; i-- > 0;)
+        if (now >= m->rheld[i].until)
+            drop_rheld(m, i);
+}
+
 bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err)
 {
+    expire(m, now);
     if (now < m->next_beat)
         return BG_OK;
     m->next_beat = now + m->c.heartbeat;
-    bga_mmsg_t msg;
-    /* Until the broker answers, every beat is a registration: a broker
-     * that started late, or restarted, still learns who this is. */
-    bga_mmsg_init(&msg, m->id ? BGA_MM_HEARTBEAT : BGA_MM_REGISTER);
-    describe(m, &msg);
-    return send_msg(m, &msg, err);
+    bg_status st = BG_OK;
+    const int roles = m->c.cores > 0 ? 2 : 1;
+    for (int r = 0; r < roles && st == BG_OK; r++) {
+        bga_mmsg_t msg;
+        /* Until the broker answers, every beat is a registration: a
+         * broker that started late, or restarted, still learns who this is. */
+        init_from(m, &msg, m->role[r].id ? BGA_MM_HEARTBEAT : BGA_MM_REGISTER, r);
+        describe(m, r, &msg);
+        st = send_msg(m, &msg, err);
+    }
+    return st;
 }
 
-static void release_job(bga_market_t *m, uint64_t job)
+static void release_job(bga_market_t *m, int role, uint64_t job)
 {
     for (int i = 0; i < NEGO_MAX; i++)
-        if (m->nego[i].job == job)
+        if (m->nego[i].used && m->nego[i].job == job && (m->nego[i].good >= 3) == role)
             m->nego[i].used = 0;
-    int j = 0;
-    for (int i = 0; i < m->used; i++)
-        if (m->held[i].job != job)
-            m->held[j++] = m->held[i];
-    m->used = j;
+    if (role == ROLE_RESOURCE) {
+        for (int i = m->nrheld; i-- > 0;)
+            if (m->rheld[i].job == job)
+                drop_rheld(m, i);
+    } else {
+        for (int i = m->used; i-- > 0;)
+            if (m->held[i].job == job)
+                drop_held(m, i);
+    }
 }
 
-static bg_status on_order(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err)
+static void answer_init(const bga_market_t *m, bga_mmsg_t *r, int type, int role,
+                        const bga_mmsg_t *in)
+{
+    init_from(m, r, type, role);
+    r->job = in->job;
+    r->good = in->good;
+    r->quantity = in->quantity;
+    r->price = in->price;
+}
+
+/* The resource seller: sells `quantity` cores or GiB when that much is
+ * free and the rate is at least its floor, held for the lease asked. */
+static bg_status resource_order(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
     bga_mmsg_t r;
-    bga_mmsg_init(&r, BGA_MM_REFUSE);
-    r.job = in->job;
-    r.good = in->good;
-    r.agent = m->id;
-    r.quantity = in->quantity;
-    r.price = in->price;
+    answer_init(m, &r, BGA_MM_REFUSE, ROLE_RESOURCE, in);
+    const int k = in->good - 3;
     if (!sells(m, in->good))
         snprintf(r.reason, sizeof r.reason, "does not sell %d", in->good);
-    else if (m->used >= m->c.slots)
-        snprintf(r.reason, sizeof r.reason, "no free slot");
-    else if (in->price < m->c.floor[in->good])
-        snprintf(r.reason, sizeof r.reason, "price %.6g under the floor %.6g", in->price,
-                 m->c.floor[in->good]);
+    else if (m->used_res[k] + in->quantity > capacity(m, k) + 1e-9 || m->nrheld == RES_MAX)
+        snprintf(r.reason, sizeof r.reason, "%.6g %s free, %.6g asked",
+                 capacity(m, k) - m->used_res[k], k ? "GiB" : "cores", in->quantity);
+    else if (in->price < m->c.res_floor[k])
+        snprintf(r.reason, sizeof r.reason, "rate %.6g under the floor %.6g", in->price,
+                 m->c.res_floor[k]);
     else {
-        m->held[m->used++] = (held_t){in->job, in->good, in->quantity, in->price};
+        const double term = in->term > 0 ? in->term : m->c.lease;
+        m->rheld[m->nrheld++] = (rheld_t){in->job, in->good, in->quantity, now + term};
+        m->used_res[k] += in->quantity;
         r.type = BGA_MM_CONFIRM;
-        r.free_slots = m->c.slots - m->used;
-        r.slots = m->c.slots;
-        r.floor[in->good] = m->c.floor[in->good];
+        r.floor[in->good] = m->c.res_floor[k];
+        describe(m, ROLE_RESOURCE, &r);
+        r.name[0] = r.endpoint[0] = '\0';
     }
     return send_msg(m, &r, err);
+}
+
+static held_t *held_find(bga_market_t *m, uint64_t job, int good, held_state state)
+{
+    for (int i = 0; i < m->used; i++)
+        if (m->held[i].job == job && m->held[i].good == good && m->held[i].state == state)
+            return &m->held[i];
+    return NULL;
+}
+
+/* The basic seller's answer about a service contract it agreed to. */
+static void about_held(const bga_market_t *m, bga_mmsg_t *r, int type, const held_t *h)
+{
+    init_from(m, r, type, ROLE_BASIC);
+    r->job = h->job;
+    r->good = h->good;
+    r->quantity = h->quantity;
+    r->price = h->price;
+}
+
+static bg_status confirm(bga_market_t *m, const held_t *h, bg_error_t *err)
+{
+    bga_mmsg_t r;
+    about_held(m, &r, BGA_MM_CONFIRM, h);
+    r.slots = m->c.slots;
+    r.free_slots = m->c.slots - m->used;
+    r.floor[h->good] = h->floor;
+    return send_msg(m, &r, err);
+}
+
+/* The basic seller agrees to (job, good) at the price when it has a slot
+ * and the price covers its floor; it keeps the slot and buys the unit's
+ * resources on layer 1 for at most what the contract leaves over its own
+ * cost, and confirms once they are bought (on_rbought). */
+static bg_status basic_order(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
+{
+    bga_mmsg_t r;
+    answer_init(m, &r, BGA_MM_REFUSE, ROLE_BASIC, in);
+    const double floor_g = sells(m, in->good) ? service_floor(m, in->good) : 0;
+    if (!sells(m, in->good))
+        snprintf(r.reason, sizeof r.reason, "does not sell %d", in->good);
+    else if (held_find(m, in->job, in->good, H_BUYING) || held_find(m, in->job, in->good, H_HELD))
+        snprintf(r.reason, sizeof r.reason, "already sold this good for job %llu",
+                 (unsigned long long)in->job);
+    else if (m->used >= m->c.slots)
+        snprintf(r.reason, sizeof r.reason, "no free slot");
+    else if (in->price < floor_g)
+        snprintf(r.reason, sizeof r.reason, "price %.6g under the floor %.6g", in->price, floor_g);
+    else {
+        const int g = in->good;
+        held_t *h = &m->held[m->used++];
+        *h = (held_t){H_BUYING, in->job, g, in->quantity, in->price, floor_g, m->c.unit_cores[g],
+                      now + BUY_WAIT};
+        if (m->c.unit_cores[g] <= 0 && m->c.unit_memory[g] <= 0) {
+            h->state = H_HELD;
+            h->until = now + m->c.lease;
+            return confirm(m, h, err);
+        }
+        init_from(m, &r, BGA_MM_RBUY, ROLE_BASIC);
+        r.job = in->job;
+        r.good = g;
+        r.quantity = in->quantity;
+        r.cores = m->c.unit_cores[g];
+        r.memory = m->c.unit_memory[g];
+        r.term = m->c.lease;
+        r.price = (in->price - m->c.floor[g]) * in->quantity;
+        if (r.price < 0)
+            r.price = 0;
+    }
+    return send_msg(m, &r, err);
+}
+
+static bg_status on_rbought(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
+{
+    held_t *h = held_find(m, in->job, in->good, H_BUYING);
+    if (!h)
+        return BG_OK; /* released meanwhile: the broker drops the purchase */
+    h->state = H_HELD;
+    h->until = now + m->c.lease;
+    for (int k = 0; k < 2; k++)
+        if (in->prices[3 + k] > 0)
+            m->rate[k] = (1 - RATE_WEIGHT) * m->rate[k] + RATE_WEIGHT * in->prices[3 + k];
+    return confirm(m, h, err);
+}
+
+static bg_status on_rfail(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err)
+{
+    held_t *h = held_find(m, in->job, in->good, H_BUYING);
+    if (!h)
+        return BG_OK;
+    bga_mmsg_t r;
+    about_held(m, &r, BGA_MM_REFUSE, h);
+    snprintf(r.reason, sizeof r.reason, "no resources: %.150s", in->reason);
+    drop_held(m, (int)(h - m->held));
+    return send_msg(m, &r, err);
+}
+
+static bg_status on_order(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
+{
+    return in->resource ? resource_order(m, in, now, err) : basic_order(m, in, now, err);
 }
 
 static nego_t *nego_find(bga_market_t *m, uint64_t job, int good)
@@ -241,21 +598,36 @@ static bg_status reply_price(bga_market_t *m, int type, const bga_mmsg_t *in, do
                              bg_error_t *err)
 {
     bga_mmsg_t r;
-    bga_mmsg_init(&r, type);
-    r.job = in->job;
-    r.good = in->good;
-    r.agent = m->id;
-    r.quantity = in->quantity;
+    answer_init(m, &r, type, in->resource, in);
     r.price = price;
+    r.term = in->term;
     return send_msg(m, &r, err);
 }
 
-/* Catallactic discovery: propose if it can sell, and pass the call on to
- * the overlay neighbours (relayed by the broker) while hops remain. Each
- * (job, good) call is handled once, however many paths bring it. */
-static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err)
+/* Whether the role could sell this call's good now. */
+static int can_propose(const bga_market_t *m, const bga_mmsg_t *in)
 {
-    const uint64_t key = (in->job * 1024 + (uint64_t)in->attempt) * 8 + (uint64_t)in->good;
+    if (in->resource != (in->good >= 3) || !sells(m, in->good))
+        return 0;
+    if (in->resource)
+        return m->used_res[in->good - 3] + in->quantity <= capacity(m, in->good - 3) + 1e-9;
+    return m->used < m->c.slots;
+}
+
+static double role_floor(const bga_market_t *m, int good)
+{
+    return good >= 3 ? m->c.res_floor[good - 3] : service_floor(m, good);
+}
+
+/* Catallactic discovery: propose if the addressed role can sell, and pass
+ * the call on to that role's overlay neighbours (relayed by the broker)
+ * while hops remain. Each (job, attempt, good) call is handled once per
+ * role, however many paths bring it. */
+static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
+{
+    const int role = in->resource ? ROLE_RESOURCE : ROLE_BASIC;
+    const uint64_t key =
+        (((in->job * 1024 + (uint64_t)in->attempt) * 8 + (uint64_t)in->good) << 1) | (uint64_t)role;
     for (int i = 0; i < m->nseen; i++)
         if (m->seen[i] == key)
             return BG_OK;
@@ -264,51 +636,54 @@ static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err)
     m->seen[m->nseen++] = key;
     bg_status st = BG_OK;
     /* A new round means the buyer is no longer bargaining over this good
-     * (it starts one only when no bargain is pending): restart ours. */
-    nego_t *stale = nego_find(m, in->job, in->good);
+     * (it starts one only when no bargain is pending): restart ours. Only
+     * the role that sells the good bargains over it. */
+    nego_t *stale = in->resource == (in->good >= 3) ? nego_find(m, in->job, in->good) : NULL;
     if (stale)
         stale->used = 0;
-    if (sells(m, in->good) && m->used < m->c.slots) {
-        nego_t *n = NULL;
-        for (int i = 0; i < NEGO_MAX && !n; i++)
-            if (!m->nego[i].used)
+    if (can_propose(m, in)) {
+        /* A buyer that took another proposer never says so: when the table
+         * is full the oldest proposal is forgotten. */
+        nego_t *n = &m->nego[0];
+        for (int i = 0; i < NEGO_MAX && n->used; i++)
+            if (!m->nego[i].used || m->nego[i].at < n->at)
                 n = &m->nego[i];
-        if (n) {
-            const double floor_g = m->c.floor[in->good];
-            const double open = bgm_nego_opening(BGM_SIDE_SELLER, floor_g,
-                                                 bga_market_price(m, in->good), m->c.margin);
-            *n = (nego_t){1, in->job, in->good, {0}};
-            bgm_nego_open(&n->side, BGM_SIDE_SELLER, floor_g, open, &m->genes, SELLER_ROUNDS);
-            st = reply_price(m, BGA_MM_PROPOSE, in, n->side.current, err);
-        }
+        const double floor_g = role_floor(m, in->good);
+        const double margin = in->resource ? m->c.res_margin : m->c.margin;
+        const double open =
+            bgm_nego_opening(BGM_SIDE_SELLER, floor_g, bga_market_price(m, in->good), margin);
+        *n = (nego_t){1, in->job, in->good, now, {0}};
+        bgm_nego_open(&n->side, BGM_SIDE_SELLER, floor_g, open, &m->genes, SELLER_ROUNDS);
+        st = reply_price(m, BGA_MM_PROPOSE, in, n->side.current, err);
     }
-    for (int i = 0; st == BG_OK && in->hops > 1 && i < m->nneighbours; i++) {
+    const role_t *me = &m->role[role];
+    for (int i = 0; st == BG_OK && in->hops > 1 && i < me->nneighbours; i++) {
         bga_mmsg_t r;
-        bga_mmsg_init(&r, BGA_MM_RELAY);
+        init_from(m, &r, BGA_MM_RELAY, role);
         r.job = in->job;
         r.good = in->good;
-        r.agent = m->id;
-        r.target = m->neighbours[i];
-        r.origin = in->origin ? in->origin : m->id;
+        r.target = me->neighbours[i];
+        r.origin = in->origin ? in->origin : me->id;
         r.hops = in->hops - 1;
         r.attempt = in->attempt;
         r.quantity = in->quantity;
+        r.term = in->term;
         st = send_msg(m, &r, err);
     }
     return st;
 }
 
-/* Commits to a bargain at `price`: a slot, then CONFIRM (or REFUSE). */
-static bg_status commit(bga_market_t *m, nego_t *n, const bga_mmsg_t *in, double price,
+/* Commits to a bargain at `price`, as an order at that price. */
+static bg_status commit(bga_market_t *m, nego_t *n, const bga_mmsg_t *in, double price, double now,
                         bg_error_t *err)
 {
     n->used = 0;
     bga_mmsg_t o = *in;
     o.price = price;
-    return on_order(m, &o, err);
+    return on_order(m, &o, now, err);
 }
 
-static bg_status on_bargain(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err)
+static bg_status on_bargain(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
     nego_t *n = nego_find(m, in->job, in->good);
     if (!n)
@@ -318,11 +693,11 @@ static bg_status on_bargain(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *e
         return BG_OK;
     }
     if (in->type == BGA_MM_ACCEPT) /* the buyer took the seller's price */
-        return commit(m, n, in, n->side.current, err);
+        return commit(m, n, in, n->side.current, now, err);
     double reply = 0;
     switch (bgm_nego_respond(&n->side, in->price, &m->rng, &reply)) {
     case BGM_NEGO_ACCEPT:
-        return commit(m, n, in, reply, err);
+        return commit(m, n, in, reply, now, err);
     case BGM_NEGO_COUNTER:
         return reply_price(m, BGA_MM_OFFER, in, reply, err);
     default:
@@ -333,28 +708,32 @@ static bg_status on_bargain(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *e
 
 static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
+    const int role = in->resource ? ROLE_RESOURCE : ROLE_BASIC;
     switch (in->type) {
     case BGA_MM_CFP:
-        return on_cfp(m, in, err);
+        return on_cfp(m, in, now, err);
     case BGA_MM_OFFER:
     case BGA_MM_ACCEPT:
     case BGA_MM_REJECT:
-        return on_bargain(m, in, err);
+        return on_bargain(m, in, now, err);
     case BGA_MM_REGISTERED:
-        m->id = in->agent;
-        m->nneighbours = in->nneighbours;
-        memcpy(m->neighbours, in->neighbours, sizeof m->neighbours);
-        m->next_beat = now + m->c.heartbeat;
+        m->role[role].id = in->agent;
+        m->role[role].nneighbours = in->nneighbours;
+        memcpy(m->role[role].neighbours, in->neighbours, sizeof m->role[role].neighbours);
         return BG_OK;
     case BGA_MM_ORDER:
-        return on_order(m, in, err);
+        return on_order(m, in, now, err);
+    case BGA_MM_RBOUGHT:
+        return on_rbought(m, in, now, err);
+    case BGA_MM_RFAIL:
+        return on_rfail(m, in, err);
     case BGA_MM_RELEASE:
-        release_job(m, in->job);
+        release_job(m, role, in->job);
         return BG_OK;
     case BGA_MM_ERROR:
         /* The broker forgot this agent (it restarted, or dropped it as
-         * dead): register again. */
-        m->id = 0;
+         * dead): both roles register again. */
+        m->role[0].id = m->role[1].id = 0;
         m->next_beat = now;
         return BG_OK;
     default:

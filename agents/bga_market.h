@@ -1,17 +1,32 @@
 /*
- * bga_market — the agent's side of the live market: a seller hosted in the
- * agent daemon, talking to the broker over a DEALER socket with wall-clock
- * timers (registration retries, heartbeats).
+ * bga_market — the agent's side of the live market: two seller roles hosted
+ * in the agent daemon, talking to the broker over one DEALER socket with
+ * wall-clock timers (registration retries, heartbeats).
  *
- * The seller registers its compute endpoint, services, slots and price
- * policy, then heartbeats its free slots and current prices every
- * `heartbeat` seconds. Its asking price for a good is
+ * The basic-service seller registers its compute endpoint, services, slots
+ * and price policy, then heartbeats its free slots and current prices
+ * every `heartbeat` seconds. Its asking price for a good is
  *     floor · (1 + margin) · (1 + load_slope · used / slots)
- * (a floor from the resources one unit needs, a margin, a price rising
- * with load); it never sells below the floor. It accepts an ORDER (posted)
- * or a MATCH-style ORDER (central) when it has a free slot and the price is
- * at least its floor, and holds the contract until RELEASE. The daemon asks
- * bga_market_holds before computing for a job: no contract, no compute.
+ * where floor = its own floor (`floor`, its cost per unit) plus the
+ * resources one contract needs at the rates it expects (what it last paid,
+ * at first its own resource seller's asking rates) over one lease:
+ *     (rate_cores · unit_cores + rate_memory · unit_memory) · lease.
+ * It never sells below that. When it agrees to a service contract (an
+ * ORDER, a call-market match, or a catallactic bargain it accepts) it keeps
+ * a slot and buys the unit's cores and memory for `lease` seconds on layer
+ * 1 (RBUY; the broker runs the job's mechanism among the resource sellers
+ * of its host), spending at most (price − own floor) · quantity; it
+ * CONFIRMs once they are bought and REFUSEs if they cannot be. It computes
+ * for a job only while it holds both (bga_market_holds); a lease that
+ * runs out ends the contract.
+ *
+ * The resource seller (when `cores` > 0) is a second directory entry of
+ * the same daemon: services 0, its host's cores and memory, a price per
+ * core-second and per GiB-second of
+ *     res_floor · (1 + res_margin) · (1 + res_load_slope · used / capacity),
+ * heartbeating what is free. It sells on the same mechanism as the job
+ * that causes the purchase and holds what it sold until the broker
+ * releases it or the lease ends.
  *
  * Ownership: the socket is created in the caller's ZeroMQ context and
  * closed by bga_market_destroy. Single-threaded: called from the agent's
@@ -36,9 +51,23 @@ typedef struct bga_market_config {
     double floor[BGA_MMSG_GOODS]; /* per unit; goods not sold are ignored */
     double margin, load_slope;
     double heartbeat;     /* seconds between heartbeats (> 0) */
+    /* Layer 1, the basic seller's needs per contract of each service good
+     * (the simulator's per-service cores and memory) and the lease. */
+    double unit_cores[3], unit_memory[3]; /* cores, GiB */
+    double lease;                         /* seconds a contract's resources are rented */
+    /* The resource seller role: 0 cores sells none. */
+    double cores, memory;                 /* capacity: cores, GiB */
+    double res_floor[2];                  /* per core-second, per GiB-second */
+    double res_margin, res_load_slope;
 } bga_market_config_t;
 
-/* Defaults: floors 1.0, margin 0.2, load slope 0.5, heartbeat 0.5 s. */
+/* Defaults: floors 1.0, margin 0.2, load slope 0.5, heartbeat 0.5 s;
+ * unit cores 1, 2, 1 and memory 1, 4, 2 GiB (rotation-fit, sparse-solve,
+ * integration-step, as the simulator's defaults), lease 3600 s; resource
+ * seller with the host's cores (sysconf) and memory (/proc/meminfo),
+ * floors 1e-5 per core-second and 2e-6 per GiB-second, margin 0.2, load
+ * slope 0.5. A unit's needs are capped at the daemon's own cores and
+ * memory, so a small host can still serve every good. */
 void bga_market_config_default(bga_market_config_t *c);
 
 bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, double now,
@@ -57,12 +86,29 @@ bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err);
  * own compute job id, all drawn from that range (bga_backend job_base). */
 #define BGA_MARKET_JOB_SPAN ((uint64_t)1 << 32)
 
-/* Whether the agent holds a contract (any good) covering this compute job id. */
+/* Whether the agent holds a service contract (any good) covering this
+ * compute job id together with the resources bought for it. */
 int bga_market_holds(const bga_market_t *m, uint64_t job);
-/* Directory id once registered (0 before). */
+/* Cores bought for the contracts covering this compute job id (0: none). */
+double bga_market_cores(const bga_market_t *m, uint64_t job);
+/* Called before each compute call: whether the agent may compute for this
+ * job id (bga_market_holds), and if so it caps the process's compute
+ * threads — OpenBLAS's and OpenMP's pools (CHOLMOD's factorization and the
+ * BLAS under it), where linked — at the cores bought for the job, never
+ * above their sizes when the market was created (OPENBLAS_NUM_THREADS,
+ * OMP_NUM_THREADS). The daemon computes one call at a time, so the cap
+ * is that job's. */
+int bga_market_admit(bga_market_t *m, uint64_t job);
+/* Directory ids once registered (0 before): the basic seller's and the
+ * resource seller's. */
 uint32_t bga_market_id(const bga_market_t *m);
-/* Asking price for a good at the current load. */
+uint32_t bga_market_resource_id(const bga_market_t *m);
+/* Asking price for a good at the current load (services per unit of
+ * work; cores, memory per unit-second; 0 for a good not sold). */
 double bga_market_price(const bga_market_t *m, int good);
+/* Service slots in use (contracts held or buying their resources). */
 int bga_market_used(const bga_market_t *m);
+/* Cores the resource seller has sold and not yet got back. */
+double bga_market_cores_used(const bga_market_t *m);
 
 #endif

@@ -8,6 +8,7 @@
 static const char *const type_names[] = {
     "?",       "register", "registered", "heartbeat", "order",  "confirm", "refuse", "release",
     "cfp",     "propose",  "offer",      "accept",    "reject", "relay",   "error",
+    "rbuy",    "rbought",  "rfail",
 };
 
 void bga_mmsg_init(bga_mmsg_t *m, int type)
@@ -45,9 +46,11 @@ static bg_status check(const bga_mmsg_t *m, bg_error_t *err)
         return bg_error_set(err, BG_ERR_INVALID, "market message: hops %d out of [0, 16]", m->hops);
     if (m->nneighbours < 0 || m->nneighbours > BGA_MMSG_MAX_NEIGHBOURS)
         return bg_error_set(err, BG_ERR_INVALID, "market message: too many neighbours");
-    const double v[] = {m->margin, m->load_slope, m->cores, m->memory, m->quantity, m->price};
-    const char *n[] = {"margin", "load_slope", "cores", "memory", "quantity", "price"};
-    for (int i = 0; i < 6; i++)
+    const double v[] = {m->margin,     m->load_slope,  m->cores,    m->memory, m->quantity,
+                        m->price,      m->free_cores,  m->free_memory, m->term};
+    const char *n[] = {"margin", "load_slope", "cores",       "memory", "quantity",
+                       "price",  "free_cores", "free_memory", "term"};
+    for (int i = 0; i < 9; i++)
         if (!isfinite(v[i]) || v[i] < 0 || v[i] > 1e15)
             return bg_error_set(err, BG_ERR_INVALID, "market message: %s is not a finite value >= 0",
                                 n[i]);
@@ -99,7 +102,9 @@ bg_status bga_mmsg_encode(const bga_mmsg_t *m, bga_frames_t *out, bg_error_t *er
              add_array(o, "floor", m->floor, BGA_MMSG_GOODS) && add_num(o, "margin", m->margin) &&
              add_num(o, "load_slope", m->load_slope) &&
              add_array(o, "prices", m->prices, BGA_MMSG_GOODS) && add_num(o, "cores", m->cores) &&
-             add_num(o, "memory", m->memory) && add_num(o, "good", m->good) &&
+             add_num(o, "memory", m->memory) && add_num(o, "free_cores", m->free_cores) &&
+             add_num(o, "free_memory", m->free_memory) && add_num(o, "term", m->term) &&
+             add_num(o, "good", m->good) &&
              add_num(o, "hops", m->hops) && add_num(o, "attempt", m->attempt) && add_num(o, "quantity", m->quantity) &&
              add_num(o, "price", m->price) && add_array(o, "neighbours", nb, m->nneighbours) &&
              cJSON_AddStringToObject(o, "reason", m->reason);
@@ -187,7 +192,8 @@ static bg_status get_array(const cJSON *o, const char *k, double *v, int max, in
 static const char *const known_keys[] = {
     "job",    "agent", "target", "origin", "name",   "endpoint",   "services", "resource",
     "slots",  "free_slots", "floor", "margin", "load_slope", "prices", "cores", "memory",
-    "good",   "hops", "attempt",  "quantity", "price", "neighbours", "reason"};
+    "good",   "hops", "attempt",  "quantity", "price", "neighbours", "reason",
+    "free_cores", "free_memory", "term"};
 
 bg_status bga_mmsg_decode(const bga_frame_t *frames, int nframes, bga_mmsg_t *m, bg_error_t *err)
 {
@@ -248,6 +254,9 @@ bg_status bga_mmsg_decode(const bga_frame_t *frames, int nframes, bga_mmsg_t *m,
         (st = get_num(o, "load_slope", 0, 1e15, 0, &m->load_slope, err)) ||
         (st = get_num(o, "cores", 0, 1e15, 0, &m->cores, err)) ||
         (st = get_num(o, "memory", 0, 1e15, 0, &m->memory, err)) ||
+        (st = get_num(o, "free_cores", 0, 1e15, 0, &m->free_cores, err)) ||
+        (st = get_num(o, "free_memory", 0, 1e15, 0, &m->free_memory, err)) ||
+        (st = get_num(o, "term", 0, 1e15, 0, &m->term, err)) ||
         (st = get_num(o, "quantity", 0, 1e15, 0, &m->quantity, err)) ||
         (st = get_num(o, "price", 0, 1e15, 0, &m->price, err)) ||
         (st = get_str(o, "name", m->name, sizeof m->name, err)) ||

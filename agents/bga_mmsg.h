@@ -46,8 +46,13 @@ typedef enum bga_mmsg_type {
     BGA_MM_REJECT = 12,    /* either way: bargaining ended */
     BGA_MM_RELAY = 13,     /* agent → broker: deliver the CFP inside to agent `target` */
     BGA_MM_ERROR = 14,     /* either way: a message was malformed (reason) */
+    /* Layer 1: a basic-service seller that agreed to a service (job, good)
+     * buys the cores and memory it needs before it confirms. */
+    BGA_MM_RBUY = 15,      /* seller → broker: buy cores, memory for term s, at most price */
+    BGA_MM_RBOUGHT = 16,   /* broker → seller: bought (prices[3..4] the rates, price the money) */
+    BGA_MM_RFAIL = 17,     /* broker → seller: could not (reason) */
     BGA_MM_FIRST = BGA_MM_REGISTER,
-    BGA_MM_LAST = BGA_MM_ERROR
+    BGA_MM_LAST = BGA_MM_RFAIL
 } bga_mmsg_type;
 
 typedef struct bga_mmsg {
@@ -59,12 +64,16 @@ typedef struct bga_mmsg {
     char name[BGA_MMSG_NAME_MAX];
     char endpoint[BGA_MMSG_ENDPOINT_MAX]; /* compute endpoint */
     unsigned services;                    /* BGA_SERVICE_* bits */
-    int resource;                         /* sells cores and memory */
+    /* The role a message is from or for: 0 the basic-service seller, 1 the
+     * resource seller of the same daemon (one socket, two directory ids). */
+    int resource;
     int slots, free_slots;
     double floor[BGA_MMSG_GOODS];         /* price policy */
     double margin, load_slope;
     double prices[BGA_MMSG_GOODS];        /* current asking prices */
-    double cores, memory;
+    double cores, memory;           /* resource seller: capacity; RBUY: wanted */
+    double free_cores, free_memory; /* resource seller: not held */
+    double term;                    /* resource goods: lease, s (ORDER, CFP, RBUY) */
     int good;
     int hops;
     int attempt; /* CFP: the buyer's discovery round (a fresh round is heard again) */

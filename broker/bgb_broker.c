@@ -1099,6 +1099,7 @@ static void serve_requests(bgb_broker_t *b, double now)
         const bg_status st =
             bgb_market_buy(b->market, todo->job, todo->mechanism, todo->budget, needs,
                            todo->integ ? 3 : 2, now, on_bought, todo, &err);
+        bgb_market_label(b->market, todo->job, todo->id);
         pthread_mutex_lock(&b->lock);
         if (st != BG_OK)
             snprintf(todo->reason, sizeof todo->reason, "%.63s", err.message);

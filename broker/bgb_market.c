@@ -15,13 +15,18 @@
 #define MAX_PROPOSALS 64
 #define MAX_ROUNDS_DISCOVERY 16
 #define BUYER_MARKUP 0.1 /* catallactic buyer's opening below the proposal */
+/* Resource sub-job ids, apart from the callers'. Job ids travel as JSON
+ * numbers, which cJSON prints with 15 significant digits when that reads
+ * back within a relative epsilon: ids stay below 10^15 to be exact. */
+#define SUB_JOB_BASE ((uint64_t)1 << 49)
 
 typedef struct agent {
     int used;
     bgb_agent_info_t info;
     uint8_t identity[BGB_MARKET_IDENTITY_MAX];
     size_t idlen;
-    int pending; /* orders in flight */
+    int pending; /* service orders in flight */
+    double pend_res[2]; /* resource seller: cores, GiB ordered, not answered */
     uint32_t nb[BGA_MMSG_MAX_NEIGHBOURS]; /* overlay neighbours (symmetric links) */
     int nnb;
 } agent_t;
@@ -36,6 +41,7 @@ typedef struct unit {
     unit_state state;
     uint32_t agent;         /* ordered from / bought from */
     double price, seller_floor, deadline;
+    double term; /* resource units: the lease (quantity × term × price is the money) */
     uint32_t tried[MAX_TRIED];
     int ntried;
     bgm_nego_t side; /* catallactic: the buyer's side of the bargain */
@@ -72,6 +78,16 @@ struct job {
     bgm_genes_t genes;
     bgb_done_fn done;
     void *ctx;
+    char label[BGB_MARKET_LABEL_MAX];
+    /* A resource sub-job: cores and memory a basic agent buys for its unit
+     * of service good `sgood` of job `parent`, for `term` seconds, from
+     * sellers on `host`. */
+    int resource;
+    uint64_t parent;
+    uint32_t buyer;
+    int sgood;
+    double term, bought_at;
+    char host[BGB_MARKET_ENDPOINT_MAX];
 };
 
 struct bgb_market {
@@ -89,6 +105,8 @@ struct bgb_market {
     bgb_contract_fn on_contract;
     void *on_contract_ctx;
     struct bidref *refs; /* central: the book's bids, MAX_JOBS * MAX_UNITS */
+    uint64_t next_sub;     /* resource sub-job ids */
+    uint64_t next_request; /* service items logged */
 };
 
 static const char *const mech_names[] = {"central", "catallactic", "posted"};
@@ -155,10 +173,11 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     m->c.name = m->name;
     m->io = *io;
     m->next_id = 1;
+    m->next_sub = SUB_JOB_BASE;
     m->agents = calloc(BGB_MARKET_MAX_AGENTS, sizeof *m->agents);
     m->jobs = calloc(MAX_JOBS, sizeof *m->jobs);
     m->log = calloc(c->max_contracts, sizeof *m->log);
-    m->posted = bgm_posted_new(BGB_MARKET_MAX_AGENTS * 3);
+    m->posted = bgm_posted_new(BGB_MARKET_MAX_AGENTS * BGB_GOODS);
     m->cm = bgm_callmarket_new(MAX_JOBS * MAX_UNITS);
     m->refs = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->refs);
     if (!m->refs || !m->agents || !m->jobs || !m->log || !m->posted || !m->cm) {
@@ -200,17 +219,24 @@ static agent_t *agent_by_id(bgb_market_t *m, uint32_t id)
     return NULL;
 }
 
-static agent_t *agent_by_identity(bgb_market_t *m, const uint8_t *idn, size_t len)
+/* A daemon's two roles share its socket (identity); `resource` tells them apart. */
+static agent_t *agent_by_identity(bgb_market_t *m, const uint8_t *idn, size_t len, int resource)
 {
     for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
         if (m->agents[i].used && m->agents[i].idlen == len &&
+            m->agents[i].info.resource == resource &&
             memcmp(m->agents[i].identity, idn, len) == 0)
             return &m->agents[i];
     return NULL;
 }
 
-static bg_status send_to(bgb_market_t *m, const agent_t *a, const bga_mmsg_t *msg, bg_error_t *err)
+/* Every message to an agent names the role it is for. */
+static bg_status send_to(bgb_market_t *m, const agent_t *a, const bga_mmsg_t *msg_in,
+                         bg_error_t *err)
 {
+    bga_mmsg_t copy = *msg_in;
+    const bga_mmsg_t *msg = &copy;
+    copy.resource = a->info.resource;
     bga_frames_t f;
     bg_status st = bga_mmsg_encode(msg, &f, err);
     if (st != BG_OK)
@@ -231,6 +257,9 @@ static void sells_to_posted(bgb_market_t *m, const agent_t *a)
     for (int g = 0; g < 3; g++)
         if (a->info.services & (1u << g))
             bgm_posted_post(m->posted, a->info.id, g, a->info.price[g]);
+    if (a->info.resource)
+        for (int g = BGB_GOOD_CORES; g <= BGB_GOOD_MEMORY; g++)
+            bgm_posted_post(m->posted, a->info.id, g, a->info.price[g]);
 }
 
 static void copy_status(agent_t *a, const bga_mmsg_t *in, double now)
@@ -245,6 +274,8 @@ static void copy_status(agent_t *a, const bga_mmsg_t *in, double now)
     a->info.load_slope = in->load_slope;
     a->info.cores = in->cores;
     a->info.memory = in->memory;
+    a->info.free_cores = in->free_cores;
+    a->info.free_memory = in->free_memory;
     a->info.last_heartbeat = now;
     a->info.alive = 1;
 }
@@ -269,7 +300,7 @@ static bg_status send_registered(bgb_market_t *m, agent_t *a, bg_error_t *err)
 static bg_status on_register(bgb_market_t *m, const uint8_t *idn, size_t len,
                              const bga_mmsg_t *in, double now, bg_error_t *err)
 {
-    agent_t *a = agent_by_identity(m, idn, len);
+    agent_t *a = agent_by_identity(m, idn, len, in->resource);
     if (!a) {
         for (int i = 0; i < BGB_MARKET_MAX_AGENTS && !a; i++)
             if (!m->agents[i].used)
@@ -279,22 +310,24 @@ static bg_status on_register(bgb_market_t *m, const uint8_t *idn, size_t len,
         memset(a, 0, sizeof *a);
         a->used = 1;
         a->info.id = m->next_id++;
+        a->info.resource = in->resource;
         memcpy(a->identity, idn, len);
         a->idlen = len;
     }
     snprintf(a->info.name, sizeof a->info.name, "%s", in->name);
     snprintf(a->info.endpoint, sizeof a->info.endpoint, "%s", in->endpoint);
     a->info.services = in->services;
-    a->info.resource = in->resource;
     copy_status(a, in, now);
     sells_to_posted(m, a);
-    /* Overlay: links to the most recently registered other agents, made
-     * symmetric (each of them gets this one too, while it has room), so
-     * that an agent registered early is reachable from later ones. */
+    /* Overlay: links to the most recently registered other agents of the
+     * same role (service sellers and resource sellers form one overlay
+     * each: a call for proposals travels among those that sell its good),
+     * made symmetric (each of them gets this one too, while it has room),
+     * so that an agent registered early is reachable from later ones. */
     if (a->nnb == 0)
         for (int i = BGB_MARKET_MAX_AGENTS - 1; i >= 0 && a->nnb < m->c.overlay_degree; i--) {
             agent_t *b = &m->agents[i];
-            if (!b->used || b == a)
+            if (!b->used || b == a || b->info.resource != a->info.resource)
                 continue;
             a->nb[a->nnb++] = b->info.id;
             if (b->nnb < BGA_MMSG_MAX_NEIGHBOURS) {
@@ -361,13 +394,139 @@ static void send_release(bgb_market_t *m, job_t *j)
     j->ntouched = 0;
 }
 
+static void unpend(agent_t *a, const unit_t *u)
+{
+    if (!a)
+        return;
+    if (u->good >= BGB_GOOD_CORES) {
+        double *p = &a->pend_res[u->good - BGB_GOOD_CORES];
+        *p -= u->quantity;
+        if (*p < 1e-12)
+            *p = 0;
+    } else if (a->pending > 0) {
+        a->pending--;
+    }
+}
+
+/* Units still waiting for an answer stop counting against their sellers. */
+static void abandon_units(bgb_market_t *m, job_t *j)
+{
+    for (int i = 0; i < j->nunits; i++)
+        if (j->unit[i].state == U_ORDERED) {
+            unpend(agent_by_id(m, j->unit[i].agent), &j->unit[i]);
+            j->unit[i].state = U_OPEN;
+        }
+}
+
+/* Drops the resource sub-jobs of job `parent` (bought by `buyer` for
+ * service good `sgood`; 0 and -1: any), releasing what their sellers
+ * hold. */
+static void drop_subjobs(bgb_market_t *m, uint64_t parent, uint32_t buyer, int sgood)
+{
+    for (int i = 0; i < MAX_JOBS; i++) {
+        job_t *s = &m->jobs[i];
+        if (!s->used || !s->resource || s->parent != parent || (buyer && s->buyer != buyer) ||
+            (sgood >= 0 && s->sgood != sgood))
+            continue;
+        /* What its sellers get back counts as free before their next
+         * heartbeat says so, so the next job sees it. */
+        for (int k = 0; k < s->nunits; k++) {
+            agent_t *a = agent_by_id(m, s->unit[k].agent);
+            if (!a || s->unit[k].state != U_DONE)
+                continue;
+            const int mem = s->unit[k].good == BGB_GOOD_MEMORY;
+            double *free_q = mem ? &a->info.free_memory : &a->info.free_cores;
+            const double cap = mem ? a->info.memory : a->info.cores;
+            *free_q = *free_q + s->unit[k].quantity < cap ? *free_q + s->unit[k].quantity : cap;
+        }
+        abandon_units(m, s);
+        send_release(m, s);
+        s->used = 0;
+    }
+}
+
+static const job_t *bought_subjob(const bgb_market_t *m, uint64_t parent, uint32_t buyer,
+                                  int sgood)
+{
+    for (int i = 0; i < MAX_JOBS; i++) {
+        const job_t *s = &m->jobs[i];
+        if (s->used && s->resource && s->finished && s->parent == parent && s->buyer == buyer &&
+            s->sgood == sgood)
+            return s;
+    }
+    return NULL;
+}
+
+/* The resource rows of a service item: one per unit of its sub-job,
+ * priced per unit-second, for the lease from when they were bought. */
+static void log_resources(bgb_market_t *m, const job_t *j, const unit_t *su, uint64_t request,
+                          double now)
+{
+    const job_t *s = bought_subjob(m, j->id, su->agent, su->good);
+    if (!s)
+        return;
+    for (int i = 0; i < s->nunits; i++) {
+        const unit_t *u = &s->unit[i];
+        const agent_t *a = agent_by_id(m, u->agent);
+        bgb_contract_t row = {.job = j->id, .request = request, .time = now,
+                              .start = s->bought_at, .end = s->bought_at + s->term,
+                              .buyer = s->buyer, .seller = u->agent, .mechanism = j->mech,
+                              .layer = 1, .good = u->good, .quantity = u->quantity,
+                              .price = u->price, .buyer_limit = u->limit,
+                              .seller_limit = u->seller_floor};
+        if (a)
+            snprintf(row.seller_name, sizeof row.seller_name, "%s", a->info.name);
+        log_contract(m, &row);
+    }
+}
+
+/* A sub-job's outcome goes to the basic agent that asked: RBOUGHT with
+ * the rates (prices[CORES], prices[MEMORY]) and the money, or RFAIL. */
+static void subjob_done(bgb_market_t *m, job_t *j, const char *reason, double now)
+{
+    agent_t *b = agent_by_id(m, j->buyer);
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, reason ? BGA_MM_RFAIL : BGA_MM_RBOUGHT);
+    r.job = j->parent;
+    r.good = j->sgood;
+    r.agent = j->buyer;
+    r.term = j->term;
+    if (reason) {
+        snprintf(r.reason, sizeof r.reason, "%s", reason);
+    } else {
+        j->bought_at = now;
+        for (int i = 0; i < j->nunits; i++) {
+            const unit_t *u = &j->unit[i];
+            r.prices[u->good] = u->price;
+            r.price += u->quantity * u->term * u->price;
+            if (u->good == BGB_GOOD_CORES)
+                r.cores += u->quantity;
+            else
+                r.memory += u->quantity;
+        }
+    }
+    if (b)
+        send_to(m, b, &r, NULL);
+}
+
 /* Delivers the outcome once. On success every unit becomes a contract row
- * (rows are logged only then: a job that fails leaves none). */
+ * with the resource rows bought for it (rows are logged only then: a job
+ * that fails leaves none, and resources bought for it are released). */
 static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
 {
     if (j->finished)
         return;
     j->finished = 1;
+    if (reason)
+        abandon_units(m, j);
+    if (j->resource) {
+        subjob_done(m, j, reason, now);
+        if (reason) {
+            send_release(m, j);
+            j->used = 0;
+        }
+        return;
+    }
     bgb_award_t aw[MAX_UNITS];
     bgb_outcome_t o = {.job = j->id, .reason = reason, .awards = aw, .latency = now - j->started};
     if (!reason) {
@@ -385,15 +544,18 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
             w->quantity = u->quantity;
             w->price = u->price;
             o.spent += u->quantity * u->price;
-            bgb_contract_t row = {.job = j->id, .time = now, .start = now, .end = INFINITY,
-                                  .buyer = j->id, .seller = u->agent, .mechanism = j->mech,
-                                  .layer = 0, .good = u->good, .quantity = u->quantity,
-                                  .price = u->price, .buyer_limit = u->limit,
-                                  .seller_limit = u->seller_floor};
+            bgb_contract_t row = {.job = j->id, .request = ++m->next_request, .time = now,
+                                  .start = now, .end = INFINITY, .buyer = j->id,
+                                  .seller = u->agent, .mechanism = j->mech, .layer = 0,
+                                  .good = u->good, .quantity = u->quantity, .price = u->price,
+                                  .buyer_limit = u->limit, .seller_limit = u->seller_floor};
+            snprintf(row.buyer_label, sizeof row.buyer_label, "%s", j->label);
             snprintf(row.seller_name, sizeof row.seller_name, "%s", w->name);
             log_contract(m, &row);
+            log_resources(m, j, u, row.request, now);
         }
     } else {
+        drop_subjobs(m, j->id, 0, -1);
         send_release(m, j);
     }
     if (j->done)
@@ -402,12 +564,13 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
         j->used = 0;
 }
 
-/* Contracts are open-ended until the job is released: closes them. */
+/* Service contracts are open-ended until the job is released, resource
+ * rows end with their lease: release ends both now. */
 static void close_contracts(bgb_market_t *m, uint64_t job, double now)
 {
     for (size_t i = 0; i < m->log_count; i++) {
         bgb_contract_t *r = &m->log[(m->log_head + i) % m->c.max_contracts];
-        if (r->job == job && isinf(r->end))
+        if (r->job == job && r->end > now)
             r->end = now;
     }
 }
@@ -418,15 +581,49 @@ void bgb_market_release(bgb_market_t *m, uint64_t job, double now)
     if (!j)
         return;
     close_contracts(m, job, now);
+    drop_subjobs(m, job, 0, -1);
+    abandon_units(m, j);
     send_release(m, j);
     j->used = 0;
+}
+
+void bgb_market_label(bgb_market_t *m, uint64_t job, const char *label)
+{
+    job_t *j = job_by_id(m, job);
+    if (j && label)
+        snprintf(j->label, sizeof j->label, "%s", label);
 }
 
 /* ------------------------------------------------------------ buying */
 
 static int alive_seller(const agent_t *a, int good)
 {
-    return a->used && a->info.alive && good >= 0 && good < 3 && (a->info.services & (1u << good));
+    if (!a->used || !a->info.alive)
+        return 0;
+    if (good == BGB_GOOD_CORES)
+        return a->info.resource && a->info.cores > 0;
+    if (good == BGB_GOOD_MEMORY)
+        return a->info.resource && a->info.memory > 0;
+    return good >= 0 && good < 3 && (a->info.services & (1u << good));
+}
+
+/* The host part of a tcp://HOST:PORT endpoint is compared whole. */
+static size_t host_len(const char *ep)
+{
+    const char *h = strstr(ep, "://");
+    const char *start = h ? h + 3 : ep;
+    const char *colon = strrchr(start, ':');
+    return (size_t)((colon ? colon : start + strlen(start)) - ep);
+}
+
+/* A sub-job buys only from resource sellers on its basic agent's host:
+ * those are the cores it can compute on. */
+static int on_host(const job_t *j, const agent_t *a)
+{
+    if (!j->resource)
+        return 1;
+    const size_t n = host_len(j->host);
+    return host_len(a->info.endpoint) == n && strncmp(a->info.endpoint, j->host, n) == 0;
 }
 
 static int tried(const unit_t *u, uint32_t agent)
@@ -435,6 +632,12 @@ static int tried(const unit_t *u, uint32_t agent)
         if (u->tried[i] == agent)
             return 1;
     return 0;
+}
+
+static void mark_tried(unit_t *u, uint32_t agent)
+{
+    if (u->ntried < MAX_TRIED)
+        u->tried[u->ntried++] = agent;
 }
 
 /* Whether another unit of the same need already has (or is asking) this
@@ -449,6 +652,18 @@ static int need_has(const job_t *j, const unit_t *u, uint32_t agent)
     return 0;
 }
 
+/* Whether the agent could take this unit now: a free slot (services) or
+ * enough free cores or memory (resources), net of orders in flight. */
+static int room_for(const agent_t *a, const unit_t *u)
+{
+    if (u->good >= BGB_GOOD_CORES) {
+        const int k = u->good - BGB_GOOD_CORES;
+        const double free_q = k ? a->info.free_memory : a->info.free_cores;
+        return free_q - a->pend_res[k] >= u->quantity - 1e-9;
+    }
+    return a->info.free_slots - a->pending > 0;
+}
+
 static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, agent_t *a, int type,
                             double price)
 {
@@ -458,8 +673,17 @@ static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, ag
     o.agent = a->info.id;
     o.good = u->good;
     o.quantity = u->quantity;
+    o.term = j->resource ? j->term : 0;
     o.price = price;
     return send_to(m, a, &o, NULL);
+}
+
+static void pend(agent_t *a, const unit_t *u)
+{
+    if (u->good >= BGB_GOOD_CORES)
+        a->pend_res[u->good - BGB_GOOD_CORES] += u->quantity;
+    else
+        a->pending++;
 }
 
 static bg_status order(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double price, double now)
@@ -468,7 +692,7 @@ static bg_status order(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double 
     u->agent = a->info.id;
     u->price = price;
     u->deadline = now + m->c.reply_timeout;
-    a->pending++;
+    pend(a, u);
     touch(j, a->info.id);
     return send_price(m, j, u, a, BGA_MM_ORDER, price);
 }
@@ -483,7 +707,7 @@ static int has_room(void *ctx, const bgm_posting_t *p)
 {
     room_ctx *r = ctx;
     agent_t *a = agent_by_id(r->m, p->seller);
-    return a && a->info.alive && a->info.free_slots - a->pending > 0 && !tried(r->u, p->seller) &&
+    return a && a->info.alive && room_for(a, r->u) && on_host(r->j, a) && !tried(r->u, p->seller) &&
            !need_has(r->j, r->u, p->seller);
 }
 
@@ -500,19 +724,26 @@ static void posted_step(bgb_market_t *m, job_t *j, double now)
         if (bgm_posted_query_if(m->posted, u->good, u->limit, has_room, &rc, &p, 1) == 1) {
             agent_t *a = agent_by_id(m, p.seller);
             order(m, j, u, a, p.price, now);
+        } else if (j->resource && !j->finished) {
+            /* The basic agent is holding its answer to a service order:
+             * with no posting of its host free now, it refuses at once. */
+            finish(m, j, "no free cores or memory on the host within the limit", now);
+            return;
         }
     }
 }
 
-
-/* Central: one call market per service good, bids = open units at their
- * limit, asks = one free slot per live seller at its asking price. */
+/* Central: one call market per good (services and resources alike), bids
+ * = open units at their limit, asks = one unit of room per live seller at
+ * its asking price. A fill the unit cannot use (a seller it tried, one of
+ * its need's, another host's) stays open for the next call. */
 static void central_clear(bgb_market_t *m, double now)
 {
     bidref_t *refs = m->refs;
-    for (int g = 0; g < 3; g++) {
+    for (int g = 0; g < BGB_GOODS; g++) {
         bgm_callmarket_reset(m->cm);
         size_t nb = 0;
+        double least = INFINITY; /* the smallest open unit of this good */
         for (int ji = 0; ji < MAX_JOBS; ji++) {
             job_t *j = &m->jobs[ji];
             if (!j->used || j->finished || j->mech != BGB_MECH_CENTRAL)
@@ -523,15 +754,19 @@ static void central_clear(bgb_market_t *m, double now)
                     continue;
                 refs[nb] = (bidref_t){j, u};
                 bgm_order_t o = {.ref = nb, .owner = (uint32_t)ji, .quantity = 1, .price = u->limit};
-                if (bgm_callmarket_bid(m->cm, &o) == BG_OK)
+                if (bgm_callmarket_bid(m->cm, &o) == BG_OK) {
                     nb++;
+                    if (u->quantity < least)
+                        least = u->quantity;
+                }
             }
         }
         if (nb == 0)
             continue;
         for (int ai = 0; ai < BGB_MARKET_MAX_AGENTS; ai++) {
             agent_t *a = &m->agents[ai];
-            if (!alive_seller(a, g) || a->info.free_slots - a->pending <= 0)
+            const unit_t probe = {.good = g, .quantity = least};
+            if (!alive_seller(a, g) || !room_for(a, &probe))
                 continue;
             bgm_order_t o = {.ref = (uint64_t)ai, .owner = a->info.id, .quantity = 1,
                              .price = a->info.price[g]};
@@ -547,8 +782,9 @@ static void central_clear(bgb_market_t *m, double now)
             for (size_t f = 0; f < res.fill_count; f++) {
                 bidref_t *r = &refs[bids[fills[f].bid].ref];
                 agent_t *a = &m->agents[asks[fills[f].ask].ref];
-                if (need_has(r->j, r->u, a->info.id))
-                    continue; /* stays open for the next call */
+                if (need_has(r->j, r->u, a->info.id) || tried(r->u, a->info.id) ||
+                    !on_host(r->j, a) || !room_for(a, r->u))
+                    continue;
                 order(m, r->j, r->u, a, res.price, now);
             }
         }
@@ -570,17 +806,14 @@ static void bargain(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double the
         break;
     default:
         send_price(m, j, u, a, BGA_MM_REJECT, 0);
-        if (a->pending > 0)
-            a->pending--;
-        if (u->ntried < MAX_TRIED)
-            u->tried[u->ntried++] = a->info.id;
+        unpend(a, u);
+        mark_tried(u, a->info.id);
         u->state = U_OPEN;
         return;
     }
     u->deadline = now + m->c.reply_timeout;
 }
 
-static void finish(bgb_market_t *m, job_t *j, const char *reason, double now);
 static void send_cfps(bgb_market_t *m, job_t *j, double now);
 
 /* Catallactic: after discovery, each open unit bargains with the cheapest
@@ -595,17 +828,26 @@ static void catallactic_step(bgb_market_t *m, job_t *j, double now)
         if (u->state != U_OPEN)
             continue;
         const proposal_t *best = NULL;
-        int heard = 0;
+        int heard = 0, ties = 0;
         for (int k = 0; k < j->nprops; k++) {
             const proposal_t *p = &j->props[k];
             if (p->good != u->good)
                 continue;
             heard++;
             agent_t *a = agent_by_id(m, p->agent);
-            if (!a || !a->info.alive || tried(u, p->agent) || need_has(j, u, p->agent))
+            if (!a || !a->info.alive || !on_host(j, a) || tried(u, p->agent) ||
+                need_has(j, u, p->agent))
                 continue;
-            if (!best || p->price < best->price)
+            /* Sellers at one price (idle ones at the same policy) are
+             * taken at random, so the buyers of one job's sub-jobs do not
+             * all bargain with the first proposer and refuse each other. */
+            if (!best || p->price < best->price * (1 - 1e-12)) {
                 best = p;
+                ties = 1;
+            } else if (p->price <= best->price * (1 + 1e-12) &&
+                       bgm_rng_uniform(&j->rng) * ++ties < 1.0) {
+                best = p;
+            }
         }
         if (!best) {
             int waiting = 0;
@@ -615,7 +857,10 @@ static void catallactic_step(bgb_market_t *m, job_t *j, double now)
                 return;
             /* Sellers walk away at random (their genes): a new round of
              * discovery, as the simulator's retry, a few times. */
-            if (j->attempt < MAX_ROUNDS_DISCOVERY) {
+            /* A sub-job's basic agent holds a service answer: three
+             * rounds that no resource seller answered are enough (their
+             * windows, doubling, fit the sub-job's deadline). */
+            if (j->attempt < MAX_ROUNDS_DISCOVERY && !(j->resource && j->quiet >= 3)) {
                 for (int k = 0; k < j->nunits; k++)
                     j->unit[k].ntried = 0;
                 /* A strategy that failed every bargain is dropped for a
@@ -640,7 +885,7 @@ static void catallactic_step(bgb_market_t *m, job_t *j, double now)
         u->state = U_ORDERED;
         u->agent = a->info.id;
         u->deadline = now + m->c.reply_timeout;
-        a->pending++;
+        pend(a, u);
         touch(j, a->info.id);
         send_price(m, j, u, a, BGA_MM_OFFER, u->side.current);
     }
@@ -652,12 +897,17 @@ static void send_cfps(bgb_market_t *m, job_t *j, double now)
     int sent = 0;
     for (int k = 0; k < BGB_MARKET_MAX_AGENTS && sent < m->c.overlay_degree; k++) {
         agent_t *a = &m->agents[(k + (int)(j->id % BGB_MARKET_MAX_AGENTS)) % BGB_MARKET_MAX_AGENTS];
-        if (!a->used || !a->info.alive)
+        if (!a->used || !a->info.alive || a->info.resource != j->resource)
             continue;
-        for (int g = 0; g < 3; g++) {
+        for (int g = 0; g < BGB_GOODS; g++) {
+            double quantity = 0;
             int wanted = 0;
             for (int i = 0; i < j->nunits; i++)
-                wanted |= j->unit[i].good == g;
+                if (j->unit[i].good == g) {
+                    wanted = 1;
+                    if (j->unit[i].quantity > quantity)
+                        quantity = j->unit[i].quantity;
+                }
             if (!wanted)
                 continue;
             bga_mmsg_t c;
@@ -667,6 +917,8 @@ static void send_cfps(bgb_market_t *m, job_t *j, double now)
             c.good = g;
             c.hops = m->c.hops;
             c.attempt = j->attempt;
+            c.quantity = quantity;
+            c.term = j->resource ? j->term : 0;
             send_to(m, a, &c, NULL);
         }
         sent++;
@@ -688,6 +940,31 @@ static void check_done(bgb_market_t *m, job_t *j, double now)
     finish(m, j, NULL, now);
 }
 
+/* Posted and central: an open unit that every live seller has refused
+ * (or that has no seller at all) cannot be bought; the job fails now
+ * rather than at its deadline. With `room`, a seller must also have room
+ * now (sub-jobs: their basic agent is holding a service answer). */
+static int unbuyable(bgb_market_t *m, const job_t *j, const unit_t *u, int room)
+{
+    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++) {
+        const agent_t *a = &m->agents[i];
+        if (alive_seller(a, u->good) && on_host(j, a) && !tried(u, a->info.id) &&
+            !need_has(j, u, a->info.id) && (!room || room_for(a, u)))
+            return 0;
+    }
+    return 1;
+}
+
+/* A service unit given up on its seller: the resources that seller was
+ * buying or bought for it go back. */
+static void unit_lost(bgb_market_t *m, job_t *j, unit_t *u)
+{
+    if (!j->resource)
+        drop_subjobs(m, j->id, u->agent, u->good);
+    mark_tried(u, u->agent);
+    u->state = U_OPEN;
+}
+
 static void step_job(bgb_market_t *m, job_t *j, double now)
 {
     if (j->finished)
@@ -699,18 +976,93 @@ static void step_job(bgb_market_t *m, job_t *j, double now)
     for (int i = 0; i < j->nunits; i++) {
         unit_t *u = &j->unit[i];
         if (u->state == U_ORDERED && now >= u->deadline) {
-            agent_t *a = agent_by_id(m, u->agent);
-            if (a && a->pending > 0)
-                a->pending--;
-            if (u->ntried < MAX_TRIED)
-                u->tried[u->ntried++] = u->agent;
-            u->state = U_OPEN;
+            unpend(agent_by_id(m, u->agent), u);
+            unit_lost(m, j, u);
         }
     }
+    if (j->mech != BGB_MECH_CATALLACTIC)
+        for (int i = 0; i < j->nunits; i++)
+            if (j->unit[i].state == U_OPEN && unbuyable(m, j, &j->unit[i], j->resource)) {
+                finish(m, j, j->resource ? "no free cores or memory on the host" : "no seller",
+                       now);
+                return;
+            }
     if (j->mech == BGB_MECH_POSTED)
         posted_step(m, j, now);
     else if (j->mech == BGB_MECH_CATALLACTIC)
         catallactic_step(m, j, now);
+}
+
+/* A free job record for `job` (resource sub-jobs: term > 0, the lease). */
+static bg_status start_job(bgb_market_t *m, job_t **out, uint64_t job, bgb_mechanism mechanism,
+                           double budget, double term, double now, double timeout,
+                           bg_error_t *err)
+{
+    job_t *j = NULL;
+    for (int i = 0; i < MAX_JOBS && !j; i++)
+        if (!m->jobs[i].used)
+            j = &m->jobs[i];
+    if (!j)
+        return bg_error_set(err, BG_ERR_LIMIT, "market: %d jobs buying at once", MAX_JOBS);
+    memset(j, 0, sizeof *j);
+    j->used = 1;
+    j->id = job;
+    j->mech = mechanism;
+    j->budget = budget;
+    j->started = now;
+    j->deadline = now + timeout;
+    j->term = term;
+    *out = j;
+    return BG_OK;
+}
+
+/* The cheapest asking price per good among live sellers (of the host, for
+ * a sub-job): what the job must at least pay. It splits the budget into
+ * per-unit limits in proportion to those prices, so Σ quantity × term ×
+ * limit = budget and no unit's price can push the total over it. */
+static void begin(bgb_market_t *m, job_t *j, const bgb_need_t *needs, int nneeds, double now)
+{
+    double ref[BGB_GOODS];
+    int count[BGB_GOODS] = {0};
+    for (int g = 0; g < BGB_GOODS; g++)
+        ref[g] = INFINITY;
+    for (int ai = 0; ai < BGB_MARKET_MAX_AGENTS; ai++)
+        for (int g = 0; g < BGB_GOODS; g++) {
+            const agent_t *a = &m->agents[ai];
+            if (alive_seller(a, g) && on_host(j, a)) {
+                count[g]++;
+                if (a->info.price[g] < ref[g])
+                    ref[g] = a->info.price[g];
+            }
+        }
+    const double weight = j->resource ? j->term : 1.0;
+    double least = 0;
+    for (int i = 0; i < nneeds; i++) {
+        if (count[needs[i].good] < needs[i].sellers) {
+            finish(m, j, "no seller", now);
+            return;
+        }
+        least += needs[i].quantity * weight * ref[needs[i].good];
+    }
+    if (least > j->budget || least <= 0) {
+        finish(m, j, least > j->budget ? "budget" : "no seller", now);
+        return;
+    }
+    for (int i = 0; i < nneeds; i++)
+        for (int s = 0; s < needs[i].sellers; s++) {
+            unit_t *u = &j->unit[j->nunits++];
+            u->need = i;
+            u->good = needs[i].good;
+            u->quantity = needs[i].quantity / needs[i].sellers;
+            u->term = weight;
+            u->limit = ref[u->good] * j->budget / least;
+        }
+    if (j->mech == BGB_MECH_CATALLACTIC) {
+        bgm_rng_seed(&j->rng, j->id);
+        bgm_genes_random(&j->genes, &j->rng);
+        send_cfps(m, j, now);
+    }
+    step_job(m, j, now);
 }
 
 bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism, double budget,
@@ -723,6 +1075,8 @@ bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism,
         return bg_error_set(err, BG_ERR_INVALID, "budget: must be a finite number >= 0");
     if (nneeds < 1 || nneeds > BGB_MARKET_MAX_NEEDS)
         return bg_error_set(err, BG_ERR_INVALID, "needs: between 1 and %d", BGB_MARKET_MAX_NEEDS);
+    if (job >= SUB_JOB_BASE)
+        return bg_error_set(err, BG_ERR_INVALID, "job: ids from 2^49 on are the market's own");
     int nunits = 0;
     for (int i = 0; i < nneeds; i++) {
         if (needs[i].good < 0 || needs[i].good > BGB_GOOD_INTEG)
@@ -740,98 +1094,112 @@ bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism,
         return bg_error_set(err, BG_ERR_CONFLICT, "job %llu is already buying",
                             (unsigned long long)job);
     job_t *j = NULL;
-    for (int i = 0; i < MAX_JOBS && !j; i++)
-        if (!m->jobs[i].used)
-            j = &m->jobs[i];
-    if (!j)
-        return bg_error_set(err, BG_ERR_LIMIT, "market: %d jobs buying at once", MAX_JOBS);
-    memset(j, 0, sizeof *j);
-    j->used = 1;
-    j->id = job;
-    j->mech = mechanism;
-    j->budget = budget;
-    j->started = now;
-    j->deadline = now + m->c.buy_timeout;
+    bg_status st = start_job(m, &j, job, mechanism, budget, 0, now, m->c.buy_timeout, err);
+    if (st != BG_OK)
+        return st;
     j->done = done;
     j->ctx = ctx;
-    /* The cheapest asking price per good among live sellers: what the job
-     * must at least pay. It splits the budget into per-unit limits in
-     * proportion to those prices, so Σ quantity × limit = budget and no
-     * unit's price can push the total over it. */
-    double ref[3] = {INFINITY, INFINITY, INFINITY};
-    int count[3] = {0, 0, 0};
-    for (int ai = 0; ai < BGB_MARKET_MAX_AGENTS; ai++)
-        for (int g = 0; g < 3; g++)
-            if (alive_seller(&m->agents[ai], g)) {
-                count[g]++;
-                if (m->agents[ai].info.price[g] < ref[g])
-                    ref[g] = m->agents[ai].info.price[g];
-            }
-    double least = 0;
-    for (int i = 0; i < nneeds; i++) {
-        if (count[needs[i].good] < needs[i].sellers) {
-            finish(m, j, "no seller", now);
-            return BG_OK;
-        }
-        least += needs[i].quantity * ref[needs[i].good];
-    }
-    if (least > budget || least <= 0) {
-        finish(m, j, least > budget ? "budget" : "no seller", now);
-        return BG_OK;
-    }
-    for (int i = 0; i < nneeds; i++)
-        for (int s = 0; s < needs[i].sellers; s++) {
-            unit_t *u = &j->unit[j->nunits++];
-            u->need = i;
-            u->good = needs[i].good;
-            u->quantity = needs[i].quantity / needs[i].sellers;
-            u->limit = ref[u->good] * budget / least;
-        }
-    if (mechanism == BGB_MECH_CATALLACTIC) {
-        bgm_rng_seed(&j->rng, job);
-        bgm_genes_random(&j->genes, &j->rng);
-        send_cfps(m, j, now);
-    }
-    step_job(m, j, now);
+    begin(m, j, needs, nneeds, now);
     return BG_OK;
 }
 
 /* ------------------------------------------------------------ messages */
 
+static unit_t *ordered_unit(job_t *j, uint32_t agent, int good)
+{
+    if (!j || j->finished)
+        return NULL;
+    for (int i = 0; i < j->nunits; i++)
+        if (j->unit[i].state == U_ORDERED && j->unit[i].agent == agent && j->unit[i].good == good)
+            return &j->unit[i];
+    return NULL;
+}
+
+/* Whether the agent still sells the job something: then a stray answer
+ * must not release the job on it (RELEASE frees all it holds for a job). */
+static int still_serves(const job_t *j, uint32_t agent)
+{
+    for (int i = 0; j && i < j->nunits; i++)
+        if (j->unit[i].state != U_OPEN && j->unit[i].agent == agent)
+            return 1;
+    return 0;
+}
+
+/* A basic agent that agreed to a service unit asks for its resources: a
+ * sub-job on the unit's mechanism, among its host's resource sellers, for
+ * at most the money it names. The unit waits for it. */
+static void on_rbuy(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
+{
+    job_t *j = job_by_id(m, in->job);
+    unit_t *u = ordered_unit(j, a->info.id, in->good);
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, BGA_MM_RFAIL);
+    r.job = in->job;
+    r.good = in->good;
+    r.agent = a->info.id;
+    bgb_need_t needs[2];
+    int n = 0;
+    if (in->cores > 0)
+        needs[n++] = (bgb_need_t){BGB_GOOD_CORES, in->cores, 1};
+    if (in->memory > 0)
+        needs[n++] = (bgb_need_t){BGB_GOOD_MEMORY, in->memory, 1};
+    if (!u || j->resource || n == 0 || !(in->term > 0)) {
+        snprintf(r.reason, sizeof r.reason, "%s", !u ? "no such order" : "nothing to buy");
+        send_to(m, a, &r, NULL);
+        return;
+    }
+    drop_subjobs(m, j->id, a->info.id, in->good); /* an earlier try of the same unit */
+    job_t *s = NULL;
+    const double timeout = 1.5 * m->c.reply_timeout;
+    if (start_job(m, &s, m->next_sub++, j->mech, in->price, in->term, now, timeout, NULL) !=
+        BG_OK) {
+        snprintf(r.reason, sizeof r.reason, "market full");
+        send_to(m, a, &r, NULL);
+        return;
+    }
+    s->resource = 1;
+    s->parent = j->id;
+    s->buyer = a->info.id;
+    s->sgood = in->good;
+    snprintf(s->host, sizeof s->host, "%s", a->info.endpoint);
+    u->deadline = now + timeout + m->c.reply_timeout;
+    begin(m, s, needs, n, now);
+}
+
 static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
 {
     job_t *j = job_by_id(m, in->job);
-    unit_t *u = NULL;
-    if (j && !j->finished)
-        for (int i = 0; i < j->nunits && !u; i++)
-            if (j->unit[i].state == U_ORDERED && j->unit[i].agent == a->info.id &&
-                j->unit[i].good == in->good)
-                u = &j->unit[i];
+    unit_t *u = ordered_unit(j, a->info.id, in->good);
+    if (in->type == BGA_MM_REFUSE)
+        a->info.refusals++;
     if (!u) {
         /* Late or unknown: a confirmation nobody wants is released. */
-        if (in->type == BGA_MM_CONFIRM && (!j || j->finished))
+        if (in->type == BGA_MM_CONFIRM && !still_serves(j, a->info.id)) {
             release_on(m, a, in->job);
+            if (!a->info.resource)
+                drop_subjobs(m, in->job, a->info.id, in->good);
+        }
         return;
     }
-    if (a->pending > 0)
-        a->pending--;
+    unpend(a, u);
     if (in->type == BGA_MM_CONFIRM && in->price > u->limit * (1 + 1e-12)) {
         /* A seller confirming above the buyer's limit is not a contract. */
         release_on(m, a, in->job);
-        if (u->ntried < MAX_TRIED)
-            u->tried[u->ntried++] = a->info.id;
-        u->state = U_OPEN;
+        unit_lost(m, j, u);
         step_job(m, j, now);
     } else if (in->type == BGA_MM_CONFIRM) {
         u->state = U_DONE;
         u->price = in->price;
         u->seller_floor = in->floor[u->good];
-        a->info.free_slots = in->free_slots;
+        if (a->info.resource) {
+            a->info.free_cores = in->free_cores;
+            a->info.free_memory = in->free_memory;
+        } else {
+            a->info.free_slots = in->free_slots;
+        }
         check_done(m, j, now);
     } else {
-        if (u->ntried < MAX_TRIED)
-            u->tried[u->ntried++] = a->info.id;
-        u->state = U_OPEN;
+        unit_lost(m, j, u);
         step_job(m, j, now);
     }
 }
@@ -846,21 +1214,14 @@ static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, do
             j->props[j->nprops++] = (proposal_t){a->info.id, in->good, in->price};
         return;
     }
-    unit_t *u = NULL;
-    for (int i = 0; i < j->nunits && !u; i++)
-        if (j->unit[i].state == U_ORDERED && j->unit[i].agent == a->info.id &&
-            j->unit[i].good == in->good)
-            u = &j->unit[i];
+    unit_t *u = ordered_unit(j, a->info.id, in->good);
     if (!u)
         return;
     if (in->type == BGA_MM_OFFER) {
         bargain(m, j, u, a, in->price, now);
     } else { /* the seller walked away */
-        if (a->pending > 0)
-            a->pending--;
-        if (u->ntried < MAX_TRIED)
-            u->tried[u->ntried++] = a->info.id;
-        u->state = U_OPEN;
+        unpend(a, u);
+        unit_lost(m, j, u);
     }
     step_job(m, j, now);
 }
@@ -889,7 +1250,7 @@ bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t 
         return reply_error(m, identity, identity_len, derr.message, err);
     if (in.type == BGA_MM_REGISTER)
         return on_register(m, identity, identity_len, &in, now, err);
-    agent_t *a = agent_by_identity(m, identity, identity_len);
+    agent_t *a = agent_by_identity(m, identity, identity_len, in.resource);
     if (!a)
         return reply_error(m, identity, identity_len, "unknown agent: register first", err);
     switch (in.type) {
@@ -905,6 +1266,10 @@ bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t 
     case BGA_MM_OFFER:
     case BGA_MM_REJECT:
         on_bargain_msg(m, a, &in, now);
+        break;
+    case BGA_MM_RBUY:
+        if (!a->info.resource)
+            on_rbuy(m, a, &in, now);
         break;
     case BGA_MM_RELAY: {
         agent_t *t = agent_by_id(m, in.target);
@@ -999,11 +1364,16 @@ static void write_row(void *ctx, const bgb_contract_t *r)
     /* An open contract (job still running) ends "now" for the audit: it
      * is written with end = start + 1e9 rather than inf. */
     const double end = isinf(r->end) ? r->start + 1e9 : r->end;
-    if (fprintf(c->out, "%s,0,%s,%s,%llu,%.9g,%.9g,%.9g,%llu,%u,%s,%.9g,%.9g,%.9g,%.9g\n",
+    char buyer[BGB_MARKET_LABEL_MAX];
+    if (r->buyer_label[0])
+        snprintf(buyer, sizeof buyer, "%s", r->buyer_label);
+    else
+        snprintf(buyer, sizeof buyer, "%llu", (unsigned long long)r->buyer);
+    if (fprintf(c->out, "%s,0,%s,%s,%llu,%.9g,%.9g,%.9g,%s,%u,%s,%.9g,%.9g,%.9g,%.9g\n",
                 c->m->name, bgb_mechanism_name((bgb_mechanism)r->mechanism),
-                r->layer ? "resource" : "service", (unsigned long long)r->job, r->time, r->start,
-                end, (unsigned long long)r->buyer, r->seller, bgb_good_name(r->good), r->quantity,
-                r->price, r->buyer_limit, r->seller_limit) < 0)
+                r->layer ? "resource" : "service", (unsigned long long)r->request, r->time,
+                r->start, end, buyer, r->seller, bgb_good_name(r->good), r->quantity, r->price,
+                r->buyer_limit, r->seller_limit) < 0)
         c->failed = 1;
 }
 
@@ -1032,6 +1402,12 @@ bg_status bgb_market_write_agents_csv(const bgb_market_t *m, FILE *out, bg_error
                 if (a->info.services & (1u << g))
                     failed |= fprintf(out, "%s,0,%s,%u,basic,%s,%d,%.9g\n", m->name,
                                       mech_names[mech], a->info.id, good_names[g], a->info.slots,
+                                      a->info.floor[g]) < 0;
+            if (a->info.resource)
+                for (int g = BGB_GOOD_CORES; g <= BGB_GOOD_MEMORY; g++)
+                    failed |= fprintf(out, "%s,0,%s,%u,resource,%s,%.9g,%.9g\n", m->name,
+                                      mech_names[mech], a->info.id, good_names[g],
+                                      g == BGB_GOOD_CORES ? a->info.cores : a->info.memory,
                                       a->info.floor[g]) < 0;
         }
     if (failed || fflush(out) != 0)

@@ -1,7 +1,7 @@
 /*
  * bgb_market — the broker's live market and agent directory.
  *
- * Hosts the market agent (the central call market, cleared every
+ * Hosts the market agent (the central call markets, cleared every
  * `period` seconds, and the posted-price directory) and one buyer per job,
  * and talks to the agents through the broker's ZeroMQ ROUTER socket, which
  * the broker daemon owns: the daemon hands every agent-originated message
@@ -18,6 +18,17 @@
  * agent's current prices); ORDER/MATCH (broker → seller: a contract
  * offer at a price) answered by CONFIRM or REFUSE; CFP, PROPOSE, OFFER,
  * ACCEPT, REJECT for catallactic bargaining; RELEASE (the job ended).
+ *
+ * Layer 1 (resources): every agent daemon hosts a resource seller too (a
+ * second directory entry on the same socket, `resource` set in its
+ * messages). A basic-service seller that agrees to a service unit sends
+ * RBUY (cores, memory, lease, its money limit); the market buys them for it
+ * as a sub-job among the resource sellers of the seller's host, on the same
+ * mechanism as the job (posted postings, a central call market per
+ * resource, catallactic bargaining over the overlay), and answers RBOUGHT
+ * or RFAIL; the seller then confirms or refuses the service. The resource
+ * rows are logged with the service rows they serve when the job is bought,
+ * and end when the job is released.
  *
  * Threading: every call is made from the broker's ZeroMQ loop thread only;
  * callbacks run on that thread, from inside the call that caused them.
@@ -45,6 +56,7 @@
 #define BGB_MARKET_MAX_NEEDS 16
 #define BGB_MARKET_MAX_AGENTS 1024
 #define BGB_MARKET_IDENTITY_MAX 255
+#define BGB_MARKET_LABEL_MAX 32
 
 /* Goods, numbered as the simulator's (bgm_role.h BGM_GOOD_*). */
 typedef enum bgb_good {
@@ -127,11 +139,22 @@ typedef struct bgb_outcome {
 
 typedef void (*bgb_done_fn)(void *ctx, const bgb_outcome_t *outcome);
 
-/* A contract row, with the simulator's contracts.csv columns. */
+/*
+ * A contract row, with the simulator's contracts.csv columns. `request` is,
+ * as in the simulator, the service item a row serves: a number per service
+ * contract, shared by the resource rows bought for it. The service row's
+ * buyer is the job (its label, the broker's store id, when set with
+ * bgb_market_label); a resource row's buyer is the basic-service agent
+ * that bought it. A service row is priced per unit of work; a resource row
+ * (cores, memory) per unit per second, over [start, end]: the lease,
+ * ended early when the job is released.
+ */
 typedef struct bgb_contract {
-    uint64_t job;       /* request (the job id) */
+    uint64_t job;       /* the market job id the row belongs to (both layers) */
+    uint64_t request;   /* the service item (see above) */
     double time, start, end;
-    uint64_t buyer;     /* the job id (service layer) */
+    uint64_t buyer;     /* service: the job id; resource: the basic agent's directory id */
+    char buyer_label[BGB_MARKET_LABEL_MAX]; /* service: the job's label ("" if none) */
     uint32_t seller;    /* the agent's directory id */
     char seller_name[BGB_MARKET_NAME_MAX];
     int mechanism;
@@ -148,8 +171,10 @@ typedef struct bgb_agent_info {
     char name[BGB_MARKET_NAME_MAX];
     char endpoint[BGB_MARKET_ENDPOINT_MAX];
     unsigned services;       /* BGA_SERVICE_* bits; resource sellers: 0 */
-    int resource;            /* sells cores and memory */
+    int resource;            /* a resource seller (cores, memory): the daemon's second entry */
     int slots, free_slots;
+    double free_cores, free_memory; /* resource seller: not sold */
+    long refusals;           /* orders it refused (no slot, no resources, price) */
     double floor[BGB_GOODS]; /* price policy: floor per unit */
     double margin, load_slope;
     double price[BGB_GOODS]; /* its current asking price per unit (0: not sold) */
@@ -194,8 +219,13 @@ bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism,
                          const bgb_need_t *needs, int nneeds, double now, bgb_done_fn done,
                          void *ctx, bg_error_t *err);
 
-/* The job ended: its sellers free their slots (RELEASE to each). */
+/* The job ended: its sellers free their slots (RELEASE to each), and the
+ * resources its sellers bought are released too. */
 void bgb_market_release(bgb_market_t *m, uint64_t job, double now);
+
+/* Names a buying or bought job in the contract log (the broker's store id,
+ * copied, truncated to BGB_MARKET_LABEL_MAX − 1). Unknown job: no effect. */
+void bgb_market_label(bgb_market_t *m, uint64_t job, const char *label);
 
 /* Directory snapshot: writes up to max rows, returns the number of agents. */
 size_t bgb_market_agents(const bgb_market_t *m, bgb_agent_info_t *out, size_t max);
@@ -209,7 +239,9 @@ int bgb_market_recent_price(const bgb_market_t *m, int good, bgb_mechanism mech,
 void bgb_market_contracts(const bgb_market_t *m, bgb_contract_fn fn, void *ctx);
 
 /* contracts.csv / agents.csv with the simulator's columns (scenario = the
- * broker's name, replication 0). BG_ERR_IO on a write failure. */
+ * broker's name, replication 0): both layers' rows; a basic agent's
+ * capacity is its slots, a resource seller's its cores and GiB with its
+ * floor per unit-second as limit. BG_ERR_IO on a write failure. */
 bg_status bgb_market_write_contracts_csv(const bgb_market_t *m, FILE *out, bg_error_t *err);
 bg_status bgb_market_write_agents_csv(const bgb_market_t *m, FILE *out, bg_error_t *err);
 

@@ -1,11 +1,16 @@
 /*
  * biotgrid agent [--config FILE] [--listen ENDPOINT] [--services LIST] [--slots N]
  *                [--name NAME] [--ready-file FILE]
- *                [--broker ENDPOINT [--floor X] [--margin X] [--load-slope X]]
+ *                [--broker ENDPOINT [--floor X] [--margin X] [--load-slope X]
+ *                 [--cores N] [--memory GIB] [--core-floor X] [--memory-floor X]
+ *                 [--resource-margin X] [--resource-load-slope X] [--lease S]]
  *
  * With --broker the agent also sells on the broker's live market
  * (bga_market): it registers, heartbeats, sells at its price policy and
- * computes only for jobs whose contract it holds.
+ * computes only for jobs whose contract it holds, with the cores and
+ * memory bought for it from its host's resource sellers; the daemon is one
+ * of those too (its second role), with the host's cores and memory unless
+ * --cores/--memory say otherwise (--cores 0: no resource role).
  * Binds, prints "agent NAME ready on ENDPOINT" (the resolved port) on
  * stdout, writes "ENDPOINT PID" to the ready file if asked (written to a
  * temporary name and renamed, so a reader never sees half of it), serves
@@ -28,7 +33,9 @@
 const char bg_cmd_agent_usage[] =
     "usage: biotgrid agent [--config FILE] [--listen ENDPOINT] [--services LIST]\n"
     "                      [--slots N] [--name NAME] [--ready-file FILE]\n"
-    "                      [--broker ENDPOINT [--floor X] [--margin X] [--load-slope X]]\n"
+    "                      [--broker ENDPOINT [--floor X] [--margin X] [--load-slope X]\n"
+    "                       [--cores N] [--memory GIB] [--core-floor X] [--memory-floor X]\n"
+    "                       [--resource-margin X] [--resource-load-slope X] [--lease S]]\n"
     "  --listen ENDPOINT   ZeroMQ endpoint to bind (default tcp://127.0.0.1:*,\n"
     "                      an ephemeral port; the resolved one is printed)\n"
     "  --services LIST     rotfit,solve,integ or all (default all)\n"
@@ -38,7 +45,14 @@ const char bg_cmd_agent_usage[] =
     "                      only for jobs whose contract this agent holds\n"
     "  --floor X           price floor per unit of work (default 1)\n"
     "  --margin X          markup over the floor (default 0.2)\n"
-    "  --load-slope X      price rise at full load, relative (default 0.5)\n";
+    "  --load-slope X      price rise at full load, relative (default 0.5)\n"
+    "  --cores N           cores its resource role sells (default: the host's; 0: none)\n"
+    "  --memory GIB        memory its resource role sells, GiB (default: the host's)\n"
+    "  --core-floor X      resource floor per core-second (default 1e-5)\n"
+    "  --memory-floor X    resource floor per GiB-second (default 2e-6)\n"
+    "  --resource-margin X, --resource-load-slope X\n"
+    "                      the resource role's markup and load slope (default 0.2, 0.5)\n"
+    "  --lease S           seconds a service contract's resources are rented (default 3600)\n";
 
 static void usage(FILE *out)
 {
@@ -50,6 +64,7 @@ typedef struct options {
     const char *ready_file;
     const char *broker;
     double floor, margin, load_slope;
+    double cores, memory, core_floor, memory_floor, res_margin, res_load_slope, lease;
 } options;
 
 static int parse_money(const char *text, const char *opt, double *v)
@@ -180,6 +195,24 @@ static int parse_args(int argc, char **argv, options *o)
         }
         const char *v = argv[++i];
         int rc = 0;
+        /* The price policy and the resource role: numbers in [0, 1e9]. */
+        const struct {
+            const char *flag;
+            double *dst;
+        } numbers[] = {{"--floor", &o->floor},
+                       {"--margin", &o->margin},
+                       {"--load-slope", &o->load_slope},
+                       {"--cores", &o->cores},
+                       {"--memory", &o->memory},
+                       {"--core-floor", &o->core_floor},
+                       {"--memory-floor", &o->memory_floor},
+                       {"--resource-margin", &o->res_margin},
+                       {"--resource-load-slope", &o->res_load_slope},
+                       {"--lease", &o->lease}};
+        double *money = NULL;
+        for (size_t k = 0; k < sizeof numbers / sizeof *numbers; k++)
+            if (strcmp(a, numbers[k].flag) == 0)
+                money = numbers[k].dst;
         if (strcmp(a, "--config") == 0)
             continue;
         else if (strcmp(a, "--listen") == 0)
@@ -195,12 +228,8 @@ static int parse_args(int argc, char **argv, options *o)
             o->ready_file = v;
         else if (strcmp(a, "--broker") == 0)
             o->broker = v;
-        else if (strcmp(a, "--floor") == 0)
-            rc = parse_money(v, "--floor", &o->floor);
-        else if (strcmp(a, "--margin") == 0)
-            rc = parse_money(v, "--margin", &o->margin);
-        else if (strcmp(a, "--load-slope") == 0)
-            rc = parse_money(v, "--load-slope", &o->load_slope);
+        else if (money)
+            rc = parse_money(v, a, money);
         else {
             fprintf(stderr, "biotgrid agent: unknown option '%s'\n", a);
             usage(stderr);
@@ -222,9 +251,21 @@ int bg_cmd_agent(int argc, char **argv)
     o.floor = mc.floor[0];
     o.margin = mc.margin;
     o.load_slope = mc.load_slope;
+    o.cores = mc.cores;
+    o.memory = mc.memory;
+    o.core_floor = mc.res_floor[0];
+    o.memory_floor = mc.res_floor[1];
+    o.res_margin = mc.res_margin;
+    o.res_load_slope = mc.res_load_slope;
+    o.lease = mc.lease;
     const int prc = parse_args(argc, argv, &o);
     if (prc != 0)
         return prc < 0 ? 0 : prc;
+    if (!(o.lease > 0 && o.lease <= 1e7) || o.cores > 1e6) {
+        fprintf(stderr, "biotgrid agent: %s\n",
+                o.cores > 1e6 ? "--cores: at most 1e6" : "--lease: must be in (0, 1e7] seconds");
+        return 2;
+    }
     bg_error_t err = BG_ERROR_INIT;
     const unsigned services = bga_service_parse_list(o.spec.services, &err);
     if (!services) {
@@ -243,6 +284,13 @@ int bg_cmd_agent(int argc, char **argv)
             mc.floor[g] = o.floor;
         mc.margin = o.margin;
         mc.load_slope = o.load_slope;
+        mc.cores = o.cores;
+        mc.memory = o.memory;
+        mc.res_floor[0] = o.core_floor;
+        mc.res_floor[1] = o.memory_floor;
+        mc.res_margin = o.res_margin;
+        mc.res_load_slope = o.res_load_slope;
+        mc.lease = o.lease;
         cfg.market = &mc;
     }
     bga_agent_t *agent = NULL;

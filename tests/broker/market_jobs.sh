@@ -1,5 +1,5 @@
 #!/bin/sh
-# market_jobs.sh BIOTGRID AGENT_SCRIPTS WORKDIR GRID_CONFIG SCENE DYNAMIC_SCENE
+# market_jobs.sh BIOTGRID AGENT_SCRIPTS WORKDIR GRID_CONFIG SCENE DYNAMIC_SCENE MARKET_AUDIT
 # The live market end to end: `grid up` starts a broker and agents that
 # register on it with --broker (ephemeral loopback ports). The scene is
 # submitted under each mechanism; each job succeeds with `biotgrid
@@ -8,9 +8,14 @@
 # A budget under the sellers' floors fails with a reason naming the
 # budget; contracts.csv has one row per contract, each price within both
 # limits. A dynamic scene's plan lists integration-step: its job buys one.
+# Both layers are live: each job's contracts include, for each service
+# seller, the cores it bought on layer 1 (a resource row whose buyer is that
+# seller); agents.csv lists the resource sellers; the simulator's audit
+# (MARKET_AUDIT --live) passes on GET /v1/market/contracts.csv and agents.csv;
+# the service rows' buyer is the job's id.
 # `grid down` leaves no process.
 set -u
-bin=$1 scripts=$2 work=$3 config=$4 scene=$5 dynamic=$6
+bin=$1 scripts=$2 work=$3 config=$4 scene=$5 dynamic=$6 audit=$7
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
 rm -rf "$work"
@@ -29,16 +34,23 @@ url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
 nagents=$(jq '.agents | length' "$config")
 i=0 live=0
 while [ $i -lt 100 ]; do
-  live=$(curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive)] | length')
-  [ "${live:-0}" -ge "$nagents" ] && break
+  # Each agent daemon is two directory entries: its service seller and
+  # its resource seller (no services, no slots).
+  curl -sf "$url/v1/agents" >"$work/agents.json"
+  live=$(jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0)] |
+             length' "$work/agents.json")
+  res=$(jq '[.agents[] | select(.source == "market" and .alive and (.services | length) == 0 and
+             .slots == 0)] | length' "$work/agents.json")
+  [ "${live:-0}" -ge "$nagents" ] && [ "${res:-0}" -ge "$nagents" ] && break
   sleep 0.1
   i=$((i + 1))
 done
-[ "${live:-0}" -eq "$nagents" ]; check $? "all $nagents agents registered on the market (got $live)"
+[ "${live:-0}" -eq "$nagents" ] && [ "${res:-0}" -eq "$nagents" ]
+check $? "all $nagents agents registered on the market, each with its resource seller (got $live, $res)"
 
 "$bin" solve "$scene" --quiet --out "$work/local" >/dev/null 2>&1
 check $? "biotgrid solve (the reference)"
-total=0
+total=0 jobs_ids=""
 for mech in central catallactic posted; do
   jq -n --slurpfile s "$scene" --arg m "$mech" '{scene: $s[0], mechanism: $m, budget: 100}' \
     >"$work/submit-$mech.json"
@@ -66,6 +78,11 @@ for mech in central catallactic posted; do
     grep -q '"service":"sparse-solve"' "$work/contracts-$mech.txt" &&
     ! grep -q '"service":"integration-step"' "$work/contracts-$mech.txt"
   check $? "$mech: the job's $n contract events list rotation-fit and sparse-solve only"
+  jobs_ids="$jobs_ids $id"
+  svc=$(grep -c -E '"service":"(rotation-fit|sparse-solve)"' "$work/contracts-$mech.txt")
+  cores=$(grep -c '"service":"cores"' "$work/contracts-$mech.txt")
+  [ "$svc" -gt 0 ] && [ "$cores" -eq "$svc" ]
+  check $? "$mech: the job's contracts include one layer-1 cores row per service seller ($cores, $svc)"
   curl -sf "$url/v1/jobs/$id" | jq -e --argjson n "$n" '(.contracts | length) == $n and
       all(.contracts[]; (.agent | type) == "string" and .price >= .seller_limit and
           .price <= .buyer_limit)' >/dev/null
@@ -110,6 +127,24 @@ curl -sf "$url/v1/market" | jq -e '.market == "live" and (.prices | length) > 0'
 check $? "/v1/market reports the live market's recent prices"
 curl -sf "$url/v1/market/agents.csv" >"$work/agents.csv"
 [ "$(($(wc -l <"$work/agents.csv") - 1))" -ge "$nagents" ]; check $? "agents.csv lists the agents"
+# Layer 1: every service row's seller bought cores for the same request
+# (buyer = that seller's id, seller a resource seller listed in agents.csv).
+awk -F, 'FNR == 1 { next }
+         FILENAME == ARGV[1] && $5 == "resource" && $6 == "cores" { res[$4] = 1; next }
+         FILENAME == ARGV[1] { next }
+         $4 == "service" { svc[$5] = $10; n++ }
+         $4 == "resource" && $11 == "cores" { cores[$5 "|" $9] = $10 }
+         END { if (n == 0) exit 1
+               for (r in svc) { k = r "|" svc[r]; if (!(k in cores) || !(cores[k] in res)) exit 1 } }' \
+  "$work/agents.csv" "$work/contracts.csv"
+check $? "each service seller bought its cores from a resource seller on layer 1"
+for jid in $jobs_ids; do
+  grep -q ",service,[0-9]*,[^,]*,[^,]*,[^,]*,$jid," "$work/contracts.csv" || { r=1; break; }
+  r=0
+done
+check $r "the service rows' buyer is the job's id"
+"$audit" --live "$work" >"$work/audit.txt" 2>&1
+check $? "the simulator's audit passes on the live log ($(cat "$work/audit.txt"))"
 
 "$bin" grid down --state "$state" >"$work/down.txt" 2>&1
 check $? "grid down"

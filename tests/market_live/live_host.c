@@ -4,14 +4,22 @@
  * kernel), runs bgb_market on it, and drives jobs through each mechanism.
  *
  *   live_host test  DIR NAGENTS   writes DIR/endpoint, waits for NAGENTS
- *       agents, buys a static plan (rotation-fit ×2, sparse-solve ×1)
- *       under each mechanism and checks the awards; a budget too small
- *       fails with "budget" and adds no contract; a compute call for a job
- *       an agent holds no contract for is refused naming the job; writes
- *       DIR/contracts.csv and DIR/agents.csv and audits them (price within
- *       both limits, no seller over its slots, money conserved, spending
- *       within budget); then writes DIR/phase2 and waits for the directory
- *       to lose one agent (the script kills one) and checks the survivors.
+ *       agents (each a basic-service seller and a resource seller: two
+ *       directory entries), buys a static plan (rotation-fit ×2,
+ *       sparse-solve ×1) under each mechanism and checks the awards and
+ *       that each awarded seller bought its unit's cores and memory on
+ *       layer 1 (rows naming it as buyer and a resource seller, priced
+ *       within both limits, costing it no more than the service earns);
+ *       a budget too small fails with "budget" and adds no contract; a
+ *       compute call for a job an agent holds no contract for is refused
+ *       naming the job. With the host's cores all sold (the script gives
+ *       the four agents one core each; a job takes three), a second job
+ *       fails: its sellers, slots free, refuse for want of cores, and it
+ *       leaves no contract; once the first is released the cores come
+ *       back. Writes DIR/contracts.csv and DIR/agents.csv (the script runs
+ *       the simulator's audit on them); then writes DIR/phase2 and waits
+ *       for the directory to lose one agent (the script kills one) and
+ *       checks the survivors.
  *   live_host bench DIR NAGENTS ROUNDS   prints allocation latency per
  *       mechanism (submit → all services bought), median and max.
  * Exits 0 when every check holds, 1 with the first failure otherwise.
@@ -128,16 +136,35 @@ static size_t contracts(host_t *h)
     return count_contracts_cb_n;
 }
 
-static void wait_agents(host_t *h, size_t n)
+/* Directory entries of each role: [0] basic-service sellers, [1] resource sellers. */
+static void count_roles(host_t *h, size_t out[2])
 {
     bgb_agent_info_t info[64];
+    const size_t n = bgb_market_agents(h->market, info, 64);
+    out[0] = out[1] = 0;
+    for (size_t i = 0; i < n && i < 64; i++)
+        out[info[i].resource != 0]++;
+}
+
+static void wait_agents(host_t *h, size_t n)
+{
     const double end = bg_clock_now() + 30;
     while (bg_clock_now() < end) {
         pump(h, 0.1, NULL);
-        if (bgb_market_agents(h->market, info, 64) == n)
+        size_t roles[2];
+        count_roles(h, roles);
+        if (roles[0] == n && roles[1] == n)
             return;
     }
-    FAIL("%zu agents did not all register within 30 s", n);
+    FAIL("%zu agents did not all register both roles within 30 s", n);
+}
+
+static const bgb_agent_info_t *find_agent(const bgb_agent_info_t *info, size_t n, uint32_t id)
+{
+    for (size_t k = 0; k < n; k++)
+        if (info[k].id == id)
+            return &info[k];
+    return NULL;
 }
 
 /* The awards of a successful static plan: 2 distinct rotation-fit agents
@@ -227,55 +254,130 @@ static void check_refusal(void *ctx, const char *endpoint, uint64_t job)
     zmq_close(s);
 }
 
-/* ------------------------------------------------------------ audit */
+/* ------------------------------------------------------------ layer 1 */
 
 typedef struct rows {
-    bgb_contract_t r[256];
+    bgb_contract_t r[1024];
     int n;
 } rows_t;
 
 static void collect(void *ctx, const bgb_contract_t *r)
 {
     rows_t *rows = ctx;
-    if (rows->n < 256)
+    if (rows->n < 1024)
         rows->r[rows->n++] = *r;
 }
 
-/* The simulator audit's rules, on the live log: price in [seller_limit,
- * buyer_limit]; per seller, concurrent service contracts never above its
- * slots (sweep over [start, end)); money paid = money received. */
-static void audit(host_t *h)
+/* What the script's agents need per contract: one core (sparse-solve's two
+ * capped at the agent's one), 1 GiB for rotation-fit, 4 for sparse-solve. */
+static const double unit_memory[3] = {1.0, 4.0, 2.0};
+
+/* Every awarded seller of job `job` bought its unit's resources: the
+ * service row's request has a cores row and a memory row, bought by that
+ * seller from a resource seller, each price within both limits, the
+ * resources held from before the service started, and costing the seller
+ * over their lease no more than the service earns. */
+static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char *mech)
 {
     static rows_t rows;
     rows.n = 0;
     bgb_market_contracts(h->market, collect, &rows);
     bgb_agent_info_t info[64];
     const size_t na = bgb_market_agents(h->market, info, 64);
-    double paid = 0, received = 0;
-    for (int i = 0; i < rows.n; i++) {
-        const bgb_contract_t *c = &rows.r[i];
-        if (c->price < c->seller_limit * (1 - 1e-9) || c->price > c->buyer_limit * (1 + 1e-9))
-            FAIL("audit: price %g outside [%g, %g]", c->price, c->seller_limit, c->buyer_limit);
-        paid += c->price * c->quantity;
-        int slots = -1;
-        for (size_t k = 0; k < na; k++)
-            if (info[k].id == c->seller)
-                slots = info[k].slots;
-        if (slots < 0)
-            FAIL("audit: seller %u not in the directory", c->seller);
-        int load = 0;
-        for (int j = 0; j < rows.n; j++)
-            if (rows.r[j].seller == c->seller && rows.r[j].start <= c->start &&
-                c->start < rows.r[j].end)
-                load++;
-        if (load > slots)
-            FAIL("audit: seller %u holds %d contracts at t=%g with %d slots", c->seller, load,
-                 c->start, slots);
+    for (int i = 0; i < o->nawards; i++) {
+        const bgb_award_t *a = &o->awards[i];
+        const bgb_contract_t *svc = NULL;
+        for (int k = 0; k < rows.n; k++)
+            if (rows.r[k].job == job && rows.r[k].layer == 0 && rows.r[k].seller == a->agent &&
+                rows.r[k].good == a->good) {
+                if (svc)
+                    FAIL("%s: two service rows for agent %u", mech, a->agent);
+                svc = &rows.r[k];
+            }
+        if (!svc)
+            FAIL("%s: no service row for award %d (agent %u)", mech, i, a->agent);
+        double cores = 0, memory = 0, spent = 0;
+        for (int k = 0; k < rows.n; k++) {
+            const bgb_contract_t *r = &rows.r[k];
+            if (r->layer != 1 || r->request != svc->request)
+                continue;
+            if (r->job != job || r->buyer != a->agent)
+                FAIL("%s: resource row of request %llu bought by %llu, not the seller %u", mech,
+                     (unsigned long long)r->request, (unsigned long long)r->buyer, a->agent);
+            const bgb_agent_info_t *seller = find_agent(info, na, r->seller);
+            if (!seller || !seller->resource)
+                FAIL("%s: resource row sold by %u, not a resource seller", mech, r->seller);
+            if (r->price < r->seller_limit * (1 - 1e-12) || r->price > r->buyer_limit * (1 + 1e-12))
+                FAIL("%s: resource price %g outside [%g, %g]", mech, r->price, r->seller_limit,
+                     r->buyer_limit);
+            if (r->start > svc->start || !(r->end > r->start))
+                FAIL("%s: resource row [%g, %g] does not start by the service's %g", mech,
+                     r->start, r->end, svc->start);
+            if (r->good == BGB_GOOD_CORES)
+                cores += r->quantity;
+            else if (r->good == BGB_GOOD_MEMORY)
+                memory += r->quantity;
+            else
+                FAIL("%s: a resource row sells %s", mech, bgb_good_name(r->good));
+            spent += r->price * r->quantity * (r->end - r->start);
+        }
+        if (fabs(cores - 1.0) > 1e-12 || fabs(memory - unit_memory[a->good]) > 1e-12)
+            FAIL("%s: agent %u bought %g cores and %g GiB for its %s (expected 1 and %g)", mech,
+                 a->agent, cores, memory, bgb_good_name(a->good), unit_memory[a->good]);
+        if (!(spent > 0) || spent > svc->price * svc->quantity)
+            FAIL("%s: agent %u pays %g for resources, its service earns %g", mech, a->agent,
+                 spent, svc->price * svc->quantity);
     }
-    for (int i = 0; i < rows.n; i++)
-        received += rows.r[i].price * rows.r[i].quantity;
-    if (fabs(paid - received) > 1e-9 * (1 + paid))
-        FAIL("audit: money not conserved");
+}
+
+static long refusals(host_t *h)
+{
+    bgb_agent_info_t info[64];
+    const size_t n = bgb_market_agents(h->market, info, 64);
+    long sum = 0;
+    for (size_t i = 0; i < n && i < 64; i++)
+        sum += info[i].refusals;
+    return sum;
+}
+
+/* The script's four agents have one core each and a job takes three: while
+ * one job holds them, a second cannot buy its services (its sellers have
+ * free slots but their host no free cores: they refuse) and leaves no
+ * contract; released, the cores serve the next job. */
+static void check_no_cores(host_t *h, uint64_t job)
+{
+    outcome_t a, b;
+    buy(h, job, BGB_MECH_POSTED, 1e5, &a);
+    check_awards(h, &a, 1e5, "posted, first of two");
+    pump(h, 0.7, NULL); /* heartbeats: the directory sees the cores sold */
+    bgb_agent_info_t info[64];
+    const size_t na = bgb_market_agents(h->market, info, 64);
+    double free_cores = 0;
+    for (size_t i = 0; i < na && i < 64; i++) {
+        if (info[i].resource)
+            free_cores += info[i].free_cores;
+        else if (info[i].free_slots < 1)
+            FAIL("agent %u has no free slot: the test would not isolate cores", info[i].id);
+    }
+    if (fabs(free_cores - 1.0) > 1e-9)
+        FAIL("after a job, %g cores are free on the host (expected 1)", free_cores);
+    const size_t before = contracts(h);
+    const long refused = refusals(h);
+    buy(h, job + 1, BGB_MECH_POSTED, 1e5, &b);
+    if (!b.reason[0] || b.nawards != 0)
+        FAIL("a job with one free core on the host was bought (%d awards)", b.nawards);
+    if (contracts(h) != before)
+        FAIL("the job that found no cores left contracts");
+    if (refusals(h) <= refused)
+        FAIL("no seller refused a service order for want of cores");
+    printf("no free cores: the second job failed (%s) after %ld refusals, no contract\n",
+           b.reason, refusals(h) - refused);
+    bgb_market_release(h->market, job, bg_clock_now());
+    pump(h, 0.7, NULL);
+    buy(h, job + 2, BGB_MECH_POSTED, 1e5, &b);
+    check_awards(h, &b, 1e5, "posted, after the release");
+    check_layer1(h, job + 2, &b, "posted, after the release");
+    bgb_market_release(h->market, job + 2, bg_clock_now());
 }
 
 static void write_csvs(host_t *h, const char *dir)
@@ -367,7 +469,9 @@ int main(int argc, char **argv)
             outcome_t o;
             buy(&h, job, mechs[mi], budget, &o);
             check_awards(&h, &o, budget, bgb_mechanism_name(mechs[mi]));
-            printf("%s: 3 services bought for %.4g of %.4g in %.1f ms\n",
+            check_layer1(&h, job, &o, bgb_mechanism_name(mechs[mi]));
+            printf("%s: 3 services bought for %.4g of %.4g in %.1f ms, each with its cores and "
+                   "memory\n",
                    bgb_mechanism_name(mechs[mi]), o.spent, budget, o.latency * 1e3);
             /* While the contract holds, the agent computes for the job's id
              * and refuses any other. */
@@ -384,23 +488,26 @@ int main(int argc, char **argv)
                 FAIL("%s: a failed job left contracts", bgb_mechanism_name(mechs[mi]));
             job++;
         }
+        pump(&h, 0.7, NULL);
+        check_no_cores(&h, job);
+        job += 3;
         pump(&h, 0.3, NULL);
-        audit(&h);
         write_csvs(&h, dir);
         /* Phase 2: the script kills one agent; the directory drops it. */
         snprintf(path, sizeof path, "%s/phase2", dir);
         f = fopen(path, "w");
         if (f)
             fclose(f);
-        bgb_agent_info_t info[64];
         const double end = bg_clock_now() + 20;
-        size_t n = nagents;
-        while (bg_clock_now() < end && n == nagents) {
+        size_t roles[2] = {nagents, nagents};
+        while (bg_clock_now() < end && (roles[0] == nagents || roles[1] == nagents)) {
             pump(&h, 0.1, NULL);
-            n = bgb_market_agents(h.market, info, 64);
+            count_roles(&h, roles);
         }
-        if (n != nagents - 1)
-            FAIL("the killed agent was not dropped (%zu agents listed)", n);
+        const size_t n = roles[0];
+        if (roles[0] != nagents - 1 || roles[1] != nagents - 1)
+            FAIL("the killed agent was not dropped (%zu basic, %zu resource entries listed)",
+                 roles[0], roles[1]);
         /* The survivors still sell. */
         outcome_t o;
         buy(&h, job, BGB_MECH_POSTED, 1e5, &o);

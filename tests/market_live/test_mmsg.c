@@ -52,6 +52,44 @@ static void round_trip(void **state)
     bga_frames_free(&f);
 }
 
+/* The layer-1 messages keep the role flag, the resource quantities, the
+ * lease and the rates. */
+static void resource_round_trip(void **state)
+{
+    (void)state;
+    bga_mmsg_t m, d;
+    bga_mmsg_init(&m, BGA_MM_RBOUGHT);
+    m.job = 562949953421312ull + 7; /* a sub-job id: 2^49 + 7 */
+    m.resource = 1;
+    m.good = 1;
+    m.cores = 2;
+    m.memory = 4.5;
+    m.free_cores = 1;
+    m.free_memory = 3.25;
+    m.term = 3600;
+    m.prices[3] = 1.2e-5;
+    m.prices[4] = 2.4e-6;
+    m.price = 0.0951;
+    bga_frames_t f;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bga_mmsg_encode(&m, &f, &err), BG_OK);
+    bga_frame_t v[BGA_WIRE_MAX_FRAMES];
+    bga_frames_view(&f, v);
+    assert_int_equal(bga_mmsg_decode(v, f.count, &d, &err), BG_OK);
+    assert_int_equal(d.type, BGA_MM_RBOUGHT);
+    assert_string_equal(bga_mmsg_type_name(d.type), "rbought");
+    assert_true(d.job == m.job);
+    assert_int_equal(d.resource, 1);
+    assert_true(d.cores == 2 && d.memory == 4.5 && d.free_cores == 1 && d.free_memory == 3.25);
+    assert_true(d.term == 3600 && d.prices[3] == 1.2e-5 && d.prices[4] == 2.4e-6);
+    assert_true(d.price == 0.0951);
+    bga_frames_free(&f);
+    /* A negative lease is refused before it is sent. */
+    m.term = -1;
+    assert_int_not_equal(bga_mmsg_encode(&m, &f, &err), BG_OK);
+    assert_non_null(strstr(err.message, "term"));
+}
+
 /* Decodes a hand-written body and expects a failure naming `word`. */
 static void refused(const char *body, int nframes, const char *word)
 {
@@ -95,10 +133,14 @@ static void bad_input(void **state)
     replaced(body, "\"hops\":0", "\"hops\":99", "hops");
     replaced(body, "\"price\":0", "\"price\":-1", "price");
     replaced(body, "\"name\":\"\"", "\"name\":7", "name");
+    replaced(body, "\"free_cores\":0", "\"free_cores\":-2", "free_cores");
+    replaced(body, "\"term\":0", "\"term\":\"long\"", "term");
 }
 
 int main(void)
 {
-    const struct CMUnitTest tests[] = {cmocka_unit_test(round_trip), cmocka_unit_test(bad_input)};
+    const struct CMUnitTest tests[] = {cmocka_unit_test(round_trip),
+                                       cmocka_unit_test(resource_round_trip),
+                                       cmocka_unit_test(bad_input)};
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
