@@ -72,16 +72,16 @@
 #define STATIC_QN_PAIRS 20
 /* Chord steps (Shamanskii's variant of Newton's method): after a full
  * Newton step is accepted, up to this many (bg_solve_options_t.chord_steps)
- * further steps −A⁻¹∇W with the
- * matrix A already factored, each kept only if it meets the Armijo
- * condition from where it starts. A chord step costs a triangular solve
+ * further steps −A⁻¹∇W with the matrix A already factored, each kept only
+ * if it meets the Armijo condition from where it starts (and, with
+ * keep_orientation, inverts nothing). A chord step costs a triangular solve
  * and an evaluation, no assembly or factorization. On nearly
  * incompressible bodies a Newton step leaves a large residual in the
  * stiff volumetric modes (the curved constraint tr Y = 3 is left at second
  * order, times λ); the chord step removes most of it, and the next Newton
  * step starts from a point where the pressure, and so the Hessian's
  * geometric term, is consistent (stiff-bar twisted, λ/μ = 10⁴: 59
- * iterations without, 19 with). Not taken with an inertia term or factor
+ * iterations without, 18 with). Not taken with an inertia term or factor
  * reuse, whose own L-BFGS steps already exploit the factor. */
 #define STATIC_CHORD_STEPS 8
 #define STATIC_REFACTOR_PATIENCE 5
@@ -717,16 +717,24 @@ static bg_status newton_direction(problem_t *p, int try_exact, bg_solve_result_t
     return BG_OK;
 }
 
+static void swap_arrays(double **a, double **b)
+{
+    double *t = *a;
+    *a = *b;
+    *b = t;
+}
+
 /*
  * Chord steps from the accepted point in q_trial/grad_trial (*W, *g): each
  * solves with the current factorization, takes the whole step and keeps it
  * when W falls by the Armijo fraction of its slope; the first that does
- * not, or a gradient at or below g_stop, ends them. On return q_trial,
+ * not, one that inverts an element when keep_orientation, or a gradient
+ * at or below g_stop, ends them. On return q_trial,
  * grad_trial, *W and *g describe the last kept point (the model's
  * rotations are those of that point); *taken counts the kept steps.
  */
-static bg_status chord_steps(problem_t *p, int most, double g_stop, double *W, double *g,
-                             int *taken, bg_error_t *err)
+static bg_status chord_steps(problem_t *p, int most, double g_stop, int keep_orientation,
+                             double *W, double *g, int *taken, bg_error_t *err)
 {
     *taken = 0;
     for (int k = 0; k < most && *g > g_stop; k++) {
@@ -746,7 +754,10 @@ static bg_status chord_steps(problem_t *p, int most, double g_stop, double *W, d
             const int32_t f = p->free_index[i];
             p->chord_q[i] = f >= 0 ? p->q_trial[i] + p->step[f] : p->q_trial[i];
         }
+        const int flips = keep_orientation && inverts(p, p->chord_q);
         p->vector_seconds += bg_clock_now() - tv;
+        if (flips)
+            return BG_OK; /* nothing evaluated: the rotations are still the kept point's */
         const double W_c = potential(p, p->chord_q, p->chord_grad);
         if (p->failed != BG_OK)
             return BG_OK;
@@ -755,12 +766,8 @@ static bg_status chord_steps(problem_t *p, int most, double g_stop, double *W, d
             potential(p, p->q_trial, p->chord_grad);
             return BG_OK;
         }
-        double *swap = p->q_trial;
-        p->q_trial = p->chord_q;
-        p->chord_q = swap;
-        swap = p->grad_trial;
-        p->grad_trial = p->chord_grad;
-        p->chord_grad = swap;
+        swap_arrays(&p->q_trial, &p->chord_q);
+        swap_arrays(&p->grad_trial, &p->chord_grad);
         *W = W_c;
         tv = bg_clock_now();
         *g = free_norm(p, p->grad_trial);
@@ -1214,7 +1221,8 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                      opt->no_force_floor ? 0.0 : p->force_floor);
             int taken = 0;
             const int most = opt->chord_steps == 0 ? STATIC_CHORD_STEPS : opt->chord_steps;
-            if ((st = chord_steps(p, most, g_stop, &W_trial, &g_trial, &taken, err)) != BG_OK)
+            if ((st = chord_steps(p, most, g_stop, opt->keep_orientation, &W_trial, &g_trial,
+                                  &taken, err)) != BG_OK)
                 goto out;
             if (p->failed != BG_OK)
                 break;
@@ -1249,12 +1257,8 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                     refactor = 1;
             }
         }
-        double *swap = p->q;
-        p->q = p->q_trial;
-        p->q_trial = swap;
-        swap = p->grad;
-        p->grad = p->grad_trial;
-        p->grad_trial = swap;
+        swap_arrays(&p->q, &p->q_trial);
+        swap_arrays(&p->grad, &p->grad_trial);
         W = W_trial;
         gnorm = g_trial;
         pt.seconds = bg_clock_now() - t_start;
