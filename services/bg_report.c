@@ -57,6 +57,8 @@ static cJSON *run_json(const bg_solve_result_t *r, int morph)
         cJSON_AddNumberToObject(split, "factorizations",
                                 (double)(r->factorizations + r->setup.factorizations));
         cJSON_AddNumberToObject(split, "iteration_factorizations", (double)r->factorizations);
+        /* Newton's extra solves on an already factored matrix (bg_static) */
+        cJSON_AddNumberToObject(split, "chord_steps", (double)r->chord_steps);
     }
     cJSON *setup = cJSON_AddArrayToObject(o, "setup");
     for (int i = 0; setup && i < r->setup.count; i++) {

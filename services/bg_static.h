@@ -6,7 +6,9 @@
  * Methods:
  *   newton        exact Hessian with the twist eigenvalues clamped (PSD),
  *                 CHOLMOD with one symbolic analysis and a numeric
- *                 factorization per iteration, backtracking line search.
+ *                 factorization per iteration, backtracking line search;
+ *                 after a full step, a few chord steps on the same
+ *                 factorization (static solves without factor reuse).
  *                 Quadratic convergence near the solution.
  *   local-global  the prefactored method: the matrix c·L (L the cotan
  *                 Laplacian per coordinate, c = 2μ + λ) is factored once,
@@ -66,6 +68,10 @@ typedef struct bg_solve_options {
                                  run to the gradient's round-off (tests of the round-off stop) */
     const double *targets;    /* nv*n values of the constrained coordinates, or NULL for scene->target */
     const bg_inertia_t *inertia; /* NULL for a static solve */
+    int chord_steps;          /* newton without reuse_factor or inertia: at most this many
+                                 chord steps after each full Newton step (0: the default, 8;
+                                 negative: none, plain Newton, e.g. to read its quadratic
+                                 convergence from the trace) */
     int keep_orientation;     /* reject steps that invert an element (from a start
                                  without inverted elements: the result has none) */
     const double *reference;  /* nv*n reference positions for the error column, or NULL */
@@ -160,6 +166,8 @@ typedef struct bg_solve_result {
     double rotfit_seconds, assembly_seconds, analyze_seconds, factor_seconds, solve_seconds;
     double vector_seconds, output_seconds;
     int64_t factorizations;   /* numeric factorizations of the iterations (setup's: in setup) */
+    int chord_steps;          /* newton: extra steps on an already factored matrix after a full
+                                 step (one solve and one evaluation each, no factorization) */
     bg_setup_t setup;         /* the set-up steps: solver, lumped mass, local/global's
                                  Laplacian, the scene's starting guess */
     bg_direction last_direction;

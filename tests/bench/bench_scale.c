@@ -373,6 +373,9 @@ static void measure(const size_case_t *c, bg_method method, int cap, measurement
     opts.method = method;
     opts.tolerance = UNREACHABLE_TOLERANCE;
     opts.max_iterations = cap;
+    /* plain Newton: the cost of one iteration (a factorization), not of
+     * chord steps that would also end the capped run early */
+    opts.chord_steps = -1;
     if (bg_solver_minimize(solver, &opts, &r, &err) != BG_OK)
         goto out;
     split_solve(&r, m->tets, m);

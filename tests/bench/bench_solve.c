@@ -2,7 +2,7 @@
  * bench_solve — where the static solvers spend their time, and how fast
  * they reach a given accuracy.
  *
- *   OPENBLAS_NUM_THREADS=1 ./tests/bench/bench_solve [--smoke]
+ *   OPENBLAS_NUM_THREADS=1 ./tests/bench/bench_solve [--smoke | --stiff]
  *
  * (OpenBLAS reads the variable when the library loads, so it must be set
  * in the environment: a setenv in main would be too late.)
@@ -20,6 +20,7 @@
  * local/global's first reaches 1e-4, read from the solvers' traces.
  *
  * --smoke: a tiny box for part 1, and part 2 with capped local/global.
+ * --stiff: part 3 alone (the README's stiff-bar table).
  */
 #include <math.h>
 #include <stdint.h>
@@ -406,16 +407,20 @@ static int bench_accuracy(const char *file, const char *label, int local_global_
  * Part 3: Newton on the stiff-bar geometry (16x4x4 cells, 4x1x1, μ = 1)
  * with λ/μ = 10³, 10⁴, 10⁵, the far end turned 90° about the bar's axis
  * (twisted) or about z through the end face's centre (bent), tolerance
- * 1e-8, 1000 iterations at most: iterations, factorizations, seconds, the
- * stop and the inverted elements of the result. Smoke: λ/μ = 10³ twisted
- * only (the bent bar takes hundreds of iterations).
+ * 1e-8, 1000 iterations at most: iterations, factorizations, chord steps,
+ * seconds, the stop and the inverted elements of the result; then the
+ * same solve as plain Newton (no chord steps), the baseline, in the same
+ * run, and the energy difference of the two results. Smoke: λ/μ = 10³
+ * twisted only.
  */
 static void bench_stiff(int smoke)
 {
     static const char *const lambdas[3] = {"1e3", "1e4", "1e5"};
-    printf("\nPart 3: stiff bar, Newton to 1e-8 (the stiff-bar geometry, mu = 1)\n");
-    printf("%-8s %-8s %6s %6s %9s %12s %9s  %s\n", "lambda", "motion", "iters", "facts",
-           "seconds", "final_rel_g", "inverted", "stop reason");
+    printf("\nPart 3: stiff bar, Newton to 1e-8 (the stiff-bar geometry, mu = 1); plain = no "
+           "chord steps\n");
+    printf("%-8s %-8s %6s %6s %6s %9s %12s %9s %12s %12s %9s  %s\n", "lambda", "motion",
+           "iters", "facts", "chords", "seconds", "final_rel_g", "inverted", "plain_iters",
+           "plain_facts", "plain_s", "energy difference / stop reason");
     for (int l = 0; l < (smoke ? 1 : 3); l++)
         for (int bent = 0; bent < (smoke ? 1 : 2); bent++) {
             char json[1024];
@@ -433,37 +438,56 @@ static void bench_stiff(int smoke)
                 bench_fail(err.message);
                 return;
             }
-            bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
-            if (run_solver(scene, BG_METHOD_NEWTON, 1e-8, 1000, &r, &err) != BG_OK) {
+            bg_solve_result_t r = BG_SOLVE_RESULT_INIT, plain = BG_SOLVE_RESULT_INIT;
+            bg_solve_options_t opts = {.method = BG_METHOD_NEWTON,
+                                       .tolerance = 1e-8,
+                                       .max_iterations = 1000};
+            bg_status st = bg_static_solve(scene, &opts, &r, &err);
+            opts.chord_steps = -1;
+            if (st == BG_OK && (st = bg_static_solve(scene, &opts, &plain, &err)) != BG_OK)
+                bg_solve_result_release(&r);
+            if (st != BG_OK) {
                 bench_fail(err.message);
                 bg_scene_destroy(&scene);
                 return;
             }
-            printf("%-8s %-8s %6d %6lld %9.3f %12.3e %9lld  %s\n", lambdas[l],
-                   bent ? "bent" : "twisted", r.iterations,
-                   (long long)(r.factorizations + r.setup.factorizations), r.wall_seconds,
-                   r.relative_gradient, (long long)r.inverted_elements, r.stop_reason);
+            printf("%-8s %-8s %6d %6lld %6d %9.3f %12.3e %9lld %12d %12lld %9.3f  %.1e / %s\n",
+                   lambdas[l], bent ? "bent" : "twisted", r.iterations,
+                   (long long)(r.factorizations + r.setup.factorizations), r.chord_steps,
+                   r.wall_seconds, r.relative_gradient, (long long)r.inverted_elements,
+                   plain.iterations,
+                   (long long)(plain.factorizations + plain.setup.factorizations),
+                   plain.wall_seconds, r.energy - plain.energy, r.stop_reason);
             char name[64];
             snprintf(name, sizeof name, "stiff_%s_%s_iterations", bent ? "bent" : "twisted",
                      lambdas[l]);
             bench_record(name, r.iterations, "iterations");
-            if (!r.converged)
+            if (!r.converged || !plain.converged)
                 bench_fail("a stiff-bar Newton solve did not converge");
             bg_solve_result_release(&r);
+            bg_solve_result_release(&plain);
             bg_scene_destroy(&scene);
         }
 }
 
 int main(int argc, char **argv)
 {
-    int smoke = 0;
+    int smoke = 0, stiff_only = 0;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "--smoke") == 0) {
             smoke = 1;
+        } else if (strcmp(argv[i], "--stiff") == 0) {
+            stiff_only = 1; /* Part 3 alone, full */
         } else {
-            fprintf(stderr, "usage: OPENBLAS_NUM_THREADS=1 bench_solve [--smoke]\n");
+            fprintf(stderr, "usage: OPENBLAS_NUM_THREADS=1 bench_solve [--smoke | --stiff]\n");
             return 2;
         }
+    }
+    if (stiff_only) {
+        bench_header("bench_solve --stiff: Newton on the stiff bar", 0);
+        bench_stiff(0);
+        bench_print_figures();
+        return bench_failures > 0 ? 1 : 0;
     }
     bench_header("bench_solve: static solvers, time per iteration and time to accuracy", smoke);
 
