@@ -4,11 +4,10 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bgm_callmarket.h"
 #include "bgm_catallactic.h"
-#include "bgm_combex.h"
+#include "bgm_market_agent.h"
 #include "bgm_optimum.h"
-#include "bgm_posted.h"
+#include "bgm_outbox.h"
 #include "bgm_rng.h"
 #include "bgm_strategy.h"
 
@@ -33,7 +32,8 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 #define BGM_MAX_NEIGHBOURS 64
 #define BGM_MAX_PROPOSALS 8
 #define BGM_SEEN_RING 16
-#define BGM_BOOK_MAX 100000
+/* Items one role machine may emit in one call (a clearing emits two per fill). */
+#define BGM_OUTBOX_MAX ((size_t)1 << 20)
 #define BGM_GOOD_CORES 3
 #define BGM_GOOD_MEMORY 4
 #define BGM_GOOD_BUNDLE (-1)
@@ -51,7 +51,7 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 
 /* Message types. a/b/c meanings are given per type. */
 enum {
-    M_BID = 1,  /* C->A service bid: good, price=valuation/unit, a=work, b=deadline */
+    M_BID = BGM_MT_BID, /* C->A service bid: good, price=valuation/unit, a=work, b=deadline */
     M_ASK,      /* B->A: good, price=reservation/unit, a=slots (registration/refresh) */
     M_FREE,     /* B->A: one slot free again */
     M_MATCH,    /* A->B: req, good, price, a=work, b=deadline, c=buyer valuation; origin=buyer */
@@ -80,11 +80,12 @@ enum {
                  * price=rate per unit-second, c=buyer limit per unit-second,
                  * hops=parts of the bundle, origin=buyer, cand_price[0]=start */
 };
+_Static_assert((int)M_RPART == (int)BGM_MT_RPART, "the world's message numbers are bgm_role.h's");
 
 /* Timer kinds. */
 enum {
     T_ARRIVAL = 1,  /* complex agent: next job */
-    T_CLEAR,        /* market: clearing period */
+    T_CLEAR,        /* market agent: clearing period (BGM_MA_TIMER_CLEAR) */
     T_REQ,          /* request phase timeout: arg = req | tseq << 32 */
     T_DEADLINE,     /* request deadline: arg = req */
     T_RETRY,        /* retry acquisition: arg = req | attempt << 32 */
@@ -96,6 +97,7 @@ enum {
     T_LINK_FAIL,
     T_LINK_REPAIR
 };
+_Static_assert(T_CLEAR == BGM_MA_TIMER_CLEAR, "the market agent's timer keeps its number");
 
 enum { RQ_IDLE, RQ_DISCOVER, RQ_NEGOTIATE, RQ_WAIT, RQ_COMMITTED, RQ_DONE, RQ_FAILED };
 
@@ -177,13 +179,6 @@ typedef struct part {
     double quantity, start, end, rate, limit, cost;
 } part_t;
 
-/* The auctioneer's view of sellers (central) and pending orders. */
-typedef struct mkt_seller {
-    uint32_t agent;
-    double free_a, free_b, price, speed, mem_cost;
-    double reservation[BGM_SERVICE_TYPES];
-} mkt_seller_t;
-
 struct bgm_world {
     bgm_config_t cfg;
     bgm_world_params_t p;
@@ -210,18 +205,10 @@ struct bgm_world {
     size_t nlog, log_cap;
     part_t *parts; /* call markets: parts held for bundles not yet complete */
     size_t nparts, parts_cap;
-    /* central */
-    uint32_t *pend_bid, *pend_rbid;
-    size_t npend_bid, npend_rbid, pend_cap;
-    mkt_seller_t *mb, *mr; /* basic and resource sellers as the market sees them */
-    uint32_t nmb, nmr;
-    bgm_callmarket_t *cm;
-    bgm_combex_t *cx;
-    bgm_fill_t *fills;
-    int *assign;
-    bgm_posted_t *dir;
+    bgm_market_agent_t *ma; /* agent 0's role machine */
+    bgm_outbox_t *ob;       /* what a role machine emits during one call */
     /* accounting */
-    double msgs, bytes, timeouts, combex_exact, combex_greedy;
+    double msgs, bytes, timeouts;
     double service_requests, resource_requests;
     double bundles; /* bundles rented (whole, or every part of one paid) */
     double *acc_s, *acc_r;
@@ -595,18 +582,12 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
         bg_error_set(err, st, "out of memory for the overlay");
         goto out;
     }
-    w->pend_cap = BGM_BOOK_MAX;
-    w->pend_bid = malloc(w->pend_cap * sizeof *w->pend_bid);
-    w->pend_rbid = malloc(w->pend_cap * sizeof *w->pend_rbid);
-    w->mb = calloc(w->nbasic, sizeof *w->mb);
-    w->mr = calloc(w->nresource, sizeof *w->mr);
-    w->cm = bgm_callmarket_new(BGM_BOOK_MAX);
-    w->fills = malloc(2 * BGM_BOOK_MAX * sizeof *w->fills);
-    w->assign = malloc(BGM_BOOK_MAX * sizeof *w->assign);
-    w->cx = bgm_combex_new(BGM_BOOK_MAX, (int)w->nresource, 4u * BGM_BOOK_MAX);
-    w->dir = bgm_posted_new((size_t)(w->nbasic * BGM_SERVICE_TYPES + w->nresource));
-    if (!w->pend_bid || !w->pend_rbid || !w->mb || !w->mr || !w->cm || !w->fills || !w->assign ||
-        !w->cx || !w->dir) {
+    bgm_market_agent_params_t mp = {&w->cfg,          p->mechanism, 0,          w->first_basic,
+                                    w->nbasic,        w->first_resource, w->nresource,
+                                    w->horizon};
+    w->ma = bgm_market_agent_new(&mp);
+    w->ob = bgm_outbox_new(BGM_OUTBOX_MAX);
+    if (!w->ma || !w->ob) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the market books");
         goto out;
     }
@@ -633,15 +614,8 @@ void bgm_world_destroy(bgm_world_t **pw)
     free(w->jobs);
     free(w->log);
     free(w->parts);
-    free(w->pend_bid);
-    free(w->pend_rbid);
-    free(w->mb);
-    free(w->mr);
-    bgm_callmarket_destroy(&w->cm);
-    free(w->fills);
-    free(w->assign);
-    bgm_combex_destroy(&w->cx);
-    bgm_posted_destroy(&w->dir);
+    bgm_market_agent_destroy(&w->ma);
+    bgm_outbox_destroy(&w->ob);
     free(w->acc_s);
     free(w->acc_r);
     free(w);
@@ -1161,492 +1135,23 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
 
 /* ---------------------------------------------------------------- market */
 
-static bg_status push_pending(bgm_world_t *w, uint32_t *arr, size_t *n, uint32_t rid)
+/* Routes what the market agent emitted during one call, in emission
+ * order, through the world's send (accounting, a sender cut off loses its
+ * messages) and the driver's timers, then empties the outbox. */
+static void route_market(bgm_world_t *w, bg_status st)
 {
-    if (*n >= w->pend_cap)
-        return BG_ERR_LIMIT;
-    arr[(*n)++] = rid;
-    return BG_OK;
-}
-
-/* The auctioneer keeps only what messages told it: pending bids (by
- * request id, with the numbers the bid carried, read back from the
- * request record which the bid mirrors) and sellers' announced state. */
-static void clear_services(bgm_world_t *w, double now)
-{
-    /* Drop expired bids first. */
-    size_t keep = 0;
-    for (size_t i = 0; i < w->npend_bid; i++) {
-        const req_t *r = &w->reqs[w->pend_bid[i]];
-        if (r->deadline > now && r->state == RQ_WAIT)
-            w->pend_bid[keep++] = w->pend_bid[i];
-    }
-    w->npend_bid = keep;
-    for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
-        bgm_callmarket_reset(w->cm);
-        for (size_t i = 0; i < w->npend_bid; i++) {
-            const req_t *r = &w->reqs[w->pend_bid[i]];
-            if (r->good != t)
-                continue;
-            bgm_order_t o = {w->pend_bid[i], r->buyer, 1, r->limit};
-            if (bgm_callmarket_bid(w->cm, &o))
-                break;
-        }
-        for (uint32_t k = 0; k < w->nmb; k++) {
-            const mkt_seller_t *s = &w->mb[k];
-            if (!w->agents[s->agent].sells[t] || s->free_a < 1.0)
-                continue;
-            bgm_order_t o = {k, s->agent, (int)s->free_a, s->reservation[t]};
-            if (bgm_callmarket_ask(w->cm, &o))
-                break;
-        }
-        bgm_clearing_t res;
-        if (bgm_callmarket_clear(w->cm, w->cfg.central.k, &res, w->fills, 2 * BGM_BOOK_MAX)) {
-            fail(w, BG_ERR_LIMIT);
-            return;
-        }
-        const bgm_order_t *bids = bgm_callmarket_bids(w->cm), *asks = bgm_callmarket_asks(w->cm);
-        for (size_t f = 0; f < res.fill_count; f++) {
-            uint32_t rid = (uint32_t)bids[w->fills[f].bid].ref;
-            mkt_seller_t *s = &w->mb[asks[w->fills[f].ask].ref];
-            req_t *r = &w->reqs[rid];
-            s->free_a -= 1.0;
-            r->state = RQ_COMMITTED; /* removed from the pending list below */
-            bgm_msg_t m = msg(M_MATCH, 0, s->agent, rid, r->attempt);
-            m.good = (int16_t)t;
-            m.price = res.price;
-            m.a = r->work;
-            m.b = asks[w->fills[f].ask].price;
-            m.origin = r->buyer;
-            send(w, &m);
-            bgm_msg_t c = msg(M_ACCEPT, 0, r->buyer, rid, r->attempt);
-            c.price = res.price;
-            send(w, &c);
-        }
-    }
-    keep = 0;
-    for (size_t i = 0; i < w->npend_bid; i++)
-        if (w->reqs[w->pend_bid[i]].state == RQ_WAIT)
-            w->pend_bid[keep++] = w->pend_bid[i];
-    w->npend_bid = keep;
-}
-
-/* Drops the resource bids that have expired (telling their buyers) or
- * been served; returns how many remain. */
-static size_t expire_rbids(bgm_world_t *w, double now)
-{
-    size_t keep = 0;
-    for (size_t i = 0; i < w->npend_rbid; i++) {
-        uint32_t rid = w->pend_rbid[i];
-        const req_t *r = &w->reqs[rid];
-        if (r->deadline > now && r->state == RQ_WAIT) {
-            w->pend_rbid[keep++] = rid;
-        } else if (r->state == RQ_WAIT) {
-            bgm_msg_t m = msg(M_RFAIL, 0, r->buyer, rid, r->attempt);
-            send(w, &m);
-        }
-    }
-    w->npend_rbid = keep;
-    return keep;
-}
-
-/* Keeps only the resource bids still waiting. */
-static void compact_rbids(bgm_world_t *w)
-{
-    size_t keep = 0;
-    for (size_t i = 0; i < w->npend_rbid; i++)
-        if (w->reqs[w->pend_rbid[i]].state == RQ_WAIT)
-            w->pend_rbid[keep++] = w->pend_rbid[i];
-    w->npend_rbid = keep;
-}
-
-/* The resource layer through the combinatorial exchange: whole bundles,
- * each from one resource agent, winner determination by bgm_combex, and
- * each award paid its seller's cost plus a rent priced against the bids
- * and sellers left out (bgm_combex_rents). */
-static void clear_exchange(bgm_world_t *w, double now)
-{
-    if (expire_rbids(w, now) == 0)
-        return;
-    bgm_combex_reset(w->cx);
-    int *seller_of = malloc(w->nmr * sizeof *seller_of);
-    uint32_t *mr_of = malloc(w->nmr * sizeof *mr_of);
-    double *rent = NULL;
-    if (!seller_of || !mr_of) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    for (size_t i = 0; i < w->npend_rbid; i++)
-        bgm_combex_add_bid(w->cx);
-    for (uint32_t k = 0; k < w->nmr; k++) {
-        seller_of[k] = -1;
-        if (w->mr[k].free_a <= 0.0)
-            continue;
-        double cap[BGM_COMBEX_DIMS] = {w->mr[k].free_a, w->mr[k].free_b};
-        int s = bgm_combex_add_seller(w->cx, cap);
-        seller_of[k] = s;
-        mr_of[s] = k;
-    }
-    for (size_t i = 0; i < w->npend_rbid; i++) {
-        const req_t *r = &w->reqs[w->pend_rbid[i]];
-        for (uint32_t k = 0; k < w->nmr; k++) {
-            const mkt_seller_t *s = &w->mr[k];
-            if (seller_of[k] < 0 || req_cores(w, r) > s->free_a || req_memory(w, r) > s->free_b)
-                continue;
-            double dur = req_duration(w, r, s->speed);
-            double cost = (s->price * req_cores(w, r) + s->mem_cost * req_memory(w, r)) * dur;
-            if (cost >= r->limit)
-                continue;
-            bgm_combex_pair_t p = {
-                (int)i, seller_of[k], r->limit - cost, {req_cores(w, r), req_memory(w, r)}};
-            if (bgm_combex_add_pair(w->cx, &p))
-                break;
-        }
-    }
-    bgm_combex_result_t res;
-    if (bgm_combex_solve(w->cx, BGM_COMBEX_AUTO, (size_t)w->cfg.central.exact_limit,
-                         w->cfg.central.greedy_budget, w->assign, &res)) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    if (res.method == BGM_COMBEX_EXACT)
-        w->combex_exact += 1.0;
-    else
-        w->combex_greedy += 1.0;
-    rent = malloc((w->npend_rbid ? w->npend_rbid : 1) * sizeof *rent);
-    if (!rent || bgm_combex_rents(w->cx, w->assign, w->cfg.central.k, rent)) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    const bgm_combex_pair_t *pairs = bgm_combex_pairs(w->cx);
-    for (size_t i = 0; i < w->npend_rbid; i++) {
-        if (w->assign[i] < 0)
-            continue;
-        const bgm_combex_pair_t *p = &pairs[w->assign[i]];
-        uint32_t rid = w->pend_rbid[i];
-        req_t *r = &w->reqs[rid];
-        mkt_seller_t *s = &w->mr[mr_of[p->seller]];
-        double dur = req_duration(w, r, s->speed);
-        double cost = r->limit - p->surplus;
-        double total = cost + rent[i];
-        s->free_a -= req_cores(w, r);
-        s->free_b -= req_memory(w, r);
-        r->state = RQ_COMMITTED;
-        bgm_msg_t m = msg(M_RAWARD, 0, s->agent, rid, r->attempt);
-        m.price = total / dur;
-        m.origin = r->buyer;
-        send(w, &m);
-    }
-    compact_rbids(w);
-out:
-    free(seller_of);
-    free(mr_of);
-    free(rent);
-}
-
-/* One bundle's bids on the two call markets, as its proxy places them. */
-typedef struct call_bid {
-    double tref;     /* run time at the reference speed */
-    double bid_core; /* limit per reference core-second */
-    double bid_mem;  /* limit per GiB-second */
-    double dur;      /* run time on the cores won: the slowest of them */
-    double spent;    /* paid for the cores */
-    int cores, got_cores;
-    long mib, got_mib;
-} call_bid_t;
-
-/* Copies the fills of the last clearing: the market's book is reused. */
-static bgm_fill_t *copy_fills(const bgm_world_t *w, size_t n)
-{
-    bgm_fill_t *f = malloc((n ? n : 1) * sizeof *f);
-    if (f)
-        memcpy(f, w->fills, n * sizeof *f);
-    return f;
-}
-
-/* Sends seller k its part of bundle i (bid index): q units of `good` for
- * dur seconds from `start` at rate per unit-second. */
-static void award_part(bgm_world_t *w, size_t i, uint32_t k, int good, double q, double start,
-                       double dur, double rate, double limit, int parts)
-{
-    const req_t *r = &w->reqs[w->pend_rbid[i]];
-    mkt_seller_t *s = &w->mr[k];
-    if (good == BGM_GOOD_CORES)
-        s->free_a -= q;
-    else
-        s->free_b -= q;
-    bgm_msg_t m = msg(M_RPART, 0, s->agent, w->pend_rbid[i], r->attempt);
-    m.good = (int16_t)good;
-    m.hops = (uint16_t)parts;
-    m.a = q;
-    m.b = dur;
-    m.price = rate;
-    m.c = limit;
-    m.origin = r->buyer;
-    m.cand_price[0] = start;
-    send(w, &m);
-}
-
-/*
- * The resource layer through a call market per resource type
- * (central.resource_market "call"): cores first, then memory, each a
- * double auction with one uniform k-price. The auctioneer bids for each
- * basic agent as its proxy, within the budget the agent sent (what its
- * service pays), and never above it in all.
- *
- * Cores are priced per reference core-second: a core of speed s running
- * t seconds gives t·s/s_ref of them, so every bundle needs the same
- * amount, flops/s_ref, whoever sells, and a seller asks its cost per
- * core-second × s_ref/s. The cores bid's limit is the budget's share at
- * the mean cost rates. A bundle's cores may come from several sellers;
- * each runs its share of the work at its own speed, so the bundle lasts
- * as long as its slowest seller's part. Memory is priced per GiB-second
- * and sold in MiB, held for that whole run; its bid's limit is what the
- * budget has left after the cores, per GiB-second. All parts start
- * together, a period after the clearing: a seller holds its part from the
- * award until the part's end, and a bundle not complete by the start is
- * void (final_fail), so each service's memory covers its whole run.
- *
- * Complements on separate markets expose a buyer to winning one good and
- * not the other. A bundle not filled in full on both markets is cancelled
- * whole before anyone is told: no seller is reserved or paid, and its bid
- * stays in the book for the next call. A complete bundle's parts go to
- * their sellers as awards; each seller holds its part from then until the
- * part's end and confirms to the buyer. With the last confirmation the
- * bundle is rented: every part becomes a contract and is paid, and the
- * service becomes final. A bundle that never completes (a seller was
- * down, a confirmation was lost, the deadline passed) or whose service is
- * void by then is paid to no one: its sellers held their parts for
- * nothing, and the basic agent never pays for resources it cannot use.
- */
-static void clear_calls(bgm_world_t *w, double now)
-{
-    size_t n = expire_rbids(w, now);
-    if (n == 0)
-        return;
-    const double sref = w->cfg.network.speed, k = w->cfg.central.k;
-    /* Every part of a bundle runs over one interval from a common start a
-     * period ahead (the awards and confirmations travel meanwhile), so the
-     * memory is held for the whole run of the slowest cores. */
-    const double start = now + w->cfg.central.period;
-    call_bid_t *cb = calloc(n, sizeof *cb);
-    int *parts = calloc(n, sizeof *parts);
-    bgm_fill_t *cf = NULL, *mf = NULL;
-    bgm_clearing_t rc, rm;
-    if (!cb || !parts) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    bgm_callmarket_reset(w->cm);
-    for (size_t i = 0; i < n; i++) {
-        const req_t *r = &w->reqs[w->pend_rbid[i]];
-        double cc = w->cfg.resources.core_cost * req_cores(w, r),
-               mc = w->cfg.resources.memory_cost * req_memory(w, r);
-        double share = cc + mc > 0.0 ? cc / (cc + mc) : 1.0;
-        cb[i].cores = (int)req_cores(w, r);
-        cb[i].tref = req_flops(w, r) / (req_cores(w, r) * sref);
-        cb[i].bid_core = share * r->limit / (req_cores(w, r) * cb[i].tref);
-        cb[i].mib = (long)ceil(req_memory(w, r) * BGM_MIB - 1e-9);
-        bgm_order_t o = {i, r->buyer, cb[i].cores, cb[i].bid_core};
-        if (bgm_callmarket_bid(w->cm, &o))
-            break;
-    }
-    for (uint32_t j = 0; j < w->nmr; j++) {
-        const mkt_seller_t *s = &w->mr[j];
-        int free = (int)floor(s->free_a + 1e-9);
-        bgm_order_t o = {j, s->agent, free, s->price * sref / s->speed};
-        if (free >= 1 && bgm_callmarket_ask(w->cm, &o))
-            break;
-    }
-    if (bgm_callmarket_clear(w->cm, k, &rc, w->fills, 2 * BGM_BOOK_MAX) ||
-        !(cf = copy_fills(w, rc.fill_count))) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    const bgm_order_t *asks = bgm_callmarket_asks(w->cm);
-    for (size_t f = 0; f < rc.fill_count; f++) {
-        /* From here on a fill names the bundle (index into pend_rbid) and
-         * the seller (index into mr), read from the orders' refs. */
-        size_t i = bgm_callmarket_bids(w->cm)[cf[f].bid].ref;
-        uint32_t j = (uint32_t)asks[cf[f].ask].ref;
-        cf[f].bid = i;
-        cf[f].ask = j;
-        cb[i].got_cores += cf[f].quantity;
-        cb[i].dur = fmax(cb[i].dur, cb[i].tref * sref / w->mr[j].speed);
-    }
-
-    bgm_callmarket_reset(w->cm);
-    for (size_t i = 0; i < n; i++) {
-        if (cb[i].got_cores < cb[i].cores || cb[i].mib == 0)
-            continue;
-        cb[i].spent = rc.price * cb[i].cores * cb[i].tref;
-        double left = w->reqs[w->pend_rbid[i]].limit - cb[i].spent;
-        cb[i].bid_mem = left / ((double)cb[i].mib / BGM_MIB * cb[i].dur);
-        bgm_order_t o = {i, w->reqs[w->pend_rbid[i]].buyer, (int)cb[i].mib, cb[i].bid_mem};
-        if (cb[i].bid_mem > 0.0 && bgm_callmarket_bid(w->cm, &o))
-            break;
-    }
-    for (uint32_t j = 0; j < w->nmr; j++) {
-        const mkt_seller_t *s = &w->mr[j];
-        double free = floor(s->free_b * BGM_MIB + 1e-9);
-        bgm_order_t o = {j, s->agent, free > INT32_MAX ? INT32_MAX : (int)free, s->mem_cost};
-        if (free >= 1.0 && bgm_callmarket_ask(w->cm, &o))
-            break;
-    }
-    if (bgm_callmarket_clear(w->cm, k, &rm, w->fills, 2 * BGM_BOOK_MAX) ||
-        !(mf = copy_fills(w, rm.fill_count))) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    asks = bgm_callmarket_asks(w->cm);
-    for (size_t f = 0; f < rm.fill_count; f++) {
-        size_t i = bgm_callmarket_bids(w->cm)[mf[f].bid].ref;
-        mf[f].bid = i;
-        mf[f].ask = (uint32_t)asks[mf[f].ask].ref;
-        cb[i].got_mib += mf[f].quantity;
-    }
-
-    /* Award the complete bundles, part by part. */
-    for (size_t f = 0; f < rc.fill_count; f++)
-        parts[cf[f].bid]++;
-    for (size_t f = 0; f < rm.fill_count; f++)
-        parts[mf[f].bid]++;
-    for (size_t f = 0; f < rc.fill_count; f++) {
-        size_t i = cf[f].bid;
-        if (cb[i].got_cores < cb[i].cores || cb[i].got_mib < cb[i].mib)
-            continue;
-        double ratio = w->mr[cf[f].ask].speed / sref;
-        award_part(w, i, (uint32_t)cf[f].ask, BGM_GOOD_CORES, cf[f].quantity, start,
-                   cb[i].tref / ratio, rc.price * ratio, cb[i].bid_core * ratio, parts[i]);
-    }
-    for (size_t f = 0; f < rm.fill_count; f++) {
-        size_t i = mf[f].bid;
-        if (cb[i].got_cores < cb[i].cores || cb[i].got_mib < cb[i].mib)
-            continue;
-        award_part(w, i, (uint32_t)mf[f].ask, BGM_GOOD_MEMORY, (double)mf[f].quantity / BGM_MIB,
-                   start, cb[i].dur, rm.price, cb[i].bid_mem, parts[i]);
-    }
-    for (size_t i = 0; i < n; i++)
-        if (cb[i].got_cores >= cb[i].cores && cb[i].got_mib >= cb[i].mib)
-            w->reqs[w->pend_rbid[i]].state = RQ_COMMITTED;
-    compact_rbids(w);
-out:
-    free(cb);
-    free(parts);
-    free(cf);
-    free(mf);
-}
-
-static void clear_resources(bgm_world_t *w, double now)
-{
-    if (w->cfg.central.resource_market == BGM_RM_CALL)
-        clear_calls(w, now);
-    else
-        clear_exchange(w, now);
-}
-
-typedef struct room_ctx {
-    const bgm_world_t *w;
-    const bgm_msg_t *query;
-} room_ctx_t;
-
-static int has_room(void *ctx, const bgm_posting_t *p)
-{
-    const room_ctx_t *rc = ctx;
-    const bgm_world_t *w = rc->w;
-    if (rc->query->good == BGM_GOOD_CORES) {
-        const mkt_seller_t *s = &w->mr[p->seller - w->first_resource];
-        return s->free_a >= rc->query->a && s->free_b >= rc->query->b;
-    }
-    return w->mb[p->seller - w->first_basic].free_a >= 1.0;
-}
-
-static void market_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
-{
-    switch (m->type) {
-    case M_BID:
-        if (push_pending(w, w->pend_bid, &w->npend_bid, m->req))
-            fail(w, BG_ERR_LIMIT);
-        break;
-    case M_RBID:
-        if (push_pending(w, w->pend_rbid, &w->npend_rbid, m->req))
-            fail(w, BG_ERR_LIMIT);
-        break;
-    case M_ASK: {
-        mkt_seller_t *s = &w->mb[m->from - w->first_basic];
-        s->agent = m->from;
-        s->reservation[m->good] = m->price;
-        if (m->a >= 0.0)
-            s->free_a = m->a;
-        if (m->from - w->first_basic + 1 > w->nmb)
-            w->nmb = m->from - w->first_basic + 1;
-        if (w->p.mechanism == BGM_MECH_BASELINE &&
-            bgm_posted_post(w->dir, m->from, m->good, m->price))
-            fail(w, BG_ERR_LIMIT);
-        break;
-    }
-    case M_FREE:
-        w->mb[m->from - w->first_basic].free_a += 1.0;
-        break;
-    case M_RASK: {
-        mkt_seller_t *s = &w->mr[m->from - w->first_resource];
-        s->agent = m->from;
-        s->free_a = m->a;
-        s->free_b = m->b;
-        s->speed = m->c;
-        s->price = m->price;
-        s->mem_cost = m->cand_price[0];
-        if (m->from - w->first_resource + 1 > w->nmr)
-            w->nmr = m->from - w->first_resource + 1;
-        if (w->p.mechanism == BGM_MECH_BASELINE &&
-            bgm_posted_post(w->dir, m->from, BGM_GOOD_CORES, m->price))
-            fail(w, BG_ERR_LIMIT);
-        break;
-    }
-    case M_RFREE: {
-        mkt_seller_t *s = &w->mr[m->from - w->first_resource];
-        s->free_a += m->a;
-        s->free_b += m->b;
-        break;
-    }
-    case M_AVAIL:
-        if (w->agents[m->from].role == BGM_ROLE_BASIC) {
-            w->mb[m->from - w->first_basic].free_a = m->a;
+    if (st)
+        fail(w, st);
+    for (size_t i = 0; i < bgm_outbox_count(w->ob); i++) {
+        const bgm_out_item_t *it = bgm_outbox_item(w->ob, i);
+        if (it->is_timer) {
+            timer(w, it->agent, it->at, it->kind, it->arg);
         } else {
-            w->mr[m->from - w->first_resource].free_a = m->a;
-            w->mr[m->from - w->first_resource].free_b = m->b;
+            bgm_msg_t m = it->msg;
+            send(w, &m);
         }
-        break;
-    case M_QUERY: {
-        /* First fit over the sellers the directory believes have room, in
-         * registration order, up to the candidate cap. */
-        bgm_posting_t out[BGM_MSG_CANDIDATES];
-        int cap = w->cfg.baseline.candidates < BGM_MSG_CANDIDATES ? w->cfg.baseline.candidates
-                                                                   : BGM_MSG_CANDIDATES;
-        room_ctx_t rc = {w, m};
-        size_t n = bgm_posted_query_if(w->dir, m->good, m->price, has_room, &rc, out, (size_t)cap);
-        bgm_msg_t l = msg(M_LIST, 0, m->from, m->req, m->attempt);
-        l.good = m->good;
-        l.ncand = (uint16_t)n;
-        for (size_t i = 0; i < n; i++) {
-            l.cand[i] = out[i].seller;
-            l.cand_price[i] = out[i].price;
-            if (m->good == BGM_GOOD_CORES) {
-                /* A posted bundle rate: the seller's cost rate for the
-                 * bundle, marked up like every posted price. */
-                const mkt_seller_t *s = &w->mr[out[i].seller - w->first_resource];
-                l.cand_price[i] = (1.0 + w->cfg.baseline.markup) *
-                                  (s->price * m->a + s->mem_cost * m->b);
-                l.cand_speed[i] = s->speed;
-            }
-        }
-        send(w, &l);
-        break;
     }
-    default:
-        break;
-    }
-    (void)now;
+    bgm_outbox_clear(w->ob);
 }
 
 /* ------------------------------------------------------------ catallactic */
@@ -1895,7 +1400,7 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
     if (!agent_reachable(w, me))
         return BG_OK; /* lost on a failed node or link */
     if (me == 0) {
-        market_on_message(w, m, now);
+        route_market(w, bgm_market_agent_on_message(w->ma, m, now, w->ob));
         return w->failure;
     }
     if (m->type != M_GENES && m->type != M_CFP && m->req >= w->nreq)
@@ -2084,10 +1589,7 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
         break;
     }
     case T_CLEAR:
-        clear_services(w, now);
-        clear_resources(w, now);
-        if (now + w->cfg.central.period <= w->horizon)
-            timer(w, 0, now + w->cfg.central.period, T_CLEAR, 0);
+        route_market(w, bgm_market_agent_on_timer(w->ma, kind, arg, now, w->ob));
         break;
     case T_REQ: {
         req_t *r = &w->reqs[rid];
@@ -2221,8 +1723,7 @@ bg_status bgm_world_start(bgm_world_t *w, const bgm_sink_t *sink, double now)
     w->sink = *sink;
     const bgm_config_t *c = &w->cfg;
     int mech = w->p.mechanism;
-    if (mech == BGM_MECH_CENTRAL)
-        timer(w, 0, now + c->central.period, T_CLEAR, 0);
+    route_market(w, bgm_market_agent_start(w->ma, now, w->ob));
     for (uint32_t i = 1; i < w->nagents; i++) {
         agent_t *a = &w->agents[i];
         if (a->role == BGM_ROLE_COMPLEX) {
@@ -2451,8 +1952,7 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
     m[BGM_M_CONTRACTS] = svc;
     m[BGM_M_MESSAGES] = w->msgs;
     m[BGM_M_BYTES] = w->bytes;
-    m[BGM_M_COMBEX_EXACT] = w->combex_exact;
-    m[BGM_M_COMBEX_GREEDY] = w->combex_greedy;
+    bgm_market_agent_counts(w->ma, &m[BGM_M_COMBEX_EXACT], &m[BGM_M_COMBEX_GREEDY]);
     m[BGM_M_TIMEOUTS] = w->timeouts;
     if (w->service_requests > 0)
         m[BGM_M_ALLOCATION_RATE] = svc / w->service_requests;
