@@ -101,7 +101,7 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
     switch (in->type) {
     case BGM_RM_BID:
         o->good = (int16_t)u->bid.good; o->price = u->bid.price_per_unit;
-        o->a = u->bid.work; o->b = u->bid.deadline;
+        o->a = u->bid.work; o->b = u->bid.deadline; o->cand_price[0] = u->bid.deadline;
         break;
     case BGM_RM_ASK:
         o->good = (int16_t)u->ask.good; o->price = u->ask.reservation_per_unit;
@@ -114,11 +114,11 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
         break;
     case BGM_RM_RBID:
         o->a = u->rbid.cores; o->b = u->rbid.memory; o->c = u->rbid.flops;
-        o->price = u->rbid.limit_total;
+        o->price = u->rbid.limit_total; o->cand_price[0] = u->rbid.deadline;
         break;
     case BGM_RM_RASK:
         o->a = u->rask.cores; o->b = u->rask.memory; o->c = u->rask.speed;
-        o->price = u->rask.cost_rate_per_core;
+        o->price = u->rask.cost_rate_per_core; o->cand_price[0] = u->rask.memory_cost_rate;
         break;
     case BGM_RM_RFREE:
         o->a = u->rfree.cores; o->b = u->rfree.memory;
@@ -213,10 +213,10 @@ bg_status bgm_codec_from_generic(const bgm_msg_t *g, bgm_role_msg_t *o, bg_error
         u->match = (bgm_rm_match_t){g->good, g->origin, g->price, g->a, g->b, g->c};
         break;
     case BGM_RM_RBID:
-        u->rbid = (bgm_rm_rbid_t){g->a, g->b, g->c, g->price};
+        u->rbid = (bgm_rm_rbid_t){g->a, g->b, g->c, g->price, g->cand_price[0]};
         break;
     case BGM_RM_RASK:
-        u->rask = (bgm_rm_rask_t){g->a, g->b, g->c, g->price};
+        u->rask = (bgm_rm_rask_t){g->a, g->b, g->c, g->price, g->cand_price[0]};
         break;
     case BGM_RM_RFREE:
         u->rfree = (bgm_rm_rfree_t){g->a, g->b};

@@ -136,9 +136,11 @@ typedef struct bgm_rm_match {
 } bgm_rm_match_t;
 typedef struct bgm_rm_rbid {
     double cores, memory, flops, limit_total;
+    double deadline; /* the market agent drops the bid after it */
 } bgm_rm_rbid_t;
 typedef struct bgm_rm_rask {
     double cores, memory, speed, cost_rate_per_core;
+    double memory_cost_rate; /* per GiB-second: the exchange prices bundles with it */
 } bgm_rm_rask_t;
 typedef struct bgm_rm_rfree {
     double cores, memory;

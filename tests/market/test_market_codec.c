@@ -131,6 +131,36 @@ static void test_typed_roundtrip_every_type(void **state)
     }
 }
 
+/* What the market agent reads of a bid or a resource seller travels in
+ * the typed messages too: a resource bid's deadline, a seller's memory
+ * cost, a service bid's deadline where the world's generic message has it. */
+static void test_typed_fields_market_agent_reads(void **state)
+{
+    (void)state;
+    bg_error_t err;
+    memset(&err, 0, sizeof err);
+    bgm_role_msg_t r;
+    memset(&r, 0, sizeof r);
+    bgm_msg_t g;
+    r.type = BGM_RM_RBID;
+    r.u.rbid = (bgm_rm_rbid_t){2.0, 4.0, 6e9, 1.5, 42.25};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.cand_price[0] == 42.25 && g.a == 2.0 && g.b == 4.0 && g.c == 6e9);
+    bgm_role_msg_t back;
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.rbid.deadline == 42.25 && back.u.rbid.limit_total == 1.5);
+    r.type = BGM_RM_RASK;
+    r.u.rask = (bgm_rm_rask_t){4.0, 8.0, 1e9, 0.05, 0.0125};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.cand_price[0] == 0.0125 && g.price == 0.05);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.rask.memory_cost_rate == 0.0125);
+    r.type = BGM_RM_BID;
+    r.u.bid = (bgm_rm_bid_t){1, 3.0, 5.0, 77.5};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.b == 77.5 && g.cand_price[0] == 77.5);
+}
+
 /* Spot checks that typed fields land where the world reads them. */
 static void test_typed_field_meaning(void **state)
 {
@@ -347,6 +377,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_generic_roundtrip_every_type),
         cmocka_unit_test(test_typed_roundtrip_every_type),
+        cmocka_unit_test(test_typed_fields_market_agent_reads),
         cmocka_unit_test(test_typed_field_meaning),
         cmocka_unit_test(test_encode_refuses),
         cmocka_unit_test(test_decode_refuses),
