@@ -292,6 +292,10 @@ static void clear_exchange(bgm_market_agent_t *ma, double now)
         bgm_msg_t m = msg(BGM_MT_RAWARD, ma->p.self, s->agent, r->req, r->attempt);
         m.price = total / dur;
         m.origin = r->buyer;
+        m.a = r->cores;
+        m.b = r->memory;
+        m.c = r->flops;
+        m.cand_price[1] = r->limit;
         emit(ma, &m);
     }
     compact_rbids(ma, now);

@@ -4,8 +4,8 @@
  * complex-service buyer (one per job), the basic-service seller (which
  * also buys resources) and the resource seller.
  *
- * The simulator's world hosts one state machine per role (bgm_market_agent,
- * ...; market/README.md says which roles are split out so far) and routes
+ * The simulator's world hosts one state machine per role split out so far
+ * (bgm_market_agent, bgm_resource; market/README.md says what is left) and routes
  * the generic message bgm_msg_t below between them; `biotgrid sim
  * --engine wire` carries every routed message through the pure codec
  * (bgm_codec.h). A role machine includes this header, never another

@@ -8,6 +8,7 @@
 #include "bgm_market_agent.h"
 #include "bgm_optimum.h"
 #include "bgm_outbox.h"
+#include "bgm_resource.h"
 #include "bgm_rng.h"
 #include "bgm_strategy.h"
 
@@ -40,9 +41,7 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 /* Extra simulated bytes for the variable parts of messages. */
 #define BGM_CAND_BYTES 20
 #define BGM_GENES_BYTES 48
-/* Fitness smoothing and the step of the opening-price markup. */
-#define BGM_FITNESS_DECAY 0.9
-#define BGM_MARKUP_STEP 0.1
+/* The opening-price markup every agent starts from. */
 #define BGM_MARKUP_INIT 0.2
 /* A basic agent re-announces its ask when its reservation moves this much. */
 #define BGM_ASK_REFRESH 0.1
@@ -97,7 +96,9 @@ enum {
     T_LINK_FAIL,
     T_LINK_REPAIR
 };
-_Static_assert(T_CLEAR == BGM_MA_TIMER_CLEAR, "the market agent's timer keeps its number");
+_Static_assert(T_CLEAR == BGM_MA_TIMER_CLEAR && T_RELEASE == BGM_RS_TIMER_RELEASE &&
+                   T_RELEASE_PART == BGM_RS_TIMER_RELEASE_PART && T_LEARN == BGM_RS_TIMER_LEARN,
+               "the role machines' timers keep their numbers");
 
 enum { RQ_IDLE, RQ_DISCOVER, RQ_NEGOTIATE, RQ_WAIT, RQ_COMMITTED, RQ_DONE, RQ_FAILED };
 
@@ -164,8 +165,8 @@ typedef struct agent {
     double est_res[BGM_SERVICE_TYPES];   /* estimated resource cost per unit */
     double announced[BGM_SERVICE_TYPES]; /* last reservation sent to the market */
     double posted[BGM_SERVICE_TYPES];    /* baseline posted price */
-    /* resource seller */
-    double cores, mem, used_cores, used_mem, core_cost, mem_cost, speed;
+    /* resource seller: its endowment, as drawn (the machine holds the rest) */
+    double cores, mem, core_cost, mem_cost, speed;
     /* complex buyer */
     double requested[BGM_SERVICE_TYPES], valuation_sum[BGM_SERVICE_TYPES];
     double paid[2], received[2];
@@ -206,6 +207,7 @@ struct bgm_world {
     part_t *parts; /* call markets: parts held for bundles not yet complete */
     size_t nparts, parts_cap;
     bgm_market_agent_t *ma; /* agent 0's role machine */
+    bgm_resource_t **rsm;   /* the resource sellers' role machines, by agent - first_resource */
     bgm_outbox_t *ob;       /* what a role machine emits during one call */
     /* accounting */
     double msgs, bytes, timeouts;
@@ -259,16 +261,16 @@ static void timer(bgm_world_t *w, uint32_t agent, double at, int kind, uint64_t 
 
 static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt);
 
-/* Baseline: a seller tells the directory its free capacity whenever it
- * changes, as a plain scheduler's resource registry would learn it. */
+/* Baseline: a basic seller tells the directory its free slots whenever
+ * they change, as a plain scheduler's registry would learn them (resource
+ * sellers do the same in bgm_resource). */
 static void announce(bgm_world_t *w, uint32_t seller)
 {
     if (w->p.mechanism != BGM_MECH_BASELINE)
         return;
     const agent_t *a = &w->agents[seller];
     bgm_msg_t m = msg(M_AVAIL, seller, 0, 0, 0);
-    m.a = a->role == BGM_ROLE_BASIC ? (double)(a->slots - a->used) : a->cores - a->used_cores;
-    m.b = a->role == BGM_ROLE_BASIC ? 0.0 : a->mem - a->used_mem;
+    m.a = (double)(a->slots - a->used);
     send(w, &m);
 }
 
@@ -429,13 +431,7 @@ static double reservation(const agent_t *b, int good)
 
 static void learn_outcome(agent_t *a, int success, double surplus_share)
 {
-    if (success) {
-        a->fitness = BGM_FITNESS_DECAY * a->fitness + (1.0 - BGM_FITNESS_DECAY) * surplus_share;
-        a->markup += a->genes.price_next * BGM_MARKUP_STEP * (1.0 - a->markup);
-    } else {
-        a->fitness *= BGM_FITNESS_DECAY;
-        a->markup -= a->genes.price_next * BGM_MARKUP_STEP * a->markup;
-    }
+    bgm_outcome_learn(&a->genes, &a->fitness, &a->markup, success, surplus_share);
 }
 
 /* ------------------------------------------------------------ construction */
@@ -587,9 +583,26 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
                                     w->horizon};
     w->ma = bgm_market_agent_new(&mp);
     w->ob = bgm_outbox_new(BGM_OUTBOX_MAX);
-    if (!w->ma || !w->ob) {
+    w->rsm = calloc(w->nresource, sizeof *w->rsm);
+    if (!w->ma || !w->ob || !w->rsm) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the market books");
         goto out;
+    }
+    for (uint32_t k = 0; k < w->nresource; k++) {
+        const agent_t *ag = &w->agents[w->first_resource + k];
+        uint8_t same[BGM_MAX_NEIGHBOURS];
+        for (int j = 0; j < ag->ndeg; j++)
+            same[j] = w->agents[ag->nbr[j]].role == BGM_ROLE_RESOURCE;
+        bgm_resource_params_t rp = {&w->cfg,       p->mechanism, w->first_resource + k, 0,
+                                    w->horizon,    ag->cores,    ag->mem,
+                                    ag->core_cost, ag->mem_cost, ag->speed,
+                                    ag->rng,       ag->genes,    ag->markup,
+                                    ag->nbr,       same,         ag->ndeg};
+        if (!(w->rsm[k] = bgm_resource_new(&rp))) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u resource sellers",
+                              w->nresource);
+            goto out;
+        }
     }
 out:
     if (st)
@@ -615,6 +628,9 @@ void bgm_world_destroy(bgm_world_t **pw)
     free(w->log);
     free(w->parts);
     bgm_market_agent_destroy(&w->ma);
+    for (uint32_t k = 0; w->rsm && k < w->nresource; k++)
+        bgm_resource_destroy(&w->rsm[k]);
+    free(w->rsm);
     bgm_outbox_destroy(&w->ob);
     free(w->acc_s);
     free(w->acc_r);
@@ -869,87 +885,6 @@ static void pay_bundle(bgm_world_t *w, uint32_t rid, uint32_t seller, double rat
     w->welfare -= cost * dur;
 }
 
-/* The resource agent has agreed to rent bundle rid at `rate` per second:
- * it checks capacity now (all its contracts start when agreed, so free
- * capacity now is free capacity for the whole interval), holds the bundle
- * until its end and confirms. It is paid when the buyer takes delivery
- * (pay_bundle): a bundle whose buyer has given up by then is held for
- * nothing. Returns 0 when it cannot. */
-static int resource_agreed(bgm_world_t *w, uint32_t ra_id, uint32_t rid, double rate, double now)
-{
-    agent_t *ra = &w->agents[ra_id];
-    req_t *r = &w->reqs[rid];
-    if (!agent_alive(w, ra_id) || ra->used_cores + req_cores(w, r) > ra->cores + 1e-9 ||
-        ra->used_mem + req_memory(w, r) > ra->mem + 1e-9)
-        return 0;
-    double dur = req_duration(w, r, ra->speed);
-    double cost = resource_cost_rate(ra, req_cores(w, r), req_memory(w, r));
-    if (rate < cost || rate * dur > r->limit * (1.0 + 1e-12))
-        return 0;
-    ra->used_cores += req_cores(w, r);
-    ra->used_mem += req_memory(w, r);
-    announce(w, ra_id);
-    if (push_double(&w->acc_r, &w->nacc_r, now - r->created))
-        fail(w, BG_ERR_NOMEM);
-    ra->memory[3] =
-        bgm_memory_update(ra->memory[3], rate / mean_rate(w, req_cores(w, r), req_memory(w, r)),
-                          ra->genes.weight_memory);
-    learn_outcome(ra, 1, (rate - cost) / rate);
-    timer(w, ra_id, now + dur, T_RELEASE, rid);
-    bgm_msg_t m = msg(M_RCONFIRM, ra_id, r->buyer, rid, r->attempt);
-    m.good = BGM_GOOD_BUNDLE;
-    m.price = rate;
-    m.a = now;
-    m.b = now + dur;
-    m.c = cost;
-    send(w, &m);
-    return 1;
-}
-
-/* Quantities of a part travel in a timer argument as whole MiB (cores
- * are whole numbers, memory is bought in MiB), next to the good. */
-#define BGM_MIB 1024.0
-
-static uint64_t part_arg(int good, double quantity)
-{
-    return ((uint64_t)good << 40) | (uint64_t)llround(quantity * BGM_MIB);
-}
-
-/* The resource agent has been awarded one part of bundle m->req on a call
- * market: m->a cores or GiB for m->b seconds from the bundle's common
- * start (m->cand_price[0]) at m->price per unit-second. It checks that it
- * is up, that the start is still ahead, and that it has the room now; it
- * holds the part from now until the part's end and confirms to the buyer;
- * it is paid only once the buyer has the whole bundle (pay_parts).
- * Returns 0 when it cannot. */
-static int part_agreed(bgm_world_t *w, uint32_t ra_id, const bgm_msg_t *m, double now)
-{
-    agent_t *ra = &w->agents[ra_id];
-    const req_t *r = &w->reqs[m->req];
-    int is_cores = m->good == BGM_GOOD_CORES;
-    double qty = m->a, dur = m->b, rate = m->price, start = m->cand_price[0];
-    double cost = is_cores ? ra->core_cost : ra->mem_cost;
-    double *used = is_cores ? &ra->used_cores : &ra->used_mem;
-    /* The auctioneer converts the uniform price to this seller's rate, so
-     * the rate can sit an ulp below its cost. */
-    if (!agent_alive(w, ra_id) || now > start ||
-        *used + qty > (is_cores ? ra->cores : ra->mem) + 1e-9 || rate < cost * (1.0 - 1e-12))
-        return 0;
-    *used += qty;
-    timer(w, ra_id, start + dur, T_RELEASE_PART, part_arg(m->good, qty));
-    bgm_msg_t k = msg(M_RCONFIRM, ra_id, r->buyer, m->req, m->attempt);
-    k.good = m->good;
-    k.hops = m->hops;
-    k.price = rate;
-    k.a = start;
-    k.b = start + dur;
-    k.cand_price[0] = qty;
-    k.cand_price[1] = m->c;
-    k.cand_price[2] = cost;
-    send(w, &k);
-    return 1;
-}
-
 /* Bundle rid is complete: each of its parts becomes a contract and is
  * paid. Returns the money paid in all. */
 static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
@@ -971,7 +906,6 @@ static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
         if (p->good == BGM_GOOD_CORES)
             w->core_seconds += p->quantity * dur;
         w->welfare -= p->cost * p->quantity * dur;
-        learn_outcome(&w->agents[p->seller], 1, (p->rate - p->cost) / p->rate);
         total += money;
     }
     drop_parts(w, rid);
@@ -1135,10 +1069,13 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
 
 /* ---------------------------------------------------------------- market */
 
-/* Routes what the market agent emitted during one call, in emission
- * order, through the world's send (accounting, a sender cut off loses its
- * messages) and the driver's timers, then empties the outbox. */
-static void route_market(bgm_world_t *w, bg_status st)
+/* Routes what a role machine emitted during one call, in emission order,
+ * through the world's send (accounting, a sender cut off loses its
+ * messages) and the driver's timers, then empties the outbox. The world
+ * observes as it routes: a whole bundle confirmed is a resource access,
+ * timed from its request's creation (the basic seller's record, which the
+ * world keeps for the metrics). */
+static void route(bgm_world_t *w, bg_status st, double now)
 {
     if (st)
         fail(w, st);
@@ -1146,12 +1083,25 @@ static void route_market(bgm_world_t *w, bg_status st)
         const bgm_out_item_t *it = bgm_outbox_item(w->ob, i);
         if (it->is_timer) {
             timer(w, it->agent, it->at, it->kind, it->arg);
-        } else {
-            bgm_msg_t m = it->msg;
-            send(w, &m);
+            continue;
         }
+        bgm_msg_t m = it->msg;
+        if (m.type == M_RCONFIRM && m.good == BGM_GOOD_BUNDLE && m.req < w->nreq &&
+            push_double(&w->acc_r, &w->nacc_r, now - w->reqs[m.req].created))
+            fail(w, BG_ERR_NOMEM);
+        send(w, &m);
     }
     bgm_outbox_clear(w->ob);
+}
+
+static int is_resource(const bgm_world_t *w, uint32_t a)
+{
+    return a >= w->first_resource && a < w->nagents;
+}
+
+static bgm_resource_t *resource_machine(bgm_world_t *w, uint32_t a)
+{
+    return w->rsm[a - w->first_resource];
 }
 
 /* ------------------------------------------------------------ catallactic */
@@ -1167,28 +1117,22 @@ static int seen_before(bgm_world_t *w, uint32_t agent, uint64_t key)
     return 0;
 }
 
-/* Seller's reservation and opening for request r (layer-dependent). */
-static double seller_limit_for(const bgm_world_t *w, const agent_t *s, const req_t *r)
+/* A basic seller's reservation and opening for service request r
+ * (resource sellers bargain in bgm_resource). */
+static double seller_limit_for(const agent_t *s, const req_t *r)
 {
-    if (r->layer == 0)
-        return reservation(s, r->good);
-    return resource_cost_rate(s, req_cores(w, r), req_memory(w, r));
+    return reservation(s, r->good);
 }
 
-static double seller_opening(const bgm_world_t *w, const agent_t *s, const req_t *r)
+static double seller_opening(const agent_t *s, const req_t *r)
 {
-    double lim = seller_limit_for(w, s, r);
-    double mem = r->layer == 0 ? s->memory[r->good]
-                               : s->memory[3] * mean_rate(w, req_cores(w, r), req_memory(w, r));
-    return bgm_nego_opening(BGM_SIDE_SELLER, lim, mem, s->markup);
+    return bgm_nego_opening(BGM_SIDE_SELLER, seller_limit_for(s, r), s->memory[r->good],
+                            s->markup);
 }
 
-static int can_sell(const bgm_world_t *w, const agent_t *s, const req_t *r)
+static int can_sell(const agent_t *s, const req_t *r)
 {
-    if (r->layer == 0)
-        return s->role == BGM_ROLE_BASIC && s->sells[r->good] && s->used < s->slots;
-    return s->role == BGM_ROLE_RESOURCE && s->used_cores + req_cores(w, r) <= s->cores &&
-           s->used_mem + req_memory(w, r) <= s->mem;
+    return r->layer == 0 && s->role == BGM_ROLE_BASIC && s->sells[r->good] && s->used < s->slots;
 }
 
 static void on_cfp(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
@@ -1198,9 +1142,9 @@ static void on_cfp(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
     if (seen_before(w, me, key))
         return;
     const req_t *r = &w->reqs[m->req];
-    if (can_sell(w, a, r)) {
+    if (can_sell(a, r)) {
         bgm_msg_t p = msg(M_PROPOSE, me, m->origin, m->req, m->attempt);
-        p.price = seller_opening(w, a, r);
+        p.price = seller_opening(a, r);
         p.a = a->speed;
         send(w, &p);
     }
@@ -1216,6 +1160,20 @@ static double buyer_limit_for(const bgm_world_t *w, const req_t *r, const propos
     if (r->layer == 0)
         return r->limit;
     return r->limit / req_duration(w, r, p->speed);
+}
+
+/* What a seller reads of the request in a buyer's OFFER, ACCEPT or
+ * ORDER: the good (a bundle: < 0), the bundle, the budget (a resource
+ * seller checks the rent against it) and how long the buyer's offer
+ * stands: until its deadline, when the buyer gives up bargaining. */
+static void request_fields(const bgm_world_t *w, const req_t *r, bgm_msg_t *m)
+{
+    m->good = (int16_t)r->good;
+    m->a = r->layer == 0 ? r->work : req_cores(w, r);
+    m->b = req_memory(w, r);
+    m->c = req_flops(w, r);
+    m->cand_price[1] = r->limit;
+    m->cand_price[2] = r->deadline;
 }
 
 static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
@@ -1236,12 +1194,15 @@ static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
             }
             o = msg(M_ORDER, r->buyer, p->seller, rid, r->attempt);
             o.price = p->price;
+            request_fields(w, r, &o);
         } else {
             bgm_nego_open(&g->buyer_nego, BGM_SIDE_BUYER, lim,
                           bgm_nego_opening(BGM_SIDE_BUYER, lim, mem, b->markup), &b->genes,
                           w->cfg.catallactic.max_rounds);
             o = msg(M_OFFER, r->buyer, p->seller, rid, r->attempt);
             o.price = g->buyer_nego.current;
+            o.hops = 1; /* opens a bargain: the seller starts afresh */
+            request_fields(w, r, &o);
         }
         r->seller = p->seller;
         g->seller_open = 0;
@@ -1267,31 +1228,25 @@ static int cmp_prop(const void *pa, const void *pb)
     return (a->seller > b->seller) - (a->seller < b->seller);
 }
 
-/* Agreement reached at the seller: commit on the seller's side. For a
- * service the buyer is told ACCEPT (resources follow); for a bundle the
- * RCONFIRM from resource_agreed is the acceptance. */
+/* Agreement reached at a basic seller: it commits on its side and tells
+ * the buyer ACCEPT (resources follow), or REJECT when it cannot. */
 static void seller_commit(bgm_world_t *w, uint32_t me, uint32_t rid, double price, double limit,
                           double now)
 {
     req_t *r = &w->reqs[rid];
-    if (r->layer == 0) {
-        uint32_t attempt = r->attempt;
-        uint32_t buyer = r->buyer;
-        if (!service_agreed(w, me, rid, attempt, price, limit, now)) {
-            bgm_msg_t x = msg(M_REJECT, me, buyer, rid, attempt);
-            send(w, &x);
-            return;
-        }
-        agent_t *s = &w->agents[me];
-        s->memory[w->reqs[rid].good] =
-            bgm_memory_update(s->memory[w->reqs[rid].good], price, s->genes.weight_memory);
-        bgm_msg_t a = msg(M_ACCEPT, me, buyer, rid, attempt);
-        a.price = price;
-        send(w, &a);
-    } else if (!resource_agreed(w, me, rid, price, now)) {
-        bgm_msg_t x = msg(M_REJECT, me, r->buyer, rid, r->attempt);
+    uint32_t attempt = r->attempt;
+    uint32_t buyer = r->buyer;
+    if (!service_agreed(w, me, rid, attempt, price, limit, now)) {
+        bgm_msg_t x = msg(M_REJECT, me, buyer, rid, attempt);
         send(w, &x);
+        return;
     }
+    agent_t *s = &w->agents[me];
+    s->memory[w->reqs[rid].good] =
+        bgm_memory_update(s->memory[w->reqs[rid].good], price, s->genes.weight_memory);
+    bgm_msg_t a = msg(M_ACCEPT, me, buyer, rid, attempt);
+    a.price = price;
+    send(w, &a);
 }
 
 static void seller_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
@@ -1302,8 +1257,8 @@ static void seller_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, dou
         return;
     nego_state_t *g = ng(w, r);
     if (!g->seller_open) {
-        bgm_nego_open(&g->seller_nego, BGM_SIDE_SELLER, seller_limit_for(w, s, r),
-                      seller_opening(w, s, r), &s->genes, w->cfg.catallactic.max_rounds);
+        bgm_nego_open(&g->seller_nego, BGM_SIDE_SELLER, seller_limit_for(s, r),
+                      seller_opening(s, r), &s->genes, w->cfg.catallactic.max_rounds);
         g->seller_open = 1;
     }
     double reply = 0.0;
@@ -1332,6 +1287,7 @@ static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, doub
     if (act == BGM_NEGO_ACCEPT) {
         bgm_msg_t a = msg(M_ACCEPT, me, m->from, m->req, m->attempt);
         a.price = reply;
+        request_fields(w, r, &a);
         r->state = RQ_COMMITTED;
         r->price = reply;
         send(w, &a);
@@ -1346,6 +1302,7 @@ static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, doub
     } else if (act == BGM_NEGO_COUNTER) {
         bgm_msg_t o = msg(M_OFFER, me, m->from, m->req, m->attempt);
         o.price = reply;
+        request_fields(w, r, &o);
         send(w, &o);
         arm(w, m->req, now + w->cfg.catallactic.reply_timeout);
     } else {
@@ -1400,37 +1357,22 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
     if (!agent_reachable(w, me))
         return BG_OK; /* lost on a failed node or link */
     if (me == 0) {
-        route_market(w, bgm_market_agent_on_message(w->ma, m, now, w->ob));
+        route(w, bgm_market_agent_on_message(w->ma, m, now, w->ob), now);
         return w->failure;
     }
     if (m->type != M_GENES && m->type != M_CFP && m->req >= w->nreq)
         return BG_ERR_INVALID;
+    if (is_resource(w, me)) {
+        route(w, bgm_resource_on_message(resource_machine(w, me), m, now, agent_alive(w, me), w->ob),
+              now);
+        return w->failure;
+    }
     req_t *r = m->type == M_GENES ? NULL : &w->reqs[m->req];
     switch (m->type) {
     case M_MATCH:
         if (!service_agreed(w, me, m->req, m->attempt, m->price, m->b, now)) {
             bgm_msg_t c = msg(M_CANCEL, me, m->origin, m->req, m->attempt);
             send(w, &c);
-        }
-        break;
-    case M_RAWARD:
-        if (!resource_agreed(w, me, m->req, m->price, now)) {
-            bgm_msg_t f = msg(M_RFAIL, me, m->origin, m->req, m->attempt);
-            send(w, &f);
-            bgm_msg_t g = msg(M_RFREE, me, 0, m->req, 0);
-            g.a = req_cores(w, r);
-            g.b = req_memory(w, r);
-            send(w, &g);
-        }
-        break;
-    case M_RPART:
-        if (!part_agreed(w, me, m, now)) {
-            bgm_msg_t f = msg(M_RFAIL, me, m->origin, m->req, m->attempt);
-            send(w, &f);
-            bgm_msg_t g = msg(M_RFREE, me, 0, m->req, 0);
-            g.a = m->good == BGM_GOOD_CORES ? m->a : 0.0;
-            g.b = m->good == BGM_GOOD_MEMORY ? m->a : 0.0;
-            send(w, &g);
         }
         break;
     case M_RFAIL:
@@ -1470,7 +1412,7 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         } else if (m->attempt == r->attempt && r->seller == me && r->state == RQ_COMMITTED) {
             const agent_t *s = &w->agents[me];
             const nego_state_t *g = ng(w, r);
-            double lim = g->seller_open ? g->seller_nego.limit : seller_limit_for(w, s, r);
+            double lim = g->seller_open ? g->seller_nego.limit : seller_limit_for(s, r);
             if (g->seller_open)
                 learn_outcome(&w->agents[me], 1, (m->price - lim) / m->price);
             seller_commit(w, me, m->req, m->price, lim, now);
@@ -1497,10 +1439,7 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
     case M_ORDER:
         if (m->attempt == r->attempt && r->seller == me && r->state == RQ_NEGOTIATE) {
             const agent_t *s = &w->agents[me];
-            double lim = r->layer == 0 ? s->posted[r->good] / (1.0 + w->cfg.baseline.markup)
-                                       : seller_limit_for(w, s, r);
-            if (r->layer == 1)
-                r->state = RQ_COMMITTED;
+            double lim = s->posted[r->good] / (1.0 + w->cfg.baseline.markup);
             seller_commit(w, me, m->req, m->price, lim, now);
         }
         break;
@@ -1579,6 +1518,11 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
     uint32_t hi = (uint32_t)(arg >> 32);
     int alive = agent_alive(w, me);
     const bgm_dynamics_t *dy = w->p.dynamics;
+    if (is_resource(w, me) &&
+        (kind == T_RELEASE || kind == T_RELEASE_PART || kind == T_LEARN)) {
+        route(w, bgm_resource_on_timer(resource_machine(w, me), kind, arg, now, alive, w->ob), now);
+        return w->failure;
+    }
     switch (kind) {
     case T_ARRIVAL: {
         if (alive)
@@ -1589,7 +1533,7 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
         break;
     }
     case T_CLEAR:
-        route_market(w, bgm_market_agent_on_timer(w->ma, kind, arg, now, w->ob));
+        route(w, bgm_market_agent_on_timer(w->ma, kind, arg, now, w->ob), now);
         break;
     case T_REQ: {
         req_t *r = &w->reqs[rid];
@@ -1636,42 +1580,15 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
             start_acquire(w, rid, now);
         break;
     }
-    case T_RELEASE: {
-        req_t *r = &w->reqs[rid];
-        if (a->role == BGM_ROLE_BASIC) {
-            if (a->used > 0)
-                a->used--;
-            announce(w, me);
-            if (w->p.mechanism == BGM_MECH_CENTRAL) {
-                bgm_msg_t m = msg(M_FREE, me, 0, rid, 0);
-                send(w, &m);
-            }
-        } else {
-            a->used_cores -= req_cores(w, r);
-            a->used_mem -= req_memory(w, r);
-            announce(w, me);
-            if (w->p.mechanism == BGM_MECH_CENTRAL) {
-                bgm_msg_t m = msg(M_RFREE, me, 0, rid, 0);
-                m.a = req_cores(w, r);
-                m.b = req_memory(w, r);
-                send(w, &m);
-            }
+    case T_RELEASE: /* a basic seller's slot (resource sellers: bgm_resource) */
+        if (a->used > 0)
+            a->used--;
+        announce(w, me);
+        if (w->p.mechanism == BGM_MECH_CENTRAL) {
+            bgm_msg_t m = msg(M_FREE, me, 0, rid, 0);
+            send(w, &m);
         }
         break;
-    }
-    case T_RELEASE_PART: {
-        double q = (double)(arg & ((1ULL << 40) - 1)) / BGM_MIB;
-        int is_cores = (int)(arg >> 40) == BGM_GOOD_CORES;
-        if (is_cores)
-            a->used_cores -= q;
-        else
-            a->used_mem -= q;
-        bgm_msg_t m = msg(M_RFREE, me, 0, 0, 0);
-        m.a = is_cores ? q : 0.0;
-        m.b = is_cores ? 0.0 : q;
-        send(w, &m);
-        break;
-    }
     case T_LEARN: {
         if (alive && a->ndeg > 0) {
             uint32_t other = a->nbr[bgm_rng_below(&a->rng, (uint32_t)a->ndeg)];
@@ -1723,7 +1640,7 @@ bg_status bgm_world_start(bgm_world_t *w, const bgm_sink_t *sink, double now)
     w->sink = *sink;
     const bgm_config_t *c = &w->cfg;
     int mech = w->p.mechanism;
-    route_market(w, bgm_market_agent_start(w->ma, now, w->ob));
+    route(w, bgm_market_agent_start(w->ma, now, w->ob), now);
     for (uint32_t i = 1; i < w->nagents; i++) {
         agent_t *a = &w->agents[i];
         if (a->role == BGM_ROLE_COMPLEX) {
@@ -1739,14 +1656,9 @@ bg_status bgm_world_start(bgm_world_t *w, const bgm_sink_t *sink, double now)
                 a->announced[t] = reservation(a, t);
                 send(w, &m);
             }
-        } else if (a->role == BGM_ROLE_RESOURCE && mech != BGM_MECH_CATALLACTIC) {
-            bgm_msg_t m = msg(M_RASK, i, 0, 0, 0);
-            m.a = a->cores;
-            m.b = a->mem;
-            m.c = a->speed;
-            m.price = a->core_cost;
-            m.cand_price[0] = a->mem_cost;
-            send(w, &m);
+        } else if (a->role == BGM_ROLE_RESOURCE) {
+            route(w, bgm_resource_start(resource_machine(w, i), now, w->ob), now);
+            continue;
         }
         if (mech == BGM_MECH_CATALLACTIC)
             timer(w, i, now + c->catallactic.learning_period * bgm_rng_uniform(&a->rng), T_LEARN, 0);

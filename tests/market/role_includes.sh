@@ -5,7 +5,7 @@
 #        role_includes.sh MARKET_DIR --self   also show that the check fails on an injected include
 set -eu
 DIR=$1
-ROLES="bgm_market_agent"
+ROLES="bgm_market_agent bgm_resource"
 HOSTS="bgm_world bgm_evq bgm_sim bgm_simdriver bgm_platform"
 
 check() {
