@@ -148,6 +148,7 @@ typedef struct bgm_rm_rfree {
 typedef struct bgm_rm_raward {
     uint32_t buyer;
     double rate, cores, memory, flops, seller_limit;
+    double budget; /* the bid's limit in all: the seller checks the rent against it */
 } bgm_rm_raward_t;
 typedef struct bgm_rm_rconfirm {
     int good; /* cores|memory for one part of a call-market bundle, else −1 */
@@ -166,9 +167,15 @@ typedef struct bgm_rm_cfp {
 typedef struct bgm_rm_propose {
     double price, speed;
 } bgm_rm_propose_t;
+/* OFFER, ACCEPT (REJECT carries none). From a buyer to a seller they also
+ * carry what the seller reads of the request: the good (< 0: a bundle),
+ * its work or bundle, the budget, how long the offer stands (the buyer's
+ * deadline) and, on the first offer of a bargain, opening = 1. */
 typedef struct bgm_rm_price {
     double price;
-} bgm_rm_price_t; /* OFFER, ACCEPT (REJECT carries none) */
+    int good, opening;
+    double work_or_cores, memory, flops, budget, valid_until;
+} bgm_rm_price_t;
 typedef struct bgm_rm_genes {
     double genes[BGM_ROLE_GENES], fitness;
     int request; /* 1 request, 0 reply */
@@ -185,6 +192,7 @@ typedef struct bgm_rm_list {
 typedef struct bgm_rm_order {
     int good;
     double price, work_or_cores, memory, flops;
+    double budget, valid_until; /* as an OFFER's */
 } bgm_rm_order_t;
 typedef struct bgm_rm_avail {
     double free_a, free_b;

@@ -159,6 +159,27 @@ static void test_typed_fields_market_agent_reads(void **state)
     r.u.bid = (bgm_rm_bid_t){1, 3.0, 5.0, 77.5};
     assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
     assert_true(g.b == 77.5 && g.cand_price[0] == 77.5);
+    /* What a resource seller reads of a buyer's offer, order and award. */
+    r.type = BGM_RM_OFFER;
+    r.u.price = (bgm_rm_price_t){0.4, -1, 1, 2.0, 3.0, 8e9, 9.5, 61.0};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.good == -1 && g.hops == 1 && g.a == 2.0 && g.b == 3.0 && g.c == 8e9);
+    assert_true(g.cand_price[1] == 9.5 && g.cand_price[2] == 61.0 && g.price == 0.4);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.price.opening == 1 && back.u.price.valid_until == 61.0 &&
+                back.u.price.budget == 9.5 && back.u.price.good == -1);
+    r.type = BGM_RM_ORDER;
+    r.u.order = (bgm_rm_order_t){-1, 0.3, 1.0, 2.0, 4e9, 7.0, 33.0};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.cand_price[1] == 7.0 && g.cand_price[2] == 33.0);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.order.budget == 7.0 && back.u.order.valid_until == 33.0);
+    r.type = BGM_RM_RAWARD;
+    r.u.raward = (bgm_rm_raward_t){12, 0.2, 2.0, 4.0, 6e9, 0.0, 5.5};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.cand_price[1] == 5.5 && g.origin == 12);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.raward.budget == 5.5);
 }
 
 /* Spot checks that typed fields land where the world reads them. */
