@@ -1117,22 +1117,25 @@ static int seen_before(bgm_world_t *w, uint32_t agent, uint64_t key)
     return 0;
 }
 
-/* A basic seller's reservation and opening for service request r
+/* A basic seller's reservation and opening for a service of type good
  * (resource sellers bargain in bgm_resource). */
-static double seller_limit_for(const agent_t *s, const req_t *r)
+static double seller_limit_for(const agent_t *s, int good)
 {
-    return reservation(s, r->good);
+    return reservation(s, good);
 }
 
-static double seller_opening(const agent_t *s, const req_t *r)
+static double seller_opening(const agent_t *s, int good)
 {
-    return bgm_nego_opening(BGM_SIDE_SELLER, seller_limit_for(s, r), s->memory[r->good],
+    return bgm_nego_opening(BGM_SIDE_SELLER, seller_limit_for(s, good), s->memory[good],
                             s->markup);
 }
 
-static int can_sell(const agent_t *s, const req_t *r)
+/* Whether agent s can sell what a call for proposals asks for (its good:
+ * a service type, or < 0 for a resource bundle). */
+static int can_sell(const agent_t *s, int good)
 {
-    return r->layer == 0 && s->role == BGM_ROLE_BASIC && s->sells[r->good] && s->used < s->slots;
+    return good >= 0 && good < BGM_SERVICE_TYPES && s->role == BGM_ROLE_BASIC && s->sells[good] &&
+           s->used < s->slots;
 }
 
 static void on_cfp(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
@@ -1141,10 +1144,10 @@ static void on_cfp(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
     uint64_t key = ((uint64_t)m->req << 20) ^ m->attempt ^ ((uint64_t)m->origin << 44);
     if (seen_before(w, me, key))
         return;
-    const req_t *r = &w->reqs[m->req];
-    if (can_sell(a, r)) {
+    /* What it reads of the request is what the call carries. */
+    if (can_sell(a, m->good)) {
         bgm_msg_t p = msg(M_PROPOSE, me, m->origin, m->req, m->attempt);
-        p.price = seller_opening(a, r);
+        p.price = seller_opening(a, m->good);
         p.a = a->speed;
         send(w, &p);
     }
@@ -1257,8 +1260,8 @@ static void seller_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, dou
         return;
     nego_state_t *g = ng(w, r);
     if (!g->seller_open) {
-        bgm_nego_open(&g->seller_nego, BGM_SIDE_SELLER, seller_limit_for(s, r),
-                      seller_opening(s, r), &s->genes, w->cfg.catallactic.max_rounds);
+        bgm_nego_open(&g->seller_nego, BGM_SIDE_SELLER, seller_limit_for(s, r->good),
+                      seller_opening(s, r->good), &s->genes, w->cfg.catallactic.max_rounds);
         g->seller_open = 1;
     }
     double reply = 0.0;
@@ -1412,7 +1415,7 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         } else if (m->attempt == r->attempt && r->seller == me && r->state == RQ_COMMITTED) {
             const agent_t *s = &w->agents[me];
             const nego_state_t *g = ng(w, r);
-            double lim = g->seller_open ? g->seller_nego.limit : seller_limit_for(s, r);
+            double lim = g->seller_open ? g->seller_nego.limit : seller_limit_for(s, r->good);
             if (g->seller_open)
                 learn_outcome(&w->agents[me], 1, (m->price - lim) / m->price);
             seller_commit(w, me, m->req, m->price, lim, now);
