@@ -13,7 +13,10 @@
  * Agents: id 0 is the market agent (the central auctioneer, and the
  * directory of posted prices for the baseline); then complex-service
  * agents (job buyers), basic-service agents (sell services, buy resources)
- * and resource agents (sell cores and memory for a time).
+ * and resource agents (sell cores and memory for a time). The market agent
+ * and each resource agent are role machines of their own
+ * (bgm_market_agent, bgm_resource) that the world hosts and whose outboxes
+ * it routes; the buyers and basic sellers still run in the world itself.
  * Every contract is appended to an audit log with both limits, so the
  * invariants (price within limits, no seller over capacity, money
  * conserved) can be checked afterwards from the log alone.
