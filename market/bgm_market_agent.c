@@ -67,16 +67,10 @@ static void emit(bgm_market_agent_t *ma, const bgm_msg_t *m)
         fail(ma, st);
 }
 
+/* Messages start from a zeroed body with their header set. */
 static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
 {
-    bgm_msg_t m;
-    memset(&m, 0, sizeof m);
-    m.type = (uint16_t)type;
-    m.from = from;
-    m.to = to;
-    m.req = req;
-    m.attempt = attempt;
-    return m;
+    return bgm_outbox_msg(type, from, to, req, attempt);
 }
 
 static double duration(const ma_rbid_t *r, double speed)

@@ -80,3 +80,15 @@ size_t bgm_outbox_count(const bgm_outbox_t *ob) { return ob->n; }
 const bgm_out_item_t *bgm_outbox_item(const bgm_outbox_t *ob, size_t i) { return &ob->items[i]; }
 
 void bgm_outbox_clear(bgm_outbox_t *ob) { ob->n = 0; }
+
+bgm_msg_t bgm_outbox_msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
+{
+    bgm_msg_t m;
+    memset(&m, 0, sizeof m);
+    m.type = (uint16_t)type;
+    m.from = from;
+    m.to = to;
+    m.req = req;
+    m.attempt = attempt;
+    return m;
+}

@@ -43,4 +43,8 @@ const bgm_out_item_t *bgm_outbox_item(const bgm_outbox_t *ob, size_t i);
 /* Forgets every item, keeping the storage. */
 void bgm_outbox_clear(bgm_outbox_t *ob);
 
+/* A message with its header set and every other field zero: what every
+ * sender fills in before emitting. */
+bgm_msg_t bgm_outbox_msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt);
+
 #endif

@@ -64,16 +64,10 @@ static void later(bgm_resource_t *rs, double at, int kind, uint64_t arg)
         fail(rs, st);
 }
 
+/* Messages start from a zeroed body with their header set. */
 static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
 {
-    bgm_msg_t m;
-    memset(&m, 0, sizeof m);
-    m.type = (uint16_t)type;
-    m.from = from;
-    m.to = to;
-    m.req = req;
-    m.attempt = attempt;
-    return m;
+    return bgm_outbox_msg(type, from, to, req, attempt);
 }
 
 bgm_resource_t *bgm_resource_new(const bgm_resource_params_t *p)

@@ -259,7 +259,12 @@ static void timer(bgm_world_t *w, uint32_t agent, double at, int kind, uint64_t 
     w->sink.timer(w->sink.ctx, agent, at, kind, arg);
 }
 
-static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt);
+
+/* Messages start from a zeroed body with their header set. */
+static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
+{
+    return bgm_outbox_msg(type, from, to, req, attempt);
+}
 
 /* Baseline: a basic seller tells the directory its free slots whenever
  * they change, as a plain scheduler's registry would learn them (resource
@@ -274,17 +279,6 @@ static void announce(bgm_world_t *w, uint32_t seller)
     send(w, &m);
 }
 
-static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
-{
-    bgm_msg_t m;
-    memset(&m, 0, sizeof m);
-    m.type = (uint16_t)type;
-    m.from = from;
-    m.to = to;
-    m.req = req;
-    m.attempt = attempt;
-    return m;
-}
 
 static uint64_t req_arg(const req_t *r, uint32_t id)
 {
