@@ -101,7 +101,7 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
     switch (in->type) {
     case BGM_RM_BID:
         o->good = (int16_t)u->bid.good; o->price = u->bid.price_per_unit;
-        o->a = u->bid.work; o->b = u->bid.deadline;
+        o->a = u->bid.work; o->b = u->bid.deadline; o->cand_price[0] = u->bid.deadline;
         break;
     case BGM_RM_ASK:
         o->good = (int16_t)u->ask.good; o->price = u->ask.reservation_per_unit;
@@ -114,11 +114,11 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
         break;
     case BGM_RM_RBID:
         o->a = u->rbid.cores; o->b = u->rbid.memory; o->c = u->rbid.flops;
-        o->price = u->rbid.limit_total;
+        o->price = u->rbid.limit_total; o->cand_price[0] = u->rbid.deadline;
         break;
     case BGM_RM_RASK:
         o->a = u->rask.cores; o->b = u->rask.memory; o->c = u->rask.speed;
-        o->price = u->rask.cost_rate_per_core;
+        o->price = u->rask.cost_rate_per_core; o->cand_price[0] = u->rask.memory_cost_rate;
         break;
     case BGM_RM_RFREE:
         o->a = u->rfree.cores; o->b = u->rfree.memory;
@@ -126,7 +126,7 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
     case BGM_RM_RAWARD:
         o->origin = u->raward.buyer; o->price = u->raward.rate;
         o->a = u->raward.cores; o->b = u->raward.memory; o->c = u->raward.flops;
-        o->cand_price[0] = u->raward.seller_limit;
+        o->cand_price[0] = u->raward.seller_limit; o->cand_price[1] = u->raward.budget;
         break;
     case BGM_RM_RCONFIRM:
         o->good = (int16_t)u->rconfirm.good; o->hops = (uint16_t)u->rconfirm.parts;
@@ -150,6 +150,9 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
     case BGM_RM_OFFER:
     case BGM_RM_ACCEPT:
         o->price = u->price.price;
+        o->good = (int16_t)u->price.good; o->hops = (uint16_t)(u->price.opening != 0);
+        o->a = u->price.work_or_cores; o->b = u->price.memory; o->c = u->price.flops;
+        o->cand_price[1] = u->price.budget; o->cand_price[2] = u->price.valid_until;
         break;
     case BGM_RM_GENES:
         for (int i = 0; i < BGM_ROLE_GENES; i++)
@@ -173,6 +176,7 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
     case BGM_RM_ORDER:
         o->good = (int16_t)u->order.good; o->price = u->order.price;
         o->a = u->order.work_or_cores; o->b = u->order.memory; o->c = u->order.flops;
+        o->cand_price[1] = u->order.budget; o->cand_price[2] = u->order.valid_until;
         break;
     case BGM_RM_AVAIL:
         o->a = u->avail.free_a; o->b = u->avail.free_b;
@@ -213,16 +217,17 @@ bg_status bgm_codec_from_generic(const bgm_msg_t *g, bgm_role_msg_t *o, bg_error
         u->match = (bgm_rm_match_t){g->good, g->origin, g->price, g->a, g->b, g->c};
         break;
     case BGM_RM_RBID:
-        u->rbid = (bgm_rm_rbid_t){g->a, g->b, g->c, g->price};
+        u->rbid = (bgm_rm_rbid_t){g->a, g->b, g->c, g->price, g->cand_price[0]};
         break;
     case BGM_RM_RASK:
-        u->rask = (bgm_rm_rask_t){g->a, g->b, g->c, g->price};
+        u->rask = (bgm_rm_rask_t){g->a, g->b, g->c, g->price, g->cand_price[0]};
         break;
     case BGM_RM_RFREE:
         u->rfree = (bgm_rm_rfree_t){g->a, g->b};
         break;
     case BGM_RM_RAWARD:
-        u->raward = (bgm_rm_raward_t){g->origin, g->price, g->a, g->b, g->c, g->cand_price[0]};
+        u->raward = (bgm_rm_raward_t){g->origin, g->price, g->a,           g->b,
+                                      g->c,      g->cand_price[0], g->cand_price[1]};
         break;
     case BGM_RM_RCONFIRM:
         u->rconfirm = (bgm_rm_rconfirm_t){g->good,          g->hops,          g->price,
@@ -240,7 +245,8 @@ bg_status bgm_codec_from_generic(const bgm_msg_t *g, bgm_role_msg_t *o, bg_error
         break;
     case BGM_RM_OFFER:
     case BGM_RM_ACCEPT:
-        u->price.price = g->price;
+        u->price = (bgm_rm_price_t){g->price, g->good, g->hops != 0,      g->a,
+                                    g->b,     g->c,    g->cand_price[1], g->cand_price[2]};
         break;
     case BGM_RM_GENES:
         for (int i = 0; i < BGM_ROLE_GENES; i++)
@@ -263,7 +269,8 @@ bg_status bgm_codec_from_generic(const bgm_msg_t *g, bgm_role_msg_t *o, bg_error
         }
         break;
     case BGM_RM_ORDER:
-        u->order = (bgm_rm_order_t){g->good, g->price, g->a, g->b, g->c};
+        u->order = (bgm_rm_order_t){g->good, g->price,         g->a,
+                                    g->b,    g->c,     g->cand_price[1], g->cand_price[2]};
         break;
     case BGM_RM_AVAIL:
         u->avail = (bgm_rm_avail_t){g->a, g->b};

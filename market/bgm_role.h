@@ -4,11 +4,12 @@
  * complex-service buyer (one per job), the basic-service seller (which
  * also buys resources) and the resource seller.
  *
- * Status: the simulator's world (bgm_world.c) still hosts the four roles
- * in one object; the messages between them cross the typed message below
- * and the pure codec (bgm_codec.h) with `biotgrid sim --engine wire`. One
- * state machine per role (constructors, start/on_message/on_timer over a
- * sink) is the next step; market/README.md says what of the split is left.
+ * The simulator's world hosts one state machine per role split out so far
+ * (bgm_market_agent, bgm_resource; market/README.md says what is left) and routes
+ * the generic message bgm_msg_t below between them; `biotgrid sim
+ * --engine wire` carries every routed message through the pure codec
+ * (bgm_codec.h). A role machine includes this header, never another
+ * role's: what it reads of another role travels in a message.
  *
  * The payloads are meant to carry everything a receiver reads, so that a
  * role can live in another process with its messages carried by bgm_codec
@@ -35,6 +36,54 @@
 /* Caps of the variable parts of messages and parameters. */
 #define BGM_ROLE_CANDIDATES 8 /* = BGM_MSG_CANDIDATES */
 #define BGM_ROLE_GENES 5
+#define BGM_MSG_CANDIDATES BGM_ROLE_CANDIDATES
+
+/* The simulator's message numbers (bgm_msg_t.type); the wire type is
+ * 0x1000 + the number (bgm_role_msg_type below). What a, b, c, price and
+ * the candidate arrays carry is given per type next to each sender. */
+enum {
+    BGM_MT_BID = 1,
+    BGM_MT_ASK,
+    BGM_MT_FREE,
+    BGM_MT_MATCH,
+    BGM_MT_RBID,
+    BGM_MT_RASK,
+    BGM_MT_RFREE,
+    BGM_MT_RAWARD,
+    BGM_MT_RFAIL,
+    BGM_MT_RCONFIRM,
+    BGM_MT_CONFIRM,
+    BGM_MT_CANCEL,
+    BGM_MT_CFP,
+    BGM_MT_PROPOSE,
+    BGM_MT_OFFER,
+    BGM_MT_ACCEPT,
+    BGM_MT_REJECT,
+    BGM_MT_GENES,
+    BGM_MT_QUERY,
+    BGM_MT_LIST,
+    BGM_MT_ORDER,
+    BGM_MT_AVAIL,
+    BGM_MT_RPART
+};
+
+/* A message between agents in the simulator: one generic layout for every
+ * type. Plain data, copied by value; drivers own the copies they queue. */
+typedef struct bgm_msg {
+    uint16_t type;
+    int16_t good;
+    uint16_t hops;
+    uint16_t ncand;
+    uint32_t from, to;
+    uint32_t req;     /* the request this message is about (its buyer's numbering) */
+    uint32_t attempt; /* request attempt; stale attempts are ignored */
+    uint32_t origin;  /* CFP originator */
+    double price;
+    double a, b, c; /* type-specific numbers */
+    uint32_t cand[BGM_MSG_CANDIDATES];
+    double cand_price[BGM_MSG_CANDIDATES];
+    double cand_speed[BGM_MSG_CANDIDATES];
+} bgm_msg_t;
 
 /*
  * Message types: the wire type is 0x1000 + the simulator's message number
@@ -68,6 +117,8 @@ typedef enum bgm_role_msg_type {
     BGM_RM_FIRST = BGM_RM_BID,
     BGM_RM_LAST = BGM_RM_RPART
 } bgm_role_msg_type;
+_Static_assert(BGM_RM_BID == 0x1000 + BGM_MT_BID && BGM_RM_RPART == 0x1000 + BGM_MT_RPART,
+               "wire types are 0x1000 + the simulator's message numbers");
 
 /* Typed payloads (what the receiver reads; units as in bgm_world.c). */
 typedef struct bgm_rm_bid {
@@ -85,9 +136,11 @@ typedef struct bgm_rm_match {
 } bgm_rm_match_t;
 typedef struct bgm_rm_rbid {
     double cores, memory, flops, limit_total;
+    double deadline; /* the market agent drops the bid after it */
 } bgm_rm_rbid_t;
 typedef struct bgm_rm_rask {
     double cores, memory, speed, cost_rate_per_core;
+    double memory_cost_rate; /* per GiB-second: the exchange prices bundles with it */
 } bgm_rm_rask_t;
 typedef struct bgm_rm_rfree {
     double cores, memory;
@@ -95,6 +148,7 @@ typedef struct bgm_rm_rfree {
 typedef struct bgm_rm_raward {
     uint32_t buyer;
     double rate, cores, memory, flops, seller_limit;
+    double budget; /* the bid's limit in all: the seller checks the rent against it */
 } bgm_rm_raward_t;
 typedef struct bgm_rm_rconfirm {
     int good; /* cores|memory for one part of a call-market bundle, else −1 */
@@ -113,9 +167,15 @@ typedef struct bgm_rm_cfp {
 typedef struct bgm_rm_propose {
     double price, speed;
 } bgm_rm_propose_t;
+/* OFFER, ACCEPT (REJECT carries none). From a buyer to a seller they also
+ * carry what the seller reads of the request: the good (< 0: a bundle),
+ * its work or bundle, the budget, how long the offer stands (the buyer's
+ * deadline) and, on the first offer of a bargain, opening = 1. */
 typedef struct bgm_rm_price {
     double price;
-} bgm_rm_price_t; /* OFFER, ACCEPT (REJECT carries none) */
+    int good, opening;
+    double work_or_cores, memory, flops, budget, valid_until;
+} bgm_rm_price_t;
 typedef struct bgm_rm_genes {
     double genes[BGM_ROLE_GENES], fitness;
     int request; /* 1 request, 0 reply */
@@ -132,6 +192,7 @@ typedef struct bgm_rm_list {
 typedef struct bgm_rm_order {
     int good;
     double price, work_or_cores, memory, flops;
+    double budget, valid_until; /* as an OFFER's */
 } bgm_rm_order_t;
 typedef struct bgm_rm_avail {
     double free_a, free_b;

@@ -66,3 +66,19 @@ double bgm_memory_update(double memory, double price, double weight_memory)
         return price;
     return weight_memory * memory + (1.0 - weight_memory) * price;
 }
+
+/* Fitness smoothing and the step of the opening-price markup. */
+#define BGM_FITNESS_DECAY 0.9
+#define BGM_MARKUP_STEP 0.1
+
+void bgm_outcome_learn(const bgm_genes_t *g, double *fitness, double *markup, int success,
+                       double surplus_share)
+{
+    if (success) {
+        *fitness = BGM_FITNESS_DECAY * *fitness + (1.0 - BGM_FITNESS_DECAY) * surplus_share;
+        *markup += g->price_next * BGM_MARKUP_STEP * (1.0 - *markup);
+    } else {
+        *fitness *= BGM_FITNESS_DECAY;
+        *markup -= g->price_next * BGM_MARKUP_STEP * *markup;
+    }
+}

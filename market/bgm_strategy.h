@@ -43,6 +43,12 @@ int bgm_genes_learn(bgm_genes_t *self, double self_fitness, const bgm_genes_t *o
                     double other_fitness, const bgm_learning_t *p, bgm_rng_t *rng);
 /* Exponential smoothing of a remembered price by weight_memory. */
 double bgm_memory_update(double memory, double price, double weight_memory);
+/* After a bargain (success with the surplus share it earned, or a
+ * failure): fitness is smoothed towards the share (or decays), and the
+ * opening markup moves up after a success and down after a failure, by
+ * price_next, staying in [0, 1). Shared by every role that bargains. */
+void bgm_outcome_learn(const bgm_genes_t *g, double *fitness, double *markup, int success,
+                       double surplus_share);
 /* Packs/unpacks genes into an array (for messages). */
 void bgm_genes_pack(const bgm_genes_t *g, double out[BGM_GENE_COUNT]);
 void bgm_genes_unpack(bgm_genes_t *g, const double in[BGM_GENE_COUNT]);

@@ -4,11 +4,11 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bgm_callmarket.h"
 #include "bgm_catallactic.h"
-#include "bgm_combex.h"
+#include "bgm_market_agent.h"
 #include "bgm_optimum.h"
-#include "bgm_posted.h"
+#include "bgm_outbox.h"
+#include "bgm_resource.h"
 #include "bgm_rng.h"
 #include "bgm_strategy.h"
 
@@ -33,16 +33,15 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 #define BGM_MAX_NEIGHBOURS 64
 #define BGM_MAX_PROPOSALS 8
 #define BGM_SEEN_RING 16
-#define BGM_BOOK_MAX 100000
+/* Items one role machine may emit in one call (a clearing emits two per fill). */
+#define BGM_OUTBOX_MAX ((size_t)1 << 20)
 #define BGM_GOOD_CORES 3
 #define BGM_GOOD_MEMORY 4
 #define BGM_GOOD_BUNDLE (-1)
 /* Extra simulated bytes for the variable parts of messages. */
 #define BGM_CAND_BYTES 20
 #define BGM_GENES_BYTES 48
-/* Fitness smoothing and the step of the opening-price markup. */
-#define BGM_FITNESS_DECAY 0.9
-#define BGM_MARKUP_STEP 0.1
+/* The opening-price markup every agent starts from. */
 #define BGM_MARKUP_INIT 0.2
 /* A basic agent re-announces its ask when its reservation moves this much. */
 #define BGM_ASK_REFRESH 0.1
@@ -51,7 +50,7 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 
 /* Message types. a/b/c meanings are given per type. */
 enum {
-    M_BID = 1,  /* C->A service bid: good, price=valuation/unit, a=work, b=deadline */
+    M_BID = BGM_MT_BID, /* C->A service bid: good, price=valuation/unit, a=work, b=deadline */
     M_ASK,      /* B->A: good, price=reservation/unit, a=slots (registration/refresh) */
     M_FREE,     /* B->A: one slot free again */
     M_MATCH,    /* A->B: req, good, price, a=work, b=deadline, c=buyer valuation; origin=buyer */
@@ -80,11 +79,12 @@ enum {
                  * price=rate per unit-second, c=buyer limit per unit-second,
                  * hops=parts of the bundle, origin=buyer, cand_price[0]=start */
 };
+_Static_assert((int)M_RPART == (int)BGM_MT_RPART, "the world's message numbers are bgm_role.h's");
 
 /* Timer kinds. */
 enum {
     T_ARRIVAL = 1,  /* complex agent: next job */
-    T_CLEAR,        /* market: clearing period */
+    T_CLEAR,        /* market agent: clearing period (BGM_MA_TIMER_CLEAR) */
     T_REQ,          /* request phase timeout: arg = req | tseq << 32 */
     T_DEADLINE,     /* request deadline: arg = req */
     T_RETRY,        /* retry acquisition: arg = req | attempt << 32 */
@@ -96,6 +96,9 @@ enum {
     T_LINK_FAIL,
     T_LINK_REPAIR
 };
+_Static_assert(T_CLEAR == BGM_MA_TIMER_CLEAR && T_RELEASE == BGM_RS_TIMER_RELEASE &&
+                   T_RELEASE_PART == BGM_RS_TIMER_RELEASE_PART && T_LEARN == BGM_RS_TIMER_LEARN,
+               "the role machines' timers keep their numbers");
 
 enum { RQ_IDLE, RQ_DISCOVER, RQ_NEGOTIATE, RQ_WAIT, RQ_COMMITTED, RQ_DONE, RQ_FAILED };
 
@@ -162,8 +165,8 @@ typedef struct agent {
     double est_res[BGM_SERVICE_TYPES];   /* estimated resource cost per unit */
     double announced[BGM_SERVICE_TYPES]; /* last reservation sent to the market */
     double posted[BGM_SERVICE_TYPES];    /* baseline posted price */
-    /* resource seller */
-    double cores, mem, used_cores, used_mem, core_cost, mem_cost, speed;
+    /* resource seller: its endowment, as drawn (the machine holds the rest) */
+    double cores, mem, core_cost, mem_cost, speed;
     /* complex buyer */
     double requested[BGM_SERVICE_TYPES], valuation_sum[BGM_SERVICE_TYPES];
     double paid[2], received[2];
@@ -176,13 +179,6 @@ typedef struct part {
     int good;
     double quantity, start, end, rate, limit, cost;
 } part_t;
-
-/* The auctioneer's view of sellers (central) and pending orders. */
-typedef struct mkt_seller {
-    uint32_t agent;
-    double free_a, free_b, price, speed, mem_cost;
-    double reservation[BGM_SERVICE_TYPES];
-} mkt_seller_t;
 
 struct bgm_world {
     bgm_config_t cfg;
@@ -210,18 +206,11 @@ struct bgm_world {
     size_t nlog, log_cap;
     part_t *parts; /* call markets: parts held for bundles not yet complete */
     size_t nparts, parts_cap;
-    /* central */
-    uint32_t *pend_bid, *pend_rbid;
-    size_t npend_bid, npend_rbid, pend_cap;
-    mkt_seller_t *mb, *mr; /* basic and resource sellers as the market sees them */
-    uint32_t nmb, nmr;
-    bgm_callmarket_t *cm;
-    bgm_combex_t *cx;
-    bgm_fill_t *fills;
-    int *assign;
-    bgm_posted_t *dir;
+    bgm_market_agent_t *ma; /* agent 0's role machine */
+    bgm_resource_t **rsm;   /* the resource sellers' role machines, by agent - first_resource */
+    bgm_outbox_t *ob;       /* what a role machine emits during one call */
     /* accounting */
-    double msgs, bytes, timeouts, combex_exact, combex_greedy;
+    double msgs, bytes, timeouts;
     double service_requests, resource_requests;
     double bundles; /* bundles rented (whole, or every part of one paid) */
     double *acc_s, *acc_r;
@@ -270,32 +259,26 @@ static void timer(bgm_world_t *w, uint32_t agent, double at, int kind, uint64_t 
     w->sink.timer(w->sink.ctx, agent, at, kind, arg);
 }
 
-static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt);
 
-/* Baseline: a seller tells the directory its free capacity whenever it
- * changes, as a plain scheduler's resource registry would learn it. */
+/* Messages start from a zeroed body with their header set. */
+static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
+{
+    return bgm_outbox_msg(type, from, to, req, attempt);
+}
+
+/* Baseline: a basic seller tells the directory its free slots whenever
+ * they change, as a plain scheduler's registry would learn them (resource
+ * sellers do the same in bgm_resource). */
 static void announce(bgm_world_t *w, uint32_t seller)
 {
     if (w->p.mechanism != BGM_MECH_BASELINE)
         return;
     const agent_t *a = &w->agents[seller];
     bgm_msg_t m = msg(M_AVAIL, seller, 0, 0, 0);
-    m.a = a->role == BGM_ROLE_BASIC ? (double)(a->slots - a->used) : a->cores - a->used_cores;
-    m.b = a->role == BGM_ROLE_BASIC ? 0.0 : a->mem - a->used_mem;
+    m.a = (double)(a->slots - a->used);
     send(w, &m);
 }
 
-static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
-{
-    bgm_msg_t m;
-    memset(&m, 0, sizeof m);
-    m.type = (uint16_t)type;
-    m.from = from;
-    m.to = to;
-    m.req = req;
-    m.attempt = attempt;
-    return m;
-}
 
 static uint64_t req_arg(const req_t *r, uint32_t id)
 {
@@ -442,13 +425,7 @@ static double reservation(const agent_t *b, int good)
 
 static void learn_outcome(agent_t *a, int success, double surplus_share)
 {
-    if (success) {
-        a->fitness = BGM_FITNESS_DECAY * a->fitness + (1.0 - BGM_FITNESS_DECAY) * surplus_share;
-        a->markup += a->genes.price_next * BGM_MARKUP_STEP * (1.0 - a->markup);
-    } else {
-        a->fitness *= BGM_FITNESS_DECAY;
-        a->markup -= a->genes.price_next * BGM_MARKUP_STEP * a->markup;
-    }
+    bgm_outcome_learn(&a->genes, &a->fitness, &a->markup, success, surplus_share);
 }
 
 /* ------------------------------------------------------------ construction */
@@ -595,20 +572,31 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
         bg_error_set(err, st, "out of memory for the overlay");
         goto out;
     }
-    w->pend_cap = BGM_BOOK_MAX;
-    w->pend_bid = malloc(w->pend_cap * sizeof *w->pend_bid);
-    w->pend_rbid = malloc(w->pend_cap * sizeof *w->pend_rbid);
-    w->mb = calloc(w->nbasic, sizeof *w->mb);
-    w->mr = calloc(w->nresource, sizeof *w->mr);
-    w->cm = bgm_callmarket_new(BGM_BOOK_MAX);
-    w->fills = malloc(2 * BGM_BOOK_MAX * sizeof *w->fills);
-    w->assign = malloc(BGM_BOOK_MAX * sizeof *w->assign);
-    w->cx = bgm_combex_new(BGM_BOOK_MAX, (int)w->nresource, 4u * BGM_BOOK_MAX);
-    w->dir = bgm_posted_new((size_t)(w->nbasic * BGM_SERVICE_TYPES + w->nresource));
-    if (!w->pend_bid || !w->pend_rbid || !w->mb || !w->mr || !w->cm || !w->fills || !w->assign ||
-        !w->cx || !w->dir) {
+    bgm_market_agent_params_t mp = {&w->cfg,          p->mechanism, 0,          w->first_basic,
+                                    w->nbasic,        w->first_resource, w->nresource,
+                                    w->horizon};
+    w->ma = bgm_market_agent_new(&mp);
+    w->ob = bgm_outbox_new(BGM_OUTBOX_MAX);
+    w->rsm = calloc(w->nresource, sizeof *w->rsm);
+    if (!w->ma || !w->ob || !w->rsm) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the market books");
         goto out;
+    }
+    for (uint32_t k = 0; k < w->nresource; k++) {
+        const agent_t *ag = &w->agents[w->first_resource + k];
+        uint8_t same[BGM_MAX_NEIGHBOURS];
+        for (int j = 0; j < ag->ndeg; j++)
+            same[j] = w->agents[ag->nbr[j]].role == BGM_ROLE_RESOURCE;
+        bgm_resource_params_t rp = {&w->cfg,       p->mechanism, w->first_resource + k, 0,
+                                    w->horizon,    ag->cores,    ag->mem,
+                                    ag->core_cost, ag->mem_cost, ag->speed,
+                                    ag->rng,       ag->genes,    ag->markup,
+                                    ag->nbr,       same,         ag->ndeg};
+        if (!(w->rsm[k] = bgm_resource_new(&rp))) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u resource sellers",
+                              w->nresource);
+            goto out;
+        }
     }
 out:
     if (st)
@@ -633,15 +621,11 @@ void bgm_world_destroy(bgm_world_t **pw)
     free(w->jobs);
     free(w->log);
     free(w->parts);
-    free(w->pend_bid);
-    free(w->pend_rbid);
-    free(w->mb);
-    free(w->mr);
-    bgm_callmarket_destroy(&w->cm);
-    free(w->fills);
-    free(w->assign);
-    bgm_combex_destroy(&w->cx);
-    bgm_posted_destroy(&w->dir);
+    bgm_market_agent_destroy(&w->ma);
+    for (uint32_t k = 0; w->rsm && k < w->nresource; k++)
+        bgm_resource_destroy(&w->rsm[k]);
+    free(w->rsm);
+    bgm_outbox_destroy(&w->ob);
     free(w->acc_s);
     free(w->acc_r);
     free(w);
@@ -895,87 +879,6 @@ static void pay_bundle(bgm_world_t *w, uint32_t rid, uint32_t seller, double rat
     w->welfare -= cost * dur;
 }
 
-/* The resource agent has agreed to rent bundle rid at `rate` per second:
- * it checks capacity now (all its contracts start when agreed, so free
- * capacity now is free capacity for the whole interval), holds the bundle
- * until its end and confirms. It is paid when the buyer takes delivery
- * (pay_bundle): a bundle whose buyer has given up by then is held for
- * nothing. Returns 0 when it cannot. */
-static int resource_agreed(bgm_world_t *w, uint32_t ra_id, uint32_t rid, double rate, double now)
-{
-    agent_t *ra = &w->agents[ra_id];
-    req_t *r = &w->reqs[rid];
-    if (!agent_alive(w, ra_id) || ra->used_cores + req_cores(w, r) > ra->cores + 1e-9 ||
-        ra->used_mem + req_memory(w, r) > ra->mem + 1e-9)
-        return 0;
-    double dur = req_duration(w, r, ra->speed);
-    double cost = resource_cost_rate(ra, req_cores(w, r), req_memory(w, r));
-    if (rate < cost || rate * dur > r->limit * (1.0 + 1e-12))
-        return 0;
-    ra->used_cores += req_cores(w, r);
-    ra->used_mem += req_memory(w, r);
-    announce(w, ra_id);
-    if (push_double(&w->acc_r, &w->nacc_r, now - r->created))
-        fail(w, BG_ERR_NOMEM);
-    ra->memory[3] =
-        bgm_memory_update(ra->memory[3], rate / mean_rate(w, req_cores(w, r), req_memory(w, r)),
-                          ra->genes.weight_memory);
-    learn_outcome(ra, 1, (rate - cost) / rate);
-    timer(w, ra_id, now + dur, T_RELEASE, rid);
-    bgm_msg_t m = msg(M_RCONFIRM, ra_id, r->buyer, rid, r->attempt);
-    m.good = BGM_GOOD_BUNDLE;
-    m.price = rate;
-    m.a = now;
-    m.b = now + dur;
-    m.c = cost;
-    send(w, &m);
-    return 1;
-}
-
-/* Quantities of a part travel in a timer argument as whole MiB (cores
- * are whole numbers, memory is bought in MiB), next to the good. */
-#define BGM_MIB 1024.0
-
-static uint64_t part_arg(int good, double quantity)
-{
-    return ((uint64_t)good << 40) | (uint64_t)llround(quantity * BGM_MIB);
-}
-
-/* The resource agent has been awarded one part of bundle m->req on a call
- * market: m->a cores or GiB for m->b seconds from the bundle's common
- * start (m->cand_price[0]) at m->price per unit-second. It checks that it
- * is up, that the start is still ahead, and that it has the room now; it
- * holds the part from now until the part's end and confirms to the buyer;
- * it is paid only once the buyer has the whole bundle (pay_parts).
- * Returns 0 when it cannot. */
-static int part_agreed(bgm_world_t *w, uint32_t ra_id, const bgm_msg_t *m, double now)
-{
-    agent_t *ra = &w->agents[ra_id];
-    const req_t *r = &w->reqs[m->req];
-    int is_cores = m->good == BGM_GOOD_CORES;
-    double qty = m->a, dur = m->b, rate = m->price, start = m->cand_price[0];
-    double cost = is_cores ? ra->core_cost : ra->mem_cost;
-    double *used = is_cores ? &ra->used_cores : &ra->used_mem;
-    /* The auctioneer converts the uniform price to this seller's rate, so
-     * the rate can sit an ulp below its cost. */
-    if (!agent_alive(w, ra_id) || now > start ||
-        *used + qty > (is_cores ? ra->cores : ra->mem) + 1e-9 || rate < cost * (1.0 - 1e-12))
-        return 0;
-    *used += qty;
-    timer(w, ra_id, start + dur, T_RELEASE_PART, part_arg(m->good, qty));
-    bgm_msg_t k = msg(M_RCONFIRM, ra_id, r->buyer, m->req, m->attempt);
-    k.good = m->good;
-    k.hops = m->hops;
-    k.price = rate;
-    k.a = start;
-    k.b = start + dur;
-    k.cand_price[0] = qty;
-    k.cand_price[1] = m->c;
-    k.cand_price[2] = cost;
-    send(w, &k);
-    return 1;
-}
-
 /* Bundle rid is complete: each of its parts becomes a contract and is
  * paid. Returns the money paid in all. */
 static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
@@ -997,7 +900,6 @@ static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
         if (p->good == BGM_GOOD_CORES)
             w->core_seconds += p->quantity * dur;
         w->welfare -= p->cost * p->quantity * dur;
-        learn_outcome(&w->agents[p->seller], 1, (p->rate - p->cost) / p->rate);
         total += money;
     }
     drop_parts(w, rid);
@@ -1161,492 +1063,39 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
 
 /* ---------------------------------------------------------------- market */
 
-static bg_status push_pending(bgm_world_t *w, uint32_t *arr, size_t *n, uint32_t rid)
+/* Routes what a role machine emitted during one call, in emission order,
+ * through the world's send (accounting, a sender cut off loses its
+ * messages) and the driver's timers, then empties the outbox. The world
+ * observes as it routes: a whole bundle confirmed is a resource access,
+ * timed from its request's creation (the basic seller's record, which the
+ * world keeps for the metrics). */
+static void route(bgm_world_t *w, bg_status st, double now)
 {
-    if (*n >= w->pend_cap)
-        return BG_ERR_LIMIT;
-    arr[(*n)++] = rid;
-    return BG_OK;
-}
-
-/* The auctioneer keeps only what messages told it: pending bids (by
- * request id, with the numbers the bid carried, read back from the
- * request record which the bid mirrors) and sellers' announced state. */
-static void clear_services(bgm_world_t *w, double now)
-{
-    /* Drop expired bids first. */
-    size_t keep = 0;
-    for (size_t i = 0; i < w->npend_bid; i++) {
-        const req_t *r = &w->reqs[w->pend_bid[i]];
-        if (r->deadline > now && r->state == RQ_WAIT)
-            w->pend_bid[keep++] = w->pend_bid[i];
-    }
-    w->npend_bid = keep;
-    for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
-        bgm_callmarket_reset(w->cm);
-        for (size_t i = 0; i < w->npend_bid; i++) {
-            const req_t *r = &w->reqs[w->pend_bid[i]];
-            if (r->good != t)
-                continue;
-            bgm_order_t o = {w->pend_bid[i], r->buyer, 1, r->limit};
-            if (bgm_callmarket_bid(w->cm, &o))
-                break;
-        }
-        for (uint32_t k = 0; k < w->nmb; k++) {
-            const mkt_seller_t *s = &w->mb[k];
-            if (!w->agents[s->agent].sells[t] || s->free_a < 1.0)
-                continue;
-            bgm_order_t o = {k, s->agent, (int)s->free_a, s->reservation[t]};
-            if (bgm_callmarket_ask(w->cm, &o))
-                break;
-        }
-        bgm_clearing_t res;
-        if (bgm_callmarket_clear(w->cm, w->cfg.central.k, &res, w->fills, 2 * BGM_BOOK_MAX)) {
-            fail(w, BG_ERR_LIMIT);
-            return;
-        }
-        const bgm_order_t *bids = bgm_callmarket_bids(w->cm), *asks = bgm_callmarket_asks(w->cm);
-        for (size_t f = 0; f < res.fill_count; f++) {
-            uint32_t rid = (uint32_t)bids[w->fills[f].bid].ref;
-            mkt_seller_t *s = &w->mb[asks[w->fills[f].ask].ref];
-            req_t *r = &w->reqs[rid];
-            s->free_a -= 1.0;
-            r->state = RQ_COMMITTED; /* removed from the pending list below */
-            bgm_msg_t m = msg(M_MATCH, 0, s->agent, rid, r->attempt);
-            m.good = (int16_t)t;
-            m.price = res.price;
-            m.a = r->work;
-            m.b = asks[w->fills[f].ask].price;
-            m.origin = r->buyer;
-            send(w, &m);
-            bgm_msg_t c = msg(M_ACCEPT, 0, r->buyer, rid, r->attempt);
-            c.price = res.price;
-            send(w, &c);
-        }
-    }
-    keep = 0;
-    for (size_t i = 0; i < w->npend_bid; i++)
-        if (w->reqs[w->pend_bid[i]].state == RQ_WAIT)
-            w->pend_bid[keep++] = w->pend_bid[i];
-    w->npend_bid = keep;
-}
-
-/* Drops the resource bids that have expired (telling their buyers) or
- * been served; returns how many remain. */
-static size_t expire_rbids(bgm_world_t *w, double now)
-{
-    size_t keep = 0;
-    for (size_t i = 0; i < w->npend_rbid; i++) {
-        uint32_t rid = w->pend_rbid[i];
-        const req_t *r = &w->reqs[rid];
-        if (r->deadline > now && r->state == RQ_WAIT) {
-            w->pend_rbid[keep++] = rid;
-        } else if (r->state == RQ_WAIT) {
-            bgm_msg_t m = msg(M_RFAIL, 0, r->buyer, rid, r->attempt);
-            send(w, &m);
-        }
-    }
-    w->npend_rbid = keep;
-    return keep;
-}
-
-/* Keeps only the resource bids still waiting. */
-static void compact_rbids(bgm_world_t *w)
-{
-    size_t keep = 0;
-    for (size_t i = 0; i < w->npend_rbid; i++)
-        if (w->reqs[w->pend_rbid[i]].state == RQ_WAIT)
-            w->pend_rbid[keep++] = w->pend_rbid[i];
-    w->npend_rbid = keep;
-}
-
-/* The resource layer through the combinatorial exchange: whole bundles,
- * each from one resource agent, winner determination by bgm_combex, and
- * each award paid its seller's cost plus a rent priced against the bids
- * and sellers left out (bgm_combex_rents). */
-static void clear_exchange(bgm_world_t *w, double now)
-{
-    if (expire_rbids(w, now) == 0)
-        return;
-    bgm_combex_reset(w->cx);
-    int *seller_of = malloc(w->nmr * sizeof *seller_of);
-    uint32_t *mr_of = malloc(w->nmr * sizeof *mr_of);
-    double *rent = NULL;
-    if (!seller_of || !mr_of) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    for (size_t i = 0; i < w->npend_rbid; i++)
-        bgm_combex_add_bid(w->cx);
-    for (uint32_t k = 0; k < w->nmr; k++) {
-        seller_of[k] = -1;
-        if (w->mr[k].free_a <= 0.0)
+    if (st)
+        fail(w, st);
+    for (size_t i = 0; i < bgm_outbox_count(w->ob); i++) {
+        const bgm_out_item_t *it = bgm_outbox_item(w->ob, i);
+        if (it->is_timer) {
+            timer(w, it->agent, it->at, it->kind, it->arg);
             continue;
-        double cap[BGM_COMBEX_DIMS] = {w->mr[k].free_a, w->mr[k].free_b};
-        int s = bgm_combex_add_seller(w->cx, cap);
-        seller_of[k] = s;
-        mr_of[s] = k;
-    }
-    for (size_t i = 0; i < w->npend_rbid; i++) {
-        const req_t *r = &w->reqs[w->pend_rbid[i]];
-        for (uint32_t k = 0; k < w->nmr; k++) {
-            const mkt_seller_t *s = &w->mr[k];
-            if (seller_of[k] < 0 || req_cores(w, r) > s->free_a || req_memory(w, r) > s->free_b)
-                continue;
-            double dur = req_duration(w, r, s->speed);
-            double cost = (s->price * req_cores(w, r) + s->mem_cost * req_memory(w, r)) * dur;
-            if (cost >= r->limit)
-                continue;
-            bgm_combex_pair_t p = {
-                (int)i, seller_of[k], r->limit - cost, {req_cores(w, r), req_memory(w, r)}};
-            if (bgm_combex_add_pair(w->cx, &p))
-                break;
         }
-    }
-    bgm_combex_result_t res;
-    if (bgm_combex_solve(w->cx, BGM_COMBEX_AUTO, (size_t)w->cfg.central.exact_limit,
-                         w->cfg.central.greedy_budget, w->assign, &res)) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    if (res.method == BGM_COMBEX_EXACT)
-        w->combex_exact += 1.0;
-    else
-        w->combex_greedy += 1.0;
-    rent = malloc((w->npend_rbid ? w->npend_rbid : 1) * sizeof *rent);
-    if (!rent || bgm_combex_rents(w->cx, w->assign, w->cfg.central.k, rent)) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    const bgm_combex_pair_t *pairs = bgm_combex_pairs(w->cx);
-    for (size_t i = 0; i < w->npend_rbid; i++) {
-        if (w->assign[i] < 0)
-            continue;
-        const bgm_combex_pair_t *p = &pairs[w->assign[i]];
-        uint32_t rid = w->pend_rbid[i];
-        req_t *r = &w->reqs[rid];
-        mkt_seller_t *s = &w->mr[mr_of[p->seller]];
-        double dur = req_duration(w, r, s->speed);
-        double cost = r->limit - p->surplus;
-        double total = cost + rent[i];
-        s->free_a -= req_cores(w, r);
-        s->free_b -= req_memory(w, r);
-        r->state = RQ_COMMITTED;
-        bgm_msg_t m = msg(M_RAWARD, 0, s->agent, rid, r->attempt);
-        m.price = total / dur;
-        m.origin = r->buyer;
+        bgm_msg_t m = it->msg;
+        if (m.type == M_RCONFIRM && m.good == BGM_GOOD_BUNDLE && m.req < w->nreq &&
+            push_double(&w->acc_r, &w->nacc_r, now - w->reqs[m.req].created))
+            fail(w, BG_ERR_NOMEM);
         send(w, &m);
     }
-    compact_rbids(w);
-out:
-    free(seller_of);
-    free(mr_of);
-    free(rent);
+    bgm_outbox_clear(w->ob);
 }
 
-/* One bundle's bids on the two call markets, as its proxy places them. */
-typedef struct call_bid {
-    double tref;     /* run time at the reference speed */
-    double bid_core; /* limit per reference core-second */
-    double bid_mem;  /* limit per GiB-second */
-    double dur;      /* run time on the cores won: the slowest of them */
-    double spent;    /* paid for the cores */
-    int cores, got_cores;
-    long mib, got_mib;
-} call_bid_t;
-
-/* Copies the fills of the last clearing: the market's book is reused. */
-static bgm_fill_t *copy_fills(const bgm_world_t *w, size_t n)
+static int is_resource(const bgm_world_t *w, uint32_t a)
 {
-    bgm_fill_t *f = malloc((n ? n : 1) * sizeof *f);
-    if (f)
-        memcpy(f, w->fills, n * sizeof *f);
-    return f;
+    return a >= w->first_resource && a < w->nagents;
 }
 
-/* Sends seller k its part of bundle i (bid index): q units of `good` for
- * dur seconds from `start` at rate per unit-second. */
-static void award_part(bgm_world_t *w, size_t i, uint32_t k, int good, double q, double start,
-                       double dur, double rate, double limit, int parts)
+static bgm_resource_t *resource_machine(bgm_world_t *w, uint32_t a)
 {
-    const req_t *r = &w->reqs[w->pend_rbid[i]];
-    mkt_seller_t *s = &w->mr[k];
-    if (good == BGM_GOOD_CORES)
-        s->free_a -= q;
-    else
-        s->free_b -= q;
-    bgm_msg_t m = msg(M_RPART, 0, s->agent, w->pend_rbid[i], r->attempt);
-    m.good = (int16_t)good;
-    m.hops = (uint16_t)parts;
-    m.a = q;
-    m.b = dur;
-    m.price = rate;
-    m.c = limit;
-    m.origin = r->buyer;
-    m.cand_price[0] = start;
-    send(w, &m);
-}
-
-/*
- * The resource layer through a call market per resource type
- * (central.resource_market "call"): cores first, then memory, each a
- * double auction with one uniform k-price. The auctioneer bids for each
- * basic agent as its proxy, within the budget the agent sent (what its
- * service pays), and never above it in all.
- *
- * Cores are priced per reference core-second: a core of speed s running
- * t seconds gives t·s/s_ref of them, so every bundle needs the same
- * amount, flops/s_ref, whoever sells, and a seller asks its cost per
- * core-second × s_ref/s. The cores bid's limit is the budget's share at
- * the mean cost rates. A bundle's cores may come from several sellers;
- * each runs its share of the work at its own speed, so the bundle lasts
- * as long as its slowest seller's part. Memory is priced per GiB-second
- * and sold in MiB, held for that whole run; its bid's limit is what the
- * budget has left after the cores, per GiB-second. All parts start
- * together, a period after the clearing: a seller holds its part from the
- * award until the part's end, and a bundle not complete by the start is
- * void (final_fail), so each service's memory covers its whole run.
- *
- * Complements on separate markets expose a buyer to winning one good and
- * not the other. A bundle not filled in full on both markets is cancelled
- * whole before anyone is told: no seller is reserved or paid, and its bid
- * stays in the book for the next call. A complete bundle's parts go to
- * their sellers as awards; each seller holds its part from then until the
- * part's end and confirms to the buyer. With the last confirmation the
- * bundle is rented: every part becomes a contract and is paid, and the
- * service becomes final. A bundle that never completes (a seller was
- * down, a confirmation was lost, the deadline passed) or whose service is
- * void by then is paid to no one: its sellers held their parts for
- * nothing, and the basic agent never pays for resources it cannot use.
- */
-static void clear_calls(bgm_world_t *w, double now)
-{
-    size_t n = expire_rbids(w, now);
-    if (n == 0)
-        return;
-    const double sref = w->cfg.network.speed, k = w->cfg.central.k;
-    /* Every part of a bundle runs over one interval from a common start a
-     * period ahead (the awards and confirmations travel meanwhile), so the
-     * memory is held for the whole run of the slowest cores. */
-    const double start = now + w->cfg.central.period;
-    call_bid_t *cb = calloc(n, sizeof *cb);
-    int *parts = calloc(n, sizeof *parts);
-    bgm_fill_t *cf = NULL, *mf = NULL;
-    bgm_clearing_t rc, rm;
-    if (!cb || !parts) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    bgm_callmarket_reset(w->cm);
-    for (size_t i = 0; i < n; i++) {
-        const req_t *r = &w->reqs[w->pend_rbid[i]];
-        double cc = w->cfg.resources.core_cost * req_cores(w, r),
-               mc = w->cfg.resources.memory_cost * req_memory(w, r);
-        double share = cc + mc > 0.0 ? cc / (cc + mc) : 1.0;
-        cb[i].cores = (int)req_cores(w, r);
-        cb[i].tref = req_flops(w, r) / (req_cores(w, r) * sref);
-        cb[i].bid_core = share * r->limit / (req_cores(w, r) * cb[i].tref);
-        cb[i].mib = (long)ceil(req_memory(w, r) * BGM_MIB - 1e-9);
-        bgm_order_t o = {i, r->buyer, cb[i].cores, cb[i].bid_core};
-        if (bgm_callmarket_bid(w->cm, &o))
-            break;
-    }
-    for (uint32_t j = 0; j < w->nmr; j++) {
-        const mkt_seller_t *s = &w->mr[j];
-        int free = (int)floor(s->free_a + 1e-9);
-        bgm_order_t o = {j, s->agent, free, s->price * sref / s->speed};
-        if (free >= 1 && bgm_callmarket_ask(w->cm, &o))
-            break;
-    }
-    if (bgm_callmarket_clear(w->cm, k, &rc, w->fills, 2 * BGM_BOOK_MAX) ||
-        !(cf = copy_fills(w, rc.fill_count))) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    const bgm_order_t *asks = bgm_callmarket_asks(w->cm);
-    for (size_t f = 0; f < rc.fill_count; f++) {
-        /* From here on a fill names the bundle (index into pend_rbid) and
-         * the seller (index into mr), read from the orders' refs. */
-        size_t i = bgm_callmarket_bids(w->cm)[cf[f].bid].ref;
-        uint32_t j = (uint32_t)asks[cf[f].ask].ref;
-        cf[f].bid = i;
-        cf[f].ask = j;
-        cb[i].got_cores += cf[f].quantity;
-        cb[i].dur = fmax(cb[i].dur, cb[i].tref * sref / w->mr[j].speed);
-    }
-
-    bgm_callmarket_reset(w->cm);
-    for (size_t i = 0; i < n; i++) {
-        if (cb[i].got_cores < cb[i].cores || cb[i].mib == 0)
-            continue;
-        cb[i].spent = rc.price * cb[i].cores * cb[i].tref;
-        double left = w->reqs[w->pend_rbid[i]].limit - cb[i].spent;
-        cb[i].bid_mem = left / ((double)cb[i].mib / BGM_MIB * cb[i].dur);
-        bgm_order_t o = {i, w->reqs[w->pend_rbid[i]].buyer, (int)cb[i].mib, cb[i].bid_mem};
-        if (cb[i].bid_mem > 0.0 && bgm_callmarket_bid(w->cm, &o))
-            break;
-    }
-    for (uint32_t j = 0; j < w->nmr; j++) {
-        const mkt_seller_t *s = &w->mr[j];
-        double free = floor(s->free_b * BGM_MIB + 1e-9);
-        bgm_order_t o = {j, s->agent, free > INT32_MAX ? INT32_MAX : (int)free, s->mem_cost};
-        if (free >= 1.0 && bgm_callmarket_ask(w->cm, &o))
-            break;
-    }
-    if (bgm_callmarket_clear(w->cm, k, &rm, w->fills, 2 * BGM_BOOK_MAX) ||
-        !(mf = copy_fills(w, rm.fill_count))) {
-        fail(w, BG_ERR_NOMEM);
-        goto out;
-    }
-    asks = bgm_callmarket_asks(w->cm);
-    for (size_t f = 0; f < rm.fill_count; f++) {
-        size_t i = bgm_callmarket_bids(w->cm)[mf[f].bid].ref;
-        mf[f].bid = i;
-        mf[f].ask = (uint32_t)asks[mf[f].ask].ref;
-        cb[i].got_mib += mf[f].quantity;
-    }
-
-    /* Award the complete bundles, part by part. */
-    for (size_t f = 0; f < rc.fill_count; f++)
-        parts[cf[f].bid]++;
-    for (size_t f = 0; f < rm.fill_count; f++)
-        parts[mf[f].bid]++;
-    for (size_t f = 0; f < rc.fill_count; f++) {
-        size_t i = cf[f].bid;
-        if (cb[i].got_cores < cb[i].cores || cb[i].got_mib < cb[i].mib)
-            continue;
-        double ratio = w->mr[cf[f].ask].speed / sref;
-        award_part(w, i, (uint32_t)cf[f].ask, BGM_GOOD_CORES, cf[f].quantity, start,
-                   cb[i].tref / ratio, rc.price * ratio, cb[i].bid_core * ratio, parts[i]);
-    }
-    for (size_t f = 0; f < rm.fill_count; f++) {
-        size_t i = mf[f].bid;
-        if (cb[i].got_cores < cb[i].cores || cb[i].got_mib < cb[i].mib)
-            continue;
-        award_part(w, i, (uint32_t)mf[f].ask, BGM_GOOD_MEMORY, (double)mf[f].quantity / BGM_MIB,
-                   start, cb[i].dur, rm.price, cb[i].bid_mem, parts[i]);
-    }
-    for (size_t i = 0; i < n; i++)
-        if (cb[i].got_cores >= cb[i].cores && cb[i].got_mib >= cb[i].mib)
-            w->reqs[w->pend_rbid[i]].state = RQ_COMMITTED;
-    compact_rbids(w);
-out:
-    free(cb);
-    free(parts);
-    free(cf);
-    free(mf);
-}
-
-static void clear_resources(bgm_world_t *w, double now)
-{
-    if (w->cfg.central.resource_market == BGM_RM_CALL)
-        clear_calls(w, now);
-    else
-        clear_exchange(w, now);
-}
-
-typedef struct room_ctx {
-    const bgm_world_t *w;
-    const bgm_msg_t *query;
-} room_ctx_t;
-
-static int has_room(void *ctx, const bgm_posting_t *p)
-{
-    const room_ctx_t *rc = ctx;
-    const bgm_world_t *w = rc->w;
-    if (rc->query->good == BGM_GOOD_CORES) {
-        const mkt_seller_t *s = &w->mr[p->seller - w->first_resource];
-        return s->free_a >= rc->query->a && s->free_b >= rc->query->b;
-    }
-    return w->mb[p->seller - w->first_basic].free_a >= 1.0;
-}
-
-static void market_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
-{
-    switch (m->type) {
-    case M_BID:
-        if (push_pending(w, w->pend_bid, &w->npend_bid, m->req))
-            fail(w, BG_ERR_LIMIT);
-        break;
-    case M_RBID:
-        if (push_pending(w, w->pend_rbid, &w->npend_rbid, m->req))
-            fail(w, BG_ERR_LIMIT);
-        break;
-    case M_ASK: {
-        mkt_seller_t *s = &w->mb[m->from - w->first_basic];
-        s->agent = m->from;
-        s->reservation[m->good] = m->price;
-        if (m->a >= 0.0)
-            s->free_a = m->a;
-        if (m->from - w->first_basic + 1 > w->nmb)
-            w->nmb = m->from - w->first_basic + 1;
-        if (w->p.mechanism == BGM_MECH_BASELINE &&
-            bgm_posted_post(w->dir, m->from, m->good, m->price))
-            fail(w, BG_ERR_LIMIT);
-        break;
-    }
-    case M_FREE:
-        w->mb[m->from - w->first_basic].free_a += 1.0;
-        break;
-    case M_RASK: {
-        mkt_seller_t *s = &w->mr[m->from - w->first_resource];
-        s->agent = m->from;
-        s->free_a = m->a;
-        s->free_b = m->b;
-        s->speed = m->c;
-        s->price = m->price;
-        s->mem_cost = m->cand_price[0];
-        if (m->from - w->first_resource + 1 > w->nmr)
-            w->nmr = m->from - w->first_resource + 1;
-        if (w->p.mechanism == BGM_MECH_BASELINE &&
-            bgm_posted_post(w->dir, m->from, BGM_GOOD_CORES, m->price))
-            fail(w, BG_ERR_LIMIT);
-        break;
-    }
-    case M_RFREE: {
-        mkt_seller_t *s = &w->mr[m->from - w->first_resource];
-        s->free_a += m->a;
-        s->free_b += m->b;
-        break;
-    }
-    case M_AVAIL:
-        if (w->agents[m->from].role == BGM_ROLE_BASIC) {
-            w->mb[m->from - w->first_basic].free_a = m->a;
-        } else {
-            w->mr[m->from - w->first_resource].free_a = m->a;
-            w->mr[m->from - w->first_resource].free_b = m->b;
-        }
-        break;
-    case M_QUERY: {
-        /* First fit over the sellers the directory believes have room, in
-         * registration order, up to the candidate cap. */
-        bgm_posting_t out[BGM_MSG_CANDIDATES];
-        int cap = w->cfg.baseline.candidates < BGM_MSG_CANDIDATES ? w->cfg.baseline.candidates
-                                                                   : BGM_MSG_CANDIDATES;
-        room_ctx_t rc = {w, m};
-        size_t n = bgm_posted_query_if(w->dir, m->good, m->price, has_room, &rc, out, (size_t)cap);
-        bgm_msg_t l = msg(M_LIST, 0, m->from, m->req, m->attempt);
-        l.good = m->good;
-        l.ncand = (uint16_t)n;
-        for (size_t i = 0; i < n; i++) {
-            l.cand[i] = out[i].seller;
-            l.cand_price[i] = out[i].price;
-            if (m->good == BGM_GOOD_CORES) {
-                /* A posted bundle rate: the seller's cost rate for the
-                 * bundle, marked up like every posted price. */
-                const mkt_seller_t *s = &w->mr[out[i].seller - w->first_resource];
-                l.cand_price[i] = (1.0 + w->cfg.baseline.markup) *
-                                  (s->price * m->a + s->mem_cost * m->b);
-                l.cand_speed[i] = s->speed;
-            }
-        }
-        send(w, &l);
-        break;
-    }
-    default:
-        break;
-    }
-    (void)now;
+    return w->rsm[a - w->first_resource];
 }
 
 /* ------------------------------------------------------------ catallactic */
@@ -1662,28 +1111,25 @@ static int seen_before(bgm_world_t *w, uint32_t agent, uint64_t key)
     return 0;
 }
 
-/* Seller's reservation and opening for request r (layer-dependent). */
-static double seller_limit_for(const bgm_world_t *w, const agent_t *s, const req_t *r)
+/* A basic seller's reservation and opening for a service of type good
+ * (resource sellers bargain in bgm_resource). */
+static double seller_limit_for(const agent_t *s, int good)
 {
-    if (r->layer == 0)
-        return reservation(s, r->good);
-    return resource_cost_rate(s, req_cores(w, r), req_memory(w, r));
+    return reservation(s, good);
 }
 
-static double seller_opening(const bgm_world_t *w, const agent_t *s, const req_t *r)
+static double seller_opening(const agent_t *s, int good)
 {
-    double lim = seller_limit_for(w, s, r);
-    double mem = r->layer == 0 ? s->memory[r->good]
-                               : s->memory[3] * mean_rate(w, req_cores(w, r), req_memory(w, r));
-    return bgm_nego_opening(BGM_SIDE_SELLER, lim, mem, s->markup);
+    return bgm_nego_opening(BGM_SIDE_SELLER, seller_limit_for(s, good), s->memory[good],
+                            s->markup);
 }
 
-static int can_sell(const bgm_world_t *w, const agent_t *s, const req_t *r)
+/* Whether agent s can sell what a call for proposals asks for (its good:
+ * a service type, or < 0 for a resource bundle). */
+static int can_sell(const agent_t *s, int good)
 {
-    if (r->layer == 0)
-        return s->role == BGM_ROLE_BASIC && s->sells[r->good] && s->used < s->slots;
-    return s->role == BGM_ROLE_RESOURCE && s->used_cores + req_cores(w, r) <= s->cores &&
-           s->used_mem + req_memory(w, r) <= s->mem;
+    return good >= 0 && good < BGM_SERVICE_TYPES && s->role == BGM_ROLE_BASIC && s->sells[good] &&
+           s->used < s->slots;
 }
 
 static void on_cfp(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
@@ -1692,10 +1138,10 @@ static void on_cfp(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
     uint64_t key = ((uint64_t)m->req << 20) ^ m->attempt ^ ((uint64_t)m->origin << 44);
     if (seen_before(w, me, key))
         return;
-    const req_t *r = &w->reqs[m->req];
-    if (can_sell(w, a, r)) {
+    /* What it reads of the request is what the call carries. */
+    if (can_sell(a, m->good)) {
         bgm_msg_t p = msg(M_PROPOSE, me, m->origin, m->req, m->attempt);
-        p.price = seller_opening(w, a, r);
+        p.price = seller_opening(a, m->good);
         p.a = a->speed;
         send(w, &p);
     }
@@ -1711,6 +1157,20 @@ static double buyer_limit_for(const bgm_world_t *w, const req_t *r, const propos
     if (r->layer == 0)
         return r->limit;
     return r->limit / req_duration(w, r, p->speed);
+}
+
+/* What a seller reads of the request in a buyer's OFFER, ACCEPT or
+ * ORDER: the good (a bundle: < 0), the bundle, the budget (a resource
+ * seller checks the rent against it) and how long the buyer's offer
+ * stands: until its deadline, when the buyer gives up bargaining. */
+static void request_fields(const bgm_world_t *w, const req_t *r, bgm_msg_t *m)
+{
+    m->good = (int16_t)r->good;
+    m->a = r->layer == 0 ? r->work : req_cores(w, r);
+    m->b = req_memory(w, r);
+    m->c = req_flops(w, r);
+    m->cand_price[1] = r->limit;
+    m->cand_price[2] = r->deadline;
 }
 
 static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
@@ -1731,12 +1191,15 @@ static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
             }
             o = msg(M_ORDER, r->buyer, p->seller, rid, r->attempt);
             o.price = p->price;
+            request_fields(w, r, &o);
         } else {
             bgm_nego_open(&g->buyer_nego, BGM_SIDE_BUYER, lim,
                           bgm_nego_opening(BGM_SIDE_BUYER, lim, mem, b->markup), &b->genes,
                           w->cfg.catallactic.max_rounds);
             o = msg(M_OFFER, r->buyer, p->seller, rid, r->attempt);
             o.price = g->buyer_nego.current;
+            o.hops = 1; /* opens a bargain: the seller starts afresh */
+            request_fields(w, r, &o);
         }
         r->seller = p->seller;
         g->seller_open = 0;
@@ -1762,31 +1225,25 @@ static int cmp_prop(const void *pa, const void *pb)
     return (a->seller > b->seller) - (a->seller < b->seller);
 }
 
-/* Agreement reached at the seller: commit on the seller's side. For a
- * service the buyer is told ACCEPT (resources follow); for a bundle the
- * RCONFIRM from resource_agreed is the acceptance. */
+/* Agreement reached at a basic seller: it commits on its side and tells
+ * the buyer ACCEPT (resources follow), or REJECT when it cannot. */
 static void seller_commit(bgm_world_t *w, uint32_t me, uint32_t rid, double price, double limit,
                           double now)
 {
     req_t *r = &w->reqs[rid];
-    if (r->layer == 0) {
-        uint32_t attempt = r->attempt;
-        uint32_t buyer = r->buyer;
-        if (!service_agreed(w, me, rid, attempt, price, limit, now)) {
-            bgm_msg_t x = msg(M_REJECT, me, buyer, rid, attempt);
-            send(w, &x);
-            return;
-        }
-        agent_t *s = &w->agents[me];
-        s->memory[w->reqs[rid].good] =
-            bgm_memory_update(s->memory[w->reqs[rid].good], price, s->genes.weight_memory);
-        bgm_msg_t a = msg(M_ACCEPT, me, buyer, rid, attempt);
-        a.price = price;
-        send(w, &a);
-    } else if (!resource_agreed(w, me, rid, price, now)) {
-        bgm_msg_t x = msg(M_REJECT, me, r->buyer, rid, r->attempt);
+    uint32_t attempt = r->attempt;
+    uint32_t buyer = r->buyer;
+    if (!service_agreed(w, me, rid, attempt, price, limit, now)) {
+        bgm_msg_t x = msg(M_REJECT, me, buyer, rid, attempt);
         send(w, &x);
+        return;
     }
+    agent_t *s = &w->agents[me];
+    s->memory[w->reqs[rid].good] =
+        bgm_memory_update(s->memory[w->reqs[rid].good], price, s->genes.weight_memory);
+    bgm_msg_t a = msg(M_ACCEPT, me, buyer, rid, attempt);
+    a.price = price;
+    send(w, &a);
 }
 
 static void seller_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
@@ -1797,8 +1254,8 @@ static void seller_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, dou
         return;
     nego_state_t *g = ng(w, r);
     if (!g->seller_open) {
-        bgm_nego_open(&g->seller_nego, BGM_SIDE_SELLER, seller_limit_for(w, s, r),
-                      seller_opening(w, s, r), &s->genes, w->cfg.catallactic.max_rounds);
+        bgm_nego_open(&g->seller_nego, BGM_SIDE_SELLER, seller_limit_for(s, r->good),
+                      seller_opening(s, r->good), &s->genes, w->cfg.catallactic.max_rounds);
         g->seller_open = 1;
     }
     double reply = 0.0;
@@ -1827,6 +1284,7 @@ static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, doub
     if (act == BGM_NEGO_ACCEPT) {
         bgm_msg_t a = msg(M_ACCEPT, me, m->from, m->req, m->attempt);
         a.price = reply;
+        request_fields(w, r, &a);
         r->state = RQ_COMMITTED;
         r->price = reply;
         send(w, &a);
@@ -1841,6 +1299,7 @@ static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, doub
     } else if (act == BGM_NEGO_COUNTER) {
         bgm_msg_t o = msg(M_OFFER, me, m->from, m->req, m->attempt);
         o.price = reply;
+        request_fields(w, r, &o);
         send(w, &o);
         arm(w, m->req, now + w->cfg.catallactic.reply_timeout);
     } else {
@@ -1895,37 +1354,22 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
     if (!agent_reachable(w, me))
         return BG_OK; /* lost on a failed node or link */
     if (me == 0) {
-        market_on_message(w, m, now);
+        route(w, bgm_market_agent_on_message(w->ma, m, now, w->ob), now);
         return w->failure;
     }
     if (m->type != M_GENES && m->type != M_CFP && m->req >= w->nreq)
         return BG_ERR_INVALID;
+    if (is_resource(w, me)) {
+        route(w, bgm_resource_on_message(resource_machine(w, me), m, now, agent_alive(w, me), w->ob),
+              now);
+        return w->failure;
+    }
     req_t *r = m->type == M_GENES ? NULL : &w->reqs[m->req];
     switch (m->type) {
     case M_MATCH:
         if (!service_agreed(w, me, m->req, m->attempt, m->price, m->b, now)) {
             bgm_msg_t c = msg(M_CANCEL, me, m->origin, m->req, m->attempt);
             send(w, &c);
-        }
-        break;
-    case M_RAWARD:
-        if (!resource_agreed(w, me, m->req, m->price, now)) {
-            bgm_msg_t f = msg(M_RFAIL, me, m->origin, m->req, m->attempt);
-            send(w, &f);
-            bgm_msg_t g = msg(M_RFREE, me, 0, m->req, 0);
-            g.a = req_cores(w, r);
-            g.b = req_memory(w, r);
-            send(w, &g);
-        }
-        break;
-    case M_RPART:
-        if (!part_agreed(w, me, m, now)) {
-            bgm_msg_t f = msg(M_RFAIL, me, m->origin, m->req, m->attempt);
-            send(w, &f);
-            bgm_msg_t g = msg(M_RFREE, me, 0, m->req, 0);
-            g.a = m->good == BGM_GOOD_CORES ? m->a : 0.0;
-            g.b = m->good == BGM_GOOD_MEMORY ? m->a : 0.0;
-            send(w, &g);
         }
         break;
     case M_RFAIL:
@@ -1965,7 +1409,7 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         } else if (m->attempt == r->attempt && r->seller == me && r->state == RQ_COMMITTED) {
             const agent_t *s = &w->agents[me];
             const nego_state_t *g = ng(w, r);
-            double lim = g->seller_open ? g->seller_nego.limit : seller_limit_for(w, s, r);
+            double lim = g->seller_open ? g->seller_nego.limit : seller_limit_for(s, r->good);
             if (g->seller_open)
                 learn_outcome(&w->agents[me], 1, (m->price - lim) / m->price);
             seller_commit(w, me, m->req, m->price, lim, now);
@@ -1992,10 +1436,7 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
     case M_ORDER:
         if (m->attempt == r->attempt && r->seller == me && r->state == RQ_NEGOTIATE) {
             const agent_t *s = &w->agents[me];
-            double lim = r->layer == 0 ? s->posted[r->good] / (1.0 + w->cfg.baseline.markup)
-                                       : seller_limit_for(w, s, r);
-            if (r->layer == 1)
-                r->state = RQ_COMMITTED;
+            double lim = s->posted[r->good] / (1.0 + w->cfg.baseline.markup);
             seller_commit(w, me, m->req, m->price, lim, now);
         }
         break;
@@ -2074,6 +1515,11 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
     uint32_t hi = (uint32_t)(arg >> 32);
     int alive = agent_alive(w, me);
     const bgm_dynamics_t *dy = w->p.dynamics;
+    if (is_resource(w, me) &&
+        (kind == T_RELEASE || kind == T_RELEASE_PART || kind == T_LEARN)) {
+        route(w, bgm_resource_on_timer(resource_machine(w, me), kind, arg, now, alive, w->ob), now);
+        return w->failure;
+    }
     switch (kind) {
     case T_ARRIVAL: {
         if (alive)
@@ -2084,10 +1530,7 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
         break;
     }
     case T_CLEAR:
-        clear_services(w, now);
-        clear_resources(w, now);
-        if (now + w->cfg.central.period <= w->horizon)
-            timer(w, 0, now + w->cfg.central.period, T_CLEAR, 0);
+        route(w, bgm_market_agent_on_timer(w->ma, kind, arg, now, w->ob), now);
         break;
     case T_REQ: {
         req_t *r = &w->reqs[rid];
@@ -2134,42 +1577,15 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
             start_acquire(w, rid, now);
         break;
     }
-    case T_RELEASE: {
-        req_t *r = &w->reqs[rid];
-        if (a->role == BGM_ROLE_BASIC) {
-            if (a->used > 0)
-                a->used--;
-            announce(w, me);
-            if (w->p.mechanism == BGM_MECH_CENTRAL) {
-                bgm_msg_t m = msg(M_FREE, me, 0, rid, 0);
-                send(w, &m);
-            }
-        } else {
-            a->used_cores -= req_cores(w, r);
-            a->used_mem -= req_memory(w, r);
-            announce(w, me);
-            if (w->p.mechanism == BGM_MECH_CENTRAL) {
-                bgm_msg_t m = msg(M_RFREE, me, 0, rid, 0);
-                m.a = req_cores(w, r);
-                m.b = req_memory(w, r);
-                send(w, &m);
-            }
+    case T_RELEASE: /* a basic seller's slot (resource sellers: bgm_resource) */
+        if (a->used > 0)
+            a->used--;
+        announce(w, me);
+        if (w->p.mechanism == BGM_MECH_CENTRAL) {
+            bgm_msg_t m = msg(M_FREE, me, 0, rid, 0);
+            send(w, &m);
         }
         break;
-    }
-    case T_RELEASE_PART: {
-        double q = (double)(arg & ((1ULL << 40) - 1)) / BGM_MIB;
-        int is_cores = (int)(arg >> 40) == BGM_GOOD_CORES;
-        if (is_cores)
-            a->used_cores -= q;
-        else
-            a->used_mem -= q;
-        bgm_msg_t m = msg(M_RFREE, me, 0, 0, 0);
-        m.a = is_cores ? q : 0.0;
-        m.b = is_cores ? 0.0 : q;
-        send(w, &m);
-        break;
-    }
     case T_LEARN: {
         if (alive && a->ndeg > 0) {
             uint32_t other = a->nbr[bgm_rng_below(&a->rng, (uint32_t)a->ndeg)];
@@ -2221,8 +1637,7 @@ bg_status bgm_world_start(bgm_world_t *w, const bgm_sink_t *sink, double now)
     w->sink = *sink;
     const bgm_config_t *c = &w->cfg;
     int mech = w->p.mechanism;
-    if (mech == BGM_MECH_CENTRAL)
-        timer(w, 0, now + c->central.period, T_CLEAR, 0);
+    route(w, bgm_market_agent_start(w->ma, now, w->ob), now);
     for (uint32_t i = 1; i < w->nagents; i++) {
         agent_t *a = &w->agents[i];
         if (a->role == BGM_ROLE_COMPLEX) {
@@ -2238,14 +1653,9 @@ bg_status bgm_world_start(bgm_world_t *w, const bgm_sink_t *sink, double now)
                 a->announced[t] = reservation(a, t);
                 send(w, &m);
             }
-        } else if (a->role == BGM_ROLE_RESOURCE && mech != BGM_MECH_CATALLACTIC) {
-            bgm_msg_t m = msg(M_RASK, i, 0, 0, 0);
-            m.a = a->cores;
-            m.b = a->mem;
-            m.c = a->speed;
-            m.price = a->core_cost;
-            m.cand_price[0] = a->mem_cost;
-            send(w, &m);
+        } else if (a->role == BGM_ROLE_RESOURCE) {
+            route(w, bgm_resource_start(resource_machine(w, i), now, w->ob), now);
+            continue;
         }
         if (mech == BGM_MECH_CATALLACTIC)
             timer(w, i, now + c->catallactic.learning_period * bgm_rng_uniform(&a->rng), T_LEARN, 0);
@@ -2451,8 +1861,7 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
     m[BGM_M_CONTRACTS] = svc;
     m[BGM_M_MESSAGES] = w->msgs;
     m[BGM_M_BYTES] = w->bytes;
-    m[BGM_M_COMBEX_EXACT] = w->combex_exact;
-    m[BGM_M_COMBEX_GREEDY] = w->combex_greedy;
+    bgm_market_agent_counts(w->ma, &m[BGM_M_COMBEX_EXACT], &m[BGM_M_COMBEX_GREEDY]);
     m[BGM_M_TIMEOUTS] = w->timeouts;
     if (w->service_requests > 0)
         m[BGM_M_ALLOCATION_RATE] = svc / w->service_requests;

@@ -13,7 +13,10 @@
  * Agents: id 0 is the market agent (the central auctioneer, and the
  * directory of posted prices for the baseline); then complex-service
  * agents (job buyers), basic-service agents (sell services, buy resources)
- * and resource agents (sell cores and memory for a time).
+ * and resource agents (sell cores and memory for a time). The market agent
+ * and each resource agent are role machines of their own
+ * (bgm_market_agent, bgm_resource) that the world hosts and whose outboxes
+ * it routes; the buyers and basic sellers still run in the world itself.
  * Every contract is appended to an audit log with both limits, so the
  * invariants (price within limits, no seller over capacity, money
  * conserved) can be checked afterwards from the log alone.
@@ -27,6 +30,7 @@
 
 #include "bg_error.h"
 #include "bgm_config.h"
+#include "bgm_role.h"
 
 typedef enum bgm_role {
     BGM_ROLE_MARKET = 0,
@@ -35,25 +39,6 @@ typedef enum bgm_role {
     BGM_ROLE_RESOURCE = 3
 } bgm_role;
 
-#define BGM_MSG_CANDIDATES 8
-
-/* A message between agents. Plain data, copied by value; drivers own the
- * copies they queue. */
-typedef struct bgm_msg {
-    uint16_t type;
-    int16_t good;
-    uint16_t hops;
-    uint16_t ncand;
-    uint32_t from, to;
-    uint32_t req;     /* the request this message is about */
-    uint32_t attempt; /* request attempt; stale attempts are ignored */
-    uint32_t origin;  /* CFP originator */
-    double price;
-    double a, b, c; /* type-specific numbers (see bgm_world.c) */
-    uint32_t cand[BGM_MSG_CANDIDATES];
-    double cand_price[BGM_MSG_CANDIDATES];
-    double cand_speed[BGM_MSG_CANDIDATES];
-} bgm_msg_t;
 
 typedef struct bgm_sink {
     void *ctx;

@@ -131,6 +131,57 @@ static void test_typed_roundtrip_every_type(void **state)
     }
 }
 
+/* What the market agent reads of a bid or a resource seller travels in
+ * the typed messages too: a resource bid's deadline, a seller's memory
+ * cost, a service bid's deadline where the world's generic message has it. */
+static void test_typed_fields_market_agent_reads(void **state)
+{
+    (void)state;
+    bg_error_t err;
+    memset(&err, 0, sizeof err);
+    bgm_role_msg_t r;
+    memset(&r, 0, sizeof r);
+    bgm_msg_t g;
+    r.type = BGM_RM_RBID;
+    r.u.rbid = (bgm_rm_rbid_t){2.0, 4.0, 6e9, 1.5, 42.25};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.cand_price[0] == 42.25 && g.a == 2.0 && g.b == 4.0 && g.c == 6e9);
+    bgm_role_msg_t back;
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.rbid.deadline == 42.25 && back.u.rbid.limit_total == 1.5);
+    r.type = BGM_RM_RASK;
+    r.u.rask = (bgm_rm_rask_t){4.0, 8.0, 1e9, 0.05, 0.0125};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.cand_price[0] == 0.0125 && g.price == 0.05);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.rask.memory_cost_rate == 0.0125);
+    r.type = BGM_RM_BID;
+    r.u.bid = (bgm_rm_bid_t){1, 3.0, 5.0, 77.5};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.b == 77.5 && g.cand_price[0] == 77.5);
+    /* What a resource seller reads of a buyer's offer, order and award. */
+    r.type = BGM_RM_OFFER;
+    r.u.price = (bgm_rm_price_t){0.4, -1, 1, 2.0, 3.0, 8e9, 9.5, 61.0};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.good == -1 && g.hops == 1 && g.a == 2.0 && g.b == 3.0 && g.c == 8e9);
+    assert_true(g.cand_price[1] == 9.5 && g.cand_price[2] == 61.0 && g.price == 0.4);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.price.opening == 1 && back.u.price.valid_until == 61.0 &&
+                back.u.price.budget == 9.5 && back.u.price.good == -1);
+    r.type = BGM_RM_ORDER;
+    r.u.order = (bgm_rm_order_t){-1, 0.3, 1.0, 2.0, 4e9, 7.0, 33.0};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.cand_price[1] == 7.0 && g.cand_price[2] == 33.0);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.order.budget == 7.0 && back.u.order.valid_until == 33.0);
+    r.type = BGM_RM_RAWARD;
+    r.u.raward = (bgm_rm_raward_t){12, 0.2, 2.0, 4.0, 6e9, 0.0, 5.5};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.cand_price[1] == 5.5 && g.origin == 12);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.raward.budget == 5.5);
+}
+
 /* Spot checks that typed fields land where the world reads them. */
 static void test_typed_field_meaning(void **state)
 {
@@ -347,6 +398,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_generic_roundtrip_every_type),
         cmocka_unit_test(test_typed_roundtrip_every_type),
+        cmocka_unit_test(test_typed_fields_market_agent_reads),
         cmocka_unit_test(test_typed_field_meaning),
         cmocka_unit_test(test_encode_refuses),
         cmocka_unit_test(test_decode_refuses),

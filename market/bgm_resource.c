@@ -1,0 +1,500 @@
+#include "bgm_resource.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bgm_catallactic.h"
+
+#define RS_SESSIONS 32
+#define RS_SEEN_RING 16
+#define RS_MAX_HOLDS 4096
+/* Quantities of a part travel in a timer argument as whole MiB. */
+#define RS_MIB 1024.0
+
+/* A bundle held until its end (the release timer names its request). */
+typedef struct hold {
+    uint32_t req;
+    double cores, memory;
+} hold_t;
+
+/* The seller's side of one bargain. */
+typedef struct session {
+    uint32_t buyer, req;
+    int used, open;
+    bgm_nego_t nego;
+} session_t;
+
+struct bgm_resource {
+    bgm_config_t cfg;
+    bgm_resource_params_t p;
+    uint32_t nbr[BGM_RS_MAX_NEIGHBOURS];
+    uint8_t same[BGM_RS_MAX_NEIGHBOURS];
+    double used_cores, used_mem;
+    double fitness, markup, memory; /* remembered price over mean cost rate */
+    bgm_rng_t rng;
+    bgm_genes_t genes;
+    uint64_t seen[RS_SEEN_RING];
+    int seen_pos;
+    session_t sess[RS_SESSIONS];
+    int next_sess;
+    hold_t *holds;
+    size_t nholds, holds_cap;
+    bg_status failure;
+    bgm_outbox_t *out;
+};
+
+static void fail(bgm_resource_t *rs, bg_status st)
+{
+    if (rs->failure == BG_OK)
+        rs->failure = st;
+}
+
+static void emit(bgm_resource_t *rs, const bgm_msg_t *m)
+{
+    bg_status st = bgm_outbox_send(rs->out, m);
+    if (st)
+        fail(rs, st);
+}
+
+static void later(bgm_resource_t *rs, double at, int kind, uint64_t arg)
+{
+    bg_status st = bgm_outbox_timer(rs->out, rs->p.self, at, kind, arg);
+    if (st)
+        fail(rs, st);
+}
+
+/* Messages start from a zeroed body with their header set. */
+static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
+{
+    return bgm_outbox_msg(type, from, to, req, attempt);
+}
+
+bgm_resource_t *bgm_resource_new(const bgm_resource_params_t *p)
+{
+    if (p->degree < 0 || p->degree > BGM_RS_MAX_NEIGHBOURS)
+        return NULL;
+    bgm_resource_t *rs = calloc(1, sizeof *rs);
+    if (!rs)
+        return NULL;
+    rs->cfg = *p->cfg;
+    rs->p = *p;
+    rs->p.cfg = &rs->cfg;
+    for (int i = 0; i < p->degree; i++) {
+        rs->nbr[i] = p->neighbours[i];
+        rs->same[i] = p->same_role[i];
+    }
+    rs->p.neighbours = NULL;
+    rs->p.same_role = NULL;
+    rs->rng = p->rng;
+    rs->genes = p->genes;
+    rs->markup = p->markup;
+    return rs;
+}
+
+void bgm_resource_destroy(bgm_resource_t **prs)
+{
+    if (!prs || !*prs)
+        return;
+    free((*prs)->holds);
+    free(*prs);
+    *prs = NULL;
+}
+
+void bgm_resource_used(const bgm_resource_t *rs, double *cores, double *memory)
+{
+    *cores = rs->used_cores;
+    *memory = rs->used_mem;
+}
+
+static void learn(bgm_resource_t *rs, int success, double share)
+{
+    bgm_outcome_learn(&rs->genes, &rs->fitness, &rs->markup, success, share);
+}
+
+static double cost_rate(const bgm_resource_t *rs, double cores, double mem)
+{
+    return rs->p.core_cost * cores + rs->p.memory_cost * mem;
+}
+
+/* Normaliser for remembered resource prices: the mean cost rate. */
+static double mean_rate(const bgm_resource_t *rs, double cores, double mem)
+{
+    return rs->cfg.resources.core_cost * cores + rs->cfg.resources.memory_cost * mem;
+}
+
+/* Baseline: the directory learns its free capacity whenever it changes. */
+static void announce(bgm_resource_t *rs)
+{
+    if (rs->p.mechanism != BGM_MECH_BASELINE)
+        return;
+    bgm_msg_t m = msg(BGM_MT_AVAIL, rs->p.self, rs->p.market, 0, 0);
+    m.a = rs->p.cores - rs->used_cores;
+    m.b = rs->p.memory - rs->used_mem;
+    emit(rs, &m);
+}
+
+/*
+ * Rents a whole bundle (m->a cores, m->b GiB for m->c flops) at `rate`
+ * per second to `buyer` for its request m->req: it checks that its host
+ * is up, that it has the room now (every rental starts when agreed), that
+ * the rate covers its cost and stays within the buyer's budget; it holds
+ * the bundle until the run ends and confirms. It is paid when the buyer
+ * takes delivery. Returns 0 when it cannot.
+ */
+static int rent(bgm_resource_t *rs, const bgm_msg_t *m, uint32_t buyer, double rate, double now,
+                int up)
+{
+    double cores = m->a, mem = m->b, budget = m->cand_price[1];
+    if (!up || rs->used_cores + cores > rs->p.cores + 1e-9 ||
+        rs->used_mem + mem > rs->p.memory + 1e-9)
+        return 0;
+    double dur = m->c / (rs->p.speed * (cores > 0 ? cores : 1.0));
+    double cost = cost_rate(rs, cores, mem);
+    if (rate < cost || rate * dur > budget * (1.0 + 1e-12))
+        return 0;
+    if (rs->nholds == rs->holds_cap) {
+        size_t cap = rs->holds_cap ? 2 * rs->holds_cap : 16;
+        hold_t *h = cap <= RS_MAX_HOLDS ? realloc(rs->holds, cap * sizeof *h) : NULL;
+        if (!h) {
+            fail(rs, BG_ERR_LIMIT);
+            return 0;
+        }
+        rs->holds = h;
+        rs->holds_cap = cap;
+    }
+    rs->holds[rs->nholds++] = (hold_t){m->req, cores, mem};
+    rs->used_cores += cores;
+    rs->used_mem += mem;
+    announce(rs);
+    rs->memory = bgm_memory_update(rs->memory, rate / mean_rate(rs, cores, mem),
+                                   rs->genes.weight_memory);
+    learn(rs, 1, (rate - cost) / rate);
+    later(rs, now + dur, BGM_RS_TIMER_RELEASE, m->req);
+    bgm_msg_t k = msg(BGM_MT_RCONFIRM, rs->p.self, buyer, m->req, m->attempt);
+    k.good = -1;
+    k.price = rate;
+    k.a = now;
+    k.b = now + dur;
+    k.c = cost;
+    emit(rs, &k);
+    return 1;
+}
+
+static uint64_t part_arg(int good, double quantity)
+{
+    return ((uint64_t)good << 40) | (uint64_t)llround(quantity * RS_MIB);
+}
+
+/* One part of a call-market bundle: m->a cores or GiB for m->b seconds
+ * from the bundle's common start at m->price per unit-second. It holds
+ * the part from now until the part's end if its host is up, the start is
+ * still ahead and it has the room; it is paid once the buyer has the
+ * whole bundle. It learns from the agreement (the rate over its cost).
+ * Returns 0 when it cannot. */
+static int hold_part(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
+{
+    int is_cores = m->good == BGM_GOOD_CORES_ID;
+    double qty = m->a, dur = m->b, rate = m->price, start = m->cand_price[0];
+    double cost = is_cores ? rs->p.core_cost : rs->p.memory_cost;
+    double *used = is_cores ? &rs->used_cores : &rs->used_mem;
+    /* The auctioneer converts the uniform price to this seller's rate, so
+     * the rate can sit an ulp below its cost. */
+    if (!up || now > start || *used + qty > (is_cores ? rs->p.cores : rs->p.memory) + 1e-9 ||
+        rate < cost * (1.0 - 1e-12))
+        return 0;
+    *used += qty;
+    learn(rs, 1, (rate - cost) / rate);
+    later(rs, start + dur, BGM_RS_TIMER_RELEASE_PART, part_arg(m->good, qty));
+    bgm_msg_t k = msg(BGM_MT_RCONFIRM, rs->p.self, m->origin, m->req, m->attempt);
+    k.good = m->good;
+    k.hops = m->hops;
+    k.price = rate;
+    k.a = start;
+    k.b = start + dur;
+    k.cand_price[0] = qty;
+    k.cand_price[1] = m->c;
+    k.cand_price[2] = cost;
+    emit(rs, &k);
+    return 1;
+}
+
+/* Tells the buyer and the market agent that an award cannot be taken. */
+static void refuse_award(bgm_resource_t *rs, const bgm_msg_t *m, double cores, double mem)
+{
+    bgm_msg_t f = msg(BGM_MT_RFAIL, rs->p.self, m->origin, m->req, m->attempt);
+    emit(rs, &f);
+    bgm_msg_t g = msg(BGM_MT_RFREE, rs->p.self, rs->p.market, m->req, 0);
+    g.a = cores;
+    g.b = mem;
+    emit(rs, &g);
+}
+
+/* ---------------------------------------------------------- bargaining */
+
+static int seen_before(bgm_resource_t *rs, uint64_t key)
+{
+    for (int i = 0; i < RS_SEEN_RING; i++)
+        if (rs->seen[i] == key)
+            return 1;
+    rs->seen[rs->seen_pos] = key;
+    rs->seen_pos = (rs->seen_pos + 1) % RS_SEEN_RING;
+    return 0;
+}
+
+static double opening(const bgm_resource_t *rs, double cores, double mem)
+{
+    return bgm_nego_opening(BGM_SIDE_SELLER, cost_rate(rs, cores, mem),
+                            rs->memory * mean_rate(rs, cores, mem), rs->markup);
+}
+
+static void forward(bgm_resource_t *rs, const bgm_msg_t *proto, uint32_t except)
+{
+    for (int i = 0; i < rs->p.degree; i++) {
+        if (rs->nbr[i] == except || rs->nbr[i] == proto->origin)
+            continue;
+        bgm_msg_t m = *proto;
+        m.from = rs->p.self;
+        m.to = rs->nbr[i];
+        emit(rs, &m);
+    }
+}
+
+/* A call for proposals: propose once per (request, attempt, origin) if it
+ * has room for the bundle, and pass the call on while hops remain. */
+static void on_cfp(bgm_resource_t *rs, const bgm_msg_t *m)
+{
+    uint64_t key = ((uint64_t)m->req << 20) ^ m->attempt ^ ((uint64_t)m->origin << 44);
+    if (seen_before(rs, key))
+        return;
+    if (m->good < 0 && rs->used_cores + m->a <= rs->p.cores && rs->used_mem + m->b <= rs->p.memory) {
+        bgm_msg_t p = msg(BGM_MT_PROPOSE, rs->p.self, m->origin, m->req, m->attempt);
+        p.price = opening(rs, m->a, m->b);
+        p.a = rs->p.speed;
+        emit(rs, &p);
+    }
+    if (m->hops > 1) {
+        bgm_msg_t f = *m;
+        f.hops--;
+        forward(rs, &f, m->from);
+    }
+}
+
+static session_t *find_session(bgm_resource_t *rs, uint32_t buyer, uint32_t req)
+{
+    for (int i = 0; i < RS_SESSIONS; i++)
+        if (rs->sess[i].used && rs->sess[i].buyer == buyer && rs->sess[i].req == req)
+            return &rs->sess[i];
+    return NULL;
+}
+
+/* The session of (buyer, req), a fresh one when the offer opens a bargain. */
+static session_t *session_for(bgm_resource_t *rs, const bgm_msg_t *m)
+{
+    session_t *s = find_session(rs, m->from, m->req);
+    if (!s && m->hops != 1)
+        return NULL;
+    if (!s) {
+        s = &rs->sess[rs->next_sess];
+        rs->next_sess = (rs->next_sess + 1) % RS_SESSIONS;
+    }
+    if (m->hops == 1) {
+        memset(s, 0, sizeof *s);
+        s->used = 1;
+        s->buyer = m->from;
+        s->req = m->req;
+    }
+    return s;
+}
+
+static void reject(bgm_resource_t *rs, const bgm_msg_t *m)
+{
+    bgm_msg_t x = msg(BGM_MT_REJECT, rs->p.self, m->from, m->req, m->attempt);
+    emit(rs, &x);
+}
+
+static void on_offer(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
+{
+    session_t *s = session_for(rs, m);
+    if (!s)
+        return; /* an offer in a bargain it has forgotten: nothing to answer */
+    double lim = cost_rate(rs, m->a, m->b);
+    if (!s->open) {
+        bgm_nego_open(&s->nego, BGM_SIDE_SELLER, lim, opening(rs, m->a, m->b), &rs->genes,
+                      rs->cfg.catallactic.max_rounds);
+        s->open = 1;
+    }
+    double reply = 0.0;
+    bgm_nego_action act = bgm_nego_respond(&s->nego, m->price, &rs->rng, &reply);
+    if (act == BGM_NEGO_ACCEPT) {
+        if (!rent(rs, m, m->from, reply, now, up))
+            reject(rs, m);
+    } else if (act == BGM_NEGO_COUNTER) {
+        bgm_msg_t o = msg(BGM_MT_OFFER, rs->p.self, m->from, m->req, m->attempt);
+        o.price = reply;
+        emit(rs, &o);
+    } else {
+        learn(rs, 0, 0.0);
+        reject(rs, m);
+    }
+}
+
+/* The buyer accepted its last counter-offer. */
+static void on_accept(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
+{
+    const session_t *s = find_session(rs, m->from, m->req);
+    if (s && s->open)
+        learn(rs, 1, (m->price - s->nego.limit) / m->price);
+    if (!rent(rs, m, m->from, m->price, now, up))
+        reject(rs, m);
+}
+
+static void send_genes(bgm_resource_t *rs, uint32_t to, int request)
+{
+    bgm_msg_t m = msg(BGM_MT_GENES, rs->p.self, to, 0, 0);
+    double g[BGM_GENE_COUNT];
+    bgm_genes_pack(&rs->genes, g);
+    memcpy(m.cand_price, g, sizeof g);
+    m.price = rs->fitness;
+    m.a = request ? 1.0 : 0.0;
+    emit(rs, &m);
+}
+
+/* A learning meeting with a neighbour of its role: answer a request with
+ * its own genes, then learn from the other's. */
+static void on_genes(bgm_resource_t *rs, const bgm_msg_t *m)
+{
+    int same = 0;
+    for (int i = 0; i < rs->p.degree; i++)
+        same |= rs->nbr[i] == m->from && rs->same[i];
+    if (!same)
+        return;
+    if (m->a > 0.0)
+        send_genes(rs, m->from, 0);
+    bgm_genes_t other;
+    double g[BGM_GENE_COUNT];
+    memcpy(g, m->cand_price, sizeof g);
+    bgm_genes_unpack(&other, g);
+    bgm_learning_t lp = {rs->cfg.catallactic.imitation, rs->cfg.catallactic.mutation,
+                         rs->cfg.catallactic.mutation_sigma};
+    bgm_genes_learn(&rs->genes, rs->fitness, &other, m->price, &lp, &rs->rng);
+}
+
+/* --------------------------------------------------------------- inputs */
+
+bg_status bgm_resource_start(bgm_resource_t *rs, double now, bgm_outbox_t *out)
+{
+    rs->failure = BG_OK;
+    rs->out = out;
+    if (rs->p.mechanism != BGM_MECH_CATALLACTIC) {
+        bgm_msg_t m = msg(BGM_MT_RASK, rs->p.self, rs->p.market, 0, 0);
+        m.a = rs->p.cores;
+        m.b = rs->p.memory;
+        m.c = rs->p.speed;
+        m.price = rs->p.core_cost;
+        m.cand_price[0] = rs->p.memory_cost;
+        emit(rs, &m);
+    } else {
+        later(rs, now + rs->cfg.catallactic.learning_period * bgm_rng_uniform(&rs->rng),
+              BGM_RS_TIMER_LEARN, 0);
+    }
+    return rs->failure;
+}
+
+bg_status bgm_resource_on_message(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up,
+                                  bgm_outbox_t *out)
+{
+    rs->failure = BG_OK;
+    rs->out = out;
+    switch (m->type) {
+    case BGM_MT_RAWARD:
+        if (!rent(rs, m, m->origin, m->price, now, up))
+            refuse_award(rs, m, m->a, m->b);
+        break;
+    case BGM_MT_RPART:
+        if (!hold_part(rs, m, now, up))
+            refuse_award(rs, m, m->good == BGM_GOOD_CORES_ID ? m->a : 0.0,
+                         m->good == BGM_GOOD_MEMORY_ID ? m->a : 0.0);
+        break;
+    case BGM_MT_CFP:
+        on_cfp(rs, m);
+        break;
+    case BGM_MT_OFFER:
+        /* An offer past its buyer's deadline stands no more: the buyer
+         * has given up bargaining. */
+        if (m->good < 0 && now <= m->cand_price[2])
+            on_offer(rs, m, now, up);
+        break;
+    case BGM_MT_ACCEPT:
+        if (m->good < 0)
+            on_accept(rs, m, now, up);
+        break;
+    case BGM_MT_ORDER:
+        if (m->good < 0 && now <= m->cand_price[2] && !rent(rs, m, m->from, m->price, now, up))
+            reject(rs, m);
+        break;
+    case BGM_MT_GENES:
+        on_genes(rs, m);
+        break;
+    default:
+        /* REJECT ends a bargain it will not hear of again; nothing else is
+         * addressed to a resource seller. */
+        break;
+    }
+    return rs->failure;
+}
+
+bg_status bgm_resource_on_timer(bgm_resource_t *rs, int kind, uint64_t arg, double now, int up,
+                                bgm_outbox_t *out)
+{
+    rs->failure = BG_OK;
+    rs->out = out;
+    switch (kind) {
+    case BGM_RS_TIMER_RELEASE: {
+        size_t i = 0;
+        while (i < rs->nholds && rs->holds[i].req != (uint32_t)arg)
+            i++;
+        if (i == rs->nholds)
+            return BG_ERR_INVALID;
+        hold_t h = rs->holds[i];
+        rs->holds[i] = rs->holds[--rs->nholds];
+        rs->used_cores -= h.cores;
+        rs->used_mem -= h.memory;
+        announce(rs);
+        if (rs->p.mechanism == BGM_MECH_CENTRAL) {
+            bgm_msg_t m = msg(BGM_MT_RFREE, rs->p.self, rs->p.market, h.req, 0);
+            m.a = h.cores;
+            m.b = h.memory;
+            emit(rs, &m);
+        }
+        break;
+    }
+    case BGM_RS_TIMER_RELEASE_PART: {
+        double q = (double)(arg & ((1ULL << 40) - 1)) / RS_MIB;
+        int is_cores = (int)(arg >> 40) == BGM_GOOD_CORES_ID;
+        if (is_cores)
+            rs->used_cores -= q;
+        else
+            rs->used_mem -= q;
+        bgm_msg_t m = msg(BGM_MT_RFREE, rs->p.self, rs->p.market, 0, 0);
+        m.a = is_cores ? q : 0.0;
+        m.b = is_cores ? 0.0 : q;
+        emit(rs, &m);
+        break;
+    }
+    case BGM_RS_TIMER_LEARN: {
+        if (up && rs->p.degree > 0) {
+            int k = (int)bgm_rng_below(&rs->rng, (uint32_t)rs->p.degree);
+            if (rs->same[k])
+                send_genes(rs, rs->nbr[k], 1);
+        }
+        double t = now + rs->cfg.catallactic.learning_period * (0.5 + bgm_rng_uniform(&rs->rng));
+        if (t < rs->p.horizon)
+            later(rs, t, BGM_RS_TIMER_LEARN, 0);
+        break;
+    }
+    default:
+        return BG_ERR_INVALID;
+    }
+    return rs->failure;
+}

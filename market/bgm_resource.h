@@ -1,0 +1,85 @@
+/*
+ * bgm_resource — the resource seller's role machine: one agent that rents
+ * its host's cores and memory for a time, under every mechanism (awards
+ * and parts from the central market agent, bargaining after a call for
+ * proposals, orders at its posted rate), and learns its strategy from
+ * overlay neighbours of its role (catallactic).
+ *
+ * Sans-I/O and share-nothing: it reads only its own state and the message
+ * it is handed, and emits into an outbox (bgm_outbox.h). What it reads of
+ * a bundle travels in the message that asks for it:
+ *   RAWARD  price = rate, a = cores, b = GiB, c = flops, cand_price[1] = budget, origin = buyer
+ *   RPART   good = cores|memory, a = quantity, b = duration, price = rate per unit-second,
+ *           c = buyer's limit per unit-second, hops = parts, origin = buyer, cand_price[0] = start
+ *   CFP     good < 0 for a bundle: a = cores, b = GiB, c = flops; hops, origin
+ *   OFFER   price; a, b, c the bundle; cand_price[1] = budget, cand_price[2] = the
+ *           buyer's deadline (the offer stands until then); hops = 1 on the first
+ *           offer of a bargain
+ *   ACCEPT  price; a, b, c the bundle; cand_price[1] = budget
+ *   ORDER   price (the posted rate); a, b, c the bundle; cand_price[1..2] as OFFER
+ *   GENES   cand_price[0..4] = genes, price = fitness, a = 1 for a request
+ * It answers with RCONFIRM (a bundle or a part held from now; c = its
+ * cost rate; for a part cand_price[0..2] = quantity, buyer limit, cost),
+ * RFAIL + RFREE (an award it cannot take), PROPOSE, OFFER, REJECT, GENES,
+ * and announces itself to the market agent (RASK, RFREE, AVAIL).
+ *
+ * Its bargaining state is its own: one session per (buyer, request),
+ * opened by an offer that says so; a fixed ring of sessions, the oldest
+ * reused first (a seller bargains with a few buyers at a time).
+ */
+#ifndef BGM_RESOURCE_H
+#define BGM_RESOURCE_H
+
+#include <stdint.h>
+
+#include "bg_error.h"
+#include "bgm_config.h"
+#include "bgm_outbox.h"
+#include "bgm_rng.h"
+#include "bgm_role.h"
+#include "bgm_strategy.h"
+
+/* Its timers (the same numbers as the world's). */
+#define BGM_RS_TIMER_RELEASE 6      /* a whole bundle ends: arg = request */
+#define BGM_RS_TIMER_RELEASE_PART 7 /* a part ends: arg from the part's good and quantity */
+#define BGM_RS_TIMER_LEARN 8        /* a learning meeting */
+
+#define BGM_RS_MAX_NEIGHBOURS 64
+
+typedef struct bgm_resource_params {
+    const bgm_config_t *cfg; /* copied */
+    int mechanism;           /* bgm_mechanism */
+    uint32_t self, market;   /* its agent id, the market agent's */
+    double horizon;          /* no learning meeting is scheduled after it */
+    /* endowment */
+    double cores, memory, core_cost, memory_cost, speed;
+    /* strategy: its stream (already used for the genes), genes, opening markup */
+    bgm_rng_t rng;
+    bgm_genes_t genes;
+    double markup;
+    /* overlay neighbours, and which of them sell resources too (learning) */
+    const uint32_t *neighbours;
+    const uint8_t *same_role;
+    int degree; /* <= BGM_RS_MAX_NEIGHBOURS */
+} bgm_resource_params_t;
+
+typedef struct bgm_resource bgm_resource_t;
+
+/* NULL when out of memory or degree is over the cap. */
+bgm_resource_t *bgm_resource_new(const bgm_resource_params_t *p);
+void bgm_resource_destroy(bgm_resource_t **rs);
+
+/* Registers with the market agent (central, baseline) or schedules its
+ * first learning meeting (catallactic). */
+bg_status bgm_resource_start(bgm_resource_t *rs, double now, bgm_outbox_t *out);
+/* Handles one message addressed to it; `up` says whether its host is up
+ * (a seller on a failed host takes nothing on). */
+bg_status bgm_resource_on_message(bgm_resource_t *rs, const bgm_msg_t *in, double now, int up,
+                                  bgm_outbox_t *out);
+bg_status bgm_resource_on_timer(bgm_resource_t *rs, int kind, uint64_t arg, double now, int up,
+                                bgm_outbox_t *out);
+
+/* Cores and GiB held now, for tests. */
+void bgm_resource_used(const bgm_resource_t *rs, double *cores, double *memory);
+
+#endif

@@ -1,0 +1,689 @@
+/*
+ * Unit tests of the market's role machines, each driven alone with
+ * hand-built messages: what it emits is read back from its outbox and
+ * checked against numbers computed here, independently of the mechanism
+ * code (the k-double price from its definition, the exchange's rent
+ * without competition, first fit over a directory, a resource seller's
+ * run time, cost and opening price from its own endowment).
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cmocka.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bgm_config.h"
+#include "bgm_market_agent.h"
+#include "bgm_outbox.h"
+#include "bgm_resource.h"
+#include "bgm_rng.h"
+#include "bgm_role.h"
+#include "bgm_strategy.h"
+
+#define EPS 1e-12
+
+static bgm_config_t config(const char *mechanism, double k)
+{
+    char json[512];
+    snprintf(json, sizeof json,
+             "{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+             "\"mechanisms\":[\"%s\"],\"factors\":{\"nodes\":[4],\"density\":[1]},"
+             "\"central\":{\"period\":1.0,\"k\":%g},\"baseline\":{\"markup\":0.25,\"candidates\":3}}",
+             mechanism, k);
+    bgm_config_t cfg;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgm_config_parse(json, strlen(json), NULL, &cfg, &err))
+        fail_msg("config: %s", err.message);
+    return cfg;
+}
+
+/* Agent ids of the tests: market 0, buyers 1..4, basic sellers 5..7,
+ * resource sellers 8..9. */
+enum { FIRST_BASIC = 5, NBASIC = 3, FIRST_RES = 8, NRES = 2 };
+
+static bgm_market_agent_t *agent(const bgm_config_t *cfg, int mechanism)
+{
+    bgm_market_agent_params_t p = {cfg, mechanism, 0, FIRST_BASIC, NBASIC, FIRST_RES, NRES, 1000.0};
+    bgm_market_agent_t *ma = bgm_market_agent_new(&p);
+    assert_non_null(ma);
+    return ma;
+}
+
+static bgm_msg_t mk(int type, uint32_t from, uint32_t req)
+{
+    bgm_msg_t m;
+    memset(&m, 0, sizeof m);
+    m.type = (uint16_t)type;
+    m.from = from;
+    m.to = 0;
+    m.req = req;
+    m.attempt = 3;
+    return m;
+}
+
+static void deliver(bgm_market_agent_t *ma, const bgm_msg_t *m, bgm_outbox_t *ob)
+{
+    assert_int_equal(bgm_market_agent_on_message(ma, m, 0.5, ob), BG_OK);
+}
+
+static void ask(bgm_market_agent_t *ma, bgm_outbox_t *ob, uint32_t seller, int good, double price,
+                double slots)
+{
+    bgm_msg_t m = mk(BGM_MT_ASK, seller, 0);
+    m.good = (int16_t)good;
+    m.price = price;
+    m.a = slots;
+    deliver(ma, &m, ob);
+}
+
+static void bid(bgm_market_agent_t *ma, bgm_outbox_t *ob, uint32_t buyer, uint32_t req, int good,
+                double limit, double work, double deadline)
+{
+    bgm_msg_t m = mk(BGM_MT_BID, buyer, req);
+    m.good = (int16_t)good;
+    m.price = limit;
+    m.a = work;
+    m.b = deadline;
+    deliver(ma, &m, ob);
+}
+
+/* The k-double price of unit orders from its definition: sort, match
+ * while bid >= ask, then p = lo + k (hi - lo) on [max(a_m, b_x), min(b_m, a_x)]. */
+static int cmp_down(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x < y) - (x > y);
+}
+
+static double kdouble(double *b, int nb, double *a, int na, double k, int *volume)
+{
+    qsort(b, (size_t)nb, sizeof *b, cmp_down);
+    qsort(a, (size_t)na, sizeof *a, cmp_down);
+    for (int i = 0; i < na / 2; i++) { /* asks ascending */
+        double t = a[i];
+        a[i] = a[na - 1 - i];
+        a[na - 1 - i] = t;
+    }
+    int v = 0;
+    while (v < nb && v < na && b[v] >= a[v])
+        v++;
+    *volume = v;
+    double bm = b[v - 1], am = a[v - 1];
+    double bx = v < nb ? b[v] : -INFINITY, ax = v < na ? a[v] : INFINITY;
+    double lo = fmax(am, bx), hi = fmin(bm, ax);
+    return lo + k * (hi - lo);
+}
+
+/* A central market agent clears a service book to the k-double price:
+ * it tells each matched seller (MATCH, with the bid's work and the
+ * seller's own ask) and each matched buyer (ACCEPT), keeps the unmatched
+ * bids until their deadline, and drops them silently after it. */
+static void test_auctioneer_clears_to_kdouble_price(void **state)
+{
+    (void)state;
+    const double k = 0.3;
+    bgm_config_t cfg = config("central", k);
+    bgm_market_agent_t *ma = agent(&cfg, BGM_MECH_CENTRAL);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    assert_non_null(ob);
+    assert_int_equal(bgm_market_agent_start(ma, 0.0, ob), BG_OK);
+    assert_int_equal(bgm_outbox_count(ob), 1);
+    assert_true(bgm_outbox_item(ob, 0)->is_timer);
+    assert_int_equal(bgm_outbox_item(ob, 0)->kind, BGM_MA_TIMER_CLEAR);
+    assert_true(fabs(bgm_outbox_item(ob, 0)->at - cfg.central.period) < EPS);
+    bgm_outbox_clear(ob);
+
+    double asks[] = {3.0, 7.0, 9.0}, bids[] = {10.0, 6.0, 8.0, 4.5};
+    for (int i = 0; i < 3; i++)
+        ask(ma, ob, FIRST_BASIC + (uint32_t)i, BGM_GOOD_SOLVE, asks[i], 1.0);
+    ask(ma, ob, FIRST_BASIC, BGM_GOOD_ROTFIT, 1.0, 1.0); /* another good: no part of this book */
+    for (int i = 0; i < 4; i++)
+        bid(ma, ob, 1 + (uint32_t)i, 100 + (uint32_t)i, BGM_GOOD_SOLVE, bids[i], 2.0 + i, 20.0);
+    assert_int_equal(bgm_outbox_count(ob), 0); /* books fill silently */
+    size_t nb, nr;
+    bgm_market_agent_books(ma, &nb, &nr);
+    assert_int_equal(nb, 4);
+
+    double sb[4], sa[3];
+    memcpy(sb, bids, sizeof sb);
+    memcpy(sa, asks, sizeof sa);
+    int volume = 0;
+    double p = kdouble(sb, 4, sa, 3, k, &volume);
+    assert_int_equal(volume, 2);
+    assert_true(fabs(p - (7.0 + k * (8.0 - 7.0))) < EPS); /* [max(7, 6), min(8, 9)] */
+
+    assert_int_equal(bgm_market_agent_on_timer(ma, BGM_MA_TIMER_CLEAR, 0, 1.0, ob), BG_OK);
+    int matches = 0, accepts = 0, timers = 0;
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+        const bgm_out_item_t *it = bgm_outbox_item(ob, i);
+        if (it->is_timer) {
+            timers++;
+            assert_true(fabs(it->at - 2.0) < EPS);
+            continue;
+        }
+        const bgm_msg_t *m = &it->msg;
+        assert_int_equal(m->from, 0);
+        assert_int_equal(m->attempt, 3);
+        assert_true(fabs(m->price - p) < EPS);
+        assert_true(m->price <= 8.0 && m->price >= 7.0); /* within every matched limit */
+        uint32_t buyer = m->type == BGM_MT_MATCH ? m->origin : m->to;
+        assert_true(buyer == 1 || buyer == 3); /* the bids of 10 and 8 */
+        assert_int_equal(m->req, 99 + buyer);
+        if (m->type == BGM_MT_MATCH) {
+            matches++;
+            assert_true(m->to == FIRST_BASIC || m->to == FIRST_BASIC + 1); /* asks 3 and 7 */
+            assert_true(fabs(m->b - asks[m->to - FIRST_BASIC]) < EPS);
+            assert_true(fabs(m->a - (1.0 + buyer)) < EPS); /* the bid's work */
+            assert_int_equal(m->good, BGM_GOOD_SOLVE);
+        } else {
+            assert_int_equal(m->type, BGM_MT_ACCEPT);
+            accepts++;
+        }
+    }
+    assert_int_equal(matches, 2);
+    assert_int_equal(accepts, 2);
+    assert_int_equal(timers, 1);
+    bgm_market_agent_books(ma, &nb, &nr);
+    assert_int_equal(nb, 2);
+
+    /* The sellers' slots are taken: the remaining bids stay unmatched,
+     * and after their deadline they are gone without a message. */
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_market_agent_on_timer(ma, BGM_MA_TIMER_CLEAR, 0, 2.0, ob), BG_OK);
+    assert_int_equal(bgm_outbox_count(ob), 1); /* the next period only */
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_market_agent_on_timer(ma, BGM_MA_TIMER_CLEAR, 0, 20.0, ob), BG_OK);
+    bgm_market_agent_books(ma, &nb, &nr);
+    assert_int_equal(nb, 0);
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++)
+        assert_true(bgm_outbox_item(ob, i)->is_timer);
+    bgm_outbox_destroy(&ob);
+    bgm_market_agent_destroy(&ma);
+    assert_null(ma);
+}
+
+/* The exchange awards a bundle whole to the only seller with room at its
+ * cost plus k times the pair's surplus (no competition: nothing excluded
+ * and no other seller), as a rate per second of the seller's run time; a
+ * bundle whose limit is below every seller's cost is not awarded. */
+static void test_auctioneer_exchange_rent(void **state)
+{
+    (void)state;
+    const double k = 0.4;
+    bgm_config_t cfg = config("central", k);
+    bgm_market_agent_t *ma = agent(&cfg, BGM_MECH_CENTRAL);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    const double cores = 2.0, mem = 4.0, flops = 6e9, speed = 1.5e9, ccost = 0.05, mcost = 0.01;
+    bgm_msg_t r = mk(BGM_MT_RASK, FIRST_RES + 1, 0);
+    r.a = 4.0;
+    r.b = 8.0;
+    r.c = speed;
+    r.price = ccost;
+    r.cand_price[0] = mcost;
+    deliver(ma, &r, ob);
+    const double dur = flops / (speed * cores), cost = (ccost * cores + mcost * mem) * dur;
+    const double limit = 3.0 * cost;
+    bgm_msg_t b = mk(BGM_MT_RBID, FIRST_BASIC + 2, 41);
+    b.price = limit;
+    b.a = cores;
+    b.b = mem;
+    b.c = flops;
+    b.cand_price[0] = 30.0;
+    deliver(ma, &b, ob);
+    bgm_msg_t poor = b;
+    poor.req = 42;
+    poor.from = FIRST_BASIC;
+    poor.price = 0.5 * cost;
+    deliver(ma, &poor, ob);
+    assert_int_equal(bgm_market_agent_on_timer(ma, BGM_MA_TIMER_CLEAR, 0, 1.0, ob), BG_OK);
+    int awards = 0;
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+        const bgm_out_item_t *it = bgm_outbox_item(ob, i);
+        if (it->is_timer)
+            continue;
+        assert_int_equal(it->msg.type, BGM_MT_RAWARD);
+        assert_int_equal(it->msg.to, FIRST_RES + 1);
+        assert_int_equal(it->msg.req, 41);
+        assert_int_equal(it->msg.origin, FIRST_BASIC + 2);
+        double want = (cost + k * (limit - cost)) / dur;
+        assert_true(fabs(it->msg.price - want) < 1e-9 * want);
+        awards++;
+    }
+    assert_int_equal(awards, 1);
+    size_t nb, nr;
+    bgm_market_agent_books(ma, &nb, &nr);
+    assert_int_equal(nr, 1); /* the poor bid waits for its deadline */
+    double exact, greedy;
+    bgm_market_agent_counts(ma, &exact, &greedy);
+    assert_true(exact + greedy == 1.0);
+    bgm_outbox_destroy(&ob);
+    bgm_market_agent_destroy(&ma);
+}
+
+/* The baseline directory answers a query with the first sellers, in
+ * registration order, that post the good within the limit and that it
+ * believes have room (their last AVAIL), up to the candidate cap. */
+static void test_directory_first_fit(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("baseline", 0.5);
+    bgm_market_agent_t *ma = agent(&cfg, BGM_MECH_BASELINE);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    assert_int_equal(bgm_market_agent_start(ma, 0.0, ob), BG_OK);
+    assert_int_equal(bgm_outbox_count(ob), 0); /* no clearing without the central market */
+    ask(ma, ob, FIRST_BASIC, BGM_GOOD_INTEG, 5.0, 2.0);
+    ask(ma, ob, FIRST_BASIC + 1, BGM_GOOD_INTEG, 3.0, 2.0);
+    ask(ma, ob, FIRST_BASIC + 2, BGM_GOOD_INTEG, 4.0, 2.0);
+    bgm_msg_t full = mk(BGM_MT_AVAIL, FIRST_BASIC + 1, 0);
+    full.a = 0.0;
+    deliver(ma, &full, ob);
+    bgm_msg_t q = mk(BGM_MT_QUERY, 2, 77);
+    q.good = BGM_GOOD_INTEG;
+    q.price = 4.5;
+    deliver(ma, &q, ob);
+    assert_int_equal(bgm_outbox_count(ob), 1);
+    const bgm_msg_t *l = &bgm_outbox_item(ob, 0)->msg;
+    assert_int_equal(l->type, BGM_MT_LIST);
+    assert_int_equal(l->to, 2);
+    assert_int_equal(l->req, 77);
+    assert_int_equal(l->attempt, 3);
+    assert_int_equal(l->ncand, 1); /* 5.0 is above the limit, the 3.0 seller is full */
+    assert_int_equal(l->cand[0], FIRST_BASIC + 2);
+    assert_true(fabs(l->cand_price[0] - 4.0) < EPS);
+
+    /* A resource bundle: the posted rate is the seller's cost rate for
+     * the bundle asked, marked up. */
+    bgm_outbox_clear(ob);
+    bgm_msg_t r = mk(BGM_MT_RASK, FIRST_RES, 0);
+    r.a = 4.0;
+    r.b = 8.0;
+    r.c = 2e9;
+    r.price = 0.1;
+    r.cand_price[0] = 0.02;
+    deliver(ma, &r, ob);
+    bgm_msg_t rq = mk(BGM_MT_QUERY, FIRST_BASIC, 78);
+    rq.good = BGM_GOOD_CORES_ID;
+    rq.price = INFINITY;
+    rq.a = 2.0;
+    rq.b = 3.0;
+    deliver(ma, &rq, ob);
+    l = &bgm_outbox_item(ob, 0)->msg;
+    assert_int_equal(l->ncand, 1);
+    assert_int_equal(l->cand[0], FIRST_RES);
+    assert_true(fabs(l->cand_price[0] - 1.25 * (0.1 * 2.0 + 0.02 * 3.0)) < EPS);
+    assert_true(fabs(l->cand_speed[0] - 2e9) < EPS);
+    bgm_outbox_destroy(&ob);
+    bgm_market_agent_destroy(&ma);
+}
+
+/* Announcements from outside the seller ranges, or for a good that does
+ * not exist, are refused instead of written anywhere. */
+static void test_auctioneer_refuses_bad_input(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("central", 0.5);
+    bgm_market_agent_t *ma = agent(&cfg, BGM_MECH_CENTRAL);
+    bgm_outbox_t *ob = bgm_outbox_new(4);
+    bgm_msg_t m = mk(BGM_MT_ASK, FIRST_RES, 0); /* a resource seller cannot ASK */
+    assert_int_equal(bgm_market_agent_on_message(ma, &m, 0.0, ob), BG_ERR_INVALID);
+    m = mk(BGM_MT_RFREE, FIRST_RES + NRES, 0);
+    assert_int_equal(bgm_market_agent_on_message(ma, &m, 0.0, ob), BG_ERR_INVALID);
+    m = mk(BGM_MT_BID, 1, 0);
+    m.good = 7;
+    assert_int_equal(bgm_market_agent_on_message(ma, &m, 0.0, ob), BG_ERR_INVALID);
+    assert_int_equal(bgm_market_agent_on_timer(ma, 99, 0, 0.0, ob), BG_ERR_INVALID);
+    assert_int_equal(bgm_outbox_count(ob), 0);
+    bgm_outbox_destroy(&ob);
+    bgm_market_agent_destroy(&ma);
+}
+
+/* The outbox keeps emission order and refuses items past its cap. */
+static void test_outbox_order_and_cap(void **state)
+{
+    (void)state;
+    bgm_outbox_t *ob = bgm_outbox_new(3);
+    bgm_msg_t m = mk(BGM_MT_FREE, 5, 1);
+    assert_int_equal(bgm_outbox_send(ob, &m), BG_OK);
+    assert_int_equal(bgm_outbox_timer(ob, 4, 2.5, 7, 99), BG_OK);
+    m.req = 2;
+    assert_int_equal(bgm_outbox_send(ob, &m), BG_OK);
+    assert_int_equal(bgm_outbox_send(ob, &m), BG_ERR_LIMIT);
+    assert_int_equal(bgm_outbox_count(ob), 3);
+    assert_int_equal(bgm_outbox_item(ob, 0)->msg.req, 1);
+    assert_true(bgm_outbox_item(ob, 1)->is_timer);
+    assert_int_equal(bgm_outbox_item(ob, 1)->arg, 99);
+    assert_int_equal(bgm_outbox_item(ob, 2)->msg.req, 2);
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_outbox_count(ob), 0);
+    assert_int_equal(bgm_outbox_send(ob, &m), BG_OK);
+    bgm_outbox_destroy(&ob);
+    assert_null(ob);
+    assert_null(bgm_outbox_new(0));
+}
+
+
+/* ------------------------------------------------------- resource seller */
+
+enum { SELF = 9, BUYER = 6 };
+static const double R_CORES = 4.0, R_MEM = 8.0, R_CCOST = 0.05, R_MCOST = 0.01, R_SPEED = 2e9;
+
+static bgm_resource_t *seller(const bgm_config_t *cfg, int mechanism, const uint32_t *nbr,
+                              const uint8_t *same, int degree)
+{
+    bgm_resource_params_t p;
+    memset(&p, 0, sizeof p);
+    p.cfg = cfg;
+    p.mechanism = mechanism;
+    p.self = SELF;
+    p.market = 0;
+    p.horizon = 1000.0;
+    p.cores = R_CORES;
+    p.memory = R_MEM;
+    p.core_cost = R_CCOST;
+    p.memory_cost = R_MCOST;
+    p.speed = R_SPEED;
+    bgm_rng_derive(&p.rng, 7, 0, 0, 1);
+    bgm_genes_random(&p.genes, &p.rng);
+    p.markup = 0.2;
+    p.neighbours = nbr;
+    p.same_role = same;
+    p.degree = degree;
+    bgm_resource_t *rs = bgm_resource_new(&p);
+    assert_non_null(rs);
+    return rs;
+}
+
+/* A request for a bundle of `cores` and `mem` for `flops`, within `budget`,
+ * standing until `deadline`. */
+static bgm_msg_t bundle_msg(int type, uint32_t from, uint32_t req, double cores, double mem,
+                            double flops, double price, double budget, double deadline)
+{
+    bgm_msg_t m = mk(type, from, req);
+    m.to = SELF;
+    m.good = -1;
+    m.a = cores;
+    m.b = mem;
+    m.c = flops;
+    m.price = price;
+    m.origin = from;
+    m.cand_price[1] = budget;
+    m.cand_price[2] = deadline;
+    return m;
+}
+
+static const bgm_msg_t *only_msg(const bgm_outbox_t *ob, int type)
+{
+    const bgm_msg_t *found = NULL;
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+        const bgm_out_item_t *it = bgm_outbox_item(ob, i);
+        if (!it->is_timer && it->msg.type == type) {
+            assert_null(found);
+            found = &it->msg;
+        }
+    }
+    return found;
+}
+
+/* An award it has room for, at a rate covering its cost and within the
+ * budget, is held for the run time flops / (speed x cores) and confirmed
+ * with its own cost rate; awards beyond its room, below its cost or over
+ * the budget are refused (RFAIL to the buyer, RFREE to the market); the
+ * release timer gives the room back and tells the market. */
+static void test_resource_rents_within_room_cost_and_budget(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("central", 0.5);
+    bgm_resource_t *rs = seller(&cfg, BGM_MECH_CENTRAL, NULL, NULL, 0);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    assert_int_equal(bgm_resource_start(rs, 0.0, ob), BG_OK);
+    const bgm_msg_t *rask = only_msg(ob, BGM_MT_RASK);
+    assert_non_null(rask);
+    assert_true(rask->a == R_CORES && rask->b == R_MEM && rask->c == R_SPEED);
+    assert_true(rask->price == R_CCOST && rask->cand_price[0] == R_MCOST);
+    bgm_outbox_clear(ob);
+
+    const double cores = 3.0, mem = 2.0, flops = 12e9, now = 5.0;
+    const double dur = flops / (R_SPEED * cores), cost = R_CCOST * cores + R_MCOST * mem;
+    bgm_msg_t award = bundle_msg(BGM_MT_RAWARD, 0, 31, cores, mem, flops, 1.5 * cost,
+                                 2.0 * cost * dur, 0.0);
+    award.origin = BUYER;
+    assert_int_equal(bgm_resource_on_message(rs, &award, now, 1, ob), BG_OK);
+    const bgm_msg_t *rc = only_msg(ob, BGM_MT_RCONFIRM);
+    assert_non_null(rc);
+    assert_int_equal(rc->to, BUYER);
+    assert_int_equal(rc->req, 31);
+    assert_int_equal(rc->good, -1);
+    assert_true(fabs(rc->price - 1.5 * cost) < EPS);
+    assert_true(fabs(rc->a - now) < EPS && fabs(rc->b - (now + dur)) < 1e-9);
+    assert_true(fabs(rc->c - cost) < EPS);
+    double uc, um;
+    bgm_resource_used(rs, &uc, &um);
+    assert_true(uc == cores && um == mem);
+    uint64_t release_arg = 0;
+    double release_at = 0.0;
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++)
+        if (bgm_outbox_item(ob, i)->is_timer) {
+            release_at = bgm_outbox_item(ob, i)->at;
+            release_arg = bgm_outbox_item(ob, i)->arg;
+            assert_int_equal(bgm_outbox_item(ob, i)->kind, BGM_RS_TIMER_RELEASE);
+        }
+    assert_true(fabs(release_at - (now + dur)) < 1e-9);
+
+    /* No room for 3 more cores; below cost; over budget; host down. */
+    bgm_msg_t bad[4] = {award, award, award, award};
+    bad[0].req = 32;
+    bad[1].a = 1.0;
+    bad[1].price = 0.9 * (R_CCOST + R_MCOST * mem);
+    bad[2].a = 1.0;
+    bad[2].cand_price[1] = 0.5 * bad[2].price * flops / R_SPEED;
+    bad[3].a = 1.0;
+    for (int i = 0; i < 4; i++) {
+        bgm_outbox_clear(ob);
+        assert_int_equal(bgm_resource_on_message(rs, &bad[i], now, i < 3, ob), BG_OK);
+        assert_null(only_msg(ob, BGM_MT_RCONFIRM));
+        const bgm_msg_t *f = only_msg(ob, BGM_MT_RFAIL), *g = only_msg(ob, BGM_MT_RFREE);
+        assert_non_null(f);
+        assert_non_null(g);
+        assert_int_equal(f->to, BUYER);
+        assert_int_equal(g->to, 0);
+        assert_true(g->a == bad[i].a && g->b == mem);
+    }
+    bgm_resource_used(rs, &uc, &um);
+    assert_true(uc == cores && um == mem);
+
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_resource_on_timer(rs, BGM_RS_TIMER_RELEASE, release_arg, release_at, 1, ob),
+                     BG_OK);
+    const bgm_msg_t *fr = only_msg(ob, BGM_MT_RFREE);
+    assert_non_null(fr);
+    assert_true(fr->a == cores && fr->b == mem);
+    bgm_resource_used(rs, &uc, &um);
+    assert_true(uc == 0.0 && um == 0.0);
+    /* A release for a bundle it does not hold is an error, not a silent change. */
+    assert_int_equal(bgm_resource_on_timer(rs, BGM_RS_TIMER_RELEASE, release_arg, release_at, 1, ob),
+                     BG_ERR_INVALID);
+    bgm_outbox_destroy(&ob);
+    bgm_resource_destroy(&rs);
+    assert_null(rs);
+}
+
+/* Asked for a proposal, it answers from its own price policy only: a
+ * fresh seller opens at its cost rate for the bundle times (1 + markup),
+ * whoever asks; it proposes only what it has room for, passes the call on
+ * to its neighbours but the sender and the originator while hops remain,
+ * and ignores a call it has seen. */
+static void test_resource_proposes_from_own_policy(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("catallactic", 0.5);
+    uint32_t nbr[3] = {3, 6, 8};
+    uint8_t same[3] = {0, 0, 1};
+    bgm_resource_t *rs = seller(&cfg, BGM_MECH_CATALLACTIC, nbr, same, 3);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    const double cores = 2.0, mem = 3.0;
+    const double want = 1.2 * (R_CCOST * cores + R_MCOST * mem);
+    for (uint32_t origin = 5; origin <= 6; origin++) {
+        bgm_outbox_clear(ob);
+        bgm_msg_t cfp = bundle_msg(BGM_MT_CFP, 3, 40 + origin, cores, mem, 8e9, 0.0, 0.0, 0.0);
+        cfp.origin = origin;
+        cfp.hops = 2;
+        assert_int_equal(bgm_resource_on_message(rs, &cfp, 1.0, 1, ob), BG_OK);
+        const bgm_msg_t *p = only_msg(ob, BGM_MT_PROPOSE);
+        assert_non_null(p);
+        assert_int_equal(p->to, origin);
+        assert_true(fabs(p->price - want) < EPS);
+        assert_true(p->a == R_SPEED);
+        size_t forwarded = 0;
+        for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+            const bgm_msg_t *m = &bgm_outbox_item(ob, i)->msg;
+            if (m->type != BGM_MT_CFP)
+                continue;
+            forwarded++;
+            assert_true(m->to != 3 && m->to != origin);
+            assert_int_equal(m->hops, 1);
+            assert_int_equal(m->from, SELF);
+        }
+        assert_int_equal(forwarded, origin == 6 ? 1 : 2);
+        /* The same call again: nothing. */
+        bgm_outbox_clear(ob);
+        assert_int_equal(bgm_resource_on_message(rs, &cfp, 1.1, 1, ob), BG_OK);
+        assert_int_equal(bgm_outbox_count(ob), 0);
+    }
+    /* Too big for its room, or a service: forwarded, no proposal. */
+    bgm_outbox_clear(ob);
+    bgm_msg_t big = bundle_msg(BGM_MT_CFP, 3, 60, R_CORES + 1.0, mem, 8e9, 0.0, 0.0, 0.0);
+    big.hops = 2;
+    assert_int_equal(bgm_resource_on_message(rs, &big, 1.0, 1, ob), BG_OK);
+    assert_null(only_msg(ob, BGM_MT_PROPOSE));
+    bgm_msg_t svc = big;
+    svc.req = 61;
+    svc.good = BGM_GOOD_SOLVE;
+    svc.a = 1.0;
+    assert_int_equal(bgm_resource_on_message(rs, &svc, 1.0, 1, ob), BG_OK);
+    assert_null(only_msg(ob, BGM_MT_PROPOSE));
+    bgm_outbox_destroy(&ob);
+    bgm_resource_destroy(&rs);
+}
+
+/* Bargaining from its own session: an opening offer at or above its
+ * asking price is accepted and rented at that price; an offer below its
+ * cost never gets a counter-offer below its cost; an offer past the
+ * buyer's deadline, or one in a bargain it never opened, gets no answer;
+ * an acceptance whose rent would exceed the buyer's budget is rejected. */
+static void test_resource_bargains_from_its_own_session(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("catallactic", 0.5);
+    bgm_resource_t *rs = seller(&cfg, BGM_MECH_CATALLACTIC, NULL, NULL, 0);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    const double cores = 1.0, mem = 2.0, flops = 4e9;
+    const double cost = R_CCOST * cores + R_MCOST * mem, dur = flops / R_SPEED;
+    bgm_msg_t o = bundle_msg(BGM_MT_OFFER, BUYER, 70, cores, mem, flops, 1.3 * cost, 10.0, 50.0);
+    o.hops = 1;
+    assert_int_equal(bgm_resource_on_message(rs, &o, 2.0, 1, ob), BG_OK);
+    const bgm_msg_t *rc = only_msg(ob, BGM_MT_RCONFIRM);
+    assert_non_null(rc);
+    assert_true(fabs(rc->price - 1.3 * cost) < EPS);
+    assert_true(fabs(rc->b - rc->a - dur) < 1e-9);
+
+    for (int round = 0; round < 6; round++) {
+        bgm_outbox_clear(ob);
+        bgm_msg_t low = bundle_msg(BGM_MT_OFFER, BUYER, 71, cores, mem, flops, 0.5 * cost, 10.0,
+                                   50.0);
+        low.hops = round == 0;
+        assert_int_equal(bgm_resource_on_message(rs, &low, 3.0 + round, 1, ob), BG_OK);
+        assert_null(only_msg(ob, BGM_MT_RCONFIRM));
+        const bgm_msg_t *c = only_msg(ob, BGM_MT_OFFER);
+        if (c)
+            assert_true(c->price >= cost);
+        else
+            break; /* rejected: the bargain is over */
+    }
+    bgm_outbox_clear(ob);
+    bgm_msg_t late = o;
+    late.req = 72;
+    assert_int_equal(bgm_resource_on_message(rs, &late, 50.5, 1, ob), BG_OK);
+    bgm_msg_t unopened = o;
+    unopened.req = 73;
+    unopened.hops = 0;
+    assert_int_equal(bgm_resource_on_message(rs, &unopened, 4.0, 1, ob), BG_OK);
+    assert_int_equal(bgm_outbox_count(ob), 0);
+
+    bgm_msg_t acc = bundle_msg(BGM_MT_ACCEPT, BUYER, 74, cores, mem, flops, 2.0 * cost,
+                               1.5 * cost * dur, 50.0);
+    assert_int_equal(bgm_resource_on_message(rs, &acc, 4.0, 1, ob), BG_OK);
+    assert_null(only_msg(ob, BGM_MT_RCONFIRM));
+    assert_non_null(only_msg(ob, BGM_MT_REJECT));
+    bgm_outbox_destroy(&ob);
+    bgm_resource_destroy(&rs);
+}
+
+/* Baseline: an order at its posted rate is rented, and the directory is
+ * told the room left (AVAIL); a part of a call-market bundle is held from
+ * the common start and confirmed with the part's numbers. */
+static void test_resource_orders_and_parts(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("baseline", 0.5);
+    bgm_resource_t *rs = seller(&cfg, BGM_MECH_BASELINE, NULL, NULL, 0);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    bgm_msg_t ord = bundle_msg(BGM_MT_ORDER, BUYER, 80, 2.0, 1.0, 4e9, 0.2, 100.0, 50.0);
+    assert_int_equal(bgm_resource_on_message(rs, &ord, 1.0, 1, ob), BG_OK);
+    assert_non_null(only_msg(ob, BGM_MT_RCONFIRM));
+    const bgm_msg_t *av = only_msg(ob, BGM_MT_AVAIL);
+    assert_non_null(av);
+    assert_true(av->a == R_CORES - 2.0 && av->b == R_MEM - 1.0);
+    bgm_resource_destroy(&rs);
+
+    cfg = config("central", 0.5);
+    rs = seller(&cfg, BGM_MECH_CENTRAL, NULL, NULL, 0);
+    bgm_outbox_clear(ob);
+    bgm_msg_t part = mk(BGM_MT_RPART, 0, 81);
+    part.to = SELF;
+    part.good = BGM_GOOD_MEMORY_ID;
+    part.a = 1.5;
+    part.b = 10.0;
+    part.price = 0.02;
+    part.c = 0.03;
+    part.hops = 3;
+    part.origin = BUYER;
+    part.cand_price[0] = 2.0;
+    assert_int_equal(bgm_resource_on_message(rs, &part, 1.0, 1, ob), BG_OK);
+    const bgm_msg_t *rc = only_msg(ob, BGM_MT_RCONFIRM);
+    assert_non_null(rc);
+    assert_int_equal(rc->to, BUYER);
+    assert_int_equal(rc->hops, 3);
+    assert_true(rc->a == 2.0 && rc->b == 12.0);
+    assert_true(rc->cand_price[0] == 1.5 && rc->cand_price[1] == 0.03 &&
+                rc->cand_price[2] == R_MCOST);
+    double uc, um;
+    bgm_resource_used(rs, &uc, &um);
+    assert_true(uc == 0.0 && um == 1.5);
+    /* The start has passed: refused. */
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_resource_on_message(rs, &part, 2.5, 1, ob), BG_OK);
+    assert_non_null(only_msg(ob, BGM_MT_RFAIL));
+    bgm_outbox_destroy(&ob);
+    bgm_resource_destroy(&rs);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_auctioneer_clears_to_kdouble_price),
+        cmocka_unit_test(test_auctioneer_exchange_rent),
+        cmocka_unit_test(test_directory_first_fit),
+        cmocka_unit_test(test_auctioneer_refuses_bad_input),
+        cmocka_unit_test(test_outbox_order_and_cap),
+        cmocka_unit_test(test_resource_rents_within_room_cost_and_budget),
+        cmocka_unit_test(test_resource_proposes_from_own_policy),
+        cmocka_unit_test(test_resource_bargains_from_its_own_session),
+        cmocka_unit_test(test_resource_orders_and_parts),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
