@@ -36,9 +36,9 @@
 #define BROKER_POLL_MS 100
 /* At most one progress event per job this often (each is a commit). */
 #define BROKER_PROGRESS_SECONDS 0.25
-/* The reference of a static scene, as `biotgrid solve` computes it. */
-#define BROKER_REFERENCE_TOLERANCE 1e-13
-#define BROKER_REFERENCE_MAX_ITERATIONS 200
+/* A running job's backend reads its state from the store at most this
+ * often (a cancel lands there from a REST thread). */
+#define BROKER_CANCEL_POLL_SECONDS 0.1
 #define BROKER_AGENT_LEASE_MS 600000
 #define BROKER_MAX_RESULT_FILE ((size_t)1 << 30)
 /* The loop thread looks at the buy queue at least this often. */
@@ -580,6 +580,149 @@ static bg_status load_scene(bgb_broker_t *b, const bgb_job_t *job, const char *d
     return st;
 }
 
+/*
+ * Cancel between service calls. A job's solve calls its basic services
+ * through this backend, which forwards every call to `inner` (the agents,
+ * or in process) once it has checked that the job is still running: the
+ * store is read at most every BROKER_CANCEL_POLL_SECONDS. When the job has
+ * left running (POST /v1/jobs/{id}/cancel moved it to cancelled) every
+ * call fails with BG_ERR_CONFLICT, so the solver returns after the service
+ * call in progress; the coordinator then stores no result and releases the
+ * contracts. Used by one coordinator thread only.
+ */
+typedef struct job_watch {
+    bgb_broker_t *broker;
+    const char *id;            /* borrowed: the job_run_t's */
+    const bg_backend_t *inner; /* borrowed */
+    double next_check;
+    int stopped;               /* the job was seen out of running */
+    bg_backend_t backend;      /* what the solver is given: watch_ops, this */
+} job_watch_t;
+
+typedef struct watch_session {
+    job_watch_t *watch;
+    void *inner;
+} watch_session_t;
+
+/* BG_OK while the job runs; BG_ERR_CONFLICT once it does not. */
+static bg_status watch_check(job_watch_t *w, bg_error_t *err)
+{
+    if (!w->stopped) {
+        const double now = bg_clock_now();
+        if (now < w->next_check)
+            return BG_OK;
+        w->next_check = now + BROKER_CANCEL_POLL_SECONDS;
+        bgb_job_t job = BGB_JOB_INIT;
+        bg_error_t e = BG_ERROR_INIT;
+        if (bgb_store_get(w->broker->store, w->id, &job, &e) == BG_OK)
+            w->stopped = job.state != BGB_JOB_RUNNING;
+        bgb_job_release(&job);
+        if (!w->stopped)
+            return BG_OK;
+    }
+    return bg_error_set(err, BG_ERR_CONFLICT, "job %s was cancelled: the solve stopped", w->id);
+}
+
+static bg_status watch_session_new(void *ctx, void **session, bg_error_t *err)
+{
+    job_watch_t *w = ctx;
+    *session = NULL;
+    bg_status st = watch_check(w, err);
+    if (st != BG_OK)
+        return st;
+    watch_session_t *s = calloc(1, sizeof *s);
+    if (!s)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for a solver session");
+    s->watch = w;
+    if ((st = w->inner->ops->session_new(w->inner->ctx, &s->inner, err)) != BG_OK) {
+        free(s);
+        return st;
+    }
+    *session = s;
+    return BG_OK;
+}
+
+static void watch_session_destroy(void *ctx, void *session)
+{
+    job_watch_t *w = ctx;
+    watch_session_t *s = session;
+    if (!s)
+        return;
+    w->inner->ops->session_destroy(w->inner->ctx, s->inner);
+    free(s);
+}
+
+static bg_status watch_fit_open(void *session, int id, const bg_backend_fit_t *fit,
+                                bg_error_t *err)
+{
+    watch_session_t *s = session;
+    const bg_status st = watch_check(s->watch, err);
+    return st != BG_OK ? st : s->watch->inner->ops->fit_open(s->inner, id, fit, err);
+}
+
+static bg_status watch_fit_eval(void *session, int id, const double *q, double *energy,
+                                double *grad, bg_error_t *err)
+{
+    watch_session_t *s = session;
+    const bg_status st = watch_check(s->watch, err);
+    return st != BG_OK ? st : s->watch->inner->ops->fit_eval(s->inner, id, q, energy, grad, err);
+}
+
+static bg_status watch_fit_hessian(void *session, int id, const double *q, int project,
+                                   double scale, double *values, bg_error_t *err)
+{
+    watch_session_t *s = session;
+    const bg_status st = watch_check(s->watch, err);
+    return st != BG_OK ? st
+                       : s->watch->inner->ops->fit_hessian(s->inner, id, q, project, scale, values,
+                                                           err);
+}
+
+static bg_status watch_solve_open(void *session, int id, bg_sparse_t *sys, bg_error_t *err)
+{
+    watch_session_t *s = session;
+    const bg_status st = watch_check(s->watch, err);
+    return st != BG_OK ? st : s->watch->inner->ops->solve_open(s->inner, id, sys, err);
+}
+
+static bg_status watch_solve_factor(void *session, int id, double shift, bg_error_t *err)
+{
+    watch_session_t *s = session;
+    const bg_status st = watch_check(s->watch, err);
+    return st != BG_OK ? st : s->watch->inner->ops->solve_factor(s->inner, id, shift, err);
+}
+
+static bg_status watch_solve(void *session, int id, const double *rhs, double *x,
+                             bg_error_t *err)
+{
+    watch_session_t *s = session;
+    const bg_status st = watch_check(s->watch, err);
+    return st != BG_OK ? st : s->watch->inner->ops->solve(s->inner, id, rhs, x, err);
+}
+
+static void watch_solve_cost(void *session, int id, double *flops, double *nonzeros)
+{
+    watch_session_t *s = session;
+    s->watch->inner->ops->solve_cost(s->inner, id, flops, nonzeros);
+}
+
+static const bg_backend_ops_t watch_ops = {
+    "stops on cancel", watch_session_new,  watch_session_destroy, watch_fit_open,
+    watch_fit_eval,                watch_fit_hessian,  watch_solve_open,      watch_solve_factor,
+    watch_solve,                   watch_solve_cost};
+
+/* w watches job id over inner (NULL: in process); w->backend is the
+ * solver's backend, valid while w lives. */
+static void watch_init(job_watch_t *w, bgb_broker_t *b, const char *id, const bg_backend_t *inner)
+{
+    memset(w, 0, sizeof *w);
+    w->broker = b;
+    w->id = id;
+    w->inner = inner ? inner : bg_backend_local();
+    w->backend.ops = &watch_ops;
+    w->backend.ctx = w;
+}
+
 /* What the job bought (NULL: the fixed pool, nothing bought). */
 typedef struct job_alloc {
     const bgb_broker_agent_t *pool;
@@ -591,7 +734,7 @@ typedef struct job_alloc {
  * trace. scene is borrowed. */
 static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job, const char *dir,
                            bg_scene_t *scene, const job_alloc_t *alloc, int *converged,
-                           bg_error_t *err)
+                           int *stopped, bg_error_t *err)
 {
     bgb_broker_config_t pool = b->config;
     memcpy(pool.agents, alloc->pool, (size_t)alloc->npool * sizeof *alloc->pool);
@@ -602,6 +745,9 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
     char *trace = NULL;
     bg_status st;
     char path[BROKER_PATH_MAX + 96];
+    job_watch_t local_watch, remote_watch;
+    watch_init(&local_watch, b, jr->id, NULL);
+    watch_init(&remote_watch, b, jr->id, NULL);
 
     /* The pool: every rotation-fit agent but a dedicated sparse-solve one. */
     const char *rotfit[BGB_BROKER_MAX_AGENTS], *solver = NULL;
@@ -634,43 +780,26 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
                                      alloc->bought ? alloc->bought->job : 0};
     if ((st = bga_backend_new(&bc, &remote, err)) != BG_OK)
         goto out;
-    /* surface-edit's per-vertex rotations have no agent service yet. */
-    const bg_backend_t *backend =
-        scene->task == BG_TASK_SURFACE_EDIT ? NULL : bga_backend_services(remote);
-
-    const bg_method method = scene->method;
-    const int max_iterations = bg_scene_max_iterations(scene, method);
-    if (scene->task == BG_TASK_DYNAMIC || scene->task == BG_TASK_MORPH) {
-        st = bgb_run_series(scene, method, scene->tolerance, max_iterations, dir, "",
-                            on_progress, jr, backend, &run, err);
-    } else {
-        const double *ref = scene->reference;
-        if (scene->reference_kind == BG_REFERENCE_NEWTON && scene->task == BG_TASK_STATIC) {
-            const bg_solve_options_t ro = {.method = BG_METHOD_NEWTON,
-                                           .tolerance = BROKER_REFERENCE_TOLERANCE,
-                                           .max_iterations = BROKER_REFERENCE_MAX_ITERATIONS};
-            if ((st = bg_static_solve(scene, &ro, &reference, err)) != BG_OK)
-                goto out;
-            ref = reference.q;
-        }
-        const bg_solve_options_t opt = {.method = method,
-                                        .tolerance = scene->tolerance,
-                                        .max_iterations = max_iterations,
-                                        .reference = ref,
-                                        .progress = on_progress,
-                                        .progress_ctx = jr,
-                                        .keep_orientation = scene->task == BG_TASK_PARAMETERIZE,
-                                        .backend = backend};
-        st = scene->task == BG_TASK_SURFACE_EDIT ? bg_surface_arap_solve(scene, &opt, &run, err)
-                                                 : bg_static_solve(scene, &opt, &run, err);
-        if (st == BG_OK && scene->task == BG_TASK_PARAMETERIZE)
-            st = bgb_run_write_parameterization(scene, &run, dir, err);
-    }
+    /* The reference and the run both stop between service calls once the
+     * job is cancelled; the reference is computed in process, as `solve`
+     * does. */
+    watch_init(&remote_watch, b, jr->id, bga_backend_services(remote));
+    const double *ref = NULL;
+    if ((st = bgb_run_reference(scene, &local_watch.backend, &reference, &ref, err)) != BG_OK)
+        goto out;
+    const bgb_run_options_t ro = {.method = scene->method,
+                                  .tolerance = scene->tolerance,
+                                  .max_iterations = bg_scene_max_iterations(scene, scene->method),
+                                  .frames_prefix = "",
+                                  .progress = on_progress,
+                                  .progress_ctx = jr,
+                                  .backend = &remote_watch.backend};
+    st = bgb_run_method(scene, &ro, ref, dir, &run, err);
     if (st != BG_OK)
         goto out;
     *converged = run.converged;
     bg_plan_t plan;
-    bg_plan_for_scene(scene, &method, 1, &plan);
+    bg_plan_for_scene(scene, &scene->method, 1, &plan);
     bg_report_agent_t lines[BGB_BROKER_MAX_AGENTS];
     const int nlines = agent_lines(c, role, remote, lines);
     char paths[2 * BROKER_PATH_MAX + 64];
@@ -687,6 +816,7 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
         goto out;
     st = store_results(b, job->id, dir, err);
 out:
+    *stopped = local_watch.stopped || remote_watch.stopped;
     free(trace);
     bg_solve_result_release(&run);
     bg_solve_result_release(&reference);
@@ -795,9 +925,16 @@ static void *coordinator(void *arg)
                              &err) != BG_OK)
         goto out; /* cancelled meanwhile */
     jr->allocation_latency = bg_clock_now() - t0;
-    int converged = 0;
-    st = solve_job(b, jr, &job, dir, scene, &alloc, &converged, &err);
-    if (st == BG_OK) {
+    int converged = 0, stopped = 0;
+    st = solve_job(b, jr, &job, dir, scene, &alloc, &converged, &stopped, &err);
+    if (stopped) {
+        /* Cancelled while running: no result is stored, the contracts are
+         * released below. */
+        char json[96];
+        snprintf(json, sizeof json, "{\"cancelled\":true,\"seconds\":%.6f}",
+                 bg_clock_now() - t0);
+        (void)bgb_store_add_event(b->store, jr->id, "stopped", json, &terr);
+    } else if (st == BG_OK) {
         (void)bgb_store_add_event(b->store, jr->id, "solved",
                                   converged ? "{\"converged\":true}" : "{\"converged\":false}",
                                   &terr);
