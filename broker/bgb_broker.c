@@ -800,6 +800,16 @@ static bg_status watch_used(job_watch_t *w, int service, double t0, bg_status st
     return st;
 }
 
+/* The body of every forwarded service call: stop if the job was
+ * cancelled, else call `op` of the inner backend and count its time. */
+#define WATCH_FORWARD(service, op, ...)                                                        \
+    watch_session_t *s = session;                                                              \
+    const bg_status st = watch_check(s->watch, err);                                           \
+    if (st != BG_OK)                                                                           \
+        return st;                                                                             \
+    const double t0 = bg_clock_now();                                                          \
+    return watch_used(s->watch, service, t0, s->watch->inner->ops->op(s->inner, __VA_ARGS__, err))
+
 static bg_status watch_session_new(void *ctx, void **session, bg_error_t *err)
 {
     job_watch_t *w = ctx;
@@ -832,72 +842,35 @@ static void watch_session_destroy(void *ctx, void *session)
 static bg_status watch_fit_open(void *session, int id, const bg_backend_fit_t *fit,
                                 bg_error_t *err)
 {
-    watch_session_t *s = session;
-    const bg_status st = watch_check(s->watch, err);
-    if (st != BG_OK)
-        return st;
-    const double t0 = bg_clock_now();
-    return watch_used(s->watch, USE_ROTFIT, t0,
-                      s->watch->inner->ops->fit_open(s->inner, id, fit, err));
+    WATCH_FORWARD(USE_ROTFIT, fit_open, id, fit);
 }
 
 static bg_status watch_fit_eval(void *session, int id, const double *q, double *energy,
                                 double *grad, bg_error_t *err)
 {
-    watch_session_t *s = session;
-    const bg_status st = watch_check(s->watch, err);
-    if (st != BG_OK)
-        return st;
-    const double t0 = bg_clock_now();
-    return watch_used(s->watch, USE_ROTFIT, t0,
-                      s->watch->inner->ops->fit_eval(s->inner, id, q, energy, grad, err));
+    WATCH_FORWARD(USE_ROTFIT, fit_eval, id, q, energy, grad);
 }
 
 static bg_status watch_fit_hessian(void *session, int id, const double *q, int project,
                                    double scale, double *values, bg_error_t *err)
 {
-    watch_session_t *s = session;
-    const bg_status st = watch_check(s->watch, err);
-    if (st != BG_OK)
-        return st;
-    const double t0 = bg_clock_now();
-    return watch_used(
-        s->watch, USE_ROTFIT, t0,
-        s->watch->inner->ops->fit_hessian(s->inner, id, q, project, scale, values, err));
+    WATCH_FORWARD(USE_ROTFIT, fit_hessian, id, q, project, scale, values);
 }
 
 static bg_status watch_solve_open(void *session, int id, bg_sparse_t *sys, bg_error_t *err)
 {
-    watch_session_t *s = session;
-    const bg_status st = watch_check(s->watch, err);
-    if (st != BG_OK)
-        return st;
-    const double t0 = bg_clock_now();
-    return watch_used(s->watch, USE_SOLVE, t0,
-                      s->watch->inner->ops->solve_open(s->inner, id, sys, err));
+    WATCH_FORWARD(USE_SOLVE, solve_open, id, sys);
 }
 
 static bg_status watch_solve_factor(void *session, int id, double shift, bg_error_t *err)
 {
-    watch_session_t *s = session;
-    const bg_status st = watch_check(s->watch, err);
-    if (st != BG_OK)
-        return st;
-    const double t0 = bg_clock_now();
-    return watch_used(s->watch, USE_SOLVE, t0,
-                      s->watch->inner->ops->solve_factor(s->inner, id, shift, err));
+    WATCH_FORWARD(USE_SOLVE, solve_factor, id, shift);
 }
 
 static bg_status watch_solve(void *session, int id, const double *rhs, double *x,
                              bg_error_t *err)
 {
-    watch_session_t *s = session;
-    const bg_status st = watch_check(s->watch, err);
-    if (st != BG_OK)
-        return st;
-    const double t0 = bg_clock_now();
-    return watch_used(s->watch, USE_SOLVE, t0,
-                      s->watch->inner->ops->solve(s->inner, id, rhs, x, err));
+    WATCH_FORWARD(USE_SOLVE, solve, id, rhs, x);
 }
 
 static void watch_solve_cost(void *session, int id, double *flops, double *nonzeros)
