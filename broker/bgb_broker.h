@@ -24,8 +24,10 @@
  * waits in allocating. Running drives the solve through the same remote
  * backend (bga_backend) as `solve --agents`, on the awarded agents;
  * progress and the error-against-time trace are events; the
- * result files (report.json, error-vs-time.svg, result.vtu and the native
- * mesh, <method>.pvd and its frames) go into the store.
+ * result files (report.json with the market section and its error against
+ * time and money, error-vs-time.svg, error-vs-time-and-money.svg,
+ * result.vtu and the native mesh, <method>.pvd and its frames) go into the
+ * store.
  *
  * Cancel (REST) moves the job to cancelled in the store at once. A
  * running solve stops within one basic-service call: the solver calls its

@@ -589,7 +589,7 @@ static bg_status find_file(packer_t *p, const char *field, const char *relative,
         return bg_error_set(err, BG_ERR_INVALID, "%s: %s: empty path", p->scene_path, field);
     const char *folders = p->search_path ? p->search_path : "";
     char *tried = NULL;
-    int why = 0;
+    const char *why = "";
     bg_status st = bg_file_lookup(p->dir, relative, folders, BG_FILE_REGULAR, out, &tried, &why);
     if (st == BG_ERR_NOMEM)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory");
@@ -599,7 +599,7 @@ static bg_status find_file(packer_t *p, const char *field, const char *relative,
                           "%s: %s: %s not found: no file %s (%s), and no %s in the mesh search "
                           "path (%s)",
                           p->scene_path, field, relative, tried ? tried : relative,
-                          strerror(why), slash ? slash + 1 : relative,
+                          why, slash ? slash + 1 : relative,
                           folders[0] ? folders : "empty");
     }
     free(tried);

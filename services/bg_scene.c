@@ -204,7 +204,7 @@ static bg_status resolve_path(parser_t *p, const char *field, const char *relati
                         relative);
     }
     char *tried = NULL;
-    int why = 0;
+    const char *why = "";
     const char *folders = p->search_path ? p->search_path : "";
     const bg_status st = bg_file_lookup(p->dir, relative, folders, BG_FILE_TRUST_ABSOLUTE, out,
                                         &tried, &why);
@@ -214,7 +214,7 @@ static bg_status resolve_path(parser_t *p, const char *field, const char *relati
         const char *slash = strrchr(relative, '/');
         fail(p, BG_ERR_NOT_FOUND, field,
              "%s not found: no file %s (%s), and no %s in the mesh search path (%s)", relative,
-             tried ? tried : relative, strerror(why), slash ? slash + 1 : relative,
+             tried ? tried : relative, why, slash ? slash + 1 : relative,
              folders[0] ? folders : "empty");
     }
     free(tried);

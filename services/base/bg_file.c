@@ -121,7 +121,12 @@ out:
     return st;
 }
 
-/* Whether path counts as found: a regular file, or anything but a directory. */
+/* Why a path is not a hit, beside errno values. */
+#define LOOKUP_DIRECTORY (-1)
+#define LOOKUP_NOT_REGULAR (-2)
+
+/* Whether path counts as found: a regular file, or anything but a
+ * directory; if not, *why is an errno or one of the LOOKUP_ codes. */
 static int lookup_hit(const char *path, unsigned flags, int *why)
 {
     struct stat sb;
@@ -129,18 +134,18 @@ static int lookup_hit(const char *path, unsigned flags, int *why)
         *why = errno;
         return 0;
     }
-    const int ok = (flags & BG_FILE_REGULAR) ? S_ISREG(sb.st_mode) : !S_ISDIR(sb.st_mode);
-    if (!ok)
-        *why = S_ISDIR(sb.st_mode) ? EISDIR : EINVAL;
-    return ok;
+    *why = S_ISDIR(sb.st_mode)                                 ? LOOKUP_DIRECTORY
+           : (flags & BG_FILE_REGULAR) && !S_ISREG(sb.st_mode) ? LOOKUP_NOT_REGULAR
+                                                               : 0;
+    return *why == 0;
 }
 
 bg_status bg_file_lookup(const char *dir, const char *name, const char *search_path,
-                         unsigned flags, char **found, char **tried, int *why)
+                         unsigned flags, char **found, char **tried, const char **why)
 {
     *found = NULL;
     *tried = NULL;
-    *why = 0;
+    *why = "";
     const int absolute = name[0] == '/';
     const char *base = absolute ? "" : dir;
     const size_t n = strlen(base) + strlen(name) + 1;
@@ -181,6 +186,8 @@ bg_status bg_file_lookup(const char *dir, const char *name, const char *search_p
         free(candidate);
     }
     *tried = beside;
-    *why = why_beside ? why_beside : ENOENT;
+    *why = why_beside == LOOKUP_DIRECTORY     ? "a directory"
+           : why_beside == LOOKUP_NOT_REGULAR ? "not a regular file"
+                                              : strerror(why_beside ? why_beside : ENOENT);
     return BG_ERR_NOT_FOUND;
 }

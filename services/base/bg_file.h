@@ -39,11 +39,12 @@ bg_status bg_file_read_all(const char *path, size_t max_bytes, char **text, size
  * fails later in the reader, with its own message); the client uploads
  * only what it can read whole, so it asks for a regular file. Found: BG_OK
  * and *found (caller frees). Not found: BG_ERR_NOT_FOUND, *found NULL,
- * *tried = the path beside the scene (caller frees; NULL on NOMEM) and
- * *why = the errno of that try, for the caller's message (it names the
- * field). BG_ERR_NOMEM: nothing is written.
+ * *tried = the path beside the scene (caller frees) and *why = what was
+ * wrong with it ("No such file or directory", "a directory", "not a
+ * regular file"; valid until the next strerror), for the caller's message
+ * (it names the field). BG_ERR_NOMEM: *found and *tried NULL.
  */
 bg_status bg_file_lookup(const char *dir, const char *name, const char *search_path,
-                         unsigned flags, char **found, char **tried, int *why);
+                         unsigned flags, char **found, char **tried, const char **why);
 
 #endif

@@ -67,9 +67,11 @@ for src in "$scenes"/*.json; do
   alone "$name" && how="alone"
   if [ "$filter" = . ]; then
     echo "scene $name: as shipped, $how"
-    cp "$src" "$work/scenes/$name.json"
   else
     echo "scene $name: override $filter, $how"
+  fi
+  # Every scene is copied: its relative file references become absolute.
+  {
     dir=$(cd "$(dirname "$src")" && pwd)
     map='{}'
     for s in $(jq -r '[.. | strings] | unique | .[]' "$src" | grep -v '[[:space:]]'); do
@@ -80,8 +82,8 @@ for src in "$scenes"/*.json; do
     done
     jq --argjson m "$map" "walk(if type == \"string\" and \$m[.] then \$m[.] else . end) | $filter" \
       "$src" >"$work/scenes/$name.json"
-    check $? "$name: the override applies"
-  fi
+    check $? "$name: the copy and its override apply"
+  }
   list="$list $name"
 done
 [ -n "$list" ]; check $? "the shipped scenes are listed ($(echo $list | wc -w) scenes)"
