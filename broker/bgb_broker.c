@@ -18,6 +18,7 @@
 #include "bg_report.h"
 #include "bg_scene.h"
 #include "bg_static.h"
+#include "bg_svg.h"
 #include "bg_surface_arap.h"
 #include "bga_backend.h"
 #include "bga_service.h"
@@ -36,9 +37,11 @@
 #define BROKER_POLL_MS 100
 /* At most one progress event per job this often (each is a commit). */
 #define BROKER_PROGRESS_SECONDS 0.25
-/* The reference of a static scene, as `biotgrid solve` computes it. */
-#define BROKER_REFERENCE_TOLERANCE 1e-13
-#define BROKER_REFERENCE_MAX_ITERATIONS 200
+/* A running job's backend reads its state from the store at most this
+ * often (a cancel lands there from a REST thread). */
+#define BROKER_CANCEL_POLL_SECONDS 0.1
+/* Service-time records of a job's money curve (one per progress call). */
+#define BROKER_MAX_USAGE_POINTS (1 << 20)
 #define BROKER_AGENT_LEASE_MS 600000
 #define BROKER_MAX_RESULT_FILE ((size_t)1 << 30)
 /* The loop thread looks at the buy queue at least this often. */
@@ -330,16 +333,47 @@ out:
 
 /* --------------------------------------------------------- coordinator */
 
+/* Seconds the job's bought services had worked (inside rotation-fit and
+ * sparse-solve calls) when the solve reached a trace point. */
+typedef struct usage_point {
+    double seconds; /* the trace point's */
+    double used[2]; /* USE_ROTFIT, USE_SOLVE */
+} usage_point_t;
+
+enum { USE_ROTFIT, USE_SOLVE };
+
 typedef struct job_run {
     bgb_broker_t *broker;
     char id[BGB_JOB_ID_SIZE];
     double last_progress;
     double allocation_latency; /* seconds from allocating to running */
+    double used[2];            /* service seconds so far, kept by the job's watch */
+    usage_point_t *usage;      /* one per progress call, at most BROKER_MAX_USAGE_POINTS; owned */
+    int nusage, usage_cap;
 } job_run_t;
+
+/* Records how much service time the solve had used at this point; past
+ * the cap later points reuse the last record (the money curve then lags,
+ * but stays monotone and still ends at the total). */
+static void record_usage(job_run_t *jr, double seconds)
+{
+    if (jr->nusage == jr->usage_cap) {
+        if (jr->usage_cap >= BROKER_MAX_USAGE_POINTS)
+            return;
+        const int grown = jr->usage_cap ? 2 * jr->usage_cap : 256;
+        usage_point_t *u = realloc(jr->usage, (size_t)grown * sizeof *u);
+        if (!u)
+            return;
+        jr->usage = u;
+        jr->usage_cap = grown;
+    }
+    jr->usage[jr->nusage++] = (usage_point_t){seconds, {jr->used[0], jr->used[1]}};
+}
 
 static void on_progress(void *ctx, bg_method method, const bg_trace_point_t *p)
 {
     job_run_t *jr = ctx;
+    record_usage(jr, p->seconds);
     const double now = bg_clock_now();
     if (now - jr->last_progress < BROKER_PROGRESS_SECONDS)
         return;
@@ -490,15 +524,67 @@ static int agent_lines(const bgb_broker_config_t *c, const int *role, const bga_
 }
 
 /*
+ * The money the job had spent at each trace point of run, into money[k]
+ * (run->trace_count entries). Contracts are bought up front, but what a
+ * user gets for the money is service time: each contract is pro-rated by
+ * the share of its service's working time (seconds inside rotation-fit or
+ * sparse-solve calls, from the job's watch) used up to that point; a
+ * service that did not work during the run (integration-step: the time
+ * loop runs in the broker) is pro-rated by run time. At the last point
+ * every share is 1, so the curve ends at exactly bought->spent (the same
+ * sum in the same order). No purchase: 0 everywhere.
+ */
+static void money_curve(const job_run_t *jr, const bg_solve_result_t *run, const buy_req_t *bought,
+                        double *money)
+{
+    const int n = run->trace_count;
+    if (n == 0)
+        return;
+    /* The service time at each point: the latest record at or before it. */
+    double last[2] = {0, 0};
+    int j = -1;
+    for (int k = 0; k < n; k++) {
+        while (j + 1 < jr->nusage && jr->usage[j + 1].seconds <= run->trace[k].seconds)
+            j++;
+        if (k == n - 1 && j >= 0)
+            last[0] = jr->usage[j].used[0], last[1] = jr->usage[j].used[1];
+    }
+    const double t_last = run->trace[n - 1].seconds;
+    j = -1;
+    for (int k = 0; k < n; k++) {
+        const double t = run->trace[k].seconds;
+        while (j + 1 < jr->nusage && jr->usage[j + 1].seconds <= t)
+            j++;
+        double m = 0.0;
+        for (int c = 0; bought && c < bought->nawards; c++) {
+            const bgb_award_t *a = &bought->awards[c];
+            const int use = a->good == BGB_GOOD_ROTFIT ? USE_ROTFIT
+                            : a->good == BGB_GOOD_SOLVE ? USE_SOLVE
+                                                        : -1;
+            double share = 1.0;
+            if (k < n - 1) {
+                if (use >= 0 && last[use] > 0)
+                    share = j >= 0 ? jr->usage[j].used[use] / last[use] : 0.0;
+                else
+                    share = t_last > 0 ? t / t_last : 1.0;
+                share = share < 0 ? 0 : share > 1 ? 1 : share;
+            }
+            m += a->quantity * a->price * share;
+        }
+        money[k] = m;
+    }
+}
+
+/*
  * Adds the job's "market" section to DIR/report.json: mechanism, the
  * contracts (service, agent, quantity, price), money spent against the
  * budget, the allocation latency, and the error against run time and
- * against money spent (money is spent when the services are bought, so
- * every trace point has spent so far = the total). No market is attached
- * in this build: no contracts, nothing spent.
+ * against money (money[k] for the run's k-th trace point, see
+ * money_curve). bought NULL: the fixed pool, no contracts, nothing spent.
  */
 static bg_status add_market_section(const char *path, const bgb_job_t *job,
-                                    const buy_req_t *bought, double latency, bg_error_t *err)
+                                    const buy_req_t *bought, double latency, const double *money,
+                                    int nmoney, bg_error_t *err)
 {
     cJSON *root = NULL;
     bg_status st = bg_json_load(path, BROKER_MAX_RESULT_FILE, &root, err);
@@ -531,21 +617,28 @@ static bg_status add_market_section(const char *path, const bgb_job_t *job,
     cJSON_AddNumberToObject(m, "budget", job->budget);
     cJSON_AddNumberToObject(m, "spent", spent);
     cJSON_AddNumberToObject(m, "allocation_latency_seconds", latency);
+    cJSON_AddStringToObject(m, "money_basis",
+                            "the whole price is committed when the services are bought; each "
+                            "point's money is every contract pro-rated by the share of its "
+                            "service's working time used so far (run time for a service that "
+                            "does not work during the run), so the curve ends at spent");
     cJSON *curve = cJSON_AddArrayToObject(m, "error_vs_time_and_money");
     const cJSON *runs = cJSON_GetObjectItemCaseSensitive(root, "runs");
     const cJSON *trace = cJSON_GetObjectItemCaseSensitive(cJSON_GetArrayItem(runs, 0), "trace");
     const cJSON *p;
+    int k = 0;
     cJSON_ArrayForEach(p, trace) {
         cJSON *e = cJSON_CreateObject();
         const cJSON *s = cJSON_GetObjectItemCaseSensitive(p, "seconds");
         const cJSON *er = cJSON_GetObjectItemCaseSensitive(p, "error");
         cJSON_AddNumberToObject(e, "seconds", cJSON_IsNumber(s) ? s->valuedouble : 0.0);
-        cJSON_AddNumberToObject(e, "spent", spent);
+        cJSON_AddNumberToObject(e, "money", k < nmoney ? money[k] : spent);
         if (cJSON_IsNumber(er))
             cJSON_AddNumberToObject(e, "error", er->valuedouble);
         else
             cJSON_AddNullToObject(e, "error");
         cJSON_AddItemToArray(curve, e);
+        k++;
     }
     text = cJSON_Print(root);
     if (!text) {
@@ -556,6 +649,80 @@ static bg_status add_market_section(const char *path, const bgb_job_t *job,
 out:
     free(text);
     cJSON_Delete(root);
+    return st;
+}
+
+/*
+ * DIR/error-vs-time-and-money.svg: two panels side by side, the run's
+ * error against run time and against money (money_curve), each drawn by
+ * bg_svg and placed in one document. The error is what `solve`'s plot
+ * shows: against the reference, the energy drift of a dynamic run, else
+ * the relative gradient.
+ */
+static bg_status write_money_plot(const char *path, const bg_scene_t *scene,
+                                  const bg_solve_result_t *run, const double *money,
+                                  bg_error_t *err)
+{
+    const int dynamic = scene->task == BG_TASK_DYNAMIC;
+    const int with_reference = dynamic || scene->reference_kind != BG_REFERENCE_NONE;
+    const char *y_label = dynamic          ? "relative energy drift |E - E0| / |E0|"
+                          : with_reference ? "relative error |q - q_ref| / |q_ref|"
+                                           : "relative gradient |grad W| / force scale";
+    const size_t n = (size_t)run->trace_count;
+    bg_status st = BG_OK;
+    char *panel[2] = {NULL, NULL};
+    size_t length[2] = {0, 0};
+    double *x = malloc((n + 1) * sizeof *x), *y = malloc((n + 1) * sizeof *y);
+    FILE *f = NULL;
+    if (!x || !y) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the plot");
+        goto out;
+    }
+    for (size_t k = 0; k < n; k++) {
+        x[k] = run->trace[k].seconds;
+        y[k] = with_reference ? run->trace[k].error : run->trace[k].relative_gradient;
+    }
+    char title[2][256];
+    snprintf(title[0], sizeof title[0], "%s: error against run time", scene->name);
+    snprintf(title[1], sizeof title[1], "%s: error against money", scene->name);
+    const bg_svg_plot_t plots[2] = {{title[0], "wall time (s)", y_label, 0, 1},
+                                    {title[1], "money spent (pro-rated by service time)",
+                                     y_label, 0, 1}};
+    bg_svg_series_t series = {bg_method_name(run->method), x, y, n};
+    if ((st = bg_svg_render(&plots[0], &series, 1, &panel[0], &length[0], err)) != BG_OK)
+        goto out;
+    series.x = money;
+    if ((st = bg_svg_render(&plots[1], &series, 1, &panel[1], &length[1], err)) != BG_OK)
+        goto out;
+    /* The panels' size is bg_svg's: read from its root element. */
+    int width = 0, height = 0;
+    const char *w = strstr(panel[0], " width=\""), *h = strstr(panel[0], " height=\"");
+    if (!w || !h || sscanf(w, " width=\"%d\"", &width) != 1 ||
+        sscanf(h, " height=\"%d\"", &height) != 1 || width <= 0 || height <= 0) {
+        st = bg_error_set(err, BG_ERR_INVALID, "%s: the plot has no size", path);
+        goto out;
+    }
+    if (!(f = fopen(path, "w"))) {
+        st = bg_error_set(err, BG_ERR_IO, "%s: cannot write: %s", path, strerror(errno));
+        goto out;
+    }
+    fprintf(f, "<svg xmlns=\"http://www.w3.org/2000/svg\" version=\"1.1\" width=\"%d\" "
+               "height=\"%d\" viewBox=\"0 0 %d %d\">\n",
+            2 * width, height, 2 * width, height);
+    for (int i = 0; i < 2; i++) {
+        fprintf(f, "<g transform=\"translate(%d 0)\">\n", i * width);
+        fwrite(panel[i], 1, length[i], f);
+        fprintf(f, "</g>\n");
+    }
+    fprintf(f, "</svg>\n");
+    const int bad = ferror(f);
+    if (fclose(f) != 0 || bad)
+        st = bg_error_set(err, BG_ERR_IO, "%s: write failed", path);
+out:
+    free(panel[0]);
+    free(panel[1]);
+    free(x);
+    free(y);
     return st;
 }
 
@@ -580,6 +747,216 @@ static bg_status load_scene(bgb_broker_t *b, const bgb_job_t *job, const char *d
     return st;
 }
 
+/*
+ * Cancel between service calls. A job's solve calls its basic services
+ * through this backend, which forwards every call to `inner` (the agents,
+ * or in process) once it has checked that the job is still running: the
+ * store is read at most every BROKER_CANCEL_POLL_SECONDS. When the job has
+ * left running (POST /v1/jobs/{id}/cancel moved it to cancelled) every
+ * call fails with BG_ERR_CONFLICT, so the solver returns after the service
+ * call in progress; the coordinator then stores no result and releases the
+ * contracts. Used by one coordinator thread only.
+ */
+typedef struct job_watch {
+    bgb_broker_t *broker;
+    const char *id;            /* borrowed: the job_run_t's */
+    const bg_backend_t *inner; /* borrowed */
+    double next_check;
+    int stopped;               /* the job was seen out of running */
+    double *used;              /* seconds inside rotation-fit and sparse-solve calls are added
+                                  to used[USE_ROTFIT], used[USE_SOLVE]; NULL: not counted */
+    bg_backend_t backend;      /* what the solver is given: watch_ops, this */
+} job_watch_t;
+
+typedef struct watch_session {
+    job_watch_t *watch;
+    void *inner;
+} watch_session_t;
+
+/* BG_OK while the job runs; BG_ERR_CONFLICT once it does not. */
+static bg_status watch_check(job_watch_t *w, bg_error_t *err)
+{
+    if (!w->stopped) {
+        const double now = bg_clock_now();
+        if (now < w->next_check)
+            return BG_OK;
+        w->next_check = now + BROKER_CANCEL_POLL_SECONDS;
+        bgb_job_t job = BGB_JOB_INIT;
+        bg_error_t e = BG_ERROR_INIT;
+        if (bgb_store_get(w->broker->store, w->id, &job, &e) == BG_OK)
+            w->stopped = job.state != BGB_JOB_RUNNING;
+        bgb_job_release(&job);
+        if (!w->stopped)
+            return BG_OK;
+    }
+    return bg_error_set(err, BG_ERR_CONFLICT, "job %s was cancelled: the solve stopped", w->id);
+}
+
+/* Adds the seconds since t0 to the service's usage. */
+static bg_status watch_used(job_watch_t *w, int service, double t0, bg_status st)
+{
+    if (w->used)
+        w->used[service] += bg_clock_now() - t0;
+    return st;
+}
+
+/* The body of every forwarded service call: stop if the job was
+ * cancelled, else call `op` of the inner backend and count its time. */
+#define WATCH_FORWARD(service, op, ...)                                                        \
+    watch_session_t *s = session;                                                              \
+    const bg_status st = watch_check(s->watch, err);                                           \
+    if (st != BG_OK)                                                                           \
+        return st;                                                                             \
+    const double t0 = bg_clock_now();                                                          \
+    return watch_used(s->watch, service, t0, s->watch->inner->ops->op(s->inner, __VA_ARGS__, err))
+
+static bg_status watch_session_new(void *ctx, void **session, bg_error_t *err)
+{
+    job_watch_t *w = ctx;
+    *session = NULL;
+    bg_status st = watch_check(w, err);
+    if (st != BG_OK)
+        return st;
+    watch_session_t *s = calloc(1, sizeof *s);
+    if (!s)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for a solver session");
+    s->watch = w;
+    if ((st = w->inner->ops->session_new(w->inner->ctx, &s->inner, err)) != BG_OK) {
+        free(s);
+        return st;
+    }
+    *session = s;
+    return BG_OK;
+}
+
+static void watch_session_destroy(void *ctx, void *session)
+{
+    job_watch_t *w = ctx;
+    watch_session_t *s = session;
+    if (!s)
+        return;
+    w->inner->ops->session_destroy(w->inner->ctx, s->inner);
+    free(s);
+}
+
+static bg_status watch_fit_open(void *session, int id, const bg_backend_fit_t *fit,
+                                bg_error_t *err)
+{
+    WATCH_FORWARD(USE_ROTFIT, fit_open, id, fit);
+}
+
+static bg_status watch_fit_eval(void *session, int id, const double *q, double *energy,
+                                double *grad, bg_error_t *err)
+{
+    WATCH_FORWARD(USE_ROTFIT, fit_eval, id, q, energy, grad);
+}
+
+static bg_status watch_fit_hessian(void *session, int id, const double *q, int project,
+                                   double scale, double *values, bg_error_t *err)
+{
+    WATCH_FORWARD(USE_ROTFIT, fit_hessian, id, q, project, scale, values);
+}
+
+static bg_status watch_solve_open(void *session, int id, bg_sparse_t *sys, bg_error_t *err)
+{
+    WATCH_FORWARD(USE_SOLVE, solve_open, id, sys);
+}
+
+static bg_status watch_solve_factor(void *session, int id, double shift, bg_error_t *err)
+{
+    WATCH_FORWARD(USE_SOLVE, solve_factor, id, shift);
+}
+
+static bg_status watch_solve(void *session, int id, const double *rhs, double *x,
+                             bg_error_t *err)
+{
+    WATCH_FORWARD(USE_SOLVE, solve, id, rhs, x);
+}
+
+static void watch_solve_cost(void *session, int id, double *flops, double *nonzeros)
+{
+    watch_session_t *s = session;
+    s->watch->inner->ops->solve_cost(s->inner, id, flops, nonzeros);
+}
+
+/* The integration step is not counted in used: its money accrues with the
+ * run's time (money_curve). */
+#define WATCH_FORWARD_UNTIMED(op, ...)                                                         \
+    watch_session_t *s = session;                                                              \
+    const bg_status st = watch_check(s->watch, err);                                           \
+    if (st != BG_OK)                                                                           \
+        return st;                                                                             \
+    return s->watch->inner->ops->op(s->inner, __VA_ARGS__, err)
+
+static bg_status watch_step_open(void *session, const bg_step_setup_t *setup,
+                                 bg_step_motion_t *motion, bg_error_t *err)
+{
+    WATCH_FORWARD_UNTIMED(step_open, setup, motion);
+}
+
+static bg_status watch_step_predict(void *session, const bg_step_request_t *req,
+                                    bg_step_prediction_t *out, bg_error_t *err)
+{
+    WATCH_FORWARD_UNTIMED(step_predict, req, out);
+}
+
+static bg_status watch_step_update(void *session, const double *q_star, const double *grad_star,
+                                   bg_step_trial_t *out, bg_error_t *err)
+{
+    WATCH_FORWARD_UNTIMED(step_update, q_star, grad_star, out);
+}
+
+static bg_status watch_step_accept(void *session, bg_step_motion_t *motion, bg_error_t *err)
+{
+    WATCH_FORWARD_UNTIMED(step_accept, motion);
+}
+
+static bg_status watch_surface_open(void *session, const bg_mesh_t *mesh, bg_error_t *err)
+{
+    WATCH_FORWARD(USE_ROTFIT, surface_open, mesh);
+}
+
+static bg_status watch_surface_eval(void *session, const double *q, double *energy, double *grad,
+                                    bg_rotfit_stats_t *stats, bg_error_t *err)
+{
+    WATCH_FORWARD(USE_ROTFIT, surface_eval, q, energy, grad, stats);
+}
+
+/* The inner backend (in process or agents) implements every operation. */
+static const bg_backend_ops_t watch_ops = {
+    .name = "stops on cancel",
+    .session_new = watch_session_new,
+    .session_destroy = watch_session_destroy,
+    .fit_open = watch_fit_open,
+    .fit_eval = watch_fit_eval,
+    .fit_hessian = watch_fit_hessian,
+    .solve_open = watch_solve_open,
+    .solve_factor = watch_solve_factor,
+    .solve = watch_solve,
+    .solve_cost = watch_solve_cost,
+    .step_open = watch_step_open,
+    .step_predict = watch_step_predict,
+    .step_update = watch_step_update,
+    .step_accept = watch_step_accept,
+    .surface_open = watch_surface_open,
+    .surface_eval = watch_surface_eval,
+};
+
+/* w watches job id over inner (NULL: in process), adding service time to
+ * used (may be NULL); w->backend is the solver's backend, valid while w
+ * lives. */
+static void watch_init(job_watch_t *w, bgb_broker_t *b, const char *id, const bg_backend_t *inner,
+                       double *used)
+{
+    memset(w, 0, sizeof *w);
+    w->broker = b;
+    w->id = id;
+    w->used = used;
+    w->inner = inner ? inner : bg_backend_local();
+    w->backend.ops = &watch_ops;
+    w->backend.ctx = w;
+}
+
 /* What the job bought (NULL: the fixed pool, nothing bought). */
 typedef struct job_alloc {
     const bgb_broker_agent_t *pool;
@@ -591,7 +968,7 @@ typedef struct job_alloc {
  * trace. scene is borrowed. */
 static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job, const char *dir,
                            bg_scene_t *scene, const job_alloc_t *alloc, int *converged,
-                           bg_error_t *err)
+                           int *stopped, bg_error_t *err)
 {
     bgb_broker_config_t pool = b->config;
     memcpy(pool.agents, alloc->pool, (size_t)alloc->npool * sizeof *alloc->pool);
@@ -600,8 +977,12 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
     bga_backend_t *remote = NULL;
     bg_solve_result_t run = BG_SOLVE_RESULT_INIT, reference = BG_SOLVE_RESULT_INIT;
     char *trace = NULL;
+    double *money = NULL;
     bg_status st;
     char path[BROKER_PATH_MAX + 96];
+    job_watch_t local_watch, remote_watch;
+    watch_init(&local_watch, b, jr->id, NULL, NULL);
+    watch_init(&remote_watch, b, jr->id, NULL, NULL);
 
     /* The pool: every rotation-fit agent but a dedicated sparse-solve one. */
     const char *rotfit[BGB_BROKER_MAX_AGENTS], *solver = NULL;
@@ -634,49 +1015,41 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
                                      alloc->bought ? alloc->bought->job : 0};
     if ((st = bga_backend_new(&bc, &remote, err)) != BG_OK)
         goto out;
-    /* surface-edit's per-vertex rotations have no agent service yet. */
-    const bg_backend_t *backend =
-        scene->task == BG_TASK_SURFACE_EDIT ? NULL : bga_backend_services(remote);
-
-    const bg_method method = scene->method;
-    const int max_iterations = bg_scene_max_iterations(scene, method);
-    if (scene->task == BG_TASK_DYNAMIC || scene->task == BG_TASK_MORPH) {
-        st = bgb_run_series(scene, method, scene->tolerance, max_iterations, dir, "",
-                            on_progress, jr, backend, &run, err);
-    } else {
-        const double *ref = scene->reference;
-        if (scene->reference_kind == BG_REFERENCE_NEWTON && scene->task == BG_TASK_STATIC) {
-            const bg_solve_options_t ro = {.method = BG_METHOD_NEWTON,
-                                           .tolerance = BROKER_REFERENCE_TOLERANCE,
-                                           .max_iterations = BROKER_REFERENCE_MAX_ITERATIONS};
-            if ((st = bg_static_solve(scene, &ro, &reference, err)) != BG_OK)
-                goto out;
-            ref = reference.q;
-        }
-        const bg_solve_options_t opt = {.method = method,
-                                        .tolerance = scene->tolerance,
-                                        .max_iterations = max_iterations,
-                                        .reference = ref,
-                                        .progress = on_progress,
-                                        .progress_ctx = jr,
-                                        .keep_orientation = scene->task == BG_TASK_PARAMETERIZE,
-                                        .backend = backend};
-        st = scene->task == BG_TASK_SURFACE_EDIT ? bg_surface_arap_solve(scene, &opt, &run, err)
-                                                 : bg_static_solve(scene, &opt, &run, err);
-        if (st == BG_OK && scene->task == BG_TASK_PARAMETERIZE)
-            st = bgb_run_write_parameterization(scene, &run, dir, err);
-    }
+    /* The reference and the run both stop between service calls once the
+     * job is cancelled; the reference is computed in process, as `solve`
+     * does. */
+    watch_init(&remote_watch, b, jr->id, bga_backend_services(remote), jr->used);
+    const double *ref = NULL;
+    if ((st = bgb_run_reference(scene, &local_watch.backend, &reference, &ref, err)) != BG_OK)
+        goto out;
+    const bgb_run_options_t ro = {.method = scene->method,
+                                  .tolerance = scene->tolerance,
+                                  .max_iterations = bg_scene_max_iterations(scene, scene->method),
+                                  .frames_prefix = "",
+                                  .progress = on_progress,
+                                  .progress_ctx = jr,
+                                  .backend = &remote_watch.backend};
+    st = bgb_run_method(scene, &ro, ref, dir, &run, err);
     if (st != BG_OK)
         goto out;
     *converged = run.converged;
     bg_plan_t plan;
-    bg_plan_for_scene(scene, &method, 1, &plan);
+    bg_plan_for_scene(scene, &scene->method, 1, &plan);
     bg_report_agent_t lines[BGB_BROKER_MAX_AGENTS];
     const int nlines = agent_lines(c, role, remote, lines);
     char paths[2 * BROKER_PATH_MAX + 64];
+    if (!(money = calloc((size_t)run.trace_count + 1, sizeof *money))) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the money curve");
+        goto out;
+    }
+    money_curve(jr, &run, alloc->bought, money);
     snprintf(path, sizeof path, "%s/report.json", dir);
     if ((st = bg_report_write_agents(path, scene, &plan, &run, 1, lines, nlines, err)) != BG_OK ||
-        (st = add_market_section(path, job, alloc->bought, jr->allocation_latency, err)) != BG_OK)
+        (st = add_market_section(path, job, alloc->bought, jr->allocation_latency, money,
+                                 run.trace_count, err)) != BG_OK)
+        goto out;
+    snprintf(path, sizeof path, "%s/error-vs-time-and-money.svg", dir);
+    if ((st = write_money_plot(path, scene, &run, money, err)) != BG_OK)
         goto out;
     snprintf(path, sizeof path, "%s/error-vs-time.svg", dir);
     if ((st = bg_report_write_plot(path, scene, &run, 1, err)) != BG_OK ||
@@ -687,6 +1060,8 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
         goto out;
     st = store_results(b, job->id, dir, err);
 out:
+    *stopped = local_watch.stopped || remote_watch.stopped;
+    free(money);
     free(trace);
     bg_solve_result_release(&run);
     bg_solve_result_release(&reference);
@@ -795,9 +1170,16 @@ static void *coordinator(void *arg)
                              &err) != BG_OK)
         goto out; /* cancelled meanwhile */
     jr->allocation_latency = bg_clock_now() - t0;
-    int converged = 0;
-    st = solve_job(b, jr, &job, dir, scene, &alloc, &converged, &err);
-    if (st == BG_OK) {
+    int converged = 0, stopped = 0;
+    st = solve_job(b, jr, &job, dir, scene, &alloc, &converged, &stopped, &err);
+    if (stopped) {
+        /* Cancelled while running: no result is stored, the contracts are
+         * released below. */
+        char json[96];
+        snprintf(json, sizeof json, "{\"cancelled\":true,\"seconds\":%.6f}",
+                 bg_clock_now() - t0);
+        (void)bgb_store_add_event(b->store, jr->id, "stopped", json, &terr);
+    } else if (st == BG_OK) {
         (void)bgb_store_add_event(b->store, jr->id, "solved",
                                   converged ? "{\"converged\":true}" : "{\"converged\":false}",
                                   &terr);
@@ -824,6 +1206,7 @@ out:
     b->running--;
     pthread_cond_broadcast(&b->changed);
     pthread_mutex_unlock(&b->lock);
+    free(jr->usage);
     free(jr);
     return NULL;
 }

@@ -24,12 +24,19 @@
  * waits in allocating. Running drives the solve through the same remote
  * backend (bga_backend) as `solve --agents`, on the awarded agents;
  * progress and the error-against-time trace are events; the
- * result files (report.json, error-vs-time.svg, result.vtu and the native
- * mesh, <method>.pvd and its frames) go into the store.
+ * result files (report.json with the market section and its error against
+ * time and money, error-vs-time.svg, error-vs-time-and-money.svg,
+ * result.vtu and the native mesh, <method>.pvd and its frames) go into the
+ * store.
  *
- * Cancel (REST) moves the job to cancelled in the store at once; a
- * running solve is not interrupted (the solver has no stop hook): its
- * coordinator sees the state when the solve returns and stores nothing.
+ * Cancel (REST) moves the job to cancelled in the store at once. A
+ * running solve stops within one basic-service call: the solver calls its
+ * services through a backend that reads the job's state (at most every
+ * 0.1 s) before forwarding each call, and fails every call once the job is
+ * cancelled. The coordinator then records a "stopped" event, stores no
+ * result and releases the job's contracts, so its agents' slots are free
+ * again. surface-edit computes without basic services and is not
+ * interrupted: its coordinator sees the state when the solve returns.
  *
  * Restart: at start, jobs left in allocating are put back in queued
  * (nothing was bought for them), jobs left running are failed with the

@@ -10,6 +10,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "bg_file.h"
 #include "bg_mesh_io.h"
 #include "bg_scene.h"
 #include "bgb_base64.h"
@@ -578,53 +579,30 @@ static int is_file(const char *path)
     return stat(path, &sb) == 0 && S_ISREG(sb.st_mode);
 }
 
-/* Where `solve` finds a relative file: beside the scene, else by name in the search path. */
+/* Where `solve` finds a file (bg_file_lookup), but only a regular file:
+ * the client reads it whole for the upload. */
 static bg_status find_file(packer_t *p, const char *field, const char *relative, char **out,
                            bg_error_t *err)
 {
     *out = NULL;
     if (!relative[0])
         return bg_error_set(err, BG_ERR_INVALID, "%s: %s: empty path", p->scene_path, field);
-    const char *base = relative[0] == '/' ? "" : p->dir;
-    const size_t n = strlen(base) + strlen(relative) + 1;
-    char *beside = malloc(n);
-    if (!beside)
-        return bg_error_set(err, BG_ERR_NOMEM, "out of memory");
-    snprintf(beside, n, "%s%s", base, relative);
-    if (is_file(beside)) {
-        *out = beside;
-        return BG_OK;
-    }
-    const char *slash = strrchr(relative, '/');
-    const char *name = slash ? slash + 1 : relative;
     const char *folders = p->search_path ? p->search_path : "";
-    for (const char *f = folders; *f && relative[0] != '/';) {
-        const size_t length = strcspn(f, ":");
-        if (length > 0 && name[0]) {
-            const size_t m = length + strlen(name) + 2;
-            char *candidate = malloc(m);
-            if (!candidate) {
-                free(beside);
-                return bg_error_set(err, BG_ERR_NOMEM, "out of memory");
-            }
-            snprintf(candidate, m, "%.*s/%s", (int)length, f, name);
-            if (is_file(candidate)) {
-                free(beside);
-                *out = candidate;
-                return BG_OK;
-            }
-            free(candidate);
-        }
-        f += length;
-        if (*f == ':')
-            f++;
+    char *tried = NULL;
+    const char *why = "";
+    bg_status st = bg_file_lookup(p->dir, relative, folders, BG_FILE_REGULAR, out, &tried, &why);
+    if (st == BG_ERR_NOMEM)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory");
+    if (st != BG_OK) {
+        const char *slash = strrchr(relative, '/');
+        st = bg_error_set(err, BG_ERR_NOT_FOUND,
+                          "%s: %s: %s not found: no file %s (%s), and no %s in the mesh search "
+                          "path (%s)",
+                          p->scene_path, field, relative, tried ? tried : relative,
+                          why, slash ? slash + 1 : relative,
+                          folders[0] ? folders : "empty");
     }
-    bg_status st =
-        bg_error_set(err, BG_ERR_NOT_FOUND,
-                     "%s: %s: %s not found: no file %s, and no %s in the mesh search "
-                     "path (%s)",
-                     p->scene_path, field, relative, beside, name, folders[0] ? folders : "empty");
-    free(beside);
+    free(tried);
     return st;
 }
 

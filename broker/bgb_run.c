@@ -11,6 +11,7 @@
 #include "bg_mesh_io.h"
 #include "bg_morph.h"
 #include "bg_param.h"
+#include "bg_surface_arap.h"
 
 int bgb_run_join_path(char *buf, size_t size, const char *dir, const char *name)
 {
@@ -146,7 +147,7 @@ static bg_status write_pvd(const frames_t *f, bg_error_t *err)
 }
 
 /* The surface with its UVs (DIR/<method>-uv.obj) and the map's quality. */
-bg_status bgb_run_write_parameterization(const bg_scene_t *scene, bg_solve_result_t *run,
+static bg_status write_parameterization(const bg_scene_t *scene, bg_solve_result_t *run,
                                          const char *dir, bg_error_t *err)
 {
     char name[96], path[4400];
@@ -157,12 +158,18 @@ bg_status bgb_run_write_parameterization(const bg_scene_t *scene, bg_solve_resul
     return bg_param_write_obj(scene, run->q, path, err);
 }
 
-bg_status bgb_run_series(const bg_scene_t *scene, bg_method method, double tolerance,
-                         int max_iterations, const char *dir, const char *frames_prefix,
-                         bg_progress_fn progress, void *progress_ctx, const bg_backend_t *backend,
-                         bg_solve_result_t *run, bg_error_t *err)
+/* The eight fields a dynamic run's and a morph's options share, by the
+ * same names in both types: one list so the two series cannot drift. */
+#define SERIES_OPTIONS(o, frames)                                                              \
+    .method = (o)->method, .tolerance = (o)->tolerance, .max_iterations = (o)->max_iterations,  \
+    .frame = write_frame, .frame_ctx = (frames), .progress = (o)->progress,                    \
+    .progress_ctx = (o)->progress_ctx, .backend = (o)->backend
+
+static bg_status run_series(const bg_scene_t *scene, const bgb_run_options_t *o, const char *dir,
+                            bg_solve_result_t *run, bg_error_t *err)
 {
-    frames_t f = {scene, dir, bg_method_name(method), frames_prefix, NULL, NULL, NULL, 0, 0};
+    const char *frames_prefix = o->frames_prefix ? o->frames_prefix : "";
+    frames_t f = {scene, dir, bg_method_name(o->method), frames_prefix, NULL, NULL, NULL, 0, 0};
     bg_status st = BG_OK;
     f.displacement = calloc((size_t)scene->mesh->nv * 3 + 1, sizeof *f.displacement);
     if (!f.displacement) {
@@ -188,24 +195,10 @@ bg_status bgb_run_series(const bg_scene_t *scene, bg_method method, double toler
         }
     }
     if (scene->task == BG_TASK_DYNAMIC) {
-        const bg_dynamic_options_t opt = {.method = method,
-                                          .tolerance = tolerance,
-                                          .max_iterations = max_iterations,
-                                          .frame = write_frame,
-                                          .frame_ctx = &f,
-                                          .progress = progress,
-                                          .progress_ctx = progress_ctx,
-                                          .backend = backend};
+        const bg_dynamic_options_t opt = {SERIES_OPTIONS(o, &f)};
         st = bg_dynamic_solve(scene, &opt, run, err);
     } else {
-        const bg_morph_options_t opt = {.method = method,
-                                        .tolerance = tolerance,
-                                        .max_iterations = max_iterations,
-                                        .frame = write_frame,
-                                        .frame_ctx = &f,
-                                        .progress = progress,
-                                        .progress_ctx = progress_ctx,
-                                        .backend = backend};
+        const bg_morph_options_t opt = {SERIES_OPTIONS(o, &f)};
         st = bg_morph_solve(scene, &opt, run, err);
     }
     if (st == BG_OK)
@@ -214,5 +207,41 @@ out:
     free(f.displacement);
     free(f.steps);
     free(f.times);
+    return st;
+}
+
+bg_status bgb_run_reference(const bg_scene_t *scene, const bg_backend_t *backend,
+                            bg_solve_result_t *reference, const double **ref, bg_error_t *err)
+{
+    *ref = scene->reference;
+    if (scene->reference_kind != BG_REFERENCE_NEWTON || scene->task != BG_TASK_STATIC)
+        return BG_OK;
+    const bg_solve_options_t ro = {.method = BG_METHOD_NEWTON,
+                                   .tolerance = BGB_RUN_REFERENCE_TOLERANCE,
+                                   .max_iterations = BGB_RUN_REFERENCE_MAX_ITERATIONS,
+                                   .backend = backend};
+    const bg_status st = bg_static_solve(scene, &ro, reference, err);
+    if (st == BG_OK)
+        *ref = reference->q;
+    return st;
+}
+
+bg_status bgb_run_method(const bg_scene_t *scene, const bgb_run_options_t *o, const double *ref,
+                         const char *dir, bg_solve_result_t *run, bg_error_t *err)
+{
+    if (scene->task == BG_TASK_DYNAMIC || scene->task == BG_TASK_MORPH)
+        return run_series(scene, o, dir, run, err);
+    const bg_solve_options_t so = {.method = o->method,
+                                   .tolerance = o->tolerance,
+                                   .max_iterations = o->max_iterations,
+                                   .reference = ref,
+                                   .progress = o->progress,
+                                   .progress_ctx = o->progress_ctx,
+                                   .keep_orientation = scene->task == BG_TASK_PARAMETERIZE,
+                                   .backend = o->backend};
+    bg_status st = scene->task == BG_TASK_SURFACE_EDIT ? bg_surface_arap_solve(scene, &so, run, err)
+                                                       : bg_static_solve(scene, &so, run, err);
+    if (st == BG_OK && scene->task == BG_TASK_PARAMETERIZE)
+        st = write_parameterization(scene, run, dir, err);
     return st;
 }

@@ -15,7 +15,6 @@
 #include "bg_mesh_io.h"
 #include "bg_morph.h"
 #include "bg_param.h"
-#include "bg_surface_arap.h"
 #include "bg_plan.h"
 #include "bg_report.h"
 #include "bg_scene.h"
@@ -27,9 +26,6 @@
 
 #define CLI_MAX_METHODS 4
 #define CLI_TABLE_ROWS 24
-/* The reference solve goes this far below the requested tolerance. */
-#define CLI_REFERENCE_TOLERANCE 1e-13
-#define CLI_REFERENCE_MAX_ITERATIONS 200
 /* Room for the ':'-separated mesh folders. */
 #define CLI_MESH_PATH_MAX 8192
 /* Time-to-accuracy rows: decades from 1e-1 down to the tolerance, at most this many. */
@@ -660,46 +656,29 @@ int bg_cmd_solve(int argc, char **argv)
             bg_mesh_kind_name(bg_mesh_kind_of(scene->mesh)), (int)scene->mesh->nv,
             (int)scene->mesh->ne, scene->mesh_source);
 
-    const double *ref = scene->reference;
-    if (scene->reference_kind == BG_REFERENCE_NEWTON && scene->task == BG_TASK_STATIC) {
-        if (!o.quiet)
-            fprintf(stderr, "computing the reference solution (Newton to its round-off floor)\n");
-        const bg_solve_options_t ro = {.method = BG_METHOD_NEWTON,
-                                       .tolerance = CLI_REFERENCE_TOLERANCE,
-                                       .max_iterations = CLI_REFERENCE_MAX_ITERATIONS};
-        if (bg_static_solve(scene, &ro, &reference, &err) != BG_OK) {
-            fprintf(stderr, "biotgrid solve: reference solve: %s\n", err.message);
-            exit_code = BG_EXIT_FAILED;
-            goto out;
-        }
-        ref = reference.q;
+    const double *ref = NULL;
+    if (scene->reference_kind == BG_REFERENCE_NEWTON && scene->task == BG_TASK_STATIC &&
+        !o.quiet)
+        fprintf(stderr, "computing the reference solution (Newton to its round-off floor)\n");
+    if (bgb_run_reference(scene, NULL, &reference, &ref, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid solve: reference solve: %s\n", err.message);
+        exit_code = BG_EXIT_FAILED;
+        goto out;
     }
 
     int all_converged = 1;
     for (int i = 0; i < o.method_count; i++) {
-        bg_status st;
         const int max_iterations = o.max_iterations > 0
                                        ? o.max_iterations
                                        : bg_scene_max_iterations(scene, o.methods[i]);
-        if (dynamic || scene->task == BG_TASK_MORPH) {
-            st = bgb_run_series(scene, o.methods[i], tolerance, max_iterations, out_dir,
-                                "frames/", on_progress, &pr, backend, &runs[i], &err);
-        } else {
-            const bg_solve_options_t so = {.method = o.methods[i],
-                                           .tolerance = tolerance,
-                                           .max_iterations = max_iterations,
-                                           .reference = ref,
-                                           .progress = on_progress,
-                                           .progress_ctx = &pr,
-                                           .keep_orientation =
-                                               scene->task == BG_TASK_PARAMETERIZE,
-                                           .backend = backend};
-            st = scene->task == BG_TASK_SURFACE_EDIT
-                     ? bg_surface_arap_solve(scene, &so, &runs[i], &err)
-                     : bg_static_solve(scene, &so, &runs[i], &err);
-            if (st == BG_OK && scene->task == BG_TASK_PARAMETERIZE)
-                st = bgb_run_write_parameterization(scene, &runs[i], out_dir, &err);
-        }
+        const bgb_run_options_t ro = {.method = o.methods[i],
+                                      .tolerance = tolerance,
+                                      .max_iterations = max_iterations,
+                                      .frames_prefix = "frames/",
+                                      .progress = on_progress,
+                                      .progress_ctx = &pr,
+                                      .backend = backend};
+        const bg_status st = bgb_run_method(scene, &ro, ref, out_dir, &runs[i], &err);
         if (st != BG_OK) {
             if (pr.tty && !o.quiet)
                 fputc('\n', stderr);

@@ -1,5 +1,6 @@
 #include "bg_scene.h"
 
+#include "bg_file.h"
 #include "bg_initial.h"
 #include "bg_json.h"
 #include "bg_param.h"
@@ -179,24 +180,6 @@ static char *directory_of(const char *path)
     return dir;
 }
 
-static int file_exists(const char *path)
-{
-    struct stat st;
-    return stat(path, &st) == 0 && !S_ISDIR(st.st_mode);
-}
-
-/* "dir/name" in a new string (dir without its trailing slashes). */
-static char *join_folder(const char *dir, size_t dir_length, const char *name)
-{
-    while (dir_length > 1 && dir[dir_length - 1] == '/')
-        dir_length--;
-    size_t n = dir_length + 1 + strlen(name) + 1;
-    char *out = malloc(n);
-    if (out)
-        snprintf(out, n, "%.*s/%s", (int)dir_length, dir, name);
-    return out;
-}
-
 /*
  * A path inside the scene: absolute as given, else relative to the scene's
  * directory. A relative file that is not there is looked up by its file
@@ -220,44 +203,21 @@ static bg_status resolve_path(parser_t *p, const char *field, const char *relati
                         "path inside the job's folder",
                         relative);
     }
-    const char *base = relative[0] == '/' ? "" : p->dir;
-    size_t n = strlen(base) + strlen(relative) + 1;
-    char *beside = malloc(n);
-    if (!beside)
-        return fail(p, BG_ERR_NOMEM, field, "out of memory");
-    snprintf(beside, n, "%s%s", base, relative);
-    if (relative[0] == '/' || file_exists(beside)) {
-        *out = beside;
-        return BG_OK;
-    }
-    const int why = errno ? errno : ENOENT;
-    const char *slash = strrchr(relative, '/');
-    const char *name = slash ? slash + 1 : relative;
+    char *tried = NULL;
+    const char *why = "";
     const char *folders = p->search_path ? p->search_path : "";
-    for (const char *f = folders; *f;) {
-        size_t length = strcspn(f, ":");
-        if (length > 0 && name[0]) {
-            char *candidate = join_folder(f, length, name);
-            if (!candidate) {
-                free(beside);
-                return fail(p, BG_ERR_NOMEM, field, "out of memory");
-            }
-            if (file_exists(candidate)) {
-                free(beside);
-                *out = candidate;
-                return BG_OK;
-            }
-            free(candidate);
-        }
-        f += length;
-        if (*f == ':')
-            f++;
+    const bg_status st = bg_file_lookup(p->dir, relative, folders, BG_FILE_TRUST_ABSOLUTE, out,
+                                        &tried, &why);
+    if (st == BG_ERR_NOMEM)
+        return fail(p, BG_ERR_NOMEM, field, "out of memory");
+    if (st != BG_OK) {
+        const char *slash = strrchr(relative, '/');
+        fail(p, BG_ERR_NOT_FOUND, field,
+             "%s not found: no file %s (%s), and no %s in the mesh search path (%s)", relative,
+             tried ? tried : relative, why, slash ? slash + 1 : relative,
+             folders[0] ? folders : "empty");
     }
-    bg_status st = fail(p, BG_ERR_NOT_FOUND, field,
-                        "%s not found: no file %s (%s), and no %s in the mesh search path (%s)",
-                        relative, beside, strerror(why), name,
-                        folders[0] ? folders : "empty");
-    free(beside);
+    free(tried);
     return st;
 }
 

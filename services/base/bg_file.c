@@ -120,3 +120,74 @@ out:
     fclose(f);
     return st;
 }
+
+/* Why a path is not a hit, beside errno values. */
+#define LOOKUP_DIRECTORY (-1)
+#define LOOKUP_NOT_REGULAR (-2)
+
+/* Whether path counts as found: a regular file, or anything but a
+ * directory; if not, *why is an errno or one of the LOOKUP_ codes. */
+static int lookup_hit(const char *path, unsigned flags, int *why)
+{
+    struct stat sb;
+    if (stat(path, &sb) != 0) {
+        *why = errno;
+        return 0;
+    }
+    *why = S_ISDIR(sb.st_mode)                                 ? LOOKUP_DIRECTORY
+           : (flags & BG_FILE_REGULAR) && !S_ISREG(sb.st_mode) ? LOOKUP_NOT_REGULAR
+                                                               : 0;
+    return *why == 0;
+}
+
+bg_status bg_file_lookup(const char *dir, const char *name, const char *search_path,
+                         unsigned flags, char **found, char **tried, const char **why)
+{
+    *found = NULL;
+    *tried = NULL;
+    *why = "";
+    const int absolute = name[0] == '/';
+    const char *base = absolute ? "" : dir;
+    const size_t n = strlen(base) + strlen(name) + 1;
+    char *beside = malloc(n);
+    if (!beside)
+        return BG_ERR_NOMEM;
+    snprintf(beside, n, "%s%s", base, name);
+    int why_beside = 0;
+    if ((absolute && (flags & BG_FILE_TRUST_ABSOLUTE)) || lookup_hit(beside, flags, &why_beside)) {
+        *found = beside;
+        return BG_OK;
+    }
+    const char *slash = strrchr(name, '/');
+    const char *last = slash ? slash + 1 : name;
+    for (const char *f = search_path ? search_path : ""; *f && !absolute && last[0];) {
+        size_t length = strcspn(f, ":");
+        const char *folder = f;
+        f += length;
+        if (*f == ':')
+            f++;
+        while (length > 1 && folder[length - 1] == '/')
+            length--;
+        if (length == 0)
+            continue;
+        const size_t m = length + 1 + strlen(last) + 1;
+        char *candidate = malloc(m);
+        if (!candidate) {
+            free(beside);
+            return BG_ERR_NOMEM;
+        }
+        snprintf(candidate, m, "%.*s/%s", (int)length, folder, last);
+        int ignored = 0;
+        if (lookup_hit(candidate, flags, &ignored)) {
+            free(beside);
+            *found = candidate;
+            return BG_OK;
+        }
+        free(candidate);
+    }
+    *tried = beside;
+    *why = why_beside == LOOKUP_DIRECTORY     ? "a directory"
+           : why_beside == LOOKUP_NOT_REGULAR ? "not a regular file"
+                                              : strerror(why_beside ? why_beside : ENOENT);
+    return BG_ERR_NOT_FOUND;
+}

@@ -1,7 +1,8 @@
 /*
- * bg_file — the file helpers every library needs: mkdir -p, and a whole
- * file read into memory under a cap (so a huge or endless file such as
- * /dev/zero is refused, never allocated).
+ * bg_file — the file helpers every library needs: mkdir -p, a whole file
+ * read into memory under a cap (so a huge or endless file such as
+ * /dev/zero is refused, never allocated), and the lookup of a file a
+ * scene names.
  */
 #ifndef BG_FILE_H
 #define BG_FILE_H
@@ -24,5 +25,26 @@ int bg_file_make_directories(const char *path);
  */
 bg_status bg_file_read_all(const char *path, size_t max_bytes, char **text, size_t *length,
                            bg_error_t *err);
+
+/* bg_file_lookup flags. */
+#define BG_FILE_REGULAR 1u        /* found = a regular file (else anything but a directory) */
+#define BG_FILE_TRUST_ABSOLUTE 2u /* an absolute name is found as given, unchecked */
+
+/*
+ * Where a file a scene names is, the rule `solve` and `submit` share: an
+ * absolute name as given; a relative one beside the scene (dir + name; dir
+ * is "" or ends with '/'), else by its last component in each folder of
+ * the ':'-separated search_path (NULL: none), in order. The scene parser
+ * trusts an absolute name and accepts any non-directory (a FIFO or device
+ * fails later in the reader, with its own message); the client uploads
+ * only what it can read whole, so it asks for a regular file. Found: BG_OK
+ * and *found (caller frees). Not found: BG_ERR_NOT_FOUND, *found NULL,
+ * *tried = the path beside the scene (caller frees) and *why = what was
+ * wrong with it ("No such file or directory", "a directory", "not a
+ * regular file"; valid until the next strerror), for the caller's message
+ * (it names the field). BG_ERR_NOMEM: *found and *tried NULL.
+ */
+bg_status bg_file_lookup(const char *dir, const char *name, const char *search_path,
+                         unsigned flags, char **found, char **tried, const char **why);
 
 #endif

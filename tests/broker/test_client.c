@@ -21,6 +21,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "bg_file.h"
 #include "bgb_base64.h"
 #include "bgb_client.h"
 #include "bgb_rest.h"
@@ -320,6 +321,68 @@ static void test_pack_errors(void **state)
     assert_non_null(strstr(err4.message, "none.json"));
 }
 
+/*
+ * The one lookup `solve` and `submit` share: the scene parser takes any
+ * non-directory (and an absolute path unchecked), the client only a
+ * regular file, since it reads the file whole for the upload; a FIFO or a
+ * directory is "not found" for the client, with the reason.
+ */
+static void test_lookup_kinds(void **state)
+{
+    folder_t *f = *state;
+    char dir[160], path[200], scene[200];
+    snprintf(dir, sizeof dir, "%s/s/", f->dir);
+    write_file(f, "s/m.mesh", "x\n");
+    snprintf(path, sizeof path, "%s/s/pipe", f->dir);
+    assert_int_equal(mkfifo(path, 0600), 0);
+    snprintf(path, sizeof path, "%s/s/sub", f->dir);
+    assert_int_equal(mkdir(path, 0700), 0);
+    char *found = NULL, *tried = NULL;
+    const char *why = NULL;
+
+    assert_int_equal(bg_file_lookup(dir, "pipe", NULL, BG_FILE_TRUST_ABSOLUTE, &found, &tried, &why),
+                     BG_OK);
+    assert_non_null(strstr(found, "/s/pipe"));
+    free(found);
+    assert_int_equal(bg_file_lookup(dir, "pipe", NULL, BG_FILE_REGULAR, &found, &tried, &why),
+                     BG_ERR_NOT_FOUND);
+    assert_null(found);
+    assert_string_equal(why, "not a regular file");
+    free(tried);
+    assert_int_equal(bg_file_lookup(dir, "sub", NULL, 0, &found, &tried, &why), BG_ERR_NOT_FOUND);
+    assert_string_equal(why, "a directory");
+    free(tried);
+    /* An absolute path: trusted by the scene, checked by the client. */
+    assert_int_equal(bg_file_lookup(dir, "/nonexistent/x.mesh", dir, BG_FILE_TRUST_ABSOLUTE,
+                                    &found, &tried, &why),
+                     BG_OK);
+    assert_string_equal(found, "/nonexistent/x.mesh");
+    free(found);
+    assert_int_equal(bg_file_lookup(dir, "/nonexistent/x.mesh", dir, BG_FILE_REGULAR, &found,
+                                    &tried, &why),
+                     BG_ERR_NOT_FOUND);
+    free(tried);
+    /* Not beside the scene: by name in the search path's folders, in order. */
+    char search[400];
+    snprintf(search, sizeof search, "%s/none:%s/s//", f->dir, f->dir);
+    assert_int_equal(bg_file_lookup("elsewhere/", "data/m.mesh", search, BG_FILE_REGULAR, &found,
+                                    &tried, &why),
+                     BG_OK);
+    snprintf(path, sizeof path, "%s/s/m.mesh", f->dir);
+    assert_string_equal(found, path);
+    free(found);
+
+    write_file(f, "s/fifo.json", "{\"mesh\": \"pipe\"}");
+    snprintf(scene, sizeof scene, "%s/s/fifo.json", f->dir);
+    const bgb_client_submit_t submit = {.scene_path = scene};
+    char *body = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_ERR_NOT_FOUND);
+    assert_null(body);
+    assert_non_null(strstr(err.message, "fifo.json: mesh: pipe not found"));
+    assert_non_null(strstr(err.message, "(not a regular file)"));
+}
+
 /* A result file name that could leave --out is refused before any request. */
 static void test_download_names(void **state)
 {
@@ -501,6 +564,7 @@ int main(void)
         cmocka_unit_test(test_sse_stop),
         cmocka_unit_test_setup_teardown(test_pack_files, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_pack_errors, setup_folder, teardown_folder),
+        cmocka_unit_test_setup_teardown(test_lookup_kinds, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_download_names, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_caps_and_statuses, setup_server, teardown_server),
         cmocka_unit_test_setup_teardown(test_events_stream, setup_server, teardown_server),

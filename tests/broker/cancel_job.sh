@@ -1,0 +1,88 @@
+#!/bin/sh
+# cancel_job.sh BIOTGRID AGENT_SCRIPTS WORKDIR GRID_CONFIG LONG_SCENE SHORT_SCENE
+# Cancel interrupts a running solve: on a local grid (`grid up`, ephemeral
+# loopback ports) LONG_SCENE runs with 100,000 steps (hours of work); once
+# it runs and has reported progress, holding agents' slots, POST
+# /v1/jobs/{id}/cancel answers with the job cancelled, the solve stops
+# (the job's "stopped" event) and every agent's slots are free again in
+# /v1/agents within 20 s; the job has no result and no "solved" event, and
+# its progress no longer moves. SHORT_SCENE then succeeds on the same
+# agents. `grid down` leaves no process.
+set -u
+bin=$1 scripts=$2 work=$3 config=$4 long=$5 short=$6
+here=$(cd "$(dirname "$0")" && pwd)
+. "$here/broker_lib.sh"
+rm -rf "$work"
+mkdir -p "$work"
+state="$work/grid"
+fail=0
+now() { date +%s.%N; }
+cleanup() { "$bin" grid down --state "$state" >/dev/null 2>&1; }
+trap 'cleanup; exit 1' INT TERM
+"$bin" grid up "$config" --state "$state" --broker-port 0 \
+  --broker-endpoint 'tcp://127.0.0.1:*' >"$work/up.txt" 2>&1
+check $? "grid up"
+url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
+[ -n "$url" ]; check $? "the state file records the broker ($url)"
+nagents=$(jq '.agents | length' "$config")
+# Market agents alive, and those with every slot free.
+live() { curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive)] | length'; }
+idle() {
+  curl -sf "$url/v1/agents" |
+    jq '[.agents[] | select(.source == "market" and .alive and .free_slots == .slots)] | length'
+}
+i=0
+while [ $i -lt 200 ] && [ "$(live)" -lt "$nagents" ]; do sleep 0.1; i=$((i + 1)); done
+[ "$(live)" -eq "$nagents" ]; check $? "all $nagents agents registered on the market"
+
+jq -n --slurpfile s "$long" '{scene: ($s[0] | .task.steps = 100000), mechanism: "central", budget: 100}' \
+  >"$work/long.json"
+id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/long.json" \
+  "$url/v1/jobs" | jq -r .id)
+[ -n "$id" ]; check $? "the long job is accepted ($id)"
+i=0 st=none
+while [ $i -lt 1200 ]; do
+  st=$(curl -sf "$url/v1/jobs/$id" | jq -r 'if .state == "running" and .progress != null
+                                             then "progressing" else .state end')
+  case $st in progressing|succeeded|failed|cancelled) break ;; esac
+  sleep 0.1
+  i=$((i + 1))
+done
+[ "$st" = progressing ]; check $? "the long job runs and reports progress (got $st)"
+busy=$((nagents - $(idle)))
+[ "$busy" -ge 2 ]; check $? "it holds slots on $busy agents"
+
+t0=$(now)
+code=$(curl -s -o "$work/cancel.json" -w '%{http_code}' -X POST "$url/v1/jobs/$id/cancel")
+case $code in 200|202) r=0 ;; *) r=1 ;; esac
+check $r "POST /v1/jobs/{id}/cancel answers $code"
+jq -e '.state == "cancelled"' "$work/cancel.json" >/dev/null; check $? "the answer shows the job cancelled"
+i=0
+while [ $i -lt 200 ]; do
+  [ "$(idle)" -eq "$nagents" ] && break
+  sleep 0.1
+  i=$((i + 1))
+done
+freed=$(awk -v a="$t0" -v b="$(now)" 'BEGIN { printf "%.2f", b - a }')
+[ "$(idle)" -eq "$nagents" ]; check $? "every agent's slots are free again ${freed} s after the cancel"
+curl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events.txt"
+grep -q '^event: stopped' "$work/events.txt"; check $? "the job's events record that its solve stopped"
+! grep -q '^event: solved' "$work/events.txt"; check $? "and no solved event"
+p1=$(curl -sf "$url/v1/jobs/$id" | jq -c '[.state, .progress.iteration]')
+sleep 1
+p2=$(curl -sf "$url/v1/jobs/$id" | jq -c '[.state, .progress.iteration]')
+[ "$p1" = "$p2" ] && echo "$p1" | grep -q '^\["cancelled",'
+check $? "the job stays cancelled and its progress no longer moves ($p1, then $p2)"
+code=$(curl -s -o /dev/null -w '%{http_code}' "$url/v1/jobs/$id/result/report.json")
+[ "$code" != 200 ]; check $? "the cancelled job has no report.json (HTTP $code)"
+
+jq -n --slurpfile s "$short" '{scene: $s[0], mechanism: "posted", budget: 100}' >"$work/short.json"
+id2=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/short.json" \
+  "$url/v1/jobs" | jq -r .id)
+st=$(wait_job "$url" "$id2" 300)
+[ "$st" = succeeded ]; check $? "a job after the cancel runs on the same agents (got $st)"
+
+"$bin" grid down --state "$state" >"$work/down.txt" 2>&1
+check $? "grid down"
+sh "$scripts/no_agents_left.sh" "$state"; check $? "no process of the grid is left"
+exit $fail
