@@ -510,7 +510,11 @@ static int agent_lines(const bgb_broker_config_t *c, const int *role, const bga_
                                                                 : "several services";
         if (role[i] == -1)
             continue;
-        const bga_agent_usage_t u = bga_backend_usage(backend, role[i] == -2 ? nrotfit : role[i]);
+        bga_agent_usage_t u;
+        if (role[i] == -3)
+            (void)bga_backend_integ_usage(backend, &u);
+        else
+            u = bga_backend_usage(backend, role[i] == -2 ? nrotfit : role[i]);
         r->service = u.service;
         r->calls = u.traffic.requests;
         r->contacted = r->calls > 0;
@@ -1015,6 +1019,15 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
                                      alloc->bought ? alloc->bought->job : 0};
     if ((st = bga_backend_new(&bc, &remote, err)) != BG_OK)
         goto out;
+    /* The time loop's state goes to the job's integration-step agent (role
+     * -3); a static job never opens it, so never contacts that agent. */
+    for (int i = 0; i < c->agent_count; i++)
+        if (role[i] == -1 && (c->agents[i].services & BGA_SERVICE_INTEG)) {
+            if ((st = bga_backend_set_integ(remote, c->agents[i].endpoint, err)) != BG_OK)
+                goto out;
+            role[i] = -3;
+            break;
+        }
     /* The reference and the run both stop between service calls once the
      * job is cancelled; the reference is computed in process, as `solve`
      * does. */
@@ -1152,11 +1165,10 @@ static void *coordinator(void *arg)
         int n = 0;
         for (int i = 0; i < req->nawards; i++) {
             const bgb_award_t *a = &req->awards[i];
-            if (a->good == BGB_GOOD_INTEG)
-                continue; /* bought for the plan; the backend drives rotation-fit and solve */
             bought[n].endpoint = req->awards[i].endpoint;
-            bought[n++].services = a->good == BGB_GOOD_ROTFIT ? BGA_SERVICE_ROTFIT
-                                                              : BGA_SERVICE_SOLVE;
+            bought[n++].services = a->good == BGB_GOOD_ROTFIT  ? BGA_SERVICE_ROTFIT
+                                   : a->good == BGB_GOOD_SOLVE ? BGA_SERVICE_SOLVE
+                                                               : BGA_SERVICE_INTEG;
         }
         alloc = (job_alloc_t){bought, n, req};
         char json[256];

@@ -26,10 +26,10 @@ url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
 [ -n "$url" ]; check $? "the state file records the broker ($url)"
 nagents=$(jq '.agents | length' "$config")
 # Market agents alive, and those with every slot free.
-live() { curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive)] | length'; }
+live() { curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0)] | length'; }
 idle() {
   curl -sf "$url/v1/agents" |
-    jq '[.agents[] | select(.source == "market" and .alive and .free_slots == .slots)] | length'
+    jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0 and .free_slots == .slots)] | length'
 }
 i=0
 while [ $i -lt 200 ] && [ "$(live)" -lt "$nagents" ]; do sleep 0.1; i=$((i + 1)); done

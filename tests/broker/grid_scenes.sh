@@ -115,7 +115,7 @@ url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
 nagents=$(jq '.agents | length' "$config")
 i=0 live=0
 while [ $i -lt 200 ]; do
-  live=$(curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive)] | length')
+  live=$(curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0)] | length')
   [ "${live:-0}" -ge "$nagents" ] && break
   sleep 0.1
   i=$((i + 1))
@@ -123,7 +123,7 @@ done
 [ "${live:-0}" -eq "$nagents" ]; check $? "all $nagents agents registered on the market (got $live)"
 # Free sparse-solve slots on the market (each job buys one).
 free_solve() {
-  curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive and
+  curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0 and
     (.services | index("sparse-solve")))] | map(.free_slots) | add // 0'
 }
 slots=$(free_solve)
