@@ -88,21 +88,25 @@ static void session_destroy(void *ctx, void *opaque)
 {
     bga_backend_t *b = ctx;
     session *s = opaque;
+    /* Releases are sent unless a call failed in transport (BG_ERR_IO: an
+     * agent that does not answer, whose lease frees its jobs): after an
+     * answered refusal (no free slot, a bad value) every agent still
+     * answers, and its other jobs' state must not wait for the lease. */
+    const int release = s->failed != BG_ERR_IO;
     for (int f = 0; f < BG_BACKEND_MAX_FITS; f++) {
         if (s->pool[f])
             for (int i = 0; i < b->nrotfit; i++) {
                 add_traffic(&b->usage[i].traffic, bga_rotfit_pool_traffic(s->pool[f], i));
                 b->usage[i].elements += bga_rotfit_pool_elements(s->pool[f], i);
             }
-        /* A failed session does not wait for releases: the leases free the jobs. */
-        if (s->failed == BG_OK)
+        if (release)
             bga_rotfit_pool_destroy(&s->pool[f]);
         else
             bga_rotfit_pool_abandon(&s->pool[f]);
         free(s->scratch[f]);
     }
     if (s->solver) {
-        for (int i = 0; i < BG_BACKEND_MAX_SYSTEMS && s->failed == BG_OK; i++)
+        for (int i = 0; i < BG_BACKEND_MAX_SYSTEMS && release; i++)
             if (s->set_up[i]) {
                 bg_error_t ignored = BG_ERROR_INIT; /* best effort: the lease frees it otherwise */
                 bga_client_release(s->solver, s->job + BACKEND_SYSTEM_JOB + (uint64_t)i,
@@ -116,13 +120,13 @@ static void session_destroy(void *ctx, void *opaque)
             add_traffic(&b->usage[i].traffic, bga_rotfit_pool_traffic(s->surface, i));
             b->usage[i].elements += bga_rotfit_pool_elements(s->surface, i);
         }
-        if (s->failed == BG_OK)
+        if (release)
             bga_rotfit_pool_destroy(&s->surface);
         else
             bga_rotfit_pool_abandon(&s->surface);
     }
     if (s->integ) {
-        if (s->failed == BG_OK) {
+        if (release) {
             bg_error_t ignored = BG_ERROR_INIT; /* best effort: the lease frees it otherwise */
             bga_client_release(s->integ, s->job + BACKEND_STEP_JOB, &ignored);
         }

@@ -43,6 +43,8 @@
 /* Service-time records of a job's money curve (one per progress call). */
 #define BROKER_MAX_USAGE_POINTS (1 << 20)
 #define BROKER_AGENT_LEASE_MS 600000
+/* Seconds a job keeps asking the market again while it answers "no seller". */
+#define BROKER_BUY_PATIENCE 120.0
 #define BROKER_MAX_RESULT_FILE ((size_t)1 << 30)
 /* The loop thread looks at the buy queue at least this often. */
 #define BROKER_LOOP_MS 10
@@ -1131,26 +1133,50 @@ static void *coordinator(void *arg)
         bg_plan_t plan;
         const bg_method method = scene->method;
         bg_plan_for_scene(scene, &method, 1, &plan);
-        if (!(req = calloc(1, sizeof *req))) {
-            (void)bgb_store_transition(b->store, jr->id, live_or_fail, BGB_JOB_FAILED,
-                                       "out of memory", &terr);
-            goto out;
+        /* "no seller" means every seller able to serve is busy now (slots or
+         * cores held by other jobs): the job waits and asks again, as a
+         * buyer in a market would, for up to BROKER_BUY_PATIENCE seconds.
+         * Any other failure (the budget) is final. */
+        const double give_up = bg_clock_now() + BROKER_BUY_PATIENCE;
+        double backoff = 0.1;
+        for (;;) {
+            if (!(req = calloc(1, sizeof *req))) {
+                (void)bgb_store_transition(b->store, jr->id, live_or_fail, BGB_JOB_FAILED,
+                                           "out of memory", &terr);
+                goto out;
+            }
+            memcpy(req->id, jr->id, sizeof req->id);
+            req->mechanism = mech < 0 ? BGB_MECH_CENTRAL : (bgb_mechanism)mech;
+            req->budget = job.budget;
+            for (int i = 0; i < plan.service_count; i++)
+                req->integ |= strcmp(plan.services[i].service, "integration-step") == 0;
+            pthread_mutex_lock(&b->lock);
+            req->job = ++b->next_job * BGA_MARKET_JOB_SPAN;
+            req->next = b->reqs;
+            b->reqs = req;
+            while (!req->done && !b->loop_gone && !b->stopping)
+                pthread_cond_wait(&b->changed, &b->lock);
+            const int done = req->done;
+            pthread_mutex_unlock(&b->lock);
+            if (!done)
+                goto out; /* stopping: left in allocating, queued again at restart */
+            if (!strstr(req->reason, "no seller") || bg_clock_now() + backoff > give_up)
+                break;
+            bgb_job_t now_job = BGB_JOB_INIT;
+            bg_error_t gerr = BG_ERROR_INIT;
+            const int cancelled = bgb_store_get(b->store, jr->id, &now_job, &gerr) == BG_OK &&
+                                  now_job.state != BGB_JOB_ALLOCATING;
+            bgb_job_release(&now_job);
+            if (cancelled)
+                break;
+            pthread_mutex_lock(&b->lock);
+            req->release = 1; /* the loop frees it (it holds no contract) */
+            pthread_mutex_unlock(&b->lock);
+            req = NULL;
+            const struct timespec pause = {0, (long)(backoff * 1e9)};
+            nanosleep(&pause, NULL);
+            backoff = backoff * 2.0 > 2.0 ? 2.0 : backoff * 2.0;
         }
-        memcpy(req->id, jr->id, sizeof req->id);
-        req->mechanism = mech < 0 ? BGB_MECH_CENTRAL : (bgb_mechanism)mech;
-        req->budget = job.budget;
-        for (int i = 0; i < plan.service_count; i++)
-            req->integ |= strcmp(plan.services[i].service, "integration-step") == 0;
-        pthread_mutex_lock(&b->lock);
-        req->job = ++b->next_job * BGA_MARKET_JOB_SPAN;
-        req->next = b->reqs;
-        b->reqs = req;
-        while (!req->done && !b->loop_gone && !b->stopping)
-            pthread_cond_wait(&b->changed, &b->lock);
-        const int done = req->done;
-        pthread_mutex_unlock(&b->lock);
-        if (!done)
-            goto out; /* stopping: left in allocating, queued again at restart */
         if (req->reason[0]) {
             char reason[160];
             snprintf(reason, sizeof reason, "the market could not buy the job's services: %s",

@@ -223,6 +223,7 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
     const bg_backend_ops_t *ops = be->ops;
     void *session = NULL;
     bg_sparse_t *sys[3] = {NULL, NULL, NULL};
+    int system_of[3] = {0, 1, 2}; /* coordinate -> the system it solves with */
     int32_t *index[3] = {NULL, NULL, NULL};
     double *q = malloc(ndof * sizeof *q + 1), *grad = malloc(ndof * sizeof *grad + 1);
     double *rhs = malloc(((size_t)nv + 1) * sizeof *rhs), *x = malloc(((size_t)nv + 1) * sizeof *x);
@@ -248,7 +249,18 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
         int32_t count = 0;
         for (int32_t v = 0; v < nv; v++)
             index[c][v] = scene->constrained[3 * (size_t)v + c] ? -1 : count++;
+        system_of[c] = c;
         if (count == 0)
+            continue;
+        /* The matrix depends only on which vertices are free: coordinates
+         * with the same free set share one system (one factor, one slot on
+         * a sparse-solve agent). */
+        for (int prev = 0; prev < c; prev++)
+            if (sys[prev] && memcmp(index[prev], index[c], (size_t)nv * sizeof(int32_t)) == 0) {
+                system_of[c] = prev;
+                break;
+            }
+        if (system_of[c] != c)
             continue;
         st = bg_sparse_new(mesh, 1, index[c], count, &sys[c], err);
         if (st != BG_OK)
@@ -329,14 +341,14 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
         /* Global step: q_free ← q_free − K⁻¹ ∇E (the exact minimiser of E
          * for the fitted rotations). */
         for (int c = 0; c < 3; c++) {
-            if (!sys[c])
+            if (!sys[system_of[c]])
                 continue;
             double tv = bg_clock_now();
             for (int32_t v = 0; v < nv; v++)
                 if (index[c][v] >= 0)
                     rhs[index[c][v]] = grad[3 * (size_t)v + c];
             res->vector_seconds += bg_clock_now() - tv;
-            st = ops->solve(session, c, rhs, x, err);
+            st = ops->solve(session, system_of[c], rhs, x, err);
             if (st != BG_OK)
                 goto out;
             tv = bg_clock_now();

@@ -4,6 +4,11 @@
 #   stop_broker DIR NAME               SIGTERM, SIGKILL after 10 s (and fail)
 #   wait_job URL ID SECONDS            prints the final state (or "timeout")
 #   check STATUS MESSAGE               "ok: MESSAGE", or "FAIL: MESSAGE" and fail=1
+#   grid_up_market BIN CONFIG STATE    `grid up` on ephemeral loopback ports; sets url and
+#                                      nagents; waits until every agent's service seller and
+#                                      resource seller are alive on the market (checks each step)
+#   market_sellers URL KIND            alive market sellers: KIND service, resource or idle
+#                                      (service sellers with every slot free)
 check() {
   if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
 }
@@ -57,4 +62,34 @@ wait_job() {
     _i=$((_i + 1))
   done
   echo timeout
+}
+
+market_sellers() {
+  case $2 in
+  service) _sel='(.services | length) > 0' ;;
+  resource) _sel='(.services | length) == 0 and .slots == 0' ;;
+  idle) _sel='(.services | length) > 0 and .free_slots == .slots' ;;
+  esac
+  curl -sf "$1/v1/agents" | jq "[.agents[] | select(.source == \"market\" and .alive and $_sel)] | length"
+}
+
+grid_up_market() {
+  _bin=$1 _config=$2 _state=$3
+  "$_bin" grid up "$_config" --state "$_state" --broker-port 0 \
+    --broker-endpoint 'tcp://127.0.0.1:*' >"$_state.up.txt" 2>&1
+  check $? "grid up"
+  url=$(jq -r '.broker.url // empty' "$_state/grid.json" 2>/dev/null)
+  [ -n "$url" ]; check $? "the state file records the broker ($url)"
+  nagents=$(jq '.agents | length' "$_config")
+  # Each agent daemon is two directory entries: its service seller and its
+  # resource seller (no services, no slots).
+  _i=0 _live=0 _res=0
+  while [ $_i -lt 200 ]; do
+    _live=$(market_sellers "$url" service) _res=$(market_sellers "$url" resource)
+    [ "${_live:-0}" -ge "$nagents" ] && [ "${_res:-0}" -ge "$nagents" ] && break
+    sleep 0.1
+    _i=$((_i + 1))
+  done
+  [ "${_live:-0}" -eq "$nagents" ] && [ "${_res:-0}" -eq "$nagents" ]
+  check $? "all $nagents agents registered on the market, each with its resource seller (got $_live, $_res)"
 }

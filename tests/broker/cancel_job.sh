@@ -19,21 +19,8 @@ fail=0
 now() { date +%s.%N; }
 cleanup() { "$bin" grid down --state "$state" >/dev/null 2>&1; }
 trap 'cleanup; exit 1' INT TERM
-"$bin" grid up "$config" --state "$state" --broker-port 0 \
-  --broker-endpoint 'tcp://127.0.0.1:*' >"$work/up.txt" 2>&1
-check $? "grid up"
-url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
-[ -n "$url" ]; check $? "the state file records the broker ($url)"
-nagents=$(jq '.agents | length' "$config")
-# Market agents alive, and those with every slot free.
-live() { curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0)] | length'; }
-idle() {
-  curl -sf "$url/v1/agents" |
-    jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0 and .free_slots == .slots)] | length'
-}
-i=0
-while [ $i -lt 200 ] && [ "$(live)" -lt "$nagents" ]; do sleep 0.1; i=$((i + 1)); done
-[ "$(live)" -eq "$nagents" ]; check $? "all $nagents agents registered on the market"
+grid_up_market "$bin" "$config" "$state"
+idle() { market_sellers "$url" idle; }
 
 jq -n --slurpfile s "$long" '{scene: ($s[0] | .task.steps = 100000), mechanism: "central", budget: 100}' \
   >"$work/long.json"

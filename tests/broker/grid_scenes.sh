@@ -107,20 +107,7 @@ done
 solve_seconds=$(since "$t0")
 
 t0=$(now)
-"$bin" grid up "$config" --state "$state" --broker-port 0 \
-  --broker-endpoint 'tcp://127.0.0.1:*' >"$work/up.txt" 2>&1
-check $? "grid up"
-url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
-[ -n "$url" ]; check $? "the state file records the broker ($url)"
-nagents=$(jq '.agents | length' "$config")
-i=0 live=0
-while [ $i -lt 200 ]; do
-  live=$(curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0)] | length')
-  [ "${live:-0}" -ge "$nagents" ] && break
-  sleep 0.1
-  i=$((i + 1))
-done
-[ "${live:-0}" -eq "$nagents" ]; check $? "all $nagents agents registered on the market (got $live)"
+grid_up_market "$bin" "$config" "$state"
 # Free sparse-solve slots on the market (each job buys one).
 free_solve() {
   curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0 and

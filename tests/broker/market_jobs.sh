@@ -26,27 +26,7 @@ fail=0
 contracts() { awk '/^event: / { e = $2 } /^data: / && e == "contract" { print }' "$1"; }
 cleanup() { "$bin" grid down --state "$state" >/dev/null 2>&1; }
 trap 'cleanup; exit 1' INT TERM
-"$bin" grid up "$config" --state "$state" --broker-port 0 \
-  --broker-endpoint 'tcp://127.0.0.1:*' >"$work/up.txt" 2>&1
-check $? "grid up"
-url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
-[ -n "$url" ]; check $? "the state file records the broker ($url)"
-nagents=$(jq '.agents | length' "$config")
-i=0 live=0
-while [ $i -lt 100 ]; do
-  # Each agent daemon is two directory entries: its service seller and
-  # its resource seller (no services, no slots).
-  curl -sf "$url/v1/agents" >"$work/agents.json"
-  live=$(jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0)] |
-             length' "$work/agents.json")
-  res=$(jq '[.agents[] | select(.source == "market" and .alive and (.services | length) == 0 and
-             .slots == 0)] | length' "$work/agents.json")
-  [ "${live:-0}" -ge "$nagents" ] && [ "${res:-0}" -ge "$nagents" ] && break
-  sleep 0.1
-  i=$((i + 1))
-done
-[ "${live:-0}" -eq "$nagents" ] && [ "${res:-0}" -eq "$nagents" ]
-check $? "all $nagents agents registered on the market, each with its resource seller (got $live, $res)"
+grid_up_market "$bin" "$config" "$state"
 
 "$bin" solve "$scene" --quiet --out "$work/local" >/dev/null 2>&1
 check $? "biotgrid solve (the reference)"
