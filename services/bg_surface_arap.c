@@ -216,8 +216,8 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
     const int32_t nv = mesh->nv;
     const size_t ndof = (size_t)nv * 3;
     model_t m;
-    /* The basic services: the cells' rotation fit and the three
-     * coordinate systems' factor and solves (in process or on agents). */
+    /* The basic services: the cells' rotation fit and the coordinate
+     * systems' factor and solves (in process or on agents). */
     const bg_backend_t *be =
         opt->backend && opt->backend->ops->surface_open ? opt->backend : bg_backend_local();
     const bg_backend_ops_t *ops = be->ops;
@@ -293,7 +293,7 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
     for (int c = 0; c < 3; c++)
         factored += sys[c] ? bg_sparse_timing(sys[c]).factorizations : 0;
     bg_setup_add(&res->setup,
-                 "spokes-and-rims model, cotangent weights, per-coordinate matrices factored", 1,
+                 "spokes-and-rims model, cotangent weights, one matrix per set of free vertices factored", 1,
                  factored, bg_clock_now() - t_start);
     const double *start = opt->start ? opt->start : scene->initial;
     const double *targets = opt->targets ? opt->targets : scene->target;
