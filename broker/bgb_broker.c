@@ -43,7 +43,8 @@
 /* Service-time records of a job's money curve (one per progress call). */
 #define BROKER_MAX_USAGE_POINTS (1 << 20)
 #define BROKER_AGENT_LEASE_MS 600000
-/* Seconds a job keeps asking the market again while it answers "no seller". */
+/* Seconds a job keeps asking the market again while it answers "no
+ * seller" or "timeout" (buy_failure_transient). */
 #define BROKER_BUY_PATIENCE 120.0
 #define BROKER_MAX_RESULT_FILE ((size_t)1 << 30)
 /* The loop thread looks at the buy queue at least this often. */
@@ -342,7 +343,9 @@ typedef struct usage_point {
     double used[2]; /* USE_ROTFIT, USE_SOLVE */
 } usage_point_t;
 
-enum { USE_ROTFIT, USE_SOLVE };
+/* USE_NONE: a forwarded call whose time is not counted (the integration
+ * step: its money accrues with the run's time, money_curve). */
+enum { USE_ROTFIT, USE_SOLVE, USE_NONE };
 
 typedef struct job_run {
     bgb_broker_t *broker;
@@ -779,6 +782,25 @@ typedef struct watch_session {
     void *inner;
 } watch_session_t;
 
+/* The market's failure reasons that another try may not meet: every able
+ * seller busy, or a buy that ran out of time on a loaded grid. */
+static int buy_failure_transient(const char *reason)
+{
+    return strstr(reason, "no seller") != NULL || strcmp(reason, "timeout") == 0;
+}
+
+/* 1 when the store says job `id` is no longer in `state` (a cancel from a
+ * REST thread lands there); 0 while it is, or when the store cannot be
+ * read (a transient read error must not stop a job). */
+static int job_left_state(bgb_broker_t *b, const char *id, bgb_job_state state)
+{
+    bgb_job_t job = BGB_JOB_INIT;
+    bg_error_t e = BG_ERROR_INIT;
+    const int left = bgb_store_get(b->store, id, &job, &e) == BG_OK && job.state != state;
+    bgb_job_release(&job);
+    return left;
+}
+
 /* BG_OK while the job runs; BG_ERR_CONFLICT once it does not. */
 static bg_status watch_check(job_watch_t *w, bg_error_t *err)
 {
@@ -787,11 +809,7 @@ static bg_status watch_check(job_watch_t *w, bg_error_t *err)
         if (now < w->next_check)
             return BG_OK;
         w->next_check = now + BROKER_CANCEL_POLL_SECONDS;
-        bgb_job_t job = BGB_JOB_INIT;
-        bg_error_t e = BG_ERROR_INIT;
-        if (bgb_store_get(w->broker->store, w->id, &job, &e) == BG_OK)
-            w->stopped = job.state != BGB_JOB_RUNNING;
-        bgb_job_release(&job);
+        w->stopped = job_left_state(w->broker, w->id, BGB_JOB_RUNNING);
         if (!w->stopped)
             return BG_OK;
     }
@@ -801,7 +819,7 @@ static bg_status watch_check(job_watch_t *w, bg_error_t *err)
 /* Adds the seconds since t0 to the service's usage. */
 static bg_status watch_used(job_watch_t *w, int service, double t0, bg_status st)
 {
-    if (w->used)
+    if (w->used && service != USE_NONE)
         w->used[service] += bg_clock_now() - t0;
     return st;
 }
@@ -885,36 +903,27 @@ static void watch_solve_cost(void *session, int id, double *flops, double *nonze
     s->watch->inner->ops->solve_cost(s->inner, id, flops, nonzeros);
 }
 
-/* The integration step is not counted in used: its money accrues with the
- * run's time (money_curve). */
-#define WATCH_FORWARD_UNTIMED(op, ...)                                                         \
-    watch_session_t *s = session;                                                              \
-    const bg_status st = watch_check(s->watch, err);                                           \
-    if (st != BG_OK)                                                                           \
-        return st;                                                                             \
-    return s->watch->inner->ops->op(s->inner, __VA_ARGS__, err)
-
 static bg_status watch_step_open(void *session, const bg_step_setup_t *setup,
                                  bg_step_motion_t *motion, bg_error_t *err)
 {
-    WATCH_FORWARD_UNTIMED(step_open, setup, motion);
+    WATCH_FORWARD(USE_NONE, step_open, setup, motion);
 }
 
 static bg_status watch_step_predict(void *session, const bg_step_request_t *req,
                                     bg_step_prediction_t *out, bg_error_t *err)
 {
-    WATCH_FORWARD_UNTIMED(step_predict, req, out);
+    WATCH_FORWARD(USE_NONE, step_predict, req, out);
 }
 
 static bg_status watch_step_update(void *session, const double *q_star, const double *grad_star,
                                    bg_step_trial_t *out, bg_error_t *err)
 {
-    WATCH_FORWARD_UNTIMED(step_update, q_star, grad_star, out);
+    WATCH_FORWARD(USE_NONE, step_update, q_star, grad_star, out);
 }
 
 static bg_status watch_step_accept(void *session, bg_step_motion_t *motion, bg_error_t *err)
 {
-    WATCH_FORWARD_UNTIMED(step_accept, motion);
+    WATCH_FORWARD(USE_NONE, step_accept, motion);
 }
 
 static bg_status watch_surface_open(void *session, const bg_mesh_t *mesh, bg_error_t *err)
@@ -1134,9 +1143,12 @@ static void *coordinator(void *arg)
         const bg_method method = scene->method;
         bg_plan_for_scene(scene, &method, 1, &plan);
         /* "no seller" means every seller able to serve is busy now (slots or
-         * cores held by other jobs): the job waits and asks again, as a
-         * buyer in a market would, for up to BROKER_BUY_PATIENCE seconds.
-         * Any other failure (the budget) is final. */
+         * cores held by other jobs), and "timeout" that the buy did not
+         * finish within the market's buy timeout (bargains and layer-1
+         * sub-jobs answered late on a loaded host). Both are transient: the
+         * job waits and asks again, as a buyer in a market would, for up to
+         * BROKER_BUY_PATIENCE seconds; a failed buy holds no contract (the
+         * market released what it had). A budget failure is final. */
         const double give_up = bg_clock_now() + BROKER_BUY_PATIENCE;
         double backoff = 0.1;
         for (;;) {
@@ -1160,14 +1172,9 @@ static void *coordinator(void *arg)
             pthread_mutex_unlock(&b->lock);
             if (!done)
                 goto out; /* stopping: left in allocating, queued again at restart */
-            if (!strstr(req->reason, "no seller") || bg_clock_now() + backoff > give_up)
+            if (!buy_failure_transient(req->reason) || bg_clock_now() + backoff > give_up)
                 break;
-            bgb_job_t now_job = BGB_JOB_INIT;
-            bg_error_t gerr = BG_ERROR_INIT;
-            const int cancelled = bgb_store_get(b->store, jr->id, &now_job, &gerr) == BG_OK &&
-                                  now_job.state != BGB_JOB_ALLOCATING;
-            bgb_job_release(&now_job);
-            if (cancelled)
+            if (job_left_state(b, jr->id, BGB_JOB_ALLOCATING)) /* cancelled */
                 break;
             pthread_mutex_lock(&b->lock);
             req->release = 1; /* the loop frees it (it holds no contract) */

@@ -9,6 +9,10 @@
 #                                      resource seller are alive on the market (checks each step)
 #   market_sellers URL KIND            alive market sellers: KIND service, resource or idle
 #                                      (service sellers with every slot free)
+#   grid_test_begin BIN WORK           a grid test's start: WORK emptied, state=WORK/grid,
+#                                      fail=0, INT/TERM stop the grid and exit 1
+#   grid_test_end SCRIPTS              `grid down` (to WORK/down.txt) and no process of the
+#                                      grid left (SCRIPTS/no_agents_left.sh), both checked
 check() {
   if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
 }
@@ -92,4 +96,19 @@ grid_up_market() {
   done
   [ "${_live:-0}" -eq "$nagents" ] && [ "${_res:-0}" -eq "$nagents" ]
   check $? "all $nagents agents registered on the market, each with its resource seller (got $_live, $_res)"
+}
+
+grid_test_begin() {
+  _gt_bin=$1 _gt_work=$2
+  rm -rf "$_gt_work"
+  mkdir -p "$_gt_work"
+  state="$_gt_work/grid"
+  fail=0
+  trap '"$_gt_bin" grid down --state "$state" >/dev/null 2>&1; exit 1' INT TERM
+}
+
+grid_test_end() {
+  "$_gt_bin" grid down --state "$state" >"$_gt_work/down.txt" 2>&1
+  check $? "grid down"
+  sh "$1/no_agents_left.sh" "$state"; check $? "no process of the grid is left"
 }

@@ -12,13 +12,8 @@ set -u
 bin=$1 scripts=$2 work=$3 config=$4 long=$5 short=$6
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
-mkdir -p "$work"
-state="$work/grid"
-fail=0
+grid_test_begin "$bin" "$work"
 now() { date +%s.%N; }
-cleanup() { "$bin" grid down --state "$state" >/dev/null 2>&1; }
-trap 'cleanup; exit 1' INT TERM
 grid_up_market "$bin" "$config" "$state"
 idle() { market_sellers "$url" idle; }
 
@@ -69,7 +64,5 @@ id2=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work
 st=$(wait_job "$url" "$id2" 300)
 [ "$st" = succeeded ]; check $? "a job after the cancel runs on the same agents (got $st)"
 
-"$bin" grid down --state "$state" >"$work/down.txt" 2>&1
-check $? "grid down"
-sh "$scripts/no_agents_left.sh" "$state"; check $? "no process of the grid is left"
+grid_test_end "$scripts"
 exit $fail

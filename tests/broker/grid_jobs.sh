@@ -9,11 +9,7 @@ set -u
 bin=$1 scripts=$2 work=$3 config=$4 scene=$5
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
-mkdir -p "$work"
-state="$work/grid"
-fail=0
-trap '"$bin" grid down --state "$state" >/dev/null 2>&1; exit 1' INT TERM
+grid_test_begin "$bin" "$work"
 "$bin" grid up "$config" --state "$state" --broker-port 0 \
   --broker-endpoint 'tcp://127.0.0.1:*' >"$work/up.txt" 2>&1
 check $? "grid up"
@@ -44,8 +40,6 @@ check $? "its energy equals biotgrid solve's (1e-10 relative)"
 used=$(jq '[.agents[] | select(.calls > 0)] | length' "$work/report.json")
 [ "$used" -ge 2 ]; check $? "the job ran on $used of the grid's agents"
 
-"$bin" grid down --state "$state" >"$work/down.txt" 2>&1
-check $? "grid down"
+grid_test_end "$scripts"
 grep -q "the broker stopped$" "$work/down.txt"; check $? "grid down stopped the broker by SIGTERM"
-sh "$scripts/no_agents_left.sh" "$state"; check $? "no process of the grid is left"
 exit $fail

@@ -21,14 +21,10 @@ set -u
 bin=$1 scripts=$2 work=$3 config=$4 scenes=$5
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
+grid_test_begin "$bin" "$work"
 mkdir -p "$work/scenes" "$work/local" "$work/jobs"
-state="$work/grid"
-fail=0
 now() { date +%s.%N; }
 since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
-cleanup() { "$bin" grid down --state "$state" >/dev/null 2>&1; }
-trap 'cleanup; exit 1' INT TERM
 
 # The scenes on the 34,055-tetrahedron bunny and the 22,704-triangle
 # camel head run alone: an agent answers the market only between service
@@ -223,8 +219,6 @@ done <"$work/jobs/ids.txt"
 [ "$(wc -l <"$work/jobs/ids.txt")" -eq "$(echo $queue | wc -w)" ]
 check $? "every scene was submitted under every mechanism ($(echo $queue | wc -w) jobs)"
 
-"$bin" grid down --state "$state" >"$work/down.txt" 2>&1
-check $? "grid down"
-sh "$scripts/no_agents_left.sh" "$state"; check $? "no process of the grid is left"
+grid_test_end "$scripts"
 echo "timing: solve (all scenes, in process) ${solve_seconds} s; grid up to last job ${grid_seconds} s; total $(since "$t_start") s"
 exit $fail

@@ -18,14 +18,9 @@ set -u
 bin=$1 scripts=$2 work=$3 config=$4 scene=$5 dynamic=$6 audit=$7
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
-mkdir -p "$work"
-state="$work/grid"
-fail=0
+grid_test_begin "$bin" "$work"
 # The data lines of a server-sent event log's "contract" events.
 contracts() { awk '/^event: / { e = $2 } /^data: / && e == "contract" { print }' "$1"; }
-cleanup() { "$bin" grid down --state "$state" >/dev/null 2>&1; }
-trap 'cleanup; exit 1' INT TERM
 grid_up_market "$bin" "$config" "$state"
 
 "$bin" solve "$scene" --quiet --out "$work/local" >/dev/null 2>&1
@@ -126,7 +121,5 @@ check $r "the service rows' buyer is the job's id"
 "$audit" --live "$work" >"$work/audit.txt" 2>&1
 check $? "the simulator's audit passes on the live log ($(cat "$work/audit.txt"))"
 
-"$bin" grid down --state "$state" >"$work/down.txt" 2>&1
-check $? "grid down"
-sh "$scripts/no_agents_left.sh" "$state"; check $? "no process of the grid is left"
+grid_test_end "$scripts"
 exit $fail
