@@ -265,7 +265,7 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
     bg_step_record_t rec;
     record(&s, solver, &motion, 0.0, &rec);
     const double E0 = rec.total_energy;
-    bg_trace_point_t pt = {bg_clock_now() - t_start, 0, E0, 0.0, 0.0, 0.0};
+    bg_trace_point_t pt = {bg_clock_now() - t_start, 0, E0, 0.0, 0.0, 0.0, 0};
     if (push(res, &trace_cap, &step_cap, &pt, &rec) != BG_OK) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the step records");
         goto out;

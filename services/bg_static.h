@@ -43,6 +43,8 @@ typedef struct bg_trace_point {
     double gradient_norm;
     double relative_gradient;
     double error;             /* ‖q − q_ref‖/‖q_ref‖, NAN without a reference */
+    int stage;                /* continuation stage (bg_static_solve; 0: the first or only):
+                                 energies fall within a stage, and rise with λ between */
 } bg_trace_point_t;
 
 typedef void (*bg_progress_fn)(void *ctx, bg_method method, const bg_trace_point_t *point);
@@ -72,6 +74,10 @@ typedef struct bg_solve_options {
                                  chord steps after each full Newton step (0: the default, 8;
                                  negative: none, plain Newton, e.g. to read its quadratic
                                  convergence from the trace) */
+    int continuation;         /* bg_static_solve, newton from the scene's own start
+                                 (start NULL, no inertia, no factor reuse) with λ > 100 μ:
+                                 0 solves in stages of growing λ (bg_static_solve); negative:
+                                 one solve at the scene's λ (plain) */
     int keep_orientation;     /* reject steps that invert an element (from a start
                                  without inverted elements: the result has none) */
     const double *reference;  /* nv*n reference positions for the error column, or NULL */
@@ -168,6 +174,8 @@ typedef struct bg_solve_result {
     int64_t factorizations;   /* numeric factorizations of the iterations (setup's: in setup) */
     int chord_steps;          /* newton: extra steps on an already factored matrix after a full
                                  step (one solve and one evaluation each, no factorization) */
+    int continuation_stages;  /* bg_static_solve: solves at a lower λ before the scene's (0:
+                                 none); iterations, counts and times include theirs */
     bg_setup_t setup;         /* the set-up steps: solver, lumped mass, local/global's
                                  Laplacian, the scene's starting guess */
     bg_direction last_direction;
@@ -195,6 +203,17 @@ typedef struct bg_solve_result {
  * (converged or not: see converged and stop_reason); release it with
  * bg_solve_result_release. Errors are setup failures (out of memory, a
  * scene with nothing free).
+ *
+ * Continuation in λ (options->continuation): a nearly incompressible body
+ * (λ > 100 μ) solved with Newton from the scene's own starting guess is
+ * first solved at λ = 10 μ, then at λ doubled each stage, each stage
+ * warm-started from the last and stopped at relative gradient 10⁻¹ (or
+ * the caller's tolerance if looser), the last at the scene's λ to the
+ * caller's tolerance. The result is the last stage's, with every stage's
+ * iterations, evaluations, factorizations, times and trace points (a
+ * continuous iteration count) added in; the iteration cap bounds the
+ * total. On such a non-convex, locked problem the stages can end in
+ * another local minimum than one solve from the start would.
  */
 bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *options,
                           bg_solve_result_t *result, bg_error_t *err);

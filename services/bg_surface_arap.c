@@ -326,7 +326,7 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
             res->trace = tr;
         }
         bg_trace_point_t *pt = &res->trace[res->trace_count++];
-        *pt = (bg_trace_point_t){bg_clock_now() - t_start, it, E, gnorm, rel, NAN};
+        *pt = (bg_trace_point_t){bg_clock_now() - t_start, it, E, gnorm, rel, NAN, 0};
         if (opt->progress)
             opt->progress(opt->progress_ctx, opt->method, pt);
         res->vector_seconds += bg_clock_now() - t1;
