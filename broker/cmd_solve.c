@@ -705,6 +705,10 @@ int bg_cmd_solve(int argc, char **argv)
                             "%.3e, tolerance %.0e)\n",
                     bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].iterations,
                     max_iterations, runs[i].wall_seconds, runs[i].relative_gradient, tolerance);
+        if (runs[i].continuation_stages > 0)
+            fprintf(stderr, "%s: %d stages of growing lambda before the scene's (continuation; "
+                            "the iterations are their total)\n",
+                    bg_method_name(o.methods[i]), runs[i].continuation_stages);
         if (runs[i].inverted_elements >= 0)
             fprintf(stderr, "%s: %lld inverted elements (det F <= 0) in the result\n",
                     bg_method_name(o.methods[i]), (long long)runs[i].inverted_elements);

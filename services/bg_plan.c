@@ -2,6 +2,8 @@
 
 #include <stdio.h>
 
+#include "bg_static.h"
+
 static void add(bg_plan_item_t *items, int *count, const char *service, const char *detail)
 {
     if (*count >= BG_PLAN_MAX_ITEMS)
@@ -36,18 +38,33 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
     /* Series (time steps, morph frames) keep the factored Newton matrix
      * and take L-BFGS steps on it (bg_dynamics, bg_morph). */
     const int series = dynamic || scene->task == BG_TASK_MORPH;
+    int continues = 0;
+    for (int i = 0; i < method_count; i++)
+        continues |= bg_static_continues(scene, methods[i]);
     snprintf(detail, sizeof detail, "%s%s%s",
              !newton  ? ""
              : series ? "CHOLMOD: one symbolic analysis; the Newton matrix factored when it goes "
                         "stale, L-BFGS steps on it in between"
-                      : "CHOLMOD: one symbolic analysis, a numeric factorization per Newton "
-                        "iteration (exact Hessian first near the solution)",
+                      : continues
+                          ? "CHOLMOD: a symbolic analysis per continuation stage, a numeric "
+                            "factorization per Newton iteration (exact Hessian first near the "
+                            "solution)"
+                          : "CHOLMOD: one symbolic analysis, a numeric factorization per Newton "
+                            "iteration (exact Hessian first near the solution)",
              newton && local_global ? "; " : "",
              !local_global ? ""
              : scene->task == BG_TASK_MORPH
                  ? "CHOLMOD: the Laplacian factored once per frame, solves per iteration"
                  : "CHOLMOD: the Laplacian factored once, solves per iteration");
     add(plan->services, &plan->service_count, "sparse-solve", detail);
+    if (continues) {
+        snprintf(detail, sizeof detail,
+                 "Newton, lambda = %g mu > 100 mu (nearly incompressible): stages of growing "
+                 "lambda from 10 mu, doubling, each warm-started from the last; iterations and "
+                 "times total the stages",
+                 scene->material.lambda / scene->material.mu);
+        add(plan->services, &plan->service_count, "continuation", detail);
+    }
     for (int i = 0; i < scene->prep_count; i++)
         add(plan->services, &plan->service_count, "starting-guess", scene->prep[i].name);
     const double *g = scene->gravity;

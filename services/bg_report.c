@@ -21,6 +21,8 @@ static cJSON *run_json(const bg_solve_result_t *r, int morph)
     cJSON_AddBoolToObject(o, "converged", r->converged);
     cJSON_AddStringToObject(o, "stop_reason", r->stop_reason ? r->stop_reason : "");
     cJSON_AddNumberToObject(o, "iterations", r->iterations);
+    /* solves at a lower λ before the scene's (bg_static's continuation) */
+    cJSON_AddNumberToObject(o, "continuation_stages", r->continuation_stages);
     cJSON_AddNumberToObject(o, "wall_seconds", r->wall_seconds);
     cJSON_AddItemToObject(o, "energy", number_or_null(r->energy));
     cJSON_AddItemToObject(o, "gradient_norm", number_or_null(r->gradient_norm));
@@ -126,6 +128,7 @@ static cJSON *run_json(const bg_solve_result_t *r, int morph)
             break;
         cJSON_AddNumberToObject(t, "seconds", p->seconds);
         cJSON_AddNumberToObject(t, "iteration", p->iteration);
+        cJSON_AddNumberToObject(t, "stage", p->stage);
         cJSON_AddItemToObject(t, "energy", number_or_null(p->energy));
         cJSON_AddItemToObject(t, "gradient_norm", number_or_null(p->gradient_norm));
         cJSON_AddItemToObject(t, "relative_gradient", number_or_null(p->relative_gradient));

@@ -1364,12 +1364,16 @@ static bg_status solve_once(const bg_scene_t *scene, const bg_solve_options_t *o
     return st;
 }
 
+int bg_static_continues(const bg_scene_t *scene, bg_method method)
+{
+    return method == BG_METHOD_NEWTON && scene->task == BG_TASK_STATIC && !scene->rest_edges &&
+           scene->material.lambda > STATIC_CONTINUATION_ABOVE * scene->material.mu;
+}
+
 static int wants_continuation(const bg_scene_t *scene, const bg_solve_options_t *opt)
 {
-    return opt->continuation >= 0 && opt->method == BG_METHOD_NEWTON && !opt->start &&
-           !opt->inertia && !opt->reuse_factor && scene->task == BG_TASK_STATIC &&
-           !scene->rest_edges &&
-           scene->material.lambda > STATIC_CONTINUATION_ABOVE * scene->material.mu;
+    return opt->continuation >= 0 && !opt->start && !opt->inertia && !opt->reuse_factor &&
+           bg_static_continues(scene, opt->method);
 }
 
 /* A continuation stage's progress, passed on with the iterations and the

@@ -198,6 +198,13 @@ typedef struct bg_solve_result {
 
 #define BG_SOLVE_RESULT_INIT {0}
 
+/* Whether bg_static_solve solves scene with method in stages of growing λ
+ * (continuation, below) when the caller leaves options->continuation at 0
+ * and starts from the scene's own guess without inertia or factor reuse:
+ * Newton on a static volume scene with λ > 100 μ. The plan (bg_plan) says
+ * so from the same test. */
+int bg_static_continues(const bg_scene_t *scene, bg_method method);
+
 /*
  * Solves the scene's static problem. On BG_OK the result is filled
  * (converged or not: see converged and stop_reason); release it with

@@ -18,6 +18,7 @@
 
 #include <cmocka.h>
 
+#include "bg_plan.h"
 #include "bg_scene.h"
 #include "bg_static.h"
 #include "test_scenes.h"
@@ -270,6 +271,17 @@ static void stiff_twist_converges(void **state)
  * factorizations and chord steps the sum of what solves at each stage's λ,
  * run by hand from the previous stage's result, take. Checked on the bent
  * bar at λ/μ = 10³ (stages at λ = 10, 20, ..., 640, then 1000). */
+/* Whether scene's plan for method lists service. */
+static int plan_lists(const bg_scene_t *scene, bg_method method, const char *service)
+{
+    bg_plan_t plan;
+    bg_plan_for_scene(scene, &method, 1, &plan);
+    int found = 0;
+    for (int i = 0; i < plan.service_count; i++)
+        found |= strcmp(plan.services[i].service, service) == 0;
+    return found;
+}
+
 static void continuation_accounts_for_stages(void **state)
 {
     (void)state;
@@ -293,6 +305,15 @@ static void continuation_accounts_for_stages(void **state)
     assert_int_equal(r.trace[0].stage, 0);
     assert_int_equal(r.trace[r.trace_count - 1].stage, r.continuation_stages);
     assert_true(r.trace[r.trace_count - 1].energy == r.energy);
+    /* The plan says so for Newton, from the same test the solve makes, and
+     * not for local/global or a material below 100 μ. */
+    const bg_method newton = BG_METHOD_NEWTON, lg = BG_METHOD_LOCAL_GLOBAL;
+    assert_int_equal(plan_lists(s, newton, "continuation"), 1);
+    assert_int_equal(plan_lists(s, lg, "continuation"), 0);
+    const double stiff = s->material.lambda;
+    s->material.lambda = 100.0 * s->material.mu;
+    assert_int_equal(plan_lists(s, newton, "continuation"), 0);
+    s->material.lambda = stiff;
     /* the same stages by hand */
     const double lambda = s->material.lambda;
     double *q = NULL;
