@@ -19,7 +19,17 @@ BIOTGRID_GRID_DIR=$state
 export BIOTGRID_GRID_DIR
 "$bin" grid up "$config" --state "$state" --broker-port 0 \
     --broker-endpoint 'tcp://127.0.0.1:*' >"$work/up.txt" 2>&1 &&
-    { "$bin" submit "$scene" --out "$work/first-job" >"$work/submit.txt" 2>&1; s=$?
+    { timeout 200 "$bin" submit "$scene" --out "$work/first-job" >"$work/submit.txt" 2>&1; s=$?
+      if [ $s -eq 124 ]; then
+        # A job of two seconds that is not done in 200: show where it
+        # stands before the grid goes down (ctest's own timeout would kill
+        # this script and leave the grid running).
+        echo "FAIL: submit did not finish within 200 s; the broker's view:"
+        url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
+        curl -s "$url/v1/jobs" | jq -c '.jobs[] | {id, state}' 2>/dev/null
+        curl -s "$url/v1/agents" | jq -c '.agents[] | {name, alive, free_slots}' 2>/dev/null
+        tail -n 40 "$state/broker.log" 2>/dev/null
+      fi
       "$bin" grid down --state "$state" >"$work/down.txt" 2>&1 && [ $s -eq 0 ]; }
 rc=$?
 cat "$work/up.txt" "$work/submit.txt" "$work/down.txt" 2>/dev/null
