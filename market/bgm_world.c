@@ -9,6 +9,7 @@
 #include "bgm_optimum.h"
 #include "bgm_outbox.h"
 #include "bgm_resource.h"
+#include "bgm_session.h"
 #include "bgm_rng.h"
 #include "bgm_strategy.h"
 
@@ -33,6 +34,8 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 #define BGM_MAX_NEIGHBOURS 64
 #define BGM_MAX_PROPOSALS 8
 #define BGM_SEEN_RING 16
+/* Bargains a basic seller keeps at once (catallactic; bgm_session). */
+#define BGM_BASIC_SESSIONS 32
 /* Items one role machine may emit in one call (a clearing emits two per fill). */
 #define BGM_OUTBOX_MAX ((size_t)1 << 20)
 #define BGM_GOOD_CORES 3
@@ -107,16 +110,16 @@ typedef struct proposal {
     double price, speed;
 } proposal_t;
 
-/* The bargaining state of a request while it is being acquired by
- * proposals (catallactic) or candidate lists (baseline): kept apart from
- * the request and given back when the request ends, because only a few
- * hundred requests bargain at once while tens of thousands are recorded.
- * The seller-side state rides along for the seller. */
+/* The buyer's bargaining state of a request while it is being acquired
+ * by proposals (catallactic) or candidate lists (baseline): kept apart
+ * from the request and given back when the request ends, because only a
+ * few hundred requests bargain at once while tens of thousands are
+ * recorded. A seller's side of the bargain is the seller's own
+ * (bgm_session). */
 typedef struct nego_state {
     proposal_t prop[BGM_MAX_PROPOSALS];
     int nprop, next_prop;
-    bgm_nego_t buyer_nego, seller_nego;
-    int seller_open;
+    bgm_nego_t buyer_nego;
     uint32_t next_free;
 } nego_state_t;
 
@@ -208,6 +211,7 @@ struct bgm_world {
     size_t nparts, parts_cap;
     bgm_market_agent_t *ma; /* agent 0's role machine */
     bgm_resource_t **rsm;   /* the resource sellers' role machines, by agent - first_resource */
+    bgm_sessions_t **bsess; /* catallactic: the basic sellers' bargains, by agent - first_basic */
     bgm_outbox_t *ob;       /* what a role machine emits during one call */
     /* accounting */
     double msgs, bytes, timeouts;
@@ -568,6 +572,16 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
             goto out;
         }
     }
+    if (p->mechanism == BGM_MECH_CATALLACTIC) {
+        w->bsess = calloc(w->nbasic, sizeof *w->bsess);
+        for (uint32_t k = 0; w->bsess && k < w->nbasic; k++)
+            if (!(w->bsess[k] = bgm_sessions_new(BGM_BASIC_SESSIONS)))
+                break;
+        if (!w->bsess || (w->nbasic > 0 && !w->bsess[w->nbasic - 1])) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u basic sellers", w->nbasic);
+            goto out;
+        }
+    }
     if ((st = build_overlay(w))) {
         bg_error_set(err, st, "out of memory for the overlay");
         goto out;
@@ -625,6 +639,9 @@ void bgm_world_destroy(bgm_world_t **pw)
     for (uint32_t k = 0; w->rsm && k < w->nresource; k++)
         bgm_resource_destroy(&w->rsm[k]);
     free(w->rsm);
+    for (uint32_t k = 0; w->bsess && k < w->nbasic; k++)
+        bgm_sessions_destroy(&w->bsess[k]);
+    free(w->bsess);
     bgm_outbox_destroy(&w->ob);
     free(w->acc_s);
     free(w->acc_r);
@@ -747,7 +764,6 @@ static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
         }
         nego_state_t *g = ng(w, r);
         g->nprop = g->next_prop = 0;
-        g->seller_open = 0;
     }
     switch (w->p.mechanism) {
     case BGM_MECH_CENTRAL: {
@@ -1202,7 +1218,6 @@ static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
             request_fields(w, r, &o);
         }
         r->seller = p->seller;
-        g->seller_open = 0;
         r->state = RQ_NEGOTIATE;
         send(w, &o);
         arm(w, rid, now + w->cfg.catallactic.reply_timeout);
@@ -1225,52 +1240,73 @@ static int cmp_prop(const void *pa, const void *pb)
     return (a->seller > b->seller) - (a->seller < b->seller);
 }
 
-/* Agreement reached at a basic seller: it commits on its side and tells
- * the buyer ACCEPT (resources follow), or REJECT when it cannot. */
-static void seller_commit(bgm_world_t *w, uint32_t me, uint32_t rid, double price, double limit,
-                          double now)
+/* Agreement reached at basic seller `me` on the request a buyer's OFFER,
+ * ACCEPT or ORDER names (m->from, m->req, m->attempt, m->good): it commits
+ * on its side and tells the buyer ACCEPT (resources follow), or REJECT
+ * when it cannot. */
+static void seller_commit(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double price,
+                          double limit, double now)
 {
-    req_t *r = &w->reqs[rid];
-    uint32_t attempt = r->attempt;
-    uint32_t buyer = r->buyer;
-    if (!service_agreed(w, me, rid, attempt, price, limit, now)) {
-        bgm_msg_t x = msg(M_REJECT, me, buyer, rid, attempt);
+    if (!service_agreed(w, me, m->req, m->attempt, price, limit, now)) {
+        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
         send(w, &x);
         return;
     }
     agent_t *s = &w->agents[me];
-    s->memory[w->reqs[rid].good] =
-        bgm_memory_update(s->memory[w->reqs[rid].good], price, s->genes.weight_memory);
-    bgm_msg_t a = msg(M_ACCEPT, me, buyer, rid, attempt);
+    s->memory[m->good] = bgm_memory_update(s->memory[m->good], price, s->genes.weight_memory);
+    bgm_msg_t a = msg(M_ACCEPT, me, m->from, m->req, m->attempt);
     a.price = price;
     send(w, &a);
 }
 
+/* A buyer's OFFER to basic seller `me`. The seller reads what the offer
+ * carries (the good, how long it stands) and its own session of the
+ * bargain, opened by the buyer's first offer; an offer of a bargain it
+ * does not hold (another attempt, forgotten) gets no answer. */
 static void seller_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
 {
-    req_t *r = &w->reqs[m->req];
     agent_t *s = &w->agents[me];
-    if (m->attempt != r->attempt || r->seller != me || r->state != RQ_NEGOTIATE)
+    if (m->good < 0 || m->good >= BGM_SERVICE_TYPES || now > m->cand_price[2])
         return;
-    nego_state_t *g = ng(w, r);
-    if (!g->seller_open) {
-        bgm_nego_open(&g->seller_nego, BGM_SIDE_SELLER, seller_limit_for(s, r->good),
-                      seller_opening(s, r->good), &s->genes, w->cfg.catallactic.max_rounds);
-        g->seller_open = 1;
+    bgm_session_t *ss = bgm_sessions_for(w->bsess[me - w->first_basic], m);
+    if (!ss)
+        return;
+    if (!ss->open) {
+        bgm_nego_open(&ss->nego, BGM_SIDE_SELLER, seller_limit_for(s, m->good),
+                      seller_opening(s, m->good), &s->genes, w->cfg.catallactic.max_rounds);
+        ss->open = 1;
     }
     double reply = 0.0;
-    bgm_nego_action act = bgm_nego_respond(&g->seller_nego, m->price, &s->rng, &reply);
+    bgm_nego_action act = bgm_nego_respond(&ss->nego, m->price, &s->rng, &reply);
     if (act == BGM_NEGO_ACCEPT) {
-        seller_commit(w, me, m->req, reply, g->seller_nego.limit, now);
+        seller_commit(w, me, m, reply, ss->nego.limit, now);
     } else if (act == BGM_NEGO_COUNTER) {
-        bgm_msg_t o = msg(M_OFFER, me, r->buyer, m->req, m->attempt);
+        bgm_msg_t o = msg(M_OFFER, me, m->from, m->req, m->attempt);
         o.price = reply;
         send(w, &o);
     } else {
         learn_outcome(s, 0, 0.0);
-        bgm_msg_t x = msg(M_REJECT, me, r->buyer, m->req, m->attempt);
+        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
         send(w, &x);
     }
+}
+
+/* The buyer accepted basic seller me's last counter-offer: the seller
+ * commits at that price if the bargain is one it holds. */
+static void seller_on_accept(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
+{
+    if (m->good < 0 || m->good >= BGM_SERVICE_TYPES || !w->bsess)
+        return;
+    const bgm_session_t *ss = bgm_sessions_find(w->bsess[me - w->first_basic], m->from, m->req,
+                                                m->attempt);
+    if (!ss || !ss->open) {
+        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
+        send(w, &x);
+        return;
+    }
+    double lim = ss->nego.limit;
+    learn_outcome(&w->agents[me], 1, (m->price - lim) / m->price);
+    seller_commit(w, me, m, m->price, lim, now);
 }
 
 static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
@@ -1332,6 +1368,20 @@ static void learn_meet(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
 }
 
 /* --------------------------------------------------------------- dispatch */
+
+/* Which side of a bargain a message to agent me is for follows from the
+ * roles, not from a record: a job's agent only buys; a basic agent sells
+ * services to jobs' agents and buys bundles from resource sellers. */
+static int from_seller(const bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
+{
+    return me < w->first_basic || is_resource(w, m->from);
+}
+
+static int from_buyer_of_service(const bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
+{
+    return me >= w->first_basic && me < w->first_resource && m->from >= 1 &&
+           m->from < w->first_basic;
+}
 
 static void buyer_committed(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
 {
@@ -1398,22 +1448,16 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         }
         break;
     case M_OFFER:
-        if (r->buyer == me)
+        if (from_seller(w, me, m))
             buyer_on_offer(w, me, m, now);
         else
             seller_on_offer(w, me, m, now);
         break;
     case M_ACCEPT:
-        if (r->buyer == me) {
+        if (from_seller(w, me, m))
             buyer_committed(w, me, m);
-        } else if (m->attempt == r->attempt && r->seller == me && r->state == RQ_COMMITTED) {
-            const agent_t *s = &w->agents[me];
-            const nego_state_t *g = ng(w, r);
-            double lim = g->seller_open ? g->seller_nego.limit : seller_limit_for(s, r->good);
-            if (g->seller_open)
-                learn_outcome(&w->agents[me], 1, (m->price - lim) / m->price);
-            seller_commit(w, me, m->req, m->price, lim, now);
-        }
+        else
+            seller_on_accept(w, me, m, now);
         break;
     case M_REJECT:
         if (r->buyer == me && m->attempt == r->attempt && m->from == r->seller &&
@@ -1434,10 +1478,12 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         }
         break;
     case M_ORDER:
-        if (m->attempt == r->attempt && r->seller == me && r->state == RQ_NEGOTIATE) {
+        /* At the posted price, while the buyer's order stands. */
+        if (m->good >= 0 && m->good < BGM_SERVICE_TYPES && now <= m->cand_price[2] &&
+            from_buyer_of_service(w, me, m)) {
             const agent_t *s = &w->agents[me];
-            double lim = s->posted[r->good] / (1.0 + w->cfg.baseline.markup);
-            seller_commit(w, me, m->req, m->price, lim, now);
+            double lim = s->posted[m->good] / (1.0 + w->cfg.baseline.markup);
+            seller_commit(w, me, m, m->price, lim, now);
         }
         break;
     default:
