@@ -66,7 +66,7 @@ enum {
     M_RCONFIRM, /* R->B: req, price=rate, a=start, b=end, c=seller limit rate; for a part
                  * (good cores|memory): cand_price[0..2]=quantity, buyer limit and
                  * seller cost per unit-second, hops=parts of the bundle */
-    M_CONFIRM,  /* B->C: req, price/unit, a=start, b=end */
+    M_CONFIRM,  /* B->C, a delivery: req, attempt, price/unit, a=start, b=end, origin=bundle */
     M_CANCEL,   /* B->C: the agreed service could not get resources */
     M_CFP,      /* call for proposals: req, good, hops, origin, a=work|cores, b=memory, c=flops */
     M_PROPOSE,  /* seller->buyer: price=opening, a=speed */
@@ -78,11 +78,13 @@ enum {
     M_LIST,     /* A->buyer: candidates */
     M_ORDER,    /* buyer->seller at posted price: price, a=work|cores, b=memory, c=flops */
     M_AVAIL,    /* baseline seller->directory: a=free slots|cores, b=free memory */
-    M_RPART     /* A->R, call markets: req, good=cores|memory, a=quantity, b=duration,
+    M_RPART,    /* A->R, call markets: req, good=cores|memory, a=quantity, b=duration,
                  * price=rate per unit-second, c=buyer limit per unit-second,
                  * hops=parts of the bundle, origin=buyer, cand_price[0]=start */
+    M_TAKE,     /* C->B: the delivery of req is taken; origin=bundle */
+    M_REFUSE    /* C->B: the delivery of req is refused; origin=bundle */
 };
-_Static_assert((int)M_RPART == (int)BGM_MT_RPART, "the world's message numbers are bgm_role.h's");
+_Static_assert((int)M_REFUSE == (int)BGM_MT_REFUSE, "the world's message numbers are bgm_role.h's");
 
 /* Timer kinds. */
 enum {
@@ -91,7 +93,7 @@ enum {
     T_REQ,          /* request phase timeout: arg = req | tseq << 32 */
     T_DEADLINE,     /* request deadline: arg = req */
     T_RETRY,        /* retry acquisition: arg = req | attempt << 32 */
-    T_RELEASE,      /* seller capacity release at contract end: arg = req */
+    T_RELEASE,      /* seller capacity release at contract end: arg = its bundle (req) */
     T_RELEASE_PART, /* resource agent frees one part: arg = part_arg(good, quantity) */
     T_LEARN,        /* catallactic learning meeting */
     T_NODE_FAIL,    /* agent = first agent of node; arg = node */
@@ -104,6 +106,8 @@ _Static_assert(T_CLEAR == BGM_MA_TIMER_CLEAR && T_RELEASE == BGM_RS_TIMER_RELEAS
                "the role machines' timers keep their numbers");
 
 enum { RQ_IDLE, RQ_DISCOVER, RQ_NEGOTIATE, RQ_WAIT, RQ_COMMITTED, RQ_DONE, RQ_FAILED };
+/* A bundle's delivery to the job's agent (resource requests). */
+enum { DL_NONE, DL_OFFERED, DL_DECIDED };
 
 typedef struct proposal {
     uint32_t seller;
@@ -142,6 +146,12 @@ typedef struct req {
     double start, end;
     uint32_t nego;  /* bargaining state (BGM_NEGO_NONE: none) */
     uint32_t parts; /* call markets: parts of the bundle confirmed so far */
+    /* Resource request: the basic agent's own record of the service deal
+     * it serves (what the buyer's message said and the agreed terms), so
+     * that it never reads the buyer's record. */
+    uint32_t sbuyer;
+    int sgood, delivery;
+    double swork, sprice, slimit;
 } req_t;
 
 typedef struct job {
@@ -386,11 +396,12 @@ static void req_end(bgm_world_t *w, req_t *r, int state)
 }
 
 /* A resource request's bundle is what its service's type needs, for the
- * service's work; a service request has none. Derived, not stored: tens
- * of thousands of requests are recorded at 2000 agents. */
+ * service's work (from the basic agent's record of the deal); a service
+ * request has none. Derived, not stored: tens of thousands of requests
+ * are recorded at 2000 agents. */
 static const bgm_service_cfg_t *bundle_type(const bgm_world_t *w, const req_t *r)
 {
-    return r->layer == 1 ? &w->cfg.services[w->reqs[r->parent].good] : NULL;
+    return r->layer == 1 ? &w->cfg.services[r->sgood] : NULL;
 }
 
 static double req_cores(const bgm_world_t *w, const req_t *r)
@@ -408,7 +419,7 @@ static double req_memory(const bgm_world_t *w, const req_t *r)
 static double req_flops(const bgm_world_t *w, const req_t *r)
 {
     const bgm_service_cfg_t *s = bundle_type(w, r);
-    return s ? s->flops_per_unit * w->reqs[r->parent].work : 0.0;
+    return s ? s->flops_per_unit * r->swork : 0.0;
 }
 
 static double resource_cost_rate(const agent_t *r, double cores, double mem)
@@ -695,7 +706,6 @@ static void final_fail(bgm_world_t *w, uint32_t rid, double now)
     }
     /* A resource request failed: the basic agent gives the slot back and
      * tells its job buyer that the agreed service is off. */
-    req_t *s = &w->reqs[r->parent];
     if (buyer->used > 0)
         buyer->used--;
     announce(w, r->buyer);
@@ -703,7 +713,7 @@ static void final_fail(bgm_world_t *w, uint32_t rid, double now)
         bgm_msg_t m = msg(M_FREE, r->buyer, 0, rid, 0);
         send(w, &m);
     }
-    bgm_msg_t m = msg(M_CANCEL, r->buyer, s->buyer, r->parent, r->sattempt);
+    bgm_msg_t m = msg(M_CANCEL, r->buyer, r->sbuyer, r->parent, r->sattempt);
     send(w, &m);
     (void)now;
 }
@@ -805,39 +815,44 @@ static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
     }
 }
 
-/* The basic agent has agreed to serve attempt `attempt` of service
- * request sid at `price` per unit: it reserves a slot and starts buying
- * the resources. The agreement is bound to that attempt: once the job's
- * agent has moved on to another attempt (a timeout, a lost message), the
- * bundle bought for this one serves nothing (service_live). Returns 0
- * (and changes nothing) when it has no free slot or the attempt is stale. */
-static int service_agreed(bgm_world_t *w, uint32_t b, uint32_t sid, uint32_t attempt, double price,
-                          double limit, double now)
+/* A service deal as the basic seller knows it: what the buyer's message
+ * (or the auctioneer's MATCH) said, and the agreed terms. */
+typedef struct deal {
+    uint32_t buyer, req, attempt;
+    int good;
+    double work, deadline, price, limit;
+} deal_t;
+
+/* Basic agent b has agreed to serve deal d: it reserves a slot and starts
+ * buying the resources, keeping the deal in its own resource request.
+ * The deal is bound to the buyer's attempt: whether the buyer still
+ * wants it is the buyer's to say when the service is delivered (TAKE or
+ * REFUSE). Returns 0 (and changes nothing) when it has no free slot. */
+static int service_agreed(bgm_world_t *w, uint32_t b, const deal_t *d, double now)
 {
     agent_t *ag = &w->agents[b];
-    req_t *s = &w->reqs[sid];
-    if (ag->used >= ag->slots || !agent_alive(w, b) || attempt != s->attempt ||
-        s->state == RQ_DONE || s->state == RQ_FAILED)
+    if (ag->used >= ag->slots || !agent_alive(w, b) || d->good < 0 ||
+        d->good >= BGM_SERVICE_TYPES || !(d->work > 0.0))
         return 0;
-    ag->used++;
-    announce(w, b);
-    s->seller = b;
-    s->price = price;
-    s->seller_limit = limit;
     uint32_t rid = new_req(w);
     if (rid == UINT32_MAX)
         return 0;
-    s = &w->reqs[sid];
+    ag->used++;
+    announce(w, b);
     req_t *r = &w->reqs[rid];
     r->layer = 1;
     r->good = BGM_GOOD_BUNDLE;
     r->buyer = b;
-    r->parent = sid;
-    r->sattempt = attempt;
-    r->job = s->job;
-    r->limit = price * s->work;
+    r->parent = d->req;
+    r->sattempt = d->attempt;
+    r->sbuyer = d->buyer;
+    r->sgood = d->good;
+    r->swork = d->work;
+    r->sprice = d->price;
+    r->slimit = d->limit;
+    r->limit = d->price * d->work;
     r->created = now;
-    r->deadline = s->deadline > now ? s->deadline : now + w->cfg.catallactic.reply_timeout;
+    r->deadline = d->deadline > now ? d->deadline : now + w->cfg.catallactic.reply_timeout;
     w->resource_requests += 1.0;
     timer(w, b, r->deadline, T_DEADLINE, rid);
     start_acquire(w, rid, now);
@@ -923,95 +938,33 @@ static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
     return total;
 }
 
-/* The service that basic agent b's bundle serves is still wanted from b:
- * the job's agent has not bought it already, has not given up on it
- * (deadline passed), and is still on the attempt b agreed to (it has not
- * moved to another seller, nor back to b for a new attempt after a lost
- * message). */
-static int service_live(const bgm_world_t *w, uint32_t b, const req_t *r)
+/* The money bundle rid costs its basic agent: a whole bundle's rent, or
+ * the sum of its parts (call markets). */
+static double bundle_money(const bgm_world_t *w, uint32_t rid)
 {
-    const req_t *s = &w->reqs[r->parent];
-    return s->state != RQ_DONE && s->state != RQ_FAILED && s->seller == b &&
-           s->attempt == r->sattempt;
+    const req_t *r = &w->reqs[rid];
+    if (r->parts == 0)
+        return r->price * (r->end - r->start);
+    double total = 0.0;
+    for (size_t i = 0; i < w->nparts; i++)
+        if (w->parts[i].rid == rid)
+            total += w->parts[i].rate * w->parts[i].quantity * (w->parts[i].end - w->parts[i].start);
+    return total;
 }
 
-/* The job's agent takes delivery of service request sid: it is bought,
- * once. This is the same step as the contract becoming final
- * (bundle_rented): the check that the job's agent still wants the item
- * (service_live) and its acceptance are one event, so a confirmation lost
- * on the way back cannot make the job's agent buy the item a second time
- * (it would otherwise time out on a seller that has in fact delivered and
- * buy again). The M_CONFIRM that follows only carries the news to the job
- * agent's node. */
-static void service_delivered(bgm_world_t *w, uint32_t sid, double price, double start, double end)
-{
-    req_t *r = &w->reqs[sid];
-    req_end(w, r, RQ_DONE);
-    r->start = start;
-    r->end = end;
-    job_t *j = &w->jobs[r->job];
-    j->done++;
-    if (end > j->last_end)
-        j->last_end = end;
-    agent_t *c = &w->agents[r->buyer];
-    c->memory[r->good] = bgm_memory_update(c->memory[r->good], price, c->genes.weight_memory);
-    learn_outcome(c, 1, (r->limit - price) / r->limit);
-}
-
-/* Basic agent b's bundle rid has arrived but its service is void (the
- * job's agent has given up on b): nobody pays for the bundle, so no item
- * is ever bought twice and b never pays for resources it cannot use; its
- * sellers held it for nothing. b frees its slot when the rental ends. */
-static void bundle_void(bgm_world_t *w, uint32_t b, const req_t *r)
-{
-    learn_outcome(&w->agents[b], 0, 0.0);
-    timer(w, b, r->end, T_RELEASE, r->parent);
-}
-
-/* Basic agent b's bundle rid is rented and paid, from start to end, for
- * `money` in all: the service contract becomes final. */
-static void bundle_rented(bgm_world_t *w, uint32_t b, uint32_t rid, double start, double end,
-                          double money, double now)
+/* Basic agent b's bundle rid is rented: it delivers the service to the
+ * job's agent (CONFIRM, with the bundle's number), which answers TAKE or
+ * REFUSE. The slot is b's until the rental ends, taken or not. */
+static void deliver(bgm_world_t *w, uint32_t b, uint32_t rid)
 {
     req_t *r = &w->reqs[rid];
-    req_t *s = &w->reqs[r->parent];
-    agent_t *ba = &w->agents[b];
-    agent_t *ca = &w->agents[s->buyer];
-    bgm_contract_t c = {now,     start,    end,      r->parent,      s->buyer, b, 0,
-                        s->good, s->work,  s->price, s->limit, s->seller_limit};
-    bg_status st = log_contract(w, &c);
-    if (st)
-        fail(w, st);
-    ca->paid[0] += s->price * s->work;
-    ba->received[0] += s->price * s->work;
-    w->welfare += (s->limit - ba->cost[s->good]) * s->work;
-    if (push_double(&w->acc_s, &w->nacc_s, now - s->created))
-        fail(w, BG_ERR_NOMEM);
-    /* Remember what resources really cost per unit of this service. */
-    ba->est_res[s->good] =
-        bgm_memory_update(ba->est_res[s->good], money / s->work, ba->genes.weight_memory);
-    ba->memory[3] = bgm_memory_update(
-        ba->memory[3], money / (end - start) / mean_rate(w, req_cores(w, r), req_memory(w, r)),
-        ba->genes.weight_memory);
-    ba->memory[s->good] = bgm_memory_update(ba->memory[s->good], s->price, ba->genes.weight_memory);
-    learn_outcome(ba, 1, (s->price - s->seller_limit) / s->price);
-    timer(w, b, end, T_RELEASE, r->parent);
-    if (w->p.mechanism == BGM_MECH_CENTRAL) {
-        double res = reservation(ba, s->good);
-        if (fabs(res - ba->announced[s->good]) > BGM_ASK_REFRESH * ba->announced[s->good]) {
-            bgm_msg_t a = msg(M_ASK, b, 0, 0, 0);
-            a.good = (int16_t)s->good;
-            a.price = res;
-            a.a = -1.0;
-            ba->announced[s->good] = res;
-            send(w, &a);
-        }
-    }
-    bgm_msg_t cm = msg(M_CONFIRM, b, s->buyer, r->parent, s->attempt);
-    cm.price = s->price;
-    cm.a = start;
-    cm.b = end;
-    service_delivered(w, r->parent, s->price, start, end);
+    r->delivery = DL_OFFERED;
+    timer(w, b, r->end, T_RELEASE, rid);
+    bgm_msg_t cm = msg(M_CONFIRM, b, r->sbuyer, r->parent, r->sattempt);
+    cm.price = r->sprice;
+    cm.a = r->start;
+    cm.b = r->end;
+    cm.origin = rid;
     send(w, &cm);
 }
 
@@ -1052,16 +1005,8 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
         }
         req_end(w, r, RQ_DONE);
         r->seller = m->from;
-        if (!service_live(w, b, r)) {
-            drop_parts(w, m->req);
-            bundle_void(w, b, r);
-            return;
-        }
-        double money = pay_parts(w, m->req, now);
-        r->price = money / (r->end - r->start);
-        if (push_double(&w->acc_r, &w->nacc_r, r->start - r->created))
-            fail(w, BG_ERR_NOMEM);
-        bundle_rented(w, b, m->req, r->start, r->end, money, now);
+        r->price = bundle_money(w, m->req) / (r->end - r->start);
+        deliver(w, b, m->req);
         return;
     }
     req_end(w, r, RQ_DONE);
@@ -1069,12 +1014,125 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
     r->price = m->price;
     r->start = m->a;
     r->end = m->b;
-    if (!service_live(w, b, r)) {
-        bundle_void(w, b, r);
+    deliver(w, b, m->req);
+}
+
+/* The contract of bundle rid's service becomes final when the job's agent
+ * takes the delivery: the world, as the observer that keeps the contract
+ * log and the ledger, books the service contract and the bundle's
+ * resource contracts and pays them. A refused delivery is void: nobody
+ * pays for the bundle, so no item is ever bought twice and the basic
+ * agent never pays for resources it cannot use (its sellers held them for
+ * nothing). */
+static void book_delivery(bgm_world_t *w, uint32_t rid, int taken, double now)
+{
+    req_t *r = &w->reqs[rid];
+    if (r->delivery != DL_OFFERED)
+        return;
+    r->delivery = DL_DECIDED;
+    if (!taken) {
+        if (r->parts > 0)
+            drop_parts(w, rid);
         return;
     }
-    pay_bundle(w, m->req, m->from, m->price, m->a, m->b, now);
-    bundle_rented(w, b, m->req, m->a, m->b, m->price * (m->b - m->a), now);
+    if (r->parts > 0) {
+        pay_parts(w, rid, now);
+        if (push_double(&w->acc_r, &w->nacc_r, r->start - r->created))
+            fail(w, BG_ERR_NOMEM);
+    } else {
+        pay_bundle(w, rid, r->seller, r->price, r->start, r->end, now);
+    }
+    const req_t *s = &w->reqs[r->parent];
+    agent_t *ba = &w->agents[r->buyer];
+    agent_t *ca = &w->agents[r->sbuyer];
+    bgm_contract_t c = {now,      r->start, r->end,    r->parent, r->sbuyer, r->buyer, 0,
+                        r->sgood, r->swork, r->sprice, s->limit,  r->slimit};
+    bg_status st = log_contract(w, &c);
+    if (st)
+        fail(w, st);
+    ca->paid[0] += r->sprice * r->swork;
+    ba->received[0] += r->sprice * r->swork;
+    w->welfare += (s->limit - ba->cost[r->sgood]) * r->swork;
+    if (push_double(&w->acc_s, &w->nacc_s, now - s->created))
+        fail(w, BG_ERR_NOMEM);
+}
+
+/* The job's agent answers basic agent b's delivery of bundle rid: a
+ * taken service teaches b what resources really cost per unit of it and
+ * its price; a refused one counts as a failure. */
+static void seller_on_answer(bgm_world_t *w, uint32_t b, const bgm_msg_t *m)
+{
+    if (m->origin >= w->nreq)
+        return;
+    req_t *r = &w->reqs[m->origin];
+    if (r->layer != 1 || r->buyer != b || r->sbuyer != m->from || r->parent != m->req ||
+        r->delivery == DL_NONE)
+        return;
+    agent_t *ba = &w->agents[b];
+    if (m->type == M_REFUSE) {
+        learn_outcome(ba, 0, 0.0);
+        return;
+    }
+    double money = r->price * (r->end - r->start);
+    ba->est_res[r->sgood] =
+        bgm_memory_update(ba->est_res[r->sgood], money / r->swork, ba->genes.weight_memory);
+    ba->memory[3] = bgm_memory_update(
+        ba->memory[3], r->price / mean_rate(w, req_cores(w, r), req_memory(w, r)),
+        ba->genes.weight_memory);
+    ba->memory[r->sgood] = bgm_memory_update(ba->memory[r->sgood], r->sprice, ba->genes.weight_memory);
+    learn_outcome(ba, 1, (r->sprice - r->slimit) / r->sprice);
+    if (w->p.mechanism == BGM_MECH_CENTRAL) {
+        double res = reservation(ba, r->sgood);
+        if (fabs(res - ba->announced[r->sgood]) > BGM_ASK_REFRESH * ba->announced[r->sgood]) {
+            bgm_msg_t a = msg(M_ASK, b, 0, 0, 0);
+            a.good = (int16_t)r->sgood;
+            a.price = res;
+            a.a = -1.0;
+            ba->announced[r->sgood] = res;
+            send(w, &a);
+        }
+    }
+}
+
+/* The job's agent takes delivery of service request sid: it is bought. */
+static void service_delivered(bgm_world_t *w, uint32_t sid, double price, double start, double end)
+{
+    req_t *r = &w->reqs[sid];
+    req_end(w, r, RQ_DONE);
+    r->start = start;
+    r->end = end;
+    job_t *j = &w->jobs[r->job];
+    j->done++;
+    if (end > j->last_end)
+        j->last_end = end;
+    agent_t *c = &w->agents[r->buyer];
+    c->memory[r->good] = bgm_memory_update(c->memory[r->good], price, c->genes.weight_memory);
+    learn_outcome(c, 1, (r->limit - price) / r->limit);
+}
+
+/* The job's agent me is offered the delivery of its request m->req: it
+ * takes it, once, if it still wants the item from that seller on that
+ * attempt (it has not bought it already, has not given up on it, and has
+ * not moved on to another attempt or, bargaining, another seller), and
+ * refuses it otherwise. Taking is the step at which the item is bought:
+ * a TAKE lost on the way back cannot make the job's agent buy the item a
+ * second time. A service whose run has already ended serves nothing. */
+static void buyer_on_delivery(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
+{
+    req_t *r = &w->reqs[m->req];
+    if (r->layer != 0 || r->buyer != me || m->origin >= w->nreq)
+        return;
+    int wanted = r->state != RQ_DONE && r->state != RQ_FAILED && m->attempt == r->attempt &&
+                 (w->p.mechanism == BGM_MECH_CENTRAL || r->seller == m->from) && m->b > now;
+    bgm_msg_t x = msg(wanted ? M_TAKE : M_REFUSE, me, m->from, m->req, m->attempt);
+    x.origin = m->origin;
+    if (wanted) {
+        r->seller = m->from;
+        r->price = m->price;
+        service_delivered(w, m->req, m->price, m->a, m->b);
+    }
+    book_delivery(w, m->origin, wanted, now);
+    send(w, &x);
 }
 
 /* ---------------------------------------------------------------- market */
@@ -1247,7 +1305,8 @@ static int cmp_prop(const void *pa, const void *pb)
 static void seller_commit(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double price,
                           double limit, double now)
 {
-    if (!service_agreed(w, me, m->req, m->attempt, price, limit, now)) {
+    deal_t d = {m->from, m->req, m->attempt, m->good, m->a, m->cand_price[2], price, limit};
+    if (!service_agreed(w, me, &d, now)) {
         bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
         send(w, &x);
         return;
@@ -1416,12 +1475,14 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
     }
     req_t *r = m->type == M_GENES ? NULL : &w->reqs[m->req];
     switch (m->type) {
-    case M_MATCH:
-        if (!service_agreed(w, me, m->req, m->attempt, m->price, m->b, now)) {
+    case M_MATCH: {
+        deal_t d = {m->origin, m->req, m->attempt, m->good, m->a, m->c, m->price, m->b};
+        if (!service_agreed(w, me, &d, now)) {
             bgm_msg_t c = msg(M_CANCEL, me, m->origin, m->req, m->attempt);
             send(w, &c);
         }
         break;
+    }
     case M_RFAIL:
         if (r->state != RQ_DONE && r->state != RQ_FAILED)
             final_fail(w, m->req, now);
@@ -1430,8 +1491,12 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         on_rconfirm(w, me, m, now);
         break;
     case M_CONFIRM:
-        /* The delivery was accepted when it became final
-         * (service_delivered); the news changes nothing more. */
+        buyer_on_delivery(w, me, m, now);
+        break;
+    case M_TAKE:
+    case M_REFUSE:
+        if (from_buyer_of_service(w, me, m))
+            seller_on_answer(w, me, m);
         break;
     case M_CANCEL:
         if (m->attempt == r->attempt && r->state == RQ_COMMITTED)
@@ -1624,6 +1689,9 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
         break;
     }
     case T_RELEASE: /* a basic seller's slot (resource sellers: bgm_resource) */
+        /* A delivery never answered (lost on the way) is void by now. */
+        if (rid < w->nreq)
+            book_delivery(w, rid, 0, now);
         if (a->used > 0)
             a->used--;
         announce(w, me);
@@ -1753,7 +1821,7 @@ static double quantile(const double *v, size_t n, double q)
  * and speed, for the whole run (failures ignored: the optimum may use a
  * node that was down, which only raises it). A delivery can start from
  * the request's creation until its deadline plus the commitment grace: no
- * service contract is final later (bundle_rented voids it). When the
+ * service contract is final later (the job's agent refuses a delivery then). When the
  * config's central market sells resources on per-type call markets,
  * bundles may split across resource agents, in the optimum too, for every
  * mechanism of the run alike (the same demand and supply, the same
