@@ -170,6 +170,7 @@ typedef struct agent {
     double fitness, markup;
     double memory[4]; /* remembered price per service good; [3]: resource price/cost ratio */
     uint32_t *nbr;
+    uint8_t *nsame; /* per neighbour: of its role (told at creation, as its overlay links) */
     int ndeg;
     /* basic-service seller */
     int sells[BGM_SERVICE_TYPES];
@@ -202,6 +203,7 @@ struct bgm_world {
     uint32_t nagents, ncomplex, nbasic, nresource, first_basic, first_resource;
     agent_t *agents;
     uint32_t *nbr_pool;
+    uint8_t *nsame_pool;
     /* Catallactic only: per agent, a ring of the calls for proposals it
      * has seen (BGM_SEEN_RING keys) and where the next one goes. */
     uint64_t *seen;
@@ -478,7 +480,8 @@ static bg_status build_overlay(bgm_world_t *w)
     for (uint32_t a = 0; a < w->nagents; a++)
         total += (size_t)w->agents[a].ndeg;
     w->nbr_pool = malloc((total ? total : 1) * sizeof *w->nbr_pool);
-    if (!w->nbr_pool) {
+    w->nsame_pool = malloc(total ? total : 1);
+    if (!w->nbr_pool || !w->nsame_pool) {
         free(table);
         return BG_ERR_NOMEM;
     }
@@ -487,9 +490,15 @@ static bg_status build_overlay(bgm_world_t *w)
         agent_t *x = &w->agents[a];
         memcpy(w->nbr_pool + at, x->nbr, (size_t)x->ndeg * sizeof *w->nbr_pool);
         x->nbr = w->nbr_pool + at;
+        x->nsame = w->nsame_pool + at;
         at += (size_t)x->ndeg;
     }
     free(table);
+    for (uint32_t a = 0; a < w->nagents; a++) {
+        agent_t *x = &w->agents[a];
+        for (int j = 0; j < x->ndeg; j++)
+            x->nsame[j] = w->agents[x->nbr[j]].role == x->role;
+    }
     return BG_OK;
 }
 
@@ -609,14 +618,11 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
     }
     for (uint32_t k = 0; k < w->nresource; k++) {
         const agent_t *ag = &w->agents[w->first_resource + k];
-        uint8_t same[BGM_MAX_NEIGHBOURS];
-        for (int j = 0; j < ag->ndeg; j++)
-            same[j] = w->agents[ag->nbr[j]].role == BGM_ROLE_RESOURCE;
         bgm_resource_params_t rp = {&w->cfg,       p->mechanism, w->first_resource + k, 0,
                                     w->horizon,    ag->cores,    ag->mem,
                                     ag->core_cost, ag->mem_cost, ag->speed,
                                     ag->rng,       ag->genes,    ag->markup,
-                                    ag->nbr,       same,         ag->ndeg};
+                                    ag->nbr,       ag->nsame,    ag->ndeg};
         if (!(w->rsm[k] = bgm_resource_new(&rp))) {
             st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u resource sellers",
                               w->nresource);
@@ -636,6 +642,7 @@ void bgm_world_destroy(bgm_world_t **pw)
     bgm_world_t *w = *pw;
     free(w->agents);
     free(w->nbr_pool);
+    free(w->nsame_pool);
     free(w->seen);
     free(w->seen_pos);
     free(w->node_up);
@@ -1404,10 +1411,15 @@ static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, doub
     }
 }
 
+/* A learning meeting: agent me learns only from an overlay neighbour of
+ * its own role, which it was told when its links were made. */
 static void learn_meet(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
 {
     agent_t *a = &w->agents[me];
-    if (a->role != w->agents[m->from].role)
+    int same = 0;
+    for (int i = 0; i < a->ndeg; i++)
+        same |= a->nbr[i] == m->from && a->nsame[i];
+    if (!same)
         return;
     if (m->a > 0.0) {
         bgm_msg_t r = msg(M_GENES, me, m->from, 0, 0);
@@ -1702,8 +1714,9 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
         break;
     case T_LEARN: {
         if (alive && a->ndeg > 0) {
-            uint32_t other = a->nbr[bgm_rng_below(&a->rng, (uint32_t)a->ndeg)];
-            if (w->agents[other].role == a->role) {
+            uint32_t k = bgm_rng_below(&a->rng, (uint32_t)a->ndeg);
+            uint32_t other = a->nbr[k];
+            if (a->nsame[k]) {
                 bgm_msg_t m = msg(M_GENES, me, other, 0, 0);
                 double g[BGM_GENE_COUNT];
                 bgm_genes_pack(&a->genes, g);
