@@ -5,7 +5,8 @@
  * also buys resources) and the resource seller.
  *
  * The simulator's world hosts one state machine per role split out so far
- * (bgm_market_agent, bgm_resource; market/README.md says what is left) and routes
+ * (bgm_market_agent, bgm_resource; the buyer and the basic seller still run
+ * in the world, each on its own records: market/README.md) and routes
  * the generic message bgm_msg_t below between them; `biotgrid sim
  * --engine wire` carries every routed message through the pure codec
  * (bgm_codec.h). A role machine includes this header, never another
@@ -13,9 +14,7 @@
  *
  * The payloads are meant to carry everything a receiver reads, so that a
  * role can live in another process with its messages carried by bgm_codec
- * over ZeroMQ; today's world still reads some records of the sender
- * directly (market/README.md lists where). Messages are plain data,
- * copied by value.
+ * over ZeroMQ. Messages are plain data, copied by value.
  */
 #ifndef BGM_ROLE_H
 #define BGM_ROLE_H
