@@ -105,6 +105,21 @@ static void test_generic_roundtrip_every_type(void **state)
 /* Typed → generic → wire → typed gives the same typed message, for
  * every type (compared through the generic form, which has no padding
  * or union slack). */
+/* Typed → wire → typed; the decoder's answer. */
+static bga_wire_code typed_roundtrip(const bgm_role_msg_t *m, bgm_role_msg_t *back)
+{
+    bg_error_t err;
+    memset(&err, 0, sizeof err);
+    bga_frames_t fr = {0};
+    assert_int_equal(bgm_codec_encode(m, 9, &fr, &err), BG_OK);
+    bga_frame_t v[BGA_WIRE_MAX_FRAMES];
+    bga_frames_view(&fr, v);
+    bga_wire_error_t werr;
+    bga_wire_code c = bgm_codec_decode(v, fr.count, back, &werr);
+    bga_frames_free(&fr);
+    return c;
+}
+
 static void test_typed_roundtrip_every_type(void **state)
 {
     (void)state;
@@ -117,13 +132,7 @@ static void test_typed_roundtrip_every_type(void **state)
         assert_int_equal(bgm_codec_from_generic(&g, &typed, &err), BG_OK);
         assert_int_equal(typed.type, 0x1000 + t);
         typed.job = 0x0123456789abcdefULL;
-        bga_frames_t fr = {0};
-        assert_int_equal(bgm_codec_encode(&typed, 9, &fr, &err), BG_OK);
-        bga_frame_t v[BGA_WIRE_MAX_FRAMES];
-        bga_frames_view(&fr, v);
-        bga_wire_error_t werr;
-        assert_int_equal(bgm_codec_decode(v, fr.count, &back, &werr), BGA_WIRE_OK);
-        bga_frames_free(&fr);
+        assert_int_equal(typed_roundtrip(&typed, &back), BGA_WIRE_OK);
         assert_int_equal(back.job, typed.job);
         bgm_msg_t g1, g2;
         assert_int_equal(bgm_codec_to_generic(&typed, &g1, &err), BG_OK);
@@ -274,13 +283,7 @@ static void test_delivery_messages(void **state)
     assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
     assert_int_equal(g.type, BGM_MT_CONFIRM);
     assert_true(g.origin == 912 && g.price == 1.75 && g.a == 10.5 && g.b == 14.25);
-    bga_frames_t fr = {0};
-    assert_int_equal(bgm_codec_encode(&r, 1, &fr, &err), BG_OK);
-    bga_frame_t v[BGA_WIRE_MAX_FRAMES];
-    bga_frames_view(&fr, v);
-    bga_wire_error_t werr;
-    assert_int_equal(bgm_codec_decode(v, fr.count, &back, &werr), BGA_WIRE_OK);
-    bga_frames_free(&fr);
+    assert_int_equal(typed_roundtrip(&r, &back), BGA_WIRE_OK);
     assert_true(back.u.confirm.bundle == 912 && back.u.confirm.end == 14.25 && back.req == 40 &&
                 back.attempt == 3);
     for (uint16_t t = BGM_RM_TAKE; t <= BGM_RM_REFUSE; t++) {
@@ -290,10 +293,7 @@ static void test_delivery_messages(void **state)
         r.to = 7;
         r.req = 40;
         r.u.take.bundle = 912;
-        assert_int_equal(bgm_codec_encode(&r, 2, &fr, &err), BG_OK);
-        bga_frames_view(&fr, v);
-        assert_int_equal(bgm_codec_decode(v, fr.count, &back, &werr), BGA_WIRE_OK);
-        bga_frames_free(&fr);
+        assert_int_equal(typed_roundtrip(&r, &back), BGA_WIRE_OK);
         assert_int_equal(back.type, t);
         assert_int_equal(back.u.take.bundle, 912);
         assert_string_not_equal(bgm_codec_type_name(t), "unknown");
@@ -306,6 +306,7 @@ static void test_delivery_messages(void **state)
     assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
     assert_true(back.u.match.seller_limit == 1.25 && back.u.match.deadline == 88.0);
 
+    bga_frames_t fr = {0};
     bgm_msg_t bad = bgm_outbox_msg(BGM_MT_TAKE, 2, 1u << 24, 40, 0);
     memset(&err, 0, sizeof err);
     assert_int_equal(bgm_codec_encode_msg(&bad, 0, 0, &fr, &err), BG_ERR_INVALID);
