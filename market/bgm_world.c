@@ -945,13 +945,10 @@ static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
     return total;
 }
 
-/* The money bundle rid costs its basic agent: a whole bundle's rent, or
- * the sum of its parts (call markets). */
-static double bundle_money(const bgm_world_t *w, uint32_t rid)
+/* The money the parts held for bundle rid cost its basic agent in all
+ * (call markets). */
+static double parts_money(const bgm_world_t *w, uint32_t rid)
 {
-    const req_t *r = &w->reqs[rid];
-    if (r->parts == 0)
-        return r->price * (r->end - r->start);
     double total = 0.0;
     for (size_t i = 0; i < w->nparts; i++)
         if (w->parts[i].rid == rid)
@@ -1012,7 +1009,7 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
         }
         req_end(w, r, RQ_DONE);
         r->seller = m->from;
-        r->price = bundle_money(w, m->req) / (r->end - r->start);
+        r->price = parts_money(w, m->req) / (r->end - r->start);
         deliver(w, b, m->req);
         return;
     }
