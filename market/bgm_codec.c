@@ -8,7 +8,7 @@ _Static_assert(BGM_ROLE_CANDIDATES == BGM_MSG_CANDIDATES, "candidate arrays diff
 _Static_assert(BGA_MARKET_FIRST == BGM_RM_FIRST && BGA_MARKET_LAST == BGM_RM_LAST,
                "market type ranges differ");
 
-/* Wire type = BGM_WIRE_BASE + the world's message number (1..23). */
+/* Wire type = BGM_WIRE_BASE + the world's message number (1..25). */
 #define BGM_WIRE_BASE 0x1000
 
 int bgm_codec_type_known(uint16_t type)
@@ -109,7 +109,7 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
         break;
     case BGM_RM_MATCH:
         o->good = (int16_t)u->match.good; o->price = u->match.price_per_unit;
-        o->a = u->match.work; o->b = u->match.deadline; o->c = u->match.buyer_valuation;
+        o->a = u->match.work; o->b = u->match.seller_limit; o->c = u->match.deadline;
         o->origin = u->match.buyer;
         break;
     case BGM_RM_RBID:
@@ -137,7 +137,12 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
         o->cand_price[2] = u->rconfirm.part_seller_cost;
         break;
     case BGM_RM_CONFIRM:
+        o->origin = u->confirm.bundle;
         o->price = u->confirm.price_per_unit; o->a = u->confirm.start; o->b = u->confirm.end;
+        break;
+    case BGM_RM_TAKE:
+    case BGM_RM_REFUSE:
+        o->origin = u->take.bundle;
         break;
     case BGM_RM_CFP:
         o->good = (int16_t)u->cfp.good; o->hops = (uint16_t)u->cfp.hops;
@@ -235,7 +240,11 @@ bg_status bgm_codec_from_generic(const bgm_msg_t *g, bgm_role_msg_t *o, bg_error
                                           g->cand_price[0], g->cand_price[1], g->cand_price[2]};
         break;
     case BGM_RM_CONFIRM:
-        u->confirm = (bgm_rm_confirm_t){g->price, g->a, g->b};
+        u->confirm = (bgm_rm_confirm_t){g->origin, g->price, g->a, g->b};
+        break;
+    case BGM_RM_TAKE:
+    case BGM_RM_REFUSE:
+        u->take = (bgm_rm_take_t){g->origin};
         break;
     case BGM_RM_CFP:
         u->cfp = (bgm_rm_cfp_t){g->good, g->hops, g->origin, g->a, g->b, g->c};

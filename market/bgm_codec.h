@@ -1,7 +1,7 @@
 /*
  * bgm_codec — pure encode/decode of the market roles' messages with the
  * project's wire framing (bga_wire: header frame, scalar frame, array
- * frames), types 0x1001..0x1017 (bgm_role.h).
+ * frames), types 0x1001..0x1019 (bgm_role.h).
  *
  * Every market type has the same schema (so that one decoder serves the
  * simulator's generic message and the roles' typed ones):

@@ -185,6 +185,7 @@ static void clear_services(bgm_market_agent_t *ma, double now)
             m.price = res.price;
             m.a = r->work;
             m.b = asks[ma->fills[f].ask].price;
+            m.c = r->deadline;
             m.origin = r->buyer;
             emit(ma, &m);
             bgm_msg_t c = msg(BGM_MT_ACCEPT, ma->p.self, r->buyer, r->req, r->attempt);

@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "bgm_catallactic.h"
+#include "bgm_session.h"
 
 #define RS_SESSIONS 32
 #define RS_SEEN_RING 16
@@ -18,13 +19,6 @@ typedef struct hold {
     double cores, memory;
 } hold_t;
 
-/* The seller's side of one bargain. */
-typedef struct session {
-    uint32_t buyer, req;
-    int used, open;
-    bgm_nego_t nego;
-} session_t;
-
 struct bgm_resource {
     bgm_config_t cfg;
     bgm_resource_params_t p;
@@ -36,8 +30,7 @@ struct bgm_resource {
     bgm_genes_t genes;
     uint64_t seen[RS_SEEN_RING];
     int seen_pos;
-    session_t sess[RS_SESSIONS];
-    int next_sess;
+    bgm_sessions_t *sess; /* its side of every bargain */
     hold_t *holds;
     size_t nholds, holds_cap;
     bg_status failure;
@@ -77,6 +70,10 @@ bgm_resource_t *bgm_resource_new(const bgm_resource_params_t *p)
     bgm_resource_t *rs = calloc(1, sizeof *rs);
     if (!rs)
         return NULL;
+    if (!(rs->sess = bgm_sessions_new(RS_SESSIONS))) {
+        free(rs);
+        return NULL;
+    }
     rs->cfg = *p->cfg;
     rs->p = *p;
     rs->p.cfg = &rs->cfg;
@@ -97,6 +94,7 @@ void bgm_resource_destroy(bgm_resource_t **prs)
     if (!prs || !*prs)
         return;
     free((*prs)->holds);
+    bgm_sessions_destroy(&(*prs)->sess);
     free(*prs);
     *prs = NULL;
 }
@@ -280,33 +278,6 @@ static void on_cfp(bgm_resource_t *rs, const bgm_msg_t *m)
     }
 }
 
-static session_t *find_session(bgm_resource_t *rs, uint32_t buyer, uint32_t req)
-{
-    for (int i = 0; i < RS_SESSIONS; i++)
-        if (rs->sess[i].used && rs->sess[i].buyer == buyer && rs->sess[i].req == req)
-            return &rs->sess[i];
-    return NULL;
-}
-
-/* The session of (buyer, req), a fresh one when the offer opens a bargain. */
-static session_t *session_for(bgm_resource_t *rs, const bgm_msg_t *m)
-{
-    session_t *s = find_session(rs, m->from, m->req);
-    if (!s && m->hops != 1)
-        return NULL;
-    if (!s) {
-        s = &rs->sess[rs->next_sess];
-        rs->next_sess = (rs->next_sess + 1) % RS_SESSIONS;
-    }
-    if (m->hops == 1) {
-        memset(s, 0, sizeof *s);
-        s->used = 1;
-        s->buyer = m->from;
-        s->req = m->req;
-    }
-    return s;
-}
-
 static void reject(bgm_resource_t *rs, const bgm_msg_t *m)
 {
     bgm_msg_t x = msg(BGM_MT_REJECT, rs->p.self, m->from, m->req, m->attempt);
@@ -315,7 +286,7 @@ static void reject(bgm_resource_t *rs, const bgm_msg_t *m)
 
 static void on_offer(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
 {
-    session_t *s = session_for(rs, m);
+    bgm_session_t *s = bgm_sessions_for(rs->sess, m);
     if (!s)
         return; /* an offer in a bargain it has forgotten: nothing to answer */
     double lim = cost_rate(rs, m->a, m->b);
@@ -342,7 +313,7 @@ static void on_offer(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
 /* The buyer accepted its last counter-offer. */
 static void on_accept(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
 {
-    const session_t *s = find_session(rs, m->from, m->req);
+    const bgm_session_t *s = bgm_sessions_find(rs->sess, m->from, m->req, m->attempt);
     if (s && s->open)
         learn(rs, 1, (m->price - s->nego.limit) / m->price);
     if (!rent(rs, m, m->from, m->price, now, up))

@@ -23,9 +23,10 @@
  * RFAIL + RFREE (an award it cannot take), PROPOSE, OFFER, REJECT, GENES,
  * and announces itself to the market agent (RASK, RFREE, AVAIL).
  *
- * Its bargaining state is its own: one session per (buyer, request),
- * opened by an offer that says so; a fixed ring of sessions, the oldest
- * reused first (a seller bargains with a few buyers at a time).
+ * Its bargaining state is its own (bgm_session): one session per (buyer,
+ * request, attempt), opened by an offer that says so; a fixed ring of
+ * sessions, the oldest reused first (a seller bargains with a few buyers
+ * at a time).
  */
 #ifndef BGM_RESOURCE_H
 #define BGM_RESOURCE_H

@@ -5,7 +5,8 @@
  * also buys resources) and the resource seller.
  *
  * The simulator's world hosts one state machine per role split out so far
- * (bgm_market_agent, bgm_resource; market/README.md says what is left) and routes
+ * (bgm_market_agent, bgm_resource; the buyer and the basic seller still run
+ * in the world, each on its own records: market/README.md) and routes
  * the generic message bgm_msg_t below between them; `biotgrid sim
  * --engine wire` carries every routed message through the pure codec
  * (bgm_codec.h). A role machine includes this header, never another
@@ -13,9 +14,7 @@
  *
  * The payloads are meant to carry everything a receiver reads, so that a
  * role can live in another process with its messages carried by bgm_codec
- * over ZeroMQ; today's world still reads some records of the sender
- * directly (market/README.md lists where). Messages are plain data,
- * copied by value.
+ * over ZeroMQ. Messages are plain data, copied by value.
  */
 #ifndef BGM_ROLE_H
 #define BGM_ROLE_H
@@ -64,7 +63,9 @@ enum {
     BGM_MT_LIST,
     BGM_MT_ORDER,
     BGM_MT_AVAIL,
-    BGM_MT_RPART
+    BGM_MT_RPART,
+    BGM_MT_TAKE,
+    BGM_MT_REFUSE
 };
 
 /* A message between agents in the simulator: one generic layout for every
@@ -101,7 +102,7 @@ typedef enum bgm_role_msg_type {
     BGM_RM_RAWARD = 0x1008,   /* market → resource seller: a resource award */
     BGM_RM_RFAIL = 0x1009,    /* market|resource seller → basic seller: resource failed */
     BGM_RM_RCONFIRM = 0x100a, /* resource seller → basic seller: resources rented */
-    BGM_RM_CONFIRM = 0x100b,  /* basic seller → buyer: service contract */
+    BGM_RM_CONFIRM = 0x100b,  /* basic seller → buyer: the service is ready (a delivery) */
     BGM_RM_CANCEL = 0x100c,   /* basic seller → buyer: agreed service lost its resources */
     BGM_RM_CFP = 0x100d,      /* call for proposals (catallactic, hop-limited) */
     BGM_RM_PROPOSE = 0x100e,  /* seller → buyer: opening price */
@@ -114,10 +115,12 @@ typedef enum bgm_role_msg_type {
     BGM_RM_ORDER = 0x1015,    /* posted: buyer → seller at the posted price */
     BGM_RM_AVAIL = 0x1016,    /* posted: seller → directory: free capacity */
     BGM_RM_RPART = 0x1017,    /* call markets: market → resource seller, one part */
+    BGM_RM_TAKE = 0x1018,     /* buyer → basic seller: a delivery taken (the contract is final) */
+    BGM_RM_REFUSE = 0x1019,   /* buyer → basic seller: a delivery refused (no longer wanted) */
     BGM_RM_FIRST = BGM_RM_BID,
-    BGM_RM_LAST = BGM_RM_RPART
+    BGM_RM_LAST = BGM_RM_REFUSE
 } bgm_role_msg_type;
-_Static_assert(BGM_RM_BID == 0x1000 + BGM_MT_BID && BGM_RM_RPART == 0x1000 + BGM_MT_RPART,
+_Static_assert(BGM_RM_BID == 0x1000 + BGM_MT_BID && BGM_RM_REFUSE == 0x1000 + BGM_MT_REFUSE,
                "wire types are 0x1000 + the simulator's message numbers");
 
 /* Typed payloads (what the receiver reads; units as in bgm_world.c). */
@@ -129,10 +132,12 @@ typedef struct bgm_rm_ask {
     int good;
     double reservation_per_unit, slots;
 } bgm_rm_ask_t;
+/* MATCH: what the seller reads to serve the bid: its work, the seller's
+ * own ask (its limit) and until when the buyer wants the item. */
 typedef struct bgm_rm_match {
     int good;
     uint32_t buyer;
-    double price_per_unit, work, deadline, buyer_valuation;
+    double price_per_unit, work, seller_limit, deadline;
 } bgm_rm_match_t;
 typedef struct bgm_rm_rbid {
     double cores, memory, flops, limit_total;
@@ -156,9 +161,17 @@ typedef struct bgm_rm_rconfirm {
     double rate, start, end, seller_limit_rate;
     double part_quantity, part_buyer_limit, part_seller_cost;
 } bgm_rm_rconfirm_t;
+/* CONFIRM (a delivery): the basic seller's service for the buyer's
+ * request and attempt is ready, at the agreed price, from start to end;
+ * bundle is the seller's own number for the resources that run it. The
+ * buyer answers TAKE or REFUSE with the same bundle. */
 typedef struct bgm_rm_confirm {
+    uint32_t bundle;
     double price_per_unit, start, end;
 } bgm_rm_confirm_t;
+typedef struct bgm_rm_take {
+    uint32_t bundle;
+} bgm_rm_take_t;
 typedef struct bgm_rm_cfp {
     int good, hops;
     uint32_t origin;
@@ -223,6 +236,7 @@ typedef union bgm_role_payload {
     bgm_rm_order_t order;
     bgm_rm_avail_t avail;
     bgm_rm_rpart_t rpart;
+    bgm_rm_take_t take; /* TAKE, REFUSE */
 } bgm_role_payload_t;
 
 /* One message between roles: header (who, about which request) + payload. */

@@ -9,6 +9,7 @@
 #include "bgm_optimum.h"
 #include "bgm_outbox.h"
 #include "bgm_resource.h"
+#include "bgm_session.h"
 #include "bgm_rng.h"
 #include "bgm_strategy.h"
 
@@ -33,6 +34,8 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 #define BGM_MAX_NEIGHBOURS 64
 #define BGM_MAX_PROPOSALS 8
 #define BGM_SEEN_RING 16
+/* Bargains a basic seller keeps at once (catallactic; bgm_session). */
+#define BGM_BASIC_SESSIONS 32
 /* Items one role machine may emit in one call (a clearing emits two per fill). */
 #define BGM_OUTBOX_MAX ((size_t)1 << 20)
 #define BGM_GOOD_CORES 3
@@ -63,7 +66,7 @@ enum {
     M_RCONFIRM, /* R->B: req, price=rate, a=start, b=end, c=seller limit rate; for a part
                  * (good cores|memory): cand_price[0..2]=quantity, buyer limit and
                  * seller cost per unit-second, hops=parts of the bundle */
-    M_CONFIRM,  /* B->C: req, price/unit, a=start, b=end */
+    M_CONFIRM,  /* B->C, a delivery: req, attempt, price/unit, a=start, b=end, origin=bundle */
     M_CANCEL,   /* B->C: the agreed service could not get resources */
     M_CFP,      /* call for proposals: req, good, hops, origin, a=work|cores, b=memory, c=flops */
     M_PROPOSE,  /* seller->buyer: price=opening, a=speed */
@@ -75,11 +78,13 @@ enum {
     M_LIST,     /* A->buyer: candidates */
     M_ORDER,    /* buyer->seller at posted price: price, a=work|cores, b=memory, c=flops */
     M_AVAIL,    /* baseline seller->directory: a=free slots|cores, b=free memory */
-    M_RPART     /* A->R, call markets: req, good=cores|memory, a=quantity, b=duration,
+    M_RPART,    /* A->R, call markets: req, good=cores|memory, a=quantity, b=duration,
                  * price=rate per unit-second, c=buyer limit per unit-second,
                  * hops=parts of the bundle, origin=buyer, cand_price[0]=start */
+    M_TAKE,     /* C->B: the delivery of req is taken; origin=bundle */
+    M_REFUSE    /* C->B: the delivery of req is refused; origin=bundle */
 };
-_Static_assert((int)M_RPART == (int)BGM_MT_RPART, "the world's message numbers are bgm_role.h's");
+_Static_assert((int)M_REFUSE == (int)BGM_MT_REFUSE, "the world's message numbers are bgm_role.h's");
 
 /* Timer kinds. */
 enum {
@@ -88,7 +93,7 @@ enum {
     T_REQ,          /* request phase timeout: arg = req | tseq << 32 */
     T_DEADLINE,     /* request deadline: arg = req */
     T_RETRY,        /* retry acquisition: arg = req | attempt << 32 */
-    T_RELEASE,      /* seller capacity release at contract end: arg = req */
+    T_RELEASE,      /* seller capacity release at contract end: arg = its bundle (req) */
     T_RELEASE_PART, /* resource agent frees one part: arg = part_arg(good, quantity) */
     T_LEARN,        /* catallactic learning meeting */
     T_NODE_FAIL,    /* agent = first agent of node; arg = node */
@@ -101,22 +106,24 @@ _Static_assert(T_CLEAR == BGM_MA_TIMER_CLEAR && T_RELEASE == BGM_RS_TIMER_RELEAS
                "the role machines' timers keep their numbers");
 
 enum { RQ_IDLE, RQ_DISCOVER, RQ_NEGOTIATE, RQ_WAIT, RQ_COMMITTED, RQ_DONE, RQ_FAILED };
+/* A bundle's delivery to the job's agent (resource requests). */
+enum { DL_NONE, DL_OFFERED, DL_DECIDED };
 
 typedef struct proposal {
     uint32_t seller;
     double price, speed;
 } proposal_t;
 
-/* The bargaining state of a request while it is being acquired by
- * proposals (catallactic) or candidate lists (baseline): kept apart from
- * the request and given back when the request ends, because only a few
- * hundred requests bargain at once while tens of thousands are recorded.
- * The seller-side state rides along for the seller. */
+/* The buyer's bargaining state of a request while it is being acquired
+ * by proposals (catallactic) or candidate lists (baseline): kept apart
+ * from the request and given back when the request ends, because only a
+ * few hundred requests bargain at once while tens of thousands are
+ * recorded. A seller's side of the bargain is the seller's own
+ * (bgm_session). */
 typedef struct nego_state {
     proposal_t prop[BGM_MAX_PROPOSALS];
     int nprop, next_prop;
-    bgm_nego_t buyer_nego, seller_nego;
-    int seller_open;
+    bgm_nego_t buyer_nego;
     uint32_t next_free;
 } nego_state_t;
 
@@ -139,6 +146,12 @@ typedef struct req {
     double start, end;
     uint32_t nego;  /* bargaining state (BGM_NEGO_NONE: none) */
     uint32_t parts; /* call markets: parts of the bundle confirmed so far */
+    /* Resource request: the basic agent's own record of the service deal
+     * it serves (what the buyer's message said and the agreed terms), so
+     * that it never reads the buyer's record. */
+    uint32_t sbuyer;
+    int sgood, delivery;
+    double swork, sprice, slimit;
 } req_t;
 
 typedef struct job {
@@ -157,6 +170,7 @@ typedef struct agent {
     double fitness, markup;
     double memory[4]; /* remembered price per service good; [3]: resource price/cost ratio */
     uint32_t *nbr;
+    uint8_t *nsame; /* per neighbour: of its role (told at creation, as its overlay links) */
     int ndeg;
     /* basic-service seller */
     int sells[BGM_SERVICE_TYPES];
@@ -189,6 +203,7 @@ struct bgm_world {
     uint32_t nagents, ncomplex, nbasic, nresource, first_basic, first_resource;
     agent_t *agents;
     uint32_t *nbr_pool;
+    uint8_t *nsame_pool;
     /* Catallactic only: per agent, a ring of the calls for proposals it
      * has seen (BGM_SEEN_RING keys) and where the next one goes. */
     uint64_t *seen;
@@ -208,6 +223,7 @@ struct bgm_world {
     size_t nparts, parts_cap;
     bgm_market_agent_t *ma; /* agent 0's role machine */
     bgm_resource_t **rsm;   /* the resource sellers' role machines, by agent - first_resource */
+    bgm_sessions_t **bsess; /* catallactic: the basic sellers' bargains, by agent - first_basic */
     bgm_outbox_t *ob;       /* what a role machine emits during one call */
     /* accounting */
     double msgs, bytes, timeouts;
@@ -382,11 +398,12 @@ static void req_end(bgm_world_t *w, req_t *r, int state)
 }
 
 /* A resource request's bundle is what its service's type needs, for the
- * service's work; a service request has none. Derived, not stored: tens
- * of thousands of requests are recorded at 2000 agents. */
+ * service's work (from the basic agent's record of the deal); a service
+ * request has none. Derived, not stored: tens of thousands of requests
+ * are recorded at 2000 agents. */
 static const bgm_service_cfg_t *bundle_type(const bgm_world_t *w, const req_t *r)
 {
-    return r->layer == 1 ? &w->cfg.services[w->reqs[r->parent].good] : NULL;
+    return r->layer == 1 ? &w->cfg.services[r->sgood] : NULL;
 }
 
 static double req_cores(const bgm_world_t *w, const req_t *r)
@@ -404,7 +421,7 @@ static double req_memory(const bgm_world_t *w, const req_t *r)
 static double req_flops(const bgm_world_t *w, const req_t *r)
 {
     const bgm_service_cfg_t *s = bundle_type(w, r);
-    return s ? s->flops_per_unit * w->reqs[r->parent].work : 0.0;
+    return s ? s->flops_per_unit * r->swork : 0.0;
 }
 
 static double resource_cost_rate(const agent_t *r, double cores, double mem)
@@ -463,7 +480,8 @@ static bg_status build_overlay(bgm_world_t *w)
     for (uint32_t a = 0; a < w->nagents; a++)
         total += (size_t)w->agents[a].ndeg;
     w->nbr_pool = malloc((total ? total : 1) * sizeof *w->nbr_pool);
-    if (!w->nbr_pool) {
+    w->nsame_pool = malloc(total ? total : 1);
+    if (!w->nbr_pool || !w->nsame_pool) {
         free(table);
         return BG_ERR_NOMEM;
     }
@@ -472,9 +490,15 @@ static bg_status build_overlay(bgm_world_t *w)
         agent_t *x = &w->agents[a];
         memcpy(w->nbr_pool + at, x->nbr, (size_t)x->ndeg * sizeof *w->nbr_pool);
         x->nbr = w->nbr_pool + at;
+        x->nsame = w->nsame_pool + at;
         at += (size_t)x->ndeg;
     }
     free(table);
+    for (uint32_t a = 0; a < w->nagents; a++) {
+        agent_t *x = &w->agents[a];
+        for (int j = 0; j < x->ndeg; j++)
+            x->nsame[j] = w->agents[x->nbr[j]].role == x->role;
+    }
     return BG_OK;
 }
 
@@ -568,6 +592,16 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
             goto out;
         }
     }
+    if (p->mechanism == BGM_MECH_CATALLACTIC) {
+        w->bsess = calloc(w->nbasic, sizeof *w->bsess);
+        for (uint32_t k = 0; w->bsess && k < w->nbasic; k++)
+            if (!(w->bsess[k] = bgm_sessions_new(BGM_BASIC_SESSIONS)))
+                break;
+        if (!w->bsess || (w->nbasic > 0 && !w->bsess[w->nbasic - 1])) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u basic sellers", w->nbasic);
+            goto out;
+        }
+    }
     if ((st = build_overlay(w))) {
         bg_error_set(err, st, "out of memory for the overlay");
         goto out;
@@ -584,14 +618,11 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
     }
     for (uint32_t k = 0; k < w->nresource; k++) {
         const agent_t *ag = &w->agents[w->first_resource + k];
-        uint8_t same[BGM_MAX_NEIGHBOURS];
-        for (int j = 0; j < ag->ndeg; j++)
-            same[j] = w->agents[ag->nbr[j]].role == BGM_ROLE_RESOURCE;
         bgm_resource_params_t rp = {&w->cfg,       p->mechanism, w->first_resource + k, 0,
                                     w->horizon,    ag->cores,    ag->mem,
                                     ag->core_cost, ag->mem_cost, ag->speed,
                                     ag->rng,       ag->genes,    ag->markup,
-                                    ag->nbr,       same,         ag->ndeg};
+                                    ag->nbr,       ag->nsame,    ag->ndeg};
         if (!(w->rsm[k] = bgm_resource_new(&rp))) {
             st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u resource sellers",
                               w->nresource);
@@ -611,6 +642,7 @@ void bgm_world_destroy(bgm_world_t **pw)
     bgm_world_t *w = *pw;
     free(w->agents);
     free(w->nbr_pool);
+    free(w->nsame_pool);
     free(w->seen);
     free(w->seen_pos);
     free(w->node_up);
@@ -625,6 +657,9 @@ void bgm_world_destroy(bgm_world_t **pw)
     for (uint32_t k = 0; w->rsm && k < w->nresource; k++)
         bgm_resource_destroy(&w->rsm[k]);
     free(w->rsm);
+    for (uint32_t k = 0; w->bsess && k < w->nbasic; k++)
+        bgm_sessions_destroy(&w->bsess[k]);
+    free(w->bsess);
     bgm_outbox_destroy(&w->ob);
     free(w->acc_s);
     free(w->acc_r);
@@ -678,7 +713,6 @@ static void final_fail(bgm_world_t *w, uint32_t rid, double now)
     }
     /* A resource request failed: the basic agent gives the slot back and
      * tells its job buyer that the agreed service is off. */
-    req_t *s = &w->reqs[r->parent];
     if (buyer->used > 0)
         buyer->used--;
     announce(w, r->buyer);
@@ -686,7 +720,7 @@ static void final_fail(bgm_world_t *w, uint32_t rid, double now)
         bgm_msg_t m = msg(M_FREE, r->buyer, 0, rid, 0);
         send(w, &m);
     }
-    bgm_msg_t m = msg(M_CANCEL, r->buyer, s->buyer, r->parent, r->sattempt);
+    bgm_msg_t m = msg(M_CANCEL, r->buyer, r->sbuyer, r->parent, r->sattempt);
     send(w, &m);
     (void)now;
 }
@@ -747,7 +781,6 @@ static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
         }
         nego_state_t *g = ng(w, r);
         g->nprop = g->next_prop = 0;
-        g->seller_open = 0;
     }
     switch (w->p.mechanism) {
     case BGM_MECH_CENTRAL: {
@@ -789,39 +822,44 @@ static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
     }
 }
 
-/* The basic agent has agreed to serve attempt `attempt` of service
- * request sid at `price` per unit: it reserves a slot and starts buying
- * the resources. The agreement is bound to that attempt: once the job's
- * agent has moved on to another attempt (a timeout, a lost message), the
- * bundle bought for this one serves nothing (service_live). Returns 0
- * (and changes nothing) when it has no free slot or the attempt is stale. */
-static int service_agreed(bgm_world_t *w, uint32_t b, uint32_t sid, uint32_t attempt, double price,
-                          double limit, double now)
+/* A service deal as the basic seller knows it: what the buyer's message
+ * (or the auctioneer's MATCH) said, and the agreed terms. */
+typedef struct deal {
+    uint32_t buyer, req, attempt;
+    int good;
+    double work, deadline, price, limit;
+} deal_t;
+
+/* Basic agent b has agreed to serve deal d: it reserves a slot and starts
+ * buying the resources, keeping the deal in its own resource request.
+ * The deal is bound to the buyer's attempt: whether the buyer still
+ * wants it is the buyer's to say when the service is delivered (TAKE or
+ * REFUSE). Returns 0 (and changes nothing) when it has no free slot. */
+static int service_agreed(bgm_world_t *w, uint32_t b, const deal_t *d, double now)
 {
     agent_t *ag = &w->agents[b];
-    req_t *s = &w->reqs[sid];
-    if (ag->used >= ag->slots || !agent_alive(w, b) || attempt != s->attempt ||
-        s->state == RQ_DONE || s->state == RQ_FAILED)
+    if (ag->used >= ag->slots || !agent_alive(w, b) || d->good < 0 ||
+        d->good >= BGM_SERVICE_TYPES || !(d->work > 0.0))
         return 0;
-    ag->used++;
-    announce(w, b);
-    s->seller = b;
-    s->price = price;
-    s->seller_limit = limit;
     uint32_t rid = new_req(w);
     if (rid == UINT32_MAX)
         return 0;
-    s = &w->reqs[sid];
+    ag->used++;
+    announce(w, b);
     req_t *r = &w->reqs[rid];
     r->layer = 1;
     r->good = BGM_GOOD_BUNDLE;
     r->buyer = b;
-    r->parent = sid;
-    r->sattempt = attempt;
-    r->job = s->job;
-    r->limit = price * s->work;
+    r->parent = d->req;
+    r->sattempt = d->attempt;
+    r->sbuyer = d->buyer;
+    r->sgood = d->good;
+    r->swork = d->work;
+    r->sprice = d->price;
+    r->slimit = d->limit;
+    r->limit = d->price * d->work;
     r->created = now;
-    r->deadline = s->deadline > now ? s->deadline : now + w->cfg.catallactic.reply_timeout;
+    r->deadline = d->deadline > now ? d->deadline : now + w->cfg.catallactic.reply_timeout;
     w->resource_requests += 1.0;
     timer(w, b, r->deadline, T_DEADLINE, rid);
     start_acquire(w, rid, now);
@@ -907,95 +945,30 @@ static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
     return total;
 }
 
-/* The service that basic agent b's bundle serves is still wanted from b:
- * the job's agent has not bought it already, has not given up on it
- * (deadline passed), and is still on the attempt b agreed to (it has not
- * moved to another seller, nor back to b for a new attempt after a lost
- * message). */
-static int service_live(const bgm_world_t *w, uint32_t b, const req_t *r)
+/* The money the parts held for bundle rid cost its basic agent in all
+ * (call markets). */
+static double parts_money(const bgm_world_t *w, uint32_t rid)
 {
-    const req_t *s = &w->reqs[r->parent];
-    return s->state != RQ_DONE && s->state != RQ_FAILED && s->seller == b &&
-           s->attempt == r->sattempt;
+    double total = 0.0;
+    for (size_t i = 0; i < w->nparts; i++)
+        if (w->parts[i].rid == rid)
+            total += w->parts[i].rate * w->parts[i].quantity * (w->parts[i].end - w->parts[i].start);
+    return total;
 }
 
-/* The job's agent takes delivery of service request sid: it is bought,
- * once. This is the same step as the contract becoming final
- * (bundle_rented): the check that the job's agent still wants the item
- * (service_live) and its acceptance are one event, so a confirmation lost
- * on the way back cannot make the job's agent buy the item a second time
- * (it would otherwise time out on a seller that has in fact delivered and
- * buy again). The M_CONFIRM that follows only carries the news to the job
- * agent's node. */
-static void service_delivered(bgm_world_t *w, uint32_t sid, double price, double start, double end)
-{
-    req_t *r = &w->reqs[sid];
-    req_end(w, r, RQ_DONE);
-    r->start = start;
-    r->end = end;
-    job_t *j = &w->jobs[r->job];
-    j->done++;
-    if (end > j->last_end)
-        j->last_end = end;
-    agent_t *c = &w->agents[r->buyer];
-    c->memory[r->good] = bgm_memory_update(c->memory[r->good], price, c->genes.weight_memory);
-    learn_outcome(c, 1, (r->limit - price) / r->limit);
-}
-
-/* Basic agent b's bundle rid has arrived but its service is void (the
- * job's agent has given up on b): nobody pays for the bundle, so no item
- * is ever bought twice and b never pays for resources it cannot use; its
- * sellers held it for nothing. b frees its slot when the rental ends. */
-static void bundle_void(bgm_world_t *w, uint32_t b, const req_t *r)
-{
-    learn_outcome(&w->agents[b], 0, 0.0);
-    timer(w, b, r->end, T_RELEASE, r->parent);
-}
-
-/* Basic agent b's bundle rid is rented and paid, from start to end, for
- * `money` in all: the service contract becomes final. */
-static void bundle_rented(bgm_world_t *w, uint32_t b, uint32_t rid, double start, double end,
-                          double money, double now)
+/* Basic agent b's bundle rid is rented: it delivers the service to the
+ * job's agent (CONFIRM, with the bundle's number), which answers TAKE or
+ * REFUSE. The slot is b's until the rental ends, taken or not. */
+static void deliver(bgm_world_t *w, uint32_t b, uint32_t rid)
 {
     req_t *r = &w->reqs[rid];
-    req_t *s = &w->reqs[r->parent];
-    agent_t *ba = &w->agents[b];
-    agent_t *ca = &w->agents[s->buyer];
-    bgm_contract_t c = {now,     start,    end,      r->parent,      s->buyer, b, 0,
-                        s->good, s->work,  s->price, s->limit, s->seller_limit};
-    bg_status st = log_contract(w, &c);
-    if (st)
-        fail(w, st);
-    ca->paid[0] += s->price * s->work;
-    ba->received[0] += s->price * s->work;
-    w->welfare += (s->limit - ba->cost[s->good]) * s->work;
-    if (push_double(&w->acc_s, &w->nacc_s, now - s->created))
-        fail(w, BG_ERR_NOMEM);
-    /* Remember what resources really cost per unit of this service. */
-    ba->est_res[s->good] =
-        bgm_memory_update(ba->est_res[s->good], money / s->work, ba->genes.weight_memory);
-    ba->memory[3] = bgm_memory_update(
-        ba->memory[3], money / (end - start) / mean_rate(w, req_cores(w, r), req_memory(w, r)),
-        ba->genes.weight_memory);
-    ba->memory[s->good] = bgm_memory_update(ba->memory[s->good], s->price, ba->genes.weight_memory);
-    learn_outcome(ba, 1, (s->price - s->seller_limit) / s->price);
-    timer(w, b, end, T_RELEASE, r->parent);
-    if (w->p.mechanism == BGM_MECH_CENTRAL) {
-        double res = reservation(ba, s->good);
-        if (fabs(res - ba->announced[s->good]) > BGM_ASK_REFRESH * ba->announced[s->good]) {
-            bgm_msg_t a = msg(M_ASK, b, 0, 0, 0);
-            a.good = (int16_t)s->good;
-            a.price = res;
-            a.a = -1.0;
-            ba->announced[s->good] = res;
-            send(w, &a);
-        }
-    }
-    bgm_msg_t cm = msg(M_CONFIRM, b, s->buyer, r->parent, s->attempt);
-    cm.price = s->price;
-    cm.a = start;
-    cm.b = end;
-    service_delivered(w, r->parent, s->price, start, end);
+    r->delivery = DL_OFFERED;
+    timer(w, b, r->end, T_RELEASE, rid);
+    bgm_msg_t cm = msg(M_CONFIRM, b, r->sbuyer, r->parent, r->sattempt);
+    cm.price = r->sprice;
+    cm.a = r->start;
+    cm.b = r->end;
+    cm.origin = rid;
     send(w, &cm);
 }
 
@@ -1036,16 +1009,8 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
         }
         req_end(w, r, RQ_DONE);
         r->seller = m->from;
-        if (!service_live(w, b, r)) {
-            drop_parts(w, m->req);
-            bundle_void(w, b, r);
-            return;
-        }
-        double money = pay_parts(w, m->req, now);
-        r->price = money / (r->end - r->start);
-        if (push_double(&w->acc_r, &w->nacc_r, r->start - r->created))
-            fail(w, BG_ERR_NOMEM);
-        bundle_rented(w, b, m->req, r->start, r->end, money, now);
+        r->price = parts_money(w, m->req) / (r->end - r->start);
+        deliver(w, b, m->req);
         return;
     }
     req_end(w, r, RQ_DONE);
@@ -1053,12 +1018,125 @@ static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double n
     r->price = m->price;
     r->start = m->a;
     r->end = m->b;
-    if (!service_live(w, b, r)) {
-        bundle_void(w, b, r);
+    deliver(w, b, m->req);
+}
+
+/* The contract of bundle rid's service becomes final when the job's agent
+ * takes the delivery: the world, as the observer that keeps the contract
+ * log and the ledger, books the service contract and the bundle's
+ * resource contracts and pays them. A refused delivery is void: nobody
+ * pays for the bundle, so no item is ever bought twice and the basic
+ * agent never pays for resources it cannot use (its sellers held them for
+ * nothing). */
+static void book_delivery(bgm_world_t *w, uint32_t rid, int taken, double now)
+{
+    req_t *r = &w->reqs[rid];
+    if (r->delivery != DL_OFFERED)
+        return;
+    r->delivery = DL_DECIDED;
+    if (!taken) {
+        if (r->parts > 0)
+            drop_parts(w, rid);
         return;
     }
-    pay_bundle(w, m->req, m->from, m->price, m->a, m->b, now);
-    bundle_rented(w, b, m->req, m->a, m->b, m->price * (m->b - m->a), now);
+    if (r->parts > 0) {
+        pay_parts(w, rid, now);
+        if (push_double(&w->acc_r, &w->nacc_r, r->start - r->created))
+            fail(w, BG_ERR_NOMEM);
+    } else {
+        pay_bundle(w, rid, r->seller, r->price, r->start, r->end, now);
+    }
+    const req_t *s = &w->reqs[r->parent];
+    agent_t *ba = &w->agents[r->buyer];
+    agent_t *ca = &w->agents[r->sbuyer];
+    bgm_contract_t c = {now,      r->start, r->end,    r->parent, r->sbuyer, r->buyer, 0,
+                        r->sgood, r->swork, r->sprice, s->limit,  r->slimit};
+    bg_status st = log_contract(w, &c);
+    if (st)
+        fail(w, st);
+    ca->paid[0] += r->sprice * r->swork;
+    ba->received[0] += r->sprice * r->swork;
+    w->welfare += (s->limit - ba->cost[r->sgood]) * r->swork;
+    if (push_double(&w->acc_s, &w->nacc_s, now - s->created))
+        fail(w, BG_ERR_NOMEM);
+}
+
+/* The job's agent answers basic agent b's delivery of bundle rid: a
+ * taken service teaches b what resources really cost per unit of it and
+ * its price; a refused one counts as a failure. */
+static void seller_on_answer(bgm_world_t *w, uint32_t b, const bgm_msg_t *m)
+{
+    if (m->origin >= w->nreq)
+        return;
+    req_t *r = &w->reqs[m->origin];
+    if (r->layer != 1 || r->buyer != b || r->sbuyer != m->from || r->parent != m->req ||
+        r->delivery == DL_NONE)
+        return;
+    agent_t *ba = &w->agents[b];
+    if (m->type == M_REFUSE) {
+        learn_outcome(ba, 0, 0.0);
+        return;
+    }
+    double money = r->price * (r->end - r->start);
+    ba->est_res[r->sgood] =
+        bgm_memory_update(ba->est_res[r->sgood], money / r->swork, ba->genes.weight_memory);
+    ba->memory[3] = bgm_memory_update(
+        ba->memory[3], r->price / mean_rate(w, req_cores(w, r), req_memory(w, r)),
+        ba->genes.weight_memory);
+    ba->memory[r->sgood] = bgm_memory_update(ba->memory[r->sgood], r->sprice, ba->genes.weight_memory);
+    learn_outcome(ba, 1, (r->sprice - r->slimit) / r->sprice);
+    if (w->p.mechanism == BGM_MECH_CENTRAL) {
+        double res = reservation(ba, r->sgood);
+        if (fabs(res - ba->announced[r->sgood]) > BGM_ASK_REFRESH * ba->announced[r->sgood]) {
+            bgm_msg_t a = msg(M_ASK, b, 0, 0, 0);
+            a.good = (int16_t)r->sgood;
+            a.price = res;
+            a.a = -1.0;
+            ba->announced[r->sgood] = res;
+            send(w, &a);
+        }
+    }
+}
+
+/* The job's agent takes delivery of service request sid: it is bought. */
+static void service_delivered(bgm_world_t *w, uint32_t sid, double price, double start, double end)
+{
+    req_t *r = &w->reqs[sid];
+    req_end(w, r, RQ_DONE);
+    r->start = start;
+    r->end = end;
+    job_t *j = &w->jobs[r->job];
+    j->done++;
+    if (end > j->last_end)
+        j->last_end = end;
+    agent_t *c = &w->agents[r->buyer];
+    c->memory[r->good] = bgm_memory_update(c->memory[r->good], price, c->genes.weight_memory);
+    learn_outcome(c, 1, (r->limit - price) / r->limit);
+}
+
+/* The job's agent me is offered the delivery of its request m->req: it
+ * takes it, once, if it still wants the item from that seller on that
+ * attempt (it has not bought it already, has not given up on it, and has
+ * not moved on to another attempt or, bargaining, another seller), and
+ * refuses it otherwise. Taking is the step at which the item is bought:
+ * a TAKE lost on the way back cannot make the job's agent buy the item a
+ * second time. A service whose run has already ended serves nothing. */
+static void buyer_on_delivery(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
+{
+    req_t *r = &w->reqs[m->req];
+    if (r->layer != 0 || r->buyer != me || m->origin >= w->nreq)
+        return;
+    int wanted = r->state != RQ_DONE && r->state != RQ_FAILED && m->attempt == r->attempt &&
+                 (w->p.mechanism == BGM_MECH_CENTRAL || r->seller == m->from) && m->b > now;
+    bgm_msg_t x = msg(wanted ? M_TAKE : M_REFUSE, me, m->from, m->req, m->attempt);
+    x.origin = m->origin;
+    if (wanted) {
+        r->seller = m->from;
+        r->price = m->price;
+        service_delivered(w, m->req, m->price, m->a, m->b);
+    }
+    book_delivery(w, m->origin, wanted, now);
+    send(w, &x);
 }
 
 /* ---------------------------------------------------------------- market */
@@ -1202,7 +1280,6 @@ static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
             request_fields(w, r, &o);
         }
         r->seller = p->seller;
-        g->seller_open = 0;
         r->state = RQ_NEGOTIATE;
         send(w, &o);
         arm(w, rid, now + w->cfg.catallactic.reply_timeout);
@@ -1225,52 +1302,74 @@ static int cmp_prop(const void *pa, const void *pb)
     return (a->seller > b->seller) - (a->seller < b->seller);
 }
 
-/* Agreement reached at a basic seller: it commits on its side and tells
- * the buyer ACCEPT (resources follow), or REJECT when it cannot. */
-static void seller_commit(bgm_world_t *w, uint32_t me, uint32_t rid, double price, double limit,
-                          double now)
+/* Agreement reached at basic seller `me` on the request a buyer's OFFER,
+ * ACCEPT or ORDER names (m->from, m->req, m->attempt, m->good): it commits
+ * on its side and tells the buyer ACCEPT (resources follow), or REJECT
+ * when it cannot. */
+static void seller_commit(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double price,
+                          double limit, double now)
 {
-    req_t *r = &w->reqs[rid];
-    uint32_t attempt = r->attempt;
-    uint32_t buyer = r->buyer;
-    if (!service_agreed(w, me, rid, attempt, price, limit, now)) {
-        bgm_msg_t x = msg(M_REJECT, me, buyer, rid, attempt);
+    deal_t d = {m->from, m->req, m->attempt, m->good, m->a, m->cand_price[2], price, limit};
+    if (!service_agreed(w, me, &d, now)) {
+        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
         send(w, &x);
         return;
     }
     agent_t *s = &w->agents[me];
-    s->memory[w->reqs[rid].good] =
-        bgm_memory_update(s->memory[w->reqs[rid].good], price, s->genes.weight_memory);
-    bgm_msg_t a = msg(M_ACCEPT, me, buyer, rid, attempt);
+    s->memory[m->good] = bgm_memory_update(s->memory[m->good], price, s->genes.weight_memory);
+    bgm_msg_t a = msg(M_ACCEPT, me, m->from, m->req, m->attempt);
     a.price = price;
     send(w, &a);
 }
 
+/* A buyer's OFFER to basic seller `me`. The seller reads what the offer
+ * carries (the good, how long it stands) and its own session of the
+ * bargain, opened by the buyer's first offer; an offer of a bargain it
+ * does not hold (another attempt, forgotten) gets no answer. */
 static void seller_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
 {
-    req_t *r = &w->reqs[m->req];
     agent_t *s = &w->agents[me];
-    if (m->attempt != r->attempt || r->seller != me || r->state != RQ_NEGOTIATE)
+    if (m->good < 0 || m->good >= BGM_SERVICE_TYPES || now > m->cand_price[2])
         return;
-    nego_state_t *g = ng(w, r);
-    if (!g->seller_open) {
-        bgm_nego_open(&g->seller_nego, BGM_SIDE_SELLER, seller_limit_for(s, r->good),
-                      seller_opening(s, r->good), &s->genes, w->cfg.catallactic.max_rounds);
-        g->seller_open = 1;
+    bgm_session_t *ss = bgm_sessions_for(w->bsess[me - w->first_basic], m);
+    if (!ss)
+        return;
+    if (!ss->open) {
+        bgm_nego_open(&ss->nego, BGM_SIDE_SELLER, seller_limit_for(s, m->good),
+                      seller_opening(s, m->good), &s->genes, w->cfg.catallactic.max_rounds);
+        ss->open = 1;
     }
     double reply = 0.0;
-    bgm_nego_action act = bgm_nego_respond(&g->seller_nego, m->price, &s->rng, &reply);
+    bgm_nego_action act = bgm_nego_respond(&ss->nego, m->price, &s->rng, &reply);
     if (act == BGM_NEGO_ACCEPT) {
-        seller_commit(w, me, m->req, reply, g->seller_nego.limit, now);
+        seller_commit(w, me, m, reply, ss->nego.limit, now);
     } else if (act == BGM_NEGO_COUNTER) {
-        bgm_msg_t o = msg(M_OFFER, me, r->buyer, m->req, m->attempt);
+        bgm_msg_t o = msg(M_OFFER, me, m->from, m->req, m->attempt);
         o.price = reply;
         send(w, &o);
     } else {
         learn_outcome(s, 0, 0.0);
-        bgm_msg_t x = msg(M_REJECT, me, r->buyer, m->req, m->attempt);
+        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
         send(w, &x);
     }
+}
+
+/* The buyer accepted basic seller me's last counter-offer: the seller
+ * commits at that price if the bargain is one it holds. */
+static void seller_on_accept(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
+{
+    if (m->good < 0 || m->good >= BGM_SERVICE_TYPES || !w->bsess)
+        return;
+    const bgm_session_t *ss = bgm_sessions_find(w->bsess[me - w->first_basic], m->from, m->req,
+                                                m->attempt);
+    if (!ss || !ss->open) {
+        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
+        send(w, &x);
+        return;
+    }
+    double lim = ss->nego.limit;
+    learn_outcome(&w->agents[me], 1, (m->price - lim) / m->price);
+    seller_commit(w, me, m, m->price, lim, now);
 }
 
 static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
@@ -1309,10 +1408,15 @@ static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, doub
     }
 }
 
+/* A learning meeting: agent me learns only from an overlay neighbour of
+ * its own role, which it was told when its links were made. */
 static void learn_meet(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
 {
     agent_t *a = &w->agents[me];
-    if (a->role != w->agents[m->from].role)
+    int same = 0;
+    for (int i = 0; i < a->ndeg; i++)
+        same |= a->nbr[i] == m->from && a->nsame[i];
+    if (!same)
         return;
     if (m->a > 0.0) {
         bgm_msg_t r = msg(M_GENES, me, m->from, 0, 0);
@@ -1332,6 +1436,20 @@ static void learn_meet(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
 }
 
 /* --------------------------------------------------------------- dispatch */
+
+/* Which side of a bargain a message to agent me is for follows from the
+ * roles, not from a record: a job's agent only buys; a basic agent sells
+ * services to jobs' agents and buys bundles from resource sellers. */
+static int from_seller(const bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
+{
+    return me < w->first_basic || is_resource(w, m->from);
+}
+
+static int from_buyer_of_service(const bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
+{
+    return me >= w->first_basic && me < w->first_resource && m->from >= 1 &&
+           m->from < w->first_basic;
+}
 
 static void buyer_committed(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
 {
@@ -1366,12 +1484,14 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
     }
     req_t *r = m->type == M_GENES ? NULL : &w->reqs[m->req];
     switch (m->type) {
-    case M_MATCH:
-        if (!service_agreed(w, me, m->req, m->attempt, m->price, m->b, now)) {
+    case M_MATCH: {
+        deal_t d = {m->origin, m->req, m->attempt, m->good, m->a, m->c, m->price, m->b};
+        if (!service_agreed(w, me, &d, now)) {
             bgm_msg_t c = msg(M_CANCEL, me, m->origin, m->req, m->attempt);
             send(w, &c);
         }
         break;
+    }
     case M_RFAIL:
         if (r->state != RQ_DONE && r->state != RQ_FAILED)
             final_fail(w, m->req, now);
@@ -1380,8 +1500,12 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         on_rconfirm(w, me, m, now);
         break;
     case M_CONFIRM:
-        /* The delivery was accepted when it became final
-         * (service_delivered); the news changes nothing more. */
+        buyer_on_delivery(w, me, m, now);
+        break;
+    case M_TAKE:
+    case M_REFUSE:
+        if (from_buyer_of_service(w, me, m))
+            seller_on_answer(w, me, m);
         break;
     case M_CANCEL:
         if (m->attempt == r->attempt && r->state == RQ_COMMITTED)
@@ -1398,22 +1522,16 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         }
         break;
     case M_OFFER:
-        if (r->buyer == me)
+        if (from_seller(w, me, m))
             buyer_on_offer(w, me, m, now);
         else
             seller_on_offer(w, me, m, now);
         break;
     case M_ACCEPT:
-        if (r->buyer == me) {
+        if (from_seller(w, me, m))
             buyer_committed(w, me, m);
-        } else if (m->attempt == r->attempt && r->seller == me && r->state == RQ_COMMITTED) {
-            const agent_t *s = &w->agents[me];
-            const nego_state_t *g = ng(w, r);
-            double lim = g->seller_open ? g->seller_nego.limit : seller_limit_for(s, r->good);
-            if (g->seller_open)
-                learn_outcome(&w->agents[me], 1, (m->price - lim) / m->price);
-            seller_commit(w, me, m->req, m->price, lim, now);
-        }
+        else
+            seller_on_accept(w, me, m, now);
         break;
     case M_REJECT:
         if (r->buyer == me && m->attempt == r->attempt && m->from == r->seller &&
@@ -1434,10 +1552,12 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         }
         break;
     case M_ORDER:
-        if (m->attempt == r->attempt && r->seller == me && r->state == RQ_NEGOTIATE) {
+        /* At the posted price, while the buyer's order stands. */
+        if (m->good >= 0 && m->good < BGM_SERVICE_TYPES && now <= m->cand_price[2] &&
+            from_buyer_of_service(w, me, m)) {
             const agent_t *s = &w->agents[me];
-            double lim = s->posted[r->good] / (1.0 + w->cfg.baseline.markup);
-            seller_commit(w, me, m->req, m->price, lim, now);
+            double lim = s->posted[m->good] / (1.0 + w->cfg.baseline.markup);
+            seller_commit(w, me, m, m->price, lim, now);
         }
         break;
     default:
@@ -1578,6 +1698,9 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
         break;
     }
     case T_RELEASE: /* a basic seller's slot (resource sellers: bgm_resource) */
+        /* A delivery never answered (lost on the way) is void by now. */
+        if (rid < w->nreq)
+            book_delivery(w, rid, 0, now);
         if (a->used > 0)
             a->used--;
         announce(w, me);
@@ -1588,8 +1711,9 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
         break;
     case T_LEARN: {
         if (alive && a->ndeg > 0) {
-            uint32_t other = a->nbr[bgm_rng_below(&a->rng, (uint32_t)a->ndeg)];
-            if (w->agents[other].role == a->role) {
+            uint32_t k = bgm_rng_below(&a->rng, (uint32_t)a->ndeg);
+            uint32_t other = a->nbr[k];
+            if (a->nsame[k]) {
                 bgm_msg_t m = msg(M_GENES, me, other, 0, 0);
                 double g[BGM_GENE_COUNT];
                 bgm_genes_pack(&a->genes, g);
@@ -1707,7 +1831,7 @@ static double quantile(const double *v, size_t n, double q)
  * and speed, for the whole run (failures ignored: the optimum may use a
  * node that was down, which only raises it). A delivery can start from
  * the request's creation until its deadline plus the commitment grace: no
- * service contract is final later (bundle_rented voids it). When the
+ * service contract is final later (the job's agent refuses a delivery then). When the
  * config's central market sells resources on per-type call markets,
  * bundles may split across resource agents, in the optimum too, for every
  * mechanism of the run alike (the same demand and supply, the same

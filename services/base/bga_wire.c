@@ -177,7 +177,7 @@ static const field_spec ir_fields[] = {F64F("kinetic", 0.0, 1e300),
                                        F64F("seconds", 0.0, 1e300)};
 static const array_spec ir_arrays[] = {F64FREE("q_next", 1)};
 
-/* Market role messages (0x1001..0x1017, bgm_codec): one schema for all.
+/* Market role messages (0x1001..0x1019, bgm_codec): one schema for all.
  * good −1 is a resource bundle; the numbers may be ±Inf (an unbounded limit
  * or deadline) but never NaN; candidates are fixed-size arrays so every
  * type's numbers survive a round trip unchanged. Agent ids stay below
@@ -420,6 +420,8 @@ static const schema SCHEMAS[] = {
     SCHEMA(0x1015, "market-order", mk_fields, mk_arrays, check_market),
     SCHEMA(0x1016, "market-avail", mk_fields, mk_arrays, check_market),
     SCHEMA(0x1017, "market-rpart", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1018, "market-take", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1019, "market-refuse", mk_fields, mk_arrays, check_market),
 };
 
 static const schema *find_schema(uint16_t type)

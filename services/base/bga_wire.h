@@ -22,7 +22,7 @@
  * checks all of it plus a per-type consistency check, and fails with a
  * bga_wire_error_t naming the frame and field. Types 0x0001–0x00ff are
  * control, 0x01xx rotation-fit, 0x02xx sparse-solve, 0x03xx integration
- * step; 0x10xx market roles (0x1001–0x1017, bgm_codec).
+ * step; 0x10xx market roles (0x1001–0x1019, bgm_codec).
  *
  * Ownership: a decoded bga_msg_t only points into the caller's frames
  * (valid while they are); nothing is allocated. bga_wire_encode fills a
@@ -279,10 +279,10 @@ enum { /* INTEG_STATE arrays */ BGA_IT_Q, BGA_IT_NARRAYS };
 enum { /* INTEG_TRIAL */ BGA_IR_KINETIC, BGA_IR_WORK, BGA_IR_SECONDS, BGA_IR_NFIELDS };
 enum { /* INTEG_TRIAL arrays */ BGA_IR_QNEXT, BGA_IR_NARRAYS };
 
-/* Market role messages, types 0x1001..0x1017 (see market/bgm_codec.h for
+/* Market role messages, types 0x1001..0x1019 (see market/bgm_codec.h for
  * their meaning): all share one schema. */
 #define BGA_MARKET_FIRST 0x1001
-#define BGA_MARKET_LAST 0x1017
+#define BGA_MARKET_LAST 0x1019
 #define BGA_MARKET_CANDIDATES 8
 #define BGA_MARKET_MAX_AGENT ((1 << 24) - 1)
 enum { /* market */

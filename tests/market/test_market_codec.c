@@ -17,6 +17,7 @@
 
 #include "bg_mesh.h"
 #include "bgm_codec.h"
+#include "bgm_outbox.h"
 
 /* bga_wire repeats the engine's mesh caps so the base library needs no
  * engine header; they must agree. */
@@ -98,12 +99,27 @@ static void test_generic_roundtrip_every_type(void **state)
         assert_string_not_equal(bgm_codec_type_name((uint16_t)(0x1000 + t)), "unknown");
     }
     assert_false(bgm_codec_type_known(0x1000));
-    assert_false(bgm_codec_type_known(0x1018));
+    assert_false(bgm_codec_type_known(0x101a));
 }
 
 /* Typed → generic → wire → typed gives the same typed message, for
  * every type (compared through the generic form, which has no padding
  * or union slack). */
+/* Typed → wire → typed; the decoder's answer. */
+static bga_wire_code typed_roundtrip(const bgm_role_msg_t *m, bgm_role_msg_t *back)
+{
+    bg_error_t err;
+    memset(&err, 0, sizeof err);
+    bga_frames_t fr = {0};
+    assert_int_equal(bgm_codec_encode(m, 9, &fr, &err), BG_OK);
+    bga_frame_t v[BGA_WIRE_MAX_FRAMES];
+    bga_frames_view(&fr, v);
+    bga_wire_error_t werr;
+    bga_wire_code c = bgm_codec_decode(v, fr.count, back, &werr);
+    bga_frames_free(&fr);
+    return c;
+}
+
 static void test_typed_roundtrip_every_type(void **state)
 {
     (void)state;
@@ -116,13 +132,7 @@ static void test_typed_roundtrip_every_type(void **state)
         assert_int_equal(bgm_codec_from_generic(&g, &typed, &err), BG_OK);
         assert_int_equal(typed.type, 0x1000 + t);
         typed.job = 0x0123456789abcdefULL;
-        bga_frames_t fr = {0};
-        assert_int_equal(bgm_codec_encode(&typed, 9, &fr, &err), BG_OK);
-        bga_frame_t v[BGA_WIRE_MAX_FRAMES];
-        bga_frames_view(&fr, v);
-        bga_wire_error_t werr;
-        assert_int_equal(bgm_codec_decode(v, fr.count, &back, &werr), BGA_WIRE_OK);
-        bga_frames_free(&fr);
+        assert_int_equal(typed_roundtrip(&typed, &back), BGA_WIRE_OK);
         assert_int_equal(back.job, typed.job);
         bgm_msg_t g1, g2;
         assert_int_equal(bgm_codec_to_generic(&typed, &g1, &err), BG_OK);
@@ -246,9 +256,65 @@ static void test_encode_refuses(void **state)
     m.type = 0;
     memset(&err, 0, sizeof err);
     assert_int_equal(bgm_codec_encode_msg(&m, 0, 0, &fr, &err), BG_ERR_INVALID);
-    m.type = 24;
+    m.type = BGM_MT_REFUSE + 1;
     memset(&err, 0, sizeof err);
     assert_int_equal(bgm_codec_encode_msg(&m, 0, 0, &fr, &err), BG_ERR_INVALID);
+}
+
+/* The delivery handshake's messages (a basic seller's CONFIRM and the
+ * buyer's TAKE or REFUSE) carry the seller's bundle number both ways, and
+ * what the buyer reads of a MATCH's deal (the seller's limit, the
+ * deadline) lands where the world reads it; a TAKE naming no agent, or
+ * with a NaN where a number goes, is refused. */
+static void test_delivery_messages(void **state)
+{
+    (void)state;
+    bg_error_t err;
+    memset(&err, 0, sizeof err);
+    bgm_role_msg_t r, back;
+    memset(&r, 0, sizeof r);
+    bgm_msg_t g;
+    r.type = BGM_RM_CONFIRM;
+    r.from = 7;
+    r.to = 2;
+    r.req = 40;
+    r.attempt = 3;
+    r.u.confirm = (bgm_rm_confirm_t){912, 1.75, 10.5, 14.25};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_int_equal(g.type, BGM_MT_CONFIRM);
+    assert_true(g.origin == 912 && g.price == 1.75 && g.a == 10.5 && g.b == 14.25);
+    assert_int_equal(typed_roundtrip(&r, &back), BGA_WIRE_OK);
+    assert_true(back.u.confirm.bundle == 912 && back.u.confirm.end == 14.25 && back.req == 40 &&
+                back.attempt == 3);
+    for (uint16_t t = BGM_RM_TAKE; t <= BGM_RM_REFUSE; t++) {
+        memset(&r, 0, sizeof r);
+        r.type = t;
+        r.from = 2;
+        r.to = 7;
+        r.req = 40;
+        r.u.take.bundle = 912;
+        assert_int_equal(typed_roundtrip(&r, &back), BGA_WIRE_OK);
+        assert_int_equal(back.type, t);
+        assert_int_equal(back.u.take.bundle, 912);
+        assert_string_not_equal(bgm_codec_type_name(t), "unknown");
+    }
+    memset(&r, 0, sizeof r);
+    r.type = BGM_RM_MATCH;
+    r.u.match = (bgm_rm_match_t){1, 3, 2.5, 4.0, 1.25, 88.0};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.origin == 3 && g.a == 4.0 && g.b == 1.25 && g.c == 88.0);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.match.seller_limit == 1.25 && back.u.match.deadline == 88.0);
+
+    bga_frames_t fr = {0};
+    bgm_msg_t bad = bgm_outbox_msg(BGM_MT_TAKE, 2, 1u << 24, 40, 0);
+    memset(&err, 0, sizeof err);
+    assert_int_equal(bgm_codec_encode_msg(&bad, 0, 0, &fr, &err), BG_ERR_INVALID);
+    bad = bgm_outbox_msg(BGM_MT_REFUSE, 2, 7, 40, 0);
+    bad.a = NAN;
+    memset(&err, 0, sizeof err);
+    assert_int_equal(bgm_codec_encode_msg(&bad, 0, 0, &fr, &err), BG_ERR_INVALID);
+    assert_true(err.message[0] != '\0');
 }
 
 /* Encodes a valid message, lets `edit` damage a copy of its frames, and
@@ -338,7 +404,7 @@ static void missing_array(uint8_t *f[], size_t n[], int *count)
 }
 static void foreign_type(uint8_t *f[], size_t n[], int *count)
 {
-    f[0][6] = 0x18; /* type 0x1018, outside the market range and the table */
+    f[0][6] = 0x1a; /* type 0x101a, outside the market range and the table */
     f[0][7] = 0x10;
 }
 
@@ -401,6 +467,7 @@ int main(void)
         cmocka_unit_test(test_typed_fields_market_agent_reads),
         cmocka_unit_test(test_typed_field_meaning),
         cmocka_unit_test(test_encode_refuses),
+        cmocka_unit_test(test_delivery_messages),
         cmocka_unit_test(test_decode_refuses),
         cmocka_unit_test(test_decode_non_market),
     };

@@ -26,6 +26,7 @@
 #include "bgm_evq.h"
 #include "bgm_heap.h"
 #include "bgm_optimum.h"
+#include "bgm_outbox.h"
 #include "bgm_posted.h"
 #include "bgm_rng.h"
 #include "bgm_world.h"
@@ -1040,6 +1041,157 @@ static void test_invariants_inprocess(void **state)
     }
 }
 
+/* ------------------------------------------ the delivery handshake */
+
+/* A sink that keeps the messages a world sends (timers are dropped: the
+ * test plays every event itself). */
+typedef struct capture {
+    bgm_msg_t m[256];
+    int n;
+} capture_t;
+
+static void capture_send(void *ctx, const bgm_msg_t *msg, long bytes)
+{
+    capture_t *c = ctx;
+    (void)bytes;
+    assert_true(c->n < 256);
+    c->m[c->n++] = *msg;
+}
+
+static void capture_timer(void *ctx, uint32_t agent, double at, int kind, uint64_t arg)
+{
+    (void)ctx, (void)agent, (void)at, (void)kind, (void)arg;
+}
+
+static const bgm_msg_t *captured(const capture_t *c, int type, uint32_t to)
+{
+    const bgm_msg_t *found = NULL;
+    for (int i = 0; i < c->n; i++)
+        if (c->m[i].type == type && c->m[i].to == to) {
+            assert_null(found);
+            found = &c->m[i];
+        }
+    return found;
+}
+
+/* Central: a basic seller matched to a job's bid buys its bundle and,
+ * once the bundle is rented, offers the delivery (CONFIRM, with its
+ * bundle's number); the job's agent takes it (TAKE), and only then does
+ * the contract exist — a service row at the matched price with the
+ * buyer's valuation as its limit, and the bundle's cores and memory rows.
+ * The same delivery again, or one for an attempt the buyer is not on,
+ * is refused and books nothing: no item is bought twice. */
+static void test_delivery_handshake(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = load_cfg(
+        "{\"name\":\"dh\",\"seed\":5,\"replications\":1,\"duration\":100,\"mechanisms\":[\"central\"],"
+        "\"factors\":{\"nodes\":[4],\"density\":[1]},\"agents\":{\"complex_per_node\":1}}");
+    int nodes;
+    double density;
+    const bgm_dynamics_t *dy;
+    bgm_config_scenario(&cfg, 0, &nodes, &density, &dy);
+    bgm_world_params_t p = {&cfg, 0, BGM_MECH_CENTRAL, 0, nodes, density, dy, NULL};
+    bg_error_t err = BG_ERROR_INIT;
+    bgm_world_t *w = bgm_world_new(&p, &err);
+    assert_non_null(w);
+    assert_int_equal(bgm_world_agent_count(w), 13); /* market, 4 jobs' agents, 4 basic, 4 resource */
+    const uint32_t buyer = 1, seller = 5, resource = 9;
+    capture_t *cap = calloc(1, sizeof *cap);
+    assert_non_null(cap);
+    bgm_sink_t sink = {cap, capture_send, capture_timer};
+    assert_int_equal(bgm_world_start(w, &sink, 0.0), BG_OK);
+    cap->n = 0;
+    assert_int_equal(bgm_world_on_timer(w, buyer, 1 /* arrival */, 0, 1.0), BG_OK);
+    const bgm_msg_t *bids[8];
+    int nb = 0;
+    for (int i = 0; i < cap->n; i++)
+        if (cap->m[i].type == BGM_MT_BID && nb < 8)
+            bids[nb++] = &cap->m[i];
+    assert_true(nb >= 2); /* every plan has two items or more */
+    const bgm_msg_t bid = *bids[0], other = *bids[1];
+
+    cap->n = 0;
+    const double price = 0.8 * bid.price, ask = 0.5 * bid.price;
+    bgm_msg_t match = bgm_outbox_msg(BGM_MT_MATCH, 0, seller, bid.req, bid.attempt);
+    match.good = bid.good;
+    match.price = price;
+    match.a = bid.a;
+    match.b = ask;
+    match.c = bid.b;
+    match.origin = buyer;
+    assert_int_equal(bgm_world_on_message(w, &match, 2.0), BG_OK);
+    const bgm_msg_t *rbid = captured(cap, BGM_MT_RBID, 0);
+    assert_non_null(rbid);
+    const uint32_t bundle = rbid->req;
+    assert_true(rbid->price == price * bid.a); /* the deal's revenue bounds the bundle */
+
+    cap->n = 0;
+    bgm_msg_t rc = bgm_outbox_msg(BGM_MT_RCONFIRM, resource, seller, bundle, 0);
+    rc.good = -1;
+    rc.price = 0.01;
+    rc.a = 2.5;
+    rc.b = 12.5;
+    rc.c = 0.005;
+    assert_int_equal(bgm_world_on_message(w, &rc, 2.5), BG_OK);
+    const bgm_msg_t *cm = captured(cap, BGM_MT_CONFIRM, buyer);
+    assert_non_null(cm);
+    assert_int_equal(cm->origin, bundle);
+    assert_int_equal(cm->req, bid.req);
+    assert_int_equal(cm->attempt, bid.attempt);
+    assert_true(cm->price == price && cm->a == 2.5 && cm->b == 12.5);
+    assert_int_equal(bgm_world_contract_count(w), 0); /* not final before the buyer takes it */
+
+    const bgm_msg_t delivery = *cm;
+    cap->n = 0;
+    assert_int_equal(bgm_world_on_message(w, &delivery, 2.51), BG_OK);
+    const bgm_msg_t *take = captured(cap, BGM_MT_TAKE, seller);
+    assert_non_null(take);
+    assert_int_equal(take->origin, bundle);
+    assert_null(captured(cap, BGM_MT_REFUSE, seller));
+    assert_int_equal(bgm_world_contract_count(w), 3);
+    const bgm_contract_t *c = bgm_world_contracts(w);
+    int services = 0;
+    for (int i = 0; i < 3; i++) {
+        assert_true(c[i].time == 2.51 && c[i].start == 2.5 && c[i].end == 12.5);
+        assert_int_equal(c[i].request, bid.req);
+        if (c[i].layer == 0) {
+            services++;
+            assert_int_equal(c[i].buyer, buyer);
+            assert_int_equal(c[i].seller, seller);
+            assert_true(c[i].price == price && c[i].quantity == bid.a);
+            assert_true(c[i].buyer_limit == bid.price && c[i].seller_limit == ask);
+        } else {
+            assert_int_equal(c[i].buyer, seller);
+            assert_int_equal(c[i].seller, resource);
+        }
+    }
+    assert_int_equal(services, 1);
+
+    /* The same delivery again: refused, nothing booked. */
+    cap->n = 0;
+    assert_int_equal(bgm_world_on_message(w, &delivery, 2.6), BG_OK);
+    assert_non_null(captured(cap, BGM_MT_REFUSE, seller));
+    assert_null(captured(cap, BGM_MT_TAKE, seller));
+    assert_int_equal(bgm_world_contract_count(w), 3);
+    /* A delivery for the other item, on an attempt its buyer is not on. */
+    bgm_msg_t stale = delivery;
+    stale.req = other.req;
+    stale.attempt = other.attempt + 1;
+    cap->n = 0;
+    assert_int_equal(bgm_world_on_message(w, &stale, 2.7), BG_OK);
+    assert_non_null(captured(cap, BGM_MT_REFUSE, seller));
+    assert_int_equal(bgm_world_contract_count(w), 3);
+    double paid[2], received[2];
+    bgm_world_money(w, paid, received);
+    assert_float_equal(paid[0], price * bid.a, 1e-12);
+    assert_float_equal(paid[1], 0.01 * 10.0, 1e-12);
+    assert_float_equal(paid[0], received[0], 1e-12);
+    assert_float_equal(paid[1], received[1], 1e-12);
+    free(cap);
+    bgm_world_destroy(&w);
+}
+
 /* Call markets: every bundle paid for is paid whole. Its parts are logged
  * together when it completes (same buyer, same time), and hold cores and
  * memory in a bundle's proportions, never one good alone. Returns how
@@ -1394,6 +1546,7 @@ int main(void)
         cmocka_unit_test(test_config_validation),
         cmocka_unit_test(test_json_loader),
         cmocka_unit_test(test_invariants_inprocess),
+        cmocka_unit_test(test_delivery_handshake),
         cmocka_unit_test(test_call_markets_inprocess),
         cmocka_unit_test(test_price_convergence_shock),
         cmocka_unit_test(test_scarcity_prices_inprocess),

@@ -23,6 +23,7 @@
 #include "bgm_resource.h"
 #include "bgm_rng.h"
 #include "bgm_role.h"
+#include "bgm_session.h"
 #include "bgm_strategy.h"
 
 #define EPS 1e-12
@@ -570,10 +571,59 @@ static void test_resource_proposes_from_own_policy(void **state)
     bgm_resource_destroy(&rs);
 }
 
+/* A seller's ring of bargains: an opening offer opens a fresh session
+ * (forgetting an earlier one of the same key), a continuing offer finds
+ * it only with the same buyer, request and attempt, and a full ring
+ * reuses its oldest session first. */
+static void test_sessions_ring(void **state)
+{
+    (void)state;
+    assert_null(bgm_sessions_new(0));
+    assert_null(bgm_sessions_new(BGM_SESSIONS_MAX + 1));
+    bgm_sessions_t *ss = bgm_sessions_new(3);
+    assert_non_null(ss);
+    bgm_msg_t o = mk(BGM_MT_OFFER, 2, 10);
+    o.hops = 0;
+    assert_null(bgm_sessions_for(ss, &o)); /* a bargain never opened */
+    o.hops = 1;
+    bgm_session_t *s = bgm_sessions_for(ss, &o);
+    assert_non_null(s);
+    assert_true(s->buyer == 2 && s->req == 10 && s->attempt == 3 && !s->open);
+    s->open = 1;
+    s->nego.limit = 7.0;
+    o.hops = 0;
+    assert_ptr_equal(bgm_sessions_for(ss, &o), s);
+    assert_ptr_equal(bgm_sessions_find(ss, 2, 10, 3), s);
+    bgm_msg_t stale = o;
+    stale.attempt = 2;
+    assert_null(bgm_sessions_for(ss, &stale));
+    bgm_msg_t other = o;
+    other.from = 4;
+    assert_null(bgm_sessions_for(ss, &other));
+    /* Opening again starts afresh, in the same session. */
+    o.hops = 1;
+    assert_ptr_equal(bgm_sessions_for(ss, &o), s);
+    assert_false(s->open);
+    s->open = 1;
+    /* Two more fill the ring; a fourth evicts the oldest: (2, 10). */
+    for (uint32_t r = 11; r <= 13; r++) {
+        bgm_msg_t n = mk(BGM_MT_OFFER, 2, r);
+        n.hops = 1;
+        assert_non_null(bgm_sessions_for(ss, &n));
+    }
+    assert_null(bgm_sessions_find(ss, 2, 10, 3));
+    for (uint32_t r = 11; r <= 13; r++)
+        assert_non_null(bgm_sessions_find(ss, 2, r, 3));
+    bgm_sessions_destroy(&ss);
+    assert_null(ss);
+    bgm_sessions_destroy(&ss);
+}
+
 /* Bargaining from its own session: an opening offer at or above its
  * asking price is accepted and rented at that price; an offer below its
  * cost never gets a counter-offer below its cost; an offer past the
- * buyer's deadline, or one in a bargain it never opened, gets no answer;
+ * buyer's deadline, one in a bargain it never opened, or one of an
+ * earlier attempt of a bargain it holds, gets no answer;
  * an acceptance whose rent would exceed the buyer's budget is rejected. */
 static void test_resource_bargains_from_its_own_session(void **state)
 {
@@ -613,6 +663,29 @@ static void test_resource_bargains_from_its_own_session(void **state)
     unopened.hops = 0;
     assert_int_equal(bgm_resource_on_message(rs, &unopened, 4.0, 1, ob), BG_OK);
     assert_int_equal(bgm_outbox_count(ob), 0);
+    /* A bargain it holds (the first opening it counters; it may walk
+     * away from one at random) ignores an offer of an earlier attempt. */
+    bgm_msg_t held = bundle_msg(BGM_MT_OFFER, BUYER, 75, cores, mem, flops, 0.9 * cost, 10.0, 50.0);
+    held.hops = 1;
+    int countered = 0;
+    for (uint32_t r = 75; r < 95 && !countered; r++) {
+        bgm_outbox_clear(ob);
+        held.req = r;
+        assert_int_equal(bgm_resource_on_message(rs, &held, 4.0, 1, ob), BG_OK);
+        countered = only_msg(ob, BGM_MT_OFFER) != NULL;
+    }
+    assert_true(countered);
+    bgm_outbox_clear(ob);
+    bgm_msg_t stale = held;
+    stale.hops = 0;
+    stale.attempt = held.attempt - 1;
+    stale.price = 2.0 * cost;
+    assert_int_equal(bgm_resource_on_message(rs, &stale, 4.1, 1, ob), BG_OK);
+    assert_int_equal(bgm_outbox_count(ob), 0);
+    stale.attempt = held.attempt; /* the same price in the held attempt is taken */
+    assert_int_equal(bgm_resource_on_message(rs, &stale, 4.2, 1, ob), BG_OK);
+    assert_non_null(only_msg(ob, BGM_MT_RCONFIRM));
+    bgm_outbox_clear(ob);
 
     bgm_msg_t acc = bundle_msg(BGM_MT_ACCEPT, BUYER, 74, cores, mem, flops, 2.0 * cost,
                                1.5 * cost * dur, 50.0);
@@ -682,6 +755,7 @@ int main(void)
         cmocka_unit_test(test_outbox_order_and_cap),
         cmocka_unit_test(test_resource_rents_within_room_cost_and_budget),
         cmocka_unit_test(test_resource_proposes_from_own_policy),
+        cmocka_unit_test(test_sessions_ring),
         cmocka_unit_test(test_resource_bargains_from_its_own_session),
         cmocka_unit_test(test_resource_orders_and_parts),
     };
