@@ -57,7 +57,7 @@ struct bga_market {
     bga_rseller_t *rs;  /* the resource seller role (NULL: none) */
     double rate[2];     /* expected resource rates: per core-second, per GiB-second */
     nego_t nego[NEGO_MAX];
-    uint64_t seen[SEEN_MAX]; /* CFPs already handled: ((job·1024 + attempt)·8 + good)·2 + role */
+    uint64_t seen[SEEN_MAX]; /* CFPs the basic seller handled: ((job·1024 + attempt)·8 + good)·2 */
     int nseen;
     bgm_rng_t rng;
     bgm_genes_t genes;
@@ -335,9 +335,13 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
     bgm_rng_seed(&m->rng, seed);
     bgm_genes_random(&m->genes, &m->rng);
     if (c->cores > 0) {
-        const bga_rseller_config_t rc = {c->cores,      c->memory,         {c->res_floor[0], c->res_floor[1]},
-                                         c->res_margin, c->res_load_slope, c->lease,
-                                         seed ^ 0x9e3779b97f4a7c15ull};
+        const bga_rseller_config_t rc = {.cores = c->cores,
+                                         .memory = c->memory,
+                                         .floor = {c->res_floor[0], c->res_floor[1]},
+                                         .margin = c->res_margin,
+                                         .load_slope = c->res_load_slope,
+                                         .lease = c->lease,
+                                         .seed = seed ^ 0x9e3779b97f4a7c15ull};
         if ((st = bga_rseller_new(&rc, &m->rs, err)) != BG_OK)
             goto fail;
     }
@@ -708,7 +712,8 @@ bg_status bga_market_on_readable(bga_market_t *m, double now, bg_error_t *err)
         /* A malformed message from the broker is answered with an ERROR
          * naming what is wrong, and otherwise ignored: never fatal. */
         if (r.total != r.count)
-            bg_error_set(&derr, BG_ERR_LIMIT, "%d frames, at most %d", r.total, BGA_WIRE_MAX_FRAMES);
+            bg_error_set(&derr, BG_ERR_LIMIT, "%d frames, at most %d", r.total,
+                         BGA_WIRE_MAX_FRAMES);
         else if (bga_mmsg_decode(views, r.count, &in, &derr) == BG_OK)
             st = handle(m, &in, now, err);
         bga_received_close(&r);

@@ -15,9 +15,9 @@
  * these never collide with a neighbour's. */
 #define RS_BUYER 0xfffffffeu
 #define RS_MARKET 0xfffffffdu
-#define RS_DEALS 256       /* (job, good) pairs it remembers: bargains and holds */
-#define RS_OUTBOX 64       /* items one message can cause: a proposal, relays, a reply */
-#define RS_ROUNDS 12       /* the simulator's default catallactic.max_rounds */
+#define RS_DEALS 256 /* (job, good) pairs it remembers: bargains and holds */
+#define RS_OUTBOX 64 /* items one message can cause: a proposal, relays, a reply */
+#define RS_ROUNDS 12 /* the simulator's default catallactic.max_rounds */
 #define RS_MAX_QUANTITY 1e9
 
 /* One (job, good) the broker has talked about: the machine's request. */
@@ -275,7 +275,8 @@ static bg_status route_out(route_t *r, bg_error_t *err)
         if (it->is_timer) {
             /* The release of a bundle; the machine schedules no other
              * timer here (no learning meetings, no call-market parts). */
-            deal_t *h = it->kind == BGM_RS_TIMER_RELEASE ? deal_by_req(rs, (uint32_t)it->arg) : NULL;
+            deal_t *h =
+                it->kind == BGM_RS_TIMER_RELEASE ? deal_by_req(rs, (uint32_t)it->arg) : NULL;
             if (h) {
                 h->held = 1;
                 h->until = it->at;
@@ -342,9 +343,9 @@ static bg_status refuse_now(bga_rseller_t *rs, const bga_mmsg_t *in, const char 
 
 static bg_status machine_status(bg_status st, bg_error_t *err)
 {
-    return st == BG_OK ? BG_OK
-                       : bg_error_set(err, st, "the resource seller's role machine failed (%d)",
-                                      (int)st);
+    return st == BG_OK
+               ? BG_OK
+               : bg_error_set(err, st, "the resource seller's role machine failed (%d)", (int)st);
 }
 
 /* Ends a hold now: its release timer fires early. */

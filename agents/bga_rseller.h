@@ -44,20 +44,19 @@
 typedef struct bga_rseller bga_rseller_t;
 
 typedef struct bga_rseller_config {
-    double cores, memory;  /* capacity: cores (> 0), GiB (≥ 0) */
-    double floor[2];       /* cost per core-second, per GiB-second (> 0) */
-    double margin;         /* the machine's markup (≥ 0) */
-    double load_slope;     /* asking rate rises by this at full load (≥ 0) */
-    double lease;          /* term, s, of an order that names none (> 0) */
-    uint64_t seed;         /* the machine's stream (strategy, bargaining) */
+    double cores, memory; /* capacity: cores (> 0), GiB (≥ 0) */
+    double floor[2];      /* cost per core-second, per GiB-second (> 0) */
+    double margin;        /* the machine's markup (≥ 0) */
+    double load_slope;    /* asking rate rises by this at full load (≥ 0) */
+    double lease;         /* term, s, of an order that names none (> 0) */
+    uint64_t seed;        /* the machine's stream (strategy, bargaining) */
 } bga_rseller_config_t;
 
 /* Sends one reply to the broker. */
 typedef bg_status (*bga_rseller_send_fn)(void *ctx, const bga_mmsg_t *msg, bg_error_t *err);
 
 /* BG_ERR_INVALID naming the field; BG_ERR_NOMEM. */
-bg_status bga_rseller_new(const bga_rseller_config_t *config, bga_rseller_t **out,
-                          bg_error_t *err);
+bg_status bga_rseller_new(const bga_rseller_config_t *config, bga_rseller_t **out, bg_error_t *err);
 void bga_rseller_destroy(bga_rseller_t **rs);
 
 /* The directory id and overlay neighbours the broker gave it (REGISTERED). */

@@ -179,7 +179,8 @@ static void each_garbage(void *s, int router, zmq_msg_t *route, const char *peer
     for (int i = 0; i < n; i++) {
         send_raw(s, router ? route : NULL, &list[i]);
         bga_mmsg_t r;
-        const int got = wait_for(s, router, route, BGA_MM_ERROR, &r, list[i].may_be_silent ? 500 : WAIT_MS);
+        const int got =
+            wait_for(s, router, route, BGA_MM_ERROR, &r, list[i].may_be_silent ? 500 : WAIT_MS);
         if (!got && !list[i].may_be_silent)
             FAIL("%s: no ERROR answered %s", peer, list[i].what);
         if (got && r.reason[0] == '\0')
@@ -271,8 +272,8 @@ int main(int argc, char **argv)
         return 2;
     }
     void *ctx = zmq_ctx_new();
-    const int rc = strcmp(argv[1], "broker") == 0 ? broker_mode(ctx, argv[2])
-                                                  : agent_mode(ctx, argv[2]);
+    const int rc =
+        strcmp(argv[1], "broker") == 0 ? broker_mode(ctx, argv[2]) : agent_mode(ctx, argv[2]);
     zmq_ctx_term(ctx);
     return rc;
 }

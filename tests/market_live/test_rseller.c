@@ -85,8 +85,7 @@ static void orders(void **state)
     assert_near(bga_rseller_used(rs, 0), 3, 0);
     /* Loaded at 3/4 the core rate rises by SLOPE · 3/4 over memory's. */
     bga_rseller_describe(rs, &d);
-    assert_near(d.prices[3] / d.prices[4],
-                        FLOOR_CORES / FLOOR_MEMORY * (1 + SLOPE * 0.75), 1e-9);
+    assert_near(d.prices[3] / d.prices[4], FLOOR_CORES / FLOOR_MEMORY * (1 + SLOPE * 0.75), 1e-9);
 
     /* More cores than are free, a rate under the floor, a service good,
      * a quantity that is no number: each refused, naming why. */
