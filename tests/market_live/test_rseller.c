@@ -44,8 +44,11 @@ static bga_rseller_t *seller(void)
     return rs;
 }
 
-static void ask(bga_rseller_t *rs, sink_t *s, int type, uint64_t job, int good, double quantity,
-                double price, double term, double now)
+/* Hands the seller one broker message for its resource role (a call for
+ * proposals of discovery round `attempt` with `hops` left); what it
+ * answers lands in *s. */
+static void ask_round(bga_rseller_t *rs, sink_t *s, int type, uint64_t job, int good,
+                      double quantity, double price, double term, double now, int hops, int attempt)
 {
     bga_mmsg_t m;
     bga_mmsg_init(&m, type);
@@ -55,10 +58,17 @@ static void ask(bga_rseller_t *rs, sink_t *s, int type, uint64_t job, int good, 
     m.quantity = quantity;
     m.price = price;
     m.term = term;
-    m.hops = 2;
+    m.hops = hops;
+    m.attempt = attempt;
     s->n = 0;
     bg_error_t err = BG_ERROR_INIT;
     assert_int_equal(bga_rseller_on_message(rs, &m, now, collect, s, &err), BG_OK);
+}
+
+static void ask(bga_rseller_t *rs, sink_t *s, int type, uint64_t job, int good, double quantity,
+                double price, double term, double now)
+{
+    ask_round(rs, s, type, job, good, quantity, price, term, now, 2, 0);
 }
 
 static void orders(void **state)
@@ -176,17 +186,7 @@ static void bargaining(void **state)
     assert_near(bga_rseller_used(rs, 0), 0, 0);
 
     /* A new round: the buyer counters once, then takes the seller's price. */
-    bga_mmsg_t cfp;
-    bga_mmsg_init(&cfp, BGA_MM_CFP);
-    cfp.resource = 1;
-    cfp.job = 11;
-    cfp.good = 3;
-    cfp.quantity = 2;
-    cfp.term = 30;
-    cfp.hops = 1;
-    cfp.attempt = 1;
-    s.n = 0;
-    assert_int_equal(bga_rseller_on_message(rs, &cfp, 2, collect, &s, &err), BG_OK);
+    ask_round(rs, &s, BGA_MM_CFP, 11, 3, 2, 0, 30, 2, 1, 1);
     assert_int_equal(s.n, 1);
     assert_int_equal(s.msg[0].type, BGA_MM_PROPOSE);
     double seller_price = s.msg[0].price;
