@@ -8,12 +8,12 @@
 #include <unistd.h>
 #include <zmq.h>
 
+#include "bga_rseller.h"
 #include "bga_transport.h"
 #include "bgm_catallactic.h"
 
 #define NEGO_MAX 64
 #define SEEN_MAX 128
-#define RES_MAX 256
 #define SELLER_ROUNDS 12 /* the simulator's default catallactic.max_rounds */
 #define BUY_WAIT 10.0    /* s: a resource purchase the broker never answers is dropped */
 #define RATE_WEIGHT 0.5  /* weight of the last paid rate in the expected one */
@@ -40,13 +40,6 @@ typedef struct held {
     double quantity, price, floor, cores, until;
 } held_t;
 
-/* Cores or memory the resource seller has sold, until released or `until`. */
-typedef struct rheld {
-    uint64_t job;
-    int good;
-    double quantity, until;
-} rheld_t;
-
 typedef struct role {
     uint32_t id;
     uint32_t neighbours[BGA_MMSG_MAX_NEIGHBOURS];
@@ -61,12 +54,10 @@ struct bga_market {
     double next_beat;
     held_t *held; /* slots entries, used first */
     int used;
-    rheld_t rheld[RES_MAX];
-    int nrheld;
-    double used_res[2]; /* cores, GiB sold */
+    bga_rseller_t *rs;  /* the resource seller role (NULL: none) */
     double rate[2];     /* expected resource rates: per core-second, per GiB-second */
     nego_t nego[NEGO_MAX];
-    uint64_t seen[SEEN_MAX]; /* CFPs already handled: ((job·1024 + attempt)·8 + good)·2 + role */
+    uint64_t seen[SEEN_MAX]; /* CFPs the basic seller handled: ((job·1024 + attempt)·8 + good)·2 */
     int nseen;
     bgm_rng_t rng;
     bgm_genes_t genes;
@@ -140,20 +131,12 @@ static double service_floor(const bga_market_t *m, int good)
            (m->rate[0] * m->c.unit_cores[good] + m->rate[1] * m->c.unit_memory[good]) * m->c.lease;
 }
 
-static double capacity(const bga_market_t *m, int k)
-{
-    return k == 0 ? m->c.cores : m->c.memory;
-}
-
 double bga_market_price(const bga_market_t *m, int good)
 {
     if (!sells(m, good))
         return 0;
-    if (good >= 3) {
-        const int k = good - 3;
-        return m->c.res_floor[k] * (1 + m->c.res_margin) *
-               (1 + m->c.res_load_slope * m->used_res[k] / capacity(m, k));
-    }
+    if (good >= 3)
+        return bga_rseller_price(m->rs, good);
     return service_floor(m, good) * (1 + m->c.margin) *
            (1 + m->c.load_slope * (double)m->used / (double)m->c.slots);
 }
@@ -165,7 +148,7 @@ int bga_market_used(const bga_market_t *m)
 
 double bga_market_cores_used(const bga_market_t *m)
 {
-    return m->used_res[0];
+    return m->rs ? bga_rseller_used(m->rs, 0) : 0;
 }
 
 uint32_t bga_market_id(const bga_market_t *m)
@@ -270,20 +253,7 @@ static void describe(const bga_market_t *m, int role, bga_mmsg_t *msg)
     snprintf(msg->name, sizeof msg->name, "%s", m->name);
     snprintf(msg->endpoint, sizeof msg->endpoint, "%s", m->endpoint);
     if (role == ROLE_RESOURCE) {
-        msg->cores = m->c.cores;
-        msg->memory = m->c.memory;
-        msg->free_cores = m->c.cores - m->used_res[0];
-        msg->free_memory = m->c.memory - m->used_res[1];
-        if (msg->free_cores < 0)
-            msg->free_cores = 0;
-        if (msg->free_memory < 0)
-            msg->free_memory = 0;
-        for (int k = 0; k < 2; k++) {
-            msg->floor[3 + k] = m->c.res_floor[k];
-            msg->prices[3 + k] = bga_market_price(m, 3 + k);
-        }
-        msg->margin = m->c.res_margin;
-        msg->load_slope = m->c.res_load_slope;
+        bga_rseller_describe(m->rs, msg);
         return;
     }
     msg->services = m->c.services;
@@ -364,6 +334,17 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
         seed = (seed ^ (uint8_t)*p) * 1099511628211ull;
     bgm_rng_seed(&m->rng, seed);
     bgm_genes_random(&m->genes, &m->rng);
+    if (c->cores > 0) {
+        const bga_rseller_config_t rc = {.cores = c->cores,
+                                         .memory = c->memory,
+                                         .floor = {c->res_floor[0], c->res_floor[1]},
+                                         .margin = c->res_margin,
+                                         .load_slope = c->res_load_slope,
+                                         .lease = c->lease,
+                                         .seed = seed ^ 0x9e3779b97f4a7c15ull};
+        if ((st = bga_rseller_new(&rc, &m->rs, err)) != BG_OK)
+            goto fail;
+    }
     find_thread_pools(m);
     *out = m;
     return BG_OK;
@@ -378,6 +359,7 @@ void bga_market_destroy(bga_market_t **pm)
         return;
     if ((*pm)->socket)
         zmq_close((*pm)->socket);
+    bga_rseller_destroy(&(*pm)->rs);
     free((*pm)->held);
     free(*pm);
     *pm = NULL;
@@ -393,30 +375,21 @@ static void drop_held(bga_market_t *m, int i)
     m->held[i] = m->held[--m->used];
 }
 
-static void drop_rheld(bga_market_t *m, int i)
-{
-    const int k = m->rheld[i].good - 3;
-    m->used_res[k] -= m->rheld[i].quantity;
-    if (m->used_res[k] < 1e-12)
-        m->used_res[k] = 0;
-    m->rheld[i] = m->rheld[--m->nrheld];
-}
-
 /* Leases that ran out end their contracts; a purchase never answered is
  * given up. */
-static void expire(bga_market_t *m, double now)
+static bg_status expire(bga_market_t *m, double now, bg_error_t *err)
 {
     for (int i = m->used; i-- > 0;)
         if (now >= m->held[i].until)
             drop_held(m, i);
-    for (int i = m->nrheld; i-- > 0;)
-        if (now >= m->rheld[i].until)
-            drop_rheld(m, i);
+    return m->rs ? bga_rseller_tick(m->rs, now, err) : BG_OK;
 }
 
 bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err)
 {
-    expire(m, now);
+    bg_status est = expire(m, now, err);
+    if (est != BG_OK)
+        return est;
     if (now < m->next_beat)
         return BG_OK;
     m->next_beat = now + m->c.heartbeat;
@@ -433,20 +406,15 @@ bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err)
     return st;
 }
 
-static void release_job(bga_market_t *m, int role, uint64_t job)
+/* The basic seller's side of RELEASE (the resource seller's is its host's). */
+static void release_job(bga_market_t *m, uint64_t job)
 {
     for (int i = 0; i < NEGO_MAX; i++)
-        if (m->nego[i].used && m->nego[i].job == job && (m->nego[i].good >= 3) == role)
+        if (m->nego[i].used && m->nego[i].job == job)
             m->nego[i].used = 0;
-    if (role == ROLE_RESOURCE) {
-        for (int i = m->nrheld; i-- > 0;)
-            if (m->rheld[i].job == job)
-                drop_rheld(m, i);
-    } else {
-        for (int i = m->used; i-- > 0;)
-            if (m->held[i].job == job)
-                drop_held(m, i);
-    }
+    for (int i = m->used; i-- > 0;)
+        if (m->held[i].job == job)
+            drop_held(m, i);
 }
 
 static void answer_init(const bga_market_t *m, bga_mmsg_t *r, int type, int role,
@@ -457,33 +425,6 @@ static void answer_init(const bga_market_t *m, bga_mmsg_t *r, int type, int role
     r->good = in->good;
     r->quantity = in->quantity;
     r->price = in->price;
-}
-
-/* The resource seller: sells `quantity` cores or GiB when that much is
- * free and the rate is at least its floor, held for the lease asked. */
-static bg_status resource_order(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
-{
-    bga_mmsg_t r;
-    answer_init(m, &r, BGA_MM_REFUSE, ROLE_RESOURCE, in);
-    const int k = in->good - 3;
-    if (!sells(m, in->good))
-        snprintf(r.reason, sizeof r.reason, "does not sell %d", in->good);
-    else if (m->used_res[k] + in->quantity > capacity(m, k) + 1e-9 || m->nrheld == RES_MAX)
-        snprintf(r.reason, sizeof r.reason, "%.6g %s free, %.6g asked",
-                 capacity(m, k) - m->used_res[k], k ? "GiB" : "cores", in->quantity);
-    else if (in->price < m->c.res_floor[k])
-        snprintf(r.reason, sizeof r.reason, "rate %.6g under the floor %.6g", in->price,
-                 m->c.res_floor[k]);
-    else {
-        const double term = in->term > 0 ? in->term : m->c.lease;
-        m->rheld[m->nrheld++] = (rheld_t){in->job, in->good, in->quantity, now + term};
-        m->used_res[k] += in->quantity;
-        r.type = BGA_MM_CONFIRM;
-        r.floor[in->good] = m->c.res_floor[k];
-        describe(m, ROLE_RESOURCE, &r);
-        r.name[0] = r.endpoint[0] = '\0';
-    }
-    return send_msg(m, &r, err);
 }
 
 static held_t *held_find(bga_market_t *m, uint64_t job, int good, held_state state)
@@ -522,8 +463,10 @@ static bg_status basic_order(bga_market_t *m, const bga_mmsg_t *in, double now, 
 {
     bga_mmsg_t r;
     answer_init(m, &r, BGA_MM_REFUSE, ROLE_BASIC, in);
-    const double floor_g = sells(m, in->good) ? service_floor(m, in->good) : 0;
-    if (!sells(m, in->good))
+    /* A resource good addressed to this role is not its to sell. */
+    const int sold = in->good >= 0 && in->good < 3 && sells(m, in->good);
+    const double floor_g = sold ? service_floor(m, in->good) : 0;
+    if (!sold)
         snprintf(r.reason, sizeof r.reason, "does not sell %d", in->good);
     else if (held_find(m, in->job, in->good, H_BUYING) || held_find(m, in->job, in->good, H_HELD))
         snprintf(r.reason, sizeof r.reason, "already sold this good for job %llu",
@@ -583,7 +526,7 @@ static bg_status on_rfail(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err
 
 static bg_status on_order(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
-    return in->resource ? resource_order(m, in, now, err) : basic_order(m, in, now, err);
+    return basic_order(m, in, now, err);
 }
 
 static nego_t *nego_find(bga_market_t *m, uint64_t job, int good)
@@ -604,30 +547,20 @@ static bg_status reply_price(bga_market_t *m, int type, const bga_mmsg_t *in, do
     return send_msg(m, &r, err);
 }
 
-/* Whether the role could sell this call's good now. */
+/* Whether the basic seller could sell this call's good now. */
 static int can_propose(const bga_market_t *m, const bga_mmsg_t *in)
 {
-    if (in->resource != (in->good >= 3) || !sells(m, in->good))
-        return 0;
-    if (in->resource)
-        return m->used_res[in->good - 3] + in->quantity <= capacity(m, in->good - 3) + 1e-9;
-    return m->used < m->c.slots;
+    return in->good < 3 && sells(m, in->good) && m->used < m->c.slots;
 }
 
-static double role_floor(const bga_market_t *m, int good)
-{
-    return good >= 3 ? m->c.res_floor[good - 3] : service_floor(m, good);
-}
-
-/* Catallactic discovery: propose if the addressed role can sell, and pass
- * the call on to that role's overlay neighbours (relayed by the broker)
- * while hops remain. Each (job, attempt, good) call is handled once per
- * role, however many paths bring it. */
+/* The basic seller's catallactic discovery: propose if it can sell, and
+ * pass the call on to its overlay neighbours (relayed by the broker) while
+ * hops remain. Each (job, attempt, good) call is handled once, however
+ * many paths bring it. */
 static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
-    const int role = in->resource ? ROLE_RESOURCE : ROLE_BASIC;
-    const uint64_t key =
-        (((in->job * 1024 + (uint64_t)in->attempt) * 8 + (uint64_t)in->good) << 1) | (uint64_t)role;
+    const int role = ROLE_BASIC;
+    const uint64_t key = ((in->job * 1024 + (uint64_t)in->attempt) * 8 + (uint64_t)in->good) << 1;
     for (int i = 0; i < m->nseen; i++)
         if (m->seen[i] == key)
             return BG_OK;
@@ -636,9 +569,8 @@ static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, double now, bg_er
     m->seen[m->nseen++] = key;
     bg_status st = BG_OK;
     /* A new round means the buyer is no longer bargaining over this good
-     * (it starts one only when no bargain is pending): restart ours. Only
-     * the role that sells the good bargains over it. */
-    nego_t *stale = in->resource == (in->good >= 3) ? nego_find(m, in->job, in->good) : NULL;
+     * (it starts one only when no bargain is pending): restart ours. */
+    nego_t *stale = nego_find(m, in->job, in->good);
     if (stale)
         stale->used = 0;
     if (can_propose(m, in)) {
@@ -648,10 +580,9 @@ static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, double now, bg_er
         for (int i = 0; i < NEGO_MAX && n->used; i++)
             if (!m->nego[i].used || m->nego[i].at < n->at)
                 n = &m->nego[i];
-        const double floor_g = role_floor(m, in->good);
-        const double margin = in->resource ? m->c.res_margin : m->c.margin;
+        const double floor_g = service_floor(m, in->good);
         const double open =
-            bgm_nego_opening(BGM_SIDE_SELLER, floor_g, bga_market_price(m, in->good), margin);
+            bgm_nego_opening(BGM_SIDE_SELLER, floor_g, bga_market_price(m, in->good), m->c.margin);
         *n = (nego_t){1, in->job, in->good, now, {0}};
         bgm_nego_open(&n->side, BGM_SIDE_SELLER, floor_g, open, &m->genes, SELLER_ROUNDS);
         st = reply_price(m, BGA_MM_PROPOSE, in, n->side.current, err);
@@ -706,9 +637,32 @@ static bg_status on_bargain(bga_market_t *m, const bga_mmsg_t *in, double now, b
     }
 }
 
+static bg_status send_cb(void *ctx, const bga_mmsg_t *msg, bg_error_t *err)
+{
+    return send_msg(ctx, msg, err);
+}
+
 static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
     const int role = in->resource ? ROLE_RESOURCE : ROLE_BASIC;
+    if (in->type == BGA_MM_REGISTERED) {
+        m->role[role].id = in->agent;
+        m->role[role].nneighbours = in->nneighbours;
+        memcpy(m->role[role].neighbours, in->neighbours, sizeof m->role[role].neighbours);
+        if (role == ROLE_RESOURCE && m->rs)
+            return bga_rseller_registered(m->rs, in->agent, in->neighbours, in->nneighbours, err);
+        return BG_OK;
+    }
+    if (in->type == BGA_MM_ERROR) {
+        /* The broker forgot this agent (it restarted, or dropped it as
+         * dead): both roles register again. */
+        m->role[0].id = m->role[1].id = 0;
+        m->next_beat = now;
+        return BG_OK;
+    }
+    /* The resource role's messages go to its role machine's host. */
+    if (role == ROLE_RESOURCE)
+        return m->rs ? bga_rseller_on_message(m->rs, in, now, send_cb, m, err) : BG_OK;
     switch (in->type) {
     case BGA_MM_CFP:
         return on_cfp(m, in, now, err);
@@ -716,11 +670,6 @@ static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_er
     case BGA_MM_ACCEPT:
     case BGA_MM_REJECT:
         return on_bargain(m, in, now, err);
-    case BGA_MM_REGISTERED:
-        m->role[role].id = in->agent;
-        m->role[role].nneighbours = in->nneighbours;
-        memcpy(m->role[role].neighbours, in->neighbours, sizeof m->role[role].neighbours);
-        return BG_OK;
     case BGA_MM_ORDER:
         return on_order(m, in, now, err);
     case BGA_MM_RBOUGHT:
@@ -728,17 +677,19 @@ static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_er
     case BGA_MM_RFAIL:
         return on_rfail(m, in, err);
     case BGA_MM_RELEASE:
-        release_job(m, role, in->job);
-        return BG_OK;
-    case BGA_MM_ERROR:
-        /* The broker forgot this agent (it restarted, or dropped it as
-         * dead): both roles register again. */
-        m->role[0].id = m->role[1].id = 0;
-        m->next_beat = now;
+        release_job(m, in->job);
         return BG_OK;
     default:
         return BG_OK; /* not for a seller; ignored */
     }
+}
+
+static bg_status answer_malformed(bga_market_t *m, const char *why, bg_error_t *err)
+{
+    bga_mmsg_t e;
+    init_from(m, &e, BGA_MM_ERROR, ROLE_BASIC);
+    snprintf(e.reason, sizeof e.reason, "malformed message from the broker: %.150s", why);
+    return send_msg(m, &e, err);
 }
 
 bg_status bga_market_on_readable(bga_market_t *m, double now, bg_error_t *err)
@@ -758,10 +709,16 @@ bg_status bga_market_on_readable(bga_market_t *m, double now, bg_error_t *err)
         bga_received_view(&r, views);
         bga_mmsg_t in;
         bg_error_t derr = BG_ERROR_INIT;
-        /* A malformed message from the broker is dropped, not fatal. */
-        if (r.total == r.count && bga_mmsg_decode(views, r.count, &in, &derr) == BG_OK)
+        /* A malformed message from the broker is answered with an ERROR
+         * naming what is wrong, and otherwise ignored: never fatal. */
+        if (r.total != r.count)
+            bg_error_set(&derr, BG_ERR_LIMIT, "%d frames, at most %d", r.total,
+                         BGA_WIRE_MAX_FRAMES);
+        else if (bga_mmsg_decode(views, r.count, &in, &derr) == BG_OK)
             st = handle(m, &in, now, err);
         bga_received_close(&r);
+        if (st == BG_OK && derr.status != BG_OK)
+            st = answer_malformed(m, derr.message, err);
         if (st != BG_OK)
             return st;
     }

@@ -21,12 +21,16 @@
  * runs out ends the contract.
  *
  * The resource seller (when `cores` > 0) is a second directory entry of
- * the same daemon: services 0, its host's cores and memory, a price per
- * core-second and per GiB-second of
- *     res_floor · (1 + res_margin) · (1 + res_load_slope · used / capacity),
- * heartbeating what is free. It sells on the same mechanism as the job
- * that causes the purchase and holds what it sold until the broker
- * releases it or the lease ends.
+ * the same daemon: services 0, its host's cores and memory. Its decisions
+ * are the simulator's resource-seller role machine's (bgm_resource, hosted
+ * by bga_rseller): whether it has the room and the rate covers its cost
+ * (res_floor per core-second and per GiB-second), its side of a bargain,
+ * what it holds until the broker releases it or the lease ends, and its
+ * asking rate
+ *     res_floor · (1 + res_margin) · (1 + res_load_slope · used / capacity)
+ * (the machine's markup is held at res_margin: bga_rseller.h says why).
+ * It heartbeats what is free. It sells on the same mechanism as the job
+ * that causes the purchase.
  *
  * Ownership: the socket is created in the caller's ZeroMQ context and
  * closed by bga_market_destroy. Single-threaded: called from the agent's

@@ -35,6 +35,7 @@ struct bgm_resource {
     size_t nholds, holds_cap;
     bg_status failure;
     bgm_outbox_t *out;
+    int fixed; /* bgm_resource_fix_strategy: no learning from outcomes */
 };
 
 static void fail(bgm_resource_t *rs, bg_status st)
@@ -105,9 +106,39 @@ void bgm_resource_used(const bgm_resource_t *rs, double *cores, double *memory)
     *memory = rs->used_mem;
 }
 
+bg_status bgm_resource_set_neighbours(bgm_resource_t *rs, const uint32_t *neighbours,
+                                      const uint8_t *same_role, int degree)
+{
+    if (degree < 0 || degree > BGM_RS_MAX_NEIGHBOURS)
+        return BG_ERR_INVALID;
+    for (int i = 0; i < degree; i++) {
+        rs->nbr[i] = neighbours[i];
+        rs->same[i] = same_role[i];
+    }
+    rs->p.degree = degree;
+    return BG_OK;
+}
+
+double bgm_resource_asking(const bgm_resource_t *rs, int good, double load_slope)
+{
+    const int cores = good == BGM_GOOD_CORES_ID;
+    if (!cores && good != BGM_GOOD_MEMORY_ID)
+        return 0.0;
+    const double cap = cores ? rs->p.cores : rs->p.memory;
+    const double held = cores ? rs->used_cores : rs->used_mem;
+    const double cost = cores ? rs->p.core_cost : rs->p.memory_cost;
+    return cost * (1.0 + rs->markup) * (1.0 + (cap > 0.0 ? load_slope * held / cap : 0.0));
+}
+
+void bgm_resource_fix_strategy(bgm_resource_t *rs)
+{
+    rs->fixed = 1;
+}
+
 static void learn(bgm_resource_t *rs, int success, double share)
 {
-    bgm_outcome_learn(&rs->genes, &rs->fitness, &rs->markup, success, share);
+    if (!rs->fixed)
+        bgm_outcome_learn(&rs->genes, &rs->fitness, &rs->markup, success, share);
 }
 
 static double cost_rate(const bgm_resource_t *rs, double cores, double mem)
@@ -165,8 +196,9 @@ static int rent(bgm_resource_t *rs, const bgm_msg_t *m, uint32_t buyer, double r
     rs->used_cores += cores;
     rs->used_mem += mem;
     announce(rs);
-    rs->memory = bgm_memory_update(rs->memory, rate / mean_rate(rs, cores, mem),
-                                   rs->genes.weight_memory);
+    if (!rs->fixed)
+        rs->memory = bgm_memory_update(rs->memory, rate / mean_rate(rs, cores, mem),
+                                       rs->genes.weight_memory);
     learn(rs, 1, (rate - cost) / rate);
     later(rs, now + dur, BGM_RS_TIMER_RELEASE, m->req);
     bgm_msg_t k = msg(BGM_MT_RCONFIRM, rs->p.self, buyer, m->req, m->attempt);

@@ -80,7 +80,26 @@ bg_status bgm_resource_on_message(bgm_resource_t *rs, const bgm_msg_t *in, doubl
 bg_status bgm_resource_on_timer(bgm_resource_t *rs, int kind, uint64_t arg, double now, int up,
                                 bgm_outbox_t *out);
 
-/* Cores and GiB held now, for tests. */
+/* Cores and GiB held now, for tests and hosts (a live daemon heartbeats
+ * what is free). */
 void bgm_resource_used(const bgm_resource_t *rs, double *cores, double *memory);
+
+/* A live host learns its overlay neighbours only when the broker answers
+ * its registration: replaces them (BG_ERR_INVALID over the cap). */
+bg_status bgm_resource_set_neighbours(bgm_resource_t *rs, const uint32_t *neighbours,
+                                      const uint8_t *same_role, int degree);
+
+/* Keeps its markup and remembered price from now on (a live host: its
+ * buyer, the broker, never tells it when it walks away, so learning only
+ * from its own outcomes would ratchet its prices up). */
+void bgm_resource_fix_strategy(bgm_resource_t *rs);
+
+/* Its asking rate per unit-second of good (BGM_GOOD_CORES_ID or
+ * BGM_GOOD_MEMORY_ID; 0 for any other): its cost marked up by its current
+ * markup and by its load,
+ *     cost · (1 + markup) · (1 + load_slope · held / capacity).
+ * The live grid posts it; the simulator's directory prices posted
+ * bundles itself from the registered cost, so the simulator never asks. */
+double bgm_resource_asking(const bgm_resource_t *rs, int good, double load_slope);
 
 #endif
