@@ -1151,6 +1151,7 @@ static void *coordinator(void *arg)
          * market released what it had). A budget failure is final. */
         const double give_up = bg_clock_now() + BROKER_BUY_PATIENCE;
         double backoff = 0.1;
+        int retries = 0;
         for (;;) {
             if (!(req = calloc(1, sizeof *req))) {
                 (void)bgb_store_transition(b->store, jr->id, live_or_fail, BGB_JOB_FAILED,
@@ -1176,12 +1177,25 @@ static void *coordinator(void *arg)
                 break;
             if (job_left_state(b, jr->id, BGB_JOB_ALLOCATING)) /* cancelled */
                 break;
+            /* The job's events say that it waits and why. */
+            char said[192];
+            snprintf(said, sizeof said,
+                     "{\"market\":\"live\",\"mechanism\":\"%s\",\"contracts\":[],"
+                     "\"retry\":%d,\"reason\":\"%s\",\"wait_seconds\":%.3f}",
+                     bgb_mechanism_name(req->mechanism), ++retries,
+                     strcmp(req->reason, "timeout") == 0 ? "timeout" : "no seller", backoff);
+            (void)bgb_store_add_event(b->store, jr->id, "allocation", said, &err);
             pthread_mutex_lock(&b->lock);
             req->release = 1; /* the loop frees it (it holds no contract) */
             pthread_mutex_unlock(&b->lock);
             req = NULL;
-            const struct timespec pause = {0, (long)(backoff * 1e9)};
-            nanosleep(&pause, NULL);
+            /* tv_nsec must stay below 1e9: a pause of 1 s or more given
+             * as nanoseconds alone is EINVAL and no pause at all. */
+            struct timespec pause = {(time_t)backoff,
+                                     (long)((backoff - (double)(time_t)backoff) * 1e9)},
+                            rest;
+            while (nanosleep(&pause, &rest) != 0 && errno == EINTR)
+                pause = rest;
             backoff = backoff * 2.0 > 2.0 ? 2.0 : backoff * 2.0;
         }
         if (req->reason[0]) {

@@ -7,7 +7,10 @@
 # (the job's "stopped" event) and every agent's slots are free again in
 # /v1/agents within 20 s; the job has no result and no "solved" event, and
 # its progress no longer moves. SHORT_SCENE then succeeds on the same
-# agents. `grid down` leaves no process.
+# agents. Before the cancel a second long job is submitted: the first holds
+# the cores it needs (layer 1), so it waits in allocating, its allocation
+# event says it asks again and why, and it runs once the first is
+# cancelled; it is cancelled in turn. `grid down` leaves no process.
 set -u
 bin=$1 scripts=$2 work=$3 config=$4 long=$5 short=$6
 here=$(cd "$(dirname "$0")" && pwd)
@@ -34,11 +37,47 @@ done
 busy=$((nagents - $(idle)))
 [ "$busy" -ge 2 ]; check $? "it holds slots on $busy agents"
 
-t0=$(now)
+# progressing ID SECONDS: polls until job ID runs and has reported progress.
+progressing() {
+  _i=0 _st=none
+  while [ $_i -lt $(($2 * 10)) ]; do
+    _st=$(curl -sf "$url/v1/jobs/$1" | jq -r 'if .state == "running" and .progress != null
+                                              then "progressing" else .state end')
+    case $_st in progressing|succeeded|failed|cancelled) break ;; esac
+    sleep 0.1
+    _i=$((_i + 1))
+  done
+  echo "$_st"
+}
+id_b=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/long.json" \
+  "$url/v1/jobs" | jq -r .id)
+i=0 said=null
+while [ $i -lt 300 ]; do
+  said=$(curl -sf "$url/v1/jobs/$id_b" | jq -c '[.state, .allocation.retry, .allocation.reason]')
+  case $said in '["allocating",'[0-9]*) break ;; esac
+  sleep 0.1
+  i=$((i + 1))
+done
+echo "$said" | grep -Eq '^\["allocating",[0-9]+,"(no seller|timeout)"\]$'
+check $? "a second long job waits while the first holds the cores it needs, and says why ($said)"
+# It asks again with backoff (0.1 s doubling to 2 s): some 5 times in 4 s,
+# where a loop without pauses asks thousands of times.
+sleep 4
+
 code=$(curl -s -o "$work/cancel.json" -w '%{http_code}' -X POST "$url/v1/jobs/$id/cancel")
 case $code in 200|202) r=0 ;; *) r=1 ;; esac
 check $r "POST /v1/jobs/{id}/cancel answers $code"
 jq -e '.state == "cancelled"' "$work/cancel.json" >/dev/null; check $? "the answer shows the job cancelled"
+st=$(progressing "$id_b" 60)
+[ "$st" = progressing ]; check $? "the waiting job runs once the first is cancelled (got $st)"
+curl -sf "$url/v1/jobs/$id_b/events" --max-time 2 >"$work/events_b.txt" 2>/dev/null
+retries=$(grep -c '"retry":' "$work/events_b.txt")
+[ "$retries" -ge 2 ] && [ "$retries" -le 12 ]
+check $? "it asked again $retries times in the 4 s it waited, with backoff (2 to 12)"
+t0=$(now)
+code=$(curl -s -o /dev/null -w '%{http_code}' -X POST "$url/v1/jobs/$id_b/cancel")
+case $code in 200|202) r=0 ;; *) r=1 ;; esac
+check $r "the second long job is cancelled too ($code)"
 i=0
 while [ $i -lt 200 ]; do
   [ "$(idle)" -eq "$nagents" ] && break
