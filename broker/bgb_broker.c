@@ -782,7 +782,7 @@ typedef struct watch_session {
     void *inner;
 } watch_session_t;
 
-/* The market's failure reasons that another try may not meet: every able
+/* The market's failure reasons that a later try may not meet: every able
  * seller busy, or a buy that ran out of time on a loaded grid. */
 static int buy_failure_transient(const char *reason)
 {
@@ -1594,10 +1594,17 @@ static void *loop_main(void *arg)
                 break;
             bga_frame_t views[BGA_WIRE_MAX_FRAMES + 1];
             bga_received_view(&r, views);
-            if (r.total == r.count)
+            if (r.total == r.count) {
                 (void)bgb_market_on_frames(b->market, zmq_msg_data(&r.route),
                                            zmq_msg_size(&r.route), views, r.count, bg_clock_now(),
                                            &err);
+            } else {
+                char why[96];
+                snprintf(why, sizeof why, "market message: %d frames, at most %d", r.total,
+                         BGA_WIRE_MAX_FRAMES);
+                (void)bgb_market_refuse(b->market, zmq_msg_data(&r.route), zmq_msg_size(&r.route),
+                                        why, &err);
+            }
             bga_received_close(&r);
             pthread_mutex_lock(&b->lock);
             b->agent_messages++;

@@ -1238,6 +1238,14 @@ static bg_status reply_error(bgb_market_t *m, const uint8_t *idn, size_t len, co
     return send_to(m, &tmp, &e, err);
 }
 
+bg_status bgb_market_refuse(bgb_market_t *m, const uint8_t *identity, size_t identity_len,
+                            const char *why, bg_error_t *err)
+{
+    if (identity_len == 0 || identity_len > BGB_MARKET_IDENTITY_MAX)
+        return BG_OK;
+    return reply_error(m, identity, identity_len, why, err);
+}
+
 bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t identity_len,
                                const bga_frame_t *frames, int nframes, double now,
                                bg_error_t *err)

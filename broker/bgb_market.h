@@ -194,6 +194,12 @@ void bgb_market_destroy(bgb_market_t **m);
 /* Persist every contract as it is made (NULL: none). */
 void bgb_market_on_contract(bgb_market_t *m, bgb_contract_fn fn, void *ctx);
 
+/* Answers the sender of a message its host could not take whole (more
+ * frames than the wire allows, so it was not kept) with an ERROR naming
+ * why; BG_OK unless the send fails. */
+bg_status bgb_market_refuse(bgb_market_t *m, const uint8_t *identity, size_t identity_len,
+                            const char *why, bg_error_t *err);
+
 /*
  * One agent-originated message (frames borrowed). A malformed message gets
  * an ERROR reply and BG_OK; the return is a failure only for memory or a
