@@ -1526,7 +1526,8 @@ static bg_status parse_velocity(parser_t *p, const cJSON *item)
 
 static bg_status parse_solver(parser_t *p, const cJSON *item)
 {
-    static const char *const keys[] = {"method", "tolerance", "max_iterations", NULL};
+    static const char *const keys[] = {"method", "tolerance", "max_iterations", "continuation",
+                                       NULL};
     bg_scene_t *s = p->scene;
     const int dynamic = s->task == BG_TASK_DYNAMIC;
     s->method = dynamic                               ? BG_METHOD_VARIATIONAL
@@ -1554,6 +1555,13 @@ static bg_status parse_solver(parser_t *p, const cJSON *item)
                         "'%s' does not fit a %s task (use %s)", name,
                         dynamic ? "dynamic" : "static",
                         dynamic ? "variational or backward-euler" : "newton or local-global");
+    }
+    if (member(item, "continuation")) {
+        int on = 1;
+        if ((st = read_bool(p, member(item, "continuation"), "solver.continuation", &on)) !=
+            BG_OK)
+            return st;
+        s->continuation_off = !on;
     }
     if (member(item, "tolerance")) {
         st = read_number(p, member(item, "tolerance"), "solver.tolerance", &s->tolerance);

@@ -144,6 +144,8 @@ typedef struct bg_scene {
     int prepared;               /* bg_scene_prepare has run: the scene is ready to solve */
     bg_method method;           /* solver.method, default newton */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
+    int continuation_off;       /* solver.continuation false: Newton solves a nearly
+                                   incompressible scene in one solve (bg_static_continues) */
     int max_iterations;         /* solver.max_iterations (or its entry for `method`),
                                    default 200 */
     int method_max_iterations[BG_METHOD_COUNT]; /* solver.max_iterations given per method

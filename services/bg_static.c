@@ -1367,6 +1367,7 @@ static bg_status solve_once(const bg_scene_t *scene, const bg_solve_options_t *o
 int bg_static_continues(const bg_scene_t *scene, bg_method method)
 {
     return method == BG_METHOD_NEWTON && scene->task == BG_TASK_STATIC && !scene->rest_edges &&
+           !scene->continuation_off &&
            scene->material.lambda > STATIC_CONTINUATION_ABOVE * scene->material.mu;
 }
 

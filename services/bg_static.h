@@ -201,8 +201,8 @@ typedef struct bg_solve_result {
 /* Whether bg_static_solve solves scene with method in stages of growing λ
  * (continuation, below) when the caller leaves options->continuation at 0
  * and starts from the scene's own guess without inertia or factor reuse:
- * Newton on a static volume scene with λ > 100 μ. The plan (bg_plan) says
- * so from the same test. */
+ * Newton on a static volume scene with λ > 100 μ whose solver.continuation
+ * is not false. The plan (bg_plan) says so from the same test. */
 int bg_static_continues(const bg_scene_t *scene, bg_method method);
 
 /*

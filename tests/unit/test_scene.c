@@ -653,6 +653,8 @@ static const bad_case_t BAD_CASES[] = {
      "solver.tolerance: must be in (0, 1), got 2"},
     {"{" BOX_MESH ", " MAT ", " FIX_ALL ", \"solver\": {\"max_iterations\": 0}}", BG_ERR_INVALID,
      "solver.max_iterations: 0 is out of range"},
+    {"{" BOX_MESH ", " MAT ", " FIX_ALL ", \"solver\": {\"continuation\": 1}}", BG_ERR_INVALID,
+     "solver.continuation: expected"},
     {"{" BOX_MESH ", " MAT ", \"handles\": [{\"name\": \"far\", \"select\": {\"box\":"
      " {\"min\": [5, 5, 5], \"max\": [6, 6, 6]}}}]}",
      BG_ERR_INVALID, "handles[0].select: handles[0] ('far') selects no vertex"},

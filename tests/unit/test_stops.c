@@ -24,13 +24,15 @@
 #include "test_scenes.h"
 
 /* The stiff bar: the shipped stiff-bar geometry, λ/μ set below. */
-#define STIFF_BAR_JSON(lambda, axis, center)                                                  \
+#define STIFF_BAR_SOLVER_JSON(lambda, axis, center, solver)                                    \
     "{\"mesh\": {\"generate\": \"box\", \"cells\": [16, 4, 4], \"size\": [4, 1, 1]},"          \
     "\"material\": {\"mu\": 1, \"lambda\": " lambda "},"                                      \
+    "\"solver\": {" solver "},"                                                                \
     "\"handles\": [{\"select\": {\"box\": {\"min\": [0,0,0], \"max\": [0,1,1]}}},"              \
     "{\"select\": {\"box\": {\"min\": [4,0,0], \"max\": [4,1,1]}},"                             \
     " \"transform\": {\"rotate\": {\"axis\": " axis ", \"degrees\": 90, \"center\": " center  \
     "}}}]}"
+#define STIFF_BAR_JSON(lambda, axis, center) STIFF_BAR_SOLVER_JSON(lambda, axis, center, "")
 
 static void solve_from(const bg_scene_t *s, bg_method method, double tol, int max_it,
                        const double *start, bg_solve_result_t *r)
@@ -314,6 +316,16 @@ static void continuation_accounts_for_stages(void **state)
     s->material.lambda = 100.0 * s->material.mu;
     assert_int_equal(plan_lists(s, newton, "continuation"), 0);
     s->material.lambda = stiff;
+    /* solver.continuation false: one solve, and the plan does not list it */
+    bg_scene_t *one = test_parse_scene(STIFF_BAR_SOLVER_JSON("1e3", "[0,0,1]", "[4,0.5,0.5]",
+                                                             "\"continuation\": false"),
+                                       "stiff-bent-one.json");
+    assert_int_equal(plan_lists(one, newton, "continuation"), 0);
+    bg_solve_result_t r1 = BG_SOLVE_RESULT_INIT;
+    assert_int_equal(bg_static_solve(one, &o, &r1, &err), BG_OK);
+    assert_int_equal(r1.continuation_stages, 0);
+    bg_solve_result_release(&r1);
+    bg_scene_destroy(&one);
     /* the same stages by hand */
     const double lambda = s->material.lambda;
     double *q = NULL;
