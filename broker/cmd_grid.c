@@ -54,6 +54,10 @@ typedef struct grid_agent {
     bg_agent_spec_t spec;
     char endpoint[BGA_AGENT_ENDPOINT_MAX];
     long pid;
+    /* The process's start time (/proc/PID/stat field 22) once its command
+     * line was seen to be ours: an exiting process has an empty command
+     * line before it is a zombie, and must still count as running. */
+    unsigned long long start_time;
 } grid_agent;
 
 typedef struct grid {
@@ -204,12 +208,11 @@ static int read_grid_config(const char *path, grid *g)
     return rc;
 }
 
-/* Whether pid is alive and still this grid's agent `name`: its command
- * line holds the ready-file path of the grid directory. A zombie counts
- * as gone. */
-static int is_our_agent(long pid, const char *dir, const char *name)
+/* The state letter of process pid (0: no such process) and its start
+ * time in clock ticks since boot (field 22 of /proc/PID/stat). */
+static char proc_state(long pid, unsigned long long *start_time)
 {
-    char path[64], stat_text[512], want[PATH_MAX + 80];
+    char path[64], stat_text[1024];
     snprintf(path, sizeof path, "/proc/%ld/stat", pid);
     FILE *f = fopen(path, "r");
     if (!f)
@@ -217,11 +220,36 @@ static int is_our_agent(long pid, const char *dir, const char *name)
     const size_t n = fread(stat_text, 1, sizeof stat_text - 1, f);
     fclose(f);
     stat_text[n] = 0;
+    /* The command name in parentheses may hold anything: fields count
+     * from the last ')'. */
     const char *close_paren = strrchr(stat_text, ')');
-    if (!close_paren || close_paren[1] != ' ' || close_paren[2] == 'Z')
+    if (!close_paren || close_paren[1] != ' ' || !close_paren[2])
+        return 0;
+    const char state = close_paren[2];
+    *start_time = 0;
+    const char *p = close_paren + 2;
+    for (int field = 3; field < 22 && p; field++) {
+        p = strchr(p, ' ');
+        if (p)
+            p++;
+    }
+    if (p)
+        *start_time = strtoull(p, NULL, 10);
+    return state;
+}
+
+/* Whether pid is alive and still this grid's agent `name`: its command
+ * line holds the ready-file path of the grid directory. A zombie counts
+ * as gone. */
+static int is_our_agent(long pid, const char *dir, const char *name)
+{
+    char path[64], want[PATH_MAX + 80];
+    unsigned long long start = 0;
+    const char state = proc_state(pid, &start);
+    if (!state || state == 'Z')
         return 0;
     snprintf(path, sizeof path, "/proc/%ld/cmdline", pid);
-    f = fopen(path, "rb");
+    FILE *f = fopen(path, "rb");
     if (!f)
         return 0;
     char cmd[8192];
@@ -469,7 +497,25 @@ static int still_runs(grid_agent *a, const char *dir, int children)
 {
     if (a->pid <= 0)
         return 0;
-    if (children ? child_exited(a->pid) : !is_our_agent(a->pid, dir, a->spec.name)) {
+    int gone;
+    if (children) {
+        gone = child_exited(a->pid);
+    } else {
+        /* Known by PID: ours while the process that matched our command
+         * line lives (same start time), through its exit. */
+        unsigned long long start = 0;
+        const char state = proc_state(a->pid, &start);
+        if (!state || state == 'Z') {
+            gone = 1;
+        } else if (a->start_time) {
+            gone = start != a->start_time;
+        } else {
+            gone = !is_our_agent(a->pid, dir, a->spec.name);
+            if (!gone)
+                a->start_time = start;
+        }
+    }
+    if (gone) {
         a->pid = 0;
         return 0;
     }
