@@ -19,24 +19,6 @@ grid_test_begin "$bin" "$work"
 now() { date +%s.%N; }
 grid_up_market "$bin" "$config" "$state"
 idle() { market_sellers "$url" idle; }
-
-jq -n --slurpfile s "$long" '{scene: ($s[0] | .task.steps = 100000), mechanism: "central", budget: 100}' \
-  >"$work/long.json"
-id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/long.json" \
-  "$url/v1/jobs" | jq -r .id)
-[ -n "$id" ]; check $? "the long job is accepted ($id)"
-i=0 st=none
-while [ $i -lt 1200 ]; do
-  st=$(curl -sf "$url/v1/jobs/$id" | jq -r 'if .state == "running" and .progress != null
-                                             then "progressing" else .state end')
-  case $st in progressing|succeeded|failed|cancelled) break ;; esac
-  sleep 0.1
-  i=$((i + 1))
-done
-[ "$st" = progressing ]; check $? "the long job runs and reports progress (got $st)"
-busy=$((nagents - $(idle)))
-[ "$busy" -ge 2 ]; check $? "it holds slots on $busy agents"
-
 # progressing ID SECONDS: polls until job ID runs and has reported progress.
 progressing() {
   _i=0 _st=none
@@ -49,6 +31,17 @@ progressing() {
   done
   echo "$_st"
 }
+
+jq -n --slurpfile s "$long" '{scene: ($s[0] | .task.steps = 100000), mechanism: "central", budget: 100}' \
+  >"$work/long.json"
+id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/long.json" \
+  "$url/v1/jobs" | jq -r .id)
+[ -n "$id" ]; check $? "the long job is accepted ($id)"
+st=$(progressing "$id" 120)
+[ "$st" = progressing ]; check $? "the long job runs and reports progress (got $st)"
+busy=$((nagents - $(idle)))
+[ "$busy" -ge 2 ]; check $? "it holds slots on $busy agents"
+
 id_b=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/long.json" \
   "$url/v1/jobs" | jq -r .id)
 i=0 said=null
