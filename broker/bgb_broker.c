@@ -1095,6 +1095,33 @@ out:
 
 #define MASK(s) (1u << (s))
 
+/* Blocks until the market has a live agent (1, *registered set), or the
+ * job left allocating or the broker is stopping (0). The loop publishes
+ * the directory every 0.1 s and broadcasts `changed` when the first agent
+ * comes; the timed wait also looks at the job's state once a second. */
+static int wait_for_market_agents(bgb_broker_t *b, const char *id, int *registered)
+{
+    for (;;) {
+        pthread_mutex_lock(&b->lock);
+        struct timespec ts;
+        clock_gettime(CLOCK_REALTIME, &ts);
+        ts.tv_sec += 1;
+        while (b->market_agents == 0 && !b->stopping && !b->loop_gone)
+            if (pthread_cond_timedwait(&b->changed, &b->lock, &ts) == ETIMEDOUT)
+                break;
+        const int n = b->market_agents, gone = b->stopping || b->loop_gone;
+        pthread_mutex_unlock(&b->lock);
+        if (gone)
+            return 0; /* left in allocating, queued again at restart */
+        if (n > 0) {
+            *registered = n;
+            return 1;
+        }
+        if (job_left_state(b, id, BGB_JOB_ALLOCATING))
+            return 0; /* cancelled */
+    }
+}
+
 static void *coordinator(void *arg)
 {
     job_run_t *jr = arg;
@@ -1110,16 +1137,21 @@ static void *coordinator(void *arg)
     if (bgb_store_get(b->store, jr->id, &job, &err) != BG_OK)
         goto out;
     pthread_mutex_lock(&b->lock);
-    const int registered = b->market_agents;
+    int registered = b->market_agents;
     pthread_mutex_unlock(&b->lock);
     if (registered == 0 && b->config.agent_count == 0) {
-        /* Nobody to buy from and no fixed pool: the job waits in allocating. */
+        /* Nobody to buy from and no fixed pool: the job waits in allocating
+         * until an agent registers (a grid's agents register a moment after
+         * they are up, and a job may come first), is cancelled, or the
+         * broker stops. */
         (void)bgb_store_add_event(b->store, jr->id, "allocation",
                                   "{\"market\":\"live\",\"contracts\":[],\"message\":\"no agent "
                                   "is registered on the market and the broker has no configured "
-                                  "agents: nothing was bought; the job waits in allocating\"}",
+                                  "agents: nothing was bought; the job waits in allocating until "
+                                  "one registers\"}",
                                   &err);
-        goto out;
+        if (!wait_for_market_agents(b, jr->id, &registered))
+            goto out;
     }
     char dir[BROKER_PATH_MAX];
     snprintf(dir, sizeof dir, "%s/jobs/%s", b->config.state_dir, jr->id);
@@ -1468,6 +1500,8 @@ static void publish(bgb_broker_t *b)
     char *aj = pool_json(&b->config, live, n), *mj = market_json(b->market);
     char *cc = csv_text(b->market, 1), *ac = csv_text(b->market, 0);
     pthread_mutex_lock(&b->lock);
+    if (b->market_agents == 0 && alive > 0)
+        pthread_cond_broadcast(&b->changed); /* jobs waiting for a first agent */
     b->market_agents = alive;
     if (aj && mj && cc && ac) {
         char *old[4] = {b->agents_json, b->market_json, b->contracts_csv, b->agents_csv};

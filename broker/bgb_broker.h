@@ -16,12 +16,14 @@
  * sparse-solve ×1; integration-step ×1 only when the plan lists it),
  * hands the purchase to the loop (a queue under the broker's lock) and
  * waits for the outcome. Each contract is a "contract" event of the job;
- * a market failure ("budget", "no seller", "timeout") fails the job
- * before any agent computes; the contracts are released when the job
- * ends. With no agent registered on the market but agents in the
- * configuration ("agents": a fixed pool), the job runs on the pool with
- * no contracts and the "allocation" event says so; with neither, the job
- * waits in allocating. Running drives the solve through the same remote
+ * "no seller" (every able seller busy) and "timeout" are asked again with
+ * backoff for up to 120 s, each retry an "allocation" event; a budget
+ * failure, or a transient one past that, fails the job before any agent
+ * computes; the contracts are released when the job ends. With no agent
+ * registered on the market but agents in the configuration ("agents": a
+ * fixed pool), the job runs on the pool with no contracts and the
+ * "allocation" event says so; with neither, the job waits in allocating
+ * until an agent registers. Running drives the solve through the same remote
  * backend (bga_backend) as `solve --agents`, on the awarded agents;
  * progress and the error-against-time trace are events; the
  * result files (report.json with the market section and its error against
