@@ -16,7 +16,13 @@
 #define SEEN_MAX 128
 #define SELLER_ROUNDS 12 /* the simulator's default catallactic.max_rounds */
 #define BUY_WAIT 10.0    /* s: a resource purchase the broker never answers is dropped */
-#define RATE_WEIGHT 0.5  /* weight of the last paid rate in the expected one */
+#define RATE_WEIGHT 0.5  /* weight of the last asking rate in the expected one */
+/* A basic seller bids for a contract's resources at most this many times
+ * what it expects them to cost (the rates it priced into its floor): room
+ * for a resource seller whose ask rose with its load (1 + load slope, 1.5
+ * by default, at full load), and no more. Bidding the whole surplus of the
+ * service sale instead would hand the job's budget on to layer 1. */
+#define RESOURCE_BID_HEADROOM 1.5
 
 enum { ROLE_BASIC = 0, ROLE_RESOURCE = 1 };
 
@@ -458,7 +464,8 @@ static bg_status confirm(bga_market_t *m, const held_t *h, bg_error_t *err)
 /* The basic seller agrees to (job, good) at the price when it has a slot
  * and the price covers its floor; it keeps the slot and buys the unit's
  * resources on layer 1 for at most what the contract leaves over its own
- * cost, and confirms once they are bought (on_rbought). */
+ * cost and RESOURCE_BID_HEADROOM times their expected cost, and confirms
+ * once they are bought (on_rbought). */
 static bg_status basic_order(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
     bga_mmsg_t r;
@@ -492,7 +499,10 @@ static bg_status basic_order(bga_market_t *m, const bga_mmsg_t *in, double now, 
         r.cores = m->c.unit_cores[g];
         r.memory = m->c.unit_memory[g];
         r.term = m->c.lease;
-        r.price = (in->price - m->c.floor[g]) * in->quantity;
+        const double surplus = (in->price - m->c.floor[g]) * in->quantity,
+                     expected = (m->rate[0] * r.cores + m->rate[1] * r.memory) * r.term;
+        r.price = surplus < RESOURCE_BID_HEADROOM * expected ? surplus
+                                                              : RESOURCE_BID_HEADROOM * expected;
         if (r.price < 0)
             r.price = 0;
     }

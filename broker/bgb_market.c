@@ -481,7 +481,12 @@ static void log_resources(bgb_market_t *m, const job_t *j, const unit_t *su, uin
 }
 
 /* A sub-job's outcome goes to the basic agent that asked: RBOUGHT with
- * the rates (prices[CORES], prices[MEMORY]) and the money, or RFAIL. */
+ * the sellers' asking rates when bought (prices[CORES], prices[MEMORY])
+ * and the money paid, or RFAIL. The basic agent expects resources to cost
+ * the asks, not what it paid: a paid rate lies between the ask and the
+ * agent's own limit (k-double auction, bargain), so learning it would feed
+ * the agent's limit back into its floor, and a host's one resource seller
+ * facing its one service seller would ratchet both prices up job by job. */
 static void subjob_done(bgb_market_t *m, job_t *j, const char *reason, double now)
 {
     agent_t *b = agent_by_id(m, j->buyer);
@@ -497,7 +502,9 @@ static void subjob_done(bgb_market_t *m, job_t *j, const char *reason, double no
         j->bought_at = now;
         for (int i = 0; i < j->nunits; i++) {
             const unit_t *u = &j->unit[i];
-            r.prices[u->good] = u->price;
+            const agent_t *seller = agent_by_id(m, u->agent);
+            r.prices[u->good] =
+                seller && seller->info.price[u->good] > 0 ? seller->info.price[u->good] : u->price;
             r.price += u->quantity * u->term * u->price;
             if (u->good == BGB_GOOD_CORES)
                 r.cores += u->quantity;

@@ -5,6 +5,7 @@
 # submit and poll — once by SIGTERM, once killed with SIGKILL — it still
 # lists every accepted job under the same ids, none lost and none added,
 # and an idempotent resubmit after the restart returns the same job.
+# Once an agent registers on its market, every waiting job runs.
 set -u
 bin=$1 work=$2 scene=$3
 here=$(cd "$(dirname "$0")" && pwd)
@@ -16,7 +17,7 @@ trap 'stop_broker "$work" b; exit 1' INT TERM
 cat >"$work/broker.json" <<JSON
 {"name": "restart", "port": 0, "endpoint": "tcp://127.0.0.1:*", "state_dir": "$work/state"}
 JSON
-jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "central", budget: 10}' >"$work/submit.json"
+jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "central", budget: 1000}' >"$work/submit.json"
 start_broker "$bin" "$work" b "$work/broker.json" || exit 1
 url=$(cut -d' ' -f1 "$work/b.ready")
 : >"$work/ids"
@@ -51,9 +52,44 @@ url=$(cut -d' ' -f1 "$work/b.ready")
 listed >"$work/after2"
 sort "$work/ids" | cmp -s - "$work/after2"; check $? "after SIGKILL and a restart every accepted job is listed"
 sleep 0.5
-states=$(curl -sf "$url/v1/jobs?limit=100" | jq -r '[.jobs[].state] | unique | join(",")')
-[ "$states" = allocating ]; check $? "the jobs are picked up again (states: $states)"
+# Each waiting job holds one of the broker's max_jobs (default 4) places.
+states=$(curl -sf "$url/v1/jobs?limit=100" | jq -r '[.jobs[].state] | sort | join(",")')
+[ "$states" = allocating,allocating,allocating,allocating,queued ]
+check $? "the jobs are picked up again, 4 at a time (states: $states)"
+
+# The waiting jobs are bought and run once an agent registers: none of
+# them was given up while the market was empty. The agent sells 4 cores
+# (a rotation fit holds 1, a sparse solve 2), enough for one job at a time
+# whatever the test machine has.
+endpoint=$(cut -d' ' -f2 "$work/b.ready")
+mkdir -p "$work/agents"
+( "$bin" agent --listen 'tcp://127.0.0.1:*' --services rotfit,solve --slots 4 --cores 4 --name a1 \
+    --broker "$endpoint" --ready-file "$work/agents/a1.ready" >"$work/agents/a1.log" 2>&1 </dev/null
+  echo $? >"$work/agents/a1.rc" ) >/dev/null 2>&1 </dev/null &
+trap 'sh "$here/../agents/stop_agents.sh" "$work/agents" >/dev/null 2>&1; stop_broker "$work" b; exit 1' INT TERM
+prices() { curl -sf "$url/v1/agents" | jq -c '[.agents[] | select(.source == "market" and (.services | length) > 0) | .prices["rotation-fit"], .prices["sparse-solve"]]'; }
+i=0
+while [ "$(prices)" = "[]" ] && [ $i -lt 100 ]; do sleep 0.05; i=$((i + 1)); done
+before=$(prices)
+: >"$work/finals"
+for id in $(cat "$work/ids"); do wait_job "$url" "$id" 120 >>"$work/finals"; done
+finals=$(sort -u "$work/finals" | paste -sd, -)
+[ "$finals" = succeeded ]; check $? "once an agent registers every waiting job is bought and succeeds (states: $finals)"
+# Five jobs later the idle seller asks what it asked before, within 10 %:
+# its floor is its own cost (1) plus a contract's resources at the
+# expected rates (0.05 for a rotation fit, 0.12 for a solve), and the
+# rates it learns are resource asks, at most 1.5 times the idle ones at
+# full load. Bids of the whole service surplus on layer 1, learnt back
+# into the floor, had raised them from 1.26 to over 300 in five jobs.
+i=0
+while [ "$(market_sellers "$url" idle)" != 1 ] && [ $i -lt 100 ]; do sleep 0.1; i=$((i + 1)); done
+sleep 1 # a heartbeat (0.5 s) brings the idle seller's prices
+after=$(prices)
+jq -n --argjson b "$before" --argjson a "$after" \
+  '$b | length == 2 and ([range(2)] | all($a[.] <= 1.1 * $b[.] and $a[.] >= $b[.] / 1.1))' | grep -q true
+check $? "the seller's asking prices stay where they were (before $before, after $after)"
 stop_broker "$work" b; check $? "the broker stops again"
+sh "$here/../agents/stop_agents.sh" "$work/agents" >/dev/null; check $? "the agent stops with status 0"
 pid=$(cut -d' ' -f3 "$work/b.ready")
 if kill -0 "$pid" 2>/dev/null; then echo "FAIL: broker $pid left" >&2; fail=1; fi
 exit $fail
