@@ -48,8 +48,8 @@ const char bg_cmd_agent_usage[] =
     "  --load-slope X      price rise at full load, relative (default 0.5)\n"
     "  --cores N           cores its resource role sells (default: the host's; 0: none)\n"
     "  --memory GIB        memory its resource role sells, GiB (default: the host's)\n"
-    "  --core-floor X      resource floor per core-second (default 1e-5)\n"
-    "  --memory-floor X    resource floor per GiB-second (default 2e-6)\n"
+    "  --core-floor X      resource floor per core-second, > 0 (default 1e-5)\n"
+    "  --memory-floor X    resource floor per GiB-second, > 0 (default 2e-6)\n"
     "  --resource-margin X, --resource-load-slope X\n"
     "                      the resource role's markup and load slope (default 0.2, 0.5)\n"
     "  --lease S           seconds a service contract's resources are rented (default 3600)\n";
@@ -266,6 +266,13 @@ int bg_cmd_agent(int argc, char **argv)
                 o.cores > 1e6 ? "--cores: at most 1e6" : "--lease: must be in (0, 1e7] seconds");
         return 2;
     }
+    /* A resource seller prices from its costs (bgm_resource): a zero cost
+     * would post free cores, so the resource floors must be positive. */
+    if (!(o.core_floor > 0) || !(o.memory_floor > 0)) {
+        fprintf(stderr, "biotgrid agent: %s: must be > 0\n",
+                o.core_floor > 0 ? "--memory-floor" : "--core-floor");
+        return 2;
+    }
     bg_error_t err = BG_ERROR_INIT;
     const unsigned services = bga_service_parse_list(o.spec.services, &err);
     if (!services) {
@@ -296,7 +303,7 @@ int bg_cmd_agent(int argc, char **argv)
     bga_agent_t *agent = NULL;
     if (bga_agent_new(&cfg, &agent, &err) != BG_OK) {
         fprintf(stderr, "biotgrid agent: %s\n", err.message);
-        return err.status == BG_ERR_IO ? 2 : 1;
+        return err.status == BG_ERR_IO || err.status == BG_ERR_INVALID ? 2 : 1;
     }
     bg_cmd_stop_on_signals();
     int rc = 0;
