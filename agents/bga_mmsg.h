@@ -3,13 +3,15 @@
  * (registration, heartbeats, orders, call-market matches, catallactic
  * bargaining), pure encode/decode with no sockets.
  *
- * A message is two frames: a 6-byte header ("bgmk", type u16 LE) and a
- * JSON object of at most BGA_MMSG_MAX_BODY bytes. JSON rather than the
- * binary bga_wire schemas because these messages are small, rare (a few
- * per contract) and their field set differs per type; the strict decoder
- * still checks every field's type and range and names the one at fault.
- * The header magic differs from bga_wire's "bgwp", so a receiver tells the
- * two protocols apart from frame 0.
+ * A message is a bga_wire message of the live range (types 0x1101..0x1111,
+ * the low byte being bga_mmsg_type; bga_wire.h): the versioned header
+ * frame with the job, the scalar fields frame and one frame per array
+ * (floor, prices, capacity, neighbours, name, endpoint, reason), every
+ * field present in every type. The same framing and the same checks as
+ * the compute services and the simulator's market roles (bgm_codec): a
+ * receiver reads the type from frame 0, and a message that breaks the
+ * schema, or this module's caps (texts, neighbours, BGA_MMSG_MAX_BYTES in
+ * all), is refused naming the frame or field.
  *
  * Ownership: a bga_mmsg_t is a plain value. bga_mmsg_encode fills a
  * bga_frames_t that owns its buffers (bga_frames_free).
@@ -23,8 +25,9 @@
 #include "bg_error.h"
 #include "bga_wire.h"
 
-#define BGA_MMSG_HEADER_BYTES 6
-#define BGA_MMSG_MAX_BODY 8192
+/* A whole message's bytes: the header, 15 fields and the arrays at their
+ * caps come to about 900. */
+#define BGA_MMSG_MAX_BYTES 2048
 #define BGA_MMSG_GOODS 5
 #define BGA_MMSG_MAX_NEIGHBOURS 8
 #define BGA_MMSG_NAME_MAX 64
@@ -87,7 +90,7 @@ typedef struct bga_mmsg {
 void bga_mmsg_init(bga_mmsg_t *m, int type);
 const char *bga_mmsg_type_name(int type);
 
-/* Whether frames look like a market message (frame 0 magic). */
+/* Whether frames look like a live market message (frame 0's type). */
 int bga_mmsg_is_market(const bga_frame_t *frames, int nframes);
 
 /* BG_ERR_INVALID naming the field for an invalid message; BG_ERR_NOMEM. */

@@ -15,9 +15,8 @@
 #define MAX_PROPOSALS 64
 #define MAX_ROUNDS_DISCOVERY 16
 #define BUYER_MARKUP 0.1 /* catallactic buyer's opening below the proposal */
-/* Resource sub-job ids, apart from the callers'. Job ids travel as JSON
- * numbers, which cJSON prints with 15 significant digits when that reads
- * back within a relative epsilon: ids stay below 10^15 to be exact. */
+/* Resource sub-job ids, apart from the callers' (the store's job ids are
+ * far below 2^49; the wire header carries all 64 bits). */
 #define SUB_JOB_BASE ((uint64_t)1 << 49)
 
 typedef struct agent {

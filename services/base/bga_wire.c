@@ -208,6 +208,45 @@ static bga_wire_code check_market(const bga_msg_t *m, bga_wire_error_t *werr)
     return BGA_WIRE_OK;
 }
 
+/* The live market (0x1101..0x1111, bga_mmsg): one schema for all. The
+ * ranges are bga_mmsg's; the texts' and the neighbours' caps are its own
+ * (it checks them on both sides), the wire only bounds them. */
+static const field_spec lm_fields[] = {
+    I64F("agent", 0, UINT32_MAX),  I64F("target", 0, UINT32_MAX), I64F("origin", 0, UINT32_MAX),
+    I64F("services", 0, 7),        I64F("resource", 0, 1),        I64F("slots", 0, 4096),
+    I64F("free_slots", 0, 4096),   I64F("good", -1, 4),           I64F("hops", 0, 16),
+    I64F("attempt", 0, 1000),      F64F("margin", 0.0, 1e15),     F64F("load_slope", 0.0, 1e15),
+    F64F("term", 0.0, 1e15),       F64F("quantity", 0.0, 1e15),   F64F("price", 0.0, 1e15)};
+static const array_spec lm_arrays[] = {
+    {"floor", BGA_ELEM_F64, 0, BGA_LIVE_GOODS, -1, -1, -1, 0, 1, NO_IDX},
+    {"prices", BGA_ELEM_F64, 0, BGA_LIVE_GOODS, -1, -1, -1, 0, 1, NO_IDX},
+    {"capacity", BGA_ELEM_F64, 0, 4, -1, -1, -1, 0, 1, NO_IDX},
+    {"neighbours", BGA_ELEM_I32, 0, FREE_LEN, 0, NO_IDX},
+    TEXT("name", 1),
+    TEXT("endpoint", 1),
+    TEXT("reason", 1)};
+
+static bga_wire_code check_live(const bga_msg_t *m, bga_wire_error_t *werr)
+{
+    if (m->field[BGA_LM_FREE_SLOTS].i > m->field[BGA_LM_SLOTS].i)
+        return bga_wire_fail(werr, BGA_WIRE_INCONSISTENT, 1, "free_slots",
+                             "free_slots %lld exceeds slots %lld",
+                             (long long)m->field[BGA_LM_FREE_SLOTS].i,
+                             (long long)m->field[BGA_LM_SLOTS].i);
+    for (int a = BGA_LM_FLOOR; a <= BGA_LM_CAPACITY; a++)
+        for (size_t i = 0; i < m->array[a].count; i++)
+            if (bga_msg_f64(m, a, i) < 0)
+                return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 2 + a, lm_arrays[a].name,
+                                     "%s[%zu] = %g is negative", lm_arrays[a].name, i,
+                                     bga_msg_f64(m, a, i));
+    for (size_t i = 0; i < m->array[BGA_LM_NEIGHBOURS].count; i++)
+        if (bga_msg_i32(m, BGA_LM_NEIGHBOURS, i) < 0)
+            return bga_wire_fail(werr, BGA_WIRE_OUT_OF_RANGE, 2 + BGA_LM_NEIGHBOURS, "neighbours",
+                                 "neighbours[%zu] = %d is not an agent id", i,
+                                 (int)bga_msg_i32(m, BGA_LM_NEIGHBOURS, i));
+    return BGA_WIRE_OK;
+}
+
 static bga_wire_code check_heartbeat(const bga_msg_t *m, bga_wire_error_t *werr)
 {
     if (m->field[BGA_HB_FREE].i > m->field[BGA_HB_SLOTS].i)
@@ -422,6 +461,23 @@ static const schema SCHEMAS[] = {
     SCHEMA(0x1017, "market-rpart", mk_fields, mk_arrays, check_market),
     SCHEMA(0x1018, "market-take", mk_fields, mk_arrays, check_market),
     SCHEMA(0x1019, "market-refuse", mk_fields, mk_arrays, check_market),
+    SCHEMA(0x1101, "live-register", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x1102, "live-registered", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x1103, "live-heartbeat", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x1104, "live-order", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x1105, "live-confirm", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x1106, "live-refuse", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x1107, "live-release", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x1108, "live-cfp", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x1109, "live-propose", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x110a, "live-offer", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x110b, "live-accept", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x110c, "live-reject", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x110d, "live-relay", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x110e, "live-error", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x110f, "live-rbuy", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x1110, "live-rbought", lm_fields, lm_arrays, check_live),
+    SCHEMA(0x1111, "live-rfail", lm_fields, lm_arrays, check_live),
 };
 
 static const schema *find_schema(uint16_t type)

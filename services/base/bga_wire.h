@@ -22,7 +22,8 @@
  * checks all of it plus a per-type consistency check, and fails with a
  * bga_wire_error_t naming the frame and field. Types 0x0001–0x00ff are
  * control, 0x01xx rotation-fit, 0x02xx sparse-solve, 0x03xx integration
- * step; 0x10xx market roles (0x1001–0x1019, bgm_codec).
+ * step; 0x10xx market roles (0x1001–0x1019, bgm_codec); 0x11xx the live
+ * market between the broker and the agents (0x1101–0x1111, bga_mmsg).
  *
  * Ownership: a decoded bga_msg_t only points into the caller's frames
  * (valid while they are); nothing is allocated. bga_wire_encode fills a
@@ -299,6 +300,43 @@ enum { /* market */
        BGA_MK_NFIELDS
 };
 enum { /* market arrays */ BGA_MK_CAND, BGA_MK_CAND_PRICE, BGA_MK_CAND_SPEED, BGA_MK_NARRAYS };
+
+/* The live market's messages between the broker and the agents, types
+ * 0x1101..0x1111 (agents/bga_mmsg.h gives their meaning; the low byte is
+ * the bga_mmsg type): all share one schema. The job is the header's job;
+ * sender and receiver are 0 (the socket names the peer). Each field and
+ * array is present in every type, zero where the type does not use it. */
+#define BGA_LIVE_FIRST 0x1101
+#define BGA_LIVE_LAST 0x1111
+#define BGA_LIVE_GOODS 5
+enum { /* live market */
+       BGA_LM_AGENT,
+       BGA_LM_TARGET,
+       BGA_LM_ORIGIN,
+       BGA_LM_SERVICES,
+       BGA_LM_RESOURCE,
+       BGA_LM_SLOTS,
+       BGA_LM_FREE_SLOTS,
+       BGA_LM_GOOD,
+       BGA_LM_HOPS,
+       BGA_LM_ATTEMPT,
+       BGA_LM_MARGIN,
+       BGA_LM_LOAD_SLOPE,
+       BGA_LM_TERM,
+       BGA_LM_QUANTITY,
+       BGA_LM_PRICE,
+       BGA_LM_NFIELDS
+};
+enum { /* live market arrays: capacity = cores, memory, free cores, free memory */
+       BGA_LM_FLOOR,
+       BGA_LM_PRICES,
+       BGA_LM_CAPACITY,
+       BGA_LM_NEIGHBOURS,
+       BGA_LM_NAME,
+       BGA_LM_ENDPOINT,
+       BGA_LM_REASON,
+       BGA_LM_NARRAYS
+};
 
 /* ROTFIT_CALL want bits. */
 #define BGA_WANT_GRADIENT 1

@@ -38,9 +38,13 @@ typedef struct garbage {
     size_t size[MANY_FRAMES];
 } garbage_t;
 
-static uint8_t header_ok[BGA_MMSG_HEADER_BYTES], header_bad_magic[BGA_MMSG_HEADER_BYTES],
-    header_bad_type[BGA_MMSG_HEADER_BYTES];
-static char big_body[BGA_MMSG_MAX_BODY + 64];
+/* A valid ORDER's frames (from a real encoding) and broken copies. */
+static uint8_t ok_frames[BGA_WIRE_MAX_FRAMES][BGA_MMSG_MAX_BYTES];
+static size_t ok_size[BGA_WIRE_MAX_FRAMES];
+static int ok_count;
+static uint8_t bad_magic[BGA_WIRE_HEADER_BYTES], bad_type[BGA_WIRE_HEADER_BYTES],
+    bad_fields[BGA_MMSG_MAX_BYTES];
+static char big_text[BGA_MMSG_MAX_BYTES + 64];
 
 static void frame(garbage_t *g, const void *data, size_t size)
 {
@@ -49,52 +53,61 @@ static void frame(garbage_t *g, const void *data, size_t size)
     g->nframes++;
 }
 
-/* The malformed messages, from a valid header taken from a real encoding. */
+/* The valid frames with frame `k` replaced (k < 0: none), `drop` of the
+ * last ones left out. */
+static void valid_but(garbage_t *g, int k, const void *data, size_t size, int drop)
+{
+    for (int i = 0; i < ok_count - drop; i++)
+        if (i == k)
+            frame(g, data, size);
+        else
+            frame(g, ok_frames[i], ok_size[i]);
+}
+
 static int garbage_list(garbage_t *list)
 {
     bga_mmsg_t m;
     bga_mmsg_init(&m, BGA_MM_ORDER);
     bga_frames_t f;
     bg_error_t err = BG_ERROR_INIT;
-    if (bga_mmsg_encode(&m, &f, &err) != BG_OK || f.size[0] != BGA_MMSG_HEADER_BYTES)
+    if (bga_mmsg_encode(&m, &f, &err) != BG_OK || f.count != 2 + BGA_LM_NARRAYS)
         FAIL("cannot encode an ORDER: %s", err.message);
-    memcpy(header_ok, f.data[0], BGA_MMSG_HEADER_BYTES);
+    ok_count = f.count;
+    for (int i = 0; i < f.count; i++) {
+        memcpy(ok_frames[i], f.data[i], f.size[i]);
+        ok_size[i] = f.size[i];
+    }
     bga_frames_free(&f);
-    memcpy(header_bad_magic, header_ok, sizeof header_ok);
-    header_bad_magic[0] = 'X';
-    memcpy(header_bad_type, header_ok, sizeof header_ok);
-    header_bad_type[4] = 0xe7;
-    header_bad_type[5] = 0x03;
-    memset(big_body, ' ', sizeof big_body);
-    big_body[0] = '{';
-    big_body[sizeof big_body - 1] = '}';
-    static const char junk[] = "\x01\x02\x03", not_json[] = "not json",
-                      bogus[] = "{\"job\":1,\"bogus\":2}", empty[] = "";
+    memcpy(bad_magic, ok_frames[0], sizeof bad_magic);
+    bad_magic[0] = 'X';
+    memcpy(bad_type, ok_frames[0], sizeof bad_type);
+    bad_type[6] = 0xe7; /* type 0x11e7 */
+    memcpy(bad_fields, ok_frames[1], ok_size[1]);
+    bad_fields[8 * BGA_LM_HOPS] = 99; /* hops 99, over 16 */
+    memset(big_text, 'a', sizeof big_text);
+    static const char junk[] = "\x01\x02\x03", empty[] = "";
     int n = 0;
     list[n] = (garbage_t){.what = "a 3-byte frame"};
     frame(&list[n++], junk, 3);
     list[n] = (garbage_t){.what = "an empty frame"};
     frame(&list[n++], empty, 0);
     list[n] = (garbage_t){.what = "a wrong magic"};
-    frame(&list[n], header_bad_magic, sizeof header_bad_magic);
-    frame(&list[n++], "{}", 2);
+    valid_but(&list[n++], 0, bad_magic, sizeof bad_magic, 0);
     list[n] = (garbage_t){.what = "an unknown type"};
-    frame(&list[n], header_bad_type, sizeof header_bad_type);
-    frame(&list[n++], "{}", 2);
-    list[n] = (garbage_t){.what = "a body that is not JSON"};
-    frame(&list[n], header_ok, sizeof header_ok);
-    frame(&list[n++], not_json, strlen(not_json));
-    list[n] = (garbage_t){.what = "an unknown field"};
-    frame(&list[n], header_ok, sizeof header_ok);
-    frame(&list[n++], bogus, strlen(bogus));
-    list[n] = (garbage_t){.what = "a body over the cap"};
-    frame(&list[n], header_ok, sizeof header_ok);
-    frame(&list[n++], big_body, sizeof big_body);
-    list[n] = (garbage_t){.what = "a header without a body"};
-    frame(&list[n++], header_ok, sizeof header_ok);
+    valid_but(&list[n++], 0, bad_type, sizeof bad_type, 0);
+    list[n] = (garbage_t){.what = "a fields frame of the wrong size"};
+    valid_but(&list[n++], 1, ok_frames[1], ok_size[1] - 8, 0);
+    list[n] = (garbage_t){.what = "a field out of range"};
+    valid_but(&list[n++], 1, bad_fields, ok_size[1], 0);
+    list[n] = (garbage_t){.what = "a text over the cap"};
+    valid_but(&list[n++], 2 + BGA_LM_NAME, big_text, sizeof big_text, 0);
+    list[n] = (garbage_t){.what = "a header alone"};
+    frame(&list[n++], ok_frames[0], ok_size[0]);
+    list[n] = (garbage_t){.what = "a frame missing"};
+    valid_but(&list[n++], -1, NULL, 0, 1);
     list[n] = (garbage_t){.what = "too many frames"};
     for (int i = 0; i < MANY_FRAMES; i++)
-        frame(&list[n], header_ok, sizeof header_ok);
+        frame(&list[n], ok_frames[0], ok_size[0]);
     n++;
     return n;
 }
@@ -133,8 +146,8 @@ static int recv_msg(void *s, int router, zmq_msg_t *route, bga_mmsg_t *out, int 
     zmq_pollitem_t item = {s, 0, ZMQ_POLLIN, 0};
     if (zmq_poll(&item, 1, wait_ms) <= 0)
         return 0;
-    uint8_t buf[2][BGA_MMSG_MAX_BODY + 16];
-    bga_frame_t views[2];
+    static uint8_t buf[BGA_WIRE_MAX_FRAMES][BGA_MMSG_MAX_BYTES + 16];
+    bga_frame_t views[BGA_WIRE_MAX_FRAMES];
     int n = 0, more = 1;
     if (router) {
         zmq_msg_close(route);
@@ -142,11 +155,12 @@ static int recv_msg(void *s, int router, zmq_msg_t *route, bga_mmsg_t *out, int 
         zmq_msg_recv(route, s, 0);
     }
     while (more) {
-        int got = zmq_recv(s, n < 2 ? buf[n] : buf[1], sizeof buf[0], 0);
+        const int k = n < BGA_WIRE_MAX_FRAMES ? n : BGA_WIRE_MAX_FRAMES - 1;
+        int got = zmq_recv(s, buf[k], sizeof buf[0], 0);
         if (got < 0)
             FAIL("recv: %s", zmq_strerror(zmq_errno()));
-        if (n < 2)
-            views[n] = (bga_frame_t){buf[n], (size_t)got};
+        if (n < BGA_WIRE_MAX_FRAMES)
+            views[n] = (bga_frame_t){buf[n], (size_t)got > sizeof buf[0] ? sizeof buf[0] : (size_t)got};
         n++;
         int64_t m = 0;
         size_t ml = sizeof m;
@@ -154,7 +168,7 @@ static int recv_msg(void *s, int router, zmq_msg_t *route, bga_mmsg_t *out, int 
         more = (int)m;
     }
     bg_error_t err = BG_ERROR_INIT;
-    if (n > 2 || bga_mmsg_decode(views, n, out, &err) != BG_OK)
+    if (n > BGA_WIRE_MAX_FRAMES || bga_mmsg_decode(views, n, out, &err) != BG_OK)
         FAIL("an undecodable reply: %s", err.message);
     return 1;
 }
