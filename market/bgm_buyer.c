@@ -1,8 +1,6 @@
 #include "bgm_buyer.h"
 
-#include <math.h>
 #include <stdlib.h>
-#include <string.h>
 
 struct bgm_buyer {
     bgm_config_t cfg;

@@ -2,7 +2,6 @@
 
 #include <math.h>
 #include <stdlib.h>
-#include <string.h>
 
 #include "bgm_catallactic.h"
 #include "bgm_session.h"

@@ -568,7 +568,7 @@ static void observe_requests(bgm_world_t *w, uint32_t me, uint32_t first)
             continue;
         }
         o->layer = r->good < 0;
-        o->job = w->njob > 0 ? w->njob - 1 : 0;
+        o->job = is_buyer(w, me) && w->njob > 0 ? w->njob - 1 : 0;
         o->good = r->good;
         o->work = r->work;
         o->limit = r->limit;
