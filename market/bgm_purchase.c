@@ -556,9 +556,10 @@ static void on_rconfirm(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double
     if (m->good == BGM_GOOD_CORES_ID || m->good == BGM_GOOD_MEMORY_ID) {
         if (pu->nparts == pu->parts_cap) {
             size_t cap = pu->parts_cap ? 2 * pu->parts_cap : 8;
-            bgm_purchase_part_t *p = realloc(pu->parts, cap * sizeof *p);
+            bgm_purchase_part_t *p =
+                cap <= BGM_PU_MAX_PARTS ? realloc(pu->parts, cap * sizeof *p) : NULL;
             if (!p) {
-                fail(pu, BG_ERR_NOMEM);
+                fail(pu, cap <= BGM_PU_MAX_PARTS ? BG_ERR_NOMEM : BG_ERR_LIMIT);
                 return;
             }
             pu->parts = p;

@@ -57,8 +57,10 @@
 #define BGM_PU_BUNDLE (-1)
 /* How long past its deadline a request committed to a seller waits. */
 #define BGM_PU_COMMIT_GRACE 30.0
-/* Requests one owner may open in all. */
+/* Requests one owner may open in all, and parts it may hold at once
+ * (bundles whose delivery is not answered yet, a few parts each). */
 #define BGM_PU_MAX_REQS (1u << 22)
+#define BGM_PU_MAX_PARTS ((size_t)1 << 16)
 
 /* A request's phase. */
 enum {
