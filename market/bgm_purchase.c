@@ -33,7 +33,7 @@ typedef struct req {
 } req_t;
 
 struct bgm_purchase {
-    bgm_config_t cfg;
+    const bgm_config_t *cfg; /* its owner's */
     bgm_purchase_params_t p;
     uint32_t nbr[BGM_PU_MAX_NEIGHBOURS];
     uint8_t same[BGM_PU_MAX_NEIGHBOURS];
@@ -128,7 +128,7 @@ static void learn(bgm_purchase_t *pu, int success, double share)
 /* Normaliser for remembered resource prices: the mean cost rate. */
 static double mean_rate(const bgm_purchase_t *pu, double cores, double mem)
 {
-    return pu->cfg.resources.core_cost * cores + pu->cfg.resources.memory_cost * mem;
+    return pu->cfg->resources.core_cost * cores + pu->cfg->resources.memory_cost * mem;
 }
 
 static uint64_t req_arg(const req_t *q)
@@ -194,9 +194,8 @@ bgm_purchase_t *bgm_purchase_new(const bgm_purchase_params_t *p)
     bgm_purchase_t *pu = calloc(1, sizeof *pu);
     if (!pu)
         return NULL;
-    pu->cfg = *p->cfg;
+    pu->cfg = p->cfg;
     pu->p = *p;
-    pu->p.cfg = &pu->cfg;
     for (int i = 0; i < p->degree; i++) {
         pu->nbr[i] = p->neighbours[i];
         pu->same[i] = p->same_role[i];
@@ -284,8 +283,8 @@ static void final_fail(bgm_purchase_t *pu, req_t *q)
 /* One attempt failed: retry after a backoff while the deadline allows. */
 static void attempt_failed(bgm_purchase_t *pu, req_t *q, double now)
 {
-    double backoff = pu->p.mechanism == BGM_MECH_BASELINE ? pu->cfg.baseline.retry_backoff
-                                                           : pu->cfg.catallactic.retry_backoff;
+    double backoff = pu->p.mechanism == BGM_MECH_BASELINE ? pu->cfg->baseline.retry_backoff
+                                                           : pu->cfg->catallactic.retry_backoff;
     learn(pu, 0, 0.0);
     q->r.attempt++;
     if (now + backoff >= q->r.deadline) {
@@ -354,14 +353,14 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
     case BGM_MECH_CATALLACTIC: {
         bgm_msg_t m = msg(BGM_MT_CFP, pu->p.self, 0, r->id, r->attempt);
         m.good = (int16_t)r->good;
-        m.hops = (uint16_t)pu->cfg.catallactic.hops;
+        m.hops = (uint16_t)pu->cfg->catallactic.hops;
         m.origin = pu->p.self;
         m.a = bundle ? r->cores : r->work;
         m.b = r->memory;
         m.c = r->flops;
         q->r.state = BGM_PU_DISCOVER;
         cfp_send(pu, &m, UINT32_MAX);
-        arm(pu, q, now + pu->cfg.catallactic.discovery_timeout);
+        arm(pu, q, now + pu->cfg->catallactic.discovery_timeout);
         break;
     }
     default: {
@@ -372,7 +371,7 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
         m.b = r->memory;
         q->r.state = BGM_PU_WAIT;
         emit(pu, &m);
-        arm(pu, q, now + 4.0 * pu->cfg.catallactic.reply_timeout);
+        arm(pu, q, now + 4.0 * pu->cfg->catallactic.reply_timeout);
         break;
     }
     }
@@ -460,7 +459,7 @@ static void begin_nego(bgm_purchase_t *pu, req_t *q, double now)
         } else {
             bgm_nego_open(&g->buyer_nego, BGM_SIDE_BUYER, lim,
                           bgm_nego_opening(BGM_SIDE_BUYER, lim, mem, pu->tr.markup),
-                          &pu->tr.genes, pu->cfg.catallactic.max_rounds);
+                          &pu->tr.genes, pu->cfg->catallactic.max_rounds);
             o = msg(BGM_MT_OFFER, pu->p.self, p->seller, q->r.id, q->r.attempt);
             o.price = g->buyer_nego.current;
             o.hops = 1; /* opens a bargain: the seller starts afresh */
@@ -469,7 +468,7 @@ static void begin_nego(bgm_purchase_t *pu, req_t *q, double now)
         q->r.seller = p->seller;
         q->r.state = BGM_PU_NEGOTIATE;
         emit(pu, &o);
-        arm(pu, q, now + pu->cfg.catallactic.reply_timeout);
+        arm(pu, q, now + pu->cfg->catallactic.reply_timeout);
         return;
     }
     attempt_failed(pu, q, now);
@@ -507,7 +506,7 @@ static void on_offer(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double no
          * the buyer must not walk away on a phase timeout any more: it
          * waits for the seller's answer, and the deadline covers the rest. */
         if (is_bundle(q))
-            arm(pu, q, now + pu->cfg.catallactic.reply_timeout);
+            arm(pu, q, now + pu->cfg->catallactic.reply_timeout);
         else
             q->r.tseq++;
     } else if (act == BGM_NEGO_COUNTER) {
@@ -515,7 +514,7 @@ static void on_offer(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double no
         o.price = reply;
         request_fields(q, &o);
         emit(pu, &o);
-        arm(pu, q, now + pu->cfg.catallactic.reply_timeout);
+        arm(pu, q, now + pu->cfg->catallactic.reply_timeout);
     } else {
         bgm_msg_t x = msg(BGM_MT_REJECT, pu->p.self, m->from, m->req, m->attempt);
         emit(pu, &x);
@@ -712,7 +711,7 @@ bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, doub
                 emit(pu, &m);
             }
         }
-        double t = now + pu->cfg.catallactic.learning_period * (0.5 + bgm_rng_uniform(&pu->tr.rng));
+        double t = now + pu->cfg->catallactic.learning_period * (0.5 + bgm_rng_uniform(&pu->tr.rng));
         if (t < pu->p.horizon)
             later(pu, t, BGM_PU_TIMER_LEARN, 0);
         break;
@@ -753,7 +752,7 @@ bg_status bgm_purchase_learning_start(bgm_purchase_t *pu, double now, bgm_outbox
 {
     bgm_purchase_event_t ev;
     begin(pu, out, &ev);
-    later(pu, now + pu->cfg.catallactic.learning_period * bgm_rng_uniform(&pu->tr.rng),
+    later(pu, now + pu->cfg->catallactic.learning_period * bgm_rng_uniform(&pu->tr.rng),
           BGM_PU_TIMER_LEARN, 0);
     return finish(pu);
 }
@@ -782,8 +781,8 @@ bg_status bgm_purchase_on_genes(bgm_purchase_t *pu, const bgm_msg_t *m, bgm_outb
     double g[BGM_GENE_COUNT];
     memcpy(g, m->cand_price, sizeof g);
     bgm_genes_unpack(&other, g);
-    bgm_learning_t lp = {pu->cfg.catallactic.imitation, pu->cfg.catallactic.mutation,
-                         pu->cfg.catallactic.mutation_sigma};
+    bgm_learning_t lp = {pu->cfg->catallactic.imitation, pu->cfg->catallactic.mutation,
+                         pu->cfg->catallactic.mutation_sigma};
     bgm_genes_learn(&pu->tr.genes, pu->tr.fitness, &other, m->price, &lp, &pu->tr.rng);
     return finish(pu);
 }

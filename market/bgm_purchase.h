@@ -130,7 +130,7 @@ typedef struct bgm_purchase_event {
 } bgm_purchase_event_t;
 
 typedef struct bgm_purchase_params {
-    const bgm_config_t *cfg; /* copied */
+    const bgm_config_t *cfg; /* borrowed: its owner's copy, which outlives it */
     int mechanism;           /* bgm_mechanism */
     uint32_t self, market;   /* its owner's agent id, the market agent's */
     double horizon;          /* no learning meeting is scheduled after it */
