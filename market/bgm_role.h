@@ -4,9 +4,9 @@
  * complex-service buyer (one per job), the basic-service seller (which
  * also buys resources) and the resource seller.
  *
- * The simulator's world hosts one state machine per role split out so far
- * (bgm_market_agent, bgm_resource; the buyer and the basic seller still run
- * in the world, each on its own records: market/README.md) and routes
+ * The simulator's world hosts one state machine per agent (bgm_market_agent,
+ * bgm_buyer, bgm_seller, bgm_resource; the buyer and the basic seller buy
+ * through the bgm_purchase each embeds, which is not a role) and routes
  * the generic message bgm_msg_t below between them; `biotgrid sim
  * --engine wire` carries every routed message through the pure codec
  * (bgm_codec.h). A role machine includes this header, never another

@@ -2,7 +2,7 @@
  * bgm_session — a seller's side of its bargains: a fixed ring of
  * sessions, one per (buyer, request, attempt), each holding the seller's
  * bgm_nego_t for that bargain. Part of a seller's own state (the resource
- * seller's in bgm_resource, the basic seller's in the world): it never
+ * seller's in bgm_resource, the basic seller's in bgm_seller): it never
  * reads a buyer's record, only the messages the seller is handed.
  *
  * A session is opened by an offer that says so (hops = 1 on an OFFER:

@@ -4,13 +4,14 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bgm_catallactic.h"
+#include "bgm_buyer.h"
 #include "bgm_market_agent.h"
 #include "bgm_optimum.h"
 #include "bgm_outbox.h"
+#include "bgm_purchase.h"
 #include "bgm_resource.h"
-#include "bgm_session.h"
 #include "bgm_rng.h"
+#include "bgm_seller.h"
 #include "bgm_strategy.h"
 
 const char *const bgm_metric_names[BGM_M_COUNT] = {
@@ -29,13 +30,9 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 /* Hard caps (growable tables never exceed these). */
 #define BGM_MAX_AGENTS 200000
 #define BGM_DEMAND_STREAM (1ULL << 40)
-#define BGM_MAX_REQS (1u << 22)
+#define BGM_MAX_REQS BGM_PU_MAX_REQS
 #define BGM_MAX_CONTRACTS (1u << 23)
-#define BGM_MAX_NEIGHBOURS 64
-#define BGM_MAX_PROPOSALS 8
-#define BGM_SEEN_RING 16
-/* Bargains a basic seller keeps at once (catallactic; bgm_session). */
-#define BGM_BASIC_SESSIONS 32
+#define BGM_MAX_NEIGHBOURS BGM_PU_MAX_NEIGHBOURS
 /* Items one role machine may emit in one call (a clearing emits two per fill). */
 #define BGM_OUTBOX_MAX ((size_t)1 << 20)
 #define BGM_GOOD_CORES 3
@@ -46,54 +43,46 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 #define BGM_GENES_BYTES 48
 /* The opening-price markup every agent starts from. */
 #define BGM_MARKUP_INIT 0.2
-/* A basic agent re-announces its ask when its reservation moves this much. */
-#define BGM_ASK_REFRESH 0.1
-/* Buyer waits this long past its deadline for a committed seller. */
-#define BGM_COMMIT_GRACE 30.0
 
-/* Message types. a/b/c meanings are given per type. */
+/* Message types (bgm_role.h; what a, b, c carry is given per type in the
+ * role machines' headers). */
 enum {
-    M_BID = BGM_MT_BID, /* C->A service bid: good, price=valuation/unit, a=work, b=deadline */
-    M_ASK,      /* B->A: good, price=reservation/unit, a=slots (registration/refresh) */
-    M_FREE,     /* B->A: one slot free again */
-    M_MATCH,    /* A->B: req, good, price, a=work, b=deadline, c=buyer valuation; origin=buyer */
-    M_RBID,     /* B->A resource bid: req, a=cores, b=memory, c=flops, price=limit total */
-    M_RASK,     /* R->A registration: a=cores, b=memory, c=speed, price=cost rate/core */
-    M_RFREE,    /* R->A: a=cores, b=memory freed */
-    M_RAWARD,   /* A->R: req, price=rate, origin=buyer, a=cores, b=memory, c=flops;
-                   cand[0]=seller-limit */
-    M_RFAIL,    /* A->B or R->B: resource request failed */
-    M_RCONFIRM, /* R->B: req, price=rate, a=start, b=end, c=seller limit rate; for a part
-                 * (good cores|memory): cand_price[0..2]=quantity, buyer limit and
-                 * seller cost per unit-second, hops=parts of the bundle */
-    M_CONFIRM,  /* B->C, a delivery: req, attempt, price/unit, a=start, b=end, origin=bundle */
-    M_CANCEL,   /* B->C: the agreed service could not get resources */
-    M_CFP,      /* call for proposals: req, good, hops, origin, a=work|cores, b=memory, c=flops */
-    M_PROPOSE,  /* seller->buyer: price=opening, a=speed */
-    M_OFFER,    /* either way: price */
-    M_ACCEPT,   /* either way: price agreed */
-    M_REJECT,   /* either way */
-    M_GENES,    /* learning: cand_price[0..4]=genes, price=fitness, a=1 request, 0 reply */
-    M_QUERY,    /* baseline: buyer->A: good (or bundle), price=limit */
-    M_LIST,     /* A->buyer: candidates */
-    M_ORDER,    /* buyer->seller at posted price: price, a=work|cores, b=memory, c=flops */
-    M_AVAIL,    /* baseline seller->directory: a=free slots|cores, b=free memory */
-    M_RPART,    /* A->R, call markets: req, good=cores|memory, a=quantity, b=duration,
-                 * price=rate per unit-second, c=buyer limit per unit-second,
-                 * hops=parts of the bundle, origin=buyer, cand_price[0]=start */
-    M_TAKE,     /* C->B: the delivery of req is taken; origin=bundle */
-    M_REFUSE    /* C->B: the delivery of req is refused; origin=bundle */
+    M_BID = BGM_MT_BID,
+    M_ASK,
+    M_FREE,
+    M_MATCH,
+    M_RBID,
+    M_RASK,
+    M_RFREE,
+    M_RAWARD,
+    M_RFAIL,
+    M_RCONFIRM,
+    M_CONFIRM,
+    M_CANCEL,
+    M_CFP,
+    M_PROPOSE,
+    M_OFFER,
+    M_ACCEPT,
+    M_REJECT,
+    M_GENES,
+    M_QUERY,
+    M_LIST,
+    M_ORDER,
+    M_AVAIL,
+    M_RPART,
+    M_TAKE,
+    M_REFUSE
 };
 _Static_assert((int)M_REFUSE == (int)BGM_MT_REFUSE, "the world's message numbers are bgm_role.h's");
 
-/* Timer kinds. */
+/* Timer kinds: the role machines' own, then the world's churn. */
 enum {
-    T_ARRIVAL = 1,  /* complex agent: next job */
+    T_ARRIVAL = 1,  /* job's agent: next job (BGM_BU_TIMER_ARRIVAL) */
     T_CLEAR,        /* market agent: clearing period (BGM_MA_TIMER_CLEAR) */
-    T_REQ,          /* request phase timeout: arg = req | tseq << 32 */
-    T_DEADLINE,     /* request deadline: arg = req */
-    T_RETRY,        /* retry acquisition: arg = req | attempt << 32 */
-    T_RELEASE,      /* seller capacity release at contract end: arg = its bundle (req) */
+    T_REQ,          /* a request's phase timeout (BGM_PU_TIMER_REQ) */
+    T_DEADLINE,     /* a request's deadline (BGM_PU_TIMER_DEADLINE) */
+    T_RETRY,        /* retry acquisition (BGM_PU_TIMER_RETRY) */
+    T_RELEASE,      /* a seller's run or bundle ends: arg = its bundle's request */
     T_RELEASE_PART, /* resource agent frees one part: arg = part_arg(good, quantity) */
     T_LEARN,        /* catallactic learning meeting */
     T_NODE_FAIL,    /* agent = first agent of node; arg = node */
@@ -101,65 +90,37 @@ enum {
     T_LINK_FAIL,
     T_LINK_REPAIR
 };
-_Static_assert(T_CLEAR == BGM_MA_TIMER_CLEAR && T_RELEASE == BGM_RS_TIMER_RELEASE &&
-                   T_RELEASE_PART == BGM_RS_TIMER_RELEASE_PART && T_LEARN == BGM_RS_TIMER_LEARN,
+_Static_assert(T_ARRIVAL == BGM_BU_TIMER_ARRIVAL && T_CLEAR == BGM_MA_TIMER_CLEAR &&
+                   T_REQ == BGM_PU_TIMER_REQ && T_DEADLINE == BGM_PU_TIMER_DEADLINE &&
+                   T_RETRY == BGM_PU_TIMER_RETRY && T_RELEASE == BGM_RS_TIMER_RELEASE &&
+                   T_RELEASE == BGM_SE_TIMER_RELEASE && T_RELEASE_PART == BGM_RS_TIMER_RELEASE_PART &&
+                   T_LEARN == BGM_RS_TIMER_LEARN && T_LEARN == BGM_PU_TIMER_LEARN,
                "the role machines' timers keep their numbers");
 
-enum { RQ_IDLE, RQ_DISCOVER, RQ_NEGOTIATE, RQ_WAIT, RQ_COMMITTED, RQ_DONE, RQ_FAILED };
-/* A bundle's delivery to the job's agent (resource requests). */
+/* A delivery of a bundle's service, as the observer follows it. */
 enum { DL_NONE, DL_OFFERED, DL_DECIDED };
 
-typedef struct proposal {
-    uint32_t seller;
-    double price, speed;
-} proposal_t;
+/* The observer's record of one request of the run (every request of
+ * every machine, by its number): what it read from the owner's machine
+ * when the request was opened, and for a bundle whether its delivery was
+ * offered and decided. The machines never read it. */
+typedef struct obs_req {
+    uint32_t owner;
+    uint32_t job; /* a service item: its job */
+    int layer;    /* 0: a service item of a job; 1: a basic seller's bundle */
+    int good, delivery;
+    double work, limit, created, deadline;
+} obs_req_t;
 
-/* The buyer's bargaining state of a request while it is being acquired
- * by proposals (catallactic) or candidate lists (baseline): kept apart
- * from the request and given back when the request ends, because only a
- * few hundred requests bargain at once while tens of thousands are
- * recorded. A seller's side of the bargain is the seller's own
- * (bgm_session). */
-typedef struct nego_state {
-    proposal_t prop[BGM_MAX_PROPOSALS];
-    int nprop, next_prop;
-    bgm_nego_t buyer_nego;
-    uint32_t next_free;
-} nego_state_t;
-
-#define BGM_NEGO_NONE UINT32_MAX
-
-/* A purchase in progress: a service item of a job (layer 0, buyer C) or a
- * resource bundle for an agreed service (layer 1, buyer B). Owned by its
- * buyer. */
-typedef struct req {
-    int layer, good, state;
-    uint32_t buyer, seller, job, parent; /* parent: service req of a resource req */
-    uint32_t attempt;
-    uint32_t tseq; /* phase timer generation: only the latest T_REQ counts */
-    uint32_t sattempt; /* resource request: the service attempt its basic agent agreed to */
-    double work;   /* service: units (a bundle's size follows from its service) */
-    double limit;        /* service: valuation/unit; resource: revenue total */
-    double created, deadline;
-    double price;        /* agreed price (service: per unit; resource: rate) */
-    double seller_limit; /* seller's reservation at agreement */
-    double start, end;
-    uint32_t nego;  /* bargaining state (BGM_NEGO_NONE: none) */
-    uint32_t parts; /* call markets: parts of the bundle confirmed so far */
-    /* Resource request: the basic agent's own record of the service deal
-     * it serves (what the buyer's message said and the agreed terms), so
-     * that it never reads the buyer's record. */
-    uint32_t sbuyer;
-    int sgood, delivery;
-    double swork, sprice, slimit;
-} req_t;
-
+/* A job as the observer saw it arrive and its items be taken. */
 typedef struct job {
-    uint32_t agent;
     double arrival, last_end;
-    int items, done, failed;
+    int items, done;
 } job_t;
 
+/* What the world keeps of an agent: its place, what it drew for it at
+ * creation (streams, genes, endowments: the machines hold their own
+ * copies from then on) and the money ledger. */
 typedef struct agent {
     int role;
     uint32_t node;
@@ -167,32 +128,19 @@ typedef struct agent {
     bgm_rng_t drng; /* demand and endowment draws, independent of the
                      * mechanism, so every mechanism faces the same jobs */
     bgm_genes_t genes;
-    double fitness, markup;
-    double memory[4]; /* remembered price per service good; [3]: resource price/cost ratio */
+    double markup;
     uint32_t *nbr;
     uint8_t *nsame; /* per neighbour: of its role (told at creation, as its overlay links) */
     int ndeg;
-    /* basic-service seller */
+    /* basic-service seller: what it sells, its slots, its own cost per unit */
     int sells[BGM_SERVICE_TYPES];
-    int slots, used;
-    double cost[BGM_SERVICE_TYPES];      /* own cost per unit */
-    double est_res[BGM_SERVICE_TYPES];   /* estimated resource cost per unit */
-    double announced[BGM_SERVICE_TYPES]; /* last reservation sent to the market */
-    double posted[BGM_SERVICE_TYPES];    /* baseline posted price */
-    /* resource seller: its endowment, as drawn (the machine holds the rest) */
+    int slots;
+    double cost[BGM_SERVICE_TYPES];
+    /* resource seller: its endowment */
     double cores, mem, core_cost, mem_cost, speed;
-    /* complex buyer */
-    double requested[BGM_SERVICE_TYPES], valuation_sum[BGM_SERVICE_TYPES];
+    /* the ledger */
     double paid[2], received[2];
 } agent_t;
-
-/* Call markets: one part of a bundle, held by its seller and confirmed
- * to the buyer, paid for once the whole bundle is. */
-typedef struct part {
-    uint32_t rid, seller;
-    int good;
-    double quantity, start, end, rate, limit, cost;
-} part_t;
 
 struct bgm_world {
     bgm_config_t cfg;
@@ -204,30 +152,24 @@ struct bgm_world {
     agent_t *agents;
     uint32_t *nbr_pool;
     uint8_t *nsame_pool;
-    /* Catallactic only: per agent, a ring of the calls for proposals it
-     * has seen (BGM_SEEN_RING keys) and where the next one goes. */
-    uint64_t *seen;
-    uint8_t *seen_pos;
     int *node_up, *link_up;
     uint32_t nodes;
     double *speed;
-    req_t *reqs;
-    uint32_t nreq, req_cap;
-    nego_state_t *negos; /* pool; a free list threads the unused ones */
-    uint32_t nnego, nego_cap, nego_free;
+    /* the role machines */
+    bgm_market_agent_t *ma; /* agent 0's */
+    bgm_buyer_t **bm;       /* the jobs' agents', by agent - 1 */
+    bgm_seller_t **sm;      /* the basic sellers', by agent - first_basic */
+    bgm_resource_t **rsm;   /* the resource sellers', by agent - first_resource */
+    bgm_outbox_t *ob;       /* what a role machine emits during one call */
+    /* the observer: requests by number (nreq: the next number), jobs,
+     * contracts, accounting */
+    obs_req_t *obs;
+    uint32_t nreq, obs_cap;
     job_t *jobs;
     uint32_t njob, job_cap;
     bgm_contract_t *log;
     size_t nlog, log_cap;
-    part_t *parts; /* call markets: parts held for bundles not yet complete */
-    size_t nparts, parts_cap;
-    bgm_market_agent_t *ma; /* agent 0's role machine */
-    bgm_resource_t **rsm;   /* the resource sellers' role machines, by agent - first_resource */
-    bgm_sessions_t **bsess; /* catallactic: the basic sellers' bargains, by agent - first_basic */
-    bgm_outbox_t *ob;       /* what a role machine emits during one call */
-    /* accounting */
-    double msgs, bytes, timeouts;
-    double service_requests, resource_requests;
+    double msgs, bytes;
     double bundles; /* bundles rented (whole, or every part of one paid) */
     double *acc_s, *acc_r;
     size_t nacc_s, nacc_r;
@@ -275,32 +217,6 @@ static void timer(bgm_world_t *w, uint32_t agent, double at, int kind, uint64_t 
     w->sink.timer(w->sink.ctx, agent, at, kind, arg);
 }
 
-
-/* Messages start from a zeroed body with their header set. */
-static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
-{
-    return bgm_outbox_msg(type, from, to, req, attempt);
-}
-
-/* Baseline: a basic seller tells the directory its free slots whenever
- * they change, as a plain scheduler's registry would learn them (resource
- * sellers do the same in bgm_resource). */
-static void announce(bgm_world_t *w, uint32_t seller)
-{
-    if (w->p.mechanism != BGM_MECH_BASELINE)
-        return;
-    const agent_t *a = &w->agents[seller];
-    bgm_msg_t m = msg(M_AVAIL, seller, 0, 0, 0);
-    m.a = (double)(a->slots - a->used);
-    send(w, &m);
-}
-
-
-static uint64_t req_arg(const req_t *r, uint32_t id)
-{
-    return (uint64_t)id | ((uint64_t)r->attempt << 32);
-}
-
 static bg_status log_contract(bgm_world_t *w, const bgm_contract_t *c)
 {
     if (w->nlog == w->log_cap) {
@@ -331,118 +247,34 @@ static bg_status push_double(double **arr, size_t *n, double v)
     return BG_OK;
 }
 
-static uint32_t new_req(bgm_world_t *w)
+static int is_buyer(const bgm_world_t *w, uint32_t a)
 {
-    if (w->nreq == w->req_cap) {
-        uint32_t n = w->req_cap ? w->req_cap * 2 : 1024;
-        if (n > BGM_MAX_REQS) {
-            fail(w, BG_ERR_LIMIT);
-            return UINT32_MAX;
-        }
-        req_t *p = realloc(w->reqs, (size_t)n * sizeof *p);
-        if (!p) {
-            fail(w, BG_ERR_NOMEM);
-            return UINT32_MAX;
-        }
-        w->reqs = p;
-        w->req_cap = n;
-    }
-    memset(&w->reqs[w->nreq], 0, sizeof w->reqs[0]);
-    w->reqs[w->nreq].nego = BGM_NEGO_NONE;
-    return w->nreq++;
+    return a >= 1 && a < w->first_basic;
 }
 
-/* The request's bargaining state. Only valid while it has one, that is
- * between its first acquisition and its end; the pool may move when a
- * state is taken, so callers fetch it again after anything that starts
- * an acquisition. */
-static nego_state_t *ng(bgm_world_t *w, const req_t *r)
+static int is_basic(const bgm_world_t *w, uint32_t a)
 {
-    return &w->negos[r->nego];
+    return a >= w->first_basic && a < w->first_resource;
 }
 
-/* Gives request r a bargaining state if it has none. Returns 0 when out
- * of memory. */
-static int nego_take(bgm_world_t *w, req_t *r)
+static int is_resource(const bgm_world_t *w, uint32_t a)
 {
-    if (r->nego != BGM_NEGO_NONE)
-        return 1;
-    if (w->nego_free == BGM_NEGO_NONE) {
-        if (w->nnego == w->nego_cap) {
-            uint32_t n = w->nego_cap ? w->nego_cap * 2 : 256;
-            nego_state_t *p = n <= BGM_MAX_REQS ? realloc(w->negos, (size_t)n * sizeof *p) : NULL;
-            if (!p)
-                return 0;
-            w->negos = p;
-            w->nego_cap = n;
-        }
-        w->negos[w->nnego].next_free = BGM_NEGO_NONE;
-        w->nego_free = w->nnego++;
-    }
-    r->nego = w->nego_free;
-    w->nego_free = w->negos[r->nego].next_free;
-    memset(&w->negos[r->nego], 0, sizeof w->negos[0]);
-    return 1;
+    return a >= w->first_resource && a < w->nagents;
 }
 
-/* Request r has ended (done or failed): no message about it reads its
- * bargaining state any more (every handler checks the state first). */
-static void req_end(bgm_world_t *w, req_t *r, int state)
+static bgm_buyer_t *buyer_machine(bgm_world_t *w, uint32_t a)
 {
-    r->state = state;
-    if (r->nego == BGM_NEGO_NONE)
-        return;
-    w->negos[r->nego].next_free = w->nego_free;
-    w->nego_free = r->nego;
-    r->nego = BGM_NEGO_NONE;
+    return w->bm[a - 1];
 }
 
-/* A resource request's bundle is what its service's type needs, for the
- * service's work (from the basic agent's record of the deal); a service
- * request has none. Derived, not stored: tens of thousands of requests
- * are recorded at 2000 agents. */
-static const bgm_service_cfg_t *bundle_type(const bgm_world_t *w, const req_t *r)
+static bgm_seller_t *seller_machine(bgm_world_t *w, uint32_t a)
 {
-    return r->layer == 1 ? &w->cfg.services[r->sgood] : NULL;
+    return w->sm[a - w->first_basic];
 }
 
-static double req_cores(const bgm_world_t *w, const req_t *r)
+static bgm_resource_t *resource_machine(bgm_world_t *w, uint32_t a)
 {
-    const bgm_service_cfg_t *s = bundle_type(w, r);
-    return s ? (double)s->cores : 0.0;
-}
-
-static double req_memory(const bgm_world_t *w, const req_t *r)
-{
-    const bgm_service_cfg_t *s = bundle_type(w, r);
-    return s ? s->memory : 0.0;
-}
-
-static double req_flops(const bgm_world_t *w, const req_t *r)
-{
-    const bgm_service_cfg_t *s = bundle_type(w, r);
-    return s ? s->flops_per_unit * r->swork : 0.0;
-}
-
-static double resource_cost_rate(const agent_t *r, double cores, double mem)
-{
-    return r->core_cost * cores + r->mem_cost * mem;
-}
-
-/* Normaliser for remembered resource prices: the mean cost rate. */
-static double mean_rate(const bgm_world_t *w, double cores, double mem)
-{
-    return w->cfg.resources.core_cost * cores + w->cfg.resources.memory_cost * mem;
-}
-
-static double reservation(const agent_t *b, int good)
-{
-    return b->cost[good] + b->est_res[good];
-}
-
-static void learn_outcome(agent_t *a, int success, double surplus_share)
-{
-    bgm_outcome_learn(&a->genes, &a->fitness, &a->markup, success, surplus_share);
+    return w->rsm[a - w->first_resource];
 }
 
 /* ------------------------------------------------------------ construction */
@@ -502,6 +334,61 @@ static bg_status build_overlay(bgm_world_t *w)
     return BG_OK;
 }
 
+/* The role machines of the buyers, basic sellers and resource sellers,
+ * each given what the world drew for it. */
+static bg_status make_machines(bgm_world_t *w)
+{
+    const int mech = w->p.mechanism;
+    w->bm = calloc(w->ncomplex, sizeof *w->bm);
+    w->sm = calloc(w->nbasic, sizeof *w->sm);
+    w->rsm = calloc(w->nresource, sizeof *w->rsm);
+    if (!w->bm || !w->sm || !w->rsm)
+        return BG_ERR_NOMEM;
+    for (uint32_t k = 0; k < w->ncomplex; k++) {
+        const agent_t *ag = &w->agents[1 + k];
+        bgm_buyer_params_t bp = {&w->cfg,   mech,    1 + k,      0,        w->horizon,
+                                 w->arrival_end, ag->drng, ag->rng, ag->genes, ag->markup,
+                                 ag->nbr,   ag->nsame, ag->ndeg};
+        if (!(w->bm[k] = bgm_buyer_new(&bp)))
+            return BG_ERR_NOMEM;
+    }
+    for (uint32_t k = 0; k < w->nbasic; k++) {
+        const agent_t *ag = &w->agents[w->first_basic + k];
+        bgm_seller_params_t sp = {0};
+        sp.cfg = &w->cfg;
+        sp.mechanism = mech;
+        sp.self = w->first_basic + k;
+        sp.market = 0;
+        sp.horizon = w->horizon;
+        sp.first_buyer = 1;
+        sp.nbuyers = w->ncomplex;
+        sp.first_resource = w->first_resource;
+        sp.nresource = w->nresource;
+        memcpy(sp.sells, ag->sells, sizeof sp.sells);
+        sp.slots = ag->slots;
+        memcpy(sp.cost, ag->cost, sizeof sp.cost);
+        sp.rng = ag->rng;
+        sp.genes = ag->genes;
+        sp.markup = ag->markup;
+        sp.neighbours = ag->nbr;
+        sp.same_role = ag->nsame;
+        sp.degree = ag->ndeg;
+        if (!(w->sm[k] = bgm_seller_new(&sp)))
+            return BG_ERR_NOMEM;
+    }
+    for (uint32_t k = 0; k < w->nresource; k++) {
+        const agent_t *ag = &w->agents[w->first_resource + k];
+        bgm_resource_params_t rp = {&w->cfg,       mech,         w->first_resource + k, 0,
+                                    w->horizon,    ag->cores,    ag->mem,
+                                    ag->core_cost, ag->mem_cost, ag->speed,
+                                    ag->rng,       ag->genes,    ag->markup,
+                                    ag->nbr,       ag->nsame,    ag->ndeg};
+        if (!(w->rsm[k] = bgm_resource_new(&rp)))
+            return BG_ERR_NOMEM;
+    }
+    return BG_OK;
+}
+
 bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
 {
     bg_status st = BG_OK;
@@ -516,7 +403,6 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
     const bgm_config_t *c = &w->cfg;
     bgm_rng_derive(&w->rng, c->seed, (uint64_t)p->scenario, (uint64_t)p->replication, 0);
     w->nodes = (uint32_t)p->nodes;
-    w->nego_free = BGM_NEGO_NONE;
     w->arrival_end = c->duration;
     w->horizon = c->duration + c->drain;
     int per = (int)lround(p->nodes * p->density);
@@ -570,9 +456,6 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
             for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
                 const bgm_service_cfg_t *s = &c->services[t];
                 ag->cost[t] = s->cost_per_unit * (1.0 + spread * (2.0 * bgm_rng_uniform(&ag->drng) - 1.0));
-                ag->est_res[t] = mean_rate(w, s->cores, s->memory) * s->flops_per_unit /
-                                 (c->network.speed * s->cores);
-                ag->posted[t] = reservation(ag, t) * (1.0 + c->baseline.markup);
             }
         } else {
             ag->role = BGM_ROLE_RESOURCE;
@@ -584,24 +467,6 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
             ag->speed = w->speed[ag->node];
         }
     }
-    if (p->mechanism == BGM_MECH_CATALLACTIC) {
-        w->seen = calloc((size_t)w->nagents * BGM_SEEN_RING, sizeof *w->seen);
-        w->seen_pos = calloc(w->nagents, sizeof *w->seen_pos);
-        if (!w->seen || !w->seen_pos) {
-            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u agents", w->nagents);
-            goto out;
-        }
-    }
-    if (p->mechanism == BGM_MECH_CATALLACTIC) {
-        w->bsess = calloc(w->nbasic, sizeof *w->bsess);
-        for (uint32_t k = 0; w->bsess && k < w->nbasic; k++)
-            if (!(w->bsess[k] = bgm_sessions_new(BGM_BASIC_SESSIONS)))
-                break;
-        if (!w->bsess || (w->nbasic > 0 && !w->bsess[w->nbasic - 1])) {
-            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u basic sellers", w->nbasic);
-            goto out;
-        }
-    }
     if ((st = build_overlay(w))) {
         bg_error_set(err, st, "out of memory for the overlay");
         goto out;
@@ -611,23 +476,10 @@ bgm_world_t *bgm_world_new(const bgm_world_params_t *p, bg_error_t *err)
                                     w->horizon};
     w->ma = bgm_market_agent_new(&mp);
     w->ob = bgm_outbox_new(BGM_OUTBOX_MAX);
-    w->rsm = calloc(w->nresource, sizeof *w->rsm);
-    if (!w->ma || !w->ob || !w->rsm) {
-        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the market books");
+    if (!w->ma || !w->ob || make_machines(w)) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u agents' role machines",
+                          w->nagents);
         goto out;
-    }
-    for (uint32_t k = 0; k < w->nresource; k++) {
-        const agent_t *ag = &w->agents[w->first_resource + k];
-        bgm_resource_params_t rp = {&w->cfg,       p->mechanism, w->first_resource + k, 0,
-                                    w->horizon,    ag->cores,    ag->mem,
-                                    ag->core_cost, ag->mem_cost, ag->speed,
-                                    ag->rng,       ag->genes,    ag->markup,
-                                    ag->nbr,       ag->nsame,    ag->ndeg};
-        if (!(w->rsm[k] = bgm_resource_new(&rp))) {
-            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for %u resource sellers",
-                              w->nresource);
-            goto out;
-        }
     }
 out:
     if (st)
@@ -643,23 +495,22 @@ void bgm_world_destroy(bgm_world_t **pw)
     free(w->agents);
     free(w->nbr_pool);
     free(w->nsame_pool);
-    free(w->seen);
-    free(w->seen_pos);
     free(w->node_up);
     free(w->link_up);
     free(w->speed);
-    free(w->reqs);
-    free(w->negos);
+    free(w->obs);
     free(w->jobs);
     free(w->log);
-    free(w->parts);
     bgm_market_agent_destroy(&w->ma);
+    for (uint32_t k = 0; w->bm && k < w->ncomplex; k++)
+        bgm_buyer_destroy(&w->bm[k]);
+    free(w->bm);
+    for (uint32_t k = 0; w->sm && k < w->nbasic; k++)
+        bgm_seller_destroy(&w->sm[k]);
+    free(w->sm);
     for (uint32_t k = 0; w->rsm && k < w->nresource; k++)
         bgm_resource_destroy(&w->rsm[k]);
     free(w->rsm);
-    for (uint32_t k = 0; w->bsess && k < w->nbasic; k++)
-        bgm_sessions_destroy(&w->bsess[k]);
-    free(w->bsess);
     bgm_outbox_destroy(&w->ob);
     free(w->acc_s);
     free(w->acc_r);
@@ -683,208 +534,83 @@ void bgm_world_money(const bgm_world_t *w, double paid[2], double received[2])
         }
 }
 
-/* ------------------------------------------------------------ acquisition */
+/* --------------------------------------------------------------- observer */
 
-/* Forgets the parts held for bundle rid: nobody is paid for them. */
-static void drop_parts(bgm_world_t *w, uint32_t rid)
+/* Records the requests agent me's machine opened during one call (the
+ * numbers from `first` on): what the observer needs of each later (the
+ * valuation, creation and deadline of a service item, for the contract
+ * log, the access times and the offline optimum; a bundle's creation), read
+ * through the machine's getters. A job's items belong to its last job. */
+static void observe_requests(bgm_world_t *w, uint32_t me, uint32_t first)
 {
-    size_t keep = 0;
-    for (size_t i = 0; i < w->nparts; i++)
-        if (w->parts[i].rid != rid)
-            w->parts[keep++] = w->parts[i];
-    w->nparts = keep;
-}
-
-static void start_acquire(bgm_world_t *w, uint32_t rid, double now);
-
-static void final_fail(bgm_world_t *w, uint32_t rid, double now)
-{
-    req_t *r = &w->reqs[rid];
-    if (r->state == RQ_DONE || r->state == RQ_FAILED)
+    if (w->nreq == first)
         return;
-    req_end(w, r, RQ_FAILED);
-    if (r->parts > 0)
-        drop_parts(w, rid);
-    agent_t *buyer = &w->agents[r->buyer];
-    learn_outcome(buyer, 0, 0.0);
-    if (r->layer == 0) {
-        w->jobs[r->job].failed++;
-        return;
-    }
-    /* A resource request failed: the basic agent gives the slot back and
-     * tells its job buyer that the agreed service is off. */
-    if (buyer->used > 0)
-        buyer->used--;
-    announce(w, r->buyer);
-    if (w->p.mechanism == BGM_MECH_CENTRAL) {
-        bgm_msg_t m = msg(M_FREE, r->buyer, 0, rid, 0);
-        send(w, &m);
-    }
-    bgm_msg_t m = msg(M_CANCEL, r->buyer, r->sbuyer, r->parent, r->sattempt);
-    send(w, &m);
-    (void)now;
-}
-
-/* One attempt failed: retry after a backoff while the deadline allows. */
-static void attempt_failed(bgm_world_t *w, uint32_t rid, double now)
-{
-    req_t *r = &w->reqs[rid];
-    double backoff = w->p.mechanism == BGM_MECH_BASELINE ? w->cfg.baseline.retry_backoff
-                                                          : w->cfg.catallactic.retry_backoff;
-    learn_outcome(&w->agents[r->buyer], 0, 0.0);
-    r->attempt++;
-    if (now + backoff >= r->deadline) {
-        final_fail(w, rid, now);
-        return;
-    }
-    r->state = RQ_IDLE;
-    timer(w, r->buyer, now + backoff, T_RETRY, req_arg(r, rid));
-}
-
-static double req_duration(const bgm_world_t *w, const req_t *r, double speed)
-{
-    return req_flops(w, r) / (speed * (req_cores(w, r) > 0 ? req_cores(w, r) : 1.0));
-}
-
-/* Arms the request's phase timer; earlier phase timers become stale. */
-static void arm(bgm_world_t *w, uint32_t rid, double at)
-{
-    req_t *r = &w->reqs[rid];
-    r->tseq++;
-    timer(w, r->buyer, at, T_REQ, (uint64_t)rid | ((uint64_t)r->tseq << 32));
-}
-
-static void cfp_send(bgm_world_t *w, uint32_t from, const bgm_msg_t *proto, uint32_t except)
-{
-    const agent_t *a = &w->agents[from];
-    for (int i = 0; i < a->ndeg; i++) {
-        if (a->nbr[i] == except || a->nbr[i] == proto->origin)
-            continue;
-        bgm_msg_t m = *proto;
-        m.from = from;
-        m.to = a->nbr[i];
-        send(w, &m);
-    }
-}
-
-static void start_acquire(bgm_world_t *w, uint32_t rid, double now)
-{
-    req_t *r = &w->reqs[rid];
-    if (!agent_alive(w, r->buyer)) {
-        final_fail(w, rid, now);
-        return;
-    }
-    if (w->p.mechanism != BGM_MECH_CENTRAL) {
-        if (!nego_take(w, r)) {
-            fail(w, BG_ERR_NOMEM);
+    if (w->nreq > w->obs_cap) {
+        uint32_t n = w->obs_cap ? w->obs_cap : 1024;
+        while (n < w->nreq)
+            n *= 2;
+        obs_req_t *p = n <= BGM_MAX_REQS ? realloc(w->obs, (size_t)n * sizeof *p) : NULL;
+        if (!p) {
+            fail(w, n <= BGM_MAX_REQS ? BG_ERR_NOMEM : BG_ERR_LIMIT);
             return;
         }
-        nego_state_t *g = ng(w, r);
-        g->nprop = g->next_prop = 0;
+        w->obs = p;
+        w->obs_cap = n;
     }
-    switch (w->p.mechanism) {
-    case BGM_MECH_CENTRAL: {
-        bgm_msg_t m = msg(r->layer == 0 ? M_BID : M_RBID, r->buyer, 0, rid, r->attempt);
-        m.good = (int16_t)r->good;
-        m.price = r->limit;
-        m.a = r->layer == 0 ? r->work : req_cores(w, r);
-        m.b = r->layer == 0 ? r->deadline : req_memory(w, r);
-        m.c = r->layer == 0 ? 0.0 : req_flops(w, r);
-        m.cand_price[0] = r->deadline;
-        r->state = RQ_WAIT;
-        send(w, &m);
-        break;
-    }
-    case BGM_MECH_CATALLACTIC: {
-        bgm_msg_t m = msg(M_CFP, r->buyer, 0, rid, r->attempt);
-        m.good = (int16_t)r->good;
-        m.hops = (uint16_t)w->cfg.catallactic.hops;
-        m.origin = r->buyer;
-        m.a = r->layer == 0 ? r->work : req_cores(w, r);
-        m.b = req_memory(w, r);
-        m.c = req_flops(w, r);
-        r->state = RQ_DISCOVER;
-        cfp_send(w, r->buyer, &m, UINT32_MAX);
-        arm(w, rid, now + w->cfg.catallactic.discovery_timeout);
-        break;
-    }
-    default: {
-        bgm_msg_t m = msg(M_QUERY, r->buyer, 0, rid, r->attempt);
-        m.good = (int16_t)(r->layer == 0 ? r->good : BGM_GOOD_CORES);
-        m.price = r->layer == 0 ? r->limit : INFINITY;
-        m.a = req_cores(w, r);
-        m.b = req_memory(w, r);
-        r->state = RQ_WAIT;
-        send(w, &m);
-        arm(w, rid, now + 4.0 * w->cfg.catallactic.reply_timeout);
-        break;
-    }
+    for (uint32_t id = first; id < w->nreq; id++) {
+        obs_req_t *o = &w->obs[id];
+        memset(o, 0, sizeof *o);
+        o->owner = me;
+        const bgm_purchase_req_t *r = is_buyer(w, me) ? bgm_buyer_request(buyer_machine(w, me), id)
+                                                      : bgm_seller_bundle(seller_machine(w, me), id);
+        if (!r) {
+            fail(w, BG_ERR_INVALID);
+            continue;
+        }
+        o->layer = r->good < 0;
+        o->job = is_buyer(w, me) && w->njob > 0 ? w->njob - 1 : 0;
+        o->good = r->good;
+        o->work = r->work;
+        o->limit = r->limit;
+        o->created = r->created;
+        o->deadline = r->deadline;
     }
 }
 
-/* A service deal as the basic seller knows it: what the buyer's message
- * (or the auctioneer's MATCH) said, and the agreed terms. */
-typedef struct deal {
-    uint32_t buyer, req, attempt;
-    int good;
-    double work, deadline, price, limit;
-} deal_t;
-
-/* Basic agent b has agreed to serve deal d: it reserves a slot and starts
- * buying the resources, keeping the deal in its own resource request.
- * The deal is bound to the buyer's attempt: whether the buyer still
- * wants it is the buyer's to say when the service is delivered (TAKE or
- * REFUSE). Returns 0 (and changes nothing) when it has no free slot. */
-static int service_agreed(bgm_world_t *w, uint32_t b, const deal_t *d, double now)
+/* A job arrived at agent me: the observer's record of it, its items
+ * opened from request `first` on. */
+static void observe_job(bgm_world_t *w, double now, uint32_t first)
 {
-    agent_t *ag = &w->agents[b];
-    if (ag->used >= ag->slots || !agent_alive(w, b) || d->good < 0 ||
-        d->good >= BGM_SERVICE_TYPES || !(d->work > 0.0))
-        return 0;
-    uint32_t rid = new_req(w);
-    if (rid == UINT32_MAX)
-        return 0;
-    ag->used++;
-    announce(w, b);
-    req_t *r = &w->reqs[rid];
-    r->layer = 1;
-    r->good = BGM_GOOD_BUNDLE;
-    r->buyer = b;
-    r->parent = d->req;
-    r->sattempt = d->attempt;
-    r->sbuyer = d->buyer;
-    r->sgood = d->good;
-    r->swork = d->work;
-    r->sprice = d->price;
-    r->slimit = d->limit;
-    r->limit = d->price * d->work;
-    r->created = now;
-    r->deadline = d->deadline > now ? d->deadline : now + w->cfg.catallactic.reply_timeout;
-    w->resource_requests += 1.0;
-    timer(w, b, r->deadline, T_DEADLINE, rid);
-    start_acquire(w, rid, now);
-    return 1;
+    if (w->njob == w->job_cap) {
+        uint32_t n = w->job_cap ? w->job_cap * 2 : 1024;
+        job_t *p = n <= BGM_MAX_REQS ? realloc(w->jobs, (size_t)n * sizeof *p) : NULL;
+        if (!p) {
+            fail(w, BG_ERR_LIMIT);
+            return;
+        }
+        w->jobs = p;
+        w->job_cap = n;
+    }
+    w->jobs[w->njob++] = (job_t){now, 0.0, (int)(w->nreq - first), 0};
 }
 
-/* Bundle rid, rented whole from `seller` at `rate` from start to end, is
- * delivered: it becomes a contract (a cores row and a memory row) and is
- * paid. */
-static void pay_bundle(bgm_world_t *w, uint32_t rid, uint32_t seller, double rate, double start,
-                       double end, double now)
+/* Bundle `b`, rented whole by basic seller `buyer`, is delivered: it
+ * becomes a contract (a cores row and a memory row) and is paid. */
+static void pay_bundle(bgm_world_t *w, const bgm_purchase_req_t *b, uint32_t buyer, double now)
 {
-    const req_t *r = &w->reqs[rid];
-    agent_t *ra = &w->agents[seller];
-    double cores = req_cores(w, r), memory = req_memory(w, r);
-    double cost = resource_cost_rate(ra, cores, memory);
+    agent_t *ra = &w->agents[b->seller];
+    double rate = b->price, start = b->start, end = b->end;
+    double cores = b->cores, memory = b->memory;
+    double cost = ra->core_cost * cores + ra->mem_cost * memory;
     double dur = end - start;
-    double lim = r->limit / dur;
+    double lim = b->limit / dur;
     double share_c = cost > 0.0 ? ra->core_cost * cores / cost : 1.0;
     bgm_contract_t c = {now,
                         start,
                         end,
-                        r->parent,
-                        r->buyer,
-                        seller,
+                        b->deal.req,
+                        buyer,
+                        b->seller,
                         1,
                         BGM_GOOD_CORES,
                         cores,
@@ -897,9 +623,9 @@ static void pay_bundle(bgm_world_t *w, uint32_t rid, uint32_t seller, double rat
         bgm_contract_t m = {now,
                             start,
                             end,
-                            r->parent,
-                            r->buyer,
-                            seller,
+                            b->deal.req,
+                            buyer,
+                            b->seller,
                             1,
                             BGM_GOOD_MEMORY,
                             memory,
@@ -911,242 +637,107 @@ static void pay_bundle(bgm_world_t *w, uint32_t rid, uint32_t seller, double rat
     if (st)
         fail(w, st);
     w->bundles += 1.0;
-    w->agents[r->buyer].paid[1] += rate * dur;
+    w->agents[buyer].paid[1] += rate * dur;
     ra->received[1] += rate * dur;
     w->core_seconds += cores * dur;
     w->welfare -= cost * dur;
 }
 
-/* Bundle rid is complete: each of its parts becomes a contract and is
- * paid. Returns the money paid in all. */
-static double pay_parts(bgm_world_t *w, uint32_t rid, double now)
+/* Bundle `b` of basic seller `buyer`, bought in parts, is delivered:
+ * each of its parts (the seller's record of them) becomes a contract and
+ * is paid. */
+static void pay_parts(bgm_world_t *w, bgm_seller_t *sm, const bgm_purchase_req_t *b,
+                      uint32_t buyer, double now)
 {
-    const req_t *r = &w->reqs[rid];
-    double total = 0.0;
-    for (size_t i = 0; i < w->nparts; i++) {
-        const part_t *p = &w->parts[i];
-        if (p->rid != rid)
+    for (size_t i = 0; i < bgm_seller_part_count(sm); i++) {
+        const bgm_purchase_part_t *p = bgm_seller_part(sm, i);
+        if (p->req != b->id)
             continue;
         double dur = p->end - p->start, money = p->rate * p->quantity * dur;
-        bgm_contract_t c = {now,       p->start,   p->end,     r->parent, r->buyer, p->seller,
+        bgm_contract_t c = {now,       p->start,   p->end,     b->deal.req, buyer, p->seller,
                             1,         p->good,    p->quantity, p->rate,  p->limit, p->cost};
         bg_status st = log_contract(w, &c);
         if (st)
             fail(w, st);
-        w->agents[r->buyer].paid[1] += money;
+        w->agents[buyer].paid[1] += money;
         w->agents[p->seller].received[1] += money;
         if (p->good == BGM_GOOD_CORES)
             w->core_seconds += p->quantity * dur;
         w->welfare -= p->cost * p->quantity * dur;
-        total += money;
     }
-    drop_parts(w, rid);
     w->bundles += 1.0;
-    return total;
-}
-
-/* The money the parts held for bundle rid cost its basic agent in all
- * (call markets). */
-static double parts_money(const bgm_world_t *w, uint32_t rid)
-{
-    double total = 0.0;
-    for (size_t i = 0; i < w->nparts; i++)
-        if (w->parts[i].rid == rid)
-            total += w->parts[i].rate * w->parts[i].quantity * (w->parts[i].end - w->parts[i].start);
-    return total;
-}
-
-/* Basic agent b's bundle rid is rented: it delivers the service to the
- * job's agent (CONFIRM, with the bundle's number), which answers TAKE or
- * REFUSE. The slot is b's until the rental ends, taken or not. */
-static void deliver(bgm_world_t *w, uint32_t b, uint32_t rid)
-{
-    req_t *r = &w->reqs[rid];
-    r->delivery = DL_OFFERED;
-    timer(w, b, r->end, T_RELEASE, rid);
-    bgm_msg_t cm = msg(M_CONFIRM, b, r->sbuyer, r->parent, r->sattempt);
-    cm.price = r->sprice;
-    cm.a = r->start;
-    cm.b = r->end;
-    cm.origin = rid;
-    send(w, &cm);
-}
-
-/* Basic agent b learns that its bundle, or one part of it (call markets),
- * is rented. A bundle bought in parts is rented once every part is: it
- * runs from the first part's start to the last part's end. */
-static void on_rconfirm(bgm_world_t *w, uint32_t b, const bgm_msg_t *m, double now)
-{
-    req_t *r = &w->reqs[m->req];
-    /* A late confirm after giving up: nobody pays for it; its seller
-     * held it for nothing. */
-    if (r->state == RQ_DONE || r->state == RQ_FAILED)
-        return;
-    if (m->good == BGM_GOOD_CORES || m->good == BGM_GOOD_MEMORY) {
-        if (w->nparts == w->parts_cap) {
-            size_t cap = w->parts_cap ? 2 * w->parts_cap : 64;
-            part_t *p = realloc(w->parts, cap * sizeof *p);
-            if (!p) {
-                fail(w, BG_ERR_NOMEM);
-                return;
-            }
-            w->parts = p;
-            w->parts_cap = cap;
-        }
-        w->parts[w->nparts++] = (part_t){m->req, m->from,  m->good,          m->cand_price[0], m->a,
-                                         m->b,   m->price, m->cand_price[1], m->cand_price[2]};
-        r->start = r->parts == 0 ? m->a : fmin(r->start, m->a);
-        r->end = r->parts == 0 ? m->b : fmax(r->end, m->b);
-        if (++r->parts < m->hops)
-            return;
-        /* Every part was held from before the common start; the service
-         * can run from it only if the bundle is complete by then. A later
-         * bundle is void for its sellers (unpaid) and fails for b. */
-        if (now > r->start) {
-            drop_parts(w, m->req);
-            final_fail(w, m->req, now);
-            return;
-        }
-        req_end(w, r, RQ_DONE);
-        r->seller = m->from;
-        r->price = parts_money(w, m->req) / (r->end - r->start);
-        deliver(w, b, m->req);
-        return;
-    }
-    req_end(w, r, RQ_DONE);
-    r->seller = m->from;
-    r->price = m->price;
-    r->start = m->a;
-    r->end = m->b;
-    deliver(w, b, m->req);
 }
 
 /* The contract of bundle rid's service becomes final when the job's agent
- * takes the delivery: the world, as the observer that keeps the contract
- * log and the ledger, books the service contract and the bundle's
- * resource contracts and pays them. A refused delivery is void: nobody
- * pays for the bundle, so no item is ever bought twice and the basic
- * agent never pays for resources it cannot use (its sellers held them for
- * nothing). */
+ * takes the delivery: the observer, which keeps the contract log and the
+ * ledger, books the service contract and the bundle's resource contracts
+ * and pays them, from the basic seller's record of the bundle and the
+ * deal. A refused delivery, or one never answered by the time its run
+ * ends, is void: nobody pays for the bundle, so no item is ever bought
+ * twice and the basic seller never pays for resources it cannot use (its
+ * sellers held them for nothing). */
 static void book_delivery(bgm_world_t *w, uint32_t rid, int taken, double now)
 {
-    req_t *r = &w->reqs[rid];
-    if (r->delivery != DL_OFFERED)
+    obs_req_t *o = &w->obs[rid];
+    if (o->layer != 1 || o->delivery != DL_OFFERED)
         return;
-    r->delivery = DL_DECIDED;
-    if (!taken) {
-        if (r->parts > 0)
-            drop_parts(w, rid);
+    o->delivery = DL_DECIDED;
+    if (!taken)
+        return;
+    uint32_t b = o->owner;
+    bgm_seller_t *sm = seller_machine(w, b);
+    const bgm_purchase_req_t *r = bgm_seller_bundle(sm, rid);
+    if (!r) {
+        fail(w, BG_ERR_INVALID);
         return;
     }
     if (r->parts > 0) {
-        pay_parts(w, rid, now);
+        pay_parts(w, sm, r, b, now);
         if (push_double(&w->acc_r, &w->nacc_r, r->start - r->created))
             fail(w, BG_ERR_NOMEM);
     } else {
-        pay_bundle(w, rid, r->seller, r->price, r->start, r->end, now);
+        pay_bundle(w, r, b, now);
     }
-    const req_t *s = &w->reqs[r->parent];
-    agent_t *ba = &w->agents[r->buyer];
-    agent_t *ca = &w->agents[r->sbuyer];
-    bgm_contract_t c = {now,      r->start, r->end,    r->parent, r->sbuyer, r->buyer, 0,
-                        r->sgood, r->swork, r->sprice, s->limit,  r->slimit};
+    const bgm_deal_t *d = &r->deal;
+    const obs_req_t *s = &w->obs[d->req];
+    agent_t *ba = &w->agents[b];
+    agent_t *ca = &w->agents[d->buyer];
+    bgm_contract_t c = {now,     r->start, r->end,   d->req,   d->buyer, b, 0,
+                        d->good, d->work,  d->price, s->limit, d->limit};
     bg_status st = log_contract(w, &c);
     if (st)
         fail(w, st);
-    ca->paid[0] += r->sprice * r->swork;
-    ba->received[0] += r->sprice * r->swork;
-    w->welfare += (s->limit - ba->cost[r->sgood]) * r->swork;
+    ca->paid[0] += d->price * d->work;
+    ba->received[0] += d->price * d->work;
+    w->welfare += (s->limit - ba->cost[d->good]) * d->work;
     if (push_double(&w->acc_s, &w->nacc_s, now - s->created))
         fail(w, BG_ERR_NOMEM);
 }
 
-/* The job's agent answers basic agent b's delivery of bundle rid: a
- * taken service teaches b what resources really cost per unit of it and
- * its price; a refused one counts as a failure. */
-static void seller_on_answer(bgm_world_t *w, uint32_t b, const bgm_msg_t *m)
+/* A job's agent took the delivery of its item `req`, run until `end`. */
+static void observe_taken(bgm_world_t *w, uint32_t req, uint32_t bundle)
 {
-    if (m->origin >= w->nreq)
-        return;
-    req_t *r = &w->reqs[m->origin];
-    if (r->layer != 1 || r->buyer != b || r->sbuyer != m->from || r->parent != m->req ||
-        r->delivery == DL_NONE)
-        return;
-    agent_t *ba = &w->agents[b];
-    if (m->type == M_REFUSE) {
-        learn_outcome(ba, 0, 0.0);
+    const obs_req_t *o = &w->obs[req];
+    const obs_req_t *ob = &w->obs[bundle];
+    const bgm_purchase_req_t *r =
+        ob->layer == 1 ? bgm_seller_bundle(seller_machine(w, ob->owner), bundle) : NULL;
+    if (o->layer != 0 || !r) {
+        fail(w, BG_ERR_INVALID);
         return;
     }
-    double money = r->price * (r->end - r->start);
-    ba->est_res[r->sgood] =
-        bgm_memory_update(ba->est_res[r->sgood], money / r->swork, ba->genes.weight_memory);
-    ba->memory[3] = bgm_memory_update(
-        ba->memory[3], r->price / mean_rate(w, req_cores(w, r), req_memory(w, r)),
-        ba->genes.weight_memory);
-    ba->memory[r->sgood] = bgm_memory_update(ba->memory[r->sgood], r->sprice, ba->genes.weight_memory);
-    learn_outcome(ba, 1, (r->sprice - r->slimit) / r->sprice);
-    if (w->p.mechanism == BGM_MECH_CENTRAL) {
-        double res = reservation(ba, r->sgood);
-        if (fabs(res - ba->announced[r->sgood]) > BGM_ASK_REFRESH * ba->announced[r->sgood]) {
-            bgm_msg_t a = msg(M_ASK, b, 0, 0, 0);
-            a.good = (int16_t)r->sgood;
-            a.price = res;
-            a.a = -1.0;
-            ba->announced[r->sgood] = res;
-            send(w, &a);
-        }
-    }
-}
-
-/* The job's agent takes delivery of service request sid: it is bought. */
-static void service_delivered(bgm_world_t *w, uint32_t sid, double price, double start, double end)
-{
-    req_t *r = &w->reqs[sid];
-    req_end(w, r, RQ_DONE);
-    r->start = start;
-    r->end = end;
-    job_t *j = &w->jobs[r->job];
+    job_t *j = &w->jobs[o->job];
     j->done++;
-    if (end > j->last_end)
-        j->last_end = end;
-    agent_t *c = &w->agents[r->buyer];
-    c->memory[r->good] = bgm_memory_update(c->memory[r->good], price, c->genes.weight_memory);
-    learn_outcome(c, 1, (r->limit - price) / r->limit);
+    if (r->end > j->last_end)
+        j->last_end = r->end;
 }
-
-/* The job's agent me is offered the delivery of its request m->req: it
- * takes it, once, if it still wants the item from that seller on that
- * attempt (it has not bought it already, has not given up on it, and has
- * not moved on to another attempt or, bargaining, another seller), and
- * refuses it otherwise. Taking is the step at which the item is bought:
- * a TAKE lost on the way back cannot make the job's agent buy the item a
- * second time. A service whose run has already ended serves nothing. */
-static void buyer_on_delivery(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
-{
-    req_t *r = &w->reqs[m->req];
-    if (r->layer != 0 || r->buyer != me || m->origin >= w->nreq)
-        return;
-    int wanted = r->state != RQ_DONE && r->state != RQ_FAILED && m->attempt == r->attempt &&
-                 (w->p.mechanism == BGM_MECH_CENTRAL || r->seller == m->from) && m->b > now;
-    bgm_msg_t x = msg(wanted ? M_TAKE : M_REFUSE, me, m->from, m->req, m->attempt);
-    x.origin = m->origin;
-    if (wanted) {
-        r->seller = m->from;
-        r->price = m->price;
-        service_delivered(w, m->req, m->price, m->a, m->b);
-    }
-    book_delivery(w, m->origin, wanted, now);
-    send(w, &x);
-}
-
-/* ---------------------------------------------------------------- market */
 
 /* Routes what a role machine emitted during one call, in emission order,
  * through the world's send (accounting, a sender cut off loses its
  * messages) and the driver's timers, then empties the outbox. The world
  * observes as it routes: a whole bundle confirmed is a resource access,
- * timed from its request's creation (the basic seller's record, which the
- * world keeps for the metrics). */
+ * timed from its request's creation; a basic seller's CONFIRM offers a
+ * delivery; a job's agent's TAKE or REFUSE decides it (the contract is
+ * booked as the buyer takes, whether or not the TAKE arrives). */
 static void route(bgm_world_t *w, bg_status st, double now)
 {
     if (st)
@@ -1159,310 +750,21 @@ static void route(bgm_world_t *w, bg_status st, double now)
         }
         bgm_msg_t m = it->msg;
         if (m.type == M_RCONFIRM && m.good == BGM_GOOD_BUNDLE && m.req < w->nreq &&
-            push_double(&w->acc_r, &w->nacc_r, now - w->reqs[m.req].created))
+            push_double(&w->acc_r, &w->nacc_r, now - w->obs[m.req].created))
             fail(w, BG_ERR_NOMEM);
+        if (m.type == M_CONFIRM && m.origin < w->nreq && w->obs[m.origin].layer == 1)
+            w->obs[m.origin].delivery = DL_OFFERED;
+        if ((m.type == M_TAKE || m.type == M_REFUSE) && m.origin < w->nreq && m.req < w->nreq) {
+            if (m.type == M_TAKE)
+                observe_taken(w, m.req, m.origin);
+            book_delivery(w, m.origin, m.type == M_TAKE, now);
+        }
         send(w, &m);
     }
     bgm_outbox_clear(w->ob);
 }
 
-static int is_resource(const bgm_world_t *w, uint32_t a)
-{
-    return a >= w->first_resource && a < w->nagents;
-}
-
-static bgm_resource_t *resource_machine(bgm_world_t *w, uint32_t a)
-{
-    return w->rsm[a - w->first_resource];
-}
-
-/* ------------------------------------------------------------ catallactic */
-
-static int seen_before(bgm_world_t *w, uint32_t agent, uint64_t key)
-{
-    uint64_t *seen = w->seen + (size_t)agent * BGM_SEEN_RING;
-    for (int i = 0; i < BGM_SEEN_RING; i++)
-        if (seen[i] == key)
-            return 1;
-    seen[w->seen_pos[agent]] = key;
-    w->seen_pos[agent] = (uint8_t)((w->seen_pos[agent] + 1) % BGM_SEEN_RING);
-    return 0;
-}
-
-/* A basic seller's reservation and opening for a service of type good
- * (resource sellers bargain in bgm_resource). */
-static double seller_limit_for(const agent_t *s, int good)
-{
-    return reservation(s, good);
-}
-
-static double seller_opening(const agent_t *s, int good)
-{
-    return bgm_nego_opening(BGM_SIDE_SELLER, seller_limit_for(s, good), s->memory[good],
-                            s->markup);
-}
-
-/* Whether agent s can sell what a call for proposals asks for (its good:
- * a service type, or < 0 for a resource bundle). */
-static int can_sell(const agent_t *s, int good)
-{
-    return good >= 0 && good < BGM_SERVICE_TYPES && s->role == BGM_ROLE_BASIC && s->sells[good] &&
-           s->used < s->slots;
-}
-
-static void on_cfp(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
-{
-    agent_t *a = &w->agents[me];
-    uint64_t key = ((uint64_t)m->req << 20) ^ m->attempt ^ ((uint64_t)m->origin << 44);
-    if (seen_before(w, me, key))
-        return;
-    /* What it reads of the request is what the call carries. */
-    if (can_sell(a, m->good)) {
-        bgm_msg_t p = msg(M_PROPOSE, me, m->origin, m->req, m->attempt);
-        p.price = seller_opening(a, m->good);
-        p.a = a->speed;
-        send(w, &p);
-    }
-    if (m->hops > 1) {
-        bgm_msg_t f = *m;
-        f.hops--;
-        cfp_send(w, me, &f, m->from);
-    }
-}
-
-static double buyer_limit_for(const bgm_world_t *w, const req_t *r, const proposal_t *p)
-{
-    if (r->layer == 0)
-        return r->limit;
-    return r->limit / req_duration(w, r, p->speed);
-}
-
-/* What a seller reads of the request in a buyer's OFFER, ACCEPT or
- * ORDER: the good (a bundle: < 0), the bundle, the budget (a resource
- * seller checks the rent against it) and how long the buyer's offer
- * stands: until its deadline, when the buyer gives up bargaining. */
-static void request_fields(const bgm_world_t *w, const req_t *r, bgm_msg_t *m)
-{
-    m->good = (int16_t)r->good;
-    m->a = r->layer == 0 ? r->work : req_cores(w, r);
-    m->b = req_memory(w, r);
-    m->c = req_flops(w, r);
-    m->cand_price[1] = r->limit;
-    m->cand_price[2] = r->deadline;
-}
-
-static void begin_nego(bgm_world_t *w, uint32_t rid, double now)
-{
-    req_t *r = &w->reqs[rid];
-    agent_t *b = &w->agents[r->buyer];
-    nego_state_t *g = ng(w, r);
-    while (g->next_prop < g->nprop) {
-        const proposal_t *p = &g->prop[g->next_prop];
-        double lim = buyer_limit_for(w, r, p);
-        double mem = r->layer == 0 ? b->memory[r->good]
-                                   : b->memory[3] * mean_rate(w, req_cores(w, r), req_memory(w, r));
-        bgm_msg_t o;
-        if (w->p.mechanism == BGM_MECH_BASELINE) {
-            if (p->price > lim) {
-                g->next_prop++;
-                continue;
-            }
-            o = msg(M_ORDER, r->buyer, p->seller, rid, r->attempt);
-            o.price = p->price;
-            request_fields(w, r, &o);
-        } else {
-            bgm_nego_open(&g->buyer_nego, BGM_SIDE_BUYER, lim,
-                          bgm_nego_opening(BGM_SIDE_BUYER, lim, mem, b->markup), &b->genes,
-                          w->cfg.catallactic.max_rounds);
-            o = msg(M_OFFER, r->buyer, p->seller, rid, r->attempt);
-            o.price = g->buyer_nego.current;
-            o.hops = 1; /* opens a bargain: the seller starts afresh */
-            request_fields(w, r, &o);
-        }
-        r->seller = p->seller;
-        r->state = RQ_NEGOTIATE;
-        send(w, &o);
-        arm(w, rid, now + w->cfg.catallactic.reply_timeout);
-        return;
-    }
-    attempt_failed(w, rid, now);
-}
-
-static void next_proposal(bgm_world_t *w, uint32_t rid, double now)
-{
-    ng(w, &w->reqs[rid])->next_prop++;
-    begin_nego(w, rid, now);
-}
-
-static int cmp_prop(const void *pa, const void *pb)
-{
-    const proposal_t *a = pa, *b = pb;
-    if (a->price != b->price)
-        return a->price < b->price ? -1 : 1;
-    return (a->seller > b->seller) - (a->seller < b->seller);
-}
-
-/* Agreement reached at basic seller `me` on the request a buyer's OFFER,
- * ACCEPT or ORDER names (m->from, m->req, m->attempt, m->good): it commits
- * on its side and tells the buyer ACCEPT (resources follow), or REJECT
- * when it cannot. */
-static void seller_commit(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double price,
-                          double limit, double now)
-{
-    deal_t d = {m->from, m->req, m->attempt, m->good, m->a, m->cand_price[2], price, limit};
-    if (!service_agreed(w, me, &d, now)) {
-        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
-        send(w, &x);
-        return;
-    }
-    agent_t *s = &w->agents[me];
-    s->memory[m->good] = bgm_memory_update(s->memory[m->good], price, s->genes.weight_memory);
-    bgm_msg_t a = msg(M_ACCEPT, me, m->from, m->req, m->attempt);
-    a.price = price;
-    send(w, &a);
-}
-
-/* A buyer's OFFER to basic seller `me`. The seller reads what the offer
- * carries (the good, how long it stands) and its own session of the
- * bargain, opened by the buyer's first offer; an offer of a bargain it
- * does not hold (another attempt, forgotten) gets no answer. */
-static void seller_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
-{
-    agent_t *s = &w->agents[me];
-    if (m->good < 0 || m->good >= BGM_SERVICE_TYPES || now > m->cand_price[2])
-        return;
-    bgm_session_t *ss = bgm_sessions_for(w->bsess[me - w->first_basic], m);
-    if (!ss)
-        return;
-    if (!ss->open) {
-        bgm_nego_open(&ss->nego, BGM_SIDE_SELLER, seller_limit_for(s, m->good),
-                      seller_opening(s, m->good), &s->genes, w->cfg.catallactic.max_rounds);
-        ss->open = 1;
-    }
-    double reply = 0.0;
-    bgm_nego_action act = bgm_nego_respond(&ss->nego, m->price, &s->rng, &reply);
-    if (act == BGM_NEGO_ACCEPT) {
-        seller_commit(w, me, m, reply, ss->nego.limit, now);
-    } else if (act == BGM_NEGO_COUNTER) {
-        bgm_msg_t o = msg(M_OFFER, me, m->from, m->req, m->attempt);
-        o.price = reply;
-        send(w, &o);
-    } else {
-        learn_outcome(s, 0, 0.0);
-        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
-        send(w, &x);
-    }
-}
-
-/* The buyer accepted basic seller me's last counter-offer: the seller
- * commits at that price if the bargain is one it holds. */
-static void seller_on_accept(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
-{
-    if (m->good < 0 || m->good >= BGM_SERVICE_TYPES || !w->bsess)
-        return;
-    const bgm_session_t *ss = bgm_sessions_find(w->bsess[me - w->first_basic], m->from, m->req,
-                                                m->attempt);
-    if (!ss || !ss->open) {
-        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
-        send(w, &x);
-        return;
-    }
-    double lim = ss->nego.limit;
-    learn_outcome(&w->agents[me], 1, (m->price - lim) / m->price);
-    seller_commit(w, me, m, m->price, lim, now);
-}
-
-static void buyer_on_offer(bgm_world_t *w, uint32_t me, const bgm_msg_t *m, double now)
-{
-    req_t *r = &w->reqs[m->req];
-    agent_t *b = &w->agents[me];
-    if (m->attempt != r->attempt || r->state != RQ_NEGOTIATE || m->from != r->seller)
-        return;
-    double reply = 0.0;
-    bgm_nego_action act = bgm_nego_respond(&ng(w, r)->buyer_nego, m->price, &b->rng, &reply);
-    if (act == BGM_NEGO_ACCEPT) {
-        bgm_msg_t a = msg(M_ACCEPT, me, m->from, m->req, m->attempt);
-        a.price = reply;
-        request_fields(w, r, &a);
-        r->state = RQ_COMMITTED;
-        r->price = reply;
-        send(w, &a);
-        /* A bundle seller answers at once. A service seller commits as
-         * soon as it reads the acceptance and starts buying resources, so
-         * the buyer must not walk away on a phase timeout any more: it
-         * waits for the seller's answer, and the deadline covers the rest. */
-        if (r->layer == 1)
-            arm(w, m->req, now + w->cfg.catallactic.reply_timeout);
-        else
-            r->tseq++;
-    } else if (act == BGM_NEGO_COUNTER) {
-        bgm_msg_t o = msg(M_OFFER, me, m->from, m->req, m->attempt);
-        o.price = reply;
-        request_fields(w, r, &o);
-        send(w, &o);
-        arm(w, m->req, now + w->cfg.catallactic.reply_timeout);
-    } else {
-        bgm_msg_t x = msg(M_REJECT, me, m->from, m->req, m->attempt);
-        send(w, &x);
-        next_proposal(w, m->req, now);
-    }
-}
-
-/* A learning meeting: agent me learns only from an overlay neighbour of
- * its own role, which it was told when its links were made. */
-static void learn_meet(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
-{
-    agent_t *a = &w->agents[me];
-    int same = 0;
-    for (int i = 0; i < a->ndeg; i++)
-        same |= a->nbr[i] == m->from && a->nsame[i];
-    if (!same)
-        return;
-    if (m->a > 0.0) {
-        bgm_msg_t r = msg(M_GENES, me, m->from, 0, 0);
-        double g[BGM_GENE_COUNT];
-        bgm_genes_pack(&a->genes, g);
-        memcpy(r.cand_price, g, sizeof g);
-        r.price = a->fitness;
-        send(w, &r);
-    }
-    bgm_genes_t other;
-    double g[BGM_GENE_COUNT];
-    memcpy(g, m->cand_price, sizeof g);
-    bgm_genes_unpack(&other, g);
-    bgm_learning_t lp = {w->cfg.catallactic.imitation, w->cfg.catallactic.mutation,
-                         w->cfg.catallactic.mutation_sigma};
-    bgm_genes_learn(&a->genes, a->fitness, &other, m->price, &lp, &a->rng);
-}
-
 /* --------------------------------------------------------------- dispatch */
-
-/* Which side of a bargain a message to agent me is for follows from the
- * roles, not from a record: a job's agent only buys; a basic agent sells
- * services to jobs' agents and buys bundles from resource sellers. */
-static int from_seller(const bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
-{
-    return me < w->first_basic || is_resource(w, m->from);
-}
-
-static int from_buyer_of_service(const bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
-{
-    return me >= w->first_basic && me < w->first_resource && m->from >= 1 &&
-           m->from < w->first_basic;
-}
-
-static void buyer_committed(bgm_world_t *w, uint32_t me, const bgm_msg_t *m)
-{
-    req_t *r = &w->reqs[m->req];
-    if (m->attempt != r->attempt || r->buyer != me)
-        return;
-    if (r->state == RQ_NEGOTIATE || r->state == RQ_WAIT || r->state == RQ_COMMITTED) {
-        r->state = RQ_COMMITTED;
-        r->price = m->price;
-        r->tseq++; /* no phase timeout while committed: the deadline rules */
-    }
-}
-
 
 bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
 {
@@ -1477,257 +779,32 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
     }
     if (m->type != M_GENES && m->type != M_CFP && m->req >= w->nreq)
         return BG_ERR_INVALID;
+    int up = agent_alive(w, me);
     if (is_resource(w, me)) {
-        route(w, bgm_resource_on_message(resource_machine(w, me), m, now, agent_alive(w, me), w->ob),
-              now);
+        route(w, bgm_resource_on_message(resource_machine(w, me), m, now, up, w->ob), now);
         return w->failure;
     }
-    req_t *r = m->type == M_GENES ? NULL : &w->reqs[m->req];
-    switch (m->type) {
-    case M_MATCH: {
-        deal_t d = {m->origin, m->req, m->attempt, m->good, m->a, m->c, m->price, m->b};
-        if (!service_agreed(w, me, &d, now)) {
-            bgm_msg_t c = msg(M_CANCEL, me, m->origin, m->req, m->attempt);
-            send(w, &c);
-        }
-        break;
+    /* A delivery and its answer name a bundle by its number. */
+    if ((m->type == M_CONFIRM || m->type == M_TAKE || m->type == M_REFUSE) && m->origin >= w->nreq)
+        return w->failure;
+    if (is_buyer(w, me)) {
+        route(w, bgm_buyer_on_message(buyer_machine(w, me), m, now, up, w->ob), now);
+        return w->failure;
     }
-    case M_RFAIL:
-        if (r->state != RQ_DONE && r->state != RQ_FAILED)
-            final_fail(w, m->req, now);
-        break;
-    case M_RCONFIRM:
-        on_rconfirm(w, me, m, now);
-        break;
-    case M_CONFIRM:
-        buyer_on_delivery(w, me, m, now);
-        break;
-    case M_TAKE:
-    case M_REFUSE:
-        if (from_buyer_of_service(w, me, m))
-            seller_on_answer(w, me, m);
-        break;
-    case M_CANCEL:
-        if (m->attempt == r->attempt && r->state == RQ_COMMITTED)
-            attempt_failed(w, m->req, now);
-        break;
-    case M_CFP:
-        on_cfp(w, me, m);
-        break;
-    case M_PROPOSE:
-        if (m->attempt == r->attempt && r->state == RQ_DISCOVER) {
-            nego_state_t *g = ng(w, r);
-            if (g->nprop < BGM_MAX_PROPOSALS)
-                g->prop[g->nprop++] = (proposal_t){m->from, m->price, m->a};
-        }
-        break;
-    case M_OFFER:
-        if (from_seller(w, me, m))
-            buyer_on_offer(w, me, m, now);
-        else
-            seller_on_offer(w, me, m, now);
-        break;
-    case M_ACCEPT:
-        if (from_seller(w, me, m))
-            buyer_committed(w, me, m);
-        else
-            seller_on_accept(w, me, m, now);
-        break;
-    case M_REJECT:
-        if (r->buyer == me && m->attempt == r->attempt && m->from == r->seller &&
-            (r->state == RQ_NEGOTIATE || r->state == RQ_COMMITTED))
-            next_proposal(w, m->req, now);
-        break;
-    case M_GENES:
-        learn_meet(w, me, m);
-        break;
-    case M_LIST:
-        if (m->attempt == r->attempt && r->state == RQ_WAIT) {
-            nego_state_t *g = ng(w, r);
-            g->nprop = m->ncand;
-            for (int i = 0; i < m->ncand; i++)
-                g->prop[i] = (proposal_t){m->cand[i], m->cand_price[i], m->cand_speed[i]};
-            g->next_prop = 0;
-            begin_nego(w, m->req, now);
-        }
-        break;
-    case M_ORDER:
-        /* At the posted price, while the buyer's order stands. */
-        if (m->good >= 0 && m->good < BGM_SERVICE_TYPES && now <= m->cand_price[2] &&
-            from_buyer_of_service(w, me, m)) {
-            const agent_t *s = &w->agents[me];
-            double lim = s->posted[m->good] / (1.0 + w->cfg.baseline.markup);
-            seller_commit(w, me, m, m->price, lim, now);
-        }
-        break;
-    default:
-        return BG_ERR_INVALID;
-    }
+    uint32_t first = w->nreq;
+    bg_status st = bgm_seller_on_message(seller_machine(w, me), m, now, up, &w->nreq, w->ob);
+    observe_requests(w, me, first);
+    route(w, st, now);
     return w->failure;
-}
-
-static void new_job(bgm_world_t *w, uint32_t me, double now)
-{
-    agent_t *c = &w->agents[me];
-    const bgm_config_t *cfg = &w->cfg;
-    if (w->njob == w->job_cap) {
-        uint32_t n = w->job_cap ? w->job_cap * 2 : 1024;
-        job_t *p = n <= BGM_MAX_REQS ? realloc(w->jobs, (size_t)n * sizeof *p) : NULL;
-        if (!p) {
-            fail(w, BG_ERR_LIMIT);
-            return;
-        }
-        w->jobs = p;
-        w->job_cap = n;
-    }
-    uint32_t jid = w->njob++;
-    job_t *j = &w->jobs[jid];
-    memset(j, 0, sizeof *j);
-    j->agent = me;
-    j->arrival = now;
-    double total = 0.0;
-    for (int i = 0; i < cfg->demand.plan_count; i++)
-        total += cfg->demand.plans[i].weight;
-    double u = bgm_rng_uniform(&c->drng) * total;
-    int plan = 0;
-    while (plan < cfg->demand.plan_count - 1 && u >= cfg->demand.plans[plan].weight)
-        u -= cfg->demand.plans[plan++].weight;
-    for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
-        if (!cfg->demand.plans[plan].services[t])
-            continue;
-        uint32_t rid = new_req(w);
-        if (rid == UINT32_MAX)
-            return;
-        req_t *r = &w->reqs[rid];
-        r->layer = 0;
-        r->good = t;
-        r->buyer = me;
-        r->job = jid;
-        int span = cfg->demand.work_max - cfg->demand.work_min + 1;
-        r->work = cfg->demand.work_min + (int)bgm_rng_below(&c->drng, (uint32_t)span);
-        r->limit = cfg->demand.valuation_mean *
-                   (1.0 + cfg->demand.valuation_spread * (2.0 * bgm_rng_uniform(&c->drng) - 1.0));
-        r->created = now;
-        r->deadline = now + cfg->demand.deadline;
-        w->jobs[jid].items++;
-        w->service_requests += 1.0;
-        c->requested[t] += 1.0;
-        c->valuation_sum[t] += r->limit;
-        timer(w, me, r->deadline, T_DEADLINE, rid);
-        start_acquire(w, rid, now);
-    }
-}
-
-static double next_arrival(bgm_world_t *w, agent_t *c, double now)
-{
-    double mean = w->cfg.demand.interarrival_mean;
-    if (w->cfg.demand.shock_time >= 0.0 && now >= w->cfg.demand.shock_time)
-        mean /= w->cfg.demand.shock_factor;
-    return now + bgm_rng_exponential(&c->drng, mean);
 }
 
 bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg, double now)
 {
     if (me >= w->nagents)
         return BG_ERR_INVALID;
-    agent_t *a = &w->agents[me];
-    uint32_t rid = (uint32_t)(arg & 0xffffffffu);
-    uint32_t hi = (uint32_t)(arg >> 32);
     int alive = agent_alive(w, me);
     const bgm_dynamics_t *dy = w->p.dynamics;
-    if (is_resource(w, me) &&
-        (kind == T_RELEASE || kind == T_RELEASE_PART || kind == T_LEARN)) {
-        route(w, bgm_resource_on_timer(resource_machine(w, me), kind, arg, now, alive, w->ob), now);
-        return w->failure;
-    }
     switch (kind) {
-    case T_ARRIVAL: {
-        if (alive)
-            new_job(w, me, now);
-        double t = next_arrival(w, a, now);
-        if (t < w->arrival_end)
-            timer(w, me, t, T_ARRIVAL, 0);
-        break;
-    }
-    case T_CLEAR:
-        route(w, bgm_market_agent_on_timer(w->ma, kind, arg, now, w->ob), now);
-        break;
-    case T_REQ: {
-        req_t *r = &w->reqs[rid];
-        if (hi != r->tseq || r->state == RQ_DONE || r->state == RQ_FAILED)
-            break;
-        if (!alive) {
-            final_fail(w, rid, now);
-        } else if (r->state == RQ_DISCOVER) {
-            nego_state_t *g = ng(w, r);
-            if (g->nprop == 0)
-                w->timeouts += 1.0; /* nobody answered the call for proposals */
-            qsort(g->prop, (size_t)g->nprop, sizeof g->prop[0], cmp_prop);
-            g->next_prop = 0;
-            begin_nego(w, rid, now);
-        } else if (r->state == RQ_NEGOTIATE || r->state == RQ_COMMITTED) {
-            w->timeouts += 1.0;
-            r->state = RQ_NEGOTIATE;
-            r->attempt++; /* late answers from that seller are now stale */
-            next_proposal(w, rid, now);
-        } else if (r->state == RQ_WAIT) {
-            w->timeouts += 1.0;
-            attempt_failed(w, rid, now);
-        }
-        break;
-    }
-    case T_DEADLINE: {
-        uint32_t id = (uint32_t)(arg & 0x7fffffffffffffffULL);
-        int grace = (arg >> 63) != 0;
-        req_t *r = &w->reqs[id];
-        if (r->state == RQ_DONE || r->state == RQ_FAILED)
-            break;
-        if (r->state == RQ_COMMITTED && !grace && alive) {
-            timer(w, me, now + BGM_COMMIT_GRACE, T_DEADLINE, (uint64_t)id | (1ULL << 63));
-            break;
-        }
-        w->timeouts += 1.0;
-        r->attempt++;
-        final_fail(w, id, now);
-        break;
-    }
-    case T_RETRY: {
-        req_t *r = &w->reqs[rid];
-        if (hi == r->attempt && r->state == RQ_IDLE)
-            start_acquire(w, rid, now);
-        break;
-    }
-    case T_RELEASE: /* a basic seller's slot (resource sellers: bgm_resource) */
-        /* A delivery never answered (lost on the way) is void by now. */
-        if (rid < w->nreq)
-            book_delivery(w, rid, 0, now);
-        if (a->used > 0)
-            a->used--;
-        announce(w, me);
-        if (w->p.mechanism == BGM_MECH_CENTRAL) {
-            bgm_msg_t m = msg(M_FREE, me, 0, rid, 0);
-            send(w, &m);
-        }
-        break;
-    case T_LEARN: {
-        if (alive && a->ndeg > 0) {
-            uint32_t k = bgm_rng_below(&a->rng, (uint32_t)a->ndeg);
-            uint32_t other = a->nbr[k];
-            if (a->nsame[k]) {
-                bgm_msg_t m = msg(M_GENES, me, other, 0, 0);
-                double g[BGM_GENE_COUNT];
-                bgm_genes_pack(&a->genes, g);
-                memcpy(m.cand_price, g, sizeof g);
-                m.price = a->fitness;
-                m.a = 1.0;
-                send(w, &m);
-            }
-        }
-        double t = now + w->cfg.catallactic.learning_period * (0.5 + bgm_rng_uniform(&a->rng));
-        if (t < w->horizon)
-            timer(w, me, t, T_LEARN, 0);
-        break;
-    }
     case T_NODE_FAIL:
         w->node_up[arg] = 0;
         timer(w, 0, now + bgm_rng_exponential(&w->rng, dy->node_repair_mean), T_NODE_REPAIR, arg);
@@ -1751,7 +828,27 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
         break;
     }
     default:
-        return BG_ERR_INVALID;
+        if (me == 0) {
+            route(w, bgm_market_agent_on_timer(w->ma, kind, arg, now, w->ob), now);
+        } else if (is_resource(w, me)) {
+            route(w, bgm_resource_on_timer(resource_machine(w, me), kind, arg, now, alive, w->ob),
+                  now);
+        } else if (is_buyer(w, me)) {
+            uint32_t first = w->nreq, jobs = bgm_buyer_jobs(buyer_machine(w, me));
+            bg_status st =
+                bgm_buyer_on_timer(buyer_machine(w, me), kind, arg, now, alive, &w->nreq, w->ob);
+            if (bgm_buyer_jobs(buyer_machine(w, me)) != jobs)
+                observe_job(w, now, first);
+            observe_requests(w, me, first);
+            route(w, st, now);
+        } else {
+            /* A delivery never answered (lost on the way) is void by the
+             * end of its run. */
+            if (kind == T_RELEASE && (uint32_t)arg < w->nreq)
+                book_delivery(w, (uint32_t)arg, 0, now);
+            route(w, bgm_seller_on_timer(seller_machine(w, me), kind, arg, now, alive, w->ob), now);
+        }
+        break;
     }
     return w->failure;
 }
@@ -1759,30 +856,14 @@ bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t me, int kind, uint64_t arg
 bg_status bgm_world_start(bgm_world_t *w, const bgm_sink_t *sink, double now)
 {
     w->sink = *sink;
-    const bgm_config_t *c = &w->cfg;
-    int mech = w->p.mechanism;
     route(w, bgm_market_agent_start(w->ma, now, w->ob), now);
     for (uint32_t i = 1; i < w->nagents; i++) {
-        agent_t *a = &w->agents[i];
-        if (a->role == BGM_ROLE_COMPLEX) {
-            timer(w, i, next_arrival(w, a, now), T_ARRIVAL, 0);
-        } else if (a->role == BGM_ROLE_BASIC && mech != BGM_MECH_CATALLACTIC) {
-            for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
-                if (!a->sells[t])
-                    continue;
-                bgm_msg_t m = msg(M_ASK, i, 0, 0, 0);
-                m.good = (int16_t)t;
-                m.price = mech == BGM_MECH_BASELINE ? a->posted[t] : reservation(a, t);
-                m.a = a->slots;
-                a->announced[t] = reservation(a, t);
-                send(w, &m);
-            }
-        } else if (a->role == BGM_ROLE_RESOURCE) {
+        if (is_buyer(w, i))
+            route(w, bgm_buyer_start(buyer_machine(w, i), now, w->ob), now);
+        else if (is_basic(w, i))
+            route(w, bgm_seller_start(seller_machine(w, i), now, w->ob), now);
+        else
             route(w, bgm_resource_start(resource_machine(w, i), now, w->ob), now);
-            continue;
-        }
-        if (mech == BGM_MECH_CATALLACTIC)
-            timer(w, i, now + c->catallactic.learning_period * bgm_rng_uniform(&a->rng), T_LEARN, 0);
     }
     const bgm_dynamics_t *dy = w->p.dynamics;
     for (uint32_t n = 0; n < w->nodes; n++) {
@@ -1838,10 +919,10 @@ static double quantile(const double *v, size_t n, double q)
  * optimum). NaN (null) when the program has more than
  * central.optimum_limit variables or the simplex fails.
  */
-static bgm_opt_request_t opt_request(const req_t *x)
+static bgm_opt_request_t opt_request(const obs_req_t *x)
 {
     return (bgm_opt_request_t){x->good, x->work, x->limit, x->created,
-                               x->deadline + BGM_COMMIT_GRACE};
+                               x->deadline + BGM_PU_COMMIT_GRACE};
 }
 
 static double offline_optimum(const bgm_world_t *w)
@@ -1876,8 +957,8 @@ static double offline_optimum(const bgm_world_t *w)
      * at 2000 agents, and count towards its peak memory. */
     size_t pairs = 0, nq = 0;
     for (uint32_t i = 0; i < w->nreq && pairs <= (size_t)w->cfg.central.optimum_limit; i++)
-        if (w->reqs[i].layer == 0) {
-            bgm_opt_request_t x = opt_request(&w->reqs[i]);
+        if (w->obs[i].layer == 0) {
+            bgm_opt_request_t x = opt_request(&w->obs[i]);
             pairs += bgm_optimum_request_pairs(&prob, &x);
             nq++;
         }
@@ -1888,8 +969,8 @@ static double offline_optimum(const bgm_world_t *w)
         goto out;
     nq = 0;
     for (uint32_t i = 0; i < w->nreq; i++)
-        if (w->reqs[i].layer == 0)
-            q[nq++] = opt_request(&w->reqs[i]);
+        if (w->obs[i].layer == 0)
+            q[nq++] = opt_request(&w->obs[i]);
     prob.requests = q;
     prob.nrequests = nq;
     bgm_opt_result_t res;
@@ -1981,16 +1062,27 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
             psq += w->log[i].price * w->log[i].price;
         }
     }
-    m[BGM_M_REQUESTS] = w->service_requests;
+    double service_requests = 0.0, resource_requests = 0.0, timeouts = 0.0, n, t;
+    for (uint32_t k = 0; k < w->ncomplex; k++) {
+        bgm_buyer_counts(w->bm[k], &n, &t);
+        service_requests += n;
+        timeouts += t;
+    }
+    for (uint32_t k = 0; k < w->nbasic; k++) {
+        bgm_seller_counts(w->sm[k], &n, &t);
+        resource_requests += n;
+        timeouts += t;
+    }
+    m[BGM_M_REQUESTS] = service_requests;
     m[BGM_M_CONTRACTS] = svc;
     m[BGM_M_MESSAGES] = w->msgs;
     m[BGM_M_BYTES] = w->bytes;
     bgm_market_agent_counts(w->ma, &m[BGM_M_COMBEX_EXACT], &m[BGM_M_COMBEX_GREEDY]);
-    m[BGM_M_TIMEOUTS] = w->timeouts;
-    if (w->service_requests > 0)
-        m[BGM_M_ALLOCATION_RATE] = svc / w->service_requests;
-    if (w->resource_requests > 0)
-        m[BGM_M_RESOURCE_ALLOCATION_RATE] = w->bundles / w->resource_requests;
+    m[BGM_M_TIMEOUTS] = timeouts;
+    if (service_requests > 0)
+        m[BGM_M_ALLOCATION_RATE] = svc / service_requests;
+    if (resource_requests > 0)
+        m[BGM_M_RESOURCE_ALLOCATION_RATE] = w->bundles / resource_requests;
     m[BGM_M_ACCESS_TIME_MEDIAN] = quantile(w->acc_s, w->nacc_s, 0.5);
     m[BGM_M_ACCESS_TIME_P99] = quantile(w->acc_s, w->nacc_s, 0.99);
     m[BGM_M_RESOURCE_ACCESS_TIME_MEDIAN] = quantile(w->acc_r, w->nacc_r, 0.5);
@@ -2055,11 +1147,13 @@ bg_status bgm_world_write_agents(const bgm_world_t *w, FILE *f)
         const agent_t *a = &w->agents[i];
         const char *role = bgm_role_names[a->role];
         if (a->role == BGM_ROLE_COMPLEX) {
-            for (int t = 0; t < BGM_SERVICE_TYPES; t++)
-                if (a->requested[t] > 0)
+            for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
+                double requested, valuation_sum;
+                bgm_buyer_demand(w->bm[i - 1], t, &requested, &valuation_sum);
+                if (requested > 0)
                     fprintf(f, "%s,%d,%s,%u,%s,%s,%.0f,%.9g\n", sc, w->p.replication, mech, i,
-                            role, bgm_good_names[t], a->requested[t],
-                            a->valuation_sum[t] / a->requested[t]);
+                            role, bgm_good_names[t], requested, valuation_sum / requested);
+            }
         } else if (a->role == BGM_ROLE_BASIC) {
             for (int t = 0; t < BGM_SERVICE_TYPES; t++)
                 if (a->sells[t])

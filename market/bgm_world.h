@@ -14,9 +14,12 @@
  * directory of posted prices for the baseline); then complex-service
  * agents (job buyers), basic-service agents (sell services, buy resources)
  * and resource agents (sell cores and memory for a time). The market agent
- * and each resource agent are role machines of their own
- * (bgm_market_agent, bgm_resource) that the world hosts and whose outboxes
- * it routes; the buyers and basic sellers still run in the world itself.
+ * and every other agent are role machines of their own (bgm_market_agent,
+ * bgm_buyer, bgm_seller, bgm_resource) that the world hosts and whose
+ * outboxes it routes; the world keeps no role's state, only the
+ * observer's: what it drew for each agent, the request and job records it
+ * reads from the machines' getters, the contract log, the ledger and the
+ * metrics.
  * Every contract is appended to an audit log with both limits, so the
  * invariants (price within limits, no seller over capacity, money
  * conserved) can be checked afterwards from the log alone.

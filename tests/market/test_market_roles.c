@@ -17,12 +17,15 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bgm_buyer.h"
 #include "bgm_config.h"
 #include "bgm_market_agent.h"
 #include "bgm_outbox.h"
 #include "bgm_resource.h"
+#include "bgm_purchase.h"
 #include "bgm_rng.h"
 #include "bgm_role.h"
+#include "bgm_seller.h"
 #include "bgm_session.h"
 #include "bgm_strategy.h"
 
@@ -745,6 +748,454 @@ static void test_resource_orders_and_parts(void **state)
     bgm_resource_destroy(&rs);
 }
 
+/* ------------------------------------------------ basic seller, buyer */
+
+/* The basic seller of these tests (agent 6 of the ids above: buyers
+ * 1..4, resource sellers 8..9) sells rotation-fit and sparse-solve, not
+ * integration-step, with 2 slots. */
+enum { BASIC = 6, JOB_AGENT = 2, RESOURCE = 8 };
+static const double B_COST[BGM_SERVICE_TYPES] = {0.4, 0.7, 0.9};
+
+static bgm_seller_t *basic(const bgm_config_t *cfg, int mechanism, int slots)
+{
+    static const uint32_t nbr[3] = {2, 7, 8};
+    static const uint8_t same[3] = {0, 1, 0};
+    bgm_seller_params_t p;
+    memset(&p, 0, sizeof p);
+    p.cfg = cfg;
+    p.mechanism = mechanism;
+    p.self = BASIC;
+    p.market = 0;
+    p.horizon = 1000.0;
+    p.first_buyer = 1;
+    p.nbuyers = 4;
+    p.first_resource = FIRST_RES;
+    p.nresource = NRES;
+    p.sells[BGM_GOOD_ROTFIT] = p.sells[BGM_GOOD_SOLVE] = 1;
+    p.slots = slots;
+    memcpy(p.cost, B_COST, sizeof p.cost);
+    bgm_rng_derive(&p.rng, 7, 0, 0, 2);
+    bgm_genes_random(&p.genes, &p.rng);
+    p.markup = 0.2;
+    p.neighbours = nbr;
+    p.same_role = same;
+    p.degree = 3;
+    bgm_seller_t *s = bgm_seller_new(&p);
+    assert_non_null(s);
+    return s;
+}
+
+/* Its reservation for a type from its definition: its own cost plus the
+ * resources a unit takes (cores and memory at the mean cost rate for the
+ * run time of a unit's flops on a node of the nominal speed). */
+static double reservation_of(const bgm_config_t *cfg, int good)
+{
+    const bgm_service_cfg_t *sv = &cfg->services[good];
+    double rate = cfg->resources.core_cost * sv->cores + cfg->resources.memory_cost * sv->memory;
+    return B_COST[good] + rate * sv->flops_per_unit / (cfg->network.speed * sv->cores);
+}
+
+static bgm_msg_t to_basic(int type, uint32_t from, uint32_t req, int good, double price,
+                          double work, double until)
+{
+    bgm_msg_t m = mk(type, from, req);
+    m.to = BASIC;
+    m.good = (int16_t)good;
+    m.price = price;
+    m.a = work;
+    m.origin = from;
+    m.cand_price[2] = until;
+    return m;
+}
+
+static size_t count_msgs(const bgm_outbox_t *ob, int type)
+{
+    size_t n = 0;
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++)
+        n += !bgm_outbox_item(ob, i)->is_timer && bgm_outbox_item(ob, i)->msg.type == type;
+    return n;
+}
+
+static const bgm_out_item_t *only_timer(const bgm_outbox_t *ob, int kind)
+{
+    const bgm_out_item_t *found = NULL;
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+        const bgm_out_item_t *it = bgm_outbox_item(ob, i);
+        if (it->is_timer && it->kind == kind) {
+            assert_null(found);
+            found = it;
+        }
+    }
+    return found;
+}
+
+/* A call for a type it sells, with a slot free, gets a PROPOSE to the
+ * call's originator at its opening price (its reservation marked up by
+ * its markup: it remembers no price yet), and is passed on one hop less
+ * to its neighbours but the sender and the originator; a call for a type
+ * it does not sell is only passed on; a call seen before gets nothing. */
+static void test_seller_proposes_what_it_sells(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("catallactic", 0.5);
+    bgm_seller_t *s = basic(&cfg, BGM_MECH_CATALLACTIC, 2);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    uint32_t next = 100;
+    bgm_msg_t cfp = to_basic(BGM_MT_CFP, 7, 40, BGM_GOOD_SOLVE, 0.0, 3.0, 0.0);
+    cfp.origin = JOB_AGENT;
+    cfp.hops = 2;
+    assert_int_equal(bgm_seller_on_message(s, &cfp, 1.0, 1, &next, ob), BG_OK);
+    const bgm_msg_t *p = only_msg(ob, BGM_MT_PROPOSE);
+    assert_non_null(p);
+    assert_int_equal(p->to, JOB_AGENT);
+    assert_int_equal(p->req, 40);
+    assert_int_equal(p->attempt, 3);
+    assert_true(fabs(p->price - 1.2 * reservation_of(&cfg, BGM_GOOD_SOLVE)) < EPS);
+    assert_int_equal(count_msgs(ob, BGM_MT_CFP), 1); /* to 8: not 7 (sender), not 2 (origin) */
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+        const bgm_msg_t *m = &bgm_outbox_item(ob, i)->msg;
+        if (m->type == BGM_MT_CFP) {
+            assert_int_equal(m->to, 8);
+            assert_int_equal(m->hops, 1);
+            assert_int_equal(m->from, BASIC);
+        }
+    }
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_seller_on_message(s, &cfp, 1.1, 1, &next, ob), BG_OK);
+    assert_int_equal(bgm_outbox_count(ob), 0);
+    bgm_msg_t other = cfp;
+    other.req = 41;
+    other.good = BGM_GOOD_INTEG;
+    assert_int_equal(bgm_seller_on_message(s, &other, 1.2, 1, &next, ob), BG_OK);
+    assert_null(only_msg(ob, BGM_MT_PROPOSE));
+    assert_int_equal(count_msgs(ob, BGM_MT_CFP), 1);
+    assert_int_equal(next, 100); /* no request opened */
+    bgm_outbox_destroy(&ob);
+    bgm_seller_destroy(&s);
+}
+
+/* Central: a MATCH is a deal. The seller takes a slot and bids for the
+ * bundle the service needs (the type's cores and memory, flops = flops
+ * per unit x work, within the deal's revenue, until the bid's deadline),
+ * numbering the request as told. Once the bundle is rented it delivers
+ * (CONFIRM to the job's agent with the deal's price and the rental, its
+ * bundle's number in origin) and holds the slot until the rental ends,
+ * when it frees it at the market. A MATCH with no slot free is cancelled;
+ * a bundle it cannot get cancels the deal and frees the slot. */
+static void test_seller_match_rents_and_delivers(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("central", 0.5);
+    bgm_seller_t *s = basic(&cfg, BGM_MECH_CENTRAL, 1);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    uint32_t next = 100;
+    const double work = 3.0, price = 2.0, deadline = 40.0;
+    bgm_msg_t match = to_basic(BGM_MT_MATCH, 0, 40, BGM_GOOD_SOLVE, price, work, 0.0);
+    match.origin = JOB_AGENT;
+    match.b = 1.5;
+    match.c = deadline;
+    assert_int_equal(bgm_seller_on_message(s, &match, 1.0, 1, &next, ob), BG_OK);
+    assert_int_equal(next, 101);
+    assert_int_equal(bgm_seller_used(s), 1);
+    const bgm_msg_t *rb = only_msg(ob, BGM_MT_RBID);
+    assert_non_null(rb);
+    const bgm_service_cfg_t *sv = &cfg.services[BGM_GOOD_SOLVE];
+    assert_int_equal(rb->to, 0);
+    assert_int_equal(rb->req, 100);
+    assert_true(rb->a == (double)sv->cores && rb->b == sv->memory);
+    assert_true(fabs(rb->c - sv->flops_per_unit * work) < EPS);
+    assert_true(fabs(rb->price - price * work) < EPS);
+    assert_true(rb->cand_price[0] == deadline);
+    const bgm_out_item_t *dl = only_timer(ob, BGM_PU_TIMER_DEADLINE);
+    assert_non_null(dl);
+    assert_true(dl->at == deadline && dl->arg == 100);
+    /* No slot left: the next match is cancelled, nothing is bought. */
+    bgm_outbox_clear(ob);
+    match.req = 41;
+    match.origin = 3;
+    assert_int_equal(bgm_seller_on_message(s, &match, 1.1, 1, &next, ob), BG_OK);
+    const bgm_msg_t *c = only_msg(ob, BGM_MT_CANCEL);
+    assert_non_null(c);
+    assert_true(c->to == 3 && c->req == 41);
+    assert_null(only_msg(ob, BGM_MT_RBID));
+    assert_int_equal(next, 101);
+    /* The bundle is rented: the service is delivered. */
+    bgm_outbox_clear(ob);
+    bgm_msg_t rc = mk(BGM_MT_RCONFIRM, RESOURCE, 100);
+    rc.to = BASIC;
+    rc.attempt = 0;
+    rc.good = -1;
+    rc.price = 0.25;
+    rc.a = 2.0;
+    rc.b = 9.0;
+    assert_int_equal(bgm_seller_on_message(s, &rc, 2.0, 1, &next, ob), BG_OK);
+    const bgm_msg_t *cf = only_msg(ob, BGM_MT_CONFIRM);
+    assert_non_null(cf);
+    assert_true(cf->to == JOB_AGENT && cf->req == 40 && cf->attempt == 3 && cf->origin == 100);
+    assert_true(cf->price == price && cf->a == 2.0 && cf->b == 9.0);
+    const bgm_out_item_t *rel = only_timer(ob, BGM_SE_TIMER_RELEASE);
+    assert_non_null(rel);
+    assert_true(rel->at == 9.0 && rel->arg == 100);
+    const bgm_purchase_req_t *b = bgm_seller_bundle(s, 100);
+    assert_non_null(b);
+    assert_true(b->state == BGM_PU_DONE && b->seller == RESOURCE && b->price == 0.25);
+    assert_true(b->deal.buyer == JOB_AGENT && b->deal.req == 40 && b->deal.limit == 1.5);
+    /* The run ends: the slot is free again. */
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_seller_on_timer(s, BGM_SE_TIMER_RELEASE, 100, 9.0, 1, ob), BG_OK);
+    assert_int_equal(bgm_seller_used(s), 0);
+    const bgm_msg_t *fr = only_msg(ob, BGM_MT_FREE);
+    assert_non_null(fr);
+    assert_int_equal(fr->to, 0);
+    /* A bundle it cannot get: the deal is off, the slot freed. */
+    bgm_outbox_clear(ob);
+    match.req = 42;
+    match.origin = 4;
+    assert_int_equal(bgm_seller_on_message(s, &match, 10.0, 1, &next, ob), BG_OK);
+    assert_int_equal(next, 102);
+    bgm_outbox_clear(ob);
+    bgm_msg_t rf = mk(BGM_MT_RFAIL, 0, 101);
+    rf.to = BASIC;
+    assert_int_equal(bgm_seller_on_message(s, &rf, 10.5, 1, &next, ob), BG_OK);
+    c = only_msg(ob, BGM_MT_CANCEL);
+    assert_non_null(c);
+    assert_true(c->to == 4 && c->req == 42);
+    assert_non_null(only_msg(ob, BGM_MT_FREE));
+    assert_int_equal(bgm_seller_used(s), 0);
+    assert_true(bgm_seller_bundle(s, 101)->state == BGM_PU_FAILED);
+    double requests, timeouts;
+    bgm_seller_counts(s, &requests, &timeouts);
+    assert_true(requests == 2.0 && timeouts == 0.0);
+    bgm_outbox_destroy(&ob);
+    bgm_seller_destroy(&s);
+}
+
+/* Baseline: an ORDER from a job's agent at its posted price (its
+ * reservation marked up by the baseline's markup), while the order
+ * stands, is accepted at that price and the seller asks the directory
+ * for resources; an order past its time, for a type it cannot serve, or
+ * not from a job's agent gets nothing. */
+static void test_seller_takes_orders_while_they_stand(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("baseline", 0.5);
+    bgm_seller_t *s = basic(&cfg, BGM_MECH_BASELINE, 2);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    uint32_t next = 100;
+    assert_int_equal(bgm_seller_start(s, 0.0, ob), BG_OK);
+    assert_int_equal(count_msgs(ob, BGM_MT_ASK), 2);
+    const double posted = reservation_of(&cfg, BGM_GOOD_ROTFIT) * 1.25;
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+        const bgm_msg_t *m = &bgm_outbox_item(ob, i)->msg;
+        if (m->good == BGM_GOOD_ROTFIT)
+            assert_true(fabs(m->price - posted) < EPS && m->a == 2.0);
+    }
+    bgm_outbox_clear(ob);
+    bgm_msg_t late = to_basic(BGM_MT_ORDER, JOB_AGENT, 40, BGM_GOOD_ROTFIT, posted, 2.0, 4.0);
+    assert_int_equal(bgm_seller_on_message(s, &late, 5.0, 1, &next, ob), BG_OK);
+    bgm_msg_t notbuyer = to_basic(BGM_MT_ORDER, RESOURCE, 41, BGM_GOOD_ROTFIT, posted, 2.0, 9.0);
+    assert_int_equal(bgm_seller_on_message(s, &notbuyer, 5.0, 1, &next, ob), BG_OK);
+    assert_int_equal(bgm_outbox_count(ob), 0);
+    bgm_msg_t order = to_basic(BGM_MT_ORDER, JOB_AGENT, 42, BGM_GOOD_ROTFIT, posted, 2.0, 9.0);
+    assert_int_equal(bgm_seller_on_message(s, &order, 5.0, 1, &next, ob), BG_OK);
+    const bgm_msg_t *a = only_msg(ob, BGM_MT_ACCEPT);
+    assert_non_null(a);
+    assert_true(a->to == JOB_AGENT && a->req == 42 && a->price == posted);
+    const bgm_msg_t *q = only_msg(ob, BGM_MT_QUERY);
+    assert_non_null(q);
+    assert_true(q->req == 100 && q->good == BGM_GOOD_CORES_ID && isinf(q->price));
+    const bgm_msg_t *av = only_msg(ob, BGM_MT_AVAIL);
+    assert_non_null(av);
+    assert_true(av->a == 1.0); /* one slot of two left */
+    bgm_outbox_destroy(&ob);
+    bgm_seller_destroy(&s);
+}
+
+static bgm_buyer_t *job_agent(const bgm_config_t *cfg, int mechanism)
+{
+    static const uint32_t nbr[2] = {1, BASIC};
+    static const uint8_t same[2] = {1, 0};
+    bgm_buyer_params_t p;
+    memset(&p, 0, sizeof p);
+    p.cfg = cfg;
+    p.mechanism = mechanism;
+    p.self = JOB_AGENT;
+    p.market = 0;
+    p.horizon = 1000.0;
+    p.arrival_end = 1000.0;
+    bgm_rng_derive(&p.demand, 7, 0, 0, 3);
+    bgm_rng_derive(&p.rng, 7, 0, 0, 4);
+    bgm_genes_random(&p.genes, &p.rng);
+    p.markup = 0.2;
+    p.neighbours = nbr;
+    p.same_role = same;
+    p.degree = 2;
+    bgm_buyer_t *b = bgm_buyer_new(&p);
+    assert_non_null(b);
+    return b;
+}
+
+/* Fires the earliest timer of `ob` at the buyer (clearing ob first);
+ * returns 0 when there is none. The timers of a call are kept in `pend`. */
+typedef struct pending {
+    bgm_out_item_t t[256];
+    int n;
+} pending_t;
+
+static void keep_timers(pending_t *pend, const bgm_outbox_t *ob)
+{
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++)
+        if (bgm_outbox_item(ob, i)->is_timer) {
+            assert_true(pend->n < 256);
+            pend->t[pend->n++] = *bgm_outbox_item(ob, i);
+        }
+}
+
+static int pop_timer(pending_t *pend, bgm_out_item_t *out)
+{
+    if (pend->n == 0)
+        return 0;
+    int best = 0;
+    for (int i = 1; i < pend->n; i++)
+        if (pend->t[i].at < pend->t[best].at)
+            best = i;
+    *out = pend->t[best];
+    pend->t[best] = pend->t[--pend->n];
+    return 1;
+}
+
+/* Catallactic, nobody proposing: a job arrives; each of its items calls
+ * for proposals over the overlay, waits discovery_timeout, counts a
+ * timeout and retries after retry_backoff, and gives up for good once a
+ * retry could not end its discovery before the deadline. Counted from the
+ * definition: attempts start at t0 + k (discovery + backoff) while
+ * t0 + k (discovery + backoff) + discovery + backoff < t0 + deadline. */
+static void test_buyer_retries_then_fails_at_deadline(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("catallactic", 0.5);
+    bgm_buyer_t *b = job_agent(&cfg, BGM_MECH_CATALLACTIC);
+    bgm_outbox_t *ob = bgm_outbox_new(256);
+    pending_t pend = {.n = 0};
+    uint32_t next = 100;
+    assert_int_equal(bgm_buyer_start(b, 0.0, ob), BG_OK);
+    const bgm_out_item_t *arr = only_timer(ob, BGM_BU_TIMER_ARRIVAL);
+    assert_non_null(arr);
+    const double t0 = arr->at;
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_buyer_on_timer(b, BGM_BU_TIMER_ARRIVAL, 0, t0, 1, &next, ob), BG_OK);
+    assert_int_equal(bgm_buyer_jobs(b), 1);
+    const uint32_t items = next - 100;
+    assert_true(items >= 2); /* every plan has rotation-fit and sparse-solve */
+    const bgm_purchase_req_t *r = bgm_buyer_request(b, 100);
+    assert_non_null(r);
+    assert_true(r->good == BGM_GOOD_ROTFIT && r->created == t0);
+    assert_true(r->deadline == t0 + cfg.demand.deadline);
+    const double step = cfg.catallactic.discovery_timeout + cfg.catallactic.retry_backoff;
+    int expected = 0;
+    while (t0 + expected * step + step < t0 + cfg.demand.deadline)
+        expected++;
+    expected++; /* the last attempt, whose retry would not fit */
+    int calls = 0;
+    double last_call = -1.0, failed_at = -1.0;
+    for (;;) {
+        for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+            const bgm_out_item_t *it = bgm_outbox_item(ob, i);
+            if (it->is_timer || it->msg.req != 100)
+                continue;
+            assert_int_equal(it->msg.type, BGM_MT_CFP);
+            assert_int_equal(it->msg.to == 1 || it->msg.to == BASIC, 1);
+            assert_int_equal(it->msg.attempt, calls / 2);
+            calls++;
+        }
+        keep_timers(&pend, ob);
+        bgm_outbox_clear(ob);
+        bgm_out_item_t t;
+        if (!pop_timer(&pend, &t))
+            break;
+        if (t.kind == BGM_BU_TIMER_ARRIVAL)
+            continue; /* no second job */
+        if ((uint32_t)(t.arg & 0x7fffffff) != 100)
+            continue; /* the job's other items */
+        int before = bgm_buyer_request(b, 100)->state;
+        if (before != BGM_PU_FAILED && t.kind == BGM_PU_TIMER_RETRY)
+            last_call = t.at;
+        assert_int_equal(bgm_buyer_on_timer(b, t.kind, t.arg, t.at, 1, &next, ob), BG_OK);
+        if (before != BGM_PU_FAILED && bgm_buyer_request(b, 100)->state == BGM_PU_FAILED)
+            failed_at = t.at;
+    }
+    assert_int_equal(calls, 2 * expected); /* two neighbours a call */
+    assert_true(fabs(last_call - (t0 + (expected - 1) * step)) < 1e-9);
+    assert_true(failed_at > last_call && failed_at <= t0 + cfg.demand.deadline);
+    assert_int_equal(next, 100 + items); /* retries open no request */
+    /* A late proposal changes nothing. */
+    bgm_msg_t p = mk(BGM_MT_PROPOSE, BASIC, 100);
+    p.to = JOB_AGENT;
+    p.attempt = bgm_buyer_request(b, 100)->attempt;
+    p.price = 0.1;
+    assert_int_equal(bgm_buyer_on_message(b, &p, failed_at + 1.0, 1, ob), BG_OK);
+    assert_int_equal(bgm_outbox_count(ob), 0);
+    double requests, timeouts;
+    bgm_buyer_counts(b, &requests, &timeouts);
+    assert_true(requests == (double)items);
+    assert_true(timeouts >= (double)expected);
+    bgm_outbox_destroy(&ob);
+    bgm_buyer_destroy(&b);
+}
+
+/* Central: a job's items are bid for at their valuation, work and
+ * deadline. A delivery of an item on its attempt whose run has not ended
+ * is taken, once (TAKE, the bundle's number kept); the same item
+ * delivered again, or an item whose run has already ended, is refused. */
+static void test_buyer_takes_a_delivery_once(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("central", 0.5);
+    bgm_buyer_t *b = job_agent(&cfg, BGM_MECH_CENTRAL);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    uint32_t next = 100;
+    assert_int_equal(bgm_buyer_on_timer(b, BGM_BU_TIMER_ARRIVAL, 0, 5.0, 1, &next, ob), BG_OK);
+    assert_int_equal(count_msgs(ob, BGM_MT_BID), next - 100);
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+        const bgm_out_item_t *it = bgm_outbox_item(ob, i);
+        if (it->is_timer || it->msg.type != BGM_MT_BID)
+            continue;
+        const bgm_purchase_req_t *r = bgm_buyer_request(b, it->msg.req);
+        assert_non_null(r);
+        assert_true(it->msg.to == 0 && it->msg.good == r->good && it->msg.price == r->limit);
+        assert_true(it->msg.a == r->work && it->msg.b == r->deadline);
+        assert_true(r->work >= cfg.demand.work_min && r->work <= cfg.demand.work_max);
+    }
+    bgm_outbox_clear(ob);
+    bgm_msg_t cf = mk(BGM_MT_CONFIRM, BASIC, 100);
+    cf.to = JOB_AGENT;
+    cf.attempt = 0;
+    cf.price = 1.0;
+    cf.a = 6.0;
+    cf.b = 20.0;
+    cf.origin = 300;
+    assert_int_equal(bgm_buyer_on_message(b, &cf, 6.0, 1, ob), BG_OK);
+    const bgm_msg_t *x = only_msg(ob, BGM_MT_TAKE);
+    assert_non_null(x);
+    assert_true(x->to == BASIC && x->req == 100 && x->origin == 300);
+    const bgm_purchase_req_t *r = bgm_buyer_request(b, 100);
+    assert_true(r->state == BGM_PU_DONE && r->seller == BASIC && r->end == 20.0);
+    bgm_outbox_clear(ob);
+    cf.origin = 301;
+    assert_int_equal(bgm_buyer_on_message(b, &cf, 6.5, 1, ob), BG_OK);
+    x = only_msg(ob, BGM_MT_REFUSE);
+    assert_non_null(x);
+    assert_int_equal(x->origin, 301);
+    bgm_outbox_clear(ob);
+    cf.req = 101;
+    cf.b = 7.0;
+    assert_int_equal(bgm_buyer_on_message(b, &cf, 7.0, 1, ob), BG_OK);
+    assert_non_null(only_msg(ob, BGM_MT_REFUSE));
+    assert_true(bgm_buyer_request(b, 101)->state != BGM_PU_DONE);
+    bgm_outbox_destroy(&ob);
+    bgm_buyer_destroy(&b);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -758,6 +1209,11 @@ int main(void)
         cmocka_unit_test(test_sessions_ring),
         cmocka_unit_test(test_resource_bargains_from_its_own_session),
         cmocka_unit_test(test_resource_orders_and_parts),
+        cmocka_unit_test(test_seller_proposes_what_it_sells),
+        cmocka_unit_test(test_seller_match_rents_and_delivers),
+        cmocka_unit_test(test_seller_takes_orders_while_they_stand),
+        cmocka_unit_test(test_buyer_retries_then_fails_at_deadline),
+        cmocka_unit_test(test_buyer_takes_a_delivery_once),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

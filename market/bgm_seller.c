@@ -1,0 +1,462 @@
+#include "bgm_seller.h"
+
+#include <math.h>
+#include <stdlib.h>
+
+#include "bgm_catallactic.h"
+#include "bgm_session.h"
+
+/* Bargains it keeps at once (catallactic). */
+#define SE_SESSIONS 32
+/* It re-announces its ask when its reservation moves this much. */
+#define SE_ASK_REFRESH 0.1
+
+struct bgm_seller {
+    bgm_config_t cfg;
+    bgm_seller_params_t p;
+    bgm_purchase_t *pu;   /* its buying half, and its trader state */
+    bgm_trader_t *tr;     /* pu's */
+    bgm_sessions_t *sess; /* catallactic: its side of every bargain */
+    int used;             /* slots held */
+    double est_res[BGM_SERVICE_TYPES];   /* estimated resource cost per unit */
+    double announced[BGM_SERVICE_TYPES]; /* last reservation sent to the market */
+    double posted[BGM_SERVICE_TYPES];    /* baseline posted price */
+    bg_status failure;
+    bgm_outbox_t *out; /* during a call */
+};
+
+static void fail(bgm_seller_t *s, bg_status st)
+{
+    if (s->failure == BG_OK)
+        s->failure = st;
+}
+
+static void emit(bgm_seller_t *s, const bgm_msg_t *m)
+{
+    bg_status st = bgm_outbox_send(s->out, m);
+    if (st)
+        fail(s, st);
+}
+
+static void later(bgm_seller_t *s, double at, int kind, uint64_t arg)
+{
+    bg_status st = bgm_outbox_timer(s->out, s->p.self, at, kind, arg);
+    if (st)
+        fail(s, st);
+}
+
+static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
+{
+    return bgm_outbox_msg(type, from, to, req, attempt);
+}
+
+/* Normaliser for remembered resource prices: the mean cost rate. */
+static double mean_rate(const bgm_seller_t *s, double cores, double mem)
+{
+    return s->cfg.resources.core_cost * cores + s->cfg.resources.memory_cost * mem;
+}
+
+static double reservation(const bgm_seller_t *s, int good)
+{
+    return s->p.cost[good] + s->est_res[good];
+}
+
+static double opening(const bgm_seller_t *s, int good)
+{
+    return bgm_nego_opening(BGM_SIDE_SELLER, reservation(s, good), s->tr->memory[good],
+                            s->tr->markup);
+}
+
+static int from_buyer(const bgm_seller_t *s, uint32_t a)
+{
+    return a >= s->p.first_buyer && a - s->p.first_buyer < s->p.nbuyers;
+}
+
+static int from_resource(const bgm_seller_t *s, uint32_t a)
+{
+    return a >= s->p.first_resource && a - s->p.first_resource < s->p.nresource;
+}
+
+static int service_good(int good)
+{
+    return good >= 0 && good < BGM_SERVICE_TYPES;
+}
+
+bgm_seller_t *bgm_seller_new(const bgm_seller_params_t *p)
+{
+    if (p->degree < 0 || p->degree > BGM_PU_MAX_NEIGHBOURS)
+        return NULL;
+    bgm_seller_t *s = calloc(1, sizeof *s);
+    if (!s)
+        return NULL;
+    s->cfg = *p->cfg;
+    s->p = *p;
+    s->p.cfg = &s->cfg;
+    s->p.neighbours = NULL;
+    s->p.same_role = NULL;
+    bgm_trader_t tr = {p->rng, p->genes, 0.0, p->markup, {0.0, 0.0, 0.0, 0.0}};
+    bgm_purchase_params_t pp = {&s->cfg, p->mechanism, p->self,      p->market, p->horizon,
+                                tr,      p->neighbours, p->same_role, p->degree};
+    s->pu = bgm_purchase_new(&pp);
+    if (p->mechanism == BGM_MECH_CATALLACTIC)
+        s->sess = bgm_sessions_new(SE_SESSIONS);
+    if (!s->pu || (p->mechanism == BGM_MECH_CATALLACTIC && !s->sess)) {
+        bgm_seller_destroy(&s);
+        return NULL;
+    }
+    s->tr = bgm_purchase_trader(s->pu);
+    const bgm_config_t *c = &s->cfg;
+    for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
+        const bgm_service_cfg_t *sv = &c->services[t];
+        /* What a run of one unit costs in resources at the mean cost
+         * rate on a node of the nominal speed, until it learns better. */
+        s->est_res[t] = mean_rate(s, sv->cores, sv->memory) * sv->flops_per_unit /
+                        (c->network.speed * sv->cores);
+        s->posted[t] = reservation(s, t) * (1.0 + c->baseline.markup);
+    }
+    return s;
+}
+
+void bgm_seller_destroy(bgm_seller_t **ps)
+{
+    if (!ps || !*ps)
+        return;
+    bgm_purchase_destroy(&(*ps)->pu);
+    bgm_sessions_destroy(&(*ps)->sess);
+    free(*ps);
+    *ps = NULL;
+}
+
+const bgm_purchase_req_t *bgm_seller_bundle(bgm_seller_t *s, uint32_t id)
+{
+    return bgm_purchase_get(s->pu, id);
+}
+
+size_t bgm_seller_part_count(const bgm_seller_t *s)
+{
+    return bgm_purchase_part_count(s->pu);
+}
+
+const bgm_purchase_part_t *bgm_seller_part(const bgm_seller_t *s, size_t i)
+{
+    return bgm_purchase_part(s->pu, i);
+}
+
+int bgm_seller_used(const bgm_seller_t *s)
+{
+    return s->used;
+}
+
+void bgm_seller_counts(const bgm_seller_t *s, double *requests, double *timeouts)
+{
+    bgm_purchase_counts(s->pu, requests, timeouts);
+}
+
+/* Baseline: it tells the directory its free slots whenever they change,
+ * as a plain scheduler's registry would learn them. */
+static void announce(bgm_seller_t *s)
+{
+    if (s->p.mechanism != BGM_MECH_BASELINE)
+        return;
+    bgm_msg_t m = msg(BGM_MT_AVAIL, s->p.self, s->p.market, 0, 0);
+    m.a = (double)(s->p.slots - s->used);
+    emit(s, &m);
+}
+
+/* A slot is free again (a run ended, or its bundle could not be had). */
+static void free_slot(bgm_seller_t *s, uint32_t id)
+{
+    if (s->used > 0)
+        s->used--;
+    announce(s);
+    if (s->p.mechanism == BGM_MECH_CENTRAL) {
+        bgm_msg_t m = msg(BGM_MT_FREE, s->p.self, s->p.market, id, 0);
+        emit(s, &m);
+    }
+}
+
+/* Acts on what its buying half reported: a bundle it could not get
+ * gives the slot back and tells the job's agent the agreed service is
+ * off; a bundle rented is delivered (CONFIRM with the bundle's number),
+ * and the slot stays held until the rental ends, taken or not. */
+static void absorb(bgm_seller_t *s, bg_status st, const bgm_purchase_event_t *ev)
+{
+    if (st)
+        fail(s, st);
+    if (ev->kind == BGM_PU_EV_NONE)
+        return;
+    bgm_purchase_req_t *r = bgm_purchase_get(s->pu, ev->req);
+    if (!r)
+        return;
+    const bgm_deal_t *d = &r->deal;
+    if (ev->kind == BGM_PU_EV_FAILED) {
+        free_slot(s, r->id);
+        bgm_msg_t m = msg(BGM_MT_CANCEL, s->p.self, d->buyer, d->req, d->attempt);
+        emit(s, &m);
+        return;
+    }
+    r->delivered = 1;
+    later(s, r->end, BGM_SE_TIMER_RELEASE, r->id);
+    bgm_msg_t cm = msg(BGM_MT_CONFIRM, s->p.self, d->buyer, d->req, d->attempt);
+    cm.price = d->price;
+    cm.a = r->start;
+    cm.b = r->end;
+    cm.origin = r->id;
+    emit(s, &cm);
+}
+
+/* It has agreed to serve deal d: it reserves a slot and starts buying
+ * the bundle, keeping the deal in its own request. The deal is bound to
+ * the buyer's attempt: whether the buyer still wants it is the buyer's to
+ * say when the service is delivered (TAKE or REFUSE). Returns 0 (and
+ * changes nothing) when it has no free slot. */
+static int service_agreed(bgm_seller_t *s, const bgm_deal_t *d, double now, int up,
+                          uint32_t *next_req)
+{
+    if (s->used >= s->p.slots || !up || !service_good(d->good) || !(d->work > 0.0) ||
+        *next_req >= BGM_PU_MAX_REQS)
+        return 0;
+    s->used++;
+    announce(s);
+    const bgm_service_cfg_t *sv = &s->cfg.services[d->good];
+    bgm_purchase_req_t it = {0};
+    it.id = (*next_req)++;
+    it.good = BGM_PU_BUNDLE;
+    it.cores = (double)sv->cores;
+    it.memory = sv->memory;
+    it.flops = sv->flops_per_unit * d->work;
+    it.limit = d->price * d->work;
+    it.created = now;
+    it.deadline = d->deadline > now ? d->deadline : now + s->cfg.catallactic.reply_timeout;
+    it.deal = *d;
+    bgm_purchase_event_t ev;
+    bg_status st = bgm_purchase_open(s->pu, &it, now, up, s->out, &ev);
+    absorb(s, st, &ev);
+    return 1;
+}
+
+/* Agreement reached on the request a buyer's OFFER, ACCEPT or ORDER
+ * names: it commits on its side and tells the buyer ACCEPT (resources
+ * follow), or REJECT when it cannot. */
+static void commit(bgm_seller_t *s, const bgm_msg_t *m, double price, double limit, double now,
+                   int up, uint32_t *next_req)
+{
+    bgm_deal_t d = {m->from, m->req, m->attempt, m->good, m->a, m->cand_price[2], price, limit};
+    if (!service_agreed(s, &d, now, up, next_req)) {
+        bgm_msg_t x = msg(BGM_MT_REJECT, s->p.self, m->from, m->req, m->attempt);
+        emit(s, &x);
+        return;
+    }
+    s->tr->memory[m->good] =
+        bgm_memory_update(s->tr->memory[m->good], price, s->tr->genes.weight_memory);
+    bgm_msg_t a = msg(BGM_MT_ACCEPT, s->p.self, m->from, m->req, m->attempt);
+    a.price = price;
+    emit(s, &a);
+}
+
+/* A call for proposals: it proposes its opening price for a type it
+ * sells with a slot free (a basic seller quotes no speed), and passes the
+ * call on. */
+static void on_cfp(bgm_seller_t *s, const bgm_msg_t *m)
+{
+    if (bgm_purchase_cfp_seen(s->pu, m))
+        return;
+    if (service_good(m->good) && s->p.sells[m->good] && s->used < s->p.slots) {
+        bgm_msg_t p = msg(BGM_MT_PROPOSE, s->p.self, m->origin, m->req, m->attempt);
+        p.price = opening(s, m->good);
+        p.a = 0.0;
+        emit(s, &p);
+    }
+    bg_status st = bgm_purchase_cfp_forward(s->pu, m, s->out);
+    if (st)
+        fail(s, st);
+}
+
+/* A buyer's OFFER. It reads what the offer carries (the good, how long
+ * it stands) and its own session of the bargain, opened by the buyer's
+ * first offer; an offer of a bargain it does not hold (another attempt,
+ * forgotten) gets no answer. */
+static void on_offer(bgm_seller_t *s, const bgm_msg_t *m, double now, int up, uint32_t *next_req)
+{
+    if (!service_good(m->good) || now > m->cand_price[2] || !s->sess)
+        return;
+    bgm_session_t *ss = bgm_sessions_for(s->sess, m);
+    if (!ss)
+        return;
+    if (!ss->open) {
+        bgm_nego_open(&ss->nego, BGM_SIDE_SELLER, reservation(s, m->good), opening(s, m->good),
+                      &s->tr->genes, s->cfg.catallactic.max_rounds);
+        ss->open = 1;
+    }
+    double reply = 0.0;
+    bgm_nego_action act = bgm_nego_respond(&ss->nego, m->price, &s->tr->rng, &reply);
+    if (act == BGM_NEGO_ACCEPT) {
+        commit(s, m, reply, ss->nego.limit, now, up, next_req);
+    } else if (act == BGM_NEGO_COUNTER) {
+        bgm_msg_t o = msg(BGM_MT_OFFER, s->p.self, m->from, m->req, m->attempt);
+        o.price = reply;
+        emit(s, &o);
+    } else {
+        bgm_purchase_learn(s->pu, 0, 0.0);
+        bgm_msg_t x = msg(BGM_MT_REJECT, s->p.self, m->from, m->req, m->attempt);
+        emit(s, &x);
+    }
+}
+
+/* The buyer accepted its last counter-offer: it commits at that price if
+ * the bargain is one it holds. */
+static void on_accept(bgm_seller_t *s, const bgm_msg_t *m, double now, int up, uint32_t *next_req)
+{
+    if (!service_good(m->good) || !s->sess)
+        return;
+    const bgm_session_t *ss = bgm_sessions_find(s->sess, m->from, m->req, m->attempt);
+    if (!ss || !ss->open) {
+        bgm_msg_t x = msg(BGM_MT_REJECT, s->p.self, m->from, m->req, m->attempt);
+        emit(s, &x);
+        return;
+    }
+    double lim = ss->nego.limit;
+    bgm_purchase_learn(s->pu, 1, (m->price - lim) / m->price);
+    commit(s, m, m->price, lim, now, up, next_req);
+}
+
+/* The job's agent answers its delivery of bundle m->origin: a taken
+ * service teaches it what resources really cost per unit of it and its
+ * price (central: a refreshed ASK when its reservation moved); a refused
+ * one counts as a failure. Either way the bundle's parts are settled. */
+static void on_answer(bgm_seller_t *s, const bgm_msg_t *m)
+{
+    const bgm_purchase_req_t *r = bgm_purchase_get(s->pu, m->origin);
+    if (!r || r->deal.buyer != m->from || r->deal.req != m->req || !r->delivered)
+        return;
+    bgm_purchase_drop_parts(s->pu, r->id);
+    if (m->type == BGM_MT_REFUSE) {
+        bgm_purchase_learn(s->pu, 0, 0.0);
+        return;
+    }
+    const bgm_deal_t *d = &r->deal;
+    bgm_trader_t *tr = s->tr;
+    double money = r->price * (r->end - r->start);
+    s->est_res[d->good] =
+        bgm_memory_update(s->est_res[d->good], money / d->work, tr->genes.weight_memory);
+    tr->memory[3] = bgm_memory_update(tr->memory[3], r->price / mean_rate(s, r->cores, r->memory),
+                                      tr->genes.weight_memory);
+    tr->memory[d->good] = bgm_memory_update(tr->memory[d->good], d->price, tr->genes.weight_memory);
+    bgm_purchase_learn(s->pu, 1, (d->price - d->limit) / d->price);
+    if (s->p.mechanism == BGM_MECH_CENTRAL) {
+        double res = reservation(s, d->good);
+        if (fabs(res - s->announced[d->good]) > SE_ASK_REFRESH * s->announced[d->good]) {
+            bgm_msg_t a = msg(BGM_MT_ASK, s->p.self, s->p.market, 0, 0);
+            a.good = (int16_t)d->good;
+            a.price = res;
+            a.a = -1.0;
+            s->announced[d->good] = res;
+            emit(s, &a);
+        }
+    }
+}
+
+static void to_purchase(bgm_seller_t *s, const bgm_msg_t *m, double now)
+{
+    bgm_purchase_event_t ev;
+    bg_status st = bgm_purchase_on_message(s->pu, m, now, s->out, &ev);
+    absorb(s, st, &ev);
+}
+
+bg_status bgm_seller_start(bgm_seller_t *s, double now, bgm_outbox_t *out)
+{
+    s->failure = BG_OK;
+    s->out = out;
+    if (s->p.mechanism == BGM_MECH_CATALLACTIC) {
+        fail(s, bgm_purchase_learning_start(s->pu, now, out));
+        return s->failure;
+    }
+    for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
+        if (!s->p.sells[t])
+            continue;
+        bgm_msg_t m = msg(BGM_MT_ASK, s->p.self, s->p.market, 0, 0);
+        m.good = (int16_t)t;
+        m.price = s->p.mechanism == BGM_MECH_BASELINE ? s->posted[t] : reservation(s, t);
+        m.a = s->p.slots;
+        s->announced[t] = reservation(s, t);
+        emit(s, &m);
+    }
+    return s->failure;
+}
+
+bg_status bgm_seller_on_message(bgm_seller_t *s, const bgm_msg_t *m, double now, int up,
+                                uint32_t *next_req, bgm_outbox_t *out)
+{
+    s->failure = BG_OK;
+    s->out = out;
+    switch (m->type) {
+    case BGM_MT_MATCH: {
+        bgm_deal_t d = {m->origin, m->req, m->attempt, m->good, m->a, m->c, m->price, m->b};
+        if (!service_agreed(s, &d, now, up, next_req)) {
+            bgm_msg_t c = msg(BGM_MT_CANCEL, s->p.self, m->origin, m->req, m->attempt);
+            emit(s, &c);
+        }
+        break;
+    }
+    case BGM_MT_CFP:
+        on_cfp(s, m);
+        break;
+    case BGM_MT_OFFER:
+        if (from_resource(s, m->from))
+            to_purchase(s, m, now);
+        else
+            on_offer(s, m, now, up, next_req);
+        break;
+    case BGM_MT_ACCEPT:
+        if (from_resource(s, m->from))
+            to_purchase(s, m, now);
+        else
+            on_accept(s, m, now, up, next_req);
+        break;
+    case BGM_MT_ORDER:
+        /* At the posted price, while the buyer's order stands. */
+        if (service_good(m->good) && now <= m->cand_price[2] && from_buyer(s, m->from))
+            commit(s, m, m->price, s->posted[m->good] / (1.0 + s->cfg.baseline.markup), now, up,
+                   next_req);
+        break;
+    case BGM_MT_TAKE:
+    case BGM_MT_REFUSE:
+        if (from_buyer(s, m->from))
+            on_answer(s, m);
+        break;
+    case BGM_MT_PROPOSE:
+    case BGM_MT_LIST:
+    case BGM_MT_REJECT:
+    case BGM_MT_CANCEL:
+    case BGM_MT_RFAIL:
+    case BGM_MT_RCONFIRM:
+        to_purchase(s, m, now);
+        break;
+    case BGM_MT_GENES:
+        fail(s, bgm_purchase_on_genes(s->pu, m, out));
+        break;
+    case BGM_MT_CONFIRM:
+        break; /* a delivery is for a job's agent */
+    default:
+        fail(s, BG_ERR_INVALID);
+        break;
+    }
+    return s->failure;
+}
+
+bg_status bgm_seller_on_timer(bgm_seller_t *s, int kind, uint64_t arg, double now, int up,
+                              bgm_outbox_t *out)
+{
+    s->failure = BG_OK;
+    s->out = out;
+    if (kind == BGM_SE_TIMER_RELEASE) {
+        /* The run is over: a delivery never answered is void by now. */
+        bgm_purchase_drop_parts(s->pu, (uint32_t)arg);
+        free_slot(s, (uint32_t)arg);
+        return s->failure;
+    }
+    bgm_purchase_event_t ev;
+    bg_status st = bgm_purchase_on_timer(s->pu, kind, arg, now, up, out, &ev);
+    absorb(s, st, &ev);
+    return s->failure;
+}
