@@ -554,6 +554,7 @@ static bg_status reply_price(bga_market_t *m, int type, const bga_mmsg_t *in, do
     answer_init(m, &r, type, in->resource, in);
     r.price = price;
     r.term = in->term;
+    r.attempt = in->attempt; /* a PROPOSE names the round of the call it answers */
     return send_msg(m, &r, err);
 }
 

@@ -291,6 +291,7 @@ static bg_status route_out(route_t *r, bg_error_t *err)
         case BGM_MT_PROPOSE:
         case BGM_MT_OFFER:
             live_init(rs, &o, m->type == BGM_MT_PROPOSE ? BGA_MM_PROPOSE : BGA_MM_OFFER, d);
+            o.attempt = d->attempt >= 0 ? d->attempt : 0; /* the round it answers */
             o.price = m->price / d->quantity;
             d->last_rate = m->price;
             d->last_unit = o.price;

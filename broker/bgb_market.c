@@ -1216,6 +1216,12 @@ static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, do
     if (!j || j->finished || j->mech != BGB_MECH_CATALLACTIC)
         return;
     if (in->type == BGA_MM_PROPOSE) {
+        /* A proposal answers one round's call; one of an earlier round,
+         * late on a loaded host, would make the round look answered and
+         * keep its window from widening (send_cfps), so that every round
+         * hears only the last one's stragglers. */
+        if (in->attempt != j->attempt)
+            return;
         if (j->nprops < MAX_PROPOSALS)
             j->props[j->nprops++] = (proposal_t){a->info.id, in->good, in->price};
         return;
