@@ -21,7 +21,10 @@
  *       for the directory to lose one agent (the script kills one) and
  *       checks the survivors.
  *   live_host bench DIR NAGENTS ROUNDS   prints allocation latency per
- *       mechanism (submit → all services bought), median and max.
+ *       mechanism (submit → all services bought), median, p90 and max; an
+ *       allocation that fails for want of a free seller or by timeout is
+ *       asked again with backoff, as the broker's coordinator does, its
+ *       latency counted from the first ask, and the count is printed.
  * Exits 0 when every check holds, 1 with the first failure otherwise.
  */
 #include <errno.h>
@@ -35,6 +38,10 @@
 #include "bga_transport.h"
 #include "bga_wire.h"
 #include "bgb_market.h"
+
+/* s: how long the bench asks again after a transient failure (the
+ * broker asks for 120 s; the test's timeout leaves this half). */
+#define BENCH_PATIENCE 60.0
 
 #define FAIL(...)                                                                                  \
     do {                                                                                           \
@@ -447,19 +454,41 @@ int main(int argc, char **argv)
                "%d rounds\n",
                nagents, rounds);
         for (int mi = 0; mi < nmech; mi++) {
+            int retried = 0;
             for (int r = 0; r < rounds; r++) {
+                /* As the broker's coordinator does: a transient failure
+                 * (every able seller busy, a buy past its timeout on a
+                 * loaded host) is asked again after a backoff, for up to
+                 * BENCH_PATIENCE; the latency runs from the first ask. */
+                const double first = bg_clock_now();
+                double backoff = 0.1, last = first;
                 outcome_t o;
-                buy(&h, job, mechs[mi], 1e6, &o);
+                for (;;) {
+                    last = bg_clock_now();
+                    buy(&h, job, mechs[mi], 1e6, &o);
+                    const int transient =
+                        strstr(o.reason, "no seller") != NULL || strcmp(o.reason, "timeout") == 0;
+                    if (!o.reason[0] || !transient ||
+                        bg_clock_now() + backoff > first + BENCH_PATIENCE)
+                        break;
+                    fprintf(stderr, "bench: %s job %llu: %s after %.3f s, asked again\n",
+                            bgb_mechanism_name(mechs[mi]), (unsigned long long)job, o.reason,
+                            bg_clock_now() - last);
+                    bgb_market_release(h.market, job++, bg_clock_now());
+                    retried++;
+                    pump(&h, backoff, NULL);
+                    backoff = backoff * 2 < 2.0 ? backoff * 2 : 2.0;
+                }
                 if (o.reason[0])
                     FAIL("bench: %s failed: %s", bgb_mechanism_name(mechs[mi]), o.reason);
-                lat[r] = o.latency;
+                lat[r] = (last - first) + o.latency;
                 bgb_market_release(h.market, job++, bg_clock_now());
                 pump(&h, 0.01, NULL);
             }
             qsort(lat, (size_t)rounds, sizeof *lat, cmp_double);
-            printf("%-12s median %8.3f ms  p90 %8.3f ms  max %8.3f ms\n",
+            printf("%-12s median %8.3f ms  p90 %8.3f ms  max %8.3f ms  (%d asked again)\n",
                    bgb_mechanism_name(mechs[mi]), lat[rounds / 2] * 1e3,
-                   lat[(rounds * 9) / 10] * 1e3, lat[rounds - 1] * 1e3);
+                   lat[(rounds * 9) / 10] * 1e3, lat[rounds - 1] * 1e3, retried);
         }
         free(lat);
     } else {
