@@ -44,37 +44,6 @@ const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"}
 /* The opening-price markup every agent starts from. */
 #define BGM_MARKUP_INIT 0.2
 
-/* Message types (bgm_role.h; what a, b, c carry is given per type in the
- * role machines' headers). */
-enum {
-    M_BID = BGM_MT_BID,
-    M_ASK,
-    M_FREE,
-    M_MATCH,
-    M_RBID,
-    M_RASK,
-    M_RFREE,
-    M_RAWARD,
-    M_RFAIL,
-    M_RCONFIRM,
-    M_CONFIRM,
-    M_CANCEL,
-    M_CFP,
-    M_PROPOSE,
-    M_OFFER,
-    M_ACCEPT,
-    M_REJECT,
-    M_GENES,
-    M_QUERY,
-    M_LIST,
-    M_ORDER,
-    M_AVAIL,
-    M_RPART,
-    M_TAKE,
-    M_REFUSE
-};
-_Static_assert((int)M_REFUSE == (int)BGM_MT_REFUSE, "the world's message numbers are bgm_role.h's");
-
 /* Timer kinds: the role machines' own, then the world's churn. */
 enum {
     T_ARRIVAL = 1,  /* job's agent: next job (BGM_BU_TIMER_ARRIVAL) */
@@ -200,9 +169,9 @@ static int agent_reachable(const bgm_world_t *w, uint32_t a)
 static void send(bgm_world_t *w, bgm_msg_t *m)
 {
     long bytes = w->cfg.network.message_bytes;
-    if (m->type == M_LIST)
+    if (m->type == BGM_MT_LIST)
         bytes += BGM_CAND_BYTES * m->ncand;
-    if (m->type == M_GENES)
+    if (m->type == BGM_MT_GENES)
         bytes += BGM_GENES_BYTES;
     w->msgs += 1.0;
     w->bytes += (double)bytes;
@@ -749,15 +718,16 @@ static void route(bgm_world_t *w, bg_status st, double now)
             continue;
         }
         bgm_msg_t m = it->msg;
-        if (m.type == M_RCONFIRM && m.good == BGM_GOOD_BUNDLE && m.req < w->nreq &&
+        if (m.type == BGM_MT_RCONFIRM && m.good == BGM_GOOD_BUNDLE && m.req < w->nreq &&
             push_double(&w->acc_r, &w->nacc_r, now - w->obs[m.req].created))
             fail(w, BG_ERR_NOMEM);
-        if (m.type == M_CONFIRM && m.origin < w->nreq && w->obs[m.origin].layer == 1)
+        if (m.type == BGM_MT_CONFIRM && m.origin < w->nreq && w->obs[m.origin].layer == 1)
             w->obs[m.origin].delivery = DL_OFFERED;
-        if ((m.type == M_TAKE || m.type == M_REFUSE) && m.origin < w->nreq && m.req < w->nreq) {
-            if (m.type == M_TAKE)
+        if ((m.type == BGM_MT_TAKE || m.type == BGM_MT_REFUSE) && m.origin < w->nreq &&
+            m.req < w->nreq) {
+            if (m.type == BGM_MT_TAKE)
                 observe_taken(w, m.req, m.origin);
-            book_delivery(w, m.origin, m.type == M_TAKE, now);
+            book_delivery(w, m.origin, m.type == BGM_MT_TAKE, now);
         }
         send(w, &m);
     }
@@ -777,7 +747,7 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         route(w, bgm_market_agent_on_message(w->ma, m, now, w->ob), now);
         return w->failure;
     }
-    if (m->type != M_GENES && m->type != M_CFP && m->req >= w->nreq)
+    if (m->type != BGM_MT_GENES && m->type != BGM_MT_CFP && m->req >= w->nreq)
         return BG_ERR_INVALID;
     int up = agent_alive(w, me);
     if (is_resource(w, me)) {
@@ -785,7 +755,8 @@ bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *m, double now)
         return w->failure;
     }
     /* A delivery and its answer name a bundle by its number. */
-    if ((m->type == M_CONFIRM || m->type == M_TAKE || m->type == M_REFUSE) && m->origin >= w->nreq)
+    if ((m->type == BGM_MT_CONFIRM || m->type == BGM_MT_TAKE || m->type == BGM_MT_REFUSE) &&
+        m->origin >= w->nreq)
         return w->failure;
     if (is_buyer(w, me)) {
         route(w, bgm_buyer_on_message(buyer_machine(w, me), m, now, up, w->ob), now);
