@@ -8,43 +8,13 @@
 #include <unistd.h>
 #include <zmq.h>
 
+#include "bga_bseller.h"
 #include "bga_rseller.h"
 #include "bga_transport.h"
-#include "bgm_catallactic.h"
 
-#define NEGO_MAX 64
-#define SEEN_MAX 128
-#define SELLER_ROUNDS 12 /* the simulator's default catallactic.max_rounds */
-#define BUY_WAIT 10.0    /* s: a resource purchase the broker never answers is dropped */
-#define RATE_WEIGHT 0.5  /* weight of the last asking rate in the expected one */
-/* A basic seller bids for a contract's resources at most this many times
- * what it expects them to cost (the rates it priced into its floor): room
- * for a resource seller whose ask rose with its load (1 + load slope, 1.5
- * by default, at full load), and no more. Bidding the whole surplus of the
- * service sale instead would hand the job's budget on to layer 1. */
-#define RESOURCE_BID_HEADROOM 1.5
+_Static_assert(BGA_BSELLER_JOB_SPAN == BGA_MARKET_JOB_SPAN, "one contract covers one job span");
 
 enum { ROLE_BASIC = 0, ROLE_RESOURCE = 1 };
-
-/* A bargain in progress with the broker's buyer for (job, good); the good
- * tells the role (services 0..2, resources 3..4). */
-typedef struct nego {
-    int used;
-    uint64_t job;
-    int good;
-    double at; /* when it proposed */
-    bgm_nego_t side;
-} nego_t;
-
-typedef enum held_state { H_BUYING = 1, H_HELD = 2 } held_state;
-
-/* A service contract: agreed and buying its resources, or held. */
-typedef struct held {
-    held_state state;
-    uint64_t job;
-    int good;
-    double quantity, price, floor, cores, until;
-} held_t;
 
 typedef struct role {
     uint32_t id;
@@ -58,15 +28,8 @@ struct bga_market {
     void *socket;
     role_t role[2];
     double next_beat;
-    held_t *held; /* slots entries, used first */
-    int used;
-    bga_rseller_t *rs;  /* the resource seller role (NULL: none) */
-    double rate[2];     /* expected resource rates: per core-second, per GiB-second */
-    nego_t nego[NEGO_MAX];
-    uint64_t seen[SEEN_MAX]; /* CFPs the basic seller handled: ((job·1024 + attempt)·8 + good)·2 */
-    int nseen;
-    bgm_rng_t rng;
-    bgm_genes_t genes;
+    bga_bseller_t *bs; /* the basic-service seller role */
+    bga_rseller_t *rs; /* the resource seller role (NULL: none) */
     /* The process's compute thread pools (OpenBLAS, OpenMP: CHOLMOD's
      * factorization and the BLAS under it), if linked, and their sizes at
      * start: a job's cap never raises them. */
@@ -120,36 +83,16 @@ void bga_market_config_default(bga_market_config_t *c)
     c->res_load_slope = 0.5;
 }
 
-static int sells(const bga_market_t *m, int good)
-{
-    if (good == BGA_MMSG_GOODS - 2)
-        return m->c.cores > 0;
-    if (good == BGA_MMSG_GOODS - 1)
-        return m->c.cores > 0 && m->c.memory > 0;
-    return good >= 0 && good < 3 && (m->c.services & (1u << good));
-}
-
-/* The service floor: own cost plus one contract's resources at the
- * expected rates over one lease. */
-static double service_floor(const bga_market_t *m, int good)
-{
-    return m->c.floor[good] +
-           (m->rate[0] * m->c.unit_cores[good] + m->rate[1] * m->c.unit_memory[good]) * m->c.lease;
-}
-
 double bga_market_price(const bga_market_t *m, int good)
 {
-    if (!sells(m, good))
-        return 0;
     if (good >= 3)
-        return bga_rseller_price(m->rs, good);
-    return service_floor(m, good) * (1 + m->c.margin) *
-           (1 + m->c.load_slope * (double)m->used / (double)m->c.slots);
+        return m->rs ? bga_rseller_price(m->rs, good) : 0;
+    return bga_bseller_price(m->bs, good);
 }
 
 int bga_market_used(const bga_market_t *m)
 {
-    return m->used;
+    return bga_bseller_used(m->bs);
 }
 
 double bga_market_cores_used(const bga_market_t *m)
@@ -167,17 +110,9 @@ uint32_t bga_market_resource_id(const bga_market_t *m)
     return m->role[ROLE_RESOURCE].id;
 }
 
-static int covers(const held_t *h, uint64_t job)
-{
-    return h->state == H_HELD && job >= h->job && job - h->job < BGA_MARKET_JOB_SPAN;
-}
-
 int bga_market_holds(const bga_market_t *m, uint64_t job)
 {
-    for (int i = 0; i < m->used; i++)
-        if (covers(&m->held[i], job))
-            return 1;
-    return 0;
+    return bga_bseller_holds(m->bs, job);
 }
 
 /* A function of the running process by name (NULL if none); memcpy, as
@@ -227,11 +162,7 @@ int bga_market_admit(bga_market_t *m, uint64_t job)
 
 double bga_market_cores(const bga_market_t *m, uint64_t job)
 {
-    double cores = 0;
-    for (int i = 0; i < m->used; i++)
-        if (covers(&m->held[i], job))
-            cores += m->held[i].cores;
-    return cores;
+    return bga_bseller_cores(m->bs, job);
 }
 
 static bg_status send_msg(bga_market_t *m, const bga_mmsg_t *msg, bg_error_t *err)
@@ -262,15 +193,7 @@ static void describe(const bga_market_t *m, int role, bga_mmsg_t *msg)
         bga_rseller_describe(m->rs, msg);
         return;
     }
-    msg->services = m->c.services;
-    msg->slots = m->c.slots;
-    msg->free_slots = m->c.slots - m->used;
-    for (int g = 0; g < 3; g++) {
-        msg->floor[g] = sells(m, g) ? service_floor(m, g) : 0;
-        msg->prices[g] = bga_market_price(m, g);
-    }
-    msg->margin = m->c.margin;
-    msg->load_slope = m->c.load_slope;
+    bga_bseller_describe(m->bs, msg);
 }
 
 bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, double now,
@@ -319,11 +242,8 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
         if (m->c.unit_memory[g] > cap_memory)
             m->c.unit_memory[g] = cap_memory;
     }
-    for (int k = 0; k < 2; k++)
-        m->rate[k] = c->res_floor[k] * (1 + c->res_margin);
-    m->held = calloc((size_t)c->slots, sizeof *m->held);
     m->socket = zmq_socket(zmq_ctx, ZMQ_DEALER);
-    if (!m->held || !m->socket) {
+    if (!m->socket) {
         st = bg_error_set(err, BG_ERR_NOMEM, "cannot create the market seller's socket");
         goto fail;
     }
@@ -338,8 +258,23 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
     uint64_t seed = 1469598103934665603ull;
     for (const char *p = m->name; *p; p++)
         seed = (seed ^ (uint8_t)*p) * 1099511628211ull;
-    bgm_rng_seed(&m->rng, seed);
-    bgm_genes_random(&m->genes, &m->rng);
+    /* The basic seller expects its resources at its own resource
+     * seller's opening rates until it has paid for some. */
+    bga_bseller_config_t bc = {.services = c->services,
+                               .slots = c->slots,
+                               .margin = c->margin,
+                               .load_slope = c->load_slope,
+                               .lease = c->lease,
+                               .seed = seed};
+    for (int g = 0; g < 3; g++) {
+        bc.floor[g] = c->floor[g];
+        bc.unit_cores[g] = m->c.unit_cores[g];
+        bc.unit_memory[g] = m->c.unit_memory[g];
+    }
+    for (int k = 0; k < 2; k++)
+        bc.rate[k] = c->res_floor[k] * (1 + c->res_margin);
+    if ((st = bga_bseller_new(&bc, &m->bs, err)) != BG_OK)
+        goto fail;
     if (c->cores > 0) {
         const bga_rseller_config_t rc = {.cores = c->cores,
                                          .memory = c->memory,
@@ -365,8 +300,8 @@ void bga_market_destroy(bga_market_t **pm)
         return;
     if ((*pm)->socket)
         zmq_close((*pm)->socket);
+    bga_bseller_destroy(&(*pm)->bs);
     bga_rseller_destroy(&(*pm)->rs);
-    free((*pm)->held);
     free(*pm);
     *pm = NULL;
 }
@@ -376,19 +311,19 @@ void *bga_market_socket(const bga_market_t *m)
     return m->socket;
 }
 
-static void drop_held(bga_market_t *m, int i)
+static bg_status send_cb(void *ctx, const bga_mmsg_t *msg, bg_error_t *err)
 {
-    m->held[i] = m->held[--m->used];
+    return send_msg(ctx, msg, err);
 }
 
-/* Leases that ran out end their contracts; a purchase never answered is
- * given up. */
+/* Leases that ran out end their contracts, resources not bought in time
+ * are given up (the basic seller's timers), holds end. */
 static bg_status expire(bga_market_t *m, double now, bg_error_t *err)
 {
-    for (int i = m->used; i-- > 0;)
-        if (now >= m->held[i].until)
-            drop_held(m, i);
-    return m->rs ? bga_rseller_tick(m->rs, now, err) : BG_OK;
+    bg_status st = bga_bseller_tick(m->bs, now, send_cb, m, err);
+    if (st == BG_OK && m->rs)
+        st = bga_rseller_tick(m->rs, now, err);
+    return st;
 }
 
 bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err)
@@ -412,247 +347,6 @@ bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err)
     return st;
 }
 
-/* The basic seller's side of RELEASE (the resource seller's is its host's). */
-static void release_job(bga_market_t *m, uint64_t job)
-{
-    for (int i = 0; i < NEGO_MAX; i++)
-        if (m->nego[i].used && m->nego[i].job == job)
-            m->nego[i].used = 0;
-    for (int i = m->used; i-- > 0;)
-        if (m->held[i].job == job)
-            drop_held(m, i);
-}
-
-static void answer_init(const bga_market_t *m, bga_mmsg_t *r, int type, int role,
-                        const bga_mmsg_t *in)
-{
-    init_from(m, r, type, role);
-    r->job = in->job;
-    r->good = in->good;
-    r->quantity = in->quantity;
-    r->price = in->price;
-}
-
-static held_t *held_find(bga_market_t *m, uint64_t job, int good, held_state state)
-{
-    for (int i = 0; i < m->used; i++)
-        if (m->held[i].job == job && m->held[i].good == good && m->held[i].state == state)
-            return &m->held[i];
-    return NULL;
-}
-
-/* The basic seller's answer about a service contract it agreed to. */
-static void about_held(const bga_market_t *m, bga_mmsg_t *r, int type, const held_t *h)
-{
-    init_from(m, r, type, ROLE_BASIC);
-    r->job = h->job;
-    r->good = h->good;
-    r->quantity = h->quantity;
-    r->price = h->price;
-}
-
-static bg_status confirm(bga_market_t *m, const held_t *h, bg_error_t *err)
-{
-    bga_mmsg_t r;
-    about_held(m, &r, BGA_MM_CONFIRM, h);
-    r.slots = m->c.slots;
-    r.free_slots = m->c.slots - m->used;
-    r.floor[h->good] = h->floor;
-    return send_msg(m, &r, err);
-}
-
-/* The basic seller agrees to (job, good) at the price when it has a slot
- * and the price covers its floor; it keeps the slot and buys the unit's
- * resources on layer 1 for at most what the contract leaves over its own
- * cost and RESOURCE_BID_HEADROOM times their expected cost, and confirms
- * once they are bought (on_rbought). */
-static bg_status basic_order(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
-{
-    bga_mmsg_t r;
-    answer_init(m, &r, BGA_MM_REFUSE, ROLE_BASIC, in);
-    /* A resource good addressed to this role is not its to sell. */
-    const int sold = in->good >= 0 && in->good < 3 && sells(m, in->good);
-    const double floor_g = sold ? service_floor(m, in->good) : 0;
-    if (!sold)
-        snprintf(r.reason, sizeof r.reason, "does not sell %d", in->good);
-    else if (held_find(m, in->job, in->good, H_BUYING) || held_find(m, in->job, in->good, H_HELD))
-        snprintf(r.reason, sizeof r.reason, "already sold this good for job %llu",
-                 (unsigned long long)in->job);
-    else if (m->used >= m->c.slots)
-        snprintf(r.reason, sizeof r.reason, "no free slot");
-    else if (in->price < floor_g)
-        snprintf(r.reason, sizeof r.reason, "price %.6g under the floor %.6g", in->price, floor_g);
-    else {
-        const int g = in->good;
-        held_t *h = &m->held[m->used++];
-        *h = (held_t){H_BUYING, in->job, g, in->quantity, in->price, floor_g, m->c.unit_cores[g],
-                      now + BUY_WAIT};
-        if (m->c.unit_cores[g] <= 0 && m->c.unit_memory[g] <= 0) {
-            h->state = H_HELD;
-            h->until = now + m->c.lease;
-            return confirm(m, h, err);
-        }
-        init_from(m, &r, BGA_MM_RBUY, ROLE_BASIC);
-        r.job = in->job;
-        r.good = g;
-        r.quantity = in->quantity;
-        r.cores = m->c.unit_cores[g];
-        r.memory = m->c.unit_memory[g];
-        r.term = m->c.lease;
-        const double surplus = (in->price - m->c.floor[g]) * in->quantity,
-                     expected = (m->rate[0] * r.cores + m->rate[1] * r.memory) * r.term;
-        r.price = surplus < RESOURCE_BID_HEADROOM * expected ? surplus
-                                                              : RESOURCE_BID_HEADROOM * expected;
-        if (r.price < 0)
-            r.price = 0;
-    }
-    return send_msg(m, &r, err);
-}
-
-static bg_status on_rbought(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
-{
-    held_t *h = held_find(m, in->job, in->good, H_BUYING);
-    if (!h)
-        return BG_OK; /* released meanwhile: the broker drops the purchase */
-    h->state = H_HELD;
-    h->until = now + m->c.lease;
-    for (int k = 0; k < 2; k++)
-        if (in->prices[3 + k] > 0)
-            m->rate[k] = (1 - RATE_WEIGHT) * m->rate[k] + RATE_WEIGHT * in->prices[3 + k];
-    return confirm(m, h, err);
-}
-
-static bg_status on_rfail(bga_market_t *m, const bga_mmsg_t *in, bg_error_t *err)
-{
-    held_t *h = held_find(m, in->job, in->good, H_BUYING);
-    if (!h)
-        return BG_OK;
-    bga_mmsg_t r;
-    about_held(m, &r, BGA_MM_REFUSE, h);
-    snprintf(r.reason, sizeof r.reason, "no resources: %.150s", in->reason);
-    drop_held(m, (int)(h - m->held));
-    return send_msg(m, &r, err);
-}
-
-static bg_status on_order(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
-{
-    return basic_order(m, in, now, err);
-}
-
-static nego_t *nego_find(bga_market_t *m, uint64_t job, int good)
-{
-    for (int i = 0; i < NEGO_MAX; i++)
-        if (m->nego[i].used && m->nego[i].job == job && m->nego[i].good == good)
-            return &m->nego[i];
-    return NULL;
-}
-
-static bg_status reply_price(bga_market_t *m, int type, const bga_mmsg_t *in, double price,
-                             bg_error_t *err)
-{
-    bga_mmsg_t r;
-    answer_init(m, &r, type, in->resource, in);
-    r.price = price;
-    r.term = in->term;
-    r.attempt = in->attempt; /* a PROPOSE names the round of the call it answers */
-    return send_msg(m, &r, err);
-}
-
-/* Whether the basic seller could sell this call's good now. */
-static int can_propose(const bga_market_t *m, const bga_mmsg_t *in)
-{
-    return in->good < 3 && sells(m, in->good) && m->used < m->c.slots;
-}
-
-/* The basic seller's catallactic discovery: propose if it can sell, and
- * pass the call on to its overlay neighbours (relayed by the broker) while
- * hops remain. Each (job, attempt, good) call is handled once, however
- * many paths bring it. */
-static bg_status on_cfp(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
-{
-    const int role = ROLE_BASIC;
-    const uint64_t key = ((in->job * 1024 + (uint64_t)in->attempt) * 8 + (uint64_t)in->good) << 1;
-    for (int i = 0; i < m->nseen; i++)
-        if (m->seen[i] == key)
-            return BG_OK;
-    if (m->nseen == SEEN_MAX)
-        memmove(m->seen, m->seen + 1, (SEEN_MAX - 1) * sizeof *m->seen), m->nseen--;
-    m->seen[m->nseen++] = key;
-    bg_status st = BG_OK;
-    /* A new round means the buyer is no longer bargaining over this good
-     * (it starts one only when no bargain is pending): restart ours. */
-    nego_t *stale = nego_find(m, in->job, in->good);
-    if (stale)
-        stale->used = 0;
-    if (can_propose(m, in)) {
-        /* A buyer that took another proposer never says so: when the table
-         * is full the oldest proposal is forgotten. */
-        nego_t *n = &m->nego[0];
-        for (int i = 0; i < NEGO_MAX && n->used; i++)
-            if (!m->nego[i].used || m->nego[i].at < n->at)
-                n = &m->nego[i];
-        const double floor_g = service_floor(m, in->good);
-        const double open =
-            bgm_nego_opening(BGM_SIDE_SELLER, floor_g, bga_market_price(m, in->good), m->c.margin);
-        *n = (nego_t){1, in->job, in->good, now, {0}};
-        bgm_nego_open(&n->side, BGM_SIDE_SELLER, floor_g, open, &m->genes, SELLER_ROUNDS);
-        st = reply_price(m, BGA_MM_PROPOSE, in, n->side.current, err);
-    }
-    const role_t *me = &m->role[role];
-    for (int i = 0; st == BG_OK && in->hops > 1 && i < me->nneighbours; i++) {
-        bga_mmsg_t r;
-        init_from(m, &r, BGA_MM_RELAY, role);
-        r.job = in->job;
-        r.good = in->good;
-        r.target = me->neighbours[i];
-        r.origin = in->origin ? in->origin : me->id;
-        r.hops = in->hops - 1;
-        r.attempt = in->attempt;
-        r.quantity = in->quantity;
-        r.term = in->term;
-        st = send_msg(m, &r, err);
-    }
-    return st;
-}
-
-/* Commits to a bargain at `price`, as an order at that price. */
-static bg_status commit(bga_market_t *m, nego_t *n, const bga_mmsg_t *in, double price, double now,
-                        bg_error_t *err)
-{
-    n->used = 0;
-    bga_mmsg_t o = *in;
-    o.price = price;
-    return on_order(m, &o, now, err);
-}
-
-static bg_status on_bargain(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
-{
-    nego_t *n = nego_find(m, in->job, in->good);
-    if (!n)
-        return in->type == BGA_MM_REJECT ? BG_OK : reply_price(m, BGA_MM_REJECT, in, 0, err);
-    if (in->type == BGA_MM_REJECT) {
-        n->used = 0;
-        return BG_OK;
-    }
-    if (in->type == BGA_MM_ACCEPT) /* the buyer took the seller's price */
-        return commit(m, n, in, n->side.current, now, err);
-    double reply = 0;
-    switch (bgm_nego_respond(&n->side, in->price, &m->rng, &reply)) {
-    case BGM_NEGO_ACCEPT:
-        return commit(m, n, in, reply, now, err);
-    case BGM_NEGO_COUNTER:
-        return reply_price(m, BGA_MM_OFFER, in, reply, err);
-    default:
-        n->used = 0;
-        return reply_price(m, BGA_MM_REJECT, in, 0, err);
-    }
-}
-
-static bg_status send_cb(void *ctx, const bga_mmsg_t *msg, bg_error_t *err)
-{
-    return send_msg(ctx, msg, err);
-}
-
 static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
     const int role = in->resource ? ROLE_RESOURCE : ROLE_BASIC;
@@ -660,9 +354,11 @@ static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_er
         m->role[role].id = in->agent;
         m->role[role].nneighbours = in->nneighbours;
         memcpy(m->role[role].neighbours, in->neighbours, sizeof m->role[role].neighbours);
-        if (role == ROLE_RESOURCE && m->rs)
-            return bga_rseller_registered(m->rs, in->agent, in->neighbours, in->nneighbours, err);
-        return BG_OK;
+        if (role == ROLE_RESOURCE)
+            return m->rs ? bga_rseller_registered(m->rs, in->agent, in->neighbours,
+                                                  in->nneighbours, err)
+                         : BG_OK;
+        return bga_bseller_registered(m->bs, in->agent, in->neighbours, in->nneighbours, err);
     }
     if (in->type == BGA_MM_ERROR) {
         /* The broker forgot this agent (it restarted, or dropped it as
@@ -674,25 +370,7 @@ static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_er
     /* The resource role's messages go to its role machine's host. */
     if (role == ROLE_RESOURCE)
         return m->rs ? bga_rseller_on_message(m->rs, in, now, send_cb, m, err) : BG_OK;
-    switch (in->type) {
-    case BGA_MM_CFP:
-        return on_cfp(m, in, now, err);
-    case BGA_MM_OFFER:
-    case BGA_MM_ACCEPT:
-    case BGA_MM_REJECT:
-        return on_bargain(m, in, now, err);
-    case BGA_MM_ORDER:
-        return on_order(m, in, now, err);
-    case BGA_MM_RBOUGHT:
-        return on_rbought(m, in, now, err);
-    case BGA_MM_RFAIL:
-        return on_rfail(m, in, err);
-    case BGA_MM_RELEASE:
-        release_job(m, in->job);
-        return BG_OK;
-    default:
-        return BG_OK; /* not for a seller; ignored */
-    }
+    return bga_bseller_on_message(m->bs, in, now, send_cb, m, err);
 }
 
 static bg_status answer_malformed(bga_market_t *m, const char *why, bg_error_t *err)

@@ -5,20 +5,25 @@
  *
  * The basic-service seller registers its compute endpoint, services, slots
  * and price policy, then heartbeats its free slots and current prices
- * every `heartbeat` seconds. Its asking price for a good is
- *     floor · (1 + margin) · (1 + load_slope · used / slots)
- * where floor = its own floor (`floor`, its cost per unit) plus the
- * resources one contract needs at the rates it expects (what it last paid,
- * at first its own resource seller's asking rates) over one lease:
- *     (rate_cores · unit_cores + rate_memory · unit_memory) · lease.
- * It never sells below that. When it agrees to a service contract (an
- * ORDER, a call-market match, or a catallactic bargain it accepts) it keeps
- * a slot and buys the unit's cores and memory for `lease` seconds on layer
- * 1 (RBUY; the broker runs the job's mechanism among the resource sellers
- * of its host), spending at most (price − own floor) · quantity; it
- * CONFIRMs once they are bought and REFUSEs if they cannot be. It computes
- * for a job only while it holds both (bga_market_holds); a lease that
- * runs out ends the contract.
+ * every `heartbeat` seconds. Its decisions are the simulator's
+ * basic-seller role machine's (bgm_seller, hosted by bga_bseller): whether
+ * it has a slot and a price covers its reservation, its side of a
+ * bargain, what it bids for a contract's resources and what it learns
+ * they cost. Its reservation for a good is its own floor (`floor`, its
+ * cost per unit) plus the resources one contract needs at the rates it
+ * expects (at first its own resource seller's opening rates, then the
+ * asking rates it met) over one lease:
+ *     (rate_cores · unit_cores + rate_memory · unit_memory) · lease,
+ * and its asking price
+ *     reservation · (1 + margin) · (1 + load_slope · used / slots).
+ * It never sells below the reservation. When it agrees to a service
+ * contract (an ORDER, a call-market match, or a catallactic bargain) it
+ * keeps a slot and buys the unit's cores and memory for `lease` seconds on
+ * layer 1 (RBUY; the broker runs the job's mechanism among the resource
+ * sellers of its host), bidding at most 1.5 times their expected cost; it
+ * CONFIRMs once they are bought and REFUSEs if they cannot be (within
+ * BGA_BSELLER_BUY_WAIT). It computes for a job only while it holds both
+ * (bga_market_holds); a lease that runs out ends the contract.
  *
  * The resource seller (when `cores` > 0) is a second directory entry of
  * the same daemon: services 0, its host's cores and memory. Its decisions

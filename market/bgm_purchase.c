@@ -47,6 +47,7 @@ struct bgm_purchase {
     bgm_purchase_part_t *parts;
     size_t nparts, parts_cap;
     double requests, timeouts;
+    int fixed; /* bgm_purchase_fix_strategy: no outcome is learnt */
     bg_status failure;
     bgm_outbox_t *out;        /* during a call */
     bgm_purchase_event_t *ev; /* during a call */
@@ -122,7 +123,8 @@ static int is_bundle(const req_t *q)
 
 static void learn(bgm_purchase_t *pu, int success, double share)
 {
-    bgm_outcome_learn(&pu->tr.genes, &pu->tr.fitness, &pu->tr.markup, success, share);
+    if (!pu->fixed)
+        bgm_outcome_learn(&pu->tr.genes, &pu->tr.fitness, &pu->tr.markup, success, share);
 }
 
 /* Normaliser for remembered resource prices: the mean cost rate. */
@@ -227,6 +229,36 @@ bgm_trader_t *bgm_purchase_trader(bgm_purchase_t *pu)
 void bgm_purchase_learn(bgm_purchase_t *pu, int success, double surplus_share)
 {
     learn(pu, success, surplus_share);
+}
+
+void bgm_purchase_fix_strategy(bgm_purchase_t *pu)
+{
+    pu->fixed = 1;
+}
+
+bg_status bgm_purchase_set_neighbours(bgm_purchase_t *pu, const uint32_t *neighbours,
+                                      const uint8_t *same_role, int degree)
+{
+    if (degree < 0 || degree > BGM_PU_MAX_NEIGHBOURS)
+        return BG_ERR_INVALID;
+    for (int i = 0; i < degree; i++) {
+        pu->nbr[i] = neighbours[i];
+        pu->same[i] = same_role[i];
+    }
+    pu->p.degree = degree;
+    return BG_OK;
+}
+
+int bgm_purchase_forget(bgm_purchase_t *pu, uint32_t id)
+{
+    req_t *q = find(pu, id);
+    if (!q || !ended(q))
+        return 0;
+    bgm_purchase_drop_parts(pu, id);
+    const size_t i = (size_t)(q - pu->reqs);
+    memmove(q, q + 1, (pu->nreq - i - 1) * sizeof *q);
+    pu->nreq--;
+    return 1;
 }
 
 bgm_purchase_req_t *bgm_purchase_get(bgm_purchase_t *pu, uint32_t id)

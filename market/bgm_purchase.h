@@ -151,6 +151,8 @@ void bgm_purchase_destroy(bgm_purchase_t **pu);
 bgm_trader_t *bgm_purchase_trader(bgm_purchase_t *pu);
 /* An outcome learnt into the trader's fitness and markup. */
 void bgm_purchase_learn(bgm_purchase_t *pu, int success, double surplus_share);
+/* From now on no outcome is learnt (bgm_seller_fix_strategy). */
+void bgm_purchase_fix_strategy(bgm_purchase_t *pu);
 
 /* Opens request `it->id` (greater than every id opened before) for the
  * item in it (good to deadline; the rest is ignored, deal copied) and
@@ -169,6 +171,11 @@ bg_status bgm_purchase_on_message(bgm_purchase_t *pu, const bgm_msg_t *m, double
 bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, double now, int up,
                                 bgm_outbox_t *out, bgm_purchase_event_t *ev);
 
+/* Its overlay neighbours from now on (a live host learns them when it
+ * registers); BG_ERR_INVALID when degree is over the cap. */
+bg_status bgm_purchase_set_neighbours(bgm_purchase_t *pu, const uint32_t *neighbours,
+                                      const uint8_t *same_role, int degree);
+
 /* Catallactic overlay duties every trading agent has. */
 /* Whether a call for proposals was seen before (it is remembered if not). */
 int bgm_purchase_cfp_seen(bgm_purchase_t *pu, const bgm_msg_t *m);
@@ -184,6 +191,10 @@ bg_status bgm_purchase_on_genes(bgm_purchase_t *pu, const bgm_msg_t *m, bgm_outb
 bgm_purchase_req_t *bgm_purchase_get(bgm_purchase_t *pu, uint32_t id);
 /* The owner ends request `id` as bought (a service it took). */
 void bgm_purchase_done(bgm_purchase_t *pu, uint32_t id);
+/* Forgets request `id` once it has ended (done or failed), with its
+ * parts: a long-lived host keeps only the requests still in play. Returns
+ * whether it did; a later message or timer about it changes nothing. */
+int bgm_purchase_forget(bgm_purchase_t *pu, uint32_t id);
 
 /* The parts held for bundles not yet answered for, in arrival order.
  * Borrowed: valid until the next call on pu. */

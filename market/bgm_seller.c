@@ -21,6 +21,7 @@ struct bgm_seller {
     double est_res[BGM_SERVICE_TYPES];   /* estimated resource cost per unit */
     double announced[BGM_SERVICE_TYPES]; /* last reservation sent to the market */
     double posted[BGM_SERVICE_TYPES];    /* baseline posted price */
+    int fixed; /* bgm_seller_fix_strategy: no strategy or price memory learnt */
     bg_status failure;
     bgm_outbox_t *out; /* during a call */
 };
@@ -147,6 +148,43 @@ int bgm_seller_used(const bgm_seller_t *s)
     return s->used;
 }
 
+bg_status bgm_seller_set_neighbours(bgm_seller_t *s, const uint32_t *neighbours,
+                                    const uint8_t *same_role, int degree)
+{
+    return bgm_purchase_set_neighbours(s->pu, neighbours, same_role, degree);
+}
+
+int bgm_seller_forget(bgm_seller_t *s, uint32_t id)
+{
+    return bgm_purchase_forget(s->pu, id);
+}
+
+double bgm_seller_reservation(const bgm_seller_t *s, int good)
+{
+    return service_good(good) ? reservation(s, good) : 0.0;
+}
+
+double bgm_seller_asking(const bgm_seller_t *s, int good)
+{
+    if (!service_good(good))
+        return 0.0;
+    return s->posted[good] * (1.0 + s->p.load_slope * (double)s->used / (double)s->p.slots);
+}
+
+void bgm_seller_fix_strategy(bgm_seller_t *s)
+{
+    s->fixed = 1;
+    bgm_purchase_fix_strategy(s->pu);
+}
+
+/* A price it agreed or was paid, remembered unless its strategy is fixed. */
+static void remember(bgm_seller_t *s, int slot, double price)
+{
+    if (!s->fixed)
+        s->tr->memory[slot] =
+            bgm_memory_update(s->tr->memory[slot], price, s->tr->genes.weight_memory);
+}
+
 void bgm_seller_counts(const bgm_seller_t *s, double *requests, double *timeouts)
 {
     bgm_purchase_counts(s->pu, requests, timeouts);
@@ -226,6 +264,12 @@ static int service_agreed(bgm_seller_t *s, const bgm_deal_t *d, double now, int 
     it.memory = sv->memory;
     it.flops = sv->flops_per_unit * d->work;
     it.limit = d->price * d->work;
+    /* A host may keep the bid near what it expects the resources to cost:
+     * a lone resource seller facing it would otherwise be handed the
+     * whole price of the service by a split-the-difference clearing. */
+    const double cap = s->p.resource_headroom * s->est_res[d->good] * d->work;
+    if (s->p.resource_headroom > 0.0 && cap < it.limit)
+        it.limit = cap;
     it.created = now;
     it.deadline = d->deadline > now ? d->deadline : now + s->cfg.catallactic.reply_timeout;
     it.deal = *d;
@@ -247,8 +291,7 @@ static void commit(bgm_seller_t *s, const bgm_msg_t *m, double price, double lim
         emit(s, &x);
         return;
     }
-    s->tr->memory[m->good] =
-        bgm_memory_update(s->tr->memory[m->good], price, s->tr->genes.weight_memory);
+    remember(s, m->good, price);
     bgm_msg_t a = msg(BGM_MT_ACCEPT, s->p.self, m->from, m->req, m->attempt);
     a.price = price;
     emit(s, &a);
@@ -278,8 +321,14 @@ static void on_cfp(bgm_seller_t *s, const bgm_msg_t *m)
  * forgotten) gets no answer. */
 static void on_offer(bgm_seller_t *s, const bgm_msg_t *m, double now, int up, uint32_t *next_req)
 {
-    if (!service_good(m->good) || now > m->cand_price[2] || !s->sess)
+    if (!service_good(m->good) || now > m->cand_price[2])
         return;
+    /* A host that sells under every mechanism bargains only when a buyer
+     * opens one: its sessions are made then. */
+    if (!s->sess && !(s->sess = bgm_sessions_new(SE_SESSIONS))) {
+        fail(s, BG_ERR_NOMEM);
+        return;
+    }
     bgm_session_t *ss = bgm_sessions_for(s->sess, m);
     if (!ss)
         return;
@@ -339,10 +388,11 @@ static void on_answer(bgm_seller_t *s, const bgm_msg_t *m)
     double money = r->price * (r->end - r->start);
     s->est_res[d->good] =
         bgm_memory_update(s->est_res[d->good], money / d->work, tr->genes.weight_memory);
-    tr->memory[3] = bgm_memory_update(tr->memory[3], r->price / mean_rate(s, r->cores, r->memory),
-                                      tr->genes.weight_memory);
-    tr->memory[d->good] = bgm_memory_update(tr->memory[d->good], d->price, tr->genes.weight_memory);
+    remember(s, 3, r->price / mean_rate(s, r->cores, r->memory));
+    remember(s, d->good, d->price);
     bgm_purchase_learn(s->pu, 1, (d->price - d->limit) / d->price);
+    if (s->p.posted_follows_cost)
+        s->posted[d->good] = reservation(s, d->good) * (1.0 + s->cfg.baseline.markup);
     if (s->p.mechanism == BGM_MECH_CENTRAL) {
         double res = reservation(s, d->good);
         if (fabs(res - s->announced[d->good]) > SE_ASK_REFRESH * s->announced[d->good]) {
@@ -413,12 +463,20 @@ bg_status bgm_seller_on_message(bgm_seller_t *s, const bgm_msg_t *m, double now,
         else
             on_accept(s, m, now, up, next_req);
         break;
-    case BGM_MT_ORDER:
-        /* At the posted price, while the buyer's order stands. */
-        if (service_good(m->good) && now <= m->cand_price[2] && from_buyer(s, m->from))
-            commit(s, m, m->price, s->posted[m->good] / (1.0 + s->cfg.baseline.markup), now, up,
-                   next_req);
+    case BGM_MT_ORDER: {
+        /* At its posted price or above, while the buyer's order stands;
+         * one below it is refused. */
+        if (!service_good(m->good) || now > m->cand_price[2] || !from_buyer(s, m->from))
+            break;
+        const double limit = s->posted[m->good] / (1.0 + s->cfg.baseline.markup);
+        if (m->price >= limit) {
+            commit(s, m, m->price, limit, now, up, next_req);
+        } else {
+            bgm_msg_t x = msg(BGM_MT_REJECT, s->p.self, m->from, m->req, m->attempt);
+            emit(s, &x);
+        }
         break;
+    }
     case BGM_MT_TAKE:
     case BGM_MT_REFUSE:
         if (from_buyer(s, m->from))

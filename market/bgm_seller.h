@@ -65,6 +65,14 @@ typedef struct bgm_seller_params {
     const uint32_t *neighbours;
     const uint8_t *same_role;
     int degree; /* <= BGM_PU_MAX_NEIGHBOURS */
+    /* Live hosting (all 0 in the simulator, which then behaves as before):
+     * its asking price rises by load_slope · used / slots (bgm_seller_asking);
+     * a bundle's budget is at most resource_headroom times the resources
+     * it expects a unit to need (0: the whole price of the service); and,
+     * when posted_follows_cost is set, its posted price is its reservation
+     * times (1 + baseline markup) again after each delivery it learns from. */
+    double load_slope, resource_headroom;
+    int posted_follows_cost;
 } bgm_seller_params_t;
 
 typedef struct bgm_seller bgm_seller_t;
@@ -92,8 +100,26 @@ bg_status bgm_seller_on_timer(bgm_seller_t *s, int kind, uint64_t arg, double no
 const bgm_purchase_req_t *bgm_seller_bundle(bgm_seller_t *s, uint32_t id);
 size_t bgm_seller_part_count(const bgm_seller_t *s);
 const bgm_purchase_part_t *bgm_seller_part(const bgm_seller_t *s, size_t i);
+/* Its overlay neighbours from now on, as bgm_purchase_set_neighbours. */
+bg_status bgm_seller_set_neighbours(bgm_seller_t *s, const uint32_t *neighbours,
+                                    const uint8_t *same_role, int degree);
+/* Forgets its bundle request `id` once it has ended and its delivery is
+ * over (its slot given back): a long-lived host keeps only those in play.
+ * Returns whether it did. */
+int bgm_seller_forget(bgm_seller_t *s, uint32_t id);
 /* Slots in use now. */
 int bgm_seller_used(const bgm_seller_t *s);
+/* Its reservation for a service good (its own cost plus the resources it
+ * expects a unit to need): it sells no unit below it. */
+double bgm_seller_reservation(const bgm_seller_t *s, int good);
+/* Its posted price for a good at its load now:
+ *     posted · (1 + load_slope · used / slots). */
+double bgm_seller_asking(const bgm_seller_t *s, int good);
+/* A host whose seller meets no neighbour to learn from holds its
+ * strategy fixed: its markup stays the one it was created with and it
+ * remembers no service price, so it opens every bargain at
+ * reservation · (1 + markup). It still learns what resources cost. */
+void bgm_seller_fix_strategy(bgm_seller_t *s);
 /* Bundle requests opened and timeouts, for the host's metrics. */
 void bgm_seller_counts(const bgm_seller_t *s, double *requests, double *timeouts);
 
