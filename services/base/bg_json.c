@@ -34,23 +34,65 @@ bg_status bg_json_vfail(bg_error_t *err, bg_status status, const char *name, con
     return bg_error_set(err, status, "%s: %s", name, text);
 }
 
-static void mark_if_truncated(char *out, int written)
+/* A path being built in out[BG_JSON_PATH_MAX]. The paths are made for
+ * every value parsed (only a failure prints one), so they are joined with
+ * memcpy, not snprintf, which cost a fifth of a REST submit's instructions. */
+typedef struct path_buf {
+    char *out;
+    size_t len;
+    int over;
+} path_buf_t;
+
+/* Appends n bytes of s; a part that does not fit is cut and marked. The
+ * first part may be out itself (a parent path extended in place). */
+static void path_put(path_buf_t *b, const char *s, size_t n)
 {
-    if (written >= BG_JSON_PATH_MAX)
-        memcpy(out + BG_JSON_PATH_MAX - sizeof TRUNCATED_MARK, TRUNCATED_MARK,
+    const size_t room = BG_JSON_PATH_MAX - 1 - b->len;
+    if (n > room) {
+        n = room;
+        b->over = 1;
+    }
+    memmove(b->out + b->len, s, n);
+    b->len += n;
+}
+
+static void path_end(path_buf_t *b)
+{
+    b->out[b->len] = '\0';
+    if (b->over)
+        memcpy(b->out + BG_JSON_PATH_MAX - sizeof TRUNCATED_MARK, TRUNCATED_MARK,
                sizeof TRUNCATED_MARK);
 }
 
 void bg_json_path_key(char *out, const char *parent, const char *key)
 {
-    int written = parent && parent[0] ? snprintf(out, BG_JSON_PATH_MAX, "%s.%s", parent, key)
-                                      : snprintf(out, BG_JSON_PATH_MAX, "%s", key);
-    mark_if_truncated(out, written);
+    path_buf_t b = {out, 0, 0};
+    if (parent && parent[0]) {
+        path_put(&b, parent, strlen(parent));
+        path_put(&b, ".", 1);
+    }
+    path_put(&b, key, strlen(key));
+    path_end(&b);
 }
 
 void bg_json_path_index(char *out, const char *parent, int index)
 {
-    mark_if_truncated(out, snprintf(out, BG_JSON_PATH_MAX, "%s[%d]", parent, index));
+    char digits[16];
+    size_t n = 0;
+    /* In unsigned arithmetic: the most negative int has no positive. */
+    unsigned v = index < 0 ? 0u - (unsigned)index : (unsigned)index;
+    do {
+        digits[sizeof digits - 1 - n++] = (char)('0' + v % 10);
+        v /= 10;
+    } while (v);
+    if (index < 0)
+        digits[sizeof digits - 1 - n++] = '-';
+    path_buf_t b = {out, 0, 0};
+    path_put(&b, parent, strlen(parent));
+    path_put(&b, "[", 1);
+    path_put(&b, digits + sizeof digits - n, n);
+    path_put(&b, "]", 1);
+    path_end(&b);
 }
 
 const char *bg_json_type_name(const cJSON *item)
@@ -321,11 +363,14 @@ bg_status bg_json_vector(const cJSON *item, const char *name, const char *field,
         return bg_json_fail(err, BG_ERR_INVALID, name, field, "expected an array of %d numbers", n);
     int i = 0;
     for (const cJSON *e = item->child; e; e = e->next, i++) {
+        if (cJSON_IsNumber(e) && isfinite(e->valuedouble)) {
+            out[i] = e->valuedouble;
+            continue;
+        }
+        /* The element's path only for the message naming it. */
         char sub[BG_JSON_PATH_MAX];
         bg_json_path_index(sub, field, i);
-        bg_status st = bg_json_number(e, name, sub, &out[i], err);
-        if (st != BG_OK)
-            return st;
+        return bg_json_number(e, name, sub, &out[i], err);
     }
     return BG_OK;
 }
