@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bga_deals.h"
 #include "bgm_config.h"
 #include "bgm_outbox.h"
 #include "bgm_seller.h"
@@ -17,7 +18,6 @@
 #define BS_BUYER 0xfffffffeu
 #define BS_MARKET 0xfffffffdu
 #define BS_RESOURCE 0xfffffffcu
-#define BS_DEALS 256   /* (job, good) pairs it remembers: bargains and contracts */
 #define BS_TIMERS 1024 /* machine timers pending: two per contract buying at most */
 #define BS_OUTBOX 64   /* items one message can cause: a proposal, relays, a reply */
 #define BS_INJECT 4    /* messages the host answers the machine with in one call */
@@ -27,21 +27,9 @@
 #define BS_MAX_HOPS 16
 #define BS_RATE_SCALE 1e-12 /* a mean rate for resources expected free */
 
-typedef enum deal_state { D_TALK = 0, D_BUYING, D_HELD } deal_state;
-
-/* One (job, good) the broker has talked about: the machine's request of
- * the broker's buyer, and once agreed the machine's bundle for it. */
-typedef struct deal {
-    int used;
-    deal_state state;
-    uint64_t job;
-    int good;
-    uint32_t req, bundle;
-    int attempt, opened; /* the discovery round; whether a bargain is open */
-    double quantity;
-    double until; /* held: the lease's end */
-    double at;    /* last used (the oldest deal in talk is forgotten first) */
-} deal_t;
+/* A deal's states once agreed (in talk: BGA_DEAL_TALK): buying the
+ * machine's bundle for it, then holding the contract. */
+enum { D_BUYING = 1, D_HELD };
 
 typedef struct mtimer {
     double at;
@@ -55,8 +43,7 @@ struct bga_bseller {
     bgm_seller_t *machine;
     bgm_outbox_t *out;
     uint32_t id;
-    uint32_t next_req;
-    deal_t deal[BS_DEALS];
+    bga_deals_t deals; /* deals.next_req numbers the machine's requests too */
     mtimer_t timer[BS_TIMERS];
     int ntimers;
 };
@@ -65,7 +52,7 @@ struct bga_bseller {
 typedef struct route {
     bga_bseller_t *bs;
     const bga_mmsg_t *in; /* NULL from a timer or a release */
-    deal_t *d;            /* the deal it is about (NULL from a timer) */
+    bga_deal_t *d;        /* the deal it is about (NULL from a timer) */
     double now;
     int refuse;     /* a REJECT answers an order or acceptance: a REFUSE naming why */
     int no_propose; /* the deal is already agreed: a call is passed on, not answered */
@@ -159,7 +146,7 @@ bg_status bga_bseller_new(const bga_bseller_config_t *c, bga_bseller_t **out, bg
      * neighbour to learn from: learning from its own outcomes alone only
      * moves its markup one way (bga_rseller.h). */
     bgm_seller_fix_strategy(bs->machine);
-    bs->next_req = 1;
+    bga_deals_init(&bs->deals);
     /* Its asks to the market agent are the heartbeat's business. */
     if (bgm_seller_start(bs->machine, 0.0, bs->out) != BG_OK)
         st = bg_error_set(err, BG_ERR_INVALID, "basic seller: its role machine did not start");
@@ -209,15 +196,15 @@ int bga_bseller_used(const bga_bseller_t *bs)
     return bgm_seller_used(bs->machine);
 }
 
-static int covers(const deal_t *d, uint64_t job)
+static int covers(const bga_deal_t *d, uint64_t job)
 {
     return d->used && d->state == D_HELD && job >= d->job && job - d->job < BGA_BSELLER_JOB_SPAN;
 }
 
 int bga_bseller_holds(const bga_bseller_t *bs, uint64_t job)
 {
-    for (int i = 0; i < BS_DEALS; i++)
-        if (covers(&bs->deal[i], job))
+    for (int i = 0; i < BGA_DEALS_MAX; i++)
+        if (covers(&bs->deals.deal[i], job))
             return 1;
     return 0;
 }
@@ -225,9 +212,9 @@ int bga_bseller_holds(const bga_bseller_t *bs, uint64_t job)
 double bga_bseller_cores(const bga_bseller_t *bs, uint64_t job)
 {
     double cores = 0;
-    for (int i = 0; i < BS_DEALS; i++)
-        if (covers(&bs->deal[i], job))
-            cores += bs->c.unit_cores[bs->deal[i].good];
+    for (int i = 0; i < BGA_DEALS_MAX; i++)
+        if (covers(&bs->deals.deal[i], job))
+            cores += bs->c.unit_cores[bs->deals.deal[i].good];
     return cores;
 }
 
@@ -246,48 +233,14 @@ void bga_bseller_describe(const bga_bseller_t *bs, bga_mmsg_t *msg)
 
 /* ---------------------------------------------------------------- deals */
 
-static deal_t *deal_find(bga_bseller_t *bs, uint64_t job, int good)
+static bga_deal_t *deal_by_bundle(bga_bseller_t *bs, uint32_t bundle)
 {
-    for (int i = 0; i < BS_DEALS; i++)
-        if (bs->deal[i].used && bs->deal[i].job == job && bs->deal[i].good == good)
-            return &bs->deal[i];
-    return NULL;
-}
-
-static deal_t *deal_by_bundle(bga_bseller_t *bs, uint32_t bundle)
-{
-    for (int i = 0; i < BS_DEALS; i++)
-        if (bs->deal[i].used && bs->deal[i].state != D_TALK && bs->deal[i].bundle == bundle)
-            return &bs->deal[i];
-    return NULL;
-}
-
-static deal_t *deal_by_req(bga_bseller_t *bs, uint32_t req)
-{
-    for (int i = 0; i < BS_DEALS; i++)
-        if (bs->deal[i].used && bs->deal[i].req == req)
-            return &bs->deal[i];
-    return NULL;
-}
-
-/* The deal of (job, good), a new one if none: a free entry, else the
- * least recently used one in talk; NULL when every entry is agreed. */
-static deal_t *deal_for(bga_bseller_t *bs, uint64_t job, int good)
-{
-    deal_t *d = deal_find(bs, job, good);
-    if (d)
-        return d;
-    for (int i = 0; i < BS_DEALS; i++) {
-        deal_t *e = &bs->deal[i];
-        if (e->used && e->state != D_TALK)
-            continue;
-        if (!d || !e->used || (d->used && e->at < d->at))
-            d = e;
+    for (int i = 0; i < BGA_DEALS_MAX; i++) {
+        bga_deal_t *d = &bs->deals.deal[i];
+        if (d->used && d->state != BGA_DEAL_TALK && d->bundle == bundle)
+            return d;
     }
-    if (!d || bs->next_req >= 0xfff00000u)
-        return NULL;
-    *d = (deal_t){.used = 1, .job = job, .good = good, .req = bs->next_req++, .attempt = -1};
-    return d;
+    return NULL;
 }
 
 /* ------------------------------------------------------------- routing */
@@ -308,7 +261,7 @@ static bg_status add_timer(bga_bseller_t *bs, const bgm_out_item_t *it, bg_error
 }
 
 /* The live message about a deal from the basic role. */
-static void live_init(const bga_bseller_t *bs, bga_mmsg_t *o, int type, const deal_t *d)
+static void live_init(const bga_bseller_t *bs, bga_mmsg_t *o, int type, const bga_deal_t *d)
 {
     bga_mmsg_init(o, type);
     o->agent = bs->id;
@@ -340,7 +293,7 @@ static void refusal_reason(const bga_bseller_t *bs, const route_t *r, char *out,
 static bg_status on_rbid(route_t *r, const bgm_msg_t *m, bg_error_t *err)
 {
     bga_bseller_t *bs = r->bs;
-    deal_t *d = r->d;
+    bga_deal_t *d = r->d;
     if (!d)
         return bg_error_set(err, BG_ERR_INVALID, "basic seller: a resource bid outside a deal");
     d->state = D_BUYING;
@@ -373,7 +326,7 @@ static bg_status on_rbid(route_t *r, const bgm_msg_t *m, bg_error_t *err)
 static bg_status on_confirm(route_t *r, const bgm_msg_t *m, bg_error_t *err)
 {
     bga_bseller_t *bs = r->bs;
-    deal_t *d = deal_by_bundle(bs, m->origin);
+    bga_deal_t *d = deal_by_bundle(bs, m->origin);
     const bgm_purchase_req_t *b = bgm_seller_bundle(bs->machine, m->origin);
     if (!d || !b)
         return bg_error_set(err, BG_ERR_INVALID, "basic seller: a delivery of no deal");
@@ -423,7 +376,7 @@ static bg_status route_out(route_t *r, bg_error_t *err)
             st = on_confirm(r, m, err);
             continue;
         }
-        deal_t *d = m->type == BGM_MT_CFP ? r->d : deal_by_req(bs, m->req);
+        bga_deal_t *d = m->type == BGM_MT_CFP ? r->d : bga_deals_by_req(&bs->deals, m->req);
         if (!d || r->quiet)
             continue;
         bga_mmsg_t o;
@@ -455,7 +408,7 @@ static bg_status route_out(route_t *r, bg_error_t *err)
             snprintf(o.reason, sizeof o.reason, "%s",
                      r->why[0] ? r->why : "resources not bought in time");
             bgm_seller_forget(bs->machine, d->bundle);
-            d->state = D_TALK;
+            d->state = BGA_DEAL_TALK;
             d->bundle = 0;
             break;
         case BGM_MT_CFP:
@@ -484,8 +437,9 @@ static bg_status feed(route_t *r, const bgm_msg_t *m, int kind, uint64_t arg, bg
     bga_bseller_t *bs = r->bs;
     bgm_msg_t queue[2 * BS_INJECT];
     int head = 0, tail = 0;
-    bg_status st = m ? bgm_seller_on_message(bs->machine, m, r->now, 1, &bs->next_req, bs->out)
-                     : bgm_seller_on_timer(bs->machine, kind, arg, r->now, 1, bs->out);
+    bg_status st =
+        m ? bgm_seller_on_message(bs->machine, m, r->now, 1, &bs->deals.next_req, bs->out)
+          : bgm_seller_on_timer(bs->machine, kind, arg, r->now, 1, bs->out);
     for (;;) {
         if (st != BG_OK) {
             bgm_outbox_clear(bs->out);
@@ -502,12 +456,13 @@ static bg_status feed(route_t *r, const bgm_msg_t *m, int kind, uint64_t arg, bg
         }
         if (head == tail)
             return BG_OK;
-        st = bgm_seller_on_message(bs->machine, &queue[head++], r->now, 1, &bs->next_req, bs->out);
+        st = bgm_seller_on_message(bs->machine, &queue[head++], r->now, 1, &bs->deals.next_req,
+                                   bs->out);
     }
 }
 
 /* A machine message from the broker's buyer about deal d. */
-static bgm_msg_t from_buyer(const bga_bseller_t *bs, int type, const deal_t *d, double price,
+static bgm_msg_t from_buyer(const bga_bseller_t *bs, int type, const bga_deal_t *d, double price,
                             double now)
 {
     bgm_msg_t m = bgm_outbox_msg(type, BS_BUYER, bs->id, d->req,
@@ -522,7 +477,7 @@ static bgm_msg_t from_buyer(const bga_bseller_t *bs, int type, const deal_t *d, 
 /* Ends a deal: a contract held gives its slot back (its release timer,
  * early), one still buying its resources is given up; either way the
  * machine forgets its bundle. Nothing is said to the broker. */
-static bg_status end_deal(bga_bseller_t *bs, deal_t *d, double now, bg_error_t *err)
+static bg_status end_deal(bga_bseller_t *bs, bga_deal_t *d, double now, bg_error_t *err)
 {
     bg_status st = BG_OK;
     route_t r = {.bs = bs, .d = d, .now = now, .quiet = 1};
@@ -532,10 +487,10 @@ static bg_status end_deal(bga_bseller_t *bs, deal_t *d, double now, bg_error_t *
         bgm_msg_t f = bgm_outbox_msg(BGM_MT_RFAIL, BS_RESOURCE, bs->id, d->bundle, 0);
         st = feed(&r, &f, -1, 0, err);
     }
-    if (d->state != D_TALK)
+    if (d->state != BGA_DEAL_TALK)
         bgm_seller_forget(bs->machine, d->bundle);
     d->used = 0;
-    d->state = D_TALK;
+    d->state = BGA_DEAL_TALK;
     return st;
 }
 
@@ -561,7 +516,7 @@ static bg_status refuse_now(bga_bseller_t *bs, const bga_mmsg_t *in, const char 
 static bg_status on_resources(bga_bseller_t *bs, const bga_mmsg_t *in, double now,
                               bga_bseller_send_fn send, void *ctx, bg_error_t *err)
 {
-    deal_t *d = deal_find(bs, in->job, in->good);
+    bga_deal_t *d = bga_deals_find(&bs->deals, in->job, in->good);
     if (!d || d->state != D_BUYING)
         return BG_OK; /* released meanwhile: the broker drops the purchase */
     const bgm_purchase_req_t *b = bgm_seller_bundle(bs->machine, d->bundle);
@@ -591,9 +546,9 @@ bg_status bga_bseller_on_message(bga_bseller_t *bs, const bga_mmsg_t *in, double
 {
     if (in->type == BGA_MM_RELEASE) {
         bg_status st = BG_OK;
-        for (int i = 0; i < BS_DEALS && st == BG_OK; i++)
-            if (bs->deal[i].used && bs->deal[i].job == in->job)
-                st = end_deal(bs, &bs->deal[i], now, err);
+        for (int i = 0; i < BGA_DEALS_MAX && st == BG_OK; i++)
+            if (bs->deals.deal[i].used && bs->deals.deal[i].job == in->job)
+                st = end_deal(bs, &bs->deals.deal[i], now, err);
         return st;
     }
     if (in->type == BGA_MM_RBOUGHT || in->type == BGA_MM_RFAIL)
@@ -610,21 +565,20 @@ bg_status bga_bseller_on_message(bga_bseller_t *bs, const bga_mmsg_t *in, double
     if (!(in->quantity > 0 && in->quantity <= BS_MAX_QUANTITY) ||
         !(in->price >= 0 && in->price < 1e12))
         return refuse_now(bs, in, "quantity or price out of range", send, ctx, err);
-    deal_t *d = deal_for(bs, in->job, in->good);
+    bga_deal_t *d = bga_deals_for(&bs->deals, in->job, in->good, now);
     if (!d)
         return refuse_now(bs, in, "too many contracts held", send, ctx, err);
-    d->at = now;
     if (in->type == BGA_MM_REJECT) {
         d->opened = 0; /* the buyer walked away; the machine has nothing to say */
         return BG_OK;
     }
-    if (d->state != D_TALK && in->type != BGA_MM_CFP) {
+    if (d->state != BGA_DEAL_TALK && in->type != BGA_MM_CFP) {
         char why[96];
         snprintf(why, sizeof why, "already sold this good for job %llu",
                  (unsigned long long)in->job);
         return refuse_now(bs, in, why, send, ctx, err);
     }
-    if (d->state == D_TALK)
+    if (d->state == BGA_DEAL_TALK)
         d->quantity = in->quantity;
     route_t r = {.bs = bs, .in = in, .d = d, .now = now, .send = send, .ctx = ctx};
     bgm_msg_t m;
@@ -632,11 +586,11 @@ bg_status bga_bseller_on_message(bga_bseller_t *bs, const bga_mmsg_t *in, double
     case BGA_MM_CFP:
         /* A new round of discovery: the buyer no longer bargains over
          * this good, so the next offer opens a fresh bargain. */
-        if (in->attempt != d->attempt && d->state == D_TALK) {
+        if (in->attempt != d->attempt && d->state == BGA_DEAL_TALK) {
             d->opened = 0;
             d->attempt = in->attempt;
         }
-        r.no_propose = d->state != D_TALK;
+        r.no_propose = d->state != BGA_DEAL_TALK;
         m = from_buyer(bs, BGM_MT_CFP, d, 0, now);
         m.attempt = (uint32_t)(in->attempt >= 0 ? in->attempt : 0);
         m.origin = BS_BUYER;
@@ -679,8 +633,9 @@ bg_status bga_bseller_tick(bga_bseller_t *bs, double now, bga_bseller_send_fn se
         }
         st = feed(&r, NULL, t.kind, t.arg, err);
     }
-    for (int i = 0; i < BS_DEALS && st == BG_OK; i++)
-        if (bs->deal[i].used && bs->deal[i].state == D_HELD && now >= bs->deal[i].until)
-            st = end_deal(bs, &bs->deal[i], now, err);
+    for (int i = 0; i < BGA_DEALS_MAX && st == BG_OK; i++)
+        if (bs->deals.deal[i].used && bs->deals.deal[i].state == D_HELD &&
+            now >= bs->deals.deal[i].until)
+            st = end_deal(bs, &bs->deals.deal[i], now, err);
     return st;
 }

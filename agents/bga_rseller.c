@@ -7,6 +7,7 @@
 
 #include "bgm_config.h"
 #include "bgm_outbox.h"
+#include "bga_deals.h"
 #include "bgm_resource.h"
 
 /* Machine ids of the parties the live seller hears from: the broker's
@@ -15,24 +16,11 @@
  * these never collide with a neighbour's. */
 #define RS_BUYER 0xfffffffeu
 #define RS_MARKET 0xfffffffdu
-#define RS_DEALS 256 /* (job, good) pairs it remembers: bargains and holds */
 #define RS_OUTBOX 64 /* items one message can cause: a proposal, relays, a reply */
 #define RS_ROUNDS 12 /* the simulator's default catallactic.max_rounds */
 #define RS_MAX_QUANTITY 1e9
 
-/* One (job, good) the broker has talked about: the machine's request. */
-typedef struct deal {
-    int used;
-    uint64_t job;
-    int good;
-    uint32_t req;
-    int attempt, opened; /* the discovery round; whether a bargain is open */
-    double quantity, term;
-    double last_unit, last_rate; /* its last price, per unit and for the bundle */
-    int held;
-    double until; /* held: the release timer */
-    double at;    /* last used (the oldest unheld deal is forgotten first) */
-} deal_t;
+enum { RS_HELD = 1 }; /* a deal's state once the machine holds its bundle */
 
 struct bga_rseller {
     bga_rseller_config_t c;
@@ -40,8 +28,7 @@ struct bga_rseller {
     bgm_resource_t *machine;
     bgm_outbox_t *out;
     uint32_t id;
-    uint32_t next_req;
-    deal_t deal[RS_DEALS];
+    bga_deals_t deals;
 };
 
 bg_status bga_rseller_new(const bga_rseller_config_t *c, bga_rseller_t **out, bg_error_t *err)
@@ -93,7 +80,7 @@ bg_status bga_rseller_new(const bga_rseller_config_t *c, bga_rseller_t **out, bg
      * own outcomes only raises its prices: 60 deals took its opening from
      * 1.5 to 4 times its cost. It keeps the configured margin. */
     bgm_resource_fix_strategy(rs->machine);
-    rs->next_req = 1;
+    bga_deals_init(&rs->deals);
     *out = rs;
 out:
     if (st != BG_OK)
@@ -156,44 +143,10 @@ void bga_rseller_describe(const bga_rseller_t *rs, bga_mmsg_t *msg)
     msg->load_slope = rs->c.load_slope;
 }
 
-static deal_t *deal_find(bga_rseller_t *rs, uint64_t job, int good)
-{
-    for (int i = 0; i < RS_DEALS; i++)
-        if (rs->deal[i].used && rs->deal[i].job == job && rs->deal[i].good == good)
-            return &rs->deal[i];
-    return NULL;
-}
-
-static deal_t *deal_by_req(bga_rseller_t *rs, uint32_t req)
-{
-    for (int i = 0; i < RS_DEALS; i++)
-        if (rs->deal[i].used && rs->deal[i].req == req)
-            return &rs->deal[i];
-    return NULL;
-}
-
-/* The deal of (job, good), a new one if none: a free entry, else the
- * least recently used one that holds nothing; NULL when every entry holds. */
-static deal_t *deal_for(bga_rseller_t *rs, uint64_t job, int good, double now)
-{
-    deal_t *d = deal_find(rs, job, good);
-    if (d)
-        return d;
-    for (int i = 0; i < RS_DEALS; i++)
-        if (!rs->deal[i].held && (!d || !rs->deal[i].used || (d->used && rs->deal[i].at < d->at)))
-            d = &rs->deal[i];
-    if (!d)
-        return NULL;
-    *d = (deal_t){.used = 1, .job = job, .good = good, .req = rs->next_req++, .attempt = -1};
-    if (rs->next_req == 0)
-        rs->next_req = 1;
-    return d;
-}
-
 /* The machine's message for a live one: a one-good bundle of `quantity`
  * for `term` seconds (flops = term · max(cores, 1) at speed 1), at the
  * bundle rate `rate`, its budget the money that rate comes to. */
-static bgm_msg_t machine_msg(const bga_rseller_t *rs, int type, const deal_t *d, double rate,
+static bgm_msg_t machine_msg(const bga_rseller_t *rs, int type, const bga_deal_t *d, double rate,
                              double now)
 {
     bgm_msg_t m = bgm_outbox_msg(type, RS_BUYER, rs->id, d->req, 0);
@@ -212,7 +165,7 @@ static bgm_msg_t machine_msg(const bga_rseller_t *rs, int type, const deal_t *d,
 }
 
 /* The live message about a deal from the resource role. */
-static void live_init(const bga_rseller_t *rs, bga_mmsg_t *r, int type, const deal_t *d)
+static void live_init(const bga_rseller_t *rs, bga_mmsg_t *r, int type, const bga_deal_t *d)
 {
     bga_mmsg_init(r, type);
     r->agent = rs->id;
@@ -226,7 +179,7 @@ static void live_init(const bga_rseller_t *rs, bga_mmsg_t *r, int type, const de
 /* A live unit price for a machine rate: the price it was given or last
  * named when the rate is that one (exactly what the buyer saw), else the
  * rate per unit. */
-static double unit_price(const deal_t *d, double rate, double in_rate, double in_unit)
+static double unit_price(const bga_deal_t *d, double rate, double in_rate, double in_unit)
 {
     if (rate == in_rate)
         return in_unit;
@@ -236,13 +189,13 @@ static double unit_price(const deal_t *d, double rate, double in_rate, double in
 }
 
 /* Why the machine would not take this deal, from its state. */
-static void refusal_reason(const bga_rseller_t *rs, const deal_t *d, double unit, char *out,
+static void refusal_reason(const bga_rseller_t *rs, const bga_deal_t *d, double unit, char *out,
                            size_t n)
 {
     const int k = d->good - BGM_GOOD_CORES_ID;
     const double cap = k ? rs->c.memory : rs->c.cores;
     const double free_q = cap - bga_rseller_used(rs, k);
-    if (d->held)
+    if (d->state == RS_HELD)
         snprintf(out, n, "already sold %s for job %llu", k ? "memory" : "cores",
                  (unsigned long long)d->job);
     else if (d->quantity > free_q + 1e-9)
@@ -256,7 +209,7 @@ static void refusal_reason(const bga_rseller_t *rs, const deal_t *d, double unit
 typedef struct route {
     bga_rseller_t *rs;
     const bga_mmsg_t *in;
-    deal_t *d;
+    bga_deal_t *d;
     double in_rate; /* the rate the machine was handed */
     int refuse;     /* a REJECT answers an order: say REFUSE with the reason */
     bga_rseller_send_fn send;
@@ -267,7 +220,7 @@ typedef struct route {
 static bg_status route_out(route_t *r, bg_error_t *err)
 {
     bga_rseller_t *rs = r->rs;
-    deal_t *d = r->d;
+    bga_deal_t *d = r->d;
     bg_status st = BG_OK;
     const size_t n = bgm_outbox_count(rs->out);
     for (size_t i = 0; i < n && st == BG_OK; i++) {
@@ -275,10 +228,10 @@ static bg_status route_out(route_t *r, bg_error_t *err)
         if (it->is_timer) {
             /* The release of a bundle; the machine schedules no other
              * timer here (no learning meetings, no call-market parts). */
-            deal_t *h =
-                it->kind == BGM_RS_TIMER_RELEASE ? deal_by_req(rs, (uint32_t)it->arg) : NULL;
+            bga_deal_t *h =
+                it->kind == BGM_RS_TIMER_RELEASE ? bga_deals_by_req(&rs->deals, (uint32_t)it->arg) : NULL;
             if (h) {
-                h->held = 1;
+                h->state = RS_HELD;
                 h->until = it->at;
             }
             continue;
@@ -350,15 +303,15 @@ static bg_status machine_status(bg_status st, bg_error_t *err)
 }
 
 /* Ends a hold now: its release timer fires early. */
-static bg_status release(bga_rseller_t *rs, deal_t *d, double now, bg_error_t *err)
+static bg_status release(bga_rseller_t *rs, bga_deal_t *d, double now, bg_error_t *err)
 {
     bg_status st = BG_OK;
-    if (d->held) {
+    if (d->state == RS_HELD) {
         st = bgm_resource_on_timer(rs->machine, BGM_RS_TIMER_RELEASE, d->req, now, 1, rs->out);
         bgm_outbox_clear(rs->out); /* only RFREE to the market agent */
     }
     d->used = 0;
-    d->held = 0;
+    d->state = BGA_DEAL_TALK;
     return machine_status(st, err);
 }
 
@@ -367,9 +320,9 @@ bg_status bga_rseller_on_message(bga_rseller_t *rs, const bga_mmsg_t *in, double
 {
     if (in->type == BGA_MM_RELEASE) {
         bg_status st = BG_OK;
-        for (int i = 0; i < RS_DEALS && st == BG_OK; i++)
-            if (rs->deal[i].used && rs->deal[i].job == in->job)
-                st = release(rs, &rs->deal[i], now, err);
+        for (int i = 0; i < BGA_DEALS_MAX && st == BG_OK; i++)
+            if (rs->deals.deal[i].used && rs->deals.deal[i].job == in->job)
+                st = release(rs, &rs->deals.deal[i], now, err);
         return st;
     }
     if (in->type != BGA_MM_ORDER && in->type != BGA_MM_CFP && in->type != BGA_MM_OFFER &&
@@ -381,15 +334,14 @@ bg_status bga_rseller_on_message(bga_rseller_t *rs, const bga_mmsg_t *in, double
     if (!(in->quantity > 0 && in->quantity <= RS_MAX_QUANTITY) ||
         !(in->price >= 0 && in->price < 1e12) || !(in->term >= 0 && in->term <= 1e7))
         return refuse_now(rs, in, "quantity, price or term out of range", send, ctx, err);
-    deal_t *d = deal_for(rs, in->job, in->good, now);
+    bga_deal_t *d = bga_deals_for(&rs->deals, in->job, in->good, now);
     if (!d)
         return refuse_now(rs, in, "too many resources held", send, ctx, err);
-    d->at = now;
     if (in->type == BGA_MM_REJECT) {
         d->opened = 0; /* the buyer walked away; the machine has nothing to say */
         return BG_OK;
     }
-    if (d->held && in->type != BGA_MM_CFP) {
+    if (d->state == RS_HELD && in->type != BGA_MM_CFP) {
         char why[BGA_MMSG_REASON_MAX];
         refusal_reason(rs, d, in->price, why, sizeof why);
         return refuse_now(rs, in, why, send, ctx, err);
@@ -400,7 +352,7 @@ bg_status bga_rseller_on_message(bga_rseller_t *rs, const bga_mmsg_t *in, double
     bgm_msg_t m;
     switch (in->type) {
     case BGA_MM_CFP:
-        if (d->held)
+        if (d->state == RS_HELD)
             return BG_OK;
         m = machine_msg(rs, BGM_MT_CFP, d, 0, now);
         m.hops = (uint16_t)(in->hops > 0 && in->hops < 64 ? in->hops : 1);
@@ -440,8 +392,10 @@ bg_status bga_rseller_on_message(bga_rseller_t *rs, const bga_mmsg_t *in, double
 bg_status bga_rseller_tick(bga_rseller_t *rs, double now, bg_error_t *err)
 {
     bg_status st = BG_OK;
-    for (int i = 0; i < RS_DEALS && st == BG_OK; i++)
-        if (rs->deal[i].used && rs->deal[i].held && now >= rs->deal[i].until)
-            st = release(rs, &rs->deal[i], now, err);
+    for (int i = 0; i < BGA_DEALS_MAX && st == BG_OK; i++) {
+        bga_deal_t *d = &rs->deals.deal[i];
+        if (d->used && d->state == RS_HELD && now >= d->until)
+            st = release(rs, d, now, err);
+    }
     return st;
 }
