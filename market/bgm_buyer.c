@@ -9,29 +9,8 @@ struct bgm_buyer {
     bgm_rng_t demand;
     uint32_t jobs;
     double requested[BGM_SERVICE_TYPES], valuation_sum[BGM_SERVICE_TYPES];
-    bg_status failure;
-    bgm_outbox_t *out; /* during a call */
+    bgm_emitter_t em; /* during a call: its outbox and first failure */
 };
-
-static void fail(bgm_buyer_t *b, bg_status st)
-{
-    if (b->failure == BG_OK)
-        b->failure = st;
-}
-
-static void emit(bgm_buyer_t *b, const bgm_msg_t *m)
-{
-    bg_status st = bgm_outbox_send(b->out, m);
-    if (st)
-        fail(b, st);
-}
-
-static void later(bgm_buyer_t *b, double at, int kind, uint64_t arg)
-{
-    bg_status st = bgm_outbox_timer(b->out, b->p.self, at, kind, arg);
-    if (st)
-        fail(b, st);
-}
 
 bgm_buyer_t *bgm_buyer_new(const bgm_buyer_params_t *p)
 {
@@ -40,6 +19,7 @@ bgm_buyer_t *bgm_buyer_new(const bgm_buyer_params_t *p)
     bgm_buyer_t *b = calloc(1, sizeof *b);
     if (!b)
         return NULL;
+    b->em.self = p->self;
     b->cfg = *p->cfg;
     b->p = *p;
     b->p.cfg = &b->cfg;
@@ -47,7 +27,7 @@ bgm_buyer_t *bgm_buyer_new(const bgm_buyer_params_t *p)
     b->p.same_role = NULL;
     b->demand = p->demand;
     bgm_trader_t tr = {p->rng, p->genes, 0.0, p->markup, {0.0, 0.0, 0.0, 0.0}};
-    bgm_purchase_params_t pp = {&b->cfg, p->mechanism, p->self,      p->market, p->horizon,
+    bgm_purchase_params_t pp = {&b->cfg, p->mechanism,  p->self,      p->market, p->horizon,
                                 tr,      p->neighbours, p->same_role, p->degree};
     if (!(b->pu = bgm_purchase_new(&pp))) {
         free(b);
@@ -111,7 +91,7 @@ static void new_job(bgm_buyer_t *b, double now, uint32_t *next_req)
         if (!cfg->demand.plans[plan].services[t])
             continue;
         if (*next_req >= BGM_PU_MAX_REQS) {
-            fail(b, BG_ERR_LIMIT);
+            bgm_emitter_fail(&b->em, BG_ERR_LIMIT);
             return;
         }
         bgm_purchase_req_t it = {0};
@@ -126,7 +106,7 @@ static void new_job(bgm_buyer_t *b, double now, uint32_t *next_req)
         b->requested[t] += 1.0;
         b->valuation_sum[t] += it.limit;
         bgm_purchase_event_t ev;
-        fail(b, bgm_purchase_open(b->pu, &it, now, 1, b->out, &ev));
+        bgm_emitter_fail(&b->em, bgm_purchase_open(b->pu, &it, now, 1, b->em.out, &ev));
     }
 }
 
@@ -140,8 +120,7 @@ static void on_delivery(bgm_buyer_t *b, const bgm_msg_t *m, double now)
     bgm_purchase_req_t *r = bgm_purchase_get(b->pu, m->req);
     if (!r)
         return;
-    int wanted = r->state != BGM_PU_DONE && r->state != BGM_PU_FAILED &&
-                 m->attempt == r->attempt &&
+    int wanted = r->state != BGM_PU_DONE && r->state != BGM_PU_FAILED && m->attempt == r->attempt &&
                  (b->p.mechanism == BGM_MECH_CENTRAL || r->seller == m->from) && m->b > now;
     bgm_msg_t x = bgm_outbox_msg(wanted ? BGM_MT_TAKE : BGM_MT_REFUSE, b->p.self, m->from, m->req,
                                  m->attempt);
@@ -153,28 +132,27 @@ static void on_delivery(bgm_buyer_t *b, const bgm_msg_t *m, double now)
         r->end = m->b;
         bgm_purchase_done(b->pu, m->req);
         bgm_trader_t *tr = bgm_purchase_trader(b->pu);
-        tr->memory[r->good] = bgm_memory_update(tr->memory[r->good], m->price, tr->genes.weight_memory);
+        tr->memory[r->good] =
+            bgm_memory_update(tr->memory[r->good], m->price, tr->genes.weight_memory);
         bgm_purchase_learn(b->pu, 1, (r->limit - m->price) / r->limit);
     }
-    emit(b, &x);
+    bgm_emitter_send(&b->em, &x);
 }
 
 bg_status bgm_buyer_start(bgm_buyer_t *b, double now, bgm_outbox_t *out)
 {
-    b->failure = BG_OK;
-    b->out = out;
-    later(b, next_arrival(b, now), BGM_BU_TIMER_ARRIVAL, 0);
+    bgm_emitter_begin(&b->em, out);
+    bgm_emitter_timer(&b->em, next_arrival(b, now), BGM_BU_TIMER_ARRIVAL, 0);
     if (b->p.mechanism == BGM_MECH_CATALLACTIC)
-        fail(b, bgm_purchase_learning_start(b->pu, now, out));
-    return b->failure;
+        bgm_emitter_fail(&b->em, bgm_purchase_learning_start(b->pu, now, out));
+    return b->em.failure;
 }
 
 bg_status bgm_buyer_on_message(bgm_buyer_t *b, const bgm_msg_t *m, double now, int up,
                                bgm_outbox_t *out)
 {
     (void)up; /* a lost message never reaches it; what it buys next checks its host */
-    b->failure = BG_OK;
-    b->out = out;
+    bgm_emitter_begin(&b->em, out);
     bgm_purchase_event_t ev;
     switch (m->type) {
     case BGM_MT_CONFIRM:
@@ -183,10 +161,10 @@ bg_status bgm_buyer_on_message(bgm_buyer_t *b, const bgm_msg_t *m, double now, i
     case BGM_MT_CFP:
         /* It sells nothing: it only passes the call on. */
         if (!bgm_purchase_cfp_seen(b->pu, m))
-            fail(b, bgm_purchase_cfp_forward(b->pu, m, out));
+            bgm_emitter_fail(&b->em, bgm_purchase_cfp_forward(b->pu, m, out));
         break;
     case BGM_MT_GENES:
-        fail(b, bgm_purchase_on_genes(b->pu, m, out));
+        bgm_emitter_fail(&b->em, bgm_purchase_on_genes(b->pu, m, out));
         break;
     case BGM_MT_PROPOSE:
     case BGM_MT_LIST:
@@ -196,7 +174,7 @@ bg_status bgm_buyer_on_message(bgm_buyer_t *b, const bgm_msg_t *m, double now, i
     case BGM_MT_CANCEL:
     case BGM_MT_RFAIL:
     case BGM_MT_RCONFIRM:
-        fail(b, bgm_purchase_on_message(b->pu, m, now, out, &ev));
+        bgm_emitter_fail(&b->em, bgm_purchase_on_message(b->pu, m, now, out, &ev));
         break;
     case BGM_MT_TAKE:
     case BGM_MT_REFUSE:
@@ -204,26 +182,25 @@ bg_status bgm_buyer_on_message(bgm_buyer_t *b, const bgm_msg_t *m, double now, i
     case BGM_MT_MATCH:
         break; /* for a seller */
     default:
-        fail(b, BG_ERR_INVALID);
+        bgm_emitter_fail(&b->em, BG_ERR_INVALID);
         break;
     }
-    return b->failure;
+    return b->em.failure;
 }
 
 bg_status bgm_buyer_on_timer(bgm_buyer_t *b, int kind, uint64_t arg, double now, int up,
                              uint32_t *next_req, bgm_outbox_t *out)
 {
-    b->failure = BG_OK;
-    b->out = out;
+    bgm_emitter_begin(&b->em, out);
     if (kind == BGM_BU_TIMER_ARRIVAL) {
         if (up)
             new_job(b, now, next_req);
         double t = next_arrival(b, now);
         if (t < b->p.arrival_end)
-            later(b, t, BGM_BU_TIMER_ARRIVAL, 0);
-        return b->failure;
+            bgm_emitter_timer(&b->em, t, BGM_BU_TIMER_ARRIVAL, 0);
+        return b->em.failure;
     }
     bgm_purchase_event_t ev;
-    fail(b, bgm_purchase_on_timer(b->pu, kind, arg, now, up, out, &ev));
-    return b->failure;
+    bgm_emitter_fail(&b->em, bgm_purchase_on_timer(b->pu, kind, arg, now, up, out, &ev));
+    return b->em.failure;
 }

@@ -50,22 +50,8 @@ struct bgm_market_agent {
     size_t *slot; /* call-market order → bid record, for the clearing under way */
     bgm_posted_t *dir;
     double combex_exact, combex_greedy;
-    bg_status failure; /* first failure of the call under way */
-    bgm_outbox_t *out; /* the call under way's outbox */
+    bgm_emitter_t em; /* the call under way's outbox and first failure */
 };
-
-static void fail(bgm_market_agent_t *ma, bg_status st)
-{
-    if (ma->failure == BG_OK)
-        ma->failure = st;
-}
-
-static void emit(bgm_market_agent_t *ma, const bgm_msg_t *m)
-{
-    bg_status st = bgm_outbox_send(ma->out, m);
-    if (st)
-        fail(ma, st);
-}
 
 /* Messages start from a zeroed body with their header set. */
 static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
@@ -83,6 +69,7 @@ bgm_market_agent_t *bgm_market_agent_new(const bgm_market_agent_params_t *p)
     bgm_market_agent_t *ma = calloc(1, sizeof *ma);
     if (!ma)
         return NULL;
+    ma->em.self = p->self;
     ma->cfg = *p->cfg;
     ma->p = *p;
     ma->p.cfg = &ma->cfg;
@@ -169,7 +156,7 @@ static void clear_services(bgm_market_agent_t *ma, double now)
         }
         bgm_clearing_t res;
         if (bgm_callmarket_clear(ma->cm, ma->cfg.central.k, &res, ma->fills, 2 * MA_BOOK_MAX)) {
-            fail(ma, BG_ERR_LIMIT);
+            bgm_emitter_fail(&ma->em, BG_ERR_LIMIT);
             return;
         }
         const bgm_order_t *asks = bgm_callmarket_asks(ma->cm);
@@ -187,10 +174,10 @@ static void clear_services(bgm_market_agent_t *ma, double now)
             m.b = asks[ma->fills[f].ask].price;
             m.c = r->deadline;
             m.origin = r->buyer;
-            emit(ma, &m);
+            bgm_emitter_send(&ma->em, &m);
             bgm_msg_t c = msg(BGM_MT_ACCEPT, ma->p.self, r->buyer, r->req, r->attempt);
             c.price = res.price;
-            emit(ma, &c);
+            bgm_emitter_send(&ma->em, &c);
         }
     }
     keep = 0;
@@ -227,7 +214,7 @@ static void clear_exchange(bgm_market_agent_t *ma, double now)
     uint32_t *mr_of = malloc((ma->nmr ? ma->nmr : 1) * sizeof *mr_of);
     double *rent = NULL;
     if (!seller_of || !mr_of) {
-        fail(ma, BG_ERR_NOMEM);
+        bgm_emitter_fail(&ma->em, BG_ERR_NOMEM);
         goto out;
     }
     for (size_t i = 0; i < ma->nrbid; i++)
@@ -259,7 +246,7 @@ static void clear_exchange(bgm_market_agent_t *ma, double now)
     bgm_combex_result_t res;
     if (bgm_combex_solve(ma->cx, BGM_COMBEX_AUTO, (size_t)ma->cfg.central.exact_limit,
                          ma->cfg.central.greedy_budget, ma->assign, &res)) {
-        fail(ma, BG_ERR_NOMEM);
+        bgm_emitter_fail(&ma->em, BG_ERR_NOMEM);
         goto out;
     }
     if (res.method == BGM_COMBEX_EXACT)
@@ -268,7 +255,7 @@ static void clear_exchange(bgm_market_agent_t *ma, double now)
         ma->combex_greedy += 1.0;
     rent = malloc((ma->nrbid ? ma->nrbid : 1) * sizeof *rent);
     if (!rent || bgm_combex_rents(ma->cx, ma->assign, ma->cfg.central.k, rent)) {
-        fail(ma, BG_ERR_NOMEM);
+        bgm_emitter_fail(&ma->em, BG_ERR_NOMEM);
         goto out;
     }
     const bgm_combex_pair_t *pairs = bgm_combex_pairs(ma->cx);
@@ -291,7 +278,7 @@ static void clear_exchange(bgm_market_agent_t *ma, double now)
         m.b = r->memory;
         m.c = r->flops;
         m.cand_price[1] = r->limit;
-        emit(ma, &m);
+        bgm_emitter_send(&ma->em, &m);
     }
     compact_rbids(ma, now);
 out:
@@ -340,7 +327,7 @@ static void award_part(bgm_market_agent_t *ma, size_t i, uint32_t k, int good, d
     m.c = limit;
     m.origin = r->buyer;
     m.cand_price[0] = start;
-    emit(ma, &m);
+    bgm_emitter_send(&ma->em, &m);
 }
 
 /*
@@ -366,7 +353,7 @@ static void clear_calls(bgm_market_agent_t *ma, double now)
     bgm_fill_t *cf = NULL, *mf = NULL;
     bgm_clearing_t rc, rm;
     if (!cb || !parts) {
-        fail(ma, BG_ERR_NOMEM);
+        bgm_emitter_fail(&ma->em, BG_ERR_NOMEM);
         goto out;
     }
     bgm_callmarket_reset(ma->cm);
@@ -392,7 +379,7 @@ static void clear_calls(bgm_market_agent_t *ma, double now)
     }
     if (bgm_callmarket_clear(ma->cm, k, &rc, ma->fills, 2 * MA_BOOK_MAX) ||
         !(cf = copy_fills(ma, rc.fill_count))) {
-        fail(ma, BG_ERR_NOMEM);
+        bgm_emitter_fail(&ma->em, BG_ERR_NOMEM);
         goto out;
     }
     const bgm_order_t *asks = bgm_callmarket_asks(ma->cm);
@@ -427,7 +414,7 @@ static void clear_calls(bgm_market_agent_t *ma, double now)
     }
     if (bgm_callmarket_clear(ma->cm, k, &rm, ma->fills, 2 * MA_BOOK_MAX) ||
         !(mf = copy_fills(ma, rm.fill_count))) {
-        fail(ma, BG_ERR_NOMEM);
+        bgm_emitter_fail(&ma->em, BG_ERR_NOMEM);
         goto out;
     }
     asks = bgm_callmarket_asks(ma->cm);
@@ -455,9 +442,8 @@ static void clear_calls(bgm_market_agent_t *ma, double now)
         size_t i = mf[f].bid;
         if (cb[i].got_cores < cb[i].cores || cb[i].got_mib < cb[i].mib)
             continue;
-        award_part(ma, i, (uint32_t)mf[f].ask, BGM_GOOD_MEMORY_ID,
-                   (double)mf[f].quantity / MA_MIB, start, cb[i].dur, rm.price, cb[i].bid_mem,
-                   parts[i]);
+        award_part(ma, i, (uint32_t)mf[f].ask, BGM_GOOD_MEMORY_ID, (double)mf[f].quantity / MA_MIB,
+                   start, cb[i].dur, rm.price, cb[i].bid_mem, parts[i]);
     }
     for (size_t i = 0; i < n; i++)
         if (cb[i].got_cores >= cb[i].cores && cb[i].got_mib >= cb[i].mib)
@@ -494,7 +480,7 @@ static void on_query(bgm_market_agent_t *ma, const bgm_msg_t *m)
 {
     bgm_posting_t found[BGM_MSG_CANDIDATES];
     int cap = ma->cfg.baseline.candidates < BGM_MSG_CANDIDATES ? ma->cfg.baseline.candidates
-                                                                : BGM_MSG_CANDIDATES;
+                                                               : BGM_MSG_CANDIDATES;
     room_ctx_t rc = {ma, m};
     size_t n = bgm_posted_query_if(ma->dir, m->good, m->price, has_room, &rc, found, (size_t)cap);
     bgm_msg_t l = msg(BGM_MT_LIST, ma->p.self, m->from, m->req, m->attempt);
@@ -512,7 +498,7 @@ static void on_query(bgm_market_agent_t *ma, const bgm_msg_t *m)
             l.cand_speed[i] = s->speed;
         }
     }
-    emit(ma, &l);
+    bgm_emitter_send(&ma->em, &l);
 }
 
 /* --------------------------------------------------------------- inputs */
@@ -537,22 +523,21 @@ bg_status bgm_market_agent_start(bgm_market_agent_t *ma, double now, bgm_outbox_
 bg_status bgm_market_agent_on_message(bgm_market_agent_t *ma, const bgm_msg_t *m, double now,
                                       bgm_outbox_t *out)
 {
-    ma->failure = BG_OK;
-    ma->out = out;
+    bgm_emitter_begin(&ma->em, out);
     switch (m->type) {
     case BGM_MT_BID:
         if (m->good < 0 || m->good >= BGM_SERVICE_TYPES)
             return BG_ERR_INVALID;
         if (ma->nbid >= MA_BOOK_MAX)
             return BG_ERR_LIMIT;
-        ma->bids[ma->nbid++] = (ma_bid_t){m->req, m->from, m->attempt, m->good, 0,
-                                          m->price, m->a, m->b};
+        ma->bids[ma->nbid++] =
+            (ma_bid_t){m->req, m->from, m->attempt, m->good, 0, m->price, m->a, m->b};
         break;
     case BGM_MT_RBID:
         if (ma->nrbid >= MA_BOOK_MAX)
             return BG_ERR_LIMIT;
-        ma->rbids[ma->nrbid++] = (ma_rbid_t){m->req, m->from, m->attempt, 0,
-                                             m->a, m->b, m->c, m->price, m->cand_price[0]};
+        ma->rbids[ma->nrbid++] = (ma_rbid_t){m->req, m->from,  m->attempt,      0, m->a, m->b,
+                                             m->c,   m->price, m->cand_price[0]};
         break;
     case BGM_MT_ASK: {
         if (!is_basic(ma, m->from) || m->good < 0 || m->good >= BGM_SERVICE_TYPES)
@@ -568,7 +553,7 @@ bg_status bgm_market_agent_on_message(bgm_market_agent_t *ma, const bgm_msg_t *m
             ma->nmb = k + 1;
         if (ma->p.mechanism == BGM_MECH_BASELINE &&
             bgm_posted_post(ma->dir, m->from, m->good, m->price))
-            fail(ma, BG_ERR_LIMIT);
+            bgm_emitter_fail(&ma->em, BG_ERR_LIMIT);
         break;
     }
     case BGM_MT_FREE:
@@ -591,7 +576,7 @@ bg_status bgm_market_agent_on_message(bgm_market_agent_t *ma, const bgm_msg_t *m
             ma->nmr = k + 1;
         if (ma->p.mechanism == BGM_MECH_BASELINE &&
             bgm_posted_post(ma->dir, m->from, BGM_GOOD_CORES_ID, m->price))
-            fail(ma, BG_ERR_LIMIT);
+            bgm_emitter_fail(&ma->em, BG_ERR_LIMIT);
         break;
     }
     case BGM_MT_RFREE: {
@@ -620,7 +605,7 @@ bg_status bgm_market_agent_on_message(bgm_market_agent_t *ma, const bgm_msg_t *m
         break;
     }
     (void)now;
-    return ma->failure;
+    return ma->em.failure;
 }
 
 bg_status bgm_market_agent_on_timer(bgm_market_agent_t *ma, int kind, uint64_t arg, double now,
@@ -629,18 +614,17 @@ bg_status bgm_market_agent_on_timer(bgm_market_agent_t *ma, int kind, uint64_t a
     (void)arg;
     if (kind != BGM_MA_TIMER_CLEAR)
         return BG_ERR_INVALID;
-    ma->failure = BG_OK;
-    ma->out = out;
+    bgm_emitter_begin(&ma->em, out);
     clear_services(ma, now);
     if (ma->cfg.central.resource_market == BGM_RM_CALL)
         clear_calls(ma, now);
     else
         clear_exchange(ma, now);
     if (now + ma->cfg.central.period <= ma->p.horizon) {
-        bg_status st = bgm_outbox_timer(out, ma->p.self, now + ma->cfg.central.period,
-                                        BGM_MA_TIMER_CLEAR, 0);
+        bg_status st =
+            bgm_outbox_timer(out, ma->p.self, now + ma->cfg.central.period, BGM_MA_TIMER_CLEAR, 0);
         if (st)
-            fail(ma, st);
+            bgm_emitter_fail(&ma->em, st);
     }
-    return ma->failure;
+    return ma->em.failure;
 }

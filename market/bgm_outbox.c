@@ -75,11 +75,20 @@ bg_status bgm_outbox_timer(bgm_outbox_t *ob, uint32_t agent, double at, int kind
     return st;
 }
 
-size_t bgm_outbox_count(const bgm_outbox_t *ob) { return ob->n; }
+size_t bgm_outbox_count(const bgm_outbox_t *ob)
+{
+    return ob->n;
+}
 
-const bgm_out_item_t *bgm_outbox_item(const bgm_outbox_t *ob, size_t i) { return &ob->items[i]; }
+const bgm_out_item_t *bgm_outbox_item(const bgm_outbox_t *ob, size_t i)
+{
+    return &ob->items[i];
+}
 
-void bgm_outbox_clear(bgm_outbox_t *ob) { ob->n = 0; }
+void bgm_outbox_clear(bgm_outbox_t *ob)
+{
+    ob->n = 0;
+}
 
 bgm_msg_t bgm_outbox_msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
 {
@@ -91,4 +100,26 @@ bgm_msg_t bgm_outbox_msg(int type, uint32_t from, uint32_t to, uint32_t req, uin
     m.req = req;
     m.attempt = attempt;
     return m;
+}
+
+void bgm_emitter_begin(bgm_emitter_t *e, bgm_outbox_t *out)
+{
+    e->out = out;
+    e->failure = BG_OK;
+}
+
+void bgm_emitter_fail(bgm_emitter_t *e, bg_status st)
+{
+    if (e->failure == BG_OK)
+        e->failure = st;
+}
+
+void bgm_emitter_send(bgm_emitter_t *e, const bgm_msg_t *m)
+{
+    bgm_emitter_fail(e, bgm_outbox_send(e->out, m));
+}
+
+void bgm_emitter_timer(bgm_emitter_t *e, double at, int kind, uint64_t arg)
+{
+    bgm_emitter_fail(e, bgm_outbox_timer(e->out, e->self, at, kind, arg));
 }

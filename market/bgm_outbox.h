@@ -43,6 +43,24 @@ const bgm_out_item_t *bgm_outbox_item(const bgm_outbox_t *ob, size_t i);
 /* Forgets every item, keeping the storage. */
 void bgm_outbox_clear(bgm_outbox_t *ob);
 
+/* A role machine's side of one call: the outbox it emits into and the
+ * call's first failure, which sticks (a later failing emit does not hide
+ * it) and is what the call returns. Each machine embeds one and sets
+ * `self`, which stamps its timers. */
+typedef struct bgm_emitter {
+    bgm_outbox_t *out; /* the call's; borrowed */
+    uint32_t self;
+    bg_status failure;
+} bgm_emitter_t;
+
+/* Starts a call: emits into out, no failure yet. */
+void bgm_emitter_begin(bgm_emitter_t *e, bgm_outbox_t *out);
+/* Records st unless the call has failed already (BG_OK records nothing). */
+void bgm_emitter_fail(bgm_emitter_t *e, bg_status st);
+void bgm_emitter_send(bgm_emitter_t *e, const bgm_msg_t *m);
+/* A timer for the machine itself: (kind, arg) at absolute time `at`. */
+void bgm_emitter_timer(bgm_emitter_t *e, double at, int kind, uint64_t arg);
+
 /* A message with its header set and every other field zero: what every
  * sender fills in before emitting. */
 bgm_msg_t bgm_outbox_msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt);

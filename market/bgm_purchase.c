@@ -47,33 +47,12 @@ struct bgm_purchase {
     bgm_purchase_part_t *parts;
     size_t nparts, parts_cap;
     double requests, timeouts;
-    int fixed; /* bgm_purchase_fix_strategy: no outcome is learnt */
-    bg_status failure;
-    bgm_outbox_t *out;        /* during a call */
+    int fixed;                /* bgm_purchase_fix_strategy: no outcome is learnt */
+    bgm_emitter_t em;         /* during a call: its outbox and first failure */
     bgm_purchase_event_t *ev; /* during a call */
 };
 
 /* ---------------------------------------------------------------- helpers */
-
-static void fail(bgm_purchase_t *pu, bg_status st)
-{
-    if (pu->failure == BG_OK)
-        pu->failure = st;
-}
-
-static void emit(bgm_purchase_t *pu, const bgm_msg_t *m)
-{
-    bg_status st = bgm_outbox_send(pu->out, m);
-    if (st)
-        fail(pu, st);
-}
-
-static void later(bgm_purchase_t *pu, double at, int kind, uint64_t arg)
-{
-    bg_status st = bgm_outbox_timer(pu->out, pu->p.self, at, kind, arg);
-    if (st)
-        fail(pu, st);
-}
 
 static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
 {
@@ -83,18 +62,17 @@ static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_
 /* Starts a call: where it emits and reports, no failure yet. */
 static void begin(bgm_purchase_t *pu, bgm_outbox_t *out, bgm_purchase_event_t *ev)
 {
-    pu->out = out;
+    bgm_emitter_begin(&pu->em, out);
     pu->ev = ev;
-    pu->failure = BG_OK;
     ev->kind = BGM_PU_EV_NONE;
     ev->req = 0;
 }
 
 static bg_status finish(bgm_purchase_t *pu)
 {
-    pu->out = NULL;
+    pu->em.out = NULL;
     pu->ev = NULL;
-    return pu->failure;
+    return pu->em.failure;
 }
 
 static void event(bgm_purchase_t *pu, bgm_purchase_event_kind kind, uint32_t id)
@@ -196,6 +174,7 @@ bgm_purchase_t *bgm_purchase_new(const bgm_purchase_params_t *p)
     bgm_purchase_t *pu = calloc(1, sizeof *pu);
     if (!pu)
         return NULL;
+    pu->em.self = p->self;
     pu->cfg = p->cfg;
     pu->p = *p;
     for (int i = 0; i < p->degree; i++) {
@@ -316,7 +295,7 @@ static void final_fail(bgm_purchase_t *pu, req_t *q)
 static void attempt_failed(bgm_purchase_t *pu, req_t *q, double now)
 {
     double backoff = pu->p.mechanism == BGM_MECH_BASELINE ? pu->cfg->baseline.retry_backoff
-                                                           : pu->cfg->catallactic.retry_backoff;
+                                                          : pu->cfg->catallactic.retry_backoff;
     learn(pu, 0, 0.0);
     q->r.attempt++;
     if (now + backoff >= q->r.deadline) {
@@ -324,7 +303,7 @@ static void attempt_failed(bgm_purchase_t *pu, req_t *q, double now)
         return;
     }
     q->r.state = BGM_PU_IDLE;
-    later(pu, now + backoff, BGM_PU_TIMER_RETRY, req_arg(q));
+    bgm_emitter_timer(&pu->em, now + backoff, BGM_PU_TIMER_RETRY, req_arg(q));
 }
 
 static double req_duration(const req_t *q, double speed)
@@ -336,7 +315,8 @@ static double req_duration(const req_t *q, double speed)
 static void arm(bgm_purchase_t *pu, req_t *q, double at)
 {
     q->r.tseq++;
-    later(pu, at, BGM_PU_TIMER_REQ, (uint64_t)q->r.id | ((uint64_t)q->r.tseq << 32));
+    bgm_emitter_timer(&pu->em, at, BGM_PU_TIMER_REQ,
+                      (uint64_t)q->r.id | ((uint64_t)q->r.tseq << 32));
 }
 
 /* Sends a call to every neighbour but `except` and the call's originator. */
@@ -348,7 +328,7 @@ static void cfp_send(bgm_purchase_t *pu, const bgm_msg_t *proto, uint32_t except
         bgm_msg_t m = *proto;
         m.from = pu->p.self;
         m.to = pu->nbr[i];
-        emit(pu, &m);
+        bgm_emitter_send(&pu->em, &m);
     }
 }
 
@@ -362,7 +342,7 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
     }
     if (pu->p.mechanism != BGM_MECH_CENTRAL) {
         if (!nego_take(pu, q)) {
-            fail(pu, BG_ERR_NOMEM);
+            bgm_emitter_fail(&pu->em, BG_ERR_NOMEM);
             return;
         }
         nego_state_t *g = ng(pu, q);
@@ -370,8 +350,8 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
     }
     switch (pu->p.mechanism) {
     case BGM_MECH_CENTRAL: {
-        bgm_msg_t m = msg(bundle ? BGM_MT_RBID : BGM_MT_BID, pu->p.self, pu->p.market, r->id,
-                          r->attempt);
+        bgm_msg_t m =
+            msg(bundle ? BGM_MT_RBID : BGM_MT_BID, pu->p.self, pu->p.market, r->id, r->attempt);
         m.good = (int16_t)r->good;
         m.price = r->limit;
         m.a = bundle ? r->cores : r->work;
@@ -379,7 +359,7 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
         m.c = bundle ? r->flops : 0.0;
         m.cand_price[0] = r->deadline;
         q->r.state = BGM_PU_WAIT;
-        emit(pu, &m);
+        bgm_emitter_send(&pu->em, &m);
         break;
     }
     case BGM_MECH_CATALLACTIC: {
@@ -402,7 +382,7 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
         m.a = r->cores;
         m.b = r->memory;
         q->r.state = BGM_PU_WAIT;
-        emit(pu, &m);
+        bgm_emitter_send(&pu->em, &m);
         arm(pu, q, now + 4.0 * pu->cfg->catallactic.reply_timeout);
         break;
     }
@@ -414,18 +394,18 @@ bg_status bgm_purchase_open(bgm_purchase_t *pu, const bgm_purchase_req_t *it, do
 {
     begin(pu, out, ev);
     if (pu->nreq > 0 && it->id <= pu->reqs[pu->nreq - 1].r.id)
-        fail(pu, BG_ERR_INVALID);
+        bgm_emitter_fail(&pu->em, BG_ERR_INVALID);
     else if (pu->nreq == pu->req_cap) {
         size_t n = pu->req_cap ? pu->req_cap * 2 : 8;
         req_t *p = n <= BGM_PU_MAX_REQS ? realloc(pu->reqs, n * sizeof *p) : NULL;
         if (!p)
-            fail(pu, n <= BGM_PU_MAX_REQS ? BG_ERR_NOMEM : BG_ERR_LIMIT);
+            bgm_emitter_fail(&pu->em, n <= BGM_PU_MAX_REQS ? BG_ERR_NOMEM : BG_ERR_LIMIT);
         else {
             pu->reqs = p;
             pu->req_cap = n;
         }
     }
-    if (pu->failure)
+    if (pu->em.failure)
         return finish(pu);
     req_t *q = &pu->reqs[pu->nreq++];
     memset(q, 0, sizeof *q);
@@ -442,7 +422,7 @@ bg_status bgm_purchase_open(bgm_purchase_t *pu, const bgm_purchase_req_t *it, do
     q->r.deal = it->deal;
     q->r.state = BGM_PU_IDLE;
     pu->requests += 1.0;
-    later(pu, q->r.deadline, BGM_PU_TIMER_DEADLINE, q->r.id);
+    bgm_emitter_timer(&pu->em, q->r.deadline, BGM_PU_TIMER_DEADLINE, q->r.id);
     start_acquire(pu, q, now, up);
     return finish(pu);
 }
@@ -490,8 +470,8 @@ static void begin_nego(bgm_purchase_t *pu, req_t *q, double now)
             request_fields(q, &o);
         } else {
             bgm_nego_open(&g->buyer_nego, BGM_SIDE_BUYER, lim,
-                          bgm_nego_opening(BGM_SIDE_BUYER, lim, mem, pu->tr.markup),
-                          &pu->tr.genes, pu->cfg->catallactic.max_rounds);
+                          bgm_nego_opening(BGM_SIDE_BUYER, lim, mem, pu->tr.markup), &pu->tr.genes,
+                          pu->cfg->catallactic.max_rounds);
             o = msg(BGM_MT_OFFER, pu->p.self, p->seller, q->r.id, q->r.attempt);
             o.price = g->buyer_nego.current;
             o.hops = 1; /* opens a bargain: the seller starts afresh */
@@ -499,7 +479,7 @@ static void begin_nego(bgm_purchase_t *pu, req_t *q, double now)
         }
         q->r.seller = p->seller;
         q->r.state = BGM_PU_NEGOTIATE;
-        emit(pu, &o);
+        bgm_emitter_send(&pu->em, &o);
         arm(pu, q, now + pu->cfg->catallactic.reply_timeout);
         return;
     }
@@ -532,7 +512,7 @@ static void on_offer(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double no
         request_fields(q, &a);
         q->r.state = BGM_PU_COMMITTED;
         q->r.price = reply;
-        emit(pu, &a);
+        bgm_emitter_send(&pu->em, &a);
         /* A bundle seller answers at once. A service seller commits as
          * soon as it reads the acceptance and starts buying resources, so
          * the buyer must not walk away on a phase timeout any more: it
@@ -545,11 +525,11 @@ static void on_offer(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double no
         bgm_msg_t o = msg(BGM_MT_OFFER, pu->p.self, m->from, m->req, m->attempt);
         o.price = reply;
         request_fields(q, &o);
-        emit(pu, &o);
+        bgm_emitter_send(&pu->em, &o);
         arm(pu, q, now + pu->cfg->catallactic.reply_timeout);
     } else {
         bgm_msg_t x = msg(BGM_MT_REJECT, pu->p.self, m->from, m->req, m->attempt);
-        emit(pu, &x);
+        bgm_emitter_send(&pu->em, &x);
         next_proposal(pu, q, now);
     }
 }
@@ -571,7 +551,8 @@ static double parts_money(const bgm_purchase_t *pu, uint32_t id)
     double total = 0.0;
     for (size_t i = 0; i < pu->nparts; i++)
         if (pu->parts[i].req == id)
-            total += pu->parts[i].rate * pu->parts[i].quantity * (pu->parts[i].end - pu->parts[i].start);
+            total +=
+                pu->parts[i].rate * pu->parts[i].quantity * (pu->parts[i].end - pu->parts[i].start);
     return total;
 }
 
@@ -590,7 +571,7 @@ static void on_rconfirm(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double
             bgm_purchase_part_t *p =
                 cap <= BGM_PU_MAX_PARTS ? realloc(pu->parts, cap * sizeof *p) : NULL;
             if (!p) {
-                fail(pu, cap <= BGM_PU_MAX_PARTS ? BG_ERR_NOMEM : BG_ERR_LIMIT);
+                bgm_emitter_fail(&pu->em, cap <= BGM_PU_MAX_PARTS ? BG_ERR_NOMEM : BG_ERR_LIMIT);
                 return;
             }
             pu->parts = p;
@@ -672,7 +653,7 @@ bg_status bgm_purchase_on_message(bgm_purchase_t *pu, const bgm_msg_t *m, double
         on_rconfirm(pu, q, m, now);
         break;
     default:
-        fail(pu, BG_ERR_INVALID);
+        bgm_emitter_fail(&pu->em, BG_ERR_INVALID);
         break;
     }
     return finish(pu);
@@ -715,8 +696,8 @@ bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, doub
         if (!q || ended(q))
             break;
         if (q->r.state == BGM_PU_COMMITTED && !grace && up) {
-            later(pu, now + BGM_PU_COMMIT_GRACE, BGM_PU_TIMER_DEADLINE,
-                  (uint64_t)q->r.id | (1ULL << 63));
+            bgm_emitter_timer(&pu->em, now + BGM_PU_COMMIT_GRACE, BGM_PU_TIMER_DEADLINE,
+                              (uint64_t)q->r.id | (1ULL << 63));
             break;
         }
         pu->timeouts += 1.0;
@@ -740,16 +721,17 @@ bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, doub
                 memcpy(m.cand_price, g, sizeof g);
                 m.price = pu->tr.fitness;
                 m.a = 1.0;
-                emit(pu, &m);
+                bgm_emitter_send(&pu->em, &m);
             }
         }
-        double t = now + pu->cfg->catallactic.learning_period * (0.5 + bgm_rng_uniform(&pu->tr.rng));
+        double t =
+            now + pu->cfg->catallactic.learning_period * (0.5 + bgm_rng_uniform(&pu->tr.rng));
         if (t < pu->p.horizon)
-            later(pu, t, BGM_PU_TIMER_LEARN, 0);
+            bgm_emitter_timer(&pu->em, t, BGM_PU_TIMER_LEARN, 0);
         break;
     }
     default:
-        fail(pu, BG_ERR_INVALID);
+        bgm_emitter_fail(&pu->em, BG_ERR_INVALID);
         break;
     }
     return finish(pu);
@@ -784,8 +766,9 @@ bg_status bgm_purchase_learning_start(bgm_purchase_t *pu, double now, bgm_outbox
 {
     bgm_purchase_event_t ev;
     begin(pu, out, &ev);
-    later(pu, now + pu->cfg->catallactic.learning_period * bgm_rng_uniform(&pu->tr.rng),
-          BGM_PU_TIMER_LEARN, 0);
+    bgm_emitter_timer(&pu->em,
+                      now + pu->cfg->catallactic.learning_period * bgm_rng_uniform(&pu->tr.rng),
+                      BGM_PU_TIMER_LEARN, 0);
     return finish(pu);
 }
 
@@ -807,7 +790,7 @@ bg_status bgm_purchase_on_genes(bgm_purchase_t *pu, const bgm_msg_t *m, bgm_outb
         bgm_genes_pack(&pu->tr.genes, g);
         memcpy(r.cand_price, g, sizeof g);
         r.price = pu->tr.fitness;
-        emit(pu, &r);
+        bgm_emitter_send(&pu->em, &r);
     }
     bgm_genes_t other;
     double g[BGM_GENE_COUNT];

@@ -33,30 +33,9 @@ struct bgm_resource {
     bgm_sessions_t *sess; /* its side of every bargain */
     hold_t *holds;
     size_t nholds, holds_cap;
-    bg_status failure;
-    bgm_outbox_t *out;
-    int fixed; /* bgm_resource_fix_strategy: no learning from outcomes */
+    bgm_emitter_t em; /* during a call: its outbox and first failure */
+    int fixed;        /* bgm_resource_fix_strategy: no learning from outcomes */
 };
-
-static void fail(bgm_resource_t *rs, bg_status st)
-{
-    if (rs->failure == BG_OK)
-        rs->failure = st;
-}
-
-static void emit(bgm_resource_t *rs, const bgm_msg_t *m)
-{
-    bg_status st = bgm_outbox_send(rs->out, m);
-    if (st)
-        fail(rs, st);
-}
-
-static void later(bgm_resource_t *rs, double at, int kind, uint64_t arg)
-{
-    bg_status st = bgm_outbox_timer(rs->out, rs->p.self, at, kind, arg);
-    if (st)
-        fail(rs, st);
-}
 
 /* Messages start from a zeroed body with their header set. */
 static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
@@ -71,6 +50,7 @@ bgm_resource_t *bgm_resource_new(const bgm_resource_params_t *p)
     bgm_resource_t *rs = calloc(1, sizeof *rs);
     if (!rs)
         return NULL;
+    rs->em.self = p->self;
     if (!(rs->sess = bgm_sessions_new(RS_SESSIONS))) {
         free(rs);
         return NULL;
@@ -160,7 +140,7 @@ static void announce(bgm_resource_t *rs)
     bgm_msg_t m = msg(BGM_MT_AVAIL, rs->p.self, rs->p.market, 0, 0);
     m.a = rs->p.cores - rs->used_cores;
     m.b = rs->p.memory - rs->used_mem;
-    emit(rs, &m);
+    bgm_emitter_send(&rs->em, &m);
 }
 
 /*
@@ -186,7 +166,7 @@ static int rent(bgm_resource_t *rs, const bgm_msg_t *m, uint32_t buyer, double r
         size_t cap = rs->holds_cap ? 2 * rs->holds_cap : 16;
         hold_t *h = cap <= RS_MAX_HOLDS ? realloc(rs->holds, cap * sizeof *h) : NULL;
         if (!h) {
-            fail(rs, BG_ERR_LIMIT);
+            bgm_emitter_fail(&rs->em, BG_ERR_LIMIT);
             return 0;
         }
         rs->holds = h;
@@ -200,14 +180,14 @@ static int rent(bgm_resource_t *rs, const bgm_msg_t *m, uint32_t buyer, double r
         rs->memory = bgm_memory_update(rs->memory, rate / mean_rate(rs, cores, mem),
                                        rs->genes.weight_memory);
     learn(rs, 1, (rate - cost) / rate);
-    later(rs, now + dur, BGM_RS_TIMER_RELEASE, m->req);
+    bgm_emitter_timer(&rs->em, now + dur, BGM_RS_TIMER_RELEASE, m->req);
     bgm_msg_t k = msg(BGM_MT_RCONFIRM, rs->p.self, buyer, m->req, m->attempt);
     k.good = -1;
     k.price = rate;
     k.a = now;
     k.b = now + dur;
     k.c = cost;
-    emit(rs, &k);
+    bgm_emitter_send(&rs->em, &k);
     return 1;
 }
 
@@ -235,7 +215,7 @@ static int hold_part(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
         return 0;
     *used += qty;
     learn(rs, 1, (rate - cost) / rate);
-    later(rs, start + dur, BGM_RS_TIMER_RELEASE_PART, part_arg(m->good, qty));
+    bgm_emitter_timer(&rs->em, start + dur, BGM_RS_TIMER_RELEASE_PART, part_arg(m->good, qty));
     bgm_msg_t k = msg(BGM_MT_RCONFIRM, rs->p.self, m->origin, m->req, m->attempt);
     k.good = m->good;
     k.hops = m->hops;
@@ -245,7 +225,7 @@ static int hold_part(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
     k.cand_price[0] = qty;
     k.cand_price[1] = m->c;
     k.cand_price[2] = cost;
-    emit(rs, &k);
+    bgm_emitter_send(&rs->em, &k);
     return 1;
 }
 
@@ -253,11 +233,11 @@ static int hold_part(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
 static void refuse_award(bgm_resource_t *rs, const bgm_msg_t *m, double cores, double mem)
 {
     bgm_msg_t f = msg(BGM_MT_RFAIL, rs->p.self, m->origin, m->req, m->attempt);
-    emit(rs, &f);
+    bgm_emitter_send(&rs->em, &f);
     bgm_msg_t g = msg(BGM_MT_RFREE, rs->p.self, rs->p.market, m->req, 0);
     g.a = cores;
     g.b = mem;
-    emit(rs, &g);
+    bgm_emitter_send(&rs->em, &g);
 }
 
 /* ---------------------------------------------------------- bargaining */
@@ -286,7 +266,7 @@ static void forward(bgm_resource_t *rs, const bgm_msg_t *proto, uint32_t except)
         bgm_msg_t m = *proto;
         m.from = rs->p.self;
         m.to = rs->nbr[i];
-        emit(rs, &m);
+        bgm_emitter_send(&rs->em, &m);
     }
 }
 
@@ -297,11 +277,12 @@ static void on_cfp(bgm_resource_t *rs, const bgm_msg_t *m)
     uint64_t key = ((uint64_t)m->req << 20) ^ m->attempt ^ ((uint64_t)m->origin << 44);
     if (seen_before(rs, key))
         return;
-    if (m->good < 0 && rs->used_cores + m->a <= rs->p.cores && rs->used_mem + m->b <= rs->p.memory) {
+    if (m->good < 0 && rs->used_cores + m->a <= rs->p.cores &&
+        rs->used_mem + m->b <= rs->p.memory) {
         bgm_msg_t p = msg(BGM_MT_PROPOSE, rs->p.self, m->origin, m->req, m->attempt);
         p.price = opening(rs, m->a, m->b);
         p.a = rs->p.speed;
-        emit(rs, &p);
+        bgm_emitter_send(&rs->em, &p);
     }
     if (m->hops > 1) {
         bgm_msg_t f = *m;
@@ -313,7 +294,7 @@ static void on_cfp(bgm_resource_t *rs, const bgm_msg_t *m)
 static void reject(bgm_resource_t *rs, const bgm_msg_t *m)
 {
     bgm_msg_t x = msg(BGM_MT_REJECT, rs->p.self, m->from, m->req, m->attempt);
-    emit(rs, &x);
+    bgm_emitter_send(&rs->em, &x);
 }
 
 static void on_offer(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
@@ -335,7 +316,7 @@ static void on_offer(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up)
     } else if (act == BGM_NEGO_COUNTER) {
         bgm_msg_t o = msg(BGM_MT_OFFER, rs->p.self, m->from, m->req, m->attempt);
         o.price = reply;
-        emit(rs, &o);
+        bgm_emitter_send(&rs->em, &o);
     } else {
         learn(rs, 0, 0.0);
         reject(rs, m);
@@ -360,7 +341,7 @@ static void send_genes(bgm_resource_t *rs, uint32_t to, int request)
     memcpy(m.cand_price, g, sizeof g);
     m.price = rs->fitness;
     m.a = request ? 1.0 : 0.0;
-    emit(rs, &m);
+    bgm_emitter_send(&rs->em, &m);
 }
 
 /* A learning meeting with a neighbour of its role: answer a request with
@@ -387,8 +368,7 @@ static void on_genes(bgm_resource_t *rs, const bgm_msg_t *m)
 
 bg_status bgm_resource_start(bgm_resource_t *rs, double now, bgm_outbox_t *out)
 {
-    rs->failure = BG_OK;
-    rs->out = out;
+    bgm_emitter_begin(&rs->em, out);
     if (rs->p.mechanism != BGM_MECH_CATALLACTIC) {
         bgm_msg_t m = msg(BGM_MT_RASK, rs->p.self, rs->p.market, 0, 0);
         m.a = rs->p.cores;
@@ -396,19 +376,19 @@ bg_status bgm_resource_start(bgm_resource_t *rs, double now, bgm_outbox_t *out)
         m.c = rs->p.speed;
         m.price = rs->p.core_cost;
         m.cand_price[0] = rs->p.memory_cost;
-        emit(rs, &m);
+        bgm_emitter_send(&rs->em, &m);
     } else {
-        later(rs, now + rs->cfg.catallactic.learning_period * bgm_rng_uniform(&rs->rng),
-              BGM_RS_TIMER_LEARN, 0);
+        bgm_emitter_timer(&rs->em,
+                          now + rs->cfg.catallactic.learning_period * bgm_rng_uniform(&rs->rng),
+                          BGM_RS_TIMER_LEARN, 0);
     }
-    return rs->failure;
+    return rs->em.failure;
 }
 
 bg_status bgm_resource_on_message(bgm_resource_t *rs, const bgm_msg_t *m, double now, int up,
                                   bgm_outbox_t *out)
 {
-    rs->failure = BG_OK;
-    rs->out = out;
+    bgm_emitter_begin(&rs->em, out);
     switch (m->type) {
     case BGM_MT_RAWARD:
         if (!rent(rs, m, m->origin, m->price, now, up))
@@ -444,14 +424,13 @@ bg_status bgm_resource_on_message(bgm_resource_t *rs, const bgm_msg_t *m, double
          * addressed to a resource seller. */
         break;
     }
-    return rs->failure;
+    return rs->em.failure;
 }
 
 bg_status bgm_resource_on_timer(bgm_resource_t *rs, int kind, uint64_t arg, double now, int up,
                                 bgm_outbox_t *out)
 {
-    rs->failure = BG_OK;
-    rs->out = out;
+    bgm_emitter_begin(&rs->em, out);
     switch (kind) {
     case BGM_RS_TIMER_RELEASE: {
         size_t i = 0;
@@ -468,7 +447,7 @@ bg_status bgm_resource_on_timer(bgm_resource_t *rs, int kind, uint64_t arg, doub
             bgm_msg_t m = msg(BGM_MT_RFREE, rs->p.self, rs->p.market, h.req, 0);
             m.a = h.cores;
             m.b = h.memory;
-            emit(rs, &m);
+            bgm_emitter_send(&rs->em, &m);
         }
         break;
     }
@@ -482,7 +461,7 @@ bg_status bgm_resource_on_timer(bgm_resource_t *rs, int kind, uint64_t arg, doub
         bgm_msg_t m = msg(BGM_MT_RFREE, rs->p.self, rs->p.market, 0, 0);
         m.a = is_cores ? q : 0.0;
         m.b = is_cores ? 0.0 : q;
-        emit(rs, &m);
+        bgm_emitter_send(&rs->em, &m);
         break;
     }
     case BGM_RS_TIMER_LEARN: {
@@ -493,11 +472,11 @@ bg_status bgm_resource_on_timer(bgm_resource_t *rs, int kind, uint64_t arg, doub
         }
         double t = now + rs->cfg.catallactic.learning_period * (0.5 + bgm_rng_uniform(&rs->rng));
         if (t < rs->p.horizon)
-            later(rs, t, BGM_RS_TIMER_LEARN, 0);
+            bgm_emitter_timer(&rs->em, t, BGM_RS_TIMER_LEARN, 0);
         break;
     }
     default:
         return BG_ERR_INVALID;
     }
-    return rs->failure;
+    return rs->em.failure;
 }

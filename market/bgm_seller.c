@@ -14,37 +14,16 @@
 struct bgm_seller {
     bgm_config_t cfg;
     bgm_seller_params_t p;
-    bgm_purchase_t *pu;   /* its buying half, and its trader state */
-    bgm_trader_t *tr;     /* pu's */
-    bgm_sessions_t *sess; /* catallactic: its side of every bargain */
-    int used;             /* slots held */
+    bgm_purchase_t *pu;                  /* its buying half, and its trader state */
+    bgm_trader_t *tr;                    /* pu's */
+    bgm_sessions_t *sess;                /* catallactic: its side of every bargain */
+    int used;                            /* slots held */
     double est_res[BGM_SERVICE_TYPES];   /* estimated resource cost per unit */
     double announced[BGM_SERVICE_TYPES]; /* last reservation sent to the market */
     double posted[BGM_SERVICE_TYPES];    /* baseline posted price */
-    int fixed; /* bgm_seller_fix_strategy: no strategy or price memory learnt */
-    bg_status failure;
-    bgm_outbox_t *out; /* during a call */
+    int fixed;        /* bgm_seller_fix_strategy: no strategy or price memory learnt */
+    bgm_emitter_t em; /* during a call: its outbox and first failure */
 };
-
-static void fail(bgm_seller_t *s, bg_status st)
-{
-    if (s->failure == BG_OK)
-        s->failure = st;
-}
-
-static void emit(bgm_seller_t *s, const bgm_msg_t *m)
-{
-    bg_status st = bgm_outbox_send(s->out, m);
-    if (st)
-        fail(s, st);
-}
-
-static void later(bgm_seller_t *s, double at, int kind, uint64_t arg)
-{
-    bg_status st = bgm_outbox_timer(s->out, s->p.self, at, kind, arg);
-    if (st)
-        fail(s, st);
-}
 
 static bgm_msg_t msg(int type, uint32_t from, uint32_t to, uint32_t req, uint32_t attempt)
 {
@@ -90,13 +69,14 @@ bgm_seller_t *bgm_seller_new(const bgm_seller_params_t *p)
     bgm_seller_t *s = calloc(1, sizeof *s);
     if (!s)
         return NULL;
+    s->em.self = p->self;
     s->cfg = *p->cfg;
     s->p = *p;
     s->p.cfg = &s->cfg;
     s->p.neighbours = NULL;
     s->p.same_role = NULL;
     bgm_trader_t tr = {p->rng, p->genes, 0.0, p->markup, {0.0, 0.0, 0.0, 0.0}};
-    bgm_purchase_params_t pp = {&s->cfg, p->mechanism, p->self,      p->market, p->horizon,
+    bgm_purchase_params_t pp = {&s->cfg, p->mechanism,  p->self,      p->market, p->horizon,
                                 tr,      p->neighbours, p->same_role, p->degree};
     s->pu = bgm_purchase_new(&pp);
     if (p->mechanism == BGM_MECH_CATALLACTIC)
@@ -198,7 +178,7 @@ static void announce(bgm_seller_t *s)
         return;
     bgm_msg_t m = msg(BGM_MT_AVAIL, s->p.self, s->p.market, 0, 0);
     m.a = (double)(s->p.slots - s->used);
-    emit(s, &m);
+    bgm_emitter_send(&s->em, &m);
 }
 
 /* A slot is free again (a run ended, or its bundle could not be had). */
@@ -209,7 +189,7 @@ static void free_slot(bgm_seller_t *s, uint32_t id)
     announce(s);
     if (s->p.mechanism == BGM_MECH_CENTRAL) {
         bgm_msg_t m = msg(BGM_MT_FREE, s->p.self, s->p.market, id, 0);
-        emit(s, &m);
+        bgm_emitter_send(&s->em, &m);
     }
 }
 
@@ -220,7 +200,7 @@ static void free_slot(bgm_seller_t *s, uint32_t id)
 static void absorb(bgm_seller_t *s, bg_status st, const bgm_purchase_event_t *ev)
 {
     if (st)
-        fail(s, st);
+        bgm_emitter_fail(&s->em, st);
     if (ev->kind == BGM_PU_EV_NONE)
         return;
     bgm_purchase_req_t *r = bgm_purchase_get(s->pu, ev->req);
@@ -230,17 +210,17 @@ static void absorb(bgm_seller_t *s, bg_status st, const bgm_purchase_event_t *ev
     if (ev->kind == BGM_PU_EV_FAILED) {
         free_slot(s, r->id);
         bgm_msg_t m = msg(BGM_MT_CANCEL, s->p.self, d->buyer, d->req, d->attempt);
-        emit(s, &m);
+        bgm_emitter_send(&s->em, &m);
         return;
     }
     r->delivered = 1;
-    later(s, r->end, BGM_SE_TIMER_RELEASE, r->id);
+    bgm_emitter_timer(&s->em, r->end, BGM_SE_TIMER_RELEASE, r->id);
     bgm_msg_t cm = msg(BGM_MT_CONFIRM, s->p.self, d->buyer, d->req, d->attempt);
     cm.price = d->price;
     cm.a = r->start;
     cm.b = r->end;
     cm.origin = r->id;
-    emit(s, &cm);
+    bgm_emitter_send(&s->em, &cm);
 }
 
 /* It has agreed to serve deal d: it reserves a slot and starts buying
@@ -274,7 +254,7 @@ static int service_agreed(bgm_seller_t *s, const bgm_deal_t *d, double now, int 
     it.deadline = d->deadline > now ? d->deadline : now + s->cfg.catallactic.reply_timeout;
     it.deal = *d;
     bgm_purchase_event_t ev;
-    bg_status st = bgm_purchase_open(s->pu, &it, now, up, s->out, &ev);
+    bg_status st = bgm_purchase_open(s->pu, &it, now, up, s->em.out, &ev);
     absorb(s, st, &ev);
     return 1;
 }
@@ -288,13 +268,13 @@ static void commit(bgm_seller_t *s, const bgm_msg_t *m, double price, double lim
     bgm_deal_t d = {m->from, m->req, m->attempt, m->good, m->a, m->cand_price[2], price, limit};
     if (!service_agreed(s, &d, now, up, next_req)) {
         bgm_msg_t x = msg(BGM_MT_REJECT, s->p.self, m->from, m->req, m->attempt);
-        emit(s, &x);
+        bgm_emitter_send(&s->em, &x);
         return;
     }
     remember(s, m->good, price);
     bgm_msg_t a = msg(BGM_MT_ACCEPT, s->p.self, m->from, m->req, m->attempt);
     a.price = price;
-    emit(s, &a);
+    bgm_emitter_send(&s->em, &a);
 }
 
 /* A call for proposals: it proposes its opening price for a type it
@@ -308,11 +288,11 @@ static void on_cfp(bgm_seller_t *s, const bgm_msg_t *m)
         bgm_msg_t p = msg(BGM_MT_PROPOSE, s->p.self, m->origin, m->req, m->attempt);
         p.price = opening(s, m->good);
         p.a = 0.0;
-        emit(s, &p);
+        bgm_emitter_send(&s->em, &p);
     }
-    bg_status st = bgm_purchase_cfp_forward(s->pu, m, s->out);
+    bg_status st = bgm_purchase_cfp_forward(s->pu, m, s->em.out);
     if (st)
-        fail(s, st);
+        bgm_emitter_fail(&s->em, st);
 }
 
 /* A buyer's OFFER. It reads what the offer carries (the good, how long
@@ -326,7 +306,7 @@ static void on_offer(bgm_seller_t *s, const bgm_msg_t *m, double now, int up, ui
     /* A host that sells under every mechanism bargains only when a buyer
      * opens one: its sessions are made then. */
     if (!s->sess && !(s->sess = bgm_sessions_new(SE_SESSIONS))) {
-        fail(s, BG_ERR_NOMEM);
+        bgm_emitter_fail(&s->em, BG_ERR_NOMEM);
         return;
     }
     bgm_session_t *ss = bgm_sessions_for(s->sess, m);
@@ -344,11 +324,11 @@ static void on_offer(bgm_seller_t *s, const bgm_msg_t *m, double now, int up, ui
     } else if (act == BGM_NEGO_COUNTER) {
         bgm_msg_t o = msg(BGM_MT_OFFER, s->p.self, m->from, m->req, m->attempt);
         o.price = reply;
-        emit(s, &o);
+        bgm_emitter_send(&s->em, &o);
     } else {
         bgm_purchase_learn(s->pu, 0, 0.0);
         bgm_msg_t x = msg(BGM_MT_REJECT, s->p.self, m->from, m->req, m->attempt);
-        emit(s, &x);
+        bgm_emitter_send(&s->em, &x);
     }
 }
 
@@ -361,7 +341,7 @@ static void on_accept(bgm_seller_t *s, const bgm_msg_t *m, double now, int up, u
     const bgm_session_t *ss = bgm_sessions_find(s->sess, m->from, m->req, m->attempt);
     if (!ss || !ss->open) {
         bgm_msg_t x = msg(BGM_MT_REJECT, s->p.self, m->from, m->req, m->attempt);
-        emit(s, &x);
+        bgm_emitter_send(&s->em, &x);
         return;
     }
     double lim = ss->nego.limit;
@@ -401,7 +381,7 @@ static void on_answer(bgm_seller_t *s, const bgm_msg_t *m)
             a.price = res;
             a.a = -1.0;
             s->announced[d->good] = res;
-            emit(s, &a);
+            bgm_emitter_send(&s->em, &a);
         }
     }
 }
@@ -409,17 +389,16 @@ static void on_answer(bgm_seller_t *s, const bgm_msg_t *m)
 static void to_purchase(bgm_seller_t *s, const bgm_msg_t *m, double now)
 {
     bgm_purchase_event_t ev;
-    bg_status st = bgm_purchase_on_message(s->pu, m, now, s->out, &ev);
+    bg_status st = bgm_purchase_on_message(s->pu, m, now, s->em.out, &ev);
     absorb(s, st, &ev);
 }
 
 bg_status bgm_seller_start(bgm_seller_t *s, double now, bgm_outbox_t *out)
 {
-    s->failure = BG_OK;
-    s->out = out;
+    bgm_emitter_begin(&s->em, out);
     if (s->p.mechanism == BGM_MECH_CATALLACTIC) {
-        fail(s, bgm_purchase_learning_start(s->pu, now, out));
-        return s->failure;
+        bgm_emitter_fail(&s->em, bgm_purchase_learning_start(s->pu, now, out));
+        return s->em.failure;
     }
     for (int t = 0; t < BGM_SERVICE_TYPES; t++) {
         if (!s->p.sells[t])
@@ -429,22 +408,21 @@ bg_status bgm_seller_start(bgm_seller_t *s, double now, bgm_outbox_t *out)
         m.price = s->p.mechanism == BGM_MECH_BASELINE ? s->posted[t] : reservation(s, t);
         m.a = s->p.slots;
         s->announced[t] = reservation(s, t);
-        emit(s, &m);
+        bgm_emitter_send(&s->em, &m);
     }
-    return s->failure;
+    return s->em.failure;
 }
 
 bg_status bgm_seller_on_message(bgm_seller_t *s, const bgm_msg_t *m, double now, int up,
                                 uint32_t *next_req, bgm_outbox_t *out)
 {
-    s->failure = BG_OK;
-    s->out = out;
+    bgm_emitter_begin(&s->em, out);
     switch (m->type) {
     case BGM_MT_MATCH: {
         bgm_deal_t d = {m->origin, m->req, m->attempt, m->good, m->a, m->c, m->price, m->b};
         if (!service_agreed(s, &d, now, up, next_req)) {
             bgm_msg_t c = msg(BGM_MT_CANCEL, s->p.self, m->origin, m->req, m->attempt);
-            emit(s, &c);
+            bgm_emitter_send(&s->em, &c);
         }
         break;
     }
@@ -473,7 +451,7 @@ bg_status bgm_seller_on_message(bgm_seller_t *s, const bgm_msg_t *m, double now,
             commit(s, m, m->price, limit, now, up, next_req);
         } else {
             bgm_msg_t x = msg(BGM_MT_REJECT, s->p.self, m->from, m->req, m->attempt);
-            emit(s, &x);
+            bgm_emitter_send(&s->em, &x);
         }
         break;
     }
@@ -491,30 +469,29 @@ bg_status bgm_seller_on_message(bgm_seller_t *s, const bgm_msg_t *m, double now,
         to_purchase(s, m, now);
         break;
     case BGM_MT_GENES:
-        fail(s, bgm_purchase_on_genes(s->pu, m, out));
+        bgm_emitter_fail(&s->em, bgm_purchase_on_genes(s->pu, m, out));
         break;
     case BGM_MT_CONFIRM:
         break; /* a delivery is for a job's agent */
     default:
-        fail(s, BG_ERR_INVALID);
+        bgm_emitter_fail(&s->em, BG_ERR_INVALID);
         break;
     }
-    return s->failure;
+    return s->em.failure;
 }
 
 bg_status bgm_seller_on_timer(bgm_seller_t *s, int kind, uint64_t arg, double now, int up,
                               bgm_outbox_t *out)
 {
-    s->failure = BG_OK;
-    s->out = out;
+    bgm_emitter_begin(&s->em, out);
     if (kind == BGM_SE_TIMER_RELEASE) {
         /* The run is over: a delivery never answered is void by now. */
         bgm_purchase_drop_parts(s->pu, (uint32_t)arg);
         free_slot(s, (uint32_t)arg);
-        return s->failure;
+        return s->em.failure;
     }
     bgm_purchase_event_t ev;
     bg_status st = bgm_purchase_on_timer(s->pu, kind, arg, now, up, out, &ev);
     absorb(s, st, &ev);
-    return s->failure;
+    return s->em.failure;
 }
