@@ -782,11 +782,15 @@ typedef struct watch_session {
     void *inner;
 } watch_session_t;
 
-/* The market's failure reasons that a later try may not meet: every able
- * seller busy, or a buy that ran out of time on a loaded grid. */
-static int buy_failure_transient(const char *reason)
+/* The market's failure reasons that a later try may not meet, by the
+ * name the job's events give them: every able seller busy ("no seller"),
+ * or a buy that ran out of time on a loaded grid ("timeout"). NULL for
+ * any other reason. */
+static const char *buy_failure_transient(const char *reason)
 {
-    return strstr(reason, "no seller") != NULL || strcmp(reason, "timeout") == 0;
+    if (strstr(reason, "no seller"))
+        return "no seller";
+    return strcmp(reason, "timeout") == 0 ? "timeout" : NULL;
 }
 
 /* 1 when the store says job `id` is no longer in `state` (a cancel from a
@@ -1205,7 +1209,8 @@ static void *coordinator(void *arg)
             pthread_mutex_unlock(&b->lock);
             if (!done)
                 goto out; /* stopping: left in allocating, queued again at restart */
-            if (!buy_failure_transient(req->reason) || bg_clock_now() + backoff > give_up)
+            const char *transient = buy_failure_transient(req->reason);
+            if (!transient || bg_clock_now() + backoff > give_up)
                 break;
             if (job_left_state(b, jr->id, BGB_JOB_ALLOCATING)) /* cancelled */
                 break;
@@ -1214,8 +1219,7 @@ static void *coordinator(void *arg)
             snprintf(said, sizeof said,
                      "{\"market\":\"live\",\"mechanism\":\"%s\",\"contracts\":[],"
                      "\"retry\":%d,\"reason\":\"%s\",\"wait_seconds\":%.3f}",
-                     bgb_mechanism_name(req->mechanism), ++retries,
-                     strcmp(req->reason, "timeout") == 0 ? "timeout" : "no seller", backoff);
+                     bgb_mechanism_name(req->mechanism), ++retries, transient, backoff);
             (void)bgb_store_add_event(b->store, jr->id, "allocation", said, &err);
             pthread_mutex_lock(&b->lock);
             req->release = 1; /* the loop frees it (it holds no contract) */
