@@ -116,6 +116,7 @@ bg_status bgb_broker_config_init(bgb_broker_config_t *c, bg_error_t *err)
     c->port = 8080;
     c->max_jobs = 4;
     c->agent_timeout_ms = 10000;
+    bgb_market_config_default(&c->market);
     if (!c->name || !c->address || !c->endpoint || !c->state_dir) {
         bgb_broker_config_release(c);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the broker's configuration");
@@ -199,6 +200,60 @@ static bg_status read_agents(const cJSON *arr, const char *path, bgb_broker_conf
     return BG_OK;
 }
 
+bg_status bgb_broker_market_read(const cJSON *obj, const char *path, bgb_market_config_t *m,
+                                 bg_error_t *err)
+{
+    static const char *const keys[] = {"period",        "k",    "heartbeat_timeout",
+                                       "reply_timeout", "buy_timeout", "overlay_degree",
+                                       "hops",          "max_rounds",  "max_contracts", NULL};
+    bg_status st;
+    if ((st = bg_json_expect_object(obj, path, "market", err)) != BG_OK ||
+        (st = bg_json_check_keys(obj, path, "market", keys, err)) != BG_OK)
+        return st;
+    const struct {
+        const char *key;
+        double *at;
+    } times[] = {{"period", &m->period},
+                 {"heartbeat_timeout", &m->heartbeat_timeout},
+                 {"reply_timeout", &m->reply_timeout},
+                 {"buy_timeout", &m->buy_timeout}};
+    const struct {
+        const char *key;
+        double lo, hi;
+        int *at;
+    } counts[] = {{"overlay_degree", 1, BGA_MMSG_MAX_NEIGHBOURS, &m->overlay_degree},
+                  {"hops", 1, 16, &m->hops},
+                  {"max_rounds", 1, 1000, &m->max_rounds}};
+    const cJSON *item;
+    cJSON_ArrayForEach(item, obj) {
+        char field[BG_JSON_PATH_MAX];
+        bg_json_path_key(field, "market", item->string);
+        const char *k = item->string;
+        int64_t v = 0;
+        if (strcmp(k, "k") == 0)
+            st = bg_json_number_in(item, path, field, 0, 1, &m->k, err);
+        else if (strcmp(k, "max_contracts") == 0) {
+            st = bg_json_integer(item, path, field, 1, 1e7, &v, err);
+            m->max_contracts = (size_t)v;
+        }
+        for (size_t i = 0; i < sizeof times / sizeof times[0]; i++)
+            if (strcmp(k, times[i].key) == 0) {
+                st = bg_json_number_in(item, path, field, 0, 3600, times[i].at, err);
+                if (st == BG_OK && !(*times[i].at > 0 && *times[i].at < 3600))
+                    st = bg_json_fail(err, BG_ERR_INVALID, path, field,
+                                      "%.17g s is outside (0, 3600)", *times[i].at);
+            }
+        for (size_t i = 0; i < sizeof counts / sizeof counts[0]; i++)
+            if (strcmp(k, counts[i].key) == 0) {
+                st = bg_json_integer(item, path, field, counts[i].lo, counts[i].hi, &v, err);
+                *counts[i].at = (int)v;
+            }
+        if (st != BG_OK)
+            return st;
+    }
+    return BG_OK;
+}
+
 bg_status bgb_broker_config_read(const char *path, bgb_broker_config_t *c, bg_error_t *err)
 {
     cJSON *root = NULL;
@@ -208,7 +263,7 @@ bg_status bgb_broker_config_read(const char *path, bgb_broker_config_t *c, bg_er
     static const char *const keys[] = {"name",         "address",      "port",
                                        "endpoint",     "state_dir",    "max_body",
                                        "max_vertices", "max_elements", "max_jobs",
-                                       "agent_timeout_ms", "agents",   NULL};
+                                       "agent_timeout_ms", "agents",   "market", NULL};
     if ((st = bg_json_expect_object(root, path, NULL, err)) != BG_OK ||
         (st = bg_json_check_keys(root, path, NULL, keys, err)) != BG_OK)
         goto out;
@@ -226,6 +281,8 @@ bg_status bgb_broker_config_read(const char *path, bgb_broker_config_t *c, bg_er
             st = replace_string(&c->state_dir, item, path, k, err);
         else if (strcmp(k, "agents") == 0)
             st = read_agents(item, path, c, err);
+        else if (strcmp(k, "market") == 0)
+            st = bgb_broker_market_read(item, path, &c->market, err);
         else if (strcmp(k, "port") == 0) {
             st = bg_json_integer(item, path, k, 0, 65535, &v, err);
             c->port = (int)v;
@@ -1783,8 +1840,7 @@ bg_status bgb_broker_start(const bgb_broker_config_t *config, bgb_broker_t **out
                                   .view_ctx = b};
     if ((st = bgb_rest_start(&rc, b->store, &b->rest, err)) != BG_OK)
         goto out;
-    bgb_market_config_t mc;
-    bgb_market_config_default(&mc);
+    bgb_market_config_t mc = b->config.market;
     mc.name = b->config.name;
     const bgb_market_io_t io = {b, router_send};
     if (!(b->live = calloc(BGB_MARKET_MAX_AGENTS, sizeof *b->live))) {

@@ -51,7 +51,10 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include <cjson/cJSON.h>
+
 #include "bg_error.h"
+#include "bgb_market.h"
 
 #define BGB_BROKER_MAX_AGENTS 32
 
@@ -77,6 +80,7 @@ typedef struct bgb_broker_config {
     int agent_timeout_ms;  /* per agent request, 10000 */
     bgb_broker_agent_t agents[BGB_BROKER_MAX_AGENTS];
     int agent_count;
+    bgb_market_config_t market; /* the live market's (bgb_market_config_default); name unused */
 } bgb_broker_config_t;
 
 /* The defaults above. */
@@ -85,10 +89,18 @@ bg_status bgb_broker_config_init(bgb_broker_config_t *config, bg_error_t *err);
 /*
  * Reads a JSON object over the defaults: name, address, port, endpoint,
  * state_dir, max_body, max_vertices, max_elements, max_jobs,
- * agent_timeout_ms, agents [{"endpoint", "services"}]. An unknown key, a
- * wrong type or range is BG_ERR_INVALID naming the file and the field.
+ * agent_timeout_ms, agents [{"endpoint", "services"}], market {period,
+ * k, heartbeat_timeout, reply_timeout, buy_timeout (seconds, in (0, 3600);
+ * k in [0, 1]), overlay_degree in [1, 8], hops in [1, 16], max_rounds in
+ * [1, 1000], max_contracts in [1, 10^7]}. An unknown key, a wrong type or
+ * range is BG_ERR_INVALID naming the file and the field ("market.k").
  */
 bg_status bgb_broker_config_read(const char *path, bgb_broker_config_t *config, bg_error_t *err);
+
+/* The "market" object alone, over *market (`path` names the file in
+ * errors): what the grid checks before it starts a broker with it. */
+bg_status bgb_broker_market_read(const cJSON *obj, const char *path, bgb_market_config_t *market,
+                                 bg_error_t *err);
 
 void bgb_broker_config_release(bgb_broker_config_t *config);
 

@@ -6,7 +6,8 @@
  *
  * FILE (default configs/grids/local.json) is {"name": ..., "agents":
  * [{"name", "services", "slots", "listen"}, ...], "broker": {"port",
- * "endpoint"}}. With a "broker" object (or a --broker-* option), `up`
+ * "endpoint", "market"}} (market: the broker's live-market settings, as in
+ * its config, bgb_broker.h). With a "broker" object (or a --broker-* option), `up`
  * starts `biotgrid broker` first, with a config in DIR/broker.json (no
  * fixed pool) and its store in DIR/broker/, records its URL, endpoint and
  * PID in the state file, and gives every agent `--broker ENDPOINT` (the
@@ -43,6 +44,7 @@
 #include "bg_clock.h"
 #include "bg_mesh_io.h"
 #include "bga_client.h"
+#include "bgb_broker.h"
 #include "cmd.h"
 #include "cmd_agent.h"
 
@@ -68,6 +70,7 @@ typedef struct grid {
     grid_agent broker; /* spec.name "broker", spec.listen its ZeroMQ endpoint */
     int broker_port;
     char broker_url[128];
+    char market[2048]; /* the broker's "market" object, compact JSON ("" none) */
 } grid;
 
 /* The broker's name among the grid's processes (its ready and log files). */
@@ -120,6 +123,25 @@ static int read_broker_config(const cJSON *obj, const char *path, grid *g)
         if (strcmp(k->string, "port") == 0 && cJSON_IsNumber(k) && k->valuedouble >= 0 &&
             k->valuedouble <= 65535 && k->valuedouble == (double)(int)k->valuedouble) {
             g->broker_port = (int)k->valuedouble;
+        } else if (strcmp(k->string, "market") == 0) {
+            /* Checked here as the broker will read it, so a bad value is
+             * this command's error, not a broker that never starts. */
+            bgb_market_config_t mc;
+            bgb_market_config_default(&mc);
+            bg_error_t err = BG_ERROR_INIT;
+            char *text = NULL;
+            if (bgb_broker_market_read(k, path, &mc, &err) != BG_OK) {
+                fprintf(stderr, "biotgrid grid: %s\n", err.message);
+                return 2;
+            }
+            if (!(text = cJSON_PrintUnformatted(k)) || strlen(text) >= sizeof g->market) {
+                fprintf(stderr, "biotgrid grid: %s: broker.market: longer than %zu bytes\n", path,
+                        sizeof g->market - 1);
+                free(text);
+                return 2;
+            }
+            snprintf(g->market, sizeof g->market, "%s", text);
+            free(text);
         } else if (strcmp(k->string, "endpoint") == 0 && cJSON_IsString(k) &&
                    strncmp(k->valuestring, "tcp://", 6) == 0 &&
                    strlen(k->valuestring) < sizeof g->broker.spec.listen) {
@@ -127,7 +149,7 @@ static int read_broker_config(const cJSON *obj, const char *path, grid *g)
         } else {
             fprintf(stderr,
                     "biotgrid grid: %s: broker.%s: unknown key or wrong value (port: integer "
-                    "in [0, 65535], endpoint: tcp://HOST:PORT)\n",
+                    "in [0, 65535], endpoint: tcp://HOST:PORT, market: an object)\n",
                     path, k->string);
             return 2;
         }
@@ -472,6 +494,8 @@ static int write_broker_config(const grid *g, const char *dir, char *path, size_
     cJSON_AddNumberToObject(root, "port", g->broker_port);
     cJSON_AddStringToObject(root, "endpoint", g->broker.spec.listen);
     cJSON_AddStringToObject(root, "state_dir", store);
+    if (g->market[0])
+        cJSON_AddItemToObject(root, "market", cJSON_Parse(g->market));
     char *text = cJSON_Print(root);
     cJSON_Delete(root);
     FILE *f = text ? fopen(path, "w") : NULL;

@@ -1,0 +1,75 @@
+#!/bin/sh
+# market_config.sh BIOTGRID AGENT_SCRIPTS WORKDIR GRID_CONFIG SCENE
+# The broker's `market` settings. A broker config whose market object has
+# a value out of range, a wrong type or an unknown key is refused with exit
+# 2 naming the field, before anything listens; so is a grid config's
+# broker.market, by `grid up`, before any process starts. The k of the
+# central clearing takes effect: k = 1 prices a service at its buyer's
+# limit where no unmatched ask bounds the price, k = 0 below it.
+set -u
+bin=$1 scripts=$2 work=$3 config=$4 scene=$5
+here=$(cd "$(dirname "$0")" && pwd)
+. "$here/broker_lib.sh"
+grid_test_begin "$bin" "$work"
+
+# A broker config that names its store and ports, with this market object.
+broker_config() {
+  jq -n --arg dir "$work/store-$1" --argjson market "$2" \
+    '{port: 0, endpoint: "tcp://127.0.0.1:*", state_dir: $dir, market: $market}' >"$work/$1.json"
+}
+refused() {
+  name=$1 market=$2 field=$3
+  broker_config "$name" "$market"
+  "$bin" broker --config "$work/$name.json" >"$work/$name.out" 2>&1 </dev/null
+  rc=$?
+  [ "$rc" -eq 2 ] && grep -q "$field" "$work/$name.out" && ! [ -e "$work/store-$name" ]
+  check $? "broker market $market: exit 2 naming $field, no store made (exit $rc: $(head -c 200 "$work/$name.out"))"
+}
+refused k-range '{"k": 2}' 'market.k'
+refused k-type '{"k": "half"}' 'market.k'
+refused period-zero '{"period": 0}' 'market.period'
+refused hops-range '{"hops": 17}' 'market.hops'
+refused degree-range '{"overlay_degree": 9}' 'market.overlay_degree'
+refused rounds-fraction '{"max_rounds": 2.5}' 'market.max_rounds'
+refused unknown-key '{"auction": "dutch"}' 'auction'
+refused not-object '[1]' 'market'
+
+# grid up refuses a bad broker.market before it starts a process.
+jq '.broker.market = {"reply_timeout": -1}' "$config" >"$work/bad-grid.json"
+"$bin" grid up "$work/bad-grid.json" --state "$work/bad-state" --broker-port 0 \
+  --broker-endpoint 'tcp://127.0.0.1:*' >"$work/bad-grid.out" 2>&1
+rc=$?
+[ "$rc" -eq 2 ] && grep -q 'market.reply_timeout' "$work/bad-grid.out" &&
+  ! [ -e "$work/bad-state/grid.json" ]
+check $? "grid up with broker.market.reply_timeout -1: exit 2 naming it, nothing started (exit $rc)"
+sh "$scripts/no_agents_left.sh" "$work/bad-state"
+check $? "no process of the refused grid is left"
+
+# The clearing price: k = 1 puts it at the top of the clearing interval,
+# k = 0 at the bottom. In this grid every service good has as many sellers
+# as the job has units of it, so no unmatched ask caps the interval: at
+# k = 1 each service row is priced at its buyer's limit, at k = 0 below it
+# (at the ask). Layer 1 has a resource seller per daemon at one rate, and
+# an unmatched equal ask pins its price to the ask whatever k is.
+for k in 1 0; do
+  jq --argjson k "$k" '.broker.market = {"k": $k, "period": 0.1}' "$config" >"$work/k$k-grid.json"
+  grid_up_market "$bin" "$work/k$k-grid.json" "$state"
+  jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "central", budget: 100}' >"$work/submit.json"
+  id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
+    "$url/v1/jobs" | jq -r .id)
+  st=$(wait_job "$url" "$id" 300)
+  [ "$st" = succeeded ]; check $? "central job at k = $k succeeded (got $st)"
+  # Rows are logged when the job's purchase completes, before it runs.
+  curl -sf "$url/v1/market/contracts.csv" >"$work/contracts-k$k.csv"
+  rows=$(awk -F, 'NR > 1 && $3 == "central" && $4 == "service"' "$work/contracts-k$k.csv" | wc -l)
+  off=$(awk -F, -v k="$k" 'NR > 1 && $3 == "central" && $4 == "service" {
+          at_limit = $13 >= $14 * (1 - 1e-9)
+          if ((k == 1) != at_limit || $13 < $15 * (1 - 1e-12)) n++ } END { print n + 0 }' \
+        "$work/contracts-k$k.csv")
+  [ "$rows" -ge 3 ] && [ "$off" -eq 0 ]
+  check $? "k = $k: each of the $rows central service rows is priced $( [ "$k" = 1 ] && echo at || echo below) its buyer's limit and at least its seller's ($off are not)"
+  "$bin" grid down --state "$state" >"$work/down-k$k.txt" 2>&1
+  check $? "grid down (k = $k)"
+done
+grid_test_end "$scripts"
+exit $fail
