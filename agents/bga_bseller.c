@@ -287,6 +287,16 @@ static void refusal_reason(const bga_bseller_t *bs, const route_t *r, char *out,
         snprintf(out, n, "the basic seller declined");
 }
 
+/* Queues the host's own answer to the machine (a free rental's RCONFIRM,
+ * a delivery's TAKE), handed to it once the current call is routed. */
+static bg_status answer_machine(route_t *r, const bgm_msg_t *m, bg_error_t *err)
+{
+    if (r->ninject == BS_INJECT)
+        return bg_error_set(err, BG_ERR_LIMIT, "basic seller: too many answers in one call");
+    r->inject[r->ninject++] = *m;
+    return BG_OK;
+}
+
 /* The machine's resource purchase: one RBID is the live RBUY for the
  * contract's cores and memory over one lease; a contract that needs none
  * is rented at once for nothing. */
@@ -300,15 +310,12 @@ static bg_status on_rbid(route_t *r, const bgm_msg_t *m, bg_error_t *err)
     d->bundle = m->req;
     const double cores = bs->c.unit_cores[d->good], memory = bs->c.unit_memory[d->good];
     if (cores <= 0 && memory <= 0) {
-        if (r->ninject == BS_INJECT)
-            return bg_error_set(err, BG_ERR_LIMIT, "basic seller: too many answers in one call");
         bgm_msg_t c = bgm_outbox_msg(BGM_MT_RCONFIRM, BS_RESOURCE, bs->id, m->req, m->attempt);
         c.good = -1;
         c.price = 0.0;
         c.a = r->now;
         c.b = r->now + bs->c.lease;
-        r->inject[r->ninject++] = c;
-        return BG_OK;
+        return answer_machine(r, &c, err);
     }
     if (r->quiet)
         return BG_OK;
@@ -332,13 +339,11 @@ static bg_status on_confirm(route_t *r, const bgm_msg_t *m, bg_error_t *err)
         return bg_error_set(err, BG_ERR_INVALID, "basic seller: a delivery of no deal");
     d->state = D_HELD;
     d->until = r->now + bs->c.lease;
-    if (r->ninject == BS_INJECT)
-        return bg_error_set(err, BG_ERR_LIMIT, "basic seller: too many answers in one call");
     bgm_msg_t t = bgm_outbox_msg(BGM_MT_TAKE, BS_BUYER, bs->id, m->req, m->attempt);
     t.origin = m->origin;
-    r->inject[r->ninject++] = t;
-    if (r->quiet)
-        return BG_OK;
+    bg_status st = answer_machine(r, &t, err);
+    if (st != BG_OK || r->quiet)
+        return st;
     bga_mmsg_t o;
     live_init(bs, &o, BGA_MM_CONFIRM, d);
     o.price = m->price;
@@ -617,7 +622,8 @@ bg_status bga_bseller_tick(bga_bseller_t *bs, double now, bga_bseller_send_fn se
                            bg_error_t *err)
 {
     bg_status st = BG_OK;
-    /* Timers due, oldest first; one that fires may add others. */
+    /* Timers due, in no particular order (each stands alone); one that
+     * fires may add others, which this pass also runs when due. */
     for (int i = 0; i < bs->ntimers && st == BG_OK;) {
         if (bs->timer[i].at > now) {
             i++;
