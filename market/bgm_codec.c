@@ -86,6 +86,17 @@ bga_wire_code bgm_codec_decode_msg(const bga_frame_t *frames, int nframes, bgm_m
 
 /* ------------------------------------------------- typed <-> generic */
 
+/* A bid's or query's sellers to leave out travel as its candidates. */
+static bg_status exclusions_to_generic(int n, const uint32_t *ids, bgm_msg_t *o, bg_error_t *err)
+{
+    if (n < 0 || n > BGM_ROLE_CANDIDATES)
+        return bg_error_set(err, BG_ERR_INVALID, "exclusions: %d outside [0, %d]", n,
+                            BGM_ROLE_CANDIDATES);
+    o->ncand = (uint16_t)n;
+    memcpy(o->cand, ids, (size_t)n * sizeof *ids);
+    return BG_OK;
+}
+
 bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_t *err)
 {
     memset(o, 0, sizeof *o);
@@ -98,10 +109,13 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
     o->req = in->req;
     o->attempt = in->attempt;
     const bgm_role_payload_t *u = &in->u;
+    bg_status st = BG_OK;
     switch (in->type) {
     case BGM_RM_BID:
         o->good = (int16_t)u->bid.good; o->price = u->bid.price_per_unit;
         o->a = u->bid.work; o->b = u->bid.deadline; o->cand_price[0] = u->bid.deadline;
+        o->origin = u->bid.group;
+        st = exclusions_to_generic(u->bid.nexclude, u->bid.exclude, o, err);
         break;
     case BGM_RM_ASK:
         o->good = (int16_t)u->ask.good; o->price = u->ask.reservation_per_unit;
@@ -166,6 +180,8 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
         break;
     case BGM_RM_QUERY:
         o->good = (int16_t)u->query.good; o->price = u->query.limit;
+        o->a = u->query.cores; o->b = u->query.memory;
+        st = exclusions_to_generic(u->query.nexclude, u->query.exclude, o, err);
         break;
     case BGM_RM_LIST:
         if (u->list.ncand < 0 || u->list.ncand > BGM_ROLE_CANDIDATES)
@@ -195,7 +211,7 @@ bg_status bgm_codec_to_generic(const bgm_role_msg_t *in, bgm_msg_t *o, bg_error_
     default: /* FREE, RFAIL, CANCEL, REJECT: header only */
         break;
     }
-    return BG_OK;
+    return st;
 }
 
 bg_status bgm_codec_from_generic(const bgm_msg_t *g, bgm_role_msg_t *o, bg_error_t *err)
@@ -213,7 +229,11 @@ bg_status bgm_codec_from_generic(const bgm_msg_t *g, bgm_role_msg_t *o, bg_error
     bgm_role_payload_t *u = &o->u;
     switch (type) {
     case BGM_RM_BID:
-        u->bid = (bgm_rm_bid_t){g->good, g->price, g->a, g->b};
+        if (g->ncand > BGM_ROLE_CANDIDATES)
+            return bg_error_set(err, BG_ERR_INVALID, "bid: %u exclusions over %d",
+                                (unsigned)g->ncand, BGM_ROLE_CANDIDATES);
+        u->bid = (bgm_rm_bid_t){g->good, g->price, g->a, g->b, g->origin, g->ncand, {0}};
+        memcpy(u->bid.exclude, g->cand, g->ncand * sizeof *g->cand);
         break;
     case BGM_RM_ASK:
         u->ask = (bgm_rm_ask_t){g->good, g->price, g->a};
@@ -264,7 +284,11 @@ bg_status bgm_codec_from_generic(const bgm_msg_t *g, bgm_role_msg_t *o, bg_error
         u->genes.request = g->a != 0.0;
         break;
     case BGM_RM_QUERY:
-        u->query = (bgm_rm_query_t){g->good, g->price};
+        if (g->ncand > BGM_ROLE_CANDIDATES)
+            return bg_error_set(err, BG_ERR_INVALID, "query: %u exclusions over %d",
+                                (unsigned)g->ncand, BGM_ROLE_CANDIDATES);
+        u->query = (bgm_rm_query_t){g->good, g->price, g->a, g->b, g->ncand, {0}};
+        memcpy(u->query.exclude, g->cand, g->ncand * sizeof *g->cand);
         break;
     case BGM_RM_LIST:
         if (g->ncand > BGM_ROLE_CANDIDATES)

@@ -13,11 +13,15 @@
 /* Memory is sold in MiB. */
 #define MA_MIB 1024.0
 
-/* A service bid as it arrived. */
+/* A service bid as it arrived: with the sellers it must not be matched
+ * with and its need group (0: none), which a live buyer sets. */
 typedef struct ma_bid {
     uint32_t req, buyer, attempt;
     int good, matched;
     double limit, work, deadline;
+    uint32_t group;
+    int nexclude;
+    uint32_t exclude[BGM_MSG_CANDIDATES];
 } ma_bid_t;
 
 /* A resource bid (a bundle for one service) as it arrived. */
@@ -122,10 +126,73 @@ void bgm_market_agent_books(const bgm_market_agent_t *ma, size_t *bids, size_t *
 
 /* ------------------------------------------------------------- services */
 
+static int excluded(const uint32_t *list, int n, uint32_t seller)
+{
+    for (int i = 0; i < n; i++)
+        if (list[i] == seller)
+            return 1;
+    return 0;
+}
+
+/* Bid r was matched with `seller`: the other bids of its buyer's need
+ * group exclude that seller from now on (a need split over n sellers
+ * goes to n distinct ones, in this clearing and the next). A full list
+ * leaves the rest to the buyer, which refuses a match it cannot take. */
+static void group_matched(bgm_market_agent_t *ma, const ma_bid_t *r, uint32_t seller)
+{
+    for (size_t i = 0; i < ma->nbid; i++) {
+        ma_bid_t *o = &ma->bids[i];
+        if (o != r && !o->matched && o->buyer == r->buyer && o->group == r->group &&
+            o->nexclude < BGM_MSG_CANDIDATES && !excluded(o->exclude, o->nexclude, seller))
+            o->exclude[o->nexclude++] = seller;
+    }
+}
+
+/* Bid r is matched with seller s at `price` (s asked `ask`): the seller
+ * is told (MATCH: the bid's work and deadline, the price, its own ask)
+ * and so is the buyer (ACCEPT at the price). */
+static void match(bgm_market_agent_t *ma, ma_bid_t *r, ma_seller_t *s, double price, double ask)
+{
+    s->free_a -= 1.0;
+    r->matched = 1;
+    if (r->group)
+        group_matched(ma, r, s->agent);
+    bgm_msg_t m = msg(BGM_MT_MATCH, ma->p.self, s->agent, r->req, r->attempt);
+    m.good = (int16_t)r->good;
+    m.price = price;
+    m.a = r->work;
+    m.b = ask;
+    m.c = r->deadline;
+    m.origin = r->buyer;
+    bgm_emitter_send(&ma->em, &m);
+    bgm_msg_t c = msg(BGM_MT_ACCEPT, ma->p.self, r->buyer, r->req, r->attempt);
+    c.price = price;
+    bgm_emitter_send(&ma->em, &c);
+}
+
+/* Places the asks of good t's sellers with a free slot (all of them, or
+ * those bid `only` does not exclude). */
+static int place_asks(bgm_market_agent_t *ma, int t, const ma_bid_t *only)
+{
+    for (uint32_t k = 0; k < ma->nmb; k++) {
+        const ma_seller_t *s = &ma->mb[k];
+        if (!s->sells[t] || s->free_a < 1.0 ||
+            (only && excluded(only->exclude, only->nexclude, s->agent)))
+            continue;
+        bgm_order_t o = {k, s->agent, (int)s->free_a, s->reservation[t]};
+        if (bgm_callmarket_ask(ma->cm, &o))
+            return -1;
+    }
+    return 0;
+}
+
 /* One k-double call market per service type over the bids still open and
- * the basic sellers' free slots at their reservations. Each fill tells the
- * seller (MATCH: the bid's work and deadline, the clearing price, the
- * seller's own ask) and the buyer (ACCEPT at the clearing price). */
+ * the basic sellers' free slots at their reservations; each fill is a
+ * match. A bid the uniform clearing paired with a seller it excludes is
+ * cleared after it, alone, against the free slots of the sellers it
+ * allows, at that book's own k-double price: every trade stays within
+ * both limits, and an excluded cheapest seller cannot keep a bid out of
+ * the market for ever. (The simulator's buyers exclude nobody.) */
 static void clear_services(bgm_market_agent_t *ma, double now)
 {
     size_t keep = 0;
@@ -146,38 +213,37 @@ static void clear_services(bgm_market_agent_t *ma, double now)
                 break;
             ma->slot[nb++] = i;
         }
-        for (uint32_t k = 0; k < ma->nmb; k++) {
-            const ma_seller_t *s = &ma->mb[k];
-            if (!s->sells[t] || s->free_a < 1.0)
-                continue;
-            bgm_order_t o = {k, s->agent, (int)s->free_a, s->reservation[t]};
-            if (bgm_callmarket_ask(ma->cm, &o))
-                break;
-        }
         bgm_clearing_t res;
-        if (bgm_callmarket_clear(ma->cm, ma->cfg.central.k, &res, ma->fills, 2 * MA_BOOK_MAX)) {
+        if (place_asks(ma, t, NULL) ||
+            bgm_callmarket_clear(ma->cm, ma->cfg.central.k, &res, ma->fills, 2 * MA_BOOK_MAX)) {
             bgm_emitter_fail(&ma->em, BG_ERR_LIMIT);
             return;
         }
         const bgm_order_t *asks = bgm_callmarket_asks(ma->cm);
+        size_t nskipped = 0; /* bid records, in the clearing's order, in assign[] */
         for (size_t f = 0; f < res.fill_count; f++) {
             /* Fills index the book in insertion order (clearing does not
              * reorder it), so slot[] names the bid record. */
             ma_bid_t *r = &ma->bids[ma->slot[ma->fills[f].bid]];
             ma_seller_t *s = &ma->mb[asks[ma->fills[f].ask].ref];
-            s->free_a -= 1.0;
-            r->matched = 1;
-            bgm_msg_t m = msg(BGM_MT_MATCH, ma->p.self, s->agent, r->req, r->attempt);
-            m.good = (int16_t)t;
-            m.price = res.price;
-            m.a = r->work;
-            m.b = asks[ma->fills[f].ask].price;
-            m.c = r->deadline;
-            m.origin = r->buyer;
-            bgm_emitter_send(&ma->em, &m);
-            bgm_msg_t c = msg(BGM_MT_ACCEPT, ma->p.self, r->buyer, r->req, r->attempt);
-            c.price = res.price;
-            bgm_emitter_send(&ma->em, &c);
+            if (excluded(r->exclude, r->nexclude, s->agent))
+                ma->assign[nskipped++] = (int)ma->slot[ma->fills[f].bid];
+            else
+                match(ma, r, s, res.price, asks[ma->fills[f].ask].price);
+        }
+        for (size_t i = 0; i < nskipped; i++) {
+            ma_bid_t *r = &ma->bids[ma->assign[i]];
+            bgm_callmarket_reset(ma->cm);
+            bgm_order_t o = {r->req, r->buyer, 1, r->limit};
+            if (bgm_callmarket_bid(ma->cm, &o) || place_asks(ma, t, r) ||
+                bgm_callmarket_clear(ma->cm, ma->cfg.central.k, &res, ma->fills, 2 * MA_BOOK_MAX)) {
+                bgm_emitter_fail(&ma->em, BG_ERR_LIMIT);
+                return;
+            }
+            if (res.fill_count == 1) {
+                const bgm_order_t *a = &bgm_callmarket_asks(ma->cm)[ma->fills[0].ask];
+                match(ma, r, &ma->mb[a->ref], res.price, a->price);
+            }
         }
     }
     keep = 0;
@@ -467,6 +533,8 @@ static int has_room(void *ctx, const bgm_posting_t *p)
 {
     const room_ctx_t *rc = ctx;
     const bgm_market_agent_t *ma = rc->ma;
+    if (excluded(rc->query->cand, rc->query->ncand, p->seller))
+        return 0;
     if (rc->query->good == BGM_GOOD_CORES_ID) {
         const ma_seller_t *s = &ma->mr[p->seller - ma->p.first_resource];
         return s->free_a >= rc->query->a && s->free_b >= rc->query->b;
@@ -525,14 +593,17 @@ bg_status bgm_market_agent_on_message(bgm_market_agent_t *ma, const bgm_msg_t *m
 {
     bgm_emitter_begin(&ma->em, out);
     switch (m->type) {
-    case BGM_MT_BID:
-        if (m->good < 0 || m->good >= BGM_SERVICE_TYPES)
+    case BGM_MT_BID: {
+        if (m->good < 0 || m->good >= BGM_SERVICE_TYPES || m->ncand > BGM_MSG_CANDIDATES)
             return BG_ERR_INVALID;
         if (ma->nbid >= MA_BOOK_MAX)
             return BG_ERR_LIMIT;
-        ma->bids[ma->nbid++] =
-            (ma_bid_t){m->req, m->from, m->attempt, m->good, 0, m->price, m->a, m->b};
+        ma_bid_t *r = &ma->bids[ma->nbid++];
+        *r = (ma_bid_t){m->req, m->from, m->attempt, m->good, 0, m->price, m->a, m->b,
+                        m->origin, m->ncand, {0}};
+        memcpy(r->exclude, m->cand, m->ncand * sizeof *m->cand);
         break;
+    }
     case BGM_MT_RBID:
         if (ma->nrbid >= MA_BOOK_MAX)
             return BG_ERR_LIMIT;
@@ -598,6 +669,8 @@ bg_status bgm_market_agent_on_message(bgm_market_agent_t *ma, const bgm_msg_t *m
         }
         break;
     case BGM_MT_QUERY:
+        if (m->ncand > BGM_MSG_CANDIDATES)
+            return BG_ERR_INVALID;
         on_query(ma, m);
         break;
     default:
@@ -627,4 +700,34 @@ bg_status bgm_market_agent_on_timer(bgm_market_agent_t *ma, int kind, uint64_t a
             bgm_emitter_fail(&ma->em, st);
     }
     return ma->em.failure;
+}
+
+void bgm_market_agent_forget_seller(bgm_market_agent_t *ma, uint32_t seller)
+{
+    if (is_basic(ma, seller)) {
+        ma_seller_t *s = &ma->mb[seller - ma->p.first_basic];
+        memset(s, 0, sizeof *s);
+        s->agent = seller;
+    } else if (is_resource(ma, seller)) {
+        ma_seller_t *s = &ma->mr[seller - ma->p.first_resource];
+        memset(s, 0, sizeof *s);
+        s->agent = seller;
+    } else {
+        return;
+    }
+    bgm_posted_withdraw(ma->dir, seller);
+}
+
+void bgm_market_agent_forget_bids(bgm_market_agent_t *ma, uint32_t buyer)
+{
+    size_t keep = 0;
+    for (size_t i = 0; i < ma->nbid; i++)
+        if (ma->bids[i].buyer != buyer)
+            ma->bids[keep++] = ma->bids[i];
+    ma->nbid = keep;
+    keep = 0;
+    for (size_t i = 0; i < ma->nrbid; i++)
+        if (ma->rbids[i].buyer != buyer)
+            ma->rbids[keep++] = ma->rbids[i];
+    ma->nrbid = keep;
 }

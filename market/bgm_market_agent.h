@@ -15,14 +15,20 @@
  * the deadline, so an expired bid is dropped without a message).
  *
  * Messages it reads (bgm_role.h numbers, fields of bgm_msg_t):
- *   BID    good, price = limit per unit, a = work, b = deadline
+ *   BID    good, price = limit per unit, a = work, b = deadline,
+ *          cand[0..ncand) = sellers it must not be matched with, origin =
+ *          its need group (0: none; bids of one buyer and group are matched
+ *          with distinct sellers). The simulator's buyers send neither; a
+ *          live buyer excludes the sellers a unit tried and those its
+ *          split need has already.
  *   RBID   price = limit in all, a = cores, b = GiB, c = flops, cand_price[0] = deadline
  *   ASK    good, price = reservation (posted price for the baseline), a = slots (< 0: unchanged)
  *   FREE   one slot free;   RFREE a = cores, b = GiB freed
  *   RASK   a = cores, b = GiB, c = speed, price = cost per core-second,
  *          cand_price[0] = cost per GiB-second
  *   AVAIL  a = free slots | cores, b = free GiB (baseline)
- *   QUERY  good (cores: a bundle of a cores and b GiB), price = limit
+ *   QUERY  good (cores: a bundle of a cores and b GiB), price = limit,
+ *          cand[0..ncand) = sellers not to list
  * Messages it sends: MATCH (to the basic seller) and ACCEPT (to the
  * buyer) per service fill, RAWARD or RPART per resource award, LIST per
  * query.
@@ -67,6 +73,13 @@ bg_status bgm_market_agent_on_message(bgm_market_agent_t *ma, const bgm_msg_t *i
 /* Fires one of its timers (BGM_MA_TIMER_CLEAR): clears every book. */
 bg_status bgm_market_agent_on_timer(bgm_market_agent_t *ma, int kind, uint64_t arg, double now,
                                     bgm_outbox_t *out);
+
+/* A live host's bookkeeping, not a message: a seller that left the grid
+ * is forgotten (no slots, no postings, sells nothing) so that its id can
+ * be given to another; a buyer whose job ended has its bids dropped
+ * rather than matched after it stopped listening. */
+void bgm_market_agent_forget_seller(bgm_market_agent_t *ma, uint32_t seller);
+void bgm_market_agent_forget_bids(bgm_market_agent_t *ma, uint32_t buyer);
 
 /* How the resource layer's winners were determined so far: exact
  * programs and greedy fallbacks of the combinatorial exchange. */

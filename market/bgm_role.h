@@ -124,9 +124,14 @@ _Static_assert(BGM_RM_BID == 0x1000 + BGM_MT_BID && BGM_RM_REFUSE == 0x1000 + BG
                "wire types are 0x1000 + the simulator's message numbers");
 
 /* Typed payloads (what the receiver reads; units as in bgm_world.c). */
+/* BID: a live buyer also names the sellers the bid must not be matched
+ * with and its need group (0: none), bgm_market_agent.h. */
 typedef struct bgm_rm_bid {
     int good;
     double price_per_unit, work, deadline;
+    uint32_t group;
+    int nexclude;
+    uint32_t exclude[BGM_ROLE_CANDIDATES];
 } bgm_rm_bid_t;
 typedef struct bgm_rm_ask {
     int good;
@@ -194,8 +199,10 @@ typedef struct bgm_rm_genes {
     int request; /* 1 request, 0 reply */
 } bgm_rm_genes_t;
 typedef struct bgm_rm_query {
-    int good; /* −1: a resource bundle */
-    double limit;
+    int good; /* a service, or cores: a resource bundle of `cores` and `memory` GiB */
+    double limit, cores, memory;
+    int nexclude; /* sellers not to list */
+    uint32_t exclude[BGM_ROLE_CANDIDATES];
 } bgm_rm_query_t;
 typedef struct bgm_rm_list {
     int ncand;

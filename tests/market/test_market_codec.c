@@ -166,9 +166,27 @@ static void test_typed_fields_market_agent_reads(void **state)
     assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
     assert_true(back.u.rask.memory_cost_rate == 0.0125);
     r.type = BGM_RM_BID;
-    r.u.bid = (bgm_rm_bid_t){1, 3.0, 5.0, 77.5};
+    r.u.bid = (bgm_rm_bid_t){1, 3.0, 5.0, 77.5, 0, 0, {0}};
     assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
     assert_true(g.b == 77.5 && g.cand_price[0] == 77.5);
+    /* A live bid's exclusions and need group; a query's bundle size and
+     * exclusions. */
+    r.u.bid = (bgm_rm_bid_t){1, 3.0, 5.0, 77.5, 4, 2, {21, 13}};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.origin == 4 && g.ncand == 2 && g.cand[0] == 21 && g.cand[1] == 13);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.bid.group == 4 && back.u.bid.nexclude == 2 && back.u.bid.exclude[1] == 13);
+    r.u.bid.nexclude = BGM_ROLE_CANDIDATES + 1;
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_ERR_INVALID);
+    r.type = BGM_RM_QUERY;
+    r.u.query = (bgm_rm_query_t){BGM_GOOD_CORES_ID, 9.0, 2.0, 0.5, 1, {7}};
+    assert_int_equal(bgm_codec_to_generic(&r, &g, &err), BG_OK);
+    assert_true(g.a == 2.0 && g.b == 0.5 && g.ncand == 1 && g.cand[0] == 7);
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_OK);
+    assert_true(back.u.query.cores == 2.0 && back.u.query.memory == 0.5 &&
+                back.u.query.nexclude == 1 && back.u.query.exclude[0] == 7);
+    g.ncand = BGM_ROLE_CANDIDATES + 1;
+    assert_int_equal(bgm_codec_from_generic(&g, &back, &err), BG_ERR_INVALID);
     /* What a resource seller reads of a buyer's offer, order and award. */
     r.type = BGM_RM_OFFER;
     r.u.price = (bgm_rm_price_t){0.4, -1, 1, 2.0, 3.0, 8e9, 9.5, 61.0};
@@ -199,7 +217,7 @@ static void test_typed_field_meaning(void **state)
     bgm_role_msg_t r;
     memset(&r, 0, sizeof r);
     r.type = BGM_RM_BID;
-    r.u.bid = (bgm_rm_bid_t){1, 2.5, 4.0, 30.0};
+    r.u.bid = (bgm_rm_bid_t){1, 2.5, 4.0, 30.0, 0, 0, {0}};
     bgm_msg_t g;
     bg_error_t err;
     memset(&err, 0, sizeof err);

@@ -325,6 +325,128 @@ static void test_directory_first_fit(void **state)
     bgm_market_agent_destroy(&ma);
 }
 
+/* What a live buyer adds to its bids and queries: sellers it excludes
+ * are neither matched nor listed (and keep their slots for others); two
+ * bids of one buyer's need group are matched with distinct sellers even
+ * when one seller has room for both; a forgotten seller sells nothing and
+ * a forgotten buyer's bids are gone. Which fills are taken is worked out
+ * by hand from the k-double definition. */
+static void test_auctioneer_exclusions_and_groups(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("central", 0.5);
+    bgm_market_agent_t *ma = agent(&cfg, BGM_MECH_CENTRAL);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    assert_non_null(ob);
+    /* Seller 5 asks 1 with two slots, seller 6 asks 2 with one. */
+    ask(ma, ob, FIRST_BASIC, BGM_GOOD_ROTFIT, 1.0, 2.0);
+    ask(ma, ob, FIRST_BASIC + 1, BGM_GOOD_ROTFIT, 2.0, 1.0);
+    /* Buyer 1: two bids of group 1 at limit 10; buyer 2: one bid at 9
+     * that excludes seller 5. */
+    for (uint32_t r = 0; r < 2; r++) {
+        bgm_msg_t m = mk(BGM_MT_BID, 1, 10 + r);
+        m.good = BGM_GOOD_ROTFIT;
+        m.price = 10.0;
+        m.a = 1.0;
+        m.b = 50.0;
+        m.origin = 1;
+        deliver(ma, &m, ob);
+    }
+    bgm_msg_t x = mk(BGM_MT_BID, 2, 20);
+    x.good = BGM_GOOD_ROTFIT;
+    x.price = 9.0;
+    x.a = 1.0;
+    x.b = 50.0;
+    x.ncand = 1;
+    x.cand[0] = FIRST_BASIC;
+    deliver(ma, &x, ob);
+    assert_int_equal(bgm_market_agent_on_timer(ma, BGM_MA_TIMER_CLEAR, 0, 1.0, ob), BG_OK);
+    /* Units in price order: bids 10, 10, 9 against asks 1, 1, 2: all
+     * three cross, and the fills pair bid i with ask i. Bid 10 (req 10)
+     * gets seller 5; bid 10 (req 11) would get seller 5's second slot but
+     * its group has it: left; bid 9 gets seller 6. */
+    uint32_t seller_of[3] = {0, 0, 0};
+    int matches = 0;
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+        const bgm_out_item_t *it = bgm_outbox_item(ob, i);
+        if (it->is_timer || it->msg.type != BGM_MT_MATCH)
+            continue;
+        matches++;
+        const uint32_t req = it->msg.req;
+        assert_true(req == 10 || req == 11 || req == 20);
+        seller_of[req == 20 ? 2 : req - 10] = it->msg.to;
+    }
+    assert_int_equal(matches, 2);
+    assert_int_equal(seller_of[2], FIRST_BASIC + 1); /* the excluded seller 5 is never its */
+    assert_true((seller_of[0] == FIRST_BASIC) != (seller_of[1] == FIRST_BASIC));
+    size_t nb, nr;
+    bgm_market_agent_books(ma, &nb, &nr);
+    assert_int_equal(nb, 1); /* the group's second bid waits */
+    /* Seller 5 kept its second slot; seller 6 is full, so the next
+     * clearing has only seller 5 to offer, which the group has: nothing
+     * is matched, in this clearing as in the first. */
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_market_agent_on_timer(ma, BGM_MA_TIMER_CLEAR, 0, 2.0, ob), BG_OK);
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++)
+        assert_true(bgm_outbox_item(ob, i)->is_timer);
+    /* A seller with room for it comes: matched. */
+    ask(ma, ob, FIRST_BASIC + 2, BGM_GOOD_ROTFIT, 3.0, 1.0);
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_market_agent_on_timer(ma, BGM_MA_TIMER_CLEAR, 0, 3.0, ob), BG_OK);
+    matches = 0;
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+        const bgm_out_item_t *it = bgm_outbox_item(ob, i);
+        if (!it->is_timer && it->msg.type == BGM_MT_MATCH) {
+            matches++;
+            assert_int_equal(it->msg.to, FIRST_BASIC + 2);
+        }
+    }
+    assert_int_equal(matches, 1);
+
+    /* Forgetting: seller 5 (one slot left) leaves; buyer 3's bids are
+     * dropped when its job ends, before any clearing. */
+    bgm_market_agent_forget_seller(ma, FIRST_BASIC);
+    bgm_msg_t y = mk(BGM_MT_BID, 3, 30);
+    y.good = BGM_GOOD_ROTFIT;
+    y.price = 10.0;
+    y.a = 1.0;
+    y.b = 50.0;
+    deliver(ma, &y, ob);
+    bgm_market_agent_books(ma, &nb, &nr);
+    assert_int_equal(nb, 1);
+    bgm_market_agent_forget_bids(ma, 3);
+    bgm_market_agent_books(ma, &nb, &nr);
+    assert_int_equal(nb, 0);
+    deliver(ma, &y, ob);
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_market_agent_on_timer(ma, BGM_MA_TIMER_CLEAR, 0, 4.0, ob), BG_OK);
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++)
+        assert_true(bgm_outbox_item(ob, i)->is_timer); /* seller 5 sells nothing now */
+
+    /* The directory leaves excluded sellers out of a list. */
+    bgm_config_t bcfg = config("baseline", 0.5);
+    bgm_market_agent_t *dir = agent(&bcfg, BGM_MECH_BASELINE);
+    ask(dir, ob, FIRST_BASIC, BGM_GOOD_SOLVE, 1.0, 1.0);
+    ask(dir, ob, FIRST_BASIC + 1, BGM_GOOD_SOLVE, 1.0, 1.0);
+    bgm_outbox_clear(ob);
+    bgm_msg_t q = mk(BGM_MT_QUERY, 1, 40);
+    q.good = BGM_GOOD_SOLVE;
+    q.price = 5.0;
+    q.ncand = 1;
+    q.cand[0] = FIRST_BASIC;
+    deliver(dir, &q, ob);
+    const bgm_msg_t *l = &bgm_outbox_item(ob, 0)->msg;
+    assert_int_equal(l->ncand, 1);
+    assert_int_equal(l->cand[0], FIRST_BASIC + 1);
+    bgm_market_agent_forget_seller(dir, FIRST_BASIC + 1);
+    bgm_outbox_clear(ob);
+    deliver(dir, &q, ob);
+    assert_int_equal(bgm_outbox_item(ob, 0)->msg.ncand, 0);
+    bgm_market_agent_destroy(&dir);
+    bgm_outbox_destroy(&ob);
+    bgm_market_agent_destroy(&ma);
+}
+
 /* Announcements from outside the seller ranges, or for a good that does
  * not exist, are refused instead of written anywhere. */
 static void test_auctioneer_refuses_bad_input(void **state)
@@ -1202,6 +1324,7 @@ int main(void)
         cmocka_unit_test(test_auctioneer_clears_to_kdouble_price),
         cmocka_unit_test(test_auctioneer_exchange_rent),
         cmocka_unit_test(test_directory_first_fit),
+        cmocka_unit_test(test_auctioneer_exclusions_and_groups),
         cmocka_unit_test(test_auctioneer_refuses_bad_input),
         cmocka_unit_test(test_outbox_order_and_cap),
         cmocka_unit_test(test_resource_rents_within_room_cost_and_budget),
