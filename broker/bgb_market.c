@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "bga_mmsg.h"
+#include "bgb_auction.h"
 #include "bgm_callmarket.h"
 #include "bgm_catallactic.h"
 #include "bgm_posted.h"
@@ -44,6 +45,8 @@ typedef struct unit {
     uint32_t tried[MAX_TRIED];
     int ntried;
     bgm_nego_t side; /* catallactic: the buyer's side of the bargain */
+    uint32_t req, attempt; /* central and posted services: its number at the market agent */
+    int in_book;           /* central services: its bid is in the auctioneer's book */
 } unit_t;
 
 typedef struct proposal {
@@ -72,6 +75,7 @@ struct job {
     int nprops;
     double discover_until;
     int attempt; /* catallactic discovery rounds so far */
+    int admitted; /* central: its service units may bid (see admit_one) */
     int quiet;   /* of those, rounds in which no seller proposed */
     bgm_rng_t rng;
     bgm_genes_t genes;
@@ -96,8 +100,11 @@ struct bgb_market {
     agent_t *agents; /* BGB_MARKET_MAX_AGENTS */
     uint32_t next_id;
     job_t *jobs;     /* MAX_JOBS */
-    bgm_posted_t *posted;
-    bgm_callmarket_t *cm;
+    bgm_posted_t *posted;  /* layer 1: the resource sellers' postings */
+    bgm_callmarket_t *cm;  /* layer 1: the resource call markets */
+    bgb_auction_t *auction; /* services: the market agent machine (auctioneer, directory) */
+    uint32_t next_req;      /* service bids and queries, numbered for the market agent */
+    double next_auction;    /* when the auctioneer clears next */
     double next_clear;
     bgb_contract_t *log; /* ring of c.max_contracts */
     size_t log_head, log_count;
@@ -179,7 +186,9 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     m->posted = bgm_posted_new(BGB_MARKET_MAX_AGENTS * BGB_GOODS);
     m->cm = bgm_callmarket_new(MAX_JOBS * MAX_UNITS);
     m->refs = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->refs);
-    if (!m->refs || !m->agents || !m->jobs || !m->log || !m->posted || !m->cm) {
+    bg_error_t aerr = BG_ERROR_INIT;
+    if (bgb_auction_new(c->k, c->period, 0.0, &m->auction, &aerr) != BG_OK || !m->refs ||
+        !m->agents || !m->jobs || !m->log || !m->posted || !m->cm) {
         bgb_market_destroy(&m);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market");
     }
@@ -198,6 +207,7 @@ void bgb_market_destroy(bgb_market_t **pm)
     free(m->refs);
     bgm_posted_destroy(&m->posted);
     bgm_callmarket_destroy(&m->cm);
+    bgb_auction_destroy(&m->auction);
     free(m);
     *pm = NULL;
 }
@@ -250,15 +260,25 @@ static bg_status send_to(bgb_market_t *m, const agent_t *a, const bga_mmsg_t *ms
     return st;
 }
 
-static void sells_to_posted(bgb_market_t *m, const agent_t *a)
+static int slot_of(const bgb_market_t *m, const agent_t *a)
 {
-    bgm_posted_withdraw(m->posted, a->info.id);
-    for (int g = 0; g < 3; g++)
-        if (a->info.services & (1u << g))
-            bgm_posted_post(m->posted, a->info.id, g, a->info.price[g]);
-    if (a->info.resource)
+    return (int)(a - m->agents);
+}
+
+/* What the market agent and the resource postings know of a seller: its
+ * asking prices and its free room net of the orders in flight to it.
+ * Said again whenever either changes (a heartbeat, an order, an answer). */
+static void announce(bgb_market_t *m, const agent_t *a)
+{
+    if (a->info.resource) {
+        bgm_posted_withdraw(m->posted, a->info.id);
         for (int g = BGB_GOOD_CORES; g <= BGB_GOOD_MEMORY; g++)
             bgm_posted_post(m->posted, a->info.id, g, a->info.price[g]);
+        return;
+    }
+    const double free_slots = a->info.alive ? (double)(a->info.free_slots - a->pending) : 0.0;
+    bgb_auction_seller(m->auction, slot_of(m, a), a->info.services & 7u, a->info.price,
+                       free_slots, NULL);
 }
 
 static void copy_status(agent_t *a, const bga_mmsg_t *in, double now)
@@ -317,7 +337,7 @@ static bg_status on_register(bgb_market_t *m, const uint8_t *idn, size_t len,
     snprintf(a->info.endpoint, sizeof a->info.endpoint, "%s", in->endpoint);
     a->info.services = in->services;
     copy_status(a, in, now);
-    sells_to_posted(m, a);
+    announce(m, a);
     /* Overlay: links to the most recently registered other agents of the
      * same role (service sellers and resource sellers form one overlay
      * each: a call for proposals travels among those that sell its good),
@@ -340,6 +360,7 @@ static bg_status on_register(bgb_market_t *m, const uint8_t *idn, size_t len,
 static void drop_agent(bgb_market_t *m, agent_t *a)
 {
     bgm_posted_withdraw(m->posted, a->info.id);
+    bgb_auction_forget_seller(m->auction, slot_of(m, a));
     a->used = 0;
 }
 
@@ -393,7 +414,7 @@ static void send_release(bgb_market_t *m, job_t *j)
     j->ntouched = 0;
 }
 
-static void unpend(agent_t *a, const unit_t *u)
+static void unpend(bgb_market_t *m, agent_t *a, const unit_t *u)
 {
     if (!a)
         return;
@@ -404,6 +425,7 @@ static void unpend(agent_t *a, const unit_t *u)
             *p = 0;
     } else if (a->pending > 0) {
         a->pending--;
+        announce(m, a);
     }
 }
 
@@ -412,7 +434,7 @@ static void abandon_units(bgb_market_t *m, job_t *j)
 {
     for (int i = 0; i < j->nunits; i++)
         if (j->unit[i].state == U_ORDERED) {
-            unpend(agent_by_id(m, j->unit[i].agent), &j->unit[i]);
+            unpend(m, agent_by_id(m, j->unit[i].agent), &j->unit[i]);
             j->unit[i].state = U_OPEN;
         }
 }
@@ -523,6 +545,8 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
     if (j->finished)
         return;
     j->finished = 1;
+    /* Bids still in the auctioneer's book are no one's now. */
+    bgb_auction_forget_buyer(m->auction, (uint32_t)(j - m->jobs));
     if (reason)
         abandon_units(m, j);
     if (j->resource) {
@@ -590,6 +614,7 @@ void bgb_market_release(bgb_market_t *m, uint64_t job, double now)
     drop_subjobs(m, job, 0, -1);
     abandon_units(m, j);
     send_release(m, j);
+    bgb_auction_forget_buyer(m->auction, (uint32_t)(j - m->jobs));
     j->used = 0;
 }
 
@@ -684,12 +709,14 @@ static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, ag
     return send_to(m, a, &o, NULL);
 }
 
-static void pend(agent_t *a, const unit_t *u)
+static void pend(bgb_market_t *m, agent_t *a, const unit_t *u)
 {
-    if (u->good >= BGB_GOOD_CORES)
+    if (u->good >= BGB_GOOD_CORES) {
         a->pend_res[u->good - BGB_GOOD_CORES] += u->quantity;
-    else
+    } else {
         a->pending++;
+        announce(m, a);
+    }
 }
 
 static bg_status order(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double price, double now)
@@ -698,7 +725,7 @@ static bg_status order(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double 
     u->agent = a->info.id;
     u->price = price;
     u->deadline = now + m->c.reply_timeout;
-    pend(a, u);
+    pend(m, a, u);
     touch(j, a->info.id);
     return send_price(m, j, u, a, BGA_MM_ORDER, price);
 }
@@ -717,14 +744,81 @@ static int has_room(void *ctx, const bgm_posting_t *p)
            !need_has(r->j, r->u, p->seller);
 }
 
+/* The sellers a unit must not get, as directory slots, for the market
+ * agent: those its need's other units have (a need split over n sellers
+ * goes to n distinct agents) first, then those it tried, latest first, up
+ * to the message's cap. Whatever the cap leaves out the host still
+ * checks when the market agent answers. */
+static int exclusions(bgb_market_t *m, const job_t *j, const unit_t *u, int *out)
+{
+    uint32_t ids[MAX_UNITS + MAX_TRIED];
+    int n = 0, k = 0;
+    for (int i = 0; i < j->nunits; i++) {
+        const unit_t *v = &j->unit[i];
+        if (v != u && v->need == u->need && v->state != U_OPEN)
+            ids[n++] = v->agent;
+    }
+    for (int i = u->ntried - 1; i >= 0; i--)
+        ids[n++] = u->tried[i];
+    for (int i = 0; i < n && k < BGB_AUCTION_MAX_EXCLUDE; i++) {
+        agent_t *a = agent_by_id(m, ids[i]);
+        if (!a)
+            continue;
+        int dup = 0;
+        for (int q = 0; q < k; q++)
+            dup |= out[q] == slot_of(m, a);
+        if (!dup)
+            out[k++] = slot_of(m, a);
+    }
+    return k;
+}
+
+/* Whether the host lets unit u of job j take seller a now: the market
+ * agent's answer is checked against what its message could not carry. */
+static int can_take(bgb_market_t *m, const job_t *j, const unit_t *u, const agent_t *a)
+{
+    return a->used && alive_seller(a, u->good) && room_for(a, u) && on_host(j, a) &&
+           !tried(u, a->info.id) && !need_has(j, u, a->info.id);
+}
+
+static uint32_t buyer_of(const bgb_market_t *m, const job_t *j)
+{
+    return (uint32_t)(j - m->jobs);
+}
+
+/* Posted services: the directory (the market agent machine) lists the
+ * first postings within the unit's limit that have room; the unit orders
+ * from the first it may take. */
+static void posted_service(bgb_market_t *m, job_t *j, unit_t *u, double now)
+{
+    int excl[BGB_AUCTION_MAX_EXCLUDE], slots[BGB_AUCTION_MAX_LIST];
+    double prices[BGB_AUCTION_MAX_LIST];
+    const int ne = exclusions(m, j, u, excl);
+    u->req = ++m->next_req;
+    const int n = bgb_auction_query(m->auction, buyer_of(m, j), u->req, u->good, u->limit, excl,
+                                    ne, slots, prices, BGB_AUCTION_MAX_LIST, now, NULL);
+    for (int i = 0; i < n; i++) {
+        agent_t *a = &m->agents[slots[i]];
+        if (can_take(m, j, u, a)) {
+            order(m, j, u, a, prices[i], now);
+            return;
+        }
+    }
+}
+
 /* Posted: each open unit orders from the first posting within its limit
- * that has room. */
+ * that has room (services through the directory machine, resources from
+ * the host's postings). */
 static void posted_step(bgb_market_t *m, job_t *j, double now)
 {
     for (int i = 0; i < j->nunits; i++) {
         unit_t *u = &j->unit[i];
         if (u->state != U_OPEN)
             continue;
+        if (u->good < BGB_GOOD_CORES) {
+            posted_service(m, j, u, now);
+            continue;
+        }
         room_ctx rc = {m, j, u};
         bgm_posting_t p;
         if (bgm_posted_query_if(m->posted, u->good, u->limit, has_room, &rc, &p, 1) == 1) {
@@ -739,14 +833,91 @@ static void posted_step(bgb_market_t *m, job_t *j, double now)
     }
 }
 
-/* Central: one call market per good (services and resources alike), bids
- * = open units at their limit, asks = one unit of room per live seller at
- * its asking price. A fill the unit cannot use (a seller it tried, one of
- * its need's, another host's) stays open for the next call. */
+/* Central services: each open unit not in the auctioneer's book bids
+ * there for one unit at its limit, excluding the sellers it may not get,
+ * in its need's group. */
+static void central_bids(bgb_market_t *m, job_t *j, double now)
+{
+    if (!j->admitted)
+        return;
+    for (int i = 0; i < j->nunits; i++) {
+        unit_t *u = &j->unit[i];
+        if (u->state != U_OPEN || u->in_book || u->good >= BGB_GOOD_CORES)
+            continue;
+        int excl[BGB_AUCTION_MAX_EXCLUDE];
+        const int ne = exclusions(m, j, u, excl);
+        u->req = ++m->next_req;
+        u->attempt++;
+        if (bgb_auction_bid(m->auction, buyer_of(m, j), u->req, u->attempt, u->good, u->limit,
+                            u->quantity, j->deadline, (uint32_t)u->need + 1, excl, ne, now,
+                            NULL) == BG_OK)
+            u->in_book = 1;
+    }
+}
+
+/* Before each clearing one more central job is let into the book, the
+ * one waiting longest: its bids all enter together. A seller's slots are
+ * shared by the goods it sells and the auctioneer clears good by good, so
+ * jobs let in all at once could fill a seller with one good of each, none
+ * of them able to buy the rest, and hold that until they time out, again
+ * at every retry (broker.restart found it: four jobs, one agent). One a
+ * period, a job is bought whole or refused at once, as the jobs before. */
+static void admit_one(bgb_market_t *m, double now)
+{
+    job_t *first = NULL;
+    for (int i = 0; i < MAX_JOBS; i++) {
+        job_t *j = &m->jobs[i];
+        if (j->used && !j->finished && !j->resource && j->mech == BGB_MECH_CENTRAL &&
+            !j->admitted && (!first || j->started < first->started))
+            first = j;
+    }
+    if (first) {
+        first->admitted = 1;
+        central_bids(m, first, now);
+    }
+}
+
+typedef struct match_ctx {
+    bgb_market_t *m;
+    double now;
+} match_ctx;
+
+/* The auctioneer matched a unit's bid: it orders from that seller at the
+ * clearing price, unless the host's checks (a seller it tried beyond the
+ * message's cap, one gone since) refuse it; then the seller's room is
+ * said again and the unit bids again. */
+static void on_match(void *ctx, const bgb_auction_match_t *x)
+{
+    match_ctx *mc = ctx;
+    bgb_market_t *m = mc->m;
+    if (x->buyer >= MAX_JOBS || x->slot < 0 || x->slot >= BGB_MARKET_MAX_AGENTS)
+        return;
+    job_t *j = &m->jobs[x->buyer];
+    agent_t *a = &m->agents[x->slot];
+    unit_t *u = NULL;
+    for (int i = 0; j->used && !j->finished && i < j->nunits && !u; i++)
+        if (j->unit[i].in_book && j->unit[i].req == x->req && j->unit[i].attempt == x->attempt)
+            u = &j->unit[i];
+    if (!u) {
+        if (a->used)
+            announce(m, a);
+        return;
+    }
+    u->in_book = 0;
+    if (can_take(m, j, u, a))
+        order(m, j, u, a, x->price, mc->now);
+    else if (a->used)
+        announce(m, a);
+}
+
+/* Central resources (layer 1): one call market per resource, bids = open
+ * units at their limit, asks = one unit of room per live seller at its
+ * asking price. A fill the unit cannot use (a seller it tried, another
+ * host's) stays open for the next call. */
 static void central_clear(bgb_market_t *m, double now)
 {
     bidref_t *refs = m->refs;
-    for (int g = 0; g < BGB_GOODS; g++) {
+    for (int g = BGB_GOOD_CORES; g < BGB_GOODS; g++) {
         bgm_callmarket_reset(m->cm);
         size_t nb = 0;
         double least = INFINITY; /* the smallest open unit of this good */
@@ -812,7 +983,7 @@ static void bargain(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double the
         break;
     default:
         send_price(m, j, u, a, BGA_MM_REJECT, 0);
-        unpend(a, u);
+        unpend(m, a, u);
         mark_tried(u, a->info.id);
         u->state = U_OPEN;
         return;
@@ -891,7 +1062,7 @@ static void catallactic_step(bgb_market_t *m, job_t *j, double now)
         u->state = U_ORDERED;
         u->agent = a->info.id;
         u->deadline = now + m->c.reply_timeout;
-        pend(a, u);
+        pend(m, a, u);
         touch(j, a->info.id);
         send_price(m, j, u, a, BGA_MM_OFFER, u->side.current);
     }
@@ -982,7 +1153,7 @@ static void step_job(bgb_market_t *m, job_t *j, double now)
     for (int i = 0; i < j->nunits; i++) {
         unit_t *u = &j->unit[i];
         if (u->state == U_ORDERED && now >= u->deadline) {
-            unpend(agent_by_id(m, u->agent), u);
+            unpend(m, agent_by_id(m, u->agent), u);
             unit_lost(m, j, u);
         }
     }
@@ -997,6 +1168,8 @@ static void step_job(bgb_market_t *m, job_t *j, double now)
         posted_step(m, j, now);
     else if (j->mech == BGB_MECH_CATALLACTIC)
         catallactic_step(m, j, now);
+    else
+        central_bids(m, j, now);
 }
 
 /* A free job record for `job` (resource sub-jobs: term > 0, the lease). */
@@ -1187,7 +1360,7 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
         }
         return;
     }
-    unpend(a, u);
+    unpend(m, a, u);
     if (in->type == BGA_MM_CONFIRM && in->price > u->limit * (1 + 1e-12)) {
         /* A seller confirming above the buyer's limit is not a contract. */
         release_on(m, a, in->job);
@@ -1202,6 +1375,7 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
             a->info.free_memory = in->free_memory;
         } else {
             a->info.free_slots = in->free_slots;
+            announce(m, a);
         }
         check_done(m, j, now);
     } else {
@@ -1232,7 +1406,7 @@ static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, do
     if (in->type == BGA_MM_OFFER) {
         bargain(m, j, u, a, in->price, now);
     } else { /* the seller walked away */
-        unpend(a, u);
+        unpend(m, a, u);
         unit_lost(m, j, u);
     }
     step_job(m, j, now);
@@ -1276,7 +1450,7 @@ bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t 
     switch (in.type) {
     case BGA_MM_HEARTBEAT:
         copy_status(a, &in, now);
-        sells_to_posted(m, a);
+        announce(m, a);
         break;
     case BGA_MM_CONFIRM:
     case BGA_MM_REFUSE:
@@ -1313,11 +1487,16 @@ double bgb_market_tick(bgb_market_t *m, double now)
     for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
         if (m->agents[i].used && now - m->agents[i].info.last_heartbeat > m->c.heartbeat_timeout)
             drop_agent(m, &m->agents[i]);
+    match_ctx mc = {m, now};
+    if (now >= m->next_auction)
+        admit_one(m, now);
+    bgb_auction_tick(m->auction, now, on_match, &mc, &m->next_auction, NULL);
+    const double next_services = m->next_auction;
     if (now >= m->next_clear) {
         central_clear(m, now);
         m->next_clear = now + m->c.period;
     }
-    double next = m->next_clear;
+    double next = m->next_clear < next_services ? m->next_clear : next_services;
     for (int i = 0; i < MAX_JOBS; i++) {
         job_t *j = &m->jobs[i];
         if (!j->used || j->finished)

@@ -46,13 +46,16 @@ sh "$scripts/no_agents_left.sh" "$work/bad-state"
 check $? "no process of the refused grid is left"
 
 # The clearing price: k = 1 puts it at the top of the clearing interval,
-# k = 0 at the bottom. In this grid every service good has as many sellers
-# as the job has units of it, so no unmatched ask caps the interval: at
-# k = 1 each service row is priced at its buyer's limit, at k = 0 below it
-# (at the ask). Layer 1 has a resource seller per daemon at one rate, and
-# an unmatched equal ask pins its price to the ask whatever k is.
+# k = 0 at the bottom. In this grid every service agent has one slot and
+# every service good as many sellers as the job has units of it, so every
+# ask is matched and none caps the interval: at k = 1 each service row is
+# priced at its buyer's limit, at k = 0 below it (at the ask). (A seller
+# with a slot left over would cap it at its own ask whatever k is, as it
+# does in the simulator.) Layer 1 has a resource seller per daemon at one
+# rate, and an unmatched equal ask pins its price to the ask whatever k is.
 for k in 1 0; do
-  jq --argjson k "$k" '.broker.market = {"k": $k, "period": 0.1}' "$config" >"$work/k$k-grid.json"
+  jq --argjson k "$k" '.broker.market = {"k": $k, "period": 0.1} | .agents |= map(.slots = 1)' \
+    "$config" >"$work/k$k-grid.json"
   grid_up_market "$bin" "$work/k$k-grid.json" "$state"
   jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "central", budget: 100}' >"$work/submit.json"
   id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
