@@ -37,9 +37,10 @@
  * Ownership: frames passed in are borrowed for the call; frames given to
  * io.send are borrowed for the call too (send copies what it keeps).
  *
- * The roles run on the simulator's mechanism modules (bgm_posted,
- * bgm_callmarket, bgm_catallactic); they move onto market/bgm_role.h
- * machines when that split lands, without changing this API.
+ * The service layer's auctioneer and posted directory are the simulator's
+ * market agent machine (bgm_market_agent, hosted by bgb_auction); the
+ * per-job buyers and the resource layer's markets run on the simulator's
+ * mechanism modules (bgm_posted, bgm_callmarket, bgm_catallactic).
  */
 #ifndef BGB_MARKET_H
 #define BGB_MARKET_H
