@@ -75,8 +75,8 @@ struct job {
     int nprops;
     double discover_until;
     int attempt; /* catallactic discovery rounds so far */
-    int admitted; /* central: its service units may bid (see admit_one) */
     int quiet;   /* of those, rounds in which no seller proposed */
+    int admitted; /* central: its service units may bid (see admit_one) */
     bgm_rng_t rng;
     bgm_genes_t genes;
     bgb_done_fn done;
@@ -860,8 +860,9 @@ static void central_bids(bgb_market_t *m, job_t *j, double now)
  * shared by the goods it sells and the auctioneer clears good by good, so
  * jobs let in all at once could fill a seller with one good of each, none
  * of them able to buy the rest, and hold that until they time out, again
- * at every retry (broker.restart found it: four jobs, one agent). One a
- * period, a job is bought whole or refused at once, as the jobs before. */
+ * at every retry (broker.restart found it: four jobs, one agent). Let in
+ * one a period, each job is bought whole, or refused at once where the
+ * jobs before it hold what it needs, and asks again. */
 static void admit_one(bgb_market_t *m, double now)
 {
     job_t *first = NULL;
