@@ -45,7 +45,7 @@ typedef struct unit {
     uint32_t tried[MAX_TRIED];
     int ntried;
     bgm_nego_t side; /* catallactic: the buyer's side of the bargain */
-    uint32_t req, attempt; /* central and posted services: its number at the market agent */
+    uint32_t req, attempt; /* central services: its bid's number at the market agent */
     int in_book;           /* central services: its bid is in the auctioneer's book */
 } unit_t;
 
@@ -263,6 +263,12 @@ static bg_status send_to(bgb_market_t *m, const agent_t *a, const bga_mmsg_t *ms
 static int slot_of(const bgb_market_t *m, const agent_t *a)
 {
     return (int)(a - m->agents);
+}
+
+/* A job is its record's index at the market agent. */
+static uint32_t buyer_of(const bgb_market_t *m, const job_t *j)
+{
+    return (uint32_t)(j - m->jobs);
 }
 
 /* What the market agent and the resource postings know of a seller: its
@@ -546,7 +552,7 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
         return;
     j->finished = 1;
     /* Bids still in the auctioneer's book are no one's now. */
-    bgb_auction_forget_buyer(m->auction, (uint32_t)(j - m->jobs));
+    bgb_auction_forget_buyer(m->auction, buyer_of(m, j));
     if (reason)
         abandon_units(m, j);
     if (j->resource) {
@@ -614,7 +620,7 @@ void bgb_market_release(bgb_market_t *m, uint64_t job, double now)
     drop_subjobs(m, job, 0, -1);
     abandon_units(m, j);
     send_release(m, j);
-    bgb_auction_forget_buyer(m->auction, (uint32_t)(j - m->jobs));
+    bgb_auction_forget_buyer(m->auction, buyer_of(m, j));
     j->used = 0;
 }
 
@@ -781,11 +787,6 @@ static int can_take(bgb_market_t *m, const job_t *j, const unit_t *u, const agen
            !tried(u, a->info.id) && !need_has(j, u, a->info.id);
 }
 
-static uint32_t buyer_of(const bgb_market_t *m, const job_t *j)
-{
-    return (uint32_t)(j - m->jobs);
-}
-
 /* Posted services: the directory (the market agent machine) lists the
  * first postings within the unit's limit that have room; the unit orders
  * from the first it may take. */
@@ -794,9 +795,8 @@ static void posted_service(bgb_market_t *m, job_t *j, unit_t *u, double now)
     int excl[BGB_AUCTION_MAX_EXCLUDE], slots[BGB_AUCTION_MAX_LIST];
     double prices[BGB_AUCTION_MAX_LIST];
     const int ne = exclusions(m, j, u, excl);
-    u->req = ++m->next_req;
-    const int n = bgb_auction_query(m->auction, buyer_of(m, j), u->req, u->good, u->limit, excl,
-                                    ne, slots, prices, BGB_AUCTION_MAX_LIST, now, NULL);
+    const int n = bgb_auction_query(m->auction, buyer_of(m, j), ++m->next_req, u->good, u->limit,
+                                    excl, ne, slots, prices, BGB_AUCTION_MAX_LIST, now, NULL);
     for (int i = 0; i < n; i++) {
         agent_t *a = &m->agents[slots[i]];
         if (can_take(m, j, u, a)) {

@@ -704,17 +704,13 @@ bg_status bgm_market_agent_on_timer(bgm_market_agent_t *ma, int kind, uint64_t a
 
 void bgm_market_agent_forget_seller(bgm_market_agent_t *ma, uint32_t seller)
 {
-    if (is_basic(ma, seller)) {
-        ma_seller_t *s = &ma->mb[seller - ma->p.first_basic];
-        memset(s, 0, sizeof *s);
-        s->agent = seller;
-    } else if (is_resource(ma, seller)) {
-        ma_seller_t *s = &ma->mr[seller - ma->p.first_resource];
-        memset(s, 0, sizeof *s);
-        s->agent = seller;
-    } else {
+    ma_seller_t *s = is_basic(ma, seller)      ? &ma->mb[seller - ma->p.first_basic]
+                     : is_resource(ma, seller) ? &ma->mr[seller - ma->p.first_resource]
+                                               : NULL;
+    if (!s)
         return;
-    }
+    memset(s, 0, sizeof *s);
+    s->agent = seller;
     bgm_posted_withdraw(ma->dir, seller);
 }
 
