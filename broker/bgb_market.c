@@ -8,7 +8,11 @@
 #include "bgb_auction.h"
 #include "bgm_callmarket.h"
 #include "bgm_catallactic.h"
+#include "bgm_config.h"
+#include "bgm_outbox.h"
 #include "bgm_posted.h"
+#include "bgm_purchase.h"
+#include "bgm_strategy.h"
 
 #define MAX_UNITS 64
 #define MAX_TRIED 32
@@ -19,6 +23,20 @@
 /* Resource sub-job ids, apart from the callers' (the store's job ids are
  * far below 2^49; the wire header carries all 64 bits). */
 #define SUB_JOB_BASE ((uint64_t)1 << 49)
+/* A service job's purchase machine: the ids it knows the broker's buyer
+ * (the broker, as a CFP's origin names it) and the market agent by; the
+ * sellers are their directory ids. The host answers for the market agent. */
+#define PU_SELF 0u
+#define PU_MARKET UINT32_MAX
+/* Timers a service job's purchase has pending at once: per request its
+ * deadline, its latest phase timer and its latest retry (older ones of a
+ * kind are stale, so a newer one takes their place). */
+#define JOB_TIMERS (3 * MAX_UNITS + 8)
+/* Answers the host gives a purchase after handling its outbox (a LIST, a
+ * seller it may not have, a match): at most a few per unit at once. */
+#define JOB_INBOX (4 * MAX_UNITS)
+/* The purchase's discovery window doubles after at most this many quiet rounds. */
+#define PU_WIDEN 3
 
 typedef struct agent {
     int used;
@@ -44,10 +62,18 @@ typedef struct unit {
     double term; /* resource units: the lease (quantity × term × price is the money) */
     uint32_t tried[MAX_TRIED];
     int ntried;
-    bgm_nego_t side; /* catallactic: the buyer's side of the bargain */
-    uint32_t req, attempt; /* central services: its bid's number at the market agent */
-    int in_book;           /* central services: its bid is in the auctioneer's book */
+    bgm_nego_t side; /* catallactic sub-jobs: the buyer's side of the bargain */
+    /* Service units: the purchase request's attempt when it was ordered
+     * or bid, and (central) its bid's number at the market agent. */
+    uint32_t req, attempt;
+    int in_book; /* central services: its bid is in the auctioneer's book */
 } unit_t;
+
+typedef struct ptimer {
+    double at;
+    int kind;
+    uint64_t arg;
+} ptimer_t;
 
 typedef struct proposal {
     uint32_t agent;
@@ -77,6 +103,14 @@ struct job {
     int attempt; /* catallactic discovery rounds so far */
     int quiet;   /* of those, rounds in which no seller proposed */
     int admitted; /* central: its service units may bid (see admit_one) */
+    /* A service job's buyer: the simulator's purchase machine, one request
+     * per unit (request id = unit index + 1), its timers, and the answers
+     * the host has for it next. */
+    bgm_purchase_t *pu;
+    ptimer_t *timers;
+    int ntimers;
+    bgm_msg_t *inbox;
+    int ninbox;
     bgm_rng_t rng;
     bgm_genes_t genes;
     bgb_done_fn done;
@@ -113,6 +147,9 @@ struct bgb_market {
     struct bidref *refs; /* central: the book's bids, MAX_JOBS * MAX_UNITS */
     uint64_t next_sub;     /* resource sub-job ids */
     uint64_t next_request; /* service items logged */
+    bgm_config_t pcfg;     /* what the purchase machines read (borrowed by each) */
+    bgm_outbox_t *ob;      /* a purchase call's outbox, emptied after each */
+    double memory[3];      /* catallactic: remembered price per service good */
 };
 
 static const char *const mech_names[] = {"central", "catallactic", "posted"};
@@ -186,8 +223,20 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     m->posted = bgm_posted_new(BGB_MARKET_MAX_AGENTS * BGB_GOODS);
     m->cm = bgm_callmarket_new(MAX_JOBS * MAX_UNITS);
     m->refs = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->refs);
+    /* The purchase machines' timing, from the live market's: a round of
+     * discovery an eighth of the reply timeout (doubling when quiet), a
+     * failed catallactic round or refused central bid tried again at once
+     * (the next round, the next clearing), a posted unit whose candidates
+     * all refused asking the directory again a period later. */
+    m->pcfg.catallactic.hops = c->hops;
+    m->pcfg.catallactic.discovery_timeout = c->reply_timeout / 8;
+    m->pcfg.catallactic.reply_timeout = c->reply_timeout;
+    m->pcfg.catallactic.max_rounds = c->max_rounds;
+    m->pcfg.catallactic.retry_backoff = 0.0;
+    m->pcfg.baseline.retry_backoff = c->period;
+    m->ob = bgm_outbox_new(16 * MAX_UNITS);
     bg_error_t aerr = BG_ERROR_INIT;
-    if (bgb_auction_new(c->k, c->period, 0.0, &m->auction, &aerr) != BG_OK || !m->refs ||
+    if (bgb_auction_new(c->k, c->period, 0.0, &m->auction, &aerr) != BG_OK || !m->refs || !m->ob ||
         !m->agents || !m->jobs || !m->log || !m->posted || !m->cm) {
         bgb_market_destroy(&m);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market");
@@ -196,11 +245,33 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     return BG_OK;
 }
 
+/* A service job's buyer is done buying: its machine and timers go. */
+static void end_purchase(job_t *j)
+{
+    bgm_purchase_destroy(&j->pu);
+    free(j->timers);
+    free(j->inbox);
+    j->timers = NULL;
+    j->inbox = NULL;
+    j->ntimers = j->ninbox = 0;
+}
+
+/* The job's record is free again. */
+static void forget_job(job_t *j)
+{
+    end_purchase(j);
+    j->used = 0;
+}
+
 void bgb_market_destroy(bgb_market_t **pm)
 {
     if (!pm || !*pm)
         return;
     bgb_market_t *m = *pm;
+    for (int i = 0; m->jobs && i < MAX_JOBS; i++)
+        if (m->jobs[i].used)
+            forget_job(&m->jobs[i]);
+    bgm_outbox_destroy(&m->ob);
     free(m->agents);
     free(m->jobs);
     free(m->log);
@@ -468,7 +539,7 @@ static void drop_subjobs(bgb_market_t *m, uint64_t parent, uint32_t buyer, int s
         }
         abandon_units(m, s);
         send_release(m, s);
-        s->used = 0;
+        forget_job(s);
     }
 }
 
@@ -551,6 +622,7 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
     if (j->finished)
         return;
     j->finished = 1;
+    end_purchase(j);
     /* Bids still in the auctioneer's book are no one's now. */
     bgb_auction_forget_buyer(m->auction, buyer_of(m, j));
     if (reason)
@@ -559,7 +631,7 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
         subjob_done(m, j, reason, now);
         if (reason) {
             send_release(m, j);
-            j->used = 0;
+            forget_job(j);
         }
         return;
     }
@@ -597,7 +669,7 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
     if (j->done)
         j->done(j->ctx, &o);
     if (reason)
-        j->used = 0;
+        forget_job(j);
 }
 
 /* Service contracts are open-ended until the job is released, resource
@@ -621,7 +693,7 @@ void bgb_market_release(bgb_market_t *m, uint64_t job, double now)
     abandon_units(m, j);
     send_release(m, j);
     bgb_auction_forget_buyer(m->auction, buyer_of(m, j));
-    j->used = 0;
+    forget_job(j);
 }
 
 void bgb_market_label(bgb_market_t *m, uint64_t job, const char *label)
@@ -779,52 +851,35 @@ static int exclusions(bgb_market_t *m, const job_t *j, const unit_t *u, int *out
     return k;
 }
 
-/* Whether the host lets unit u of job j take seller a now: the market
- * agent's answer is checked against what its message could not carry. */
-static int can_take(bgb_market_t *m, const job_t *j, const unit_t *u, const agent_t *a)
+/* Whether the host lets service unit u of job j have seller a now: what
+ * the market agent's answers and a purchase's choices are checked
+ * against (what a message could not carry, a seller gone since). A
+ * seller another unit of the need has is never given; central and posted
+ * units also skip sellers they tried and sellers without a free slot,
+ * while a catallactic one leaves both to its bargaining (a seller that
+ * walked away may agree in a later round; a busy one does not propose). */
+static int may_have(const job_t *j, const unit_t *u, const agent_t *a)
 {
-    return a->used && alive_seller(a, u->good) && room_for(a, u) && on_host(j, a) &&
-           !tried(u, a->info.id) && !need_has(j, u, a->info.id);
+    if (!a || !a->used || !alive_seller(a, u->good) || need_has(j, u, a->info.id))
+        return 0;
+    return j->mech == BGB_MECH_CATALLACTIC || (room_for(a, u) && !tried(u, a->info.id));
 }
 
-/* Posted services: the directory (the market agent machine) lists the
- * first postings within the unit's limit that have room; the unit orders
- * from the first it may take. */
-static void posted_service(bgb_market_t *m, job_t *j, unit_t *u, double now)
-{
-    int excl[BGB_AUCTION_MAX_EXCLUDE], slots[BGB_AUCTION_MAX_LIST];
-    double prices[BGB_AUCTION_MAX_LIST];
-    const int ne = exclusions(m, j, u, excl);
-    const int n = bgb_auction_query(m->auction, buyer_of(m, j), ++m->next_req, u->good, u->limit,
-                                    excl, ne, slots, prices, BGB_AUCTION_MAX_LIST, now, NULL);
-    for (int i = 0; i < n; i++) {
-        agent_t *a = &m->agents[slots[i]];
-        if (can_take(m, j, u, a)) {
-            order(m, j, u, a, prices[i], now);
-            return;
-        }
-    }
-}
+static void unit_lost(bgb_market_t *m, job_t *j, unit_t *u);
 
-/* Posted: each open unit orders from the first posting within its limit
- * that has room (services through the directory machine, resources from
- * the host's postings). */
+/* Posted resources (a sub-job's units): each open unit orders from the
+ * first of its host's postings within its limit that has room. */
 static void posted_step(bgb_market_t *m, job_t *j, double now)
 {
     for (int i = 0; i < j->nunits; i++) {
         unit_t *u = &j->unit[i];
         if (u->state != U_OPEN)
             continue;
-        if (u->good < BGB_GOOD_CORES) {
-            posted_service(m, j, u, now);
-            continue;
-        }
         room_ctx rc = {m, j, u};
         bgm_posting_t p;
         if (bgm_posted_query_if(m->posted, u->good, u->limit, has_room, &rc, &p, 1) == 1) {
-            agent_t *a = agent_by_id(m, p.seller);
-            order(m, j, u, a, p.price, now);
-        } else if (j->resource && !j->finished) {
+            order(m, j, u, agent_by_id(m, p.seller), p.price, now);
+        } else if (!j->finished) {
             /* The basic agent is holding its answer to a service order:
              * with no posting of its host free now, it refuses at once. */
             finish(m, j, "no free cores or memory on the host within the limit", now);
@@ -833,26 +888,350 @@ static void posted_step(bgb_market_t *m, job_t *j, double now)
     }
 }
 
-/* Central services: each open unit not in the auctioneer's book bids
- * there for one unit at its limit, excluding the sellers it may not get,
- * in its need's group. */
-static void central_bids(bgb_market_t *m, job_t *j, double now)
+typedef struct match_ctx {
+    bgb_market_t *m;
+    double now;
+} match_ctx;
+
+/* ---------------------------------------------- a service job's purchase */
+
+/* The purchase request of unit u (NULL once the job stopped buying). */
+static bgm_purchase_req_t *request_of(job_t *j, const unit_t *u)
 {
-    if (!j->admitted)
+    return j->pu ? bgm_purchase_get(j->pu, (uint32_t)(u - j->unit) + 1) : NULL;
+}
+
+/* An answer for the purchase, handed to it once its outbox is handled. */
+static void answer(job_t *j, int type, uint32_t from, uint32_t req, uint32_t attempt, double price)
+{
+    if (!j->inbox || j->ninbox >= JOB_INBOX)
+        return; /* bounded: a lost answer leaves the request to its timers */
+    bgm_msg_t *x = &j->inbox[j->ninbox++];
+    *x = bgm_outbox_msg(type, from, PU_SELF, req, attempt);
+    x->price = price;
+}
+
+/* A timer the purchase asks for; a newer phase or retry timer of a
+ * request replaces the older (stale once the newer is armed). */
+static int add_timer(job_t *j, const bgm_out_item_t *it)
+{
+    int at = j->ntimers;
+    if (it->kind == BGM_PU_TIMER_REQ || it->kind == BGM_PU_TIMER_RETRY)
+        for (int i = 0; i < j->ntimers; i++)
+            if (j->timers[i].kind == it->kind && (uint32_t)j->timers[i].arg == (uint32_t)it->arg)
+                at = i;
+    if (at == JOB_TIMERS)
+        return 0;
+    j->timers[at] = (ptimer_t){it->at, it->kind, it->arg};
+    if (at == j->ntimers)
+        j->ntimers++;
+    return 1;
+}
+
+/* The unit gives its seller up (the purchase moved on, or the seller said
+ * no): the seller's slot stops counting against it, the resources it was
+ * buying for the unit go back, and the unit is open again. */
+static void let_go(bgb_market_t *m, job_t *j, unit_t *u)
+{
+    if (u->state != U_ORDERED)
         return;
+    unpend(m, agent_by_id(m, u->agent), u);
+    unit_lost(m, j, u);
+}
+
+/* A seller's no to the request of unit u, in the machine's terms: a
+ * seller still bargaining (or offered an order) rejects; one committed
+ * to (central match, an acceptance) cancels. */
+static void seller_said_no(job_t *j, unit_t *u, uint32_t seller)
+{
+    const bgm_purchase_req_t *q = request_of(j, u);
+    if (!q)
+        return;
+    const uint32_t id = (uint32_t)(u - j->unit) + 1;
+    if (q->state == BGM_PU_NEGOTIATE)
+        answer(j, BGM_MT_REJECT, seller, id, q->attempt, 0);
+    else if (q->state == BGM_PU_COMMITTED)
+        answer(j, BGM_MT_CANCEL, seller, id, q->attempt, 0);
+}
+
+/* Central: the purchase's BID goes into the auctioneer's book, for one
+ * unit at its limit, with the sellers it must not get and its need's
+ * group. */
+static void central_bid(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *b, double now)
+{
+    int excl[BGB_AUCTION_MAX_EXCLUDE];
+    const int ne = exclusions(m, j, u, excl);
+    u->req = ++m->next_req;
+    u->attempt = b->attempt;
+    u->in_book = bgb_auction_bid(m->auction, buyer_of(m, j), u->req, b->attempt, u->good, b->price,
+                                 b->a, b->b, (uint32_t)u->need + 1, excl, ne, now, NULL) == BG_OK;
+}
+
+/* Posted: the purchase's QUERY is answered by the directory (the market
+ * agent machine): the first postings within its limit with room, less
+ * the sellers the unit may not have, as the machine's LIST. */
+static void posted_list(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *qm, double now)
+{
+    int excl[BGB_AUCTION_MAX_EXCLUDE], slots[BGB_AUCTION_MAX_LIST];
+    double prices[BGB_AUCTION_MAX_LIST];
+    const int ne = exclusions(m, j, u, excl);
+    const int n = bgb_auction_query(m->auction, buyer_of(m, j), ++m->next_req, u->good, qm->price,
+                                    excl, ne, slots, prices, BGB_AUCTION_MAX_LIST, now, NULL);
+    if (!j->inbox || j->ninbox >= JOB_INBOX)
+        return;
+    bgm_msg_t *l = &j->inbox[j->ninbox++];
+    *l = bgm_outbox_msg(BGM_MT_LIST, PU_MARKET, PU_SELF, qm->req, qm->attempt);
+    for (int i = 0; i < n && l->ncand < BGM_MSG_CANDIDATES; i++) {
+        const agent_t *a = &m->agents[slots[i]];
+        if (!may_have(j, u, a))
+            continue;
+        l->cand[l->ncand] = a->info.id;
+        l->cand_price[l->ncand++] = prices[i];
+    }
+}
+
+/* The purchase offers (catallactic) or orders (posted) from a seller: the
+ * unit holds it from now, unless the host may not give it, when the
+ * seller is taken to have said no. */
+static void to_seller(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *o, double now)
+{
+    if (u->state == U_ORDERED && u->agent != o->to)
+        let_go(m, j, u);
+    agent_t *a = agent_by_id(m, o->to);
+    if (u->state != U_ORDERED) {
+        if (!may_have(j, u, a)) {
+            answer(j, BGM_MT_REJECT, o->to, o->req, o->attempt, 0);
+            return;
+        }
+        u->state = U_ORDERED;
+        u->agent = a->info.id;
+        pend(m, a, u);
+        touch(j, a->info.id);
+    }
+    u->price = o->price;
+    u->attempt = o->attempt;
+    u->deadline = now + m->c.reply_timeout;
+    if (a)
+        send_price(m, j, u, a, o->type == BGM_MT_ORDER ? BGA_MM_ORDER : BGA_MM_OFFER, o->price);
+}
+
+/* Entry points of a catallactic job's calls for proposals: a few live
+ * service sellers, from an offset that spreads jobs over the directory;
+ * the overlay carries the calls on. */
+static int entry_agents(const bgb_market_t *m, const job_t *j, uint32_t *ids)
+{
+    int n = 0;
+    for (int k = 0; k < BGB_MARKET_MAX_AGENTS && n < m->c.overlay_degree; k++) {
+        const agent_t *a =
+            &m->agents[(k + (int)(j->id % BGB_MARKET_MAX_AGENTS)) % BGB_MARKET_MAX_AGENTS];
+        if (a->used && a->info.alive && a->info.resource == j->resource)
+            ids[n++] = a->info.id;
+    }
+    return n;
+}
+
+/* One message of the purchase, carried out: to the market agent machine
+ * (BID, QUERY) or to a live seller (CFP, OFFER, ORDER, ACCEPT, REJECT). */
+static void route_out(bgb_market_t *m, job_t *j, const bgm_msg_t *x, double now)
+{
+    if (x->req < 1 || x->req > (uint32_t)j->nunits)
+        return;
+    unit_t *u = &j->unit[x->req - 1];
+    agent_t *a = agent_by_id(m, x->to);
+    switch (x->type) {
+    case BGM_MT_BID:
+        central_bid(m, j, u, x, now);
+        break;
+    case BGM_MT_QUERY:
+        posted_list(m, j, u, x, now);
+        break;
+    case BGM_MT_CFP:
+        if (a) {
+            bga_mmsg_t c;
+            bga_mmsg_init(&c, BGA_MM_CFP);
+            c.job = j->id;
+            c.agent = a->info.id;
+            c.good = u->good;
+            c.hops = x->hops;
+            c.attempt = (int)x->attempt;
+            c.quantity = x->a;
+            send_to(m, a, &c, NULL);
+        }
+        break;
+    case BGM_MT_ORDER:
+    case BGM_MT_OFFER:
+        to_seller(m, j, u, x, now);
+        break;
+    case BGM_MT_ACCEPT:
+        /* The seller now buys the unit's resources before it confirms. */
+        if (a && u->state == U_ORDERED && u->agent == x->to) {
+            u->price = x->price;
+            u->deadline = now + 2.5 * m->c.reply_timeout;
+            send_price(m, j, u, a, BGA_MM_ACCEPT, x->price);
+        }
+        break;
+    case BGM_MT_REJECT:
+        if (a)
+            send_price(m, j, u, a, BGA_MM_REJECT, 0);
+        if (u->state == U_ORDERED && u->agent == x->to)
+            let_go(m, j, u);
+        break;
+    default:
+        break;
+    }
+}
+
+/* A unit whose request left its seller without a message (a phase
+ * timeout, a round given up) gives the seller up too. */
+static void reconcile(bgb_market_t *m, job_t *j)
+{
     for (int i = 0; i < j->nunits; i++) {
         unit_t *u = &j->unit[i];
-        if (u->state != U_OPEN || u->in_book || u->good >= BGB_GOOD_CORES)
+        const bgm_purchase_req_t *q = request_of(j, u);
+        if (u->state != U_ORDERED || !q)
             continue;
-        int excl[BGB_AUCTION_MAX_EXCLUDE];
-        const int ne = exclusions(m, j, u, excl);
-        u->req = ++m->next_req;
-        u->attempt++;
-        if (bgb_auction_bid(m->auction, buyer_of(m, j), u->req, u->attempt, u->good, u->limit,
-                            u->quantity, j->deadline, (uint32_t)u->need + 1, excl, ne, now,
-                            NULL) == BG_OK)
-            u->in_book = 1;
+        const int held = (q->state == BGM_PU_NEGOTIATE || q->state == BGM_PU_COMMITTED) &&
+                         q->attempt == u->attempt &&
+                         (j->mech == BGB_MECH_CENTRAL || q->seller == u->agent);
+        if (!held)
+            let_go(m, j, u);
     }
+}
+
+/* Carries out what the purchase's last call emitted, then hands it the
+ * host's answers one by one, each call's output carried out in turn.
+ * A request that failed for good fails the job: it ran out of time. */
+static void pump(bgb_market_t *m, job_t *j, bg_status st, const bgm_purchase_event_t *first,
+                 double now)
+{
+    bgm_purchase_event_t ev = *first;
+    for (;;) {
+        const size_t n = bgm_outbox_count(m->ob);
+        for (size_t i = 0; i < n && st == BG_OK; i++) {
+            const bgm_out_item_t *it = bgm_outbox_item(m->ob, i);
+            if (it->is_timer ? !add_timer(j, it) : (route_out(m, j, &it->msg, now), 0))
+                st = BG_ERR_LIMIT;
+        }
+        bgm_outbox_clear(m->ob);
+        if (st != BG_OK) {
+            finish(m, j,
+                   st == BG_ERR_NOMEM ? "market: out of memory" : "market: buyer over its caps",
+                   now);
+            return;
+        }
+        if (ev.kind == BGM_PU_EV_FAILED) {
+            finish(m, j, "timeout", now);
+            return;
+        }
+        if (j->ninbox == 0)
+            break;
+        const bgm_msg_t in = j->inbox[0];
+        memmove(j->inbox, j->inbox + 1, (size_t)--j->ninbox * sizeof *j->inbox);
+        st = bgm_purchase_on_message(j->pu, &in, now, m->ob, &ev);
+    }
+    reconcile(m, j);
+}
+
+/* A catallactic purchase calls on the current entry agents. */
+static void refresh_neighbours(const bgb_market_t *m, job_t *j)
+{
+    if (j->mech != BGB_MECH_CATALLACTIC)
+        return;
+    uint32_t ids[BGA_MMSG_MAX_NEIGHBOURS];
+    uint8_t same[BGA_MMSG_MAX_NEIGHBOURS] = {0};
+    const int n = entry_agents(m, j, ids);
+    bgm_purchase_set_neighbours(j->pu, ids, same, n);
+}
+
+/* A message from a seller for the purchase, then what follows from it. */
+static void tell(bgb_market_t *m, job_t *j, const bgm_msg_t *x, double now)
+{
+    if (!j->pu)
+        return;
+    bgm_purchase_event_t ev;
+    refresh_neighbours(m, j);
+    const bg_status st = bgm_purchase_on_message(j->pu, x, now, m->ob, &ev);
+    pump(m, j, st, &ev, now);
+}
+
+/* The host's answers queued outside a purchase call (a clearing's
+ * matches) are handed over. */
+static void deliver_answers(bgb_market_t *m, job_t *j, double now)
+{
+    if (!j->pu || j->ninbox == 0)
+        return;
+    const bgm_purchase_event_t none = {BGM_PU_EV_NONE, 0};
+    pump(m, j, BG_OK, &none, now);
+}
+
+/* Runs the purchase's timers due at `now` (one that fires may arm others
+ * due now too) and returns when the next is due. */
+static double run_timers(bgb_market_t *m, job_t *j, double now)
+{
+    for (int guard = 0; j->pu && guard < 64 * JOB_TIMERS; guard++) {
+        int due = -1;
+        for (int i = 0; i < j->ntimers; i++)
+            if (j->timers[i].at <= now && (due < 0 || j->timers[i].at < j->timers[due].at))
+                due = i;
+        if (due < 0)
+            break;
+        const ptimer_t t = j->timers[due];
+        j->timers[due] = j->timers[--j->ntimers];
+        bgm_purchase_event_t ev;
+        refresh_neighbours(m, j);
+        const bg_status st = bgm_purchase_on_timer(j->pu, t.kind, t.arg, now, 1, m->ob, &ev);
+        pump(m, j, st, &ev, now);
+    }
+    double next = INFINITY;
+    for (int i = 0; j->pu && i < j->ntimers; i++)
+        if (j->timers[i].at < next)
+            next = j->timers[i].at;
+    return next;
+}
+
+/* Opens one purchase request per unit of a service job: its work, its
+ * limit per unit, the job's deadline. */
+static void open_requests(bgb_market_t *m, job_t *j, double now)
+{
+    for (int i = 0; i < j->nunits && j->pu && !j->finished; i++) {
+        const unit_t *u = &j->unit[i];
+        bgm_purchase_req_t it = {.id = (uint32_t)i + 1,
+                                 .good = u->good,
+                                 .work = u->quantity,
+                                 .limit = u->limit,
+                                 .created = now,
+                                 .deadline = j->deadline};
+        bgm_purchase_event_t ev;
+        refresh_neighbours(m, j);
+        const bg_status st = bgm_purchase_open(j->pu, &it, now, 1, m->ob, &ev);
+        pump(m, j, st, &ev, now);
+    }
+}
+
+/* A service job's buyer: the purchase machine with a trader of its own
+ * (a stream from the job id, random genes, the opening markup) that
+ * remembers, per good, the price the broker's catallactic buyers last
+ * paid, or else the cheapest ask now (`ref`). 0 when out of memory. */
+static int start_purchase(bgb_market_t *m, job_t *j, const double *ref)
+{
+    bgm_purchase_params_t p = {.cfg = &m->pcfg,
+                               .mechanism = (int)j->mech,
+                               .self = PU_SELF,
+                               .market = PU_MARKET,
+                               .widen_quiet = PU_WIDEN};
+    bgm_rng_seed(&p.trader.rng, j->id);
+    bgm_genes_random(&p.trader.genes, &p.trader.rng);
+    p.trader.markup = BUYER_MARKUP;
+    for (int g = 0; g < 3; g++)
+        p.trader.memory[g] = m->memory[g] > 0 ? m->memory[g] : (isfinite(ref[g]) ? ref[g] : 0);
+    j->pu = bgm_purchase_new(&p);
+    j->timers = malloc(JOB_TIMERS * sizeof *j->timers);
+    j->inbox = malloc(JOB_INBOX * sizeof *j->inbox);
+    if (!j->pu || !j->timers || !j->inbox) {
+        end_purchase(j);
+        return 0;
+    }
+    return 1;
 }
 
 /* Before each clearing one more central job is let into the book, the
@@ -874,19 +1253,15 @@ static void admit_one(bgb_market_t *m, double now)
     }
     if (first) {
         first->admitted = 1;
-        central_bids(m, first, now);
+        open_requests(m, first, now);
     }
 }
 
-typedef struct match_ctx {
-    bgb_market_t *m;
-    double now;
-} match_ctx;
-
-/* The auctioneer matched a unit's bid: it orders from that seller at the
+/* The auctioneer matched a unit's bid: the purchase hears the market
+ * agent's acceptance, and the unit orders from that seller at the
  * clearing price, unless the host's checks (a seller it tried beyond the
- * message's cap, one gone since) refuse it; then the seller's room is
- * said again and the unit bids again. */
+ * message's cap, one gone since) refuse it: then the purchase hears the
+ * match cancelled and bids again, and the seller's room is said again. */
 static void on_match(void *ctx, const bgb_auction_match_t *x)
 {
     match_ctx *mc = ctx;
@@ -905,10 +1280,15 @@ static void on_match(void *ctx, const bgb_auction_match_t *x)
         return;
     }
     u->in_book = 0;
-    if (can_take(m, j, u, a))
+    const uint32_t id = (uint32_t)(u - j->unit) + 1;
+    answer(j, BGM_MT_ACCEPT, PU_MARKET, id, x->attempt, x->price);
+    if (may_have(j, u, a)) {
         order(m, j, u, a, x->price, mc->now);
-    else if (a->used)
-        announce(m, a);
+    } else {
+        answer(j, BGM_MT_CANCEL, a->info.id, id, x->attempt, 0);
+        if (a->used)
+            announce(m, a);
+    }
 }
 
 /* Central resources (layer 1): one call market per resource, bids = open
@@ -970,8 +1350,9 @@ static void central_clear(bgb_market_t *m, double now)
     }
 }
 
-/* The buyer's answer to a seller's price (proposal or counter-offer):
- * accept, counter or walk away, by the simulator's bargaining code. */
+/* A sub-job buyer's answer to a resource seller's price (proposal or
+ * counter-offer): accept, counter or walk away, by the simulator's
+ * bargaining code. */
 static void bargain(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double their, double now)
 {
     double reply = 0;
@@ -994,8 +1375,8 @@ static void bargain(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double the
 
 static void send_cfps(bgb_market_t *m, job_t *j, double now);
 
-/* Catallactic: after discovery, each open unit bargains with the cheapest
- * proposer it has not tried. With no proposer left, the job fails: on
+/* Catallactic sub-jobs: after discovery, each open unit bargains with the
+ * cheapest proposer it has not tried. With no proposer left, the job fails: on
  * price ("budget") if sellers proposed, "no seller" if none did. */
 static void catallactic_step(bgb_market_t *m, job_t *j, double now)
 {
@@ -1069,15 +1450,15 @@ static void catallactic_step(bgb_market_t *m, job_t *j, double now)
     }
 }
 
-/* Calls for proposals to a few entry agents; the overlay carries them on. */
+/* A sub-job's calls for proposals to a few entry agents; the overlay
+ * carries them on. */
 static void send_cfps(bgb_market_t *m, job_t *j, double now)
 {
-    int sent = 0;
-    for (int k = 0; k < BGB_MARKET_MAX_AGENTS && sent < m->c.overlay_degree; k++) {
-        agent_t *a = &m->agents[(k + (int)(j->id % BGB_MARKET_MAX_AGENTS)) % BGB_MARKET_MAX_AGENTS];
-        if (!a->used || !a->info.alive || a->info.resource != j->resource)
-            continue;
-        for (int g = 0; g < BGB_GOODS; g++) {
+    uint32_t entry[BGA_MMSG_MAX_NEIGHBOURS];
+    const int nentry = entry_agents(m, j, entry);
+    for (int k = 0; k < nentry; k++) {
+        agent_t *a = agent_by_id(m, entry[k]);
+        for (int g = 0; a && g < BGB_GOODS; g++) {
             double quantity = 0;
             int wanted = 0;
             for (int i = 0; i < j->nunits; i++)
@@ -1099,7 +1480,6 @@ static void send_cfps(bgb_market_t *m, job_t *j, double now)
             c.term = j->resource ? j->term : 0;
             send_to(m, a, &c, NULL);
         }
-        sent++;
     }
     /* Proposals of an earlier round are stale once the next starts, so
      * rounds whose sellers answered too late (a loaded host) would repeat
@@ -1151,13 +1531,20 @@ static void step_job(bgb_market_t *m, job_t *j, double now)
         finish(m, j, "timeout", now);
         return;
     }
+    /* A seller that did not answer in time is given up; a service unit's
+     * purchase hears it as the seller's no (its own phase timers end a
+     * bargain that went quiet; this ends a commitment that did). */
     for (int i = 0; i < j->nunits; i++) {
         unit_t *u = &j->unit[i];
         if (u->state == U_ORDERED && now >= u->deadline) {
-            unpend(m, agent_by_id(m, u->agent), u);
-            unit_lost(m, j, u);
+            const uint32_t seller = u->agent;
+            let_go(m, j, u);
+            seller_said_no(j, u, seller);
         }
     }
+    deliver_answers(m, j, now);
+    if (j->finished)
+        return;
     if (j->mech != BGB_MECH_CATALLACTIC)
         for (int i = 0; i < j->nunits; i++)
             if (j->unit[i].state == U_OPEN && unbuyable(m, j, &j->unit[i], j->resource)) {
@@ -1165,12 +1552,12 @@ static void step_job(bgb_market_t *m, job_t *j, double now)
                        now);
                 return;
             }
+    if (!j->resource)
+        return; /* a service job's purchase acts on its timers and messages */
     if (j->mech == BGB_MECH_POSTED)
         posted_step(m, j, now);
     else if (j->mech == BGB_MECH_CATALLACTIC)
         catallactic_step(m, j, now);
-    else
-        central_bids(m, j, now);
 }
 
 /* A free job record for `job` (resource sub-jobs: term > 0, the lease). */
@@ -1237,12 +1624,20 @@ static void begin(bgb_market_t *m, job_t *j, const bgb_need_t *needs, int nneeds
             u->term = weight;
             u->limit = ref[u->good] * j->budget / least;
         }
-    if (j->mech == BGB_MECH_CATALLACTIC) {
+    if (!j->resource) {
+        if (!start_purchase(m, j, ref)) {
+            finish(m, j, "market: out of memory", now);
+            return;
+        }
+        if (j->mech != BGB_MECH_CENTRAL)
+            open_requests(m, j, now); /* central: when the job is let into the book */
+    } else if (j->mech == BGB_MECH_CATALLACTIC) {
         bgm_rng_seed(&j->rng, j->id);
         bgm_genes_random(&j->genes, &j->rng);
         send_cfps(m, j, now);
     }
-    step_job(m, j, now);
+    if (!j->finished)
+        step_job(m, j, now);
 }
 
 bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism, double budget,
@@ -1343,7 +1738,26 @@ static void on_rbuy(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double no
     s->sgood = in->good;
     snprintf(s->host, sizeof s->host, "%s", a->info.endpoint);
     u->deadline = now + timeout + m->c.reply_timeout;
+    /* The seller agreed (an order, an offer it accepted): the purchase is
+     * committed to it now and waits for its delivery. */
+    const bgm_purchase_req_t *q = request_of(j, u);
+    if (q && q->state == BGM_PU_NEGOTIATE)
+        answer(j, BGM_MT_ACCEPT, a->info.id, (uint32_t)(u - j->unit) + 1, q->attempt, u->price);
+    deliver_answers(m, j, now);
     begin(m, s, needs, n, now);
+}
+
+/* The seller of unit u said no (a refusal, a confirmation that is not a
+ * contract, walking away from a bargain): the unit gives it up, and a
+ * service job's purchase hears it and goes on (the next candidate or
+ * proposal, or a new attempt). */
+static void refused(bgb_market_t *m, job_t *j, unit_t *u, double now)
+{
+    const uint32_t seller = u->agent;
+    let_go(m, j, u);
+    seller_said_no(j, u, seller);
+    deliver_answers(m, j, now);
+    step_job(m, j, now);
 }
 
 static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
@@ -1361,13 +1775,19 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
         }
         return;
     }
-    unpend(m, a, u);
     if (in->type == BGA_MM_CONFIRM && in->price > u->limit * (1 + 1e-12)) {
         /* A seller confirming above the buyer's limit is not a contract. */
         release_on(m, a, in->job);
-        unit_lost(m, j, u);
-        step_job(m, j, now);
+        refused(m, j, u, now);
     } else if (in->type == BGA_MM_CONFIRM) {
+        unpend(m, a, u);
+        if (j->pu) {
+            /* The delivery, taken: the request is bought. */
+            bgm_purchase_done(j->pu, (uint32_t)(u - j->unit) + 1);
+            if (j->mech == BGB_MECH_CATALLACTIC)
+                m->memory[u->good] = bgm_memory_update(
+                    m->memory[u->good], in->price, bgm_purchase_trader(j->pu)->genes.weight_memory);
+        }
         u->state = U_DONE;
         u->price = in->price;
         u->seller_floor = in->floor[u->good];
@@ -1380,8 +1800,44 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
         }
         check_done(m, j, now);
     } else {
-        unit_lost(m, j, u);
+        refused(m, j, u, now);
+    }
+}
+
+/* A seller's bargaining message for a service job: a proposal goes to
+ * every request of its good discovering in the round it answers (the
+ * seller answers one call per good and round: two units of a need hear
+ * the same sellers); a counter-offer or walking away goes to the request
+ * bargaining with that seller, in the request's attempt. */
+static void bargain_service(bgb_market_t *m, job_t *j, agent_t *a, const bga_mmsg_t *in, double now)
+{
+    if (in->type == BGA_MM_PROPOSE) {
+        for (int i = 0; i < j->nunits && j->pu; i++) {
+            const bgm_purchase_req_t *q = request_of(j, &j->unit[i]);
+            if (j->unit[i].good != in->good || !q || q->state != BGM_PU_DISCOVER ||
+                in->attempt < 0 || q->attempt != (uint32_t)in->attempt)
+                continue;
+            bgm_msg_t p =
+                bgm_outbox_msg(BGM_MT_PROPOSE, a->info.id, PU_SELF, (uint32_t)i + 1, q->attempt);
+            p.good = (int16_t)in->good;
+            p.price = in->price;
+            tell(m, j, &p, now);
+        }
+        return;
+    }
+    unit_t *u = ordered_unit(j, a->info.id, in->good);
+    const bgm_purchase_req_t *q = u ? request_of(j, u) : NULL;
+    if (!q)
+        return;
+    if (in->type == BGA_MM_OFFER) {
+        bgm_msg_t o = bgm_outbox_msg(BGM_MT_OFFER, a->info.id, PU_SELF, (uint32_t)(u - j->unit) + 1,
+                                     q->attempt);
+        o.good = (int16_t)in->good;
+        o.price = in->price;
+        tell(m, j, &o, now);
         step_job(m, j, now);
+    } else {
+        refused(m, j, u, now);
     }
 }
 
@@ -1390,6 +1846,10 @@ static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, do
     job_t *j = job_by_id(m, in->job);
     if (!j || j->finished || j->mech != BGB_MECH_CATALLACTIC)
         return;
+    if (j->pu) {
+        bargain_service(m, j, a, in, now);
+        return;
+    }
     if (in->type == BGA_MM_PROPOSE) {
         /* A proposal answers one round's call; one of an earlier round,
          * late on a loaded host, would make the round look answered and
@@ -1492,6 +1952,9 @@ double bgb_market_tick(bgb_market_t *m, double now)
     if (now >= m->next_auction)
         admit_one(m, now);
     bgb_auction_tick(m->auction, now, on_match, &mc, &m->next_auction, NULL);
+    for (int i = 0; i < MAX_JOBS; i++)
+        if (m->jobs[i].used)
+            deliver_answers(m, &m->jobs[i], now); /* the clearing's matches */
     const double next_services = m->next_auction;
     if (now >= m->next_clear) {
         central_clear(m, now);
@@ -1502,6 +1965,9 @@ double bgb_market_tick(bgb_market_t *m, double now)
         job_t *j = &m->jobs[i];
         if (!j->used || j->finished)
             continue;
+        const double timer = run_timers(m, j, now);
+        if (timer < next)
+            next = timer;
         step_job(m, j, now);
         if (j->used && !j->finished) {
             if (j->deadline < next)

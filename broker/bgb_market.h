@@ -37,10 +37,19 @@
  * Ownership: frames passed in are borrowed for the call; frames given to
  * io.send are borrowed for the call too (send copies what it keeps).
  *
- * The service layer's auctioneer and posted directory are the simulator's
- * market agent machine (bgm_market_agent, hosted by bgb_auction); the
- * per-job buyers and the resource layer's markets run on the simulator's
- * mechanism modules (bgm_posted, bgm_callmarket, bgm_catallactic).
+ * The service layer runs the simulator's role machines: its auctioneer
+ * and posted directory are the market agent machine (bgm_market_agent,
+ * hosted by bgb_auction), and each job's buyer is a purchase machine
+ * (bgm_purchase, one request per unit: a BID, a QUERY and orders down the
+ * directory's list, or calls for proposals and bargaining, with its
+ * retries and deadline), whose messages the market carries to the
+ * auctioneer, the directory or the agents and whose sellers' answers it
+ * hands back. The host adds what the machine does not know: a need split
+ * over n sellers goes to n distinct agents, a seller that refused (posted,
+ * central) is not asked again, and a job is let into the central book one
+ * per clearing. The resource layer's markets (a basic agent's sub-job on
+ * its host) still run on the simulator's mechanism modules (bgm_posted,
+ * bgm_callmarket, bgm_catallactic) with the broker's own buyers.
  */
 #ifndef BGB_MARKET_H
 #define BGB_MARKET_H

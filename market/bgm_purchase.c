@@ -29,7 +29,8 @@ typedef struct nego_state {
 
 typedef struct req {
     bgm_purchase_req_t r;
-    uint32_t nego; /* bargaining state (PU_NEGO_NONE: none) */
+    uint32_t nego;  /* bargaining state (PU_NEGO_NONE: none) */
+    uint32_t quiet; /* catallactic rounds no seller answered */
 } req_t;
 
 struct bgm_purchase {
@@ -169,7 +170,8 @@ static int ended(const req_t *q)
 
 bgm_purchase_t *bgm_purchase_new(const bgm_purchase_params_t *p)
 {
-    if (p->degree < 0 || p->degree > BGM_PU_MAX_NEIGHBOURS)
+    if (p->degree < 0 || p->degree > BGM_PU_MAX_NEIGHBOURS || p->widen_quiet < 0 ||
+        p->widen_quiet > 16)
         return NULL;
     bgm_purchase_t *pu = calloc(1, sizeof *pu);
     if (!pu)
@@ -372,7 +374,9 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
         m.c = r->flops;
         q->r.state = BGM_PU_DISCOVER;
         cfp_send(pu, &m, UINT32_MAX);
-        arm(pu, q, now + pu->cfg->catallactic.discovery_timeout);
+        const uint32_t doublings =
+            q->quiet < (uint32_t)pu->p.widen_quiet ? q->quiet : (uint32_t)pu->p.widen_quiet;
+        arm(pu, q, now + pu->cfg->catallactic.discovery_timeout * (double)(1u << doublings));
         break;
     }
     default: {
@@ -674,8 +678,10 @@ bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, doub
             final_fail(pu, q);
         } else if (q->r.state == BGM_PU_DISCOVER) {
             nego_state_t *g = ng(pu, q);
-            if (g->nprop == 0)
+            if (g->nprop == 0) {
                 pu->timeouts += 1.0; /* nobody answered the call for proposals */
+                q->quiet++;
+            }
             qsort(g->prop, (size_t)g->nprop, sizeof g->prop[0], cmp_prop);
             g->next_prop = 0;
             begin_nego(pu, q, now);

@@ -139,11 +139,17 @@ typedef struct bgm_purchase_params {
     const uint32_t *neighbours;
     const uint8_t *same_role;
     int degree; /* <= BGM_PU_MAX_NEIGHBOURS */
+    /* Catallactic: a request's discovery window doubles after each of its
+     * rounds that no seller answered, at most this many times (0: a fixed
+     * window, as the simulator runs). A live buyer whose sellers answer
+     * late under load would otherwise hear, every round, only the last
+     * round's stragglers (which it ignores). */
+    int widen_quiet;
 } bgm_purchase_params_t;
 
 typedef struct bgm_purchase bgm_purchase_t;
 
-/* NULL when out of memory or degree is over the cap. */
+/* NULL when out of memory, degree is over the cap or widen_quiet outside [0, 16]. */
 bgm_purchase_t *bgm_purchase_new(const bgm_purchase_params_t *p);
 void bgm_purchase_destroy(bgm_purchase_t **pu);
 

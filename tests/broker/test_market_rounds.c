@@ -1,8 +1,12 @@
-/* bgb_market, catallactic discovery, on a virtual clock with a fake agent
- * (no sockets): a proposal counts only in the round whose call it
- * answers. A late one from an earlier round leaves the round unanswered,
- * so the next round's window widens, and the buyer never bargains on it;
- * a proposal for the current round is taken up with an OFFER. */
+/* bgb_market's per-job buyers (the simulator's purchase machine, hosted
+ * by the broker) on a virtual clock with fake agents (no sockets):
+ * - catallactic discovery: a proposal counts only in the round whose call
+ *   it answers. A late one from an earlier round leaves the round
+ *   unanswered, so the next round's window widens, and the buyer never
+ *   bargains on it; a proposal for the current round is taken up with an
+ *   OFFER below it;
+ * - a need split over two sellers goes to two distinct agents under each
+ *   mechanism, and a seller's no moves the unit on to another seller. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -22,6 +26,8 @@ typedef struct fake {
     int nsent;
     int done;
     char reason[32];
+    bgb_award_t awards[8];
+    int nawards;
 } fake_t;
 
 static bg_status capture(void *ctx, const uint8_t *identity, size_t identity_len,
@@ -41,6 +47,8 @@ static void on_done(void *ctx, const bgb_outcome_t *o)
     fake_t *f = ctx;
     f->done = 1;
     snprintf(f->reason, sizeof f->reason, "%s", o->reason ? o->reason : "");
+    f->nawards = o->nawards < 8 ? o->nawards : 8;
+    memcpy(f->awards, o->awards, (size_t)f->nawards * sizeof *o->awards);
 }
 
 static const uint8_t ID[] = {'A', '1'};
@@ -132,8 +140,195 @@ static void stale_proposal_is_not_counted(void **state)
     bgb_market_destroy(&m);
 }
 
+/* ---------------------------------------------- several fake agents */
+
+static void deliver_from(bgb_market_t *m, uint8_t who, const bga_mmsg_t *msg, double now)
+{
+    const uint8_t idn[] = {'S', who};
+    bga_frames_t fr;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bga_mmsg_encode(msg, &fr, &err), BG_OK);
+    bga_frame_t v[BGA_WIRE_MAX_FRAMES];
+    bga_frames_view(&fr, v);
+    assert_int_equal(bgb_market_on_frames(m, idn, sizeof idn, v, fr.count, now, &err), BG_OK);
+    bga_frames_free(&fr);
+}
+
+/* Registers a rotation-fit seller asking `price` with `slots` free; its id. */
+static uint32_t seller(bgb_market_t *m, fake_t *f, uint8_t who, double price, int slots)
+{
+    bga_mmsg_t reg;
+    bga_mmsg_init(&reg, BGA_MM_REGISTER);
+    snprintf(reg.name, sizeof reg.name, "s%c", who);
+    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://127.0.0.1:%d", 9000 + who);
+    reg.services = 1;
+    reg.slots = reg.free_slots = slots;
+    reg.floor[0] = price / 1.2;
+    reg.prices[0] = price;
+    reg.margin = 0.2;
+    const int mark = f->nsent;
+    deliver_from(m, who, &reg, 0.0);
+    const bga_mmsg_t *r = last_of(f, BGA_MM_REGISTERED, mark);
+    assert_non_null(r);
+    return r->agent;
+}
+
+/* How many messages of `type` went to agent `to` since index `from`. */
+static int count_to(const fake_t *f, int type, uint32_t to, int from)
+{
+    int n = 0;
+    for (int i = from; i < f->nsent; i++)
+        n += f->sent[i].type == type && f->sent[i].agent == to;
+    return n;
+}
+
+static const bga_mmsg_t *last_to(const fake_t *f, int type, uint32_t to, int from)
+{
+    for (int i = f->nsent - 1; i >= from; i--)
+        if (f->sent[i].type == type && f->sent[i].agent == to)
+            return &f->sent[i];
+    return NULL;
+}
+
+static void answer_as(bgb_market_t *m, uint8_t who, uint32_t id, int type, double price, double now)
+{
+    bga_mmsg_t c;
+    bga_mmsg_init(&c, type);
+    c.job = 1;
+    c.agent = id;
+    c.good = BGB_GOOD_ROTFIT;
+    c.quantity = 5;
+    c.price = price;
+    c.floor[0] = price / 1.2;
+    deliver_from(m, who, &c, now);
+}
+
+static int awarded(const fake_t *f, uint32_t id)
+{
+    for (int i = 0; i < f->nawards; i++)
+        if (f->awards[i].agent == id)
+            return 1;
+    return 0;
+}
+
+static bgb_market_t *market(fake_t *f, bgb_market_config_t *mc)
+{
+    bgb_market_config_default(mc);
+    bgb_market_io_t io = {f, capture};
+    bgb_market_t *m = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_market_new(mc, &io, &m, &err), BG_OK);
+    return m;
+}
+
+/* Posted: the need's two units order from the two cheapest postings, one
+ * each; a refusal moves that unit to the next posting (not back to the
+ * refuser, not to its mate's seller); both confirmations buy the job at
+ * the posted prices. */
+static void posted_split_need_and_refusal(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.0, 2), b = seller(m, &f, 'b', 1.5, 2),
+                   c = seller(m, &f, 'c', 2.0, 2);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 2};
+    bg_error_t err = BG_ERROR_INIT;
+    int mark = f.nsent;
+    assert_int_equal(bgb_market_buy(m, 1, BGB_MECH_POSTED, 1000, &need, 1, 0.1, on_done, &f, &err),
+                     BG_OK);
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, a, mark), 1);
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, b, mark), 1);
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, c, mark), 0);
+    assert_true(last_to(&f, BGA_MM_ORDER, a, mark)->price == 1.0);
+    assert_true(last_to(&f, BGA_MM_ORDER, b, mark)->price == 1.5);
+
+    mark = f.nsent;
+    answer_as(m, 'a', a, BGA_MM_REFUSE, 0, 0.2);
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, c, mark), 1);
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, a, mark) + count_to(&f, BGA_MM_ORDER, b, mark), 0);
+    answer_as(m, 'b', b, BGA_MM_CONFIRM, 1.5, 0.3);
+    assert_false(f.done);
+    answer_as(m, 'c', c, BGA_MM_CONFIRM, 2.0, 0.3);
+    assert_true(f.done);
+    assert_string_equal(f.reason, "");
+    assert_int_equal(f.nawards, 2);
+    assert_true(awarded(&f, b) && awarded(&f, c) && !awarded(&f, a));
+    bgb_market_destroy(&m);
+}
+
+/* Catallactic: both units of the need hear both sellers' proposals; once
+ * the window closes they bargain with different sellers (the cheapest
+ * first), each opening below the proposal; the deliveries buy the job. */
+static void catallactic_split_need(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.2, 2), b = seller(m, &f, 'b', 1.3, 2);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 2};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(
+        bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
+    assert_true(count_to(&f, BGA_MM_CFP, a, 0) >= 1 && count_to(&f, BGA_MM_CFP, b, 0) >= 1);
+    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.2, 0.15);
+    answer_as(m, 'b', b, BGA_MM_PROPOSE, 1.3, 0.15);
+    const int mark = f.nsent;
+    (void)bgb_market_tick(m, 0.1 + mc.reply_timeout / 8 + 0.01);
+    assert_int_equal(count_to(&f, BGA_MM_OFFER, a, mark), 1);
+    assert_int_equal(count_to(&f, BGA_MM_OFFER, b, mark), 1);
+    const double pa = last_to(&f, BGA_MM_OFFER, a, mark)->price,
+                 pb = last_to(&f, BGA_MM_OFFER, b, mark)->price;
+    assert_true(pa > 0 && pa < 1.2);
+    assert_true(pb > 0 && pb < 1.3);
+    answer_as(m, 'a', a, BGA_MM_CONFIRM, pa, 0.5);
+    answer_as(m, 'b', b, BGA_MM_CONFIRM, pb, 0.5);
+    assert_true(f.done);
+    assert_string_equal(f.reason, "");
+    assert_true(awarded(&f, a) && awarded(&f, b));
+    bgb_market_destroy(&m);
+}
+
+/* Central: the clearing matches the unit with the cheapest seller; its
+ * refusal makes the unit bid again, and the next clearing gives it the
+ * other seller, never the refuser. */
+static void central_refusal_bids_again(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.0, 1), b = seller(m, &f, 'b', 1.5, 1);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 1};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_market_buy(m, 1, BGB_MECH_CENTRAL, 1000, &need, 1, 0.1, on_done, &f, &err),
+                     BG_OK);
+    double t = 0.1;
+    for (int i = 0; i < 4 && !last_to(&f, BGA_MM_ORDER, a, 0); i++)
+        (void)bgb_market_tick(m, t += mc.period);
+    assert_non_null(last_to(&f, BGA_MM_ORDER, a, 0));
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, b, 0), 0);
+    const int mark = f.nsent;
+    answer_as(m, 'a', a, BGA_MM_REFUSE, 0, t + 0.01);
+    for (int i = 0; i < 4 && !last_to(&f, BGA_MM_ORDER, b, mark); i++)
+        (void)bgb_market_tick(m, t += mc.period);
+    const bga_mmsg_t *o = last_to(&f, BGA_MM_ORDER, b, mark);
+    assert_non_null(o);
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, a, mark), 0);
+    answer_as(m, 'b', b, BGA_MM_CONFIRM, o->price, t + 0.01);
+    assert_true(f.done);
+    assert_string_equal(f.reason, "");
+    assert_true(awarded(&f, b) && !awarded(&f, a));
+    bgb_market_destroy(&m);
+}
+
 int main(void)
 {
-    const struct CMUnitTest tests[] = {cmocka_unit_test(stale_proposal_is_not_counted)};
+    const struct CMUnitTest tests[] = {cmocka_unit_test(stale_proposal_is_not_counted),
+                                       cmocka_unit_test(posted_split_need_and_refusal),
+                                       cmocka_unit_test(catallactic_split_need),
+                                       cmocka_unit_test(central_refusal_bids_again)};
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
