@@ -97,10 +97,10 @@ struct job {
     uint32_t touched[MAX_UNITS]; /* agents that may hold a slot for it */
     int ntouched;
     int finished; /* outcome delivered; kept until release */
-    proposal_t props[MAX_PROPOSALS]; /* catallactic: proposals heard */
+    proposal_t props[MAX_PROPOSALS]; /* catallactic sub-jobs: proposals heard */
     int nprops;
     double discover_until;
-    int attempt; /* catallactic discovery rounds so far */
+    int attempt; /* catallactic sub-jobs: discovery rounds so far */
     int quiet;   /* of those, rounds in which no seller proposed */
     int admitted; /* central: its service units may bid (see admit_one) */
     /* A service job's buyer: the simulator's purchase machine, one request
@@ -111,7 +111,7 @@ struct job {
     int ntimers;
     bgm_msg_t *inbox;
     int ninbox;
-    bgm_rng_t rng;
+    bgm_rng_t rng; /* catallactic sub-jobs: bargaining draws and genes */
     bgm_genes_t genes;
     bgb_done_fn done;
     void *ctx;
