@@ -1132,7 +1132,8 @@ static void pump(bgb_market_t *m, job_t *j, bg_status st, const bgm_purchase_eve
     reconcile(m, j);
 }
 
-/* A catallactic purchase calls on the current entry agents. */
+/* A catallactic purchase calls on the current entry agents. Only opening
+ * a request and its retry timer send calls, so only those need them. */
 static void refresh_neighbours(const bgb_market_t *m, job_t *j)
 {
     if (j->mech != BGB_MECH_CATALLACTIC)
@@ -1149,7 +1150,6 @@ static void tell(bgb_market_t *m, job_t *j, const bgm_msg_t *x, double now)
     if (!j->pu)
         return;
     bgm_purchase_event_t ev;
-    refresh_neighbours(m, j);
     const bg_status st = bgm_purchase_on_message(j->pu, x, now, m->ob, &ev);
     pump(m, j, st, &ev, now);
 }
