@@ -17,9 +17,7 @@
 #define MAX_UNITS 64
 #define MAX_TRIED 32
 #define MAX_JOBS 1024
-#define MAX_PROPOSALS 64
-#define MAX_ROUNDS_DISCOVERY 16
-#define BUYER_MARKUP 0.1 /* catallactic buyer's opening below the proposal */
+#define BUYER_MARKUP 0.1 /* catallactic buyer's opening below the remembered price */
 /* Resource sub-job ids, apart from the callers' (the store's job ids are
  * far below 2^49; the wire header carries all 64 bits). */
 #define SUB_JOB_BASE ((uint64_t)1 << 49)
@@ -62,11 +60,12 @@ typedef struct unit {
     double term; /* resource units: the lease (quantity × term × price is the money) */
     uint32_t tried[MAX_TRIED];
     int ntried;
-    bgm_nego_t side; /* catallactic sub-jobs: the buyer's side of the bargain */
-    /* Service units: the purchase request's attempt when it was ordered
-     * or bid, and (central) its bid's number at the market agent. */
+    /* The purchase request's attempt when it was ordered or bid, and
+     * (central services) its bid's number at the market agent. */
     uint32_t req, attempt;
-    int in_book; /* central services: its bid is in the auctioneer's book */
+    int in_book; /* central: its bid is in the book (services: the auctioneer's) */
+    double heard; /* resource units: the seller's last price per unit-second */
+    uint32_t drawn; /* catallactic: the round its job's buyer last drew a strategy for */
 } unit_t;
 
 typedef struct ptimer {
@@ -74,12 +73,6 @@ typedef struct ptimer {
     int kind;
     uint64_t arg;
 } ptimer_t;
-
-typedef struct proposal {
-    uint32_t agent;
-    int good;
-    double price;
-} proposal_t;
 
 typedef struct job job_t;
 struct bidref {
@@ -97,22 +90,18 @@ struct job {
     uint32_t touched[MAX_UNITS]; /* agents that may hold a slot for it */
     int ntouched;
     int finished; /* outcome delivered; kept until release */
-    proposal_t props[MAX_PROPOSALS]; /* catallactic sub-jobs: proposals heard */
-    int nprops;
-    double discover_until;
-    int attempt; /* catallactic sub-jobs: discovery rounds so far */
-    int quiet;   /* of those, rounds in which no seller proposed */
     int admitted; /* central: its service units may bid (see admit_one) */
-    /* A service job's buyer: the simulator's purchase machine, one request
-     * per unit (request id = unit index + 1), its timers, and the answers
-     * the host has for it next. */
+    /* The job's buyer: the simulator's purchase machine, one request per
+     * unit (request id = unit index + 1), its timers, and the answers the
+     * host has for it next. A resource sub-job's machine reads a copy of
+     * the purchase configuration of its own (`cfg`: the host's cheapest
+     * asks as the mean resource costs). */
     bgm_purchase_t *pu;
+    bgm_config_t *cfg;
     ptimer_t *timers;
     int ntimers;
     bgm_msg_t *inbox;
     int ninbox;
-    bgm_rng_t rng; /* catallactic sub-jobs: bargaining draws and genes */
-    bgm_genes_t genes;
     bgb_done_fn done;
     void *ctx;
     char label[BGB_MARKET_LABEL_MAX];
@@ -245,10 +234,12 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     return BG_OK;
 }
 
-/* A service job's buyer is done buying: its machine and timers go. */
+/* A job's buyer is done buying: its machine and timers go. */
 static void end_purchase(job_t *j)
 {
     bgm_purchase_destroy(&j->pu);
+    free(j->cfg);
+    j->cfg = NULL;
     free(j->timers);
     free(j->inbox);
     j->timers = NULL;
@@ -851,49 +842,54 @@ static int exclusions(bgb_market_t *m, const job_t *j, const unit_t *u, int *out
     return k;
 }
 
-/* Whether the host lets service unit u of job j have seller a now: what
- * the market agent's answers and a purchase's choices are checked
- * against (what a message could not carry, a seller gone since). A
- * seller another unit of the need has is never given; central and posted
- * units also skip sellers they tried and sellers without a free slot,
- * while a catallactic one leaves both to its bargaining (a seller that
- * walked away may agree in a later round; a busy one does not propose). */
+/* Whether the host lets unit u of job j have seller a now: what the
+ * market agent's answers and a purchase's choices are checked against
+ * (what a message could not carry, a seller gone since). A seller of
+ * another host (a sub-job) or one another unit of the need has is never
+ * given; central and posted units also skip sellers they tried and
+ * sellers without room, while a catallactic service unit leaves both to
+ * its bargaining (a seller that walked away may agree in a later round; a
+ * busy one does not propose). A catallactic resource unit does skip a
+ * seller whose room other sub-jobs are bargaining for or hold: idle
+ * resource sellers propose at one price, so every sub-job's machine,
+ * taking ties by seller id, opens with the same one, and all but one
+ * would wait for its refusal before trying the next. */
 static int may_have(const job_t *j, const unit_t *u, const agent_t *a)
 {
-    if (!a || !a->used || !alive_seller(a, u->good) || need_has(j, u, a->info.id))
+    if (!a || !a->used || !alive_seller(a, u->good) || !on_host(j, a) ||
+        need_has(j, u, a->info.id))
         return 0;
-    return j->mech == BGB_MECH_CATALLACTIC || (room_for(a, u) && !tried(u, a->info.id));
+    if (j->mech == BGB_MECH_CATALLACTIC)
+        return !j->resource || room_for(a, u);
+    return room_for(a, u) && !tried(u, a->info.id);
 }
 
 static void unit_lost(bgb_market_t *m, job_t *j, unit_t *u);
-
-/* Posted resources (a sub-job's units): each open unit orders from the
- * first of its host's postings within its limit that has room. */
-static void posted_step(bgb_market_t *m, job_t *j, double now)
-{
-    for (int i = 0; i < j->nunits; i++) {
-        unit_t *u = &j->unit[i];
-        if (u->state != U_OPEN)
-            continue;
-        room_ctx rc = {m, j, u};
-        bgm_posting_t p;
-        if (bgm_posted_query_if(m->posted, u->good, u->limit, has_room, &rc, &p, 1) == 1) {
-            order(m, j, u, agent_by_id(m, p.seller), p.price, now);
-        } else if (!j->finished) {
-            /* The basic agent is holding its answer to a service order:
-             * with no posting of its host free now, it refuses at once. */
-            finish(m, j, "no free cores or memory on the host within the limit", now);
-            return;
-        }
-    }
-}
 
 typedef struct match_ctx {
     bgb_market_t *m;
     double now;
 } match_ctx;
 
-/* ---------------------------------------------- a service job's purchase */
+/* ------------------------------------------------------ a job's purchase */
+
+/* A resource unit is one bundle of the machine's (q cores, or q GiB, for
+ * the lease): the machine prices bundles per second for the whole (a
+ * rate), the live sellers per unit-second, so rate = q · unit price. A
+ * rate the machine hands back from the seller's own last price goes back
+ * as exactly that price (the seller knows its price, not a rebuilt one). */
+static double machine_price(const job_t *j, const unit_t *u, double unit)
+{
+    return j->resource ? unit * u->quantity : unit;
+}
+
+static double live_price(const job_t *j, const unit_t *u, double rate)
+{
+    if (!j->resource)
+        return rate;
+    const double unit = rate / u->quantity;
+    return u->heard > 0 && fabs(unit - u->heard) <= 1e-12 * u->heard ? u->heard : unit;
+}
 
 /* The purchase request of unit u (NULL once the job stopped buying). */
 static bgm_purchase_req_t *request_of(job_t *j, const unit_t *u)
@@ -969,18 +965,32 @@ static void central_bid(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *b
 
 /* Posted: the purchase's QUERY is answered by the directory (the market
  * agent machine): the first postings within its limit with room, less
- * the sellers the unit may not have, as the machine's LIST. */
+ * the sellers the unit may not have, as the machine's LIST. A resource
+ * unit's are its host's postings within the unit's limit, listed at the
+ * bundle's rate at speed 1 (the lease is the bundle's run time). */
 static void posted_list(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *qm, double now)
 {
+    if (!j->inbox || j->ninbox >= JOB_INBOX)
+        return;
+    bgm_msg_t *l = &j->inbox[j->ninbox++];
+    *l = bgm_outbox_msg(BGM_MT_LIST, PU_MARKET, PU_SELF, qm->req, qm->attempt);
+    if (j->resource) {
+        room_ctx rc = {m, j, u};
+        bgm_posting_t p[BGM_MSG_CANDIDATES];
+        const size_t n = bgm_posted_query_if(m->posted, u->good, u->limit, has_room, &rc, p,
+                                             BGM_MSG_CANDIDATES);
+        for (size_t i = 0; i < n; i++) {
+            l->cand[l->ncand] = p[i].seller;
+            l->cand_speed[l->ncand] = 1.0;
+            l->cand_price[l->ncand++] = machine_price(j, u, p[i].price);
+        }
+        return;
+    }
     int excl[BGB_AUCTION_MAX_EXCLUDE], slots[BGB_AUCTION_MAX_LIST];
     double prices[BGB_AUCTION_MAX_LIST];
     const int ne = exclusions(m, j, u, excl);
     const int n = bgb_auction_query(m->auction, buyer_of(m, j), ++m->next_req, u->good, qm->price,
                                     excl, ne, slots, prices, BGB_AUCTION_MAX_LIST, now, NULL);
-    if (!j->inbox || j->ninbox >= JOB_INBOX)
-        return;
-    bgm_msg_t *l = &j->inbox[j->ninbox++];
-    *l = bgm_outbox_msg(BGM_MT_LIST, PU_MARKET, PU_SELF, qm->req, qm->attempt);
     for (int i = 0; i < n && l->ncand < BGM_MSG_CANDIDATES; i++) {
         const agent_t *a = &m->agents[slots[i]];
         if (!may_have(j, u, a))
@@ -1008,23 +1018,24 @@ static void to_seller(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *o, 
         pend(m, a, u);
         touch(j, a->info.id);
     }
-    u->price = o->price;
+    u->price = live_price(j, u, o->price);
     u->attempt = o->attempt;
     u->deadline = now + m->c.reply_timeout;
     if (a)
-        send_price(m, j, u, a, o->type == BGM_MT_ORDER ? BGA_MM_ORDER : BGA_MM_OFFER, o->price);
+        send_price(m, j, u, a, o->type == BGM_MT_ORDER ? BGA_MM_ORDER : BGA_MM_OFFER, u->price);
 }
 
 /* Entry points of a catallactic job's calls for proposals: a few live
- * service sellers, from an offset that spreads jobs over the directory;
- * the overlay carries the calls on. */
+ * sellers of its layer (a sub-job: its host's resource sellers, the only
+ * ones it may buy from), from an offset that spreads jobs over the
+ * directory; the overlay carries the calls on. */
 static int entry_agents(const bgb_market_t *m, const job_t *j, uint32_t *ids)
 {
     int n = 0;
     for (int k = 0; k < BGB_MARKET_MAX_AGENTS && n < m->c.overlay_degree; k++) {
         const agent_t *a =
             &m->agents[(k + (int)(j->id % BGB_MARKET_MAX_AGENTS)) % BGB_MARKET_MAX_AGENTS];
-        if (a->used && a->info.alive && a->info.resource == j->resource)
+        if (a->used && a->info.alive && a->info.resource == j->resource && on_host(j, a))
             ids[n++] = a->info.id;
     }
     return n;
@@ -1042,10 +1053,26 @@ static void route_out(bgb_market_t *m, job_t *j, const bgm_msg_t *x, double now)
     case BGM_MT_BID:
         central_bid(m, j, u, x, now);
         break;
+    case BGM_MT_RBID:
+        /* A resource unit's bid: the host's call market for its good
+         * takes it at every clearing until it is filled (central_clear). */
+        u->in_book = 1;
+        u->attempt = x->attempt;
+        break;
     case BGM_MT_QUERY:
         posted_list(m, j, u, x, now);
         break;
     case BGM_MT_CFP:
+        /* A round every bargain of which failed: the strategy that failed
+         * them is dropped for a fresh draw. The simulator's buyers learn
+         * from their neighbours across many jobs; a live job has only its
+         * own rounds, and the machine's outcome learning moves only its
+         * markup, so the same genes would walk away again. */
+        if (x->attempt > u->drawn) {
+            bgm_trader_t *tr = bgm_purchase_trader(j->pu);
+            bgm_genes_random(&tr->genes, &tr->rng);
+            u->drawn = x->attempt;
+        }
         if (a) {
             bga_mmsg_t c;
             bga_mmsg_init(&c, BGA_MM_CFP);
@@ -1054,7 +1081,8 @@ static void route_out(bgb_market_t *m, job_t *j, const bgm_msg_t *x, double now)
             c.good = u->good;
             c.hops = x->hops;
             c.attempt = (int)x->attempt;
-            c.quantity = x->a;
+            c.quantity = u->quantity;
+            c.term = j->resource ? j->term : 0;
             send_to(m, a, &c, NULL);
         }
         break;
@@ -1063,11 +1091,12 @@ static void route_out(bgb_market_t *m, job_t *j, const bgm_msg_t *x, double now)
         to_seller(m, j, u, x, now);
         break;
     case BGM_MT_ACCEPT:
-        /* The seller now buys the unit's resources before it confirms. */
+        /* A basic seller now buys the unit's resources before it
+         * confirms; a resource seller confirms at once. */
         if (a && u->state == U_ORDERED && u->agent == x->to) {
-            u->price = x->price;
-            u->deadline = now + 2.5 * m->c.reply_timeout;
-            send_price(m, j, u, a, BGA_MM_ACCEPT, x->price);
+            u->price = live_price(j, u, x->price);
+            u->deadline = now + (j->resource ? 1.0 : 2.5) * m->c.reply_timeout;
+            send_price(m, j, u, a, BGA_MM_ACCEPT, u->price);
         }
         break;
     case BGM_MT_REJECT:
@@ -1090,9 +1119,13 @@ static void reconcile(bgb_market_t *m, job_t *j)
         const bgm_purchase_req_t *q = request_of(j, u);
         if (u->state != U_ORDERED || !q)
             continue;
-        const int held = (q->state == BGM_PU_NEGOTIATE || q->state == BGM_PU_COMMITTED) &&
-                         q->attempt == u->attempt &&
-                         (j->mech == BGB_MECH_CENTRAL || q->seller == u->agent);
+        /* A central resource unit's bid waits in the host's book while
+         * the seller it was filled with confirms (the simulator's award). */
+        const int held = j->resource && j->mech == BGB_MECH_CENTRAL
+                             ? q->state == BGM_PU_WAIT
+                             : (q->state == BGM_PU_NEGOTIATE || q->state == BGM_PU_COMMITTED) &&
+                                   q->attempt == u->attempt &&
+                                   (j->mech == BGB_MECH_CENTRAL || q->seller == u->agent);
         if (!held)
             let_go(m, j, u);
     }
@@ -1113,6 +1146,8 @@ static void pump(bgb_market_t *m, job_t *j, bg_status st, const bgm_purchase_eve
                 st = BG_ERR_LIMIT;
         }
         bgm_outbox_clear(m->ob);
+        if (j->finished)
+            return;
         if (st != BG_OK) {
             finish(m, j,
                    st == BG_ERR_NOMEM ? "market: out of memory" : "market: buyer over its caps",
@@ -1189,8 +1224,10 @@ static double run_timers(bgb_market_t *m, job_t *j, double now)
     return next;
 }
 
-/* Opens one purchase request per unit of a service job: its work, its
- * limit per unit, the job's deadline. */
+/* Opens one purchase request per unit of a job, until the job's
+ * deadline: a service unit's work at its limit per unit; a resource
+ * unit's bundle (q cores or q GiB, run for the lease at speed 1) within
+ * the money its limit comes to. */
 static void open_requests(bgb_market_t *m, job_t *j, double now)
 {
     for (int i = 0; i < j->nunits && j->pu && !j->finished; i++) {
@@ -1201,6 +1238,15 @@ static void open_requests(bgb_market_t *m, job_t *j, double now)
                                  .limit = u->limit,
                                  .created = now,
                                  .deadline = j->deadline};
+        if (j->resource) {
+            const int cores = u->good == BGB_GOOD_CORES;
+            it.good = BGM_PU_BUNDLE;
+            it.work = 0;
+            it.cores = cores ? u->quantity : 0;
+            it.memory = cores ? 0 : u->quantity;
+            it.flops = j->term * (cores ? u->quantity : 1.0);
+            it.limit = u->limit * u->quantity * j->term;
+        }
         bgm_purchase_event_t ev;
         refresh_neighbours(m, j);
         const bg_status st = bgm_purchase_open(j->pu, &it, now, 1, m->ob, &ev);
@@ -1208,13 +1254,24 @@ static void open_requests(bgb_market_t *m, job_t *j, double now)
     }
 }
 
-/* A service job's buyer: the purchase machine with a trader of its own
- * (a stream from the job id, random genes, the opening markup) that
- * remembers, per good, the price the broker's catallactic buyers last
- * paid, or else the cheapest ask now (`ref`). 0 when out of memory. */
+/* A job's buyer: the purchase machine with a trader of its own (a
+ * stream from the job id, random genes, the opening markup) that
+ * remembers, per service good, the price the broker's catallactic buyers
+ * last paid, or else the cheapest ask now (`ref`). A resource sub-job's
+ * remembers its host's cheapest asks: they are its copy's mean costs, at
+ * a remembered ratio of 1. 0 when out of memory. */
 static int start_purchase(bgb_market_t *m, job_t *j, const double *ref)
 {
-    bgm_purchase_params_t p = {.cfg = &m->pcfg,
+    if (j->resource) {
+        j->cfg = malloc(sizeof *j->cfg);
+        if (!j->cfg)
+            return 0;
+        *j->cfg = m->pcfg;
+        const double cores = ref[BGB_GOOD_CORES], memory = ref[BGB_GOOD_MEMORY];
+        j->cfg->resources.core_cost = isfinite(cores) ? cores : 0;
+        j->cfg->resources.memory_cost = isfinite(memory) ? memory : 0;
+    }
+    bgm_purchase_params_t p = {.cfg = j->resource ? j->cfg : &m->pcfg,
                                .mechanism = (int)j->mech,
                                .self = PU_SELF,
                                .market = PU_MARKET,
@@ -1222,8 +1279,9 @@ static int start_purchase(bgb_market_t *m, job_t *j, const double *ref)
     bgm_rng_seed(&p.trader.rng, j->id);
     bgm_genes_random(&p.trader.genes, &p.trader.rng);
     p.trader.markup = BUYER_MARKUP;
-    for (int g = 0; g < 3; g++)
+    for (int g = 0; g < 3 && !j->resource; g++)
         p.trader.memory[g] = m->memory[g] > 0 ? m->memory[g] : (isfinite(ref[g]) ? ref[g] : 0);
+    p.trader.memory[3] = j->resource ? 1.0 : 0.0;
     j->pu = bgm_purchase_new(&p);
     j->timers = malloc(JOB_TIMERS * sizeof *j->timers);
     j->inbox = malloc(JOB_INBOX * sizeof *j->inbox);
@@ -1308,7 +1366,7 @@ static void central_clear(bgb_market_t *m, double now)
                 continue;
             for (int i = 0; i < j->nunits; i++) {
                 unit_t *u = &j->unit[i];
-                if (u->state != U_OPEN || u->good != g)
+                if (u->state != U_OPEN || u->good != g || !u->in_book)
                     continue;
                 refs[nb] = (bidref_t){j, u};
                 bgm_order_t o = {.ref = nb, .owner = (uint32_t)ji, .quantity = 1, .price = u->limit};
@@ -1350,146 +1408,6 @@ static void central_clear(bgb_market_t *m, double now)
     }
 }
 
-/* A sub-job buyer's answer to a resource seller's price (proposal or
- * counter-offer): accept, counter or walk away, by the simulator's
- * bargaining code. */
-static void bargain(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double their, double now)
-{
-    double reply = 0;
-    switch (bgm_nego_respond(&u->side, their, &j->rng, &reply)) {
-    case BGM_NEGO_ACCEPT:
-        send_price(m, j, u, a, BGA_MM_ACCEPT, their);
-        break;
-    case BGM_NEGO_COUNTER:
-        send_price(m, j, u, a, BGA_MM_OFFER, reply);
-        break;
-    default:
-        send_price(m, j, u, a, BGA_MM_REJECT, 0);
-        unpend(m, a, u);
-        mark_tried(u, a->info.id);
-        u->state = U_OPEN;
-        return;
-    }
-    u->deadline = now + m->c.reply_timeout;
-}
-
-static void send_cfps(bgb_market_t *m, job_t *j, double now);
-
-/* Catallactic sub-jobs: after discovery, each open unit bargains with the
- * cheapest proposer it has not tried. With no proposer left, the job fails: on
- * price ("budget") if sellers proposed, "no seller" if none did. */
-static void catallactic_step(bgb_market_t *m, job_t *j, double now)
-{
-    if (now < j->discover_until)
-        return;
-    for (int i = 0; i < j->nunits; i++) {
-        unit_t *u = &j->unit[i];
-        if (u->state != U_OPEN)
-            continue;
-        const proposal_t *best = NULL;
-        int heard = 0, ties = 0;
-        for (int k = 0; k < j->nprops; k++) {
-            const proposal_t *p = &j->props[k];
-            if (p->good != u->good)
-                continue;
-            heard++;
-            agent_t *a = agent_by_id(m, p->agent);
-            if (!a || !a->info.alive || !on_host(j, a) || tried(u, p->agent) ||
-                need_has(j, u, p->agent))
-                continue;
-            /* Sellers at one price (idle ones at the same policy) are
-             * taken at random, so the buyers of one job's sub-jobs do not
-             * all bargain with the first proposer and refuse each other. */
-            if (!best || p->price < best->price * (1 - 1e-12)) {
-                best = p;
-                ties = 1;
-            } else if (p->price <= best->price * (1 + 1e-12) &&
-                       bgm_rng_uniform(&j->rng) * ++ties < 1.0) {
-                best = p;
-            }
-        }
-        if (!best) {
-            int waiting = 0;
-            for (int k = 0; k < j->nunits; k++)
-                waiting |= j->unit[k].state == U_ORDERED;
-            if (waiting)
-                return;
-            /* Sellers walk away at random (their genes): a new round of
-             * discovery, as the simulator's retry, a few times. */
-            /* A sub-job's basic agent holds a service answer: three
-             * rounds that no resource seller answered are enough (their
-             * windows, doubling, fit the sub-job's deadline). */
-            if (j->attempt < MAX_ROUNDS_DISCOVERY && !(j->resource && j->quiet >= 3)) {
-                for (int k = 0; k < j->nunits; k++)
-                    j->unit[k].ntried = 0;
-                /* A strategy that failed every bargain is dropped for a
-                 * fresh draw (the simulator's agents learn across jobs; a
-                 * live job has only its own rounds). */
-                bgm_genes_random(&j->genes, &j->rng);
-                if (j->nprops == 0)
-                    j->quiet++;
-                j->nprops = 0;
-                j->attempt++;
-                send_cfps(m, j, now);
-                return;
-            }
-            finish(m, j, heard ? "budget" : "no seller", now);
-            return;
-        }
-        agent_t *a = agent_by_id(m, best->agent);
-        /* As the simulator's buyer: open with its own offer below the
-         * proposal (the remembered price), then alternate. */
-        const double open = bgm_nego_opening(BGM_SIDE_BUYER, u->limit, best->price, BUYER_MARKUP);
-        bgm_nego_open(&u->side, BGM_SIDE_BUYER, u->limit, open, &j->genes, m->c.max_rounds);
-        u->state = U_ORDERED;
-        u->agent = a->info.id;
-        u->deadline = now + m->c.reply_timeout;
-        pend(m, a, u);
-        touch(j, a->info.id);
-        send_price(m, j, u, a, BGA_MM_OFFER, u->side.current);
-    }
-}
-
-/* A sub-job's calls for proposals to a few entry agents; the overlay
- * carries them on. */
-static void send_cfps(bgb_market_t *m, job_t *j, double now)
-{
-    uint32_t entry[BGA_MMSG_MAX_NEIGHBOURS];
-    const int nentry = entry_agents(m, j, entry);
-    for (int k = 0; k < nentry; k++) {
-        agent_t *a = agent_by_id(m, entry[k]);
-        for (int g = 0; a && g < BGB_GOODS; g++) {
-            double quantity = 0;
-            int wanted = 0;
-            for (int i = 0; i < j->nunits; i++)
-                if (j->unit[i].good == g) {
-                    wanted = 1;
-                    if (j->unit[i].quantity > quantity)
-                        quantity = j->unit[i].quantity;
-                }
-            if (!wanted)
-                continue;
-            bga_mmsg_t c;
-            bga_mmsg_init(&c, BGA_MM_CFP);
-            c.job = j->id;
-            c.agent = a->info.id;
-            c.good = g;
-            c.hops = m->c.hops;
-            c.attempt = j->attempt;
-            c.quantity = quantity;
-            c.term = j->resource ? j->term : 0;
-            send_to(m, a, &c, NULL);
-        }
-    }
-    /* Proposals of an earlier round are stale once the next starts, so
-     * rounds whose sellers answered too late (a loaded host) would repeat
-     * with one fixed window until the buy times out: each round that heard
-     * no proposal doubles the window, up to the reply timeout. Rounds
-     * whose bargains failed keep it short: they retry with new genes. */
-    const int doublings = j->quiet < 3 ? j->quiet : 3;
-    j->discover_until = now + m->c.reply_timeout / 8 * (double)(1 << doublings);
-}
-
 static void check_done(bgb_market_t *m, job_t *j, double now)
 {
     for (int i = 0; i < j->nunits; i++)
@@ -1500,14 +1418,18 @@ static void check_done(bgb_market_t *m, job_t *j, double now)
 
 /* Posted and central: an open unit that every live seller has refused
  * (or that has no seller at all) cannot be bought; the job fails now
- * rather than at its deadline. With `room`, a seller must also have room
- * now (sub-jobs: their basic agent is holding a service answer). */
-static int unbuyable(bgb_market_t *m, const job_t *j, const unit_t *u, int room)
+ * rather than at its deadline. A sub-job's seller must also have room
+ * now and, posted, ask within the unit's limit: its basic agent is
+ * holding a service answer, which it refuses at once rather than after a
+ * wait for a price or room that may not come. */
+static int unbuyable(bgb_market_t *m, const job_t *j, const unit_t *u)
 {
     for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++) {
         const agent_t *a = &m->agents[i];
         if (alive_seller(a, u->good) && on_host(j, a) && !tried(u, a->info.id) &&
-            !need_has(j, u, a->info.id) && (!room || room_for(a, u)))
+            !need_has(j, u, a->info.id) &&
+            (!j->resource || (room_for(a, u) && (j->mech != BGB_MECH_POSTED ||
+                                                 a->info.price[u->good] <= u->limit))))
             return 0;
     }
     return 1;
@@ -1547,17 +1469,14 @@ static void step_job(bgb_market_t *m, job_t *j, double now)
         return;
     if (j->mech != BGB_MECH_CATALLACTIC)
         for (int i = 0; i < j->nunits; i++)
-            if (j->unit[i].state == U_OPEN && unbuyable(m, j, &j->unit[i], j->resource)) {
-                finish(m, j, j->resource ? "no free cores or memory on the host" : "no seller",
-                       now);
+            if (j->unit[i].state == U_OPEN && unbuyable(m, j, &j->unit[i])) {
+                const char *why = !j->resource ? "no seller"
+                                  : j->mech == BGB_MECH_POSTED
+                                      ? "no free cores or memory on the host within the limit"
+                                      : "no free cores or memory on the host";
+                finish(m, j, why, now);
                 return;
             }
-    if (!j->resource)
-        return; /* a service job's purchase acts on its timers and messages */
-    if (j->mech == BGB_MECH_POSTED)
-        posted_step(m, j, now);
-    else if (j->mech == BGB_MECH_CATALLACTIC)
-        catallactic_step(m, j, now);
 }
 
 /* A free job record for `job` (resource sub-jobs: term > 0, the lease). */
@@ -1624,18 +1543,13 @@ static void begin(bgb_market_t *m, job_t *j, const bgb_need_t *needs, int nneeds
             u->term = weight;
             u->limit = ref[u->good] * j->budget / least;
         }
-    if (!j->resource) {
-        if (!start_purchase(m, j, ref)) {
-            finish(m, j, "market: out of memory", now);
-            return;
-        }
-        if (j->mech != BGB_MECH_CENTRAL)
-            open_requests(m, j, now); /* central: when the job is let into the book */
-    } else if (j->mech == BGB_MECH_CATALLACTIC) {
-        bgm_rng_seed(&j->rng, j->id);
-        bgm_genes_random(&j->genes, &j->rng);
-        send_cfps(m, j, now);
+    if (!start_purchase(m, j, ref)) {
+        finish(m, j, "market: out of memory", now);
+        return;
     }
+    /* Central services bid when the job is let into the book (admit_one). */
+    if (j->resource || j->mech != BGB_MECH_CENTRAL)
+        open_requests(m, j, now);
     if (!j->finished)
         step_job(m, j, now);
 }
@@ -1782,9 +1696,10 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
     } else if (in->type == BGA_MM_CONFIRM) {
         unpend(m, a, u);
         if (j->pu) {
-            /* The delivery, taken: the request is bought. */
+            /* The delivery, taken (a resource seller's confirmation is the
+             * bundle's RCONFIRM): the request is bought. */
             bgm_purchase_done(j->pu, (uint32_t)(u - j->unit) + 1);
-            if (j->mech == BGB_MECH_CATALLACTIC)
+            if (j->mech == BGB_MECH_CATALLACTIC && !j->resource)
                 m->memory[u->good] = bgm_memory_update(
                     m->memory[u->good], in->price, bgm_purchase_trader(j->pu)->genes.weight_memory);
         }
@@ -1804,23 +1719,26 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
     }
 }
 
-/* A seller's bargaining message for a service job: a proposal goes to
- * every request of its good discovering in the round it answers (the
- * seller answers one call per good and round: two units of a need hear
- * the same sellers); a counter-offer or walking away goes to the request
- * bargaining with that seller, in the request's attempt. */
-static void bargain_service(bgb_market_t *m, job_t *j, agent_t *a, const bga_mmsg_t *in, double now)
+/* A seller's bargaining message: a proposal goes to every request of its
+ * good discovering in the round it answers (the seller answers one call
+ * per good and round: two units of a need hear the same sellers); a
+ * counter-offer or walking away goes to the request bargaining with that
+ * seller, in the request's attempt. A sub-job hears only its host's
+ * resource sellers, at their bundle's rate and speed 1. */
+static void bargain_msg(bgb_market_t *m, job_t *j, agent_t *a, const bga_mmsg_t *in, double now)
 {
     if (in->type == BGA_MM_PROPOSE) {
-        for (int i = 0; i < j->nunits && j->pu; i++) {
-            const bgm_purchase_req_t *q = request_of(j, &j->unit[i]);
-            if (j->unit[i].good != in->good || !q || q->state != BGM_PU_DISCOVER ||
-                in->attempt < 0 || q->attempt != (uint32_t)in->attempt)
+        for (int i = 0; i < j->nunits && j->pu && on_host(j, a); i++) {
+            unit_t *u = &j->unit[i];
+            const bgm_purchase_req_t *q = request_of(j, u);
+            if (u->good != in->good || !q || q->state != BGM_PU_DISCOVER || in->attempt < 0 ||
+                q->attempt != (uint32_t)in->attempt)
                 continue;
             bgm_msg_t p =
                 bgm_outbox_msg(BGM_MT_PROPOSE, a->info.id, PU_SELF, (uint32_t)i + 1, q->attempt);
-            p.good = (int16_t)in->good;
-            p.price = in->price;
+            p.good = (int16_t)q->good;
+            p.price = machine_price(j, u, in->price);
+            p.a = 1.0;
             tell(m, j, &p, now);
         }
         return;
@@ -1832,8 +1750,9 @@ static void bargain_service(bgb_market_t *m, job_t *j, agent_t *a, const bga_mms
     if (in->type == BGA_MM_OFFER) {
         bgm_msg_t o = bgm_outbox_msg(BGM_MT_OFFER, a->info.id, PU_SELF, (uint32_t)(u - j->unit) + 1,
                                      q->attempt);
-        o.good = (int16_t)in->good;
-        o.price = in->price;
+        o.good = (int16_t)q->good;
+        u->heard = in->price;
+        o.price = machine_price(j, u, in->price);
         tell(m, j, &o, now);
         step_job(m, j, now);
     } else {
@@ -1844,33 +1763,8 @@ static void bargain_service(bgb_market_t *m, job_t *j, agent_t *a, const bga_mms
 static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
 {
     job_t *j = job_by_id(m, in->job);
-    if (!j || j->finished || j->mech != BGB_MECH_CATALLACTIC)
-        return;
-    if (j->pu) {
-        bargain_service(m, j, a, in, now);
-        return;
-    }
-    if (in->type == BGA_MM_PROPOSE) {
-        /* A proposal answers one round's call; one of an earlier round,
-         * late on a loaded host, would make the round look answered and
-         * keep its window from widening (send_cfps), so that every round
-         * hears only the last one's stragglers. */
-        if (in->attempt != j->attempt)
-            return;
-        if (j->nprops < MAX_PROPOSALS)
-            j->props[j->nprops++] = (proposal_t){a->info.id, in->good, in->price};
-        return;
-    }
-    unit_t *u = ordered_unit(j, a->info.id, in->good);
-    if (!u)
-        return;
-    if (in->type == BGA_MM_OFFER) {
-        bargain(m, j, u, a, in->price, now);
-    } else { /* the seller walked away */
-        unpend(m, a, u);
-        unit_lost(m, j, u);
-    }
-    step_job(m, j, now);
+    if (j && !j->finished && j->mech == BGB_MECH_CATALLACTIC && j->pu)
+        bargain_msg(m, j, a, in, now);
 }
 
 static bg_status reply_error(bgb_market_t *m, const uint8_t *idn, size_t len, const char *why,

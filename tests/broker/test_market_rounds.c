@@ -1,12 +1,17 @@
 /* bgb_market's per-job buyers (the simulator's purchase machine, hosted
- * by the broker) on a virtual clock with fake agents (no sockets):
+ * by the broker, for jobs and for basic sellers' resource sub-jobs) on a
+ * virtual clock with fake agents (no sockets):
  * - catallactic discovery: a proposal counts only in the round whose call
  *   it answers. A late one from an earlier round leaves the round
  *   unanswered, so the next round's window widens, and the buyer never
  *   bargains on it; a proposal for the current round is taken up with an
  *   OFFER below it;
  * - a need split over two sellers goes to two distinct agents under each
- *   mechanism, and a seller's no moves the unit on to another seller. */
+ *   mechanism, and a seller's no moves the unit on to another seller;
+ * - a sub-job orders its cores and memory at the posted rates (unit
+ *   prices, the lease), and catallactic sub-jobs of one host bargain with
+ *   different resource sellers when each has room for one. */
+#include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -324,11 +329,196 @@ static void central_refusal_bids_again(void **state)
     bgb_market_destroy(&m);
 }
 
+
+/* ------------------------------------------- resource sub-jobs (layer 1) */
+
+/* Registers the resource role of fake daemon `who` (same host as the
+ * service sellers): `cores` cores and 8 GiB, asking `ask` per core-second
+ * and ask / 10 per GiB-second; its id. */
+static uint32_t rseller(bgb_market_t *m, fake_t *f, uint8_t who, double ask, double cores)
+{
+    bga_mmsg_t reg;
+    bga_mmsg_init(&reg, BGA_MM_REGISTER);
+    snprintf(reg.name, sizeof reg.name, "s%c", who);
+    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://127.0.0.1:%d", 9000 + who);
+    reg.resource = 1;
+    reg.cores = reg.free_cores = cores;
+    reg.memory = reg.free_memory = 8;
+    reg.floor[BGB_GOOD_CORES] = ask / 1.2;
+    reg.prices[BGB_GOOD_CORES] = ask;
+    reg.floor[BGB_GOOD_MEMORY] = ask / 12;
+    reg.prices[BGB_GOOD_MEMORY] = ask / 10;
+    reg.margin = 0.2;
+    const int mark = f->nsent;
+    deliver_from(m, who, &reg, 0.0);
+    const bga_mmsg_t *r = last_of(f, BGA_MM_REGISTERED, mark);
+    assert_non_null(r);
+    return r->agent;
+}
+
+/* Basic seller `who` (id `id`) agreed to its unit of job 1 and asks for
+ * one core (and `gib` GiB) for 10 s, at most `money`. */
+static void rbuy(bgb_market_t *m, uint8_t who, uint32_t id, double gib, double money, double now)
+{
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, BGA_MM_RBUY);
+    r.job = 1;
+    r.agent = id;
+    r.good = BGB_GOOD_ROTFIT;
+    r.cores = 1;
+    r.memory = gib;
+    r.term = 10;
+    r.price = money;
+    deliver_from(m, who, &r, now);
+}
+
+/* Resource seller `who` (id `id`) answers about `good` of sub-job `job`. */
+static void ranswer(bgb_market_t *m, uint8_t who, uint32_t id, uint64_t job, int type, int good,
+                    double quantity, double price, double now)
+{
+    bga_mmsg_t c;
+    bga_mmsg_init(&c, type);
+    c.job = job;
+    c.agent = id;
+    c.resource = 1;
+    c.good = good;
+    c.quantity = quantity;
+    c.price = price;
+    c.floor[good] = price / 1.2;
+    c.free_cores = 0;
+    c.free_memory = 8;
+    deliver_from(m, who, &c, now);
+}
+
+/* Posted: a basic seller's resources are ordered from its host's
+ * postings, cores and memory each at the posted rate for the lease; both
+ * confirmations answer the basic seller RBOUGHT with the money paid. */
+static void posted_subjob(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.0, 2), ra = rseller(m, &f, 'a', 1e-3, 4);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 1};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_market_buy(m, 1, BGB_MECH_POSTED, 1000, &need, 1, 0.1, on_done, &f, &err),
+                     BG_OK);
+    assert_non_null(last_to(&f, BGA_MM_ORDER, a, 0));
+    int mark = f.nsent;
+    rbuy(m, 'a', a, 2, 1.0, 0.2);
+    const bga_mmsg_t *oc = NULL, *om = NULL;
+    for (int i = mark; i < f.nsent; i++)
+        if (f.sent[i].type == BGA_MM_ORDER && f.sent[i].agent == ra) {
+            if (f.sent[i].good == BGB_GOOD_CORES)
+                oc = &f.sent[i];
+            else if (f.sent[i].good == BGB_GOOD_MEMORY)
+                om = &f.sent[i];
+        }
+    assert_non_null(oc);
+    assert_non_null(om);
+    assert_true(oc->price == 1e-3 && oc->quantity == 1 && oc->term == 10);
+    assert_true(om->price == 1e-4 && om->quantity == 2 && om->term == 10);
+    const uint64_t sub = oc->job;
+    assert_true(sub != 1 && om->job == sub);
+    mark = f.nsent;
+    ranswer(m, 'a', ra, sub, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, 1e-3, 0.3);
+    assert_null(last_to(&f, BGA_MM_RBOUGHT, a, mark));
+    ranswer(m, 'a', ra, sub, BGA_MM_CONFIRM, BGB_GOOD_MEMORY, 2, 1e-4, 0.3);
+    const bga_mmsg_t *b = last_to(&f, BGA_MM_RBOUGHT, a, mark);
+    assert_non_null(b);
+    assert_true(b->cores == 1 && b->memory == 2);
+    assert_true(fabs(b->price - (1 * 10 * 1e-3 + 2 * 10 * 1e-4)) < 1e-15);
+    bgb_market_destroy(&m);
+}
+
+/* The last call for proposals to resource seller `to` since index
+ * `from`: one core for the lease. Its sub-job's id. */
+static uint64_t subjob_cfp(const fake_t *f, uint32_t to, int from)
+{
+    const bga_mmsg_t *c = last_to(f, BGA_MM_CFP, to, from);
+    assert_non_null(c);
+    assert_true(c->good == BGB_GOOD_CORES && c->quantity == 1 && c->term == 10);
+    return c->job;
+}
+
+/* Catallactic: two basic sellers' sub-jobs call their host's two resource
+ * sellers, which propose at one price. Once the windows close each
+ * sub-job bargains, opening below the ask, and with a different seller:
+ * one core each, so the second does not wait on the first's seller.
+ * The confirmations answer each basic seller RBOUGHT. */
+static void catallactic_subjobs_spread(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.0, 2), b = seller(m, &f, 'b', 1.0, 2);
+    const uint32_t ra = rseller(m, &f, 'a', 1e-3, 1), rb = rseller(m, &f, 'b', 1e-3, 1);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 2};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(
+        bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
+    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.0, 0.15);
+    answer_as(m, 'b', b, BGA_MM_PROPOSE, 1.0, 0.15);
+    double t = 0.1 + mc.reply_timeout / 8 + 0.01;
+    (void)bgb_market_tick(m, t);
+    assert_non_null(last_to(&f, BGA_MM_OFFER, a, 0));
+    assert_non_null(last_to(&f, BGA_MM_OFFER, b, 0));
+    int mark = f.nsent;
+    rbuy(m, 'a', a, 0, 1.0, t + 0.01);
+    const uint64_t sa = subjob_cfp(&f, ra, mark);
+    assert_int_equal(subjob_cfp(&f, rb, mark), sa);
+    mark = f.nsent;
+    rbuy(m, 'b', b, 0, 1.0, t + 0.01);
+    const uint64_t sb = subjob_cfp(&f, ra, mark);
+    assert_true(sb != sa);
+    for (int k = 0; k < 2; k++) {
+        const uint64_t sub = k ? sb : sa;
+        bga_mmsg_t p;
+        bga_mmsg_init(&p, BGA_MM_PROPOSE);
+        p.job = sub;
+        p.resource = 1;
+        p.good = BGB_GOOD_CORES;
+        p.quantity = 1;
+        p.price = 1e-3;
+        p.agent = ra;
+        deliver_from(m, 'a', &p, t + 0.02);
+        p.agent = rb;
+        deliver_from(m, 'b', &p, t + 0.02);
+    }
+    mark = f.nsent;
+    t += mc.reply_timeout / 8 + 0.02;
+    (void)bgb_market_tick(m, t);
+    const bga_mmsg_t *oa = last_to(&f, BGA_MM_OFFER, ra, mark);
+    const bga_mmsg_t *ob = last_to(&f, BGA_MM_OFFER, rb, mark);
+    assert_non_null(oa);
+    assert_non_null(ob);
+    assert_int_equal(count_to(&f, BGA_MM_OFFER, ra, mark), 1);
+    assert_int_equal(count_to(&f, BGA_MM_OFFER, rb, mark), 1);
+    assert_true(oa->job != ob->job);
+    assert_true(oa->price > 0 && oa->price < 1e-3 && oa->term == 10 && oa->quantity == 1);
+    assert_true(ob->price > 0 && ob->price < 1e-3);
+    const uint64_t ja = oa->job, jb = ob->job;
+    const double pa = oa->price, pb = ob->price;
+    mark = f.nsent;
+    ranswer(m, 'a', ra, ja, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, pa, t + 0.01);
+    ranswer(m, 'b', rb, jb, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, pb, t + 0.01);
+    const bga_mmsg_t *ba = last_to(&f, BGA_MM_RBOUGHT, a, mark);
+    const bga_mmsg_t *bb = last_to(&f, BGA_MM_RBOUGHT, b, mark);
+    assert_non_null(ba);
+    assert_non_null(bb);
+    assert_true(ba->cores == 1 && bb->cores == 1);
+    bgb_market_destroy(&m);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {cmocka_unit_test(stale_proposal_is_not_counted),
                                        cmocka_unit_test(posted_split_need_and_refusal),
                                        cmocka_unit_test(catallactic_split_need),
-                                       cmocka_unit_test(central_refusal_bids_again)};
+                                       cmocka_unit_test(central_refusal_bids_again),
+                                       cmocka_unit_test(posted_subjob),
+                                       cmocka_unit_test(catallactic_subjobs_spread)};
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
