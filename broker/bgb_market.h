@@ -47,9 +47,15 @@
  * hands back. The host adds what the machine does not know: a need split
  * over n sellers goes to n distinct agents, a seller that refused (posted,
  * central) is not asked again, and a job is let into the central book one
- * per clearing. The resource layer's markets (a basic agent's sub-job on
- * its host) still run on the simulator's mechanism modules (bgm_posted,
- * bgm_callmarket, bgm_catallactic) with the broker's own buyers.
+ * per clearing. A basic agent's sub-job on its host is a purchase machine
+ * too, one bundle request per unit (q cores or q GiB for the lease, at
+ * speed 1, priced per second for the whole; live sellers price per
+ * unit-second): its RBID waits in the market's call market per resource
+ * (bgm_callmarket, cleared every period), its QUERY is answered from the
+ * host's postings (bgm_posted), its calls for proposals go to the host's
+ * resource sellers. The host adds that a sub-job buys only on its host, a
+ * catallactic one skips a seller other sub-jobs have taken the room of,
+ * and a round whose bargains all failed is played with fresh genes.
  */
 #ifndef BGB_MARKET_H
 #define BGB_MARKET_H
