@@ -21,12 +21,12 @@
 /* Resource sub-job ids, apart from the callers' (the store's job ids are
  * far below 2^49; the wire header carries all 64 bits). */
 #define SUB_JOB_BASE ((uint64_t)1 << 49)
-/* A service job's purchase machine: the ids it knows the broker's buyer
+/* A job's purchase machine: the ids it knows the broker's buyer
  * (the broker, as a CFP's origin names it) and the market agent by; the
  * sellers are their directory ids. The host answers for the market agent. */
 #define PU_SELF 0u
 #define PU_MARKET UINT32_MAX
-/* Timers a service job's purchase has pending at once: per request its
+/* Timers a job's purchase has pending at once: per request its
  * deadline, its latest phase timer and its latest retry (older ones of a
  * kind are stale, so a newer one takes their place). */
 #define JOB_TIMERS (3 * MAX_UNITS + 8)
@@ -1663,7 +1663,7 @@ static void on_rbuy(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double no
 
 /* The seller of unit u said no (a refusal, a confirmation that is not a
  * contract, walking away from a bargain): the unit gives it up, and a
- * service job's purchase hears it and goes on (the next candidate or
+ * job's purchase hears it and goes on (the next candidate or
  * proposal, or a new attempt). */
 static void refused(bgb_market_t *m, job_t *j, unit_t *u, double now)
 {
