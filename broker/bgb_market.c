@@ -1146,8 +1146,6 @@ static void pump(bgb_market_t *m, job_t *j, bg_status st, const bgm_purchase_eve
                 st = BG_ERR_LIMIT;
         }
         bgm_outbox_clear(m->ob);
-        if (j->finished)
-            return;
         if (st != BG_OK) {
             finish(m, j,
                    st == BG_ERR_NOMEM ? "market: out of memory" : "market: buyer over its caps",
@@ -1725,10 +1723,15 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
  * counter-offer or walking away goes to the request bargaining with that
  * seller, in the request's attempt. A sub-job hears only its host's
  * resource sellers, at their bundle's rate and speed 1. */
-static void bargain_msg(bgb_market_t *m, job_t *j, agent_t *a, const bga_mmsg_t *in, double now)
+static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
 {
+    job_t *j = job_by_id(m, in->job);
+    if (!j || j->finished || j->mech != BGB_MECH_CATALLACTIC || !j->pu)
+        return;
     if (in->type == BGA_MM_PROPOSE) {
-        for (int i = 0; i < j->nunits && j->pu && on_host(j, a); i++) {
+        if (!on_host(j, a))
+            return;
+        for (int i = 0; i < j->nunits && j->pu; i++) {
             unit_t *u = &j->unit[i];
             const bgm_purchase_req_t *q = request_of(j, u);
             if (u->good != in->good || !q || q->state != BGM_PU_DISCOVER || in->attempt < 0 ||
@@ -1758,13 +1761,6 @@ static void bargain_msg(bgb_market_t *m, job_t *j, agent_t *a, const bga_mmsg_t 
     } else {
         refused(m, j, u, now);
     }
-}
-
-static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
-{
-    job_t *j = job_by_id(m, in->job);
-    if (j && !j->finished && j->mech == BGB_MECH_CATALLACTIC && j->pu)
-        bargain_msg(m, j, a, in, now);
 }
 
 static bg_status reply_error(bgb_market_t *m, const uint8_t *idn, size_t len, const char *why,

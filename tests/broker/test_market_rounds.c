@@ -195,17 +195,30 @@ static const bga_mmsg_t *last_to(const fake_t *f, int type, uint32_t to, int fro
     return NULL;
 }
 
-static void answer_as(bgb_market_t *m, uint8_t who, uint32_t id, int type, double price, double now)
+/* Agent `who` (id `id`; its resource role when `resource`) answers about
+ * `good` of job `job`; a resource seller says it has no core and 8 GiB
+ * free left. */
+static void answer_from(bgb_market_t *m, uint8_t who, uint32_t id, int resource, uint64_t job,
+                        int type, int good, double quantity, double price, double now)
 {
     bga_mmsg_t c;
     bga_mmsg_init(&c, type);
-    c.job = 1;
+    c.job = job;
     c.agent = id;
-    c.good = BGB_GOOD_ROTFIT;
-    c.quantity = 5;
+    c.resource = resource;
+    c.good = good;
+    c.quantity = quantity;
     c.price = price;
-    c.floor[0] = price / 1.2;
+    c.floor[good] = price / 1.2;
+    if (resource)
+        c.free_memory = 8;
     deliver_from(m, who, &c, now);
+}
+
+/* Rotation-fit seller `who` answers about its unit of job 1. */
+static void answer_as(bgb_market_t *m, uint8_t who, uint32_t id, int type, double price, double now)
+{
+    answer_from(m, who, id, 0, 1, type, BGB_GOOD_ROTFIT, 5, price, now);
 }
 
 static int awarded(const fake_t *f, uint32_t id)
@@ -372,24 +385,6 @@ static void rbuy(bgb_market_t *m, uint8_t who, uint32_t id, double gib, double m
     deliver_from(m, who, &r, now);
 }
 
-/* Resource seller `who` (id `id`) answers about `good` of sub-job `job`. */
-static void ranswer(bgb_market_t *m, uint8_t who, uint32_t id, uint64_t job, int type, int good,
-                    double quantity, double price, double now)
-{
-    bga_mmsg_t c;
-    bga_mmsg_init(&c, type);
-    c.job = job;
-    c.agent = id;
-    c.resource = 1;
-    c.good = good;
-    c.quantity = quantity;
-    c.price = price;
-    c.floor[good] = price / 1.2;
-    c.free_cores = 0;
-    c.free_memory = 8;
-    deliver_from(m, who, &c, now);
-}
-
 /* Posted: a basic seller's resources are ordered from its host's
  * postings, cores and memory each at the posted rate for the lease; both
  * confirmations answer the basic seller RBOUGHT with the money paid. */
@@ -422,9 +417,9 @@ static void posted_subjob(void **state)
     const uint64_t sub = oc->job;
     assert_true(sub != 1 && om->job == sub);
     mark = f.nsent;
-    ranswer(m, 'a', ra, sub, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, 1e-3, 0.3);
+    answer_from(m, 'a', ra, 1, sub, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, 1e-3, 0.3);
     assert_null(last_to(&f, BGA_MM_RBOUGHT, a, mark));
-    ranswer(m, 'a', ra, sub, BGA_MM_CONFIRM, BGB_GOOD_MEMORY, 2, 1e-4, 0.3);
+    answer_from(m, 'a', ra, 1, sub, BGA_MM_CONFIRM, BGB_GOOD_MEMORY, 2, 1e-4, 0.3);
     const bga_mmsg_t *b = last_to(&f, BGA_MM_RBOUGHT, a, mark);
     assert_non_null(b);
     assert_true(b->cores == 1 && b->memory == 2);
@@ -475,17 +470,8 @@ static void catallactic_subjobs_spread(void **state)
     assert_true(sb != sa);
     for (int k = 0; k < 2; k++) {
         const uint64_t sub = k ? sb : sa;
-        bga_mmsg_t p;
-        bga_mmsg_init(&p, BGA_MM_PROPOSE);
-        p.job = sub;
-        p.resource = 1;
-        p.good = BGB_GOOD_CORES;
-        p.quantity = 1;
-        p.price = 1e-3;
-        p.agent = ra;
-        deliver_from(m, 'a', &p, t + 0.02);
-        p.agent = rb;
-        deliver_from(m, 'b', &p, t + 0.02);
+        answer_from(m, 'a', ra, 1, sub, BGA_MM_PROPOSE, BGB_GOOD_CORES, 1, 1e-3, t + 0.02);
+        answer_from(m, 'b', rb, 1, sub, BGA_MM_PROPOSE, BGB_GOOD_CORES, 1, 1e-3, t + 0.02);
     }
     mark = f.nsent;
     t += mc.reply_timeout / 8 + 0.02;
@@ -502,8 +488,8 @@ static void catallactic_subjobs_spread(void **state)
     const uint64_t ja = oa->job, jb = ob->job;
     const double pa = oa->price, pb = ob->price;
     mark = f.nsent;
-    ranswer(m, 'a', ra, ja, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, pa, t + 0.01);
-    ranswer(m, 'b', rb, jb, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, pb, t + 0.01);
+    answer_from(m, 'a', ra, 1, ja, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, pa, t + 0.01);
+    answer_from(m, 'b', rb, 1, jb, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, pb, t + 0.01);
     const bga_mmsg_t *ba = last_to(&f, BGA_MM_RBOUGHT, a, mark);
     const bga_mmsg_t *bb = last_to(&f, BGA_MM_RBOUGHT, b, mark);
     assert_non_null(ba);
