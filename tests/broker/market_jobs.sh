@@ -1,5 +1,6 @@
 #!/bin/sh
 # market_jobs.sh BIOTGRID AGENT_SCRIPTS WORKDIR GRID_CONFIG SCENE DYNAMIC_SCENE MARKET_AUDIT
+#                OPENAPI_CHECK
 # The live market end to end: `grid up` starts a broker and agents that
 # register on it with --broker (ephemeral loopback ports). The scene is
 # submitted under each mechanism; each job succeeds with `biotgrid
@@ -12,10 +13,13 @@
 # seller, the cores it bought on layer 1 (a resource row whose buyer is that
 # seller); agents.csv lists the resource sellers; the simulator's audit
 # (MARKET_AUDIT --live) passes on GET /v1/market/contracts.csv and agents.csv;
-# the service rows' buyer is the job's id.
+# the service rows' buyer is the job's id. Once the jobs have run, every
+# JSON answer the grid gives (jobs, a job, its result, agents, market,
+# health, a 404) conforms, nested items included, to the schema the
+# broker's own GET /openapi.json documents for it (OPENAPI_CHECK).
 # `grid down` leaves no process.
 set -u
-bin=$1 scripts=$2 work=$3 config=$4 scene=$5 dynamic=$6 audit=$7
+bin=$1 scripts=$2 work=$3 config=$4 scene=$5 dynamic=$6 audit=$7 oas=$8
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
 grid_test_begin "$bin" "$work"
@@ -130,6 +134,25 @@ done
 check $r "the service rows' buyer is the job's id"
 "$audit" --live "$work" >"$work/audit.txt" 2>&1
 check $? "the simulator's audit passes on the live log ($(cat "$work/audit.txt"))"
+
+# The answers with real market data in them, against the served document.
+curl -sf "$url/openapi.json" >"$work/openapi.json"
+check $? "GET /openapi.json"
+conforms() { # TEMPLATE PATH
+  got=$(curl -s -o "$work/answer.json" -w '%{http_code} %{content_type}' "$url$2")
+  code=${got%% *}
+  "$oas" "$work/openapi.json" "$1" GET "$code" "${got#* }" <"$work/answer.json" 2>"$work/oas.txt"
+  check $? "GET $2 ($code) conforms to the OpenAPI document $(cat "$work/oas.txt")"
+}
+conforms /v1/market /v1/market
+conforms /v1/agents /v1/agents
+conforms /v1/jobs /v1/jobs
+conforms /healthz /healthz
+conforms /v1/jobs/{id} /v1/jobs/j0000000000000000
+for jid in $jobs_ids $id; do
+  conforms /v1/jobs/{id} "/v1/jobs/$jid"
+  conforms /v1/jobs/{id}/result "/v1/jobs/$jid/result"
+done
 
 grid_test_end "$scripts"
 exit $fail
