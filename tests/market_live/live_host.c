@@ -485,10 +485,20 @@ int main(int argc, char **argv)
                 bgb_market_release(h.market, job++, bg_clock_now());
                 pump(&h, 0.01, NULL);
             }
+            /* The mean of each half in submission order: whether later
+             * jobs allocate faster or slower than early ones (the sellers'
+             * prices and the price the buyers last paid carry over). */
+            double half[2] = {0, 0};
+            for (int r = 0; r < rounds; r++)
+                half[2 * r >= rounds] += lat[r];
+            const int early = (rounds + 1) / 2, late = rounds - early;
             qsort(lat, (size_t)rounds, sizeof *lat, cmp_double);
-            printf("%-12s median %8.3f ms  p90 %8.3f ms  max %8.3f ms  (%d asked again)\n",
+            printf("%-12s median %8.3f ms  p90 %8.3f ms  max %8.3f ms  mean %8.3f ms (first half "
+                   "%.3f, second %.3f)  (%d asked again)\n",
                    bgb_mechanism_name(mechs[mi]), lat[rounds / 2] * 1e3,
-                   lat[(rounds * 9) / 10] * 1e3, lat[rounds - 1] * 1e3, retried);
+                   lat[(rounds * 9) / 10] * 1e3, lat[rounds - 1] * 1e3,
+                   (half[0] + half[1]) / rounds * 1e3, early ? half[0] / early * 1e3 : 0.0,
+                   late ? half[1] / late * 1e3 : 0.0, retried);
         }
         free(lat);
     } else {
