@@ -36,9 +36,13 @@ typedef struct bga_deal {
     double until; /* agreed: when the host ends it */
     double at;    /* last used */
     /* The hosts' own: the basic seller's bundle request, the resource
-     * seller's last price per unit and for the bundle. */
+     * seller's last price per unit and for the bundle, and the job and
+     * service its resources serve with the machine's number for that job. */
     uint32_t bundle;
     double last_unit, last_rate;
+    uint64_t parent;
+    int serves;
+    uint32_t group;
 } bga_deal_t;
 
 typedef struct bga_deals {

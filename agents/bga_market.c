@@ -28,6 +28,7 @@ struct bga_market {
     void *socket;
     role_t role[2];
     double next_beat;
+    int standby; /* the resource role: the broker said another daemon sells the host */
     bga_bseller_t *bs; /* the basic-service seller role */
     bga_rseller_t *rs; /* the resource seller role (NULL: none) */
     /* The process's compute thread pools (OpenBLAS, OpenMP: CHOLMOD's
@@ -98,6 +99,11 @@ int bga_market_used(const bga_market_t *m)
 double bga_market_cores_used(const bga_market_t *m)
 {
     return m->rs ? bga_rseller_used(m->rs, 0) : 0;
+}
+
+int bga_market_standby(const bga_market_t *m)
+{
+    return m->standby;
 }
 
 uint32_t bga_market_id(const bga_market_t *m)
@@ -242,6 +248,16 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
         if (m->c.unit_memory[g] > cap_memory)
             m->c.unit_memory[g] = cap_memory;
     }
+    /* Memory adds up over a job's services on a host (every agent keeps
+     * its part's state) and the host's one resource seller sells it all,
+     * so on a host with less memory than one job of every service takes (a
+     * rotation fit in two parts, a sparse solve, an integration step) the
+     * nominal needs shrink in proportion: such a job still fits. */
+    const double job_memory =
+        2 * m->c.unit_memory[0] + m->c.unit_memory[1] + m->c.unit_memory[2];
+    if (job_memory > cap_memory)
+        for (int g = 0; g < 3; g++)
+            m->c.unit_memory[g] *= cap_memory / job_memory;
     m->socket = zmq_socket(zmq_ctx, ZMQ_DEALER);
     if (!m->socket) {
         st = bg_error_set(err, BG_ERR_NOMEM, "cannot create the market seller's socket");
@@ -350,6 +366,15 @@ bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err)
 static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
     const int role = in->resource ? ROLE_RESOURCE : ROLE_BASIC;
+    if (in->type == BGA_MM_REGISTERED && role == ROLE_RESOURCE) {
+        /* No id: another daemon sells this host; the next beat asks again. */
+        const int standby = in->agent == 0;
+        if (standby != m->standby && m->c.on_standby)
+            m->c.on_standby(m->c.standby_ctx, standby ? in->reason : NULL);
+        m->standby = standby;
+        if (standby)
+            return BG_OK;
+    }
     if (in->type == BGA_MM_REGISTERED) {
         m->role[role].id = in->agent;
         m->role[role].nneighbours = in->nneighbours;

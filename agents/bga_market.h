@@ -26,7 +26,11 @@
  * (bga_market_holds); a lease that runs out ends the contract.
  *
  * The resource seller (when `cores` > 0) is a second directory entry of
- * the same daemon: services 0, its host's cores and memory. Its decisions
+ * the same daemon: services 0, its host's cores and memory. A host has one
+ * resource seller: the broker takes the first daemon of a host to register
+ * one and answers the others' registration with no id and the reason; such
+ * a role stands by, selling nothing, and registers again at every
+ * heartbeat, so it takes over when the first is dropped. Its decisions
  * are the simulator's resource-seller role machine's (bgm_resource, hosted
  * by bga_rseller): whether it has the room and the rate covers its cost
  * (res_floor per core-second and per GiB-second), its side of a bargain,
@@ -68,6 +72,11 @@ typedef struct bga_market_config {
     double cores, memory;                 /* capacity: cores, GiB */
     double res_floor[2];                  /* per core-second, per GiB-second */
     double res_margin, res_load_slope;
+    /* Told when the resource role starts standing by (`why`: the broker
+     * says which daemon sells the host) or selling again (why NULL); called
+     * from the agent's loop, `why` borrowed for the call. NULL: not told. */
+    void (*on_standby)(void *ctx, const char *why);
+    void *standby_ctx;
 } bga_market_config_t;
 
 /* Defaults: floors 1.0, margin 0.2, load slope 0.5, heartbeat 0.5 s;
@@ -76,7 +85,9 @@ typedef struct bga_market_config {
  * seller with the host's cores (sysconf) and memory (/proc/meminfo),
  * floors 1e-5 per core-second and 2e-6 per GiB-second, margin 0.2, load
  * slope 0.5. A unit's needs are capped at the daemon's own cores and
- * memory, so a small host can still serve every good. */
+ * memory, so a small host can still serve every good, and the memory
+ * needs shrink in proportion where one job of every service (a rotation
+ * fit in two parts) would not fit the host's memory. */
 void bga_market_config_default(bga_market_config_t *c);
 
 bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, double now,
@@ -119,5 +130,7 @@ double bga_market_price(const bga_market_t *m, int good);
 int bga_market_used(const bga_market_t *m);
 /* Cores the resource seller has sold and not yet got back. */
 double bga_market_cores_used(const bga_market_t *m);
+/* Whether the resource role stands by (another daemon sells the host). */
+int bga_market_standby(const bga_market_t *m);
 
 #endif

@@ -19,6 +19,7 @@ void bga_mmsg_init(bga_mmsg_t *m, int type)
     memset(m, 0, sizeof *m);
     m->type = type;
     m->good = -1;
+    m->serves = -1;
 }
 
 const char *bga_mmsg_type_name(int type)
@@ -47,6 +48,12 @@ static bg_status check(const bga_mmsg_t *m, bg_error_t *err)
     if (m->attempt < 0 || m->attempt > 1000)
         return bg_error_set(err, BG_ERR_INVALID, "market message: attempt %d out of [0, 1000]",
                             m->attempt);
+    if (m->serves < -1 || m->serves > 2)
+        return bg_error_set(err, BG_ERR_INVALID, "market message: serves %d is not a service",
+                            m->serves);
+    if (m->parent > ((uint64_t)1 << 53))
+        return bg_error_set(err, BG_ERR_INVALID, "market message: parent %llu is over 2^53",
+                            (unsigned long long)m->parent);
     if (m->hops < 0 || m->hops > 16)
         return bg_error_set(err, BG_ERR_INVALID, "market message: hops %d out of [0, 16]", m->hops);
     if (m->nneighbours < 0 || m->nneighbours > BGA_MMSG_MAX_NEIGHBOURS)
@@ -102,6 +109,8 @@ bg_status bga_mmsg_encode(const bga_mmsg_t *m, bga_frames_t *out, bg_error_t *er
     w.field[BGA_LM_TERM].f = m->term;
     w.field[BGA_LM_QUANTITY].f = m->quantity;
     w.field[BGA_LM_PRICE].f = m->price;
+    w.field[BGA_LM_PARENT].i = (int64_t)m->parent;
+    w.field[BGA_LM_SERVES].i = m->serves;
     w.array[BGA_LM_FLOOR] = (bga_array_t){m->floor, BGA_MMSG_GOODS};
     w.array[BGA_LM_PRICES] = (bga_array_t){m->prices, BGA_MMSG_GOODS};
     w.array[BGA_LM_CAPACITY] = (bga_array_t){capacity, 4};
@@ -176,6 +185,8 @@ bg_status bga_mmsg_decode(const bga_frame_t *frames, int nframes, bga_mmsg_t *m,
     m->term = w.field[BGA_LM_TERM].f;
     m->quantity = w.field[BGA_LM_QUANTITY].f;
     m->price = w.field[BGA_LM_PRICE].f;
+    m->parent = (uint64_t)w.field[BGA_LM_PARENT].i;
+    m->serves = (int)w.field[BGA_LM_SERVES].i;
     bga_msg_copy_f64(&w, BGA_LM_FLOOR, m->floor);
     bga_msg_copy_f64(&w, BGA_LM_PRICES, m->prices);
     double capacity[4];

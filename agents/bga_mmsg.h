@@ -25,7 +25,7 @@
 #include "bg_error.h"
 #include "bga_wire.h"
 
-/* A whole message's bytes: the header, 15 fields and the arrays at their
+/* A whole message's bytes: the header, 17 fields and the arrays at their
  * caps come to about 900. */
 #define BGA_MMSG_MAX_BYTES 2048
 #define BGA_MMSG_GOODS 5
@@ -81,12 +81,19 @@ typedef struct bga_mmsg {
     int hops;
     int attempt; /* CFP: the buyer's discovery round (a fresh round is heard again) */
     double quantity, price;
+    /* Resource goods (ORDER, CFP, OFFER, ACCEPT, REJECT, RELAY to a
+     * resource seller): the job whose service they serve and that
+     * service's good, so the seller can count the job's phases, which
+     * never run at once, against its cores once (bga_rseller). 0 and −1:
+     * not said. */
+    uint64_t parent;
+    int serves;
     int nneighbours;
     uint32_t neighbours[BGA_MMSG_MAX_NEIGHBOURS];
     char reason[BGA_MMSG_REASON_MAX];
 } bga_mmsg_t;
 
-/* A zeroed message of the given type (good = -1). */
+/* A zeroed message of the given type (good = -1, serves = -1). */
 void bga_mmsg_init(bga_mmsg_t *m, int type);
 const char *bga_mmsg_type_name(int type);
 

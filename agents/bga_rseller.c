@@ -29,6 +29,7 @@ struct bga_rseller {
     bgm_outbox_t *out;
     uint32_t id;
     bga_deals_t deals;
+    uint32_t next_group; /* the machine's job numbers (share_phases) */
 };
 
 bg_status bga_rseller_new(const bga_rseller_config_t *c, bga_rseller_t **out, bg_error_t *err)
@@ -67,7 +68,8 @@ bg_status bga_rseller_new(const bga_rseller_config_t *c, bga_rseller_t **out, bg
                                .core_cost = c->floor[0],
                                .memory_cost = c->floor[1],
                                .speed = 1.0,
-                               .markup = c->margin};
+                               .markup = c->margin,
+                               .share_phases = 1};
     bgm_rng_seed(&p.rng, c->seed);
     bgm_genes_random(&p.genes, &p.rng);
     rs->machine = bgm_resource_new(&p);
@@ -161,6 +163,11 @@ static bgm_msg_t machine_msg(const bga_rseller_t *rs, int type, const bga_deal_t
      * check compares like with like. */
     m.cand_price[1] = rate * (m.c / (m.a > 0 ? m.a : 1.0));
     m.cand_price[2] = now; /* an offer or order stands while it is handled */
+    if (d->group && d->serves >= 0 && d->serves < BGM_RS_PHASES) {
+        m.ncand = 2;
+        m.cand[0] = d->group;
+        m.cand[1] = (uint32_t)d->serves;
+    }
     return m;
 }
 
@@ -174,6 +181,31 @@ static void live_init(const bga_rseller_t *rs, bga_mmsg_t *r, int type, const bg
     r->good = d->good;
     r->quantity = d->quantity;
     r->term = d->term;
+    r->parent = d->parent;
+    r->serves = d->serves;
+}
+
+/* The machine's number for job `parent` (0 for none): the one another
+ * deal of the job has, else one no deal uses. A held deal keeps its number
+ * until it is released, so a job keeps one number while it holds anything. */
+static uint32_t group_of(bga_rseller_t *rs, const bga_deal_t *self, uint64_t parent)
+{
+    if (!parent)
+        return 0;
+    for (int i = 0; i < BGA_DEALS_MAX; i++) {
+        const bga_deal_t *d = &rs->deals.deal[i];
+        if (d->used && d != self && d->parent == parent && d->group)
+            return d->group;
+    }
+    for (;;) {
+        if (++rs->next_group == 0)
+            continue;
+        int taken = 0;
+        for (int i = 0; i < BGA_DEALS_MAX && !taken; i++)
+            taken = rs->deals.deal[i].used && rs->deals.deal[i].group == rs->next_group;
+        if (!taken)
+            return rs->next_group;
+    }
 }
 
 /* A live unit price for a machine rate: the price it was given or last
@@ -195,11 +227,16 @@ static void refusal_reason(const bga_rseller_t *rs, const bga_deal_t *d, double 
     const int k = d->good - BGM_GOOD_CORES_ID;
     const double cap = k ? rs->c.memory : rs->c.cores;
     const double free_q = cap - bga_rseller_used(rs, k);
+    /* Cores for a job's phase take only what it holds beyond the job's
+     * widest phase here. */
+    const double more =
+        k ? d->quantity
+          : bgm_resource_cores_added(rs->machine, d->group, d->serves, d->quantity);
     if (d->state == RS_HELD)
         snprintf(out, n, "already sold %s for job %llu", k ? "memory" : "cores",
                  (unsigned long long)d->job);
-    else if (d->quantity > free_q + 1e-9)
-        snprintf(out, n, "%.6g %s free, %.6g asked", free_q, k ? "GiB" : "cores", d->quantity);
+    else if (more > free_q + 1e-9)
+        snprintf(out, n, "%.6g %s free, %.6g asked", free_q, k ? "GiB" : "cores", more);
     else if (unit < rs->c.floor[k])
         snprintf(out, n, "rate %.6g under the floor %.6g", unit, rs->c.floor[k]);
     else
@@ -348,6 +385,12 @@ bg_status bga_rseller_on_message(bga_rseller_t *rs, const bga_mmsg_t *in, double
     }
     d->quantity = in->quantity;
     d->term = in->term > 0 ? in->term : rs->c.lease;
+    if (d->state != RS_HELD && (d->parent != in->parent || (in->parent && !d->group))) {
+        d->parent = in->parent;
+        d->group = group_of(rs, d, in->parent);
+    }
+    if (d->state != RS_HELD)
+        d->serves = in->serves;
     route_t r = {rs, in, d, in->price * in->quantity, 0, send, ctx};
     bgm_msg_t m;
     switch (in->type) {

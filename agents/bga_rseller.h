@@ -23,6 +23,15 @@
  * learns free capacity and asking rates from the heartbeat
  * (bga_rseller_describe).
  *
+ * The machine shares cores between the phases of one job
+ * (bgm_resource_params_t.share_phases): the broker names, in every message
+ * about resources, the job they serve (`parent`) and the service
+ * (`serves`), and the host gives each job one machine number while it
+ * holds anything, so a job whose rotation fit, sparse solve and
+ * integration step run one after another on this host occupies the cores
+ * of its widest phase, not their sum. Memory is the sum. A message that
+ * names no job counts alone.
+ *
  * Not live: learning. The machine's learning meetings with its overlay
  * neighbours are not held, and its strategy is fixed
  * (bgm_resource_fix_strategy): its markup stays the configured margin and

@@ -1588,17 +1588,26 @@ static char *rest_view(void *ctx, int what)
 }
 
 /* Rotation-fit is split over the live rotation-fit sellers, keeping one
- * agent for the sparse solve when there are several. */
+ * agent for the sparse solve when there are several, and over no more of
+ * them than the grid's hosts sell cores: the parts run at once, a core
+ * each. */
 static int rotfit_sellers(const bgb_market_t *m, bgb_agent_info_t *live)
 {
     size_t n = bgb_market_agents(m, live, BGB_MARKET_MAX_AGENTS);
-    int count = 0, agents = 0;
+    int count = 0, agents = 0, hosts = 0;
+    double cores = 0;
     for (size_t i = 0; i < n && i < BGB_MARKET_MAX_AGENTS; i++) {
         agents += live[i].alive != 0;
         count += live[i].alive && (live[i].services & BGA_SERVICE_ROTFIT);
+        if (live[i].alive && live[i].resource) {
+            hosts++;
+            cores += live[i].cores;
+        }
     }
     if (count > 1 && agents <= count)
         count--;
+    if (hosts && count > (int)cores)
+        count = (int)cores;
     return count < 1 ? 1 : count > BROKER_MAX_ROTFIT ? BROKER_MAX_ROTFIT : count;
 }
 

@@ -384,10 +384,67 @@ static bg_status send_registered(bgb_market_t *m, agent_t *a, bg_error_t *err)
     return send_to(m, a, &r, err);
 }
 
+/* The host part of a tcp://HOST:PORT endpoint is compared whole. */
+static size_t host_len(const char *ep)
+{
+    const char *h = strstr(ep, "://");
+    const char *start = h ? h + 3 : ep;
+    const char *colon = strrchr(start, ':');
+    return (size_t)((colon ? colon : start + strlen(start)) - ep);
+}
+
+/* Whether two endpoints name the same host. */
+static int same_host(const char *a, const char *b)
+{
+    const size_t n = host_len(a);
+    return host_len(b) == n && strncmp(a, b, n) == 0;
+}
+
+/* The live resource seller of another daemon that already sells the cores
+ * and memory of `endpoint`'s host, if any: a host has one resource seller,
+ * since every daemon on it would otherwise sell all of the host's cores. */
+static const agent_t *host_seller(const bgb_market_t *m, const uint8_t *idn, size_t len,
+                                  const char *endpoint)
+{
+    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++) {
+        const agent_t *b = &m->agents[i];
+        if (b->used && b->info.resource && b->info.alive &&
+            !(b->idlen == len && memcmp(b->identity, idn, len) == 0) &&
+            same_host(b->info.endpoint, endpoint))
+            return b;
+    }
+    return NULL;
+}
+
+/* A resource role refused because its host has a seller: REGISTERED with
+ * no id and the reason. It asks again at every heartbeat, so it takes the
+ * host over once the first seller is dropped. */
+static bg_status send_standby(bgb_market_t *m, const uint8_t *idn, size_t len,
+                              const char *endpoint, const agent_t *first, bg_error_t *err)
+{
+    agent_t tmp = {0};
+    memcpy(tmp.identity, idn, len);
+    tmp.idlen = len;
+    tmp.info.resource = 1;
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, BGA_MM_REGISTERED);
+    const char *scheme = strstr(endpoint, "://");
+    const char *host = scheme ? scheme + 3 : endpoint;
+    const size_t n = host_len(endpoint) - (size_t)(host - endpoint);
+    snprintf(r.reason, sizeof r.reason, "host %.*s: agent %u (%.40s) sells its cores and memory",
+             (int)(n < 80 ? n : 80), host, first->info.id, first->info.name);
+    return send_to(m, &tmp, &r, err);
+}
+
 static bg_status on_register(bgb_market_t *m, const uint8_t *idn, size_t len,
                              const bga_mmsg_t *in, double now, bg_error_t *err)
 {
     agent_t *a = agent_by_identity(m, idn, len, in->resource);
+    if (!a && in->resource) {
+        const agent_t *first = host_seller(m, idn, len, in->endpoint);
+        if (first)
+            return send_standby(m, idn, len, in->endpoint, first, err);
+    }
     if (!a) {
         for (int i = 0; i < BGB_MARKET_MAX_AGENTS && !a; i++)
             if (!m->agents[i].used)
@@ -507,6 +564,39 @@ static void abandon_units(bgb_market_t *m, job_t *j)
         }
 }
 
+/* The cores the resource sub-jobs of job `parent` have at seller
+ * `seller`, per service good they serve: bought (`held`), and bought or
+ * being sold (`all`); the sub-job `skip` left out. */
+static void job_cores_at(const bgb_market_t *m, uint64_t parent, uint32_t seller,
+                         const job_t *skip, double held[3], double all[3])
+{
+    for (int g = 0; g < 3; g++)
+        held[g] = all[g] = 0.0;
+    for (int i = 0; i < MAX_JOBS; i++) {
+        const job_t *s = &m->jobs[i];
+        if (!s->used || !s->resource || s == skip || s->parent != parent || s->sgood < 0 ||
+            s->sgood > 2)
+            continue;
+        for (int k = 0; k < s->nunits; k++) {
+            const unit_t *u = &s->unit[k];
+            if (u->good != BGB_GOOD_CORES || u->agent != seller || u->state == U_OPEN)
+                continue;
+            all[s->sgood] += u->quantity;
+            if (u->state == U_DONE)
+                held[s->sgood] += u->quantity;
+        }
+    }
+}
+
+static double widest(const double v[3])
+{
+    double most = v[0];
+    for (int g = 1; g < 3; g++)
+        if (v[g] > most)
+            most = v[g];
+    return most;
+}
+
 /* Drops the resource sub-jobs of job `parent` (bought by `buyer` for
  * service good `sgood`; 0 and -1: any), releasing what their sellers
  * hold. */
@@ -526,7 +616,17 @@ static void drop_subjobs(bgb_market_t *m, uint64_t parent, uint32_t buyer, int s
             const int mem = s->unit[k].good == BGB_GOOD_MEMORY;
             double *free_q = mem ? &a->info.free_memory : &a->info.free_cores;
             const double cap = mem ? a->info.memory : a->info.cores;
-            *free_q = *free_q + s->unit[k].quantity < cap ? *free_q + s->unit[k].quantity : cap;
+            double back = s->unit[k].quantity;
+            if (!mem) {
+                /* The job's cores there shrink only by what its widest
+                 * phase loses (room_for). */
+                double held[3], all[3];
+                job_cores_at(m, s->parent, a->info.id, NULL, held, all);
+                back = widest(held);
+                job_cores_at(m, s->parent, a->info.id, s, held, all);
+                back -= widest(held);
+            }
+            *free_q = *free_q + back < cap ? *free_q + back : cap;
         }
         abandon_units(m, s);
         send_release(m, s);
@@ -707,23 +807,11 @@ static int alive_seller(const agent_t *a, int good)
     return good >= 0 && good < 3 && (a->info.services & (1u << good));
 }
 
-/* The host part of a tcp://HOST:PORT endpoint is compared whole. */
-static size_t host_len(const char *ep)
-{
-    const char *h = strstr(ep, "://");
-    const char *start = h ? h + 3 : ep;
-    const char *colon = strrchr(start, ':');
-    return (size_t)((colon ? colon : start + strlen(start)) - ep);
-}
-
 /* A sub-job buys only from resource sellers on its basic agent's host:
  * those are the cores it can compute on. */
 static int on_host(const job_t *j, const agent_t *a)
 {
-    if (!j->resource)
-        return 1;
-    const size_t n = host_len(j->host);
-    return host_len(a->info.endpoint) == n && strncmp(a->info.endpoint, j->host, n) == 0;
+    return !j->resource || same_host(j->host, a->info.endpoint);
 }
 
 static int tried(const unit_t *u, uint32_t agent)
@@ -752,16 +840,41 @@ static int need_has(const job_t *j, const unit_t *u, uint32_t agent)
     return 0;
 }
 
-/* Whether the agent could take this unit now: a free slot (services) or
- * enough free cores or memory (resources), net of orders in flight. */
-static int room_for(const agent_t *a, const unit_t *u)
+/*
+ * Whether the agent could take unit u of job j now: a free slot
+ * (services) or enough free cores or memory (resources), net of orders in
+ * flight. A resource seller counts a job's cores as its widest phase's
+ * (its services run one after another; bga_rseller), so the cores of a
+ * sub-job need only what they add to what the job's other sub-jobs there
+ * have or are buying: its free cores exclude the job's bought widest
+ * phase, its pending orders include the job's own.
+ */
+static int room_for(const bgb_market_t *m, const job_t *j, const agent_t *a, const unit_t *u)
 {
-    if (u->good >= BGB_GOOD_CORES) {
-        const int k = u->good - BGB_GOOD_CORES;
-        const double free_q = k ? a->info.free_memory : a->info.free_cores;
-        return free_q - a->pend_res[k] >= u->quantity - 1e-9;
+    if (u->good == BGB_GOOD_MEMORY)
+        return a->info.free_memory - a->pend_res[1] >= u->quantity - 1e-9;
+    if (u->good != BGB_GOOD_CORES)
+        return a->info.free_slots - a->pending > 0;
+    double more = u->quantity, pend = a->pend_res[0];
+    if (j->resource && j->sgood >= 0 && j->sgood < 3) {
+        double held[3], all[3];
+        job_cores_at(m, j->parent, a->info.id, j, held, all);
+        const double after = all[j->sgood] + u->quantity, most = widest(all);
+        more = (after > most ? after : most) - widest(held);
+        for (int g = 0; g < 3; g++)
+            pend -= all[g] - held[g];
     }
-    return a->info.free_slots - a->pending > 0;
+    return a->info.free_cores - pend >= more - 1e-9;
+}
+
+/* Resource messages name the job and service they serve, so the seller
+ * can count the job's phases once. */
+static void tag_subjob(const job_t *j, bga_mmsg_t *o)
+{
+    if (j->resource) {
+        o->parent = j->parent;
+        o->serves = j->sgood;
+    }
 }
 
 static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, agent_t *a, int type,
@@ -775,6 +888,7 @@ static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, ag
     o.quantity = u->quantity;
     o.term = j->resource ? j->term : 0;
     o.price = price;
+    tag_subjob(j, &o);
     return send_to(m, a, &o, NULL);
 }
 
@@ -809,7 +923,8 @@ static int has_room(void *ctx, const bgm_posting_t *p)
 {
     room_ctx *r = ctx;
     agent_t *a = agent_by_id(r->m, p->seller);
-    return a && a->info.alive && room_for(a, r->u) && on_host(r->j, a) && !tried(r->u, p->seller) &&
+    return a && a->info.alive && room_for(r->m, r->j, a, r->u) && on_host(r->j, a) &&
+           !tried(r->u, p->seller) &&
            !need_has(r->j, r->u, p->seller);
 }
 
@@ -854,14 +969,14 @@ static int exclusions(bgb_market_t *m, const job_t *j, const unit_t *u, int *out
  * resource sellers propose at one price, so every sub-job's machine,
  * taking ties by seller id, opens with the same one, and all but one
  * would wait for its refusal before trying the next. */
-static int may_have(const job_t *j, const unit_t *u, const agent_t *a)
+static int may_have(const bgb_market_t *m, const job_t *j, const unit_t *u, const agent_t *a)
 {
     if (!a || !a->used || !alive_seller(a, u->good) || !on_host(j, a) ||
         need_has(j, u, a->info.id))
         return 0;
     if (j->mech == BGB_MECH_CATALLACTIC)
-        return !j->resource || room_for(a, u);
-    return room_for(a, u) && !tried(u, a->info.id);
+        return !j->resource || room_for(m, j, a, u);
+    return room_for(m, j, a, u) && !tried(u, a->info.id);
 }
 
 static void unit_lost(bgb_market_t *m, job_t *j, unit_t *u);
@@ -993,7 +1108,7 @@ static void posted_list(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *q
                                     excl, ne, slots, prices, BGB_AUCTION_MAX_LIST, now, NULL);
     for (int i = 0; i < n && l->ncand < BGM_MSG_CANDIDATES; i++) {
         const agent_t *a = &m->agents[slots[i]];
-        if (!may_have(j, u, a))
+        if (!may_have(m, j, u, a))
             continue;
         l->cand[l->ncand] = a->info.id;
         l->cand_price[l->ncand++] = prices[i];
@@ -1009,7 +1124,7 @@ static void to_seller(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *o, 
         let_go(m, j, u);
     agent_t *a = agent_by_id(m, o->to);
     if (u->state != U_ORDERED) {
-        if (!may_have(j, u, a)) {
+        if (!may_have(m, j, u, a)) {
             answer(j, BGM_MT_REJECT, o->to, o->req, o->attempt, 0);
             return;
         }
@@ -1083,6 +1198,7 @@ static void route_out(bgb_market_t *m, job_t *j, const bgm_msg_t *x, double now)
             c.attempt = (int)x->attempt;
             c.quantity = u->quantity;
             c.term = j->resource ? j->term : 0;
+            tag_subjob(j, &c);
             send_to(m, a, &c, NULL);
         }
         break;
@@ -1338,7 +1454,7 @@ static void on_match(void *ctx, const bgb_auction_match_t *x)
     u->in_book = 0;
     const uint32_t id = (uint32_t)(u - j->unit) + 1;
     answer(j, BGM_MT_ACCEPT, PU_MARKET, id, x->attempt, x->price);
-    if (may_have(j, u, a)) {
+    if (may_have(m, j, u, a)) {
         order(m, j, u, a, x->price, mc->now);
     } else {
         answer(j, BGM_MT_CANCEL, a->info.id, id, x->attempt, 0);
@@ -1347,17 +1463,28 @@ static void on_match(void *ctx, const bgb_auction_match_t *x)
     }
 }
 
+/* How many of the first nb bids on its host seller a has room for, each
+ * taken alone. */
+static int bids_with_room(const bgb_market_t *m, const agent_t *a, const bidref_t *refs, size_t nb)
+{
+    int n = 0;
+    for (size_t i = 0; i < nb; i++)
+        n += on_host(refs[i].j, a) && room_for(m, refs[i].j, a, refs[i].u);
+    return n;
+}
+
 /* Central resources (layer 1): one call market per resource, bids = open
- * units at their limit, asks = one unit of room per live seller at its
+ * units at their limit, asks = each live seller's room, in bids it could
+ * take one at a time (a host has one seller, and a job's sub-jobs share its
+ * cores, so a count of cores would not say what it can serve), at its
  * asking price. A fill the unit cannot use (a seller it tried, another
- * host's) stays open for the next call. */
+ * host's, room taken by the fills before it) stays open for the next call. */
 static void central_clear(bgb_market_t *m, double now)
 {
     bidref_t *refs = m->refs;
     for (int g = BGB_GOOD_CORES; g < BGB_GOODS; g++) {
         bgm_callmarket_reset(m->cm);
         size_t nb = 0;
-        double least = INFINITY; /* the smallest open unit of this good */
         for (int ji = 0; ji < MAX_JOBS; ji++) {
             job_t *j = &m->jobs[ji];
             if (!j->used || j->finished || j->mech != BGB_MECH_CENTRAL)
@@ -1368,21 +1495,18 @@ static void central_clear(bgb_market_t *m, double now)
                     continue;
                 refs[nb] = (bidref_t){j, u};
                 bgm_order_t o = {.ref = nb, .owner = (uint32_t)ji, .quantity = 1, .price = u->limit};
-                if (bgm_callmarket_bid(m->cm, &o) == BG_OK) {
+                if (bgm_callmarket_bid(m->cm, &o) == BG_OK)
                     nb++;
-                    if (u->quantity < least)
-                        least = u->quantity;
-                }
             }
         }
         if (nb == 0)
             continue;
         for (int ai = 0; ai < BGB_MARKET_MAX_AGENTS; ai++) {
             agent_t *a = &m->agents[ai];
-            const unit_t probe = {.good = g, .quantity = least};
-            if (!alive_seller(a, g) || !room_for(a, &probe))
+            const int room = alive_seller(a, g) ? bids_with_room(m, a, refs, nb) : 0;
+            if (room == 0)
                 continue;
-            bgm_order_t o = {.ref = (uint64_t)ai, .owner = a->info.id, .quantity = 1,
+            bgm_order_t o = {.ref = (uint64_t)ai, .owner = a->info.id, .quantity = room,
                              .price = a->info.price[g]};
             bgm_callmarket_ask(m->cm, &o);
         }
@@ -1397,7 +1521,7 @@ static void central_clear(bgb_market_t *m, double now)
                 bidref_t *r = &refs[bids[fills[f].bid].ref];
                 agent_t *a = &m->agents[asks[fills[f].ask].ref];
                 if (need_has(r->j, r->u, a->info.id) || tried(r->u, a->info.id) ||
-                    !on_host(r->j, a) || !room_for(a, r->u))
+                    !on_host(r->j, a) || !room_for(m, r->j, a, r->u))
                     continue;
                 order(m, r->j, r->u, a, res.price, now);
             }
@@ -1426,7 +1550,7 @@ static int unbuyable(bgb_market_t *m, const job_t *j, const unit_t *u)
         const agent_t *a = &m->agents[i];
         if (alive_seller(a, u->good) && on_host(j, a) && !tried(u, a->info.id) &&
             !need_has(j, u, a->info.id) &&
-            (!j->resource || (room_for(a, u) && (j->mech != BGB_MECH_POSTED ||
+            (!j->resource || (room_for(m, j, a, u) && (j->mech != BGB_MECH_POSTED ||
                                                  a->info.price[u->good] <= u->limit))))
             return 0;
     }

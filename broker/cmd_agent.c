@@ -54,6 +54,16 @@ const char bg_cmd_agent_usage[] =
     "                      the resource role's markup and load slope (default 0.2, 0.5)\n"
     "  --lease S           seconds a service contract's resources are rented (default 3600)\n";
 
+/* The resource role's standing, said once per change. */
+static void say_standby(void *ctx, const char *why)
+{
+    if (why)
+        fprintf(stderr, "agent %s: resource role stands by: %s\n", (const char *)ctx, why);
+    else
+        fprintf(stderr, "agent %s: resource role now sells its host's cores and memory\n",
+                (const char *)ctx);
+}
+
 static void usage(FILE *out)
 {
     fputs(bg_cmd_agent_usage, out);
@@ -298,6 +308,8 @@ int bg_cmd_agent(int argc, char **argv)
         mc.res_margin = o.res_margin;
         mc.res_load_slope = o.res_load_slope;
         mc.lease = o.lease;
+        mc.on_standby = say_standby;
+        mc.standby_ctx = sp->name;
         cfg.market = &mc;
     }
     bga_agent_t *agent = NULL;

@@ -6,8 +6,11 @@
  *
  * FILE (default configs/grids/local.json) is {"name": ..., "agents":
  * [{"name", "services", "slots", "listen"}, ...], "broker": {"port",
- * "endpoint", "market"}} (market: the broker's live-market settings, as in
- * its config, bgb_broker.h). With a "broker" object (or a --broker-* option), `up`
+ * "endpoint", "market"}, "host": {"cores", "memory"}} (market: the
+ * broker's live-market settings, as in its config, bgb_broker.h; host:
+ * the cores and GiB the grid's machine sells on the live market, given to
+ * every agent as --cores and --memory, default what the machine has; its
+ * first agent to register sells them, the others stand by). With a "broker" object (or a --broker-* option), `up`
  * starts `biotgrid broker` first, with a config in DIR/broker.json (no
  * fixed pool) and its store in DIR/broker/, records its URL, endpoint and
  * PID in the state file, and gives every agent `--broker ENDPOINT` (the
@@ -71,6 +74,7 @@ typedef struct grid {
     int broker_port;
     char broker_url[128];
     char market[2048]; /* the broker's "market" object, compact JSON ("" none) */
+    char cores[32], memory[32]; /* the "host" object's, as agent options ("" none) */
 } grid;
 
 /* The broker's name among the grid's processes (its ready and log files). */
@@ -158,6 +162,25 @@ static int read_broker_config(const cJSON *obj, const char *path, grid *g)
     return 0;
 }
 
+/* The "host" object: the cores and GiB the machine sells. */
+static int read_host_config(const cJSON *obj, const char *path, grid *g)
+{
+    for (const cJSON *k = obj->child; k; k = k->next) {
+        const int cores = strcmp(k->string, "cores") == 0;
+        if ((cores || strcmp(k->string, "memory") == 0) && cJSON_IsNumber(k) &&
+            k->valuedouble > 0 && k->valuedouble <= (cores ? 1e6 : 1e9)) {
+            snprintf(cores ? g->cores : g->memory, sizeof g->cores, "%.17g", k->valuedouble);
+        } else {
+            fprintf(stderr,
+                    "biotgrid grid: %s: host.%s: unknown key or wrong value (cores: a number in "
+                    "(0, 1e6], memory: GiB in (0, 1e9])\n",
+                    path, k->string);
+            return 2;
+        }
+    }
+    return 0;
+}
+
 /* The grid config: names unique and usable as file names. */
 static int read_grid_config(const char *path, grid *g)
 {
@@ -214,10 +237,12 @@ static int read_grid_config(const char *path, grid *g)
             }
         } else if (strcmp(it->string, "broker") == 0 && cJSON_IsObject(it)) {
             rc = read_broker_config(it, path, g);
+        } else if (strcmp(it->string, "host") == 0 && cJSON_IsObject(it)) {
+            rc = read_host_config(it, path, g);
         } else {
             fprintf(stderr,
                     "biotgrid grid: %s: unknown key or wrong type '%s' (name: string, "
-                    "agents: array, broker: object)\n",
+                    "agents: array, broker: object, host: object)\n",
                     path, it->string);
             rc = 2;
         }
@@ -470,15 +495,29 @@ static long spawn_process(const char *self, const char *dir, const char *name,
     _exit(127);
 }
 
-/* broker: the broker's ROUTER endpoint the agent sells on, or NULL. */
-static long spawn_agent(const char *self, const char *dir, const grid_agent *a,
+/* broker: the broker's ROUTER endpoint the agent sells on, or NULL; with
+ * it the host's cores and memory when the config gives them. */
+static long spawn_agent(const char *self, const char *dir, const grid *g, const grid_agent *a,
                         const char *broker)
 {
     char slots[16];
     snprintf(slots, sizeof slots, "%d", a->spec.slots);
-    const char *args[] = {"agent", "--listen", a->spec.listen, "--services", a->spec.services,
-                          "--slots", slots, "--name", a->spec.name,
-                          broker ? "--broker" : NULL, broker, NULL};
+    const char *args[20] = {"agent", "--listen", a->spec.listen, "--services", a->spec.services,
+                            "--slots", slots, "--name", a->spec.name};
+    int n = 9;
+    if (broker) {
+        args[n++] = "--broker";
+        args[n++] = broker;
+        if (g->cores[0]) {
+            args[n++] = "--cores";
+            args[n++] = g->cores;
+        }
+        if (g->memory[0]) {
+            args[n++] = "--memory";
+            args[n++] = g->memory;
+        }
+    }
+    args[n] = NULL;
     return spawn_process(self, dir, a->spec.name, args);
 }
 
@@ -667,7 +706,8 @@ static int grid_up(const char *file, const char *dir, int broker_port, const cha
         return 1;
     }
     for (int i = 0; i < g.count; i++) {
-        g.agent[i].pid = spawn_agent(self, dir, &g.agent[i], g.has_broker ? g.broker.endpoint : NULL);
+        g.agent[i].pid =
+            spawn_agent(self, dir, &g, &g.agent[i], g.has_broker ? g.broker.endpoint : NULL);
         if (g.agent[i].pid < 0) {
             fprintf(stderr, "biotgrid grid: cannot start %s: %s\n", g.agent[i].spec.name,
                     strerror(errno));
@@ -785,7 +825,9 @@ const char bg_cmd_grid_usage[] =
     "FILE defaults to configs/grids/local.json, DIR to $BIOTGRID_GRID_DIR or out/grid.\n"
     "With a \"broker\" object in FILE (or a --broker-* option) `up` also starts the\n"
     "broker (REST on --broker-port, 0: an ephemeral port; agents' endpoint\n"
-    "--broker-endpoint) and `down` stops it first.\n";
+    "--broker-endpoint) and `down` stops it first. The agents sell the machine's\n"
+    "cores and memory on the broker's market, one of them for all (the others stand\n"
+    "by); a \"host\" object in FILE, {\"cores\": N, \"memory\": GIB}, says how many.\n";
 
 static void usage(FILE *out)
 {

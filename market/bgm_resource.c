@@ -13,9 +13,11 @@
 /* Quantities of a part travel in a timer argument as whole MiB. */
 #define RS_MIB 1024.0
 
-/* A bundle held until its end (the release timer names its request). */
+/* A bundle held until its end (the release timer names its request), and
+ * the job and phase it serves (share_phases; group 0: it counts alone). */
 typedef struct hold {
-    uint32_t req;
+    uint32_t req, group;
+    int phase;
     double cores, memory;
 } hold_t;
 
@@ -143,6 +145,51 @@ static void announce(bgm_resource_t *rs)
     bgm_emitter_send(&rs->em, &m);
 }
 
+/* The job a bundle serves and its phase, when the seller shares cores
+ * between a job's phases and the message names them (0: it counts alone). */
+static uint32_t bundle_group(const bgm_resource_t *rs, const bgm_msg_t *m, int *phase)
+{
+    *phase = 0;
+    if (!rs->p.share_phases || m->ncand < 2 || m->cand[0] == 0 || m->cand[1] >= BGM_RS_PHASES)
+        return 0;
+    *phase = (int)m->cand[1];
+    return m->cand[0];
+}
+
+/* The cores job `group` occupies: the most any one of its phases holds
+ * (its phases never run at once); `sum` gets each phase's total. */
+static double group_cores(const bgm_resource_t *rs, uint32_t group, double sum[BGM_RS_PHASES])
+{
+    for (int p = 0; p < BGM_RS_PHASES; p++)
+        sum[p] = 0.0;
+    for (size_t i = 0; i < rs->nholds; i++)
+        if (rs->holds[i].group == group)
+            sum[rs->holds[i].phase] += rs->holds[i].cores;
+    double most = 0.0;
+    for (int p = 0; p < BGM_RS_PHASES; p++)
+        if (sum[p] > most)
+            most = sum[p];
+    return most;
+}
+
+/* The cores a bundle adds to what is sold: all of them, or, for a phase
+ * of a job, what the phase would hold beyond the job's widest phase. */
+static double cores_added(const bgm_resource_t *rs, uint32_t group, int phase, double cores)
+{
+    if (!group)
+        return cores;
+    double sum[BGM_RS_PHASES];
+    const double most = group_cores(rs, group, sum);
+    return sum[phase] + cores > most ? sum[phase] + cores - most : 0.0;
+}
+
+double bgm_resource_cores_added(const bgm_resource_t *rs, uint32_t group, int phase, double cores)
+{
+    if (!rs->p.share_phases || phase < 0 || phase >= BGM_RS_PHASES)
+        return cores;
+    return cores_added(rs, group, phase, cores);
+}
+
 /*
  * Rents a whole bundle (m->a cores, m->b GiB for m->c flops) at `rate`
  * per second to `buyer` for its request m->req: it checks that its host
@@ -155,7 +202,10 @@ static int rent(bgm_resource_t *rs, const bgm_msg_t *m, uint32_t buyer, double r
                 int up)
 {
     double cores = m->a, mem = m->b, budget = m->cand_price[1];
-    if (!up || rs->used_cores + cores > rs->p.cores + 1e-9 ||
+    int phase;
+    const uint32_t group = bundle_group(rs, m, &phase);
+    const double added = cores_added(rs, group, phase, cores);
+    if (!up || rs->used_cores + added > rs->p.cores + 1e-9 ||
         rs->used_mem + mem > rs->p.memory + 1e-9)
         return 0;
     double dur = m->c / (rs->p.speed * (cores > 0 ? cores : 1.0));
@@ -172,8 +222,8 @@ static int rent(bgm_resource_t *rs, const bgm_msg_t *m, uint32_t buyer, double r
         rs->holds = h;
         rs->holds_cap = cap;
     }
-    rs->holds[rs->nholds++] = (hold_t){m->req, cores, mem};
-    rs->used_cores += cores;
+    rs->holds[rs->nholds++] = (hold_t){m->req, group, phase, cores, mem};
+    rs->used_cores += added;
     rs->used_mem += mem;
     announce(rs);
     if (!rs->fixed)
@@ -277,7 +327,9 @@ static void on_cfp(bgm_resource_t *rs, const bgm_msg_t *m)
     uint64_t key = ((uint64_t)m->req << 20) ^ m->attempt ^ ((uint64_t)m->origin << 44);
     if (seen_before(rs, key))
         return;
-    if (m->good < 0 && rs->used_cores + m->a <= rs->p.cores &&
+    int phase;
+    const uint32_t group = bundle_group(rs, m, &phase);
+    if (m->good < 0 && rs->used_cores + cores_added(rs, group, phase, m->a) <= rs->p.cores &&
         rs->used_mem + m->b <= rs->p.memory) {
         bgm_msg_t p = msg(BGM_MT_PROPOSE, rs->p.self, m->origin, m->req, m->attempt);
         p.price = opening(rs, m->a, m->b);
@@ -438,14 +490,18 @@ bg_status bgm_resource_on_timer(bgm_resource_t *rs, int kind, uint64_t arg, doub
             i++;
         if (i == rs->nholds)
             return BG_ERR_INVALID;
-        hold_t h = rs->holds[i];
+        const hold_t h = rs->holds[i];
+        double sum[BGM_RS_PHASES], freed = h.cores;
+        const double before = h.group ? group_cores(rs, h.group, sum) : 0.0;
         rs->holds[i] = rs->holds[--rs->nholds];
-        rs->used_cores -= h.cores;
+        if (h.group)
+            freed = before - group_cores(rs, h.group, sum);
+        rs->used_cores -= freed;
         rs->used_mem -= h.memory;
         announce(rs);
         if (rs->p.mechanism == BGM_MECH_CENTRAL) {
             bgm_msg_t m = msg(BGM_MT_RFREE, rs->p.self, rs->p.market, h.req, 0);
-            m.a = h.cores;
+            m.a = freed;
             m.b = h.memory;
             bgm_emitter_send(&rs->em, &m);
         }

@@ -18,6 +18,11 @@
  *   ACCEPT  price; a, b, c the bundle; cand_price[1] = budget
  *   ORDER   price (the posted rate); a, b, c the bundle; cand_price[1..2] as OFFER
  *   GENES   cand_price[0..4] = genes, price = fitness, a = 1 for a request
+ * A seller with share_phases also reads, in every message asking for a
+ * whole bundle (RAWARD, CFP, OFFER, ACCEPT, ORDER), the job the bundle
+ * serves and its phase: ncand = 2, cand[0] = the job (non-zero),
+ * cand[1] = the phase (< BGM_RS_PHASES); without them the bundle counts
+ * alone.
  * It answers with RCONFIRM (a bundle or a part held from now; c = its
  * cost rate; for a part cand_price[0..2] = quantity, buyer limit, cost),
  * RFAIL + RFREE (an award it cannot take), PROPOSE, OFFER, REJECT, GENES,
@@ -46,6 +51,8 @@
 #define BGM_RS_TIMER_LEARN 8        /* a learning meeting */
 
 #define BGM_RS_MAX_NEIGHBOURS 64
+/* Phases a job's bundles may name under share_phases. */
+#define BGM_RS_PHASES 8
 
 typedef struct bgm_resource_params {
     const bgm_config_t *cfg; /* copied */
@@ -62,6 +69,13 @@ typedef struct bgm_resource_params {
     const uint32_t *neighbours;
     const uint8_t *same_role;
     int degree; /* <= BGM_RS_MAX_NEIGHBOURS */
+    /* Cores sold to the phases of one job that never run at once are
+     * counted once: the job occupies the most any one of its phases holds
+     * (the sum over the bundles of that phase), not the sum over all its
+     * bundles. Memory is always the sum (every phase keeps its state).
+     * The live grid's sellers set it: a job's services run one after
+     * another. 0 in the simulator, whose bundles name no job. */
+    int share_phases;
 } bgm_resource_params_t;
 
 typedef struct bgm_resource bgm_resource_t;
@@ -81,8 +95,15 @@ bg_status bgm_resource_on_timer(bgm_resource_t *rs, int kind, uint64_t arg, doub
                                 bgm_outbox_t *out);
 
 /* Cores and GiB held now, for tests and hosts (a live daemon heartbeats
- * what is free). */
+ * what is free); with share_phases each job's cores count as its widest
+ * phase's. */
 void bgm_resource_used(const bgm_resource_t *rs, double *cores, double *memory);
+
+/* The cores a bundle of `cores` for phase `phase` of job `group` would
+ * add to what is sold now: all of them without share_phases or a job,
+ * else only what the phase would hold beyond the job's widest phase (for
+ * a host's diagnostics; the machine decides on its own). */
+double bgm_resource_cores_added(const bgm_resource_t *rs, uint32_t group, int phase, double cores);
 
 /* A live host learns its overlay neighbours only when the broker answers
  * its registration: replaces them (BG_ERR_INVALID over the cap). */

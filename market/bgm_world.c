@@ -351,7 +351,8 @@ static bg_status make_machines(bgm_world_t *w)
                                     w->horizon,    ag->cores,    ag->mem,
                                     ag->core_cost, ag->mem_cost, ag->speed,
                                     ag->rng,       ag->genes,    ag->markup,
-                                    ag->nbr,       ag->nsame,    ag->ndeg};
+                                    ag->nbr,       ag->nsame,    ag->ndeg,
+                                    0 /* a simulated bundle names no job */};
         if (!(w->rsm[k] = bgm_resource_new(&rp)))
             return BG_ERR_NOMEM;
     }

@@ -39,7 +39,7 @@
 
 #define BGA_WIRE_VERSION 1
 #define BGA_WIRE_HEADER_BYTES 48
-#define BGA_WIRE_MAX_FIELDS 16
+#define BGA_WIRE_MAX_FIELDS 20
 #define BGA_WIRE_MAX_ARRAYS 8
 #define BGA_WIRE_MAX_FRAMES (2 + BGA_WIRE_MAX_ARRAYS)
 /* Default caps: one frame, and the whole message. The 201,600-tet box's
@@ -325,6 +325,8 @@ enum { /* live market */
        BGA_LM_TERM,
        BGA_LM_QUANTITY,
        BGA_LM_PRICE,
+       BGA_LM_PARENT,
+       BGA_LM_SERVES,
        BGA_LM_NFIELDS
 };
 enum { /* live market arrays: capacity = cores, memory, free cores, free memory */

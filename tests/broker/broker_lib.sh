@@ -85,17 +85,20 @@ grid_up_market() {
   url=$(jq -r '.broker.url // empty' "$_state/grid.json" 2>/dev/null)
   [ -n "$url" ]; check $? "the state file records the broker ($url)"
   nagents=$(jq '.agents | length' "$_config")
-  # Each agent daemon is two directory entries: its service seller and its
-  # resource seller (no services, no slots).
-  _i=0 _live=0 _res=0
+  # Each agent daemon is a service seller in the directory; the host's
+  # cores and memory have one resource seller (no services, no slots), the
+  # first daemon to register, and the others say they stand by.
+  _i=0 _live=0 _res=0 _by=0
   while [ $_i -lt 200 ]; do
     _live=$(market_sellers "$url" service) _res=$(market_sellers "$url" resource)
-    [ "${_live:-0}" -ge "$nagents" ] && [ "${_res:-0}" -ge "$nagents" ] && break
+    _by=$(cat "$_state"/*.log 2>/dev/null | grep -c "resource role stands by")
+    [ "${_live:-0}" -ge "$nagents" ] && [ "${_res:-0}" -ge 1 ] &&
+      [ "$_by" -ge $((nagents - 1)) ] && break
     sleep 0.1
     _i=$((_i + 1))
   done
-  [ "${_live:-0}" -eq "$nagents" ] && [ "${_res:-0}" -eq "$nagents" ]
-  check $? "all $nagents agents registered on the market, each with its resource seller (got $_live, $_res)"
+  [ "${_live:-0}" -eq "$nagents" ] && [ "${_res:-0}" -eq 1 ] && [ "$_by" -eq $((nagents - 1)) ]
+  check $? "all $nagents agents registered on the market, one selling the host's resources (got $_live, $_res; $_by stand by)"
 }
 
 grid_test_begin() {

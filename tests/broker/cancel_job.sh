@@ -8,7 +8,7 @@
 # /v1/agents within 20 s; the job has no result and no "solved" event, and
 # its progress no longer moves. SHORT_SCENE then succeeds on the same
 # agents. Before the cancel a second long job is submitted: the first holds
-# the cores it needs (layer 1), so it waits in allocating, its allocation
+# the host's 2 cores (layer 1; the grid says it sells 2), so it waits in allocating, its allocation
 # event says it asks again and why, and it runs once the first is
 # cancelled; it is cancelled in turn. `grid down` leaves no process.
 set -u
@@ -17,7 +17,11 @@ here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
 grid_test_begin "$bin" "$work"
 now() { date +%s.%N; }
-grid_up_market "$bin" "$config" "$state"
+# The grid's host sells 2 cores: a job of this grid holds both (its widest
+# phase: the rotation fit's two parts, or the sparse solve's two cores), so
+# the second job below waits for the first whatever the machine has.
+jq '.host = {cores: 2}' "$config" >"$work/grid-config.json"
+grid_up_market "$bin" "$work/grid-config.json" "$state"
 idle() { market_sellers "$url" idle; }
 # progressing ID SECONDS: polls until job ID runs and has reported progress.
 progressing() {

@@ -51,8 +51,8 @@ check $? "no process of the refused grid is left"
 # ask is matched and none caps the interval: at k = 1 each service row is
 # priced at its buyer's limit, at k = 0 below it (at the ask). (A seller
 # with a slot left over would cap it at its own ask whatever k is, as it
-# does in the simulator.) Layer 1 has a resource seller per daemon at one
-# rate, and an unmatched equal ask pins its price to the ask whatever k is.
+# does in the simulator.) Layer 1 is not checked here: the host's one
+# resource seller is priced by the same clearing.
 for k in 1 0; do
   jq --argjson k "$k" '.broker.market = {"k": $k, "period": 0.1} | .agents |= map(.slots = 1)' \
     "$config" >"$work/k$k-grid.json"

@@ -9,8 +9,9 @@
  * - a need split over two sellers goes to two distinct agents under each
  *   mechanism, and a seller's no moves the unit on to another seller;
  * - a sub-job orders its cores and memory at the posted rates (unit
- *   prices, the lease), and catallactic sub-jobs of one host bargain with
- *   different resource sellers when each has room for one. */
+ *   prices, the lease);
+ * - a host's resources have one seller (the first of its daemons to
+ *   register), and a job's phases share that seller's cores. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -427,74 +428,214 @@ static void posted_subjob(void **state)
     bgb_market_destroy(&m);
 }
 
-/* The last call for proposals to resource seller `to` since index
- * `from`: one core for the lease. Its sub-job's id. */
-static uint64_t subjob_cfp(const fake_t *f, uint32_t to, int from)
+/* Fake daemon `who`'s resource role on host `host` registers: 4 cores and
+ * 8 GiB; the REGISTERED it gets back. */
+static const bga_mmsg_t *register_resource(bgb_market_t *m, fake_t *f, uint8_t who,
+                                           const char *host, double now)
 {
-    const bga_mmsg_t *c = last_to(f, BGA_MM_CFP, to, from);
-    assert_non_null(c);
-    assert_true(c->good == BGB_GOOD_CORES && c->quantity == 1 && c->term == 10);
-    return c->job;
+    bga_mmsg_t reg;
+    bga_mmsg_init(&reg, BGA_MM_REGISTER);
+    snprintf(reg.name, sizeof reg.name, "r%c", who);
+    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://%s:%d", host, 9000 + who);
+    reg.resource = 1;
+    reg.cores = reg.free_cores = 4;
+    reg.memory = reg.free_memory = 8;
+    reg.floor[BGB_GOOD_CORES] = reg.prices[BGB_GOOD_CORES] = 1e-3;
+    reg.floor[BGB_GOOD_MEMORY] = reg.prices[BGB_GOOD_MEMORY] = 1e-4;
+    const int mark = f->nsent;
+    deliver_from(m, who, &reg, now);
+    const bga_mmsg_t *r = last_of(f, BGA_MM_REGISTERED, mark);
+    assert_non_null(r);
+    assert_int_equal(r->resource, 1);
+    return r;
 }
 
-/* Catallactic: two basic sellers' sub-jobs call their host's two resource
- * sellers, which propose at one price. Once the windows close each
- * sub-job bargains, opening below the ask, and with a different seller:
- * one core each, so the second does not wait on the first's seller.
- * The confirmations answer each basic seller RBOUGHT. */
-static void catallactic_subjobs_spread(void **state)
+static int resource_sellers(const bgb_market_t *m)
+{
+    bgb_agent_info_t info[16];
+    const size_t n = bgb_market_agents(m, info, 16);
+    int k = 0;
+    for (size_t i = 0; i < n && i < 16; i++)
+        k += info[i].resource;
+    return k;
+}
+
+/* A host's cores and memory have one seller: the first daemon of a host
+ * to register its resource role gets an id; another daemon of the same
+ * host is answered with no id and a reason naming the first, and is not
+ * in the directory; a daemon of another host sells its own. Once the
+ * first goes silent past the heartbeat timeout and is dropped, the
+ * waiting daemon's next registration takes the host over. */
+static void one_resource_seller_per_host(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t first = register_resource(m, &f, 'a', "127.0.0.1", 0.0)->agent;
+    assert_true(first > 0);
+    const bga_mmsg_t *r = register_resource(m, &f, 'b', "127.0.0.1", 0.1);
+    assert_int_equal(r->agent, 0);
+    char want[64];
+    snprintf(want, sizeof want, "agent %u (ra)", first);
+    assert_non_null(strstr(r->reason, want));
+    assert_non_null(strstr(r->reason, "127.0.0.1"));
+    assert_int_equal(resource_sellers(m), 1);
+    /* The first one registering again keeps its id. */
+    assert_int_equal(register_resource(m, &f, 'a', "127.0.0.1", 0.2)->agent, first);
+    const uint32_t other = register_resource(m, &f, 'c', "127.0.0.2", 0.3)->agent;
+    assert_true(other > 0 && other != first);
+    assert_int_equal(resource_sellers(m), 2);
+    /* 'a' falls silent; 'c' keeps beating. */
+    bga_mmsg_t hb;
+    bga_mmsg_init(&hb, BGA_MM_HEARTBEAT);
+    hb.agent = other;
+    hb.resource = 1;
+    hb.cores = hb.free_cores = 4;
+    hb.memory = hb.free_memory = 8;
+    const double later = 0.2 + mc.heartbeat_timeout + 0.5;
+    deliver_from(m, 'c', &hb, later - 0.1);
+    (void)bgb_market_tick(m, later);
+    assert_int_equal(resource_sellers(m), 1);
+    const uint32_t next = register_resource(m, &f, 'b', "127.0.0.1", later + 0.1)->agent;
+    assert_true(next > 0 && next != first && next != other);
+    assert_int_equal(resource_sellers(m), 2);
+    bgb_market_destroy(&m);
+}
+
+/* Basic seller `who` (id `id`) agreed to its unit of `good` for `job` and
+ * asks for `cores` cores and 1 GiB for 10 s, at most 1. */
+static void rbuy_for(bgb_market_t *m, uint8_t who, uint32_t id, uint64_t job, int good,
+                     double cores, double now)
+{
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, BGA_MM_RBUY);
+    r.job = job;
+    r.agent = id;
+    r.good = good;
+    r.cores = cores;
+    r.memory = 1;
+    r.term = 10;
+    r.price = 1.0;
+    deliver_from(m, who, &r, now);
+}
+
+/* The host's resource seller `rid` confirms what it was last ordered since
+ * `from` (cores, then memory), saying it has `free_cores` left. */
+static void confirm_orders(bgb_market_t *m, fake_t *f, uint32_t rid, int from, double free_cores,
+                           double now)
+{
+    const bga_mmsg_t *oc = NULL, *om = NULL;
+    for (int i = from; i < f->nsent; i++)
+        if (f->sent[i].type == BGA_MM_ORDER && f->sent[i].agent == rid)
+            *(f->sent[i].good == BGB_GOOD_CORES ? &oc : &om) = &f->sent[i];
+    assert_non_null(oc);
+    assert_non_null(om);
+    const bga_mmsg_t c = *oc, k = *om;
+    for (int g = 0; g < 2; g++) {
+        const bga_mmsg_t *o = g ? &k : &c;
+        bga_mmsg_t a;
+        bga_mmsg_init(&a, BGA_MM_CONFIRM);
+        a.job = o->job;
+        a.agent = rid;
+        a.resource = 1;
+        a.good = o->good;
+        a.quantity = o->quantity;
+        a.price = o->price;
+        a.floor[o->good] = o->price;
+        a.cores = 2;
+        a.memory = 8;
+        a.free_cores = free_cores;
+        a.free_memory = 4;
+        deliver_from(m, 'r', &a, now);
+    }
+}
+
+/* A job's services run one after another, so the host's seller counts the
+ * job's cores once, as its widest phase's. On a 2-core host a job's two
+ * rotation-fit units (one core each, bought first) leave no core free, and
+ * yet its sparse solve's two cores are ordered: they add nothing to the
+ * job's widest phase. Every resource order names the job and the service
+ * it serves. Another job's rotation fit then finds no free core on the
+ * host and its basic seller is told so. */
+static void subjobs_share_the_jobs_cores(void **state)
 {
     (void)state;
     fake_t f = {0};
     bgb_market_config_t mc;
     bgb_market_t *m = market(&f, &mc);
     const uint32_t a = seller(m, &f, 'a', 1.0, 2), b = seller(m, &f, 'b', 1.0, 2);
-    const uint32_t ra = rseller(m, &f, 'a', 1e-3, 1), rb = rseller(m, &f, 'b', 1e-3, 1);
-    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 2};
-    bg_error_t err = BG_ERROR_INIT;
-    assert_int_equal(
-        bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
-    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.0, 0.15);
-    answer_as(m, 'b', b, BGA_MM_PROPOSE, 1.0, 0.15);
-    double t = 0.1 + mc.reply_timeout / 8 + 0.01;
-    (void)bgb_market_tick(m, t);
-    assert_non_null(last_to(&f, BGA_MM_OFFER, a, 0));
-    assert_non_null(last_to(&f, BGA_MM_OFFER, b, 0));
+    bga_mmsg_t reg;
+    bga_mmsg_init(&reg, BGA_MM_REGISTER);
+    snprintf(reg.name, sizeof reg.name, "sc");
+    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://127.0.0.1:9099");
+    reg.services = 2; /* sparse solve */
+    reg.slots = reg.free_slots = 2;
+    reg.floor[1] = 1;
+    reg.prices[1] = 1.2;
     int mark = f.nsent;
-    rbuy(m, 'a', a, 0, 1.0, t + 0.01);
-    const uint64_t sa = subjob_cfp(&f, ra, mark);
-    assert_int_equal(subjob_cfp(&f, rb, mark), sa);
+    deliver_from(m, 'c', &reg, 0.0);
+    const uint32_t c = last_of(&f, BGA_MM_REGISTERED, mark)->agent;
+    bga_mmsg_init(&reg, BGA_MM_REGISTER);
+    snprintf(reg.name, sizeof reg.name, "host");
+    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://127.0.0.1:9100");
+    reg.resource = 1;
+    reg.cores = reg.free_cores = 2;
+    reg.memory = reg.free_memory = 8;
+    reg.floor[BGB_GOOD_CORES] = reg.prices[BGB_GOOD_CORES] = 1e-3;
+    reg.floor[BGB_GOOD_MEMORY] = reg.prices[BGB_GOOD_MEMORY] = 1e-4;
     mark = f.nsent;
-    rbuy(m, 'b', b, 0, 1.0, t + 0.01);
-    const uint64_t sb = subjob_cfp(&f, ra, mark);
-    assert_true(sb != sa);
-    for (int k = 0; k < 2; k++) {
-        const uint64_t sub = k ? sb : sa;
-        answer_from(m, 'a', ra, 1, sub, BGA_MM_PROPOSE, BGB_GOOD_CORES, 1, 1e-3, t + 0.02);
-        answer_from(m, 'b', rb, 1, sub, BGA_MM_PROPOSE, BGB_GOOD_CORES, 1, 1e-3, t + 0.02);
-    }
+    deliver_from(m, 'r', &reg, 0.0);
+    const uint32_t host = last_of(&f, BGA_MM_REGISTERED, mark)->agent;
+
+    const bgb_need_t needs[2] = {{BGB_GOOD_ROTFIT, 10.0, 2}, {BGB_GOOD_SOLVE, 1.0, 1}};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_market_buy(m, 1, BGB_MECH_POSTED, 1000, needs, 2, 0.1, on_done, &f, &err),
+                     BG_OK);
+    assert_non_null(last_to(&f, BGA_MM_ORDER, a, 0));
+    assert_non_null(last_to(&f, BGA_MM_ORDER, b, 0));
+    assert_non_null(last_to(&f, BGA_MM_ORDER, c, 0));
     mark = f.nsent;
-    t += mc.reply_timeout / 8 + 0.02;
-    (void)bgb_market_tick(m, t);
-    const bga_mmsg_t *oa = last_to(&f, BGA_MM_OFFER, ra, mark);
-    const bga_mmsg_t *ob = last_to(&f, BGA_MM_OFFER, rb, mark);
-    assert_non_null(oa);
-    assert_non_null(ob);
-    assert_int_equal(count_to(&f, BGA_MM_OFFER, ra, mark), 1);
-    assert_int_equal(count_to(&f, BGA_MM_OFFER, rb, mark), 1);
-    assert_true(oa->job != ob->job);
-    assert_true(oa->price > 0 && oa->price < 1e-3 && oa->term == 10 && oa->quantity == 1);
-    assert_true(ob->price > 0 && ob->price < 1e-3);
-    const uint64_t ja = oa->job, jb = ob->job;
-    const double pa = oa->price, pb = ob->price;
+    rbuy_for(m, 'a', a, 1, BGB_GOOD_ROTFIT, 1, 0.2);
+    const bga_mmsg_t *o = last_to(&f, BGA_MM_ORDER, host, mark);
+    assert_non_null(o);
+    assert_true(o->parent == 1 && o->serves == BGB_GOOD_ROTFIT);
+    confirm_orders(m, &f, host, mark, 1, 0.25);
     mark = f.nsent;
-    answer_from(m, 'a', ra, 1, ja, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, pa, t + 0.01);
-    answer_from(m, 'b', rb, 1, jb, BGA_MM_CONFIRM, BGB_GOOD_CORES, 1, pb, t + 0.01);
-    const bga_mmsg_t *ba = last_to(&f, BGA_MM_RBOUGHT, a, mark);
-    const bga_mmsg_t *bb = last_to(&f, BGA_MM_RBOUGHT, b, mark);
-    assert_non_null(ba);
-    assert_non_null(bb);
-    assert_true(ba->cores == 1 && bb->cores == 1);
+    rbuy_for(m, 'b', b, 1, BGB_GOOD_ROTFIT, 1, 0.3);
+    confirm_orders(m, &f, host, mark, 0, 0.35);
+    mark = f.nsent;
+    rbuy_for(m, 'c', c, 1, BGB_GOOD_SOLVE, 2, 0.4);
+    o = NULL;
+    for (int i = mark; i < f.nsent; i++)
+        if (f.sent[i].type == BGA_MM_ORDER && f.sent[i].agent == host &&
+            f.sent[i].good == BGB_GOOD_CORES)
+            o = &f.sent[i];
+    assert_non_null(o);
+    assert_true(o->quantity == 2 && o->parent == 1 && o->serves == BGB_GOOD_SOLVE);
+    assert_null(last_to(&f, BGA_MM_RFAIL, c, mark));
+    confirm_orders(m, &f, host, mark, 0, 0.45);
+    assert_non_null(last_to(&f, BGA_MM_RBOUGHT, c, mark));
+
+    /* Job 2's rotation fit: the host has no core left for another job. */
+    fake_t g = {0};
+    const bgb_need_t one = {BGB_GOOD_ROTFIT, 10.0, 1};
+    assert_int_equal(bgb_market_buy(m, 2, BGB_MECH_POSTED, 1000, &one, 1, 0.5, on_done, &g, &err),
+                     BG_OK);
+    const bga_mmsg_t *o2 = NULL;
+    for (int i = mark; i < f.nsent; i++)
+        if (f.sent[i].type == BGA_MM_ORDER && f.sent[i].job == 2)
+            o2 = &f.sent[i];
+    assert_non_null(o2);
+    const uint32_t s2 = o2->agent;
+    mark = f.nsent;
+    rbuy_for(m, s2 == a ? 'a' : 'b', s2, 2, BGB_GOOD_ROTFIT, 1, 0.6);
+    for (int i = mark; i < f.nsent; i++)
+        assert_false(f.sent[i].type == BGA_MM_ORDER && f.sent[i].agent == host &&
+                     f.sent[i].good == BGB_GOOD_CORES);
+    const bga_mmsg_t *no = last_to(&f, BGA_MM_RFAIL, s2, mark);
+    assert_non_null(no);
+    assert_non_null(strstr(no->reason, "no free cores"));
     bgb_market_destroy(&m);
 }
 
@@ -505,6 +646,7 @@ int main(void)
                                        cmocka_unit_test(catallactic_split_need),
                                        cmocka_unit_test(central_refusal_bids_again),
                                        cmocka_unit_test(posted_subjob),
-                                       cmocka_unit_test(catallactic_subjobs_spread)};
+                                       cmocka_unit_test(one_resource_seller_per_host),
+                                       cmocka_unit_test(subjobs_share_the_jobs_cores)};
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

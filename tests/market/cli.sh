@@ -9,6 +9,10 @@
 #                speeds set the run times.
 #   audit-detects: the audit fails on a doctored log (a double purchase,
 #                a memory part shorter than its service).
+#   audit-live:  --live counts a job's cores at a seller as its widest
+#                service's: a 2-core host selling one job a core for each
+#                of two rotation-fit agents and two for its sparse solve
+#                passes; the same rows split over two jobs fail.
 #   wire:        smoke.json and a shortened shock.json (one replication, the
 #                shock kept) under --engine inprocess and --engine wire: every
 #                output file equal byte for byte (cmp), and the audit (AUDIT)
@@ -150,6 +154,42 @@ audit-detects)
     [ "$rc1" -eq 1 ] && grep -q "bought twice" "$WORK/aud/twice.out" || { echo "FAIL: a double purchase passed the audit"; cat "$WORK/aud/twice.out"; exit 1; }
     [ "$rc2" -eq 1 ] && grep -q "does not cover" "$WORK/aud/short.out" || { echo "FAIL: a short memory part passed the audit"; cat "$WORK/aud/short.out"; exit 1; }
     echo "audit-detects: ok"
+    ;;
+audit-live)
+    AUDIT=$5
+    rm -rf "$WORK/live"
+    mkdir -p "$WORK/live/one" "$WORK/live/two"
+    for d in one two; do
+        cat > "$WORK/live/$d/agents.csv" <<'CSV'
+scenario,replication,mechanism,agent,role,good,capacity,limit
+g,0,posted,1,basic,rotation-fit,4,1
+g,0,posted,2,basic,rotation-fit,4,1
+g,0,posted,3,basic,sparse-solve,2,1
+g,0,posted,9,resource,cores,2,1e-05
+g,0,posted,9,resource,memory,16,2e-06
+CSV
+    done
+    # rows JOB_OF_REQUEST_2: one job's three services, each with its cores
+    # and memory for the service's whole interval.
+    rows() {
+        echo "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,good,quantity,price,buyer_limit,seller_limit"
+        echo "g,0,posted,service,1,0,0,10,j1,1,rotation-fit,1,1.2,2,1"
+        echo "g,0,posted,service,2,0,0,10,$1,2,rotation-fit,1,1.2,2,1"
+        echo "g,0,posted,service,3,0,0,10,j1,3,sparse-solve,1,1.2,2,1"
+        for r in 1 2 3; do
+            q=1; [ "$r" -eq 3 ] && q=2
+            echo "g,0,posted,resource,$r,0,0,10,$r,9,cores,$q,1e-05,2e-05,1e-05"
+            echo "g,0,posted,resource,$r,0,0,10,$r,9,memory,$q,2e-06,4e-06,2e-06"
+        done
+    }
+    rows j1 > "$WORK/live/one/contracts.csv"
+    rows j2 > "$WORK/live/two/contracts.csv"
+    "$AUDIT" --live "$WORK/live/one" || { echo "FAIL: one job's phases sharing two cores failed the live audit"; exit 1; }
+    set +e
+    "$AUDIT" --live "$WORK/live/two" > "$WORK/live/two.out" 2>&1; rc=$?
+    set -e
+    [ "$rc" -eq 1 ] && grep -q "over capacity (3 > 2 cores" "$WORK/live/two.out" || { echo "FAIL: two jobs holding three of two cores passed the live audit"; cat "$WORK/live/two.out"; exit 1; }
+    echo "audit-live: ok"
     ;;
 call-audit)
     AUDIT=$5

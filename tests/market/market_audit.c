@@ -22,7 +22,12 @@
  * market_audit --live DIR audits a live broker's log (GET
  * /v1/market/contracts.csv and agents.csv): checks 1-3, 6 and 7; a live
  * grid has no replications.csv, no request count and no offline optimum,
- * so 4 and 5 do not apply.
+ * so 4 and 5 do not apply. Live, a job's services run one after another,
+ * and its host's resource seller counts the job's cores as its widest
+ * phase's, so check 2 counts cores that way there: at any time, over the
+ * jobs holding cores of a seller, the sum of each job's most cores held
+ * for one service (the service row of the resource row's request names
+ * the job, its buyer, and the service, its good).
  */
 #include <math.h>
 #include <stdio.h>
@@ -38,9 +43,14 @@
 #define KEY_MAX 512
 #define REL_TOL 1e-7
 
+#define NAME_MAX_LEN 64
+
 typedef struct contract {
     char key[KEY_MAX / 2]; /* scenario|rep|mechanism */
     char skey[KEY_MAX]; /* key|seller|good */
+    /* The job and service a row serves: a service row's buyer and good;
+     * a resource row's are its service row's (link_services). */
+    char job[NAME_MAX_LEN], service[NAME_MAX_LEN];
     int layer, memory;
     double start, end, quantity, price, blim, slim;
     long buyer, seller, request;
@@ -78,6 +88,7 @@ static int cmp_cap(const void *a, const void *b)
 
 typedef struct ev {
     double t, d;
+    const contract_t *row;
 } ev_t;
 
 static int cmp_ev(const void *a, const void *b)
@@ -162,6 +173,79 @@ static int check_requests(const contract_t *c, size_t n, char *msg, size_t cap)
     return bad;
 }
 
+/* Gives every resource row the job and service of its request's service
+ * row (check_requests has checked there is one). */
+static void link_services(contract_t *c, size_t n)
+{
+    contract_t **by = malloc((n ? n : 1) * sizeof *by);
+    if (!by)
+        return;
+    for (size_t i = 0; i < n; i++)
+        by[i] = &c[i];
+    qsort(by, n, sizeof *by, cmp_request);
+    for (size_t i = 0; i < n; i++)
+        if (by[i]->layer == 1 && i > 0 && by[i - 1]->request == by[i]->request &&
+            strcmp(by[i - 1]->key, by[i]->key) == 0) {
+            snprintf(by[i]->job, sizeof by[i]->job, "%s", by[i - 1]->job);
+            snprintf(by[i]->service, sizeof by[i]->service, "%s", by[i - 1]->service);
+        }
+    free(by);
+}
+
+/* One job's cores at a seller, per service (phase). */
+typedef struct job_load {
+    const char *job;
+    const char *service[8];
+    double held[8];
+    int nservices;
+} job_load_t;
+
+/* The load of a live resource seller's cores after `ev` (sorted): each
+ * job counts the most it holds for one service. Returns the first time it
+ * exceeds `capacity` through *when, or 0 when it never does. */
+static int over_by_phase(const ev_t *ev, size_t k, double capacity, double *when, double *load_out)
+{
+    job_load_t *jobs = calloc(k ? k : 1, sizeof *jobs);
+    size_t njobs = 0;
+    int over = 0;
+    for (size_t e = 0; e < k && jobs && !over; e++) {
+        const contract_t *r = ev[e].row;
+        job_load_t *j = NULL;
+        for (size_t i = 0; i < njobs && !j; i++)
+            if (strcmp(jobs[i].job, r->job) == 0)
+                j = &jobs[i];
+        if (!j) {
+            j = &jobs[njobs++];
+            j->job = r->job;
+        }
+        int p = 0;
+        while (p < j->nservices && strcmp(j->service[p], r->service) != 0)
+            p++;
+        if (p == j->nservices) {
+            if (p == 8)
+                p = 7; /* more services than the grid has: lumped, never undercounted */
+            else
+                j->service[j->nservices++] = r->service;
+        }
+        j->held[p] += ev[e].d;
+        double load = 0.0;
+        for (size_t i = 0; i < njobs; i++) {
+            double most = 0.0;
+            for (int q = 0; q < jobs[i].nservices; q++)
+                if (jobs[i].held[q] > most)
+                    most = jobs[i].held[q];
+            load += most;
+        }
+        if (load > capacity + 1e-6) {
+            over = 1;
+            *when = ev[e].t;
+            *load_out = load;
+        }
+    }
+    free(jobs);
+    return over;
+}
+
 static int fail(const char *what)
 {
     fprintf(stderr, "market_audit: %s\n", what);
@@ -201,6 +285,11 @@ int main(int argc, char **argv)
         snprintf(x->skey, KEY_MAX, "%s|%s|%s|%s", x->key, f[8],
                  strcmp(f[3], "service") == 0 ? "*" : f[9], f[3]);
         x->layer = strcmp(f[3], "service") == 0 ? 0 : 1;
+        x->job[0] = x->service[0] = '\0';
+        if (x->layer == 0) {
+            snprintf(x->job, sizeof x->job, "%s", f[7]);
+            snprintf(x->service, sizeof x->service, "%s", f[9]);
+        }
         x->memory = strcmp(f[9], "memory") == 0;
         x->request = atol(f[14]);
         x->start = atof(f[5]);
@@ -241,6 +330,7 @@ int main(int argc, char **argv)
 
     if (check_requests(c, n, msg, sizeof msg))
         return fail(msg);
+    link_services(c, n);
 
     /* 2. capacity sweep per (run, seller, good). */
     qsort(c, n, sizeof *c, cmp_contract);
@@ -250,8 +340,8 @@ int main(int argc, char **argv)
         size_t j = i, k = 0;
         while (j < n && strcmp(c[j].skey, c[i].skey) == 0) {
             double q = c[j].layer == 0 ? 1.0 : c[j].quantity;
-            ev[k++] = (ev_t){c[j].start, q};
-            ev[k++] = (ev_t){c[j].end, -q};
+            ev[k++] = (ev_t){c[j].start, q, &c[j]};
+            ev[k++] = (ev_t){c[j].end, -q, &c[j]};
             j++;
         }
         cap_t probe;
@@ -262,7 +352,18 @@ int main(int argc, char **argv)
             return fail(msg);
         }
         qsort(ev, k, sizeof *ev, cmp_ev);
-        double load = 0.0;
+        double load = 0.0, when = 0.0;
+        if (live && c[i].layer == 1 && !c[i].memory) {
+            if (over_by_phase(ev, k, cp->capacity, &when, &load)) {
+                snprintf(msg, sizeof msg,
+                         "seller over capacity (%g > %g cores, each job counted at its widest "
+                         "service) at t=%g: %s",
+                         load, cp->capacity, when, c[i].skey);
+                return fail(msg);
+            }
+            i = j;
+            continue;
+        }
         for (size_t e = 0; e < k; e++) {
             load += ev[e].d;
             if (load > cp->capacity + 1e-6) {

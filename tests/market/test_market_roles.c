@@ -498,8 +498,8 @@ static void test_outbox_order_and_cap(void **state)
 enum { SELF = 9, BUYER = 6 };
 static const double R_CORES = 4.0, R_MEM = 8.0, R_CCOST = 0.05, R_MCOST = 0.01, R_SPEED = 2e9;
 
-static bgm_resource_t *seller(const bgm_config_t *cfg, int mechanism, const uint32_t *nbr,
-                              const uint8_t *same, int degree)
+static bgm_resource_t *seller_sharing(const bgm_config_t *cfg, int mechanism, const uint32_t *nbr,
+                                      const uint8_t *same, int degree, int share_phases)
 {
     bgm_resource_params_t p;
     memset(&p, 0, sizeof p);
@@ -519,9 +519,16 @@ static bgm_resource_t *seller(const bgm_config_t *cfg, int mechanism, const uint
     p.neighbours = nbr;
     p.same_role = same;
     p.degree = degree;
+    p.share_phases = share_phases;
     bgm_resource_t *rs = bgm_resource_new(&p);
     assert_non_null(rs);
     return rs;
+}
+
+static bgm_resource_t *seller(const bgm_config_t *cfg, int mechanism, const uint32_t *nbr,
+                              const uint8_t *same, int degree)
+{
+    return seller_sharing(cfg, mechanism, nbr, same, degree, 0);
 }
 
 /* A request for a bundle of `cores` and `mem` for `flops`, within `budget`,
@@ -636,6 +643,93 @@ static void test_resource_rents_within_room_cost_and_budget(void **state)
     bgm_outbox_destroy(&ob);
     bgm_resource_destroy(&rs);
     assert_null(rs);
+}
+
+/* A posted order for `cores` cores and 1 GiB of phase `phase` of job
+ * `job` (0: names none), at twice its cost rate within the budget;
+ * whether the seller rents it. */
+static int order_phase(bgm_resource_t *rs, bgm_outbox_t *ob, uint32_t req, uint32_t job, int phase,
+                       double cores)
+{
+    const double flops = 4e9, rate = 2.0 * (R_CCOST * cores + R_MCOST);
+    bgm_msg_t o = bundle_msg(BGM_MT_ORDER, BUYER, req, cores, 1.0, flops, rate,
+                             2.0 * rate * flops / (R_SPEED * cores), 10.0);
+    if (job) {
+        o.ncand = 2;
+        o.cand[0] = job;
+        o.cand[1] = (uint32_t)phase;
+    }
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_resource_on_message(rs, &o, 1.0, 1, ob), BG_OK);
+    const int rented = only_msg(ob, BGM_MT_RCONFIRM) != NULL;
+    assert_true(rented != (only_msg(ob, BGM_MT_REJECT) != NULL));
+    return rented;
+}
+
+static double cores_used(const bgm_resource_t *rs)
+{
+    double uc, um;
+    bgm_resource_used(rs, &uc, &um);
+    return uc;
+}
+
+/* With share_phases (the live grid's sellers) a job's bundles of
+ * different phases share cores, its phases never running at once: the
+ * job occupies the most any one phase holds (a phase's bundles add up),
+ * and only that counts against the capacity and what is said to be held;
+ * memory adds up whatever the phase; a bundle naming no job counts alone.
+ * Releasing a bundle frees only what the job's widest phase loses. The
+ * simulator's sellers (share_phases off) count every bundle. */
+static void test_resource_shares_cores_between_a_jobs_phases(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("baseline", 0.5);
+    bgm_resource_t *rs = seller_sharing(&cfg, BGM_MECH_BASELINE, NULL, NULL, 0, 1);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    /* R_CORES = 4. Job 7: phase 0 two cores, phase 1 three, phase 0 one more. */
+    assert_true(order_phase(rs, ob, 1, 7, 0, 2.0));
+    assert_true(cores_used(rs) == 2.0);
+    assert_true(order_phase(rs, ob, 2, 7, 1, 3.0));
+    assert_true(cores_used(rs) == 3.0);
+    assert_true(order_phase(rs, ob, 3, 7, 0, 1.0));
+    assert_true(cores_used(rs) == 3.0);
+    assert_true(bgm_resource_cores_added(rs, 7, 2, 3.0) == 0.0);
+    assert_true(bgm_resource_cores_added(rs, 7, 1, 2.0) == 2.0);
+    assert_true(bgm_resource_cores_added(rs, 8, 0, 2.0) == 2.0);
+    /* Job 8 fits one core, not two; a bundle of no job does not fit. */
+    assert_false(order_phase(rs, ob, 4, 8, 0, 2.0));
+    assert_true(order_phase(rs, ob, 5, 8, 0, 1.0));
+    assert_true(cores_used(rs) == 4.0);
+    assert_false(order_phase(rs, ob, 6, 0, 0, 1.0));
+    /* But job 7's phase 2 fits within its widest phase. */
+    assert_true(order_phase(rs, ob, 7, 7, 2, 3.0));
+    double uc, um;
+    bgm_resource_used(rs, &uc, &um);
+    assert_true(uc == 4.0 && um == 5.0);
+    /* Releasing phase 1 (three cores) frees nothing: phases 0 and 2 hold
+     * three each; releasing phase 2 then leaves phase 0's three; then
+     * phase 0's two-core bundle frees two of them. */
+    const int releases[3][2] = {{2, 0}, {7, 0}, {1, 2}};
+    for (int i = 0; i < 3; i++) {
+        const double before = cores_used(rs);
+        bgm_outbox_clear(ob);
+        assert_int_equal(bgm_resource_on_timer(rs, BGM_RS_TIMER_RELEASE, (uint64_t)releases[i][0],
+                                               2.0, 1, ob),
+                         BG_OK);
+        assert_true(fabs(before - cores_used(rs) - releases[i][1]) < 1e-12);
+    }
+    assert_true(fabs(cores_used(rs) - 2.0) < 1e-12); /* job 7's one core, job 8's one */
+    bgm_resource_destroy(&rs);
+
+    /* Without share_phases the same orders add up. */
+    rs = seller_sharing(&cfg, BGM_MECH_BASELINE, NULL, NULL, 0, 0);
+    assert_true(order_phase(rs, ob, 1, 7, 0, 2.0));
+    assert_false(order_phase(rs, ob, 2, 7, 1, 3.0));
+    assert_true(order_phase(rs, ob, 3, 7, 1, 2.0));
+    assert_true(cores_used(rs) == 4.0);
+    assert_true(bgm_resource_cores_added(rs, 7, 0, 1.0) == 1.0);
+    bgm_outbox_destroy(&ob);
+    bgm_resource_destroy(&rs);
 }
 
 /* Asked for a proposal, it answers from its own price policy only: a
@@ -1329,6 +1423,7 @@ int main(void)
         cmocka_unit_test(test_outbox_order_and_cap),
         cmocka_unit_test(test_resource_rents_within_room_cost_and_budget),
         cmocka_unit_test(test_resource_proposes_from_own_policy),
+        cmocka_unit_test(test_resource_shares_cores_between_a_jobs_phases),
         cmocka_unit_test(test_sessions_ring),
         cmocka_unit_test(test_resource_bargains_from_its_own_session),
         cmocka_unit_test(test_resource_orders_and_parts),

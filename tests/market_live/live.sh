@@ -2,10 +2,12 @@
 # live.sh BIOTGRID LIVE_HOST WORK test|bench [ROUNDS] [MARKET_AUDIT]
 # Real processes on loopback: live_host (the broker's market on a ROUTER
 # socket, port chosen by the kernel) and `biotgrid agent --broker` agents.
-# test: 3 rotation-fit agents and 1 sparse-solve agent, one core each (a
-# job takes three); after the market checks the simulator's audit
-# (MARKET_AUDIT --live) runs on the contracts.csv and agents.csv the host
-# wrote, then one rotation-fit agent is killed and the host must drop it.
+# test: 3 rotation-fit agents and 1 sparse-solve agent on one host that
+# sells 2 cores and 16 GiB: r2 and r3 may sell it (the first to register
+# does, the other stands by), r1 and s1 sell no resources. After the
+# market checks the simulator's audit (MARKET_AUDIT --live) runs on the
+# contracts.csv and agents.csv the host wrote; then the daemon selling
+# the host is killed and the host must drop it and take the standby.
 # bench: 8 agents (6 rotation-fit, 2 sparse-solve), latency per mechanism.
 # Every process started here is killed on exit; the script then checks
 # none is left.
@@ -27,22 +29,22 @@ i=0
 while [ ! -s "$WORK/endpoint" ] && [ $i -lt 100 ]; do sleep 0.1; i=$((i + 1)); done
 [ -s "$WORK/endpoint" ] || { echo "live.sh: host did not start"; exit 1; }
 EP=$(cat "$WORK/endpoint")
-start_agent() { # name services
+start_agent() { # name services cores
     OPENBLAS_NUM_THREADS=1 "$BIOTGRID" agent --name "$1" --services "$2" --slots 2 \
-        --broker "$EP" --floor 1 --margin 0.2 --load-slope 0.5 --cores 1 --memory 8 \
+        --broker "$EP" --floor 1 --margin 0.2 --load-slope 0.5 --cores "$3" --memory 16 \
         >"$WORK/$1.log" 2>&1 &
     PIDS="$PIDS $!"
     eval "PID_$1=$!"
 }
 if [ "$MODE" = bench ]; then
-    for k in 1 2 3 4 5 6; do start_agent "r$k" rotfit; done
-    start_agent s1 solve
-    start_agent s2 solve
+    for k in 1 2 3 4 5 6; do start_agent "r$k" rotfit 2; done
+    start_agent s1 solve 2
+    start_agent s2 solve 2
 else
-    start_agent r1 rotfit
-    start_agent r2 rotfit
-    start_agent r3 rotfit
-    start_agent s1 solve
+    start_agent r1 rotfit 0
+    start_agent r2 rotfit 2
+    start_agent r3 rotfit 2
+    start_agent s1 solve 0
     i=0
     while [ ! -e "$WORK/phase2" ] && [ $i -lt 600 ]; do
         kill -0 "$HOSTPID" 2>/dev/null || break
@@ -54,8 +56,17 @@ else
         grep -q ',resource,' "$WORK/contracts.csv" ||
             { echo "live.sh: contracts.csv has no resource row"; exit 1; }
     fi
-    # shellcheck disable=SC2154
-    [ -e "$WORK/phase2" ] && kill -9 "$PID_r3"
+    # One of r2 and r3 sells the host; the broker told the other to
+    # stand by, and it said so. The seller is killed.
+    if [ -e "$WORK/phase2" ]; then
+        seller=""
+        for a in r2 r3; do grep -q "stands by" "$WORK/$a.log" || seller="$seller $a"; done
+        set -- $seller
+        [ $# -eq 1 ] || { echo "live.sh: not exactly one of r2, r3 sells the host ($seller)"; exit 1; }
+        grep -h "stands by" "$WORK/r2.log" "$WORK/r3.log"
+        # shellcheck disable=SC2154
+        if [ "$1" = r2 ]; then kill -9 "$PID_r2"; else kill -9 "$PID_r3"; fi
+    fi
 fi
 wait "$HOSTPID"
 RC=$?

@@ -85,6 +85,8 @@ static void every_type(void **state)
         m.attempt = 1000;
         m.quantity = 2;
         m.price = 0.1;
+        m.parent = (uint64_t)1 << 53;
+        m.serves = 2;
         m.nneighbours = BGA_MMSG_MAX_NEIGHBOURS;
         for (int i = 0; i < m.nneighbours; i++)
             m.neighbours[i] = (uint32_t)(INT32_MAX - i);
@@ -230,7 +232,10 @@ static void bad_frames(void **state)
     refused(&c, "frames");
     valid_frames(&c);
     c.size[1] -= 8;
-    refused(&c, "field frame has 112 bytes, expected 120");
+    char want[64];
+    snprintf(want, sizeof want, "field frame has %d bytes, expected %d", 8 * BGA_LM_NFIELDS - 8,
+             8 * BGA_LM_NFIELDS);
+    refused(&c, want);
     valid_frames(&c);
     c.data[0][0] = 'X';
     refused(&c, "bgwp");
@@ -266,6 +271,12 @@ static void bad_fields(void **state)
     valid_frames(&c);
     put_u64(c.data[1] + 8 * BGA_LM_FREE_SLOTS, 3); /* more free than its 2 slots */
     refused(&c, "free_slots");
+    valid_frames(&c);
+    put_u64(c.data[1] + 8 * BGA_LM_SERVES, 3); /* resources serve services 0..2 only */
+    refused(&c, "serves");
+    valid_frames(&c);
+    put_u64(c.data[1] + 8 * BGA_LM_PARENT, ((uint64_t)1 << 53) + 1);
+    refused(&c, "parent");
     valid_frames(&c);
     put_f64(c.data[2 + BGA_LM_CAPACITY] + 8 * 2, -2); /* free cores */
     refused(&c, "capacity");

@@ -205,6 +205,76 @@ static void bargaining(void **state)
     bga_rseller_destroy(&rs);
 }
 
+/* An order of `q` cores for sub-job `sub`, serving service `serves` of
+ * job `parent`, at a rate over the floor. */
+static void order_for(bga_rseller_t *rs, sink_t *s, uint64_t sub, uint64_t parent, int serves,
+                      double q, double now)
+{
+    bga_mmsg_t m;
+    bga_mmsg_init(&m, BGA_MM_ORDER);
+    m.resource = 1;
+    m.job = sub;
+    m.good = 3;
+    m.quantity = q;
+    m.price = 1.3e-3;
+    m.term = 50;
+    m.parent = parent;
+    m.serves = serves;
+    s->n = 0;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bga_rseller_on_message(rs, &m, now, collect, s, &err), BG_OK);
+}
+
+/* The broker names the job and service each sub-job's cores serve: a
+ * job's phases run one after another, so the seller (4 cores) counts the
+ * job's cores as its widest phase's. Job 1's rotation fit (2 + 1 cores)
+ * and sparse solve (3) hold 3; job 2 then gets the last core and not two,
+ * and the refusal says what the job would add; cores naming no job count
+ * alone. Releasing a sub-job frees only what its job's widest phase
+ * loses, and the heartbeat says so. */
+static void phases_share_cores(void **state)
+{
+    (void)state;
+    bga_rseller_t *rs = seller();
+    sink_t s;
+    order_for(rs, &s, 101, 1, 0, 2, 0);
+    assert_int_equal(s.msg[0].type, BGA_MM_CONFIRM);
+    order_for(rs, &s, 102, 1, 0, 1, 0);
+    assert_int_equal(s.msg[0].type, BGA_MM_CONFIRM);
+    order_for(rs, &s, 103, 1, 1, 3, 0);
+    assert_int_equal(s.msg[0].type, BGA_MM_CONFIRM);
+    assert_near(s.msg[0].free_cores, 1, 1e-12);
+    assert_near(bga_rseller_used(rs, 0), 3, 1e-12);
+    assert_near(bga_rseller_used(rs, 1), 0, 0);
+    order_for(rs, &s, 201, 2, 0, 2, 0);
+    assert_int_equal(s.msg[0].type, BGA_MM_REFUSE);
+    assert_non_null(strstr(s.msg[0].reason, "1 cores free, 2 asked"));
+    order_for(rs, &s, 201, 2, 0, 1, 0);
+    assert_int_equal(s.msg[0].type, BGA_MM_CONFIRM);
+    order_for(rs, &s, 301, 0, -1, 1, 0);
+    assert_int_equal(s.msg[0].type, BGA_MM_REFUSE);
+    /* Job 1's phase 2 (one core) fits within its widest phase. */
+    order_for(rs, &s, 104, 1, 2, 1, 0);
+    assert_int_equal(s.msg[0].type, BGA_MM_CONFIRM);
+    assert_near(bga_rseller_used(rs, 0), 4, 1e-12);
+    /* The sparse solve ends: job 1's widest phase is its rotation fit's 3. */
+    bga_mmsg_t r;
+    bga_mmsg_init(&r, BGA_MM_RELEASE);
+    r.resource = 1;
+    r.job = 103;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bga_rseller_on_message(rs, &r, 1, collect, &s, &err), BG_OK);
+    assert_near(bga_rseller_used(rs, 0), 4, 1e-12);
+    r.job = 101;
+    assert_int_equal(bga_rseller_on_message(rs, &r, 1, collect, &s, &err), BG_OK);
+    assert_near(bga_rseller_used(rs, 0), 2, 1e-12);
+    bga_mmsg_t d;
+    bga_mmsg_init(&d, BGA_MM_HEARTBEAT);
+    bga_rseller_describe(rs, &d);
+    assert_near(d.free_cores, 2, 1e-12);
+    bga_rseller_destroy(&rs);
+}
+
 static void bad_config(void **state)
 {
     (void)state;
@@ -224,6 +294,7 @@ static void bad_config(void **state)
 int main(void)
 {
     const struct CMUnitTest tests[] = {cmocka_unit_test(orders), cmocka_unit_test(bargaining),
+                                       cmocka_unit_test(phases_share_cores),
                                        cmocka_unit_test(bad_config)};
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
