@@ -964,11 +964,9 @@ static int exclusions(bgb_market_t *m, const job_t *j, const unit_t *u, int *out
  * given; central and posted units also skip sellers they tried and
  * sellers without room, while a catallactic service unit leaves both to
  * its bargaining (a seller that walked away may agree in a later round; a
- * busy one does not propose). A catallactic resource unit does skip a
- * seller whose room other sub-jobs are bargaining for or hold: idle
- * resource sellers propose at one price, so every sub-job's machine,
- * taking ties by seller id, opens with the same one, and all but one
- * would wait for its refusal before trying the next. */
+ * busy one does not propose). A catallactic resource unit does skip its
+ * host's seller while the room it needs is taken by other sub-jobs
+ * bargaining for it or holding it: it would only wait for the refusal. */
 static int may_have(const bgb_market_t *m, const job_t *j, const unit_t *u, const agent_t *a)
 {
     if (!a || !a->used || !alive_seller(a, u->good) || !on_host(j, a) ||
@@ -1389,7 +1387,9 @@ static int start_purchase(bgb_market_t *m, job_t *j, const double *ref)
                                .mechanism = (int)j->mech,
                                .self = PU_SELF,
                                .market = PU_MARKET,
-                               .widen_quiet = PU_WIDEN};
+                               .widen_quiet = PU_WIDEN,
+                               /* A sub-job calls only its host's seller. */
+                               .close_when_heard = j->resource};
     bgm_rng_seed(&p.trader.rng, j->id);
     bgm_genes_random(&p.trader.genes, &p.trader.rng);
     p.trader.markup = BUYER_MARKUP;

@@ -19,16 +19,23 @@
  * offer at a price) answered by CONFIRM or REFUSE; CFP, PROPOSE, OFFER,
  * ACCEPT, REJECT for catallactic bargaining; RELEASE (the job ended).
  *
- * Layer 1 (resources): every agent daemon hosts a resource seller too (a
+ * Layer 1 (resources): an agent daemon hosts a resource seller too (a
  * second directory entry on the same socket, `resource` set in its
- * messages). A basic-service seller that agrees to a service unit sends
- * RBUY (cores, memory, lease, its money limit); the market buys them for it
- * as a sub-job among the resource sellers of the seller's host, on the same
+ * messages), one per host: the first daemon of a host (the host part of
+ * its endpoint) to register one sells the host's cores and memory, and a
+ * later one is answered REGISTERED without an id and with the reason; it
+ * stands by and asks again at its heartbeats, so it takes over once the
+ * first is dropped. A basic-service seller that agrees to a service unit
+ * sends RBUY (cores, memory, lease, its money limit); the market buys them
+ * for it as a sub-job from its host's resource seller, on the same
  * mechanism as the job (posted postings, a central call market per
- * resource, catallactic bargaining over the overlay), and answers RBOUGHT
- * or RFAIL; the seller then confirms or refuses the service. The resource
- * rows are logged with the service rows they serve when the job is bought,
- * and end when the job is released.
+ * resource, catallactic bargaining), and answers RBOUGHT or RFAIL; the
+ * seller then confirms or refuses the service. Each message about a
+ * sub-job names the job and the service it serves (bga_mmsg parent,
+ * serves): a job's services run one after another, so the resource seller
+ * counts the job's cores as its widest phase's, and so do the market's
+ * room checks. The resource rows are logged with the service rows they
+ * serve when the job is bought, and end when the job is released.
  *
  * Threading: every call is made from the broker's ZeroMQ loop thread only;
  * callbacks run on that thread, from inside the call that caused them.
@@ -53,9 +60,10 @@
  * unit-second): its RBID waits in the market's call market per resource
  * (bgm_callmarket, cleared every period), its QUERY is answered from the
  * host's postings (bgm_posted), its calls for proposals go to the host's
- * resource sellers. The host adds that a sub-job buys only on its host, a
- * catallactic one skips a seller other sub-jobs have taken the room of,
- * and a round whose bargains all failed is played with fresh genes.
+ * resource seller. The host adds that a sub-job buys only on its host, a
+ * catallactic one skips a seller without room for it (counting its job's
+ * phases once), and a round whose bargains all failed is played with fresh
+ * genes.
  */
 #ifndef BGB_MARKET_H
 #define BGB_MARKET_H

@@ -28,7 +28,7 @@ bgm_buyer_t *bgm_buyer_new(const bgm_buyer_params_t *p)
     b->demand = p->demand;
     bgm_trader_t tr = {p->rng, p->genes, 0.0, p->markup, {0.0, 0.0, 0.0, 0.0}};
     bgm_purchase_params_t pp = {&b->cfg, p->mechanism,  p->self,      p->market, p->horizon,
-                                tr,      p->neighbours, p->same_role, p->degree, 0};
+                                tr,      p->neighbours, p->same_role, p->degree, 0, 0};
     if (!(b->pu = bgm_purchase_new(&pp))) {
         free(b);
         return NULL;

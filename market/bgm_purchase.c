@@ -31,6 +31,7 @@ typedef struct req {
     bgm_purchase_req_t r;
     uint32_t nego;  /* bargaining state (PU_NEGO_NONE: none) */
     uint32_t quiet; /* catallactic rounds no seller answered */
+    uint32_t calls; /* catallactic: calls for proposals the round sent */
 } req_t;
 
 struct bgm_purchase {
@@ -321,9 +322,11 @@ static void arm(bgm_purchase_t *pu, req_t *q, double at)
                       (uint64_t)q->r.id | ((uint64_t)q->r.tseq << 32));
 }
 
-/* Sends a call to every neighbour but `except` and the call's originator. */
-static void cfp_send(bgm_purchase_t *pu, const bgm_msg_t *proto, uint32_t except)
+/* Sends a call to every neighbour but `except` and the call's originator;
+ * how many it sent. */
+static uint32_t cfp_send(bgm_purchase_t *pu, const bgm_msg_t *proto, uint32_t except)
 {
+    uint32_t n = 0;
     for (int i = 0; i < pu->p.degree; i++) {
         if (pu->nbr[i] == except || pu->nbr[i] == proto->origin)
             continue;
@@ -331,7 +334,9 @@ static void cfp_send(bgm_purchase_t *pu, const bgm_msg_t *proto, uint32_t except
         m.from = pu->p.self;
         m.to = pu->nbr[i];
         bgm_emitter_send(&pu->em, &m);
+        n++;
     }
+    return n;
 }
 
 static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
@@ -373,7 +378,7 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
         m.b = r->memory;
         m.c = r->flops;
         q->r.state = BGM_PU_DISCOVER;
-        cfp_send(pu, &m, UINT32_MAX);
+        q->calls = cfp_send(pu, &m, UINT32_MAX);
         const uint32_t doublings =
             q->quiet < (uint32_t)pu->p.widen_quiet ? q->quiet : (uint32_t)pu->p.widen_quiet;
         arm(pu, q, now + pu->cfg->catallactic.discovery_timeout * (double)(1u << doublings));
@@ -504,6 +509,21 @@ static int cmp_prop(const void *pa, const void *pb)
     return (a->seller > b->seller) - (a->seller < b->seller);
 }
 
+/* The discovery window closes: bargain with the proposers, cheapest
+ * first (a round nobody answered counts as quiet). */
+static void end_discovery(bgm_purchase_t *pu, req_t *q, double now)
+{
+    nego_state_t *g = ng(pu, q);
+    if (g->nprop == 0) {
+        pu->timeouts += 1.0; /* nobody answered the call for proposals */
+        q->quiet++;
+    }
+    qsort(g->prop, (size_t)g->nprop, sizeof g->prop[0], cmp_prop);
+    g->next_prop = 0;
+    begin_nego(pu, q, now);
+}
+
+
 static void on_offer(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double now)
 {
     if (m->attempt != q->r.attempt || q->r.state != BGM_PU_NEGOTIATE || m->from != q->r.seller)
@@ -623,6 +643,8 @@ bg_status bgm_purchase_on_message(bgm_purchase_t *pu, const bgm_msg_t *m, double
             nego_state_t *g = ng(pu, q);
             if (g->nprop < BGM_PU_MAX_PROPOSALS)
                 g->prop[g->nprop++] = (proposal_t){m->from, m->price, m->a};
+            if (pu->p.close_when_heard && q->calls > 0 && (uint32_t)g->nprop >= q->calls)
+                end_discovery(pu, q, now);
         }
         break;
     case BGM_MT_LIST:
@@ -677,14 +699,7 @@ bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, doub
         if (!up) {
             final_fail(pu, q);
         } else if (q->r.state == BGM_PU_DISCOVER) {
-            nego_state_t *g = ng(pu, q);
-            if (g->nprop == 0) {
-                pu->timeouts += 1.0; /* nobody answered the call for proposals */
-                q->quiet++;
-            }
-            qsort(g->prop, (size_t)g->nprop, sizeof g->prop[0], cmp_prop);
-            g->next_prop = 0;
-            begin_nego(pu, q, now);
+            end_discovery(pu, q, now);
         } else if (q->r.state == BGM_PU_NEGOTIATE || q->r.state == BGM_PU_COMMITTED) {
             pu->timeouts += 1.0;
             q->r.state = BGM_PU_NEGOTIATE;

@@ -145,6 +145,13 @@ typedef struct bgm_purchase_params {
      * late under load would otherwise hear, every round, only the last
      * round's stragglers (which it ignores). */
     int widen_quiet;
+    /* Catallactic: discovery ends as soon as a round has as many proposals
+     * as it sent calls, instead of at the window's end. For a host that
+     * calls only the sellers it can hear (a live resource sub-job calls its
+     * host's one resource seller): waiting out the window for nobody else
+     * only adds it to every purchase. 0 in the simulator, whose calls
+     * travel on over the overlay. */
+    int close_when_heard;
 } bgm_purchase_params_t;
 
 typedef struct bgm_purchase bgm_purchase_t;

@@ -77,7 +77,7 @@ bgm_seller_t *bgm_seller_new(const bgm_seller_params_t *p)
     s->p.same_role = NULL;
     bgm_trader_t tr = {p->rng, p->genes, 0.0, p->markup, {0.0, 0.0, 0.0, 0.0}};
     bgm_purchase_params_t pp = {&s->cfg, p->mechanism,  p->self,      p->market, p->horizon,
-                                tr,      p->neighbours, p->same_role, p->degree, 0};
+                                tr,      p->neighbours, p->same_role, p->degree, 0, 0};
     s->pu = bgm_purchase_new(&pp);
     if (p->mechanism == BGM_MECH_CATALLACTIC)
         s->sess = bgm_sessions_new(SE_SESSIONS);

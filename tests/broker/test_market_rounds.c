@@ -9,7 +9,8 @@
  * - a need split over two sellers goes to two distinct agents under each
  *   mechanism, and a seller's no moves the unit on to another seller;
  * - a sub-job orders its cores and memory at the posted rates (unit
- *   prices, the lease);
+ *   prices, the lease), and a catallactic one bargains as soon as its
+ *   host's seller has proposed;
  * - a host's resources have one seller (the first of its daemons to
  *   register), and a job's phases share that seller's cores. */
 #include <math.h>
@@ -428,6 +429,40 @@ static void posted_subjob(void **state)
     bgb_market_destroy(&m);
 }
 
+/* Catallactic: a basic seller's sub-job calls its host's one resource
+ * seller (the call naming the job and service the cores serve), and
+ * bargains as soon as that seller has proposed: nobody else can answer, so
+ * it does not wait out the discovery window. */
+static void catallactic_subjob_bargains_when_heard(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.0, 2), ra = rseller(m, &f, 'a', 1e-3, 2);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 1};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(
+        bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
+    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.0, 0.15);
+    const double t = 0.1 + mc.reply_timeout / 8 + 0.01;
+    (void)bgb_market_tick(m, t);
+    assert_non_null(last_to(&f, BGA_MM_OFFER, a, 0));
+    int mark = f.nsent;
+    rbuy(m, 'a', a, 0, 1.0, t + 0.01);
+    const bga_mmsg_t *c = last_to(&f, BGA_MM_CFP, ra, mark);
+    assert_non_null(c);
+    assert_true(c->good == BGB_GOOD_CORES && c->parent == 1 && c->serves == BGB_GOOD_ROTFIT);
+    const uint64_t sub = c->job;
+    mark = f.nsent;
+    answer_from(m, 'a', ra, 1, sub, BGA_MM_PROPOSE, BGB_GOOD_CORES, 1, 1e-3, t + 0.02);
+    const bga_mmsg_t *o = last_to(&f, BGA_MM_OFFER, ra, mark);
+    assert_non_null(o);
+    assert_true(o->job == sub && o->price > 0 && o->price < 1e-3);
+    assert_true(o->parent == 1 && o->serves == BGB_GOOD_ROTFIT);
+    bgb_market_destroy(&m);
+}
+
 /* Fake daemon `who`'s resource role on host `host` registers: 4 cores and
  * 8 GiB; the REGISTERED it gets back. */
 static const bga_mmsg_t *register_resource(bgb_market_t *m, fake_t *f, uint8_t who,
@@ -646,6 +681,7 @@ int main(void)
                                        cmocka_unit_test(catallactic_split_need),
                                        cmocka_unit_test(central_refusal_bids_again),
                                        cmocka_unit_test(posted_subjob),
+                                       cmocka_unit_test(catallactic_subjob_bargains_when_heard),
                                        cmocka_unit_test(one_resource_seller_per_host),
                                        cmocka_unit_test(subjobs_share_the_jobs_cores)};
     return cmocka_run_group_tests(tests, NULL, NULL);
