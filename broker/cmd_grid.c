@@ -10,8 +10,9 @@
  * broker's live-market settings, as in its config, bgb_broker.h; host:
  * the cores and GiB the grid's machine sells on the live market, given to
  * every agent as --cores and --memory, default what the machine has; its
- * first agent to register sells them, the others stand by). With a "broker" object (or a --broker-* option), `up`
- * starts `biotgrid broker` first, with a config in DIR/broker.json (no
+ * first agent to register sells them, the others stand by). With a
+ * "broker" object (or a --broker-* option), `up` starts `biotgrid broker`
+ * first, with a config in DIR/broker.json (no
  * fixed pool) and its store in DIR/broker/, records its URL, endpoint and
  * PID in the state file, and gives every agent `--broker ENDPOINT` (the
  * endpoint the broker actually bound), so the agents register and sell on

@@ -3,10 +3,14 @@
 #   start_broker BIN DIR NAME CONFIG   → $DIR/$NAME.ready "URL ENDPOINT PID", $DIR/$NAME.rc at exit
 #   stop_broker DIR NAME               SIGTERM, SIGKILL after 10 s (and fail)
 #   wait_job URL ID SECONDS            prints the final state (or "timeout")
+#   submit_job URL FILE                POSTs the submission FILE to /v1/jobs; prints the job's id
+#   same_energy REPORT REFERENCE       whether two report.json files' first runs have the same
+#                                      energy (1e-10 relative to the reference's)
 #   check STATUS MESSAGE               "ok: MESSAGE", or "FAIL: MESSAGE" and fail=1
 #   grid_up_market BIN CONFIG STATE    `grid up` on ephemeral loopback ports; sets url and
-#                                      nagents; waits until every agent's service seller and
-#                                      resource seller are alive on the market (checks each step)
+#                                      nagents; waits until every agent's service seller and the
+#                                      host's one resource seller are alive on the market, the
+#                                      other agents standing by (checks each step)
 #   market_sellers URL KIND            alive market sellers: KIND service, resource or idle
 #                                      (service sellers with every slot free)
 #   grid_test_begin BIN WORK           a grid test's start: WORK emptied, state=WORK/grid,
@@ -52,6 +56,16 @@ stop_broker() {
   fi
   _rc=$(cat "$_dir/$_name.rc")
   [ "$_rc" = 0 ] || { echo "stop_broker: $_name exited with $_rc" >&2; return 1; }
+}
+
+submit_job() {
+  curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$2" "$1/v1/jobs" | jq -r .id
+}
+
+same_energy() {
+  jq -n --slurpfile a "$1" --slurpfile b "$2" \
+    '($a[0].runs[0].energy - $b[0].runs[0].energy) | fabs <= 1e-10 * ($b[0].runs[0].energy | fabs)' \
+    | grep -q true
 }
 
 wait_job() {

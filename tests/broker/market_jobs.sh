@@ -33,15 +33,12 @@ total=0 jobs_ids=""
 for mech in central catallactic posted; do
   jq -n --slurpfile s "$scene" --arg m "$mech" '{scene: $s[0], mechanism: $m, budget: 100}' \
     >"$work/submit-$mech.json"
-  id=$(curl -sf -X POST -H 'Content-Type: application/json' \
-    --data-binary @"$work/submit-$mech.json" "$url/v1/jobs" | jq -r .id)
+  id=$(submit_job "$url" "$work/submit-$mech.json")
   st=$(wait_job "$url" "$id" 300)
   [ "$st" = succeeded ]; check $? "$mech: the job succeeded (got $st)"
   [ "$st" = succeeded ] || curl -sf "$url/v1/jobs/$id" >&2
   curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report-$mech.json"
-  jq -n --slurpfile a "$work/report-$mech.json" --slurpfile b "$work/local/report.json" \
-    '($a[0].runs[0].energy - $b[0].runs[0].energy) | fabs <= 1e-10 * ($b[0].runs[0].energy | fabs)' \
-    | grep -q true
+  same_energy "$work/report-$mech.json" "$work/local/report.json"
   check $? "$mech: its energy equals biotgrid solve's (1e-10 relative)"
   jq -e '[.market.contracts[].service] as $s | ($s | index("rotation-fit")) != null and
          ($s | index("sparse-solve")) != null and ($s | index("integration-step")) == null' \

@@ -19,15 +19,12 @@ grid_up_market "$bin" "$work/grid-config.json" "$state"
 "$bin" solve "$scene" --quiet --out "$work/local" >/dev/null 2>&1
 check $? "biotgrid solve (the reference)"
 jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "posted", budget: 100}' >"$work/submit.json"
-id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
-  "$url/v1/jobs" | jq -r .id)
+id=$(submit_job "$url" "$work/submit.json")
 st=$(wait_job "$url" "$id" 300)
 [ "$st" = succeeded ]; check $? "the job on a 1-core, 4 GiB host succeeded (got $st)"
 [ "$st" = succeeded ] || curl -sf "$url/v1/jobs/$id" >&2
 curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report.json"
-jq -n --slurpfile a "$work/report.json" --slurpfile b "$work/local/report.json" \
-  '($a[0].runs[0].energy - $b[0].runs[0].energy) | fabs <= 1e-10 * ($b[0].runs[0].energy | fabs)' \
-  | grep -q true
+same_energy "$work/report.json" "$work/local/report.json"
 check $? "its energy equals biotgrid solve's (1e-10 relative)"
 curl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
 # SERVICE,RESOURCE,QUANTITY per resource row, the service its request serves.

@@ -161,23 +161,31 @@ static void deliver_from(bgb_market_t *m, uint8_t who, const bga_mmsg_t *msg, do
     bga_frames_free(&fr);
 }
 
-/* Registers a rotation-fit seller asking `price` with `slots` free; its id. */
-static uint32_t seller(bgb_market_t *m, fake_t *f, uint8_t who, double price, int slots)
+/* Registers a seller of service `good` asking `price` with `slots` free;
+ * its id. */
+static uint32_t seller_of(bgb_market_t *m, fake_t *f, uint8_t who, int good, double price,
+                          int slots)
 {
     bga_mmsg_t reg;
     bga_mmsg_init(&reg, BGA_MM_REGISTER);
     snprintf(reg.name, sizeof reg.name, "s%c", who);
     snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://127.0.0.1:%d", 9000 + who);
-    reg.services = 1;
+    reg.services = 1u << good;
     reg.slots = reg.free_slots = slots;
-    reg.floor[0] = price / 1.2;
-    reg.prices[0] = price;
+    reg.floor[good] = price / 1.2;
+    reg.prices[good] = price;
     reg.margin = 0.2;
     const int mark = f->nsent;
     deliver_from(m, who, &reg, 0.0);
     const bga_mmsg_t *r = last_of(f, BGA_MM_REGISTERED, mark);
     assert_non_null(r);
     return r->agent;
+}
+
+/* A rotation-fit seller. */
+static uint32_t seller(bgb_market_t *m, fake_t *f, uint8_t who, double price, int slots)
+{
+    return seller_of(m, f, who, BGB_GOOD_ROTFIT, price, slots);
 }
 
 /* How many messages of `type` went to agent `to` since index `from`. */
@@ -347,15 +355,16 @@ static void central_refusal_bids_again(void **state)
 
 /* ------------------------------------------- resource sub-jobs (layer 1) */
 
-/* Registers the resource role of fake daemon `who` (same host as the
- * service sellers): `cores` cores and 8 GiB, asking `ask` per core-second
- * and ask / 10 per GiB-second; its id. */
-static uint32_t rseller(bgb_market_t *m, fake_t *f, uint8_t who, double ask, double cores)
+/* The resource role of fake daemon `who` on host `host` registers at
+ * `now`: `cores` cores and 8 GiB, asking `ask` per core-second and
+ * ask / 10 per GiB-second; the REGISTERED it gets back. */
+static const bga_mmsg_t *register_resource(bgb_market_t *m, fake_t *f, uint8_t who,
+                                           const char *host, double ask, double cores, double now)
 {
     bga_mmsg_t reg;
     bga_mmsg_init(&reg, BGA_MM_REGISTER);
     snprintf(reg.name, sizeof reg.name, "s%c", who);
-    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://127.0.0.1:%d", 9000 + who);
+    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://%s:%d", host, 9000 + who);
     reg.resource = 1;
     reg.cores = reg.free_cores = cores;
     reg.memory = reg.free_memory = 8;
@@ -365,22 +374,31 @@ static uint32_t rseller(bgb_market_t *m, fake_t *f, uint8_t who, double ask, dou
     reg.prices[BGB_GOOD_MEMORY] = ask / 10;
     reg.margin = 0.2;
     const int mark = f->nsent;
-    deliver_from(m, who, &reg, 0.0);
+    deliver_from(m, who, &reg, now);
     const bga_mmsg_t *r = last_of(f, BGA_MM_REGISTERED, mark);
     assert_non_null(r);
-    return r->agent;
+    assert_int_equal(r->resource, 1);
+    return r;
 }
 
-/* Basic seller `who` (id `id`) agreed to its unit of job 1 and asks for
- * one core (and `gib` GiB) for 10 s, at most `money`. */
-static void rbuy(bgb_market_t *m, uint8_t who, uint32_t id, double gib, double money, double now)
+/* The resource role of fake daemon `who`, on the service sellers' host;
+ * its id. */
+static uint32_t rseller(bgb_market_t *m, fake_t *f, uint8_t who, double ask, double cores)
+{
+    return register_resource(m, f, who, "127.0.0.1", ask, cores, 0.0)->agent;
+}
+
+/* Basic seller `who` (id `id`) agreed to its unit of `good` for `job` and
+ * asks for `cores` cores and `gib` GiB for 10 s, at most `money`. */
+static void rbuy(bgb_market_t *m, uint8_t who, uint32_t id, uint64_t job, int good, double cores,
+                 double gib, double money, double now)
 {
     bga_mmsg_t r;
     bga_mmsg_init(&r, BGA_MM_RBUY);
-    r.job = 1;
+    r.job = job;
     r.agent = id;
-    r.good = BGB_GOOD_ROTFIT;
-    r.cores = 1;
+    r.good = good;
+    r.cores = cores;
     r.memory = gib;
     r.term = 10;
     r.price = money;
@@ -403,7 +421,7 @@ static void posted_subjob(void **state)
                      BG_OK);
     assert_non_null(last_to(&f, BGA_MM_ORDER, a, 0));
     int mark = f.nsent;
-    rbuy(m, 'a', a, 2, 1.0, 0.2);
+    rbuy(m, 'a', a, 1, BGB_GOOD_ROTFIT, 1, 2, 1.0, 0.2);
     const bga_mmsg_t *oc = NULL, *om = NULL;
     for (int i = mark; i < f.nsent; i++)
         if (f.sent[i].type == BGA_MM_ORDER && f.sent[i].agent == ra) {
@@ -449,7 +467,7 @@ static void catallactic_subjob_bargains_when_heard(void **state)
     (void)bgb_market_tick(m, t);
     assert_non_null(last_to(&f, BGA_MM_OFFER, a, 0));
     int mark = f.nsent;
-    rbuy(m, 'a', a, 0, 1.0, t + 0.01);
+    rbuy(m, 'a', a, 1, BGB_GOOD_ROTFIT, 1, 0, 1.0, t + 0.01);
     const bga_mmsg_t *c = last_to(&f, BGA_MM_CFP, ra, mark);
     assert_non_null(c);
     assert_true(c->good == BGB_GOOD_CORES && c->parent == 1 && c->serves == BGB_GOOD_ROTFIT);
@@ -461,28 +479,6 @@ static void catallactic_subjob_bargains_when_heard(void **state)
     assert_true(o->job == sub && o->price > 0 && o->price < 1e-3);
     assert_true(o->parent == 1 && o->serves == BGB_GOOD_ROTFIT);
     bgb_market_destroy(&m);
-}
-
-/* Fake daemon `who`'s resource role on host `host` registers: 4 cores and
- * 8 GiB; the REGISTERED it gets back. */
-static const bga_mmsg_t *register_resource(bgb_market_t *m, fake_t *f, uint8_t who,
-                                           const char *host, double now)
-{
-    bga_mmsg_t reg;
-    bga_mmsg_init(&reg, BGA_MM_REGISTER);
-    snprintf(reg.name, sizeof reg.name, "r%c", who);
-    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://%s:%d", host, 9000 + who);
-    reg.resource = 1;
-    reg.cores = reg.free_cores = 4;
-    reg.memory = reg.free_memory = 8;
-    reg.floor[BGB_GOOD_CORES] = reg.prices[BGB_GOOD_CORES] = 1e-3;
-    reg.floor[BGB_GOOD_MEMORY] = reg.prices[BGB_GOOD_MEMORY] = 1e-4;
-    const int mark = f->nsent;
-    deliver_from(m, who, &reg, now);
-    const bga_mmsg_t *r = last_of(f, BGA_MM_REGISTERED, mark);
-    assert_non_null(r);
-    assert_int_equal(r->resource, 1);
-    return r;
 }
 
 static int resource_sellers(const bgb_market_t *m)
@@ -507,18 +503,18 @@ static void one_resource_seller_per_host(void **state)
     fake_t f = {0};
     bgb_market_config_t mc;
     bgb_market_t *m = market(&f, &mc);
-    const uint32_t first = register_resource(m, &f, 'a', "127.0.0.1", 0.0)->agent;
+    const uint32_t first = register_resource(m, &f, 'a', "127.0.0.1", 1e-3, 4, 0.0)->agent;
     assert_true(first > 0);
-    const bga_mmsg_t *r = register_resource(m, &f, 'b', "127.0.0.1", 0.1);
+    const bga_mmsg_t *r = register_resource(m, &f, 'b', "127.0.0.1", 1e-3, 4, 0.1);
     assert_int_equal(r->agent, 0);
     char want[64];
-    snprintf(want, sizeof want, "agent %u (ra)", first);
+    snprintf(want, sizeof want, "agent %u (sa)", first);
     assert_non_null(strstr(r->reason, want));
     assert_non_null(strstr(r->reason, "127.0.0.1"));
     assert_int_equal(resource_sellers(m), 1);
     /* The first one registering again keeps its id. */
-    assert_int_equal(register_resource(m, &f, 'a', "127.0.0.1", 0.2)->agent, first);
-    const uint32_t other = register_resource(m, &f, 'c', "127.0.0.2", 0.3)->agent;
+    assert_int_equal(register_resource(m, &f, 'a', "127.0.0.1", 1e-3, 4, 0.2)->agent, first);
+    const uint32_t other = register_resource(m, &f, 'c', "127.0.0.2", 1e-3, 4, 0.3)->agent;
     assert_true(other > 0 && other != first);
     assert_int_equal(resource_sellers(m), 2);
     /* 'a' falls silent; 'c' keeps beating. */
@@ -532,27 +528,10 @@ static void one_resource_seller_per_host(void **state)
     deliver_from(m, 'c', &hb, later - 0.1);
     (void)bgb_market_tick(m, later);
     assert_int_equal(resource_sellers(m), 1);
-    const uint32_t next = register_resource(m, &f, 'b', "127.0.0.1", later + 0.1)->agent;
+    const uint32_t next = register_resource(m, &f, 'b', "127.0.0.1", 1e-3, 4, later + 0.1)->agent;
     assert_true(next > 0 && next != first && next != other);
     assert_int_equal(resource_sellers(m), 2);
     bgb_market_destroy(&m);
-}
-
-/* Basic seller `who` (id `id`) agreed to its unit of `good` for `job` and
- * asks for `cores` cores and 1 GiB for 10 s, at most 1. */
-static void rbuy_for(bgb_market_t *m, uint8_t who, uint32_t id, uint64_t job, int good,
-                     double cores, double now)
-{
-    bga_mmsg_t r;
-    bga_mmsg_init(&r, BGA_MM_RBUY);
-    r.job = job;
-    r.agent = id;
-    r.good = good;
-    r.cores = cores;
-    r.memory = 1;
-    r.term = 10;
-    r.price = 1.0;
-    deliver_from(m, who, &r, now);
 }
 
 /* The host's resource seller `rid` confirms what it was last ordered since
@@ -600,28 +579,9 @@ static void subjobs_share_the_jobs_cores(void **state)
     bgb_market_config_t mc;
     bgb_market_t *m = market(&f, &mc);
     const uint32_t a = seller(m, &f, 'a', 1.0, 2), b = seller(m, &f, 'b', 1.0, 2);
-    bga_mmsg_t reg;
-    bga_mmsg_init(&reg, BGA_MM_REGISTER);
-    snprintf(reg.name, sizeof reg.name, "sc");
-    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://127.0.0.1:9099");
-    reg.services = 2; /* sparse solve */
-    reg.slots = reg.free_slots = 2;
-    reg.floor[1] = 1;
-    reg.prices[1] = 1.2;
-    int mark = f.nsent;
-    deliver_from(m, 'c', &reg, 0.0);
-    const uint32_t c = last_of(&f, BGA_MM_REGISTERED, mark)->agent;
-    bga_mmsg_init(&reg, BGA_MM_REGISTER);
-    snprintf(reg.name, sizeof reg.name, "host");
-    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://127.0.0.1:9100");
-    reg.resource = 1;
-    reg.cores = reg.free_cores = 2;
-    reg.memory = reg.free_memory = 8;
-    reg.floor[BGB_GOOD_CORES] = reg.prices[BGB_GOOD_CORES] = 1e-3;
-    reg.floor[BGB_GOOD_MEMORY] = reg.prices[BGB_GOOD_MEMORY] = 1e-4;
-    mark = f.nsent;
-    deliver_from(m, 'r', &reg, 0.0);
-    const uint32_t host = last_of(&f, BGA_MM_REGISTERED, mark)->agent;
+    const uint32_t c = seller_of(m, &f, 'c', BGB_GOOD_SOLVE, 1.2, 2);
+    const uint32_t host = rseller(m, &f, 'r', 1e-3, 2);
+    int mark;
 
     const bgb_need_t needs[2] = {{BGB_GOOD_ROTFIT, 10.0, 2}, {BGB_GOOD_SOLVE, 1.0, 1}};
     bg_error_t err = BG_ERROR_INIT;
@@ -631,16 +591,16 @@ static void subjobs_share_the_jobs_cores(void **state)
     assert_non_null(last_to(&f, BGA_MM_ORDER, b, 0));
     assert_non_null(last_to(&f, BGA_MM_ORDER, c, 0));
     mark = f.nsent;
-    rbuy_for(m, 'a', a, 1, BGB_GOOD_ROTFIT, 1, 0.2);
+    rbuy(m, 'a', a, 1, BGB_GOOD_ROTFIT, 1, 1, 1.0, 0.2);
     const bga_mmsg_t *o = last_to(&f, BGA_MM_ORDER, host, mark);
     assert_non_null(o);
     assert_true(o->parent == 1 && o->serves == BGB_GOOD_ROTFIT);
     confirm_orders(m, &f, host, mark, 1, 0.25);
     mark = f.nsent;
-    rbuy_for(m, 'b', b, 1, BGB_GOOD_ROTFIT, 1, 0.3);
+    rbuy(m, 'b', b, 1, BGB_GOOD_ROTFIT, 1, 1, 1.0, 0.3);
     confirm_orders(m, &f, host, mark, 0, 0.35);
     mark = f.nsent;
-    rbuy_for(m, 'c', c, 1, BGB_GOOD_SOLVE, 2, 0.4);
+    rbuy(m, 'c', c, 1, BGB_GOOD_SOLVE, 2, 1, 1.0, 0.4);
     o = NULL;
     for (int i = mark; i < f.nsent; i++)
         if (f.sent[i].type == BGA_MM_ORDER && f.sent[i].agent == host &&
@@ -664,7 +624,7 @@ static void subjobs_share_the_jobs_cores(void **state)
     assert_non_null(o2);
     const uint32_t s2 = o2->agent;
     mark = f.nsent;
-    rbuy_for(m, s2 == a ? 'a' : 'b', s2, 2, BGB_GOOD_ROTFIT, 1, 0.6);
+    rbuy(m, s2 == a ? 'a' : 'b', s2, 2, BGB_GOOD_ROTFIT, 1, 1, 1.0, 0.6);
     for (int i = mark; i < f.nsent; i++)
         assert_false(f.sent[i].type == BGA_MM_ORDER && f.sent[i].agent == host &&
                      f.sent[i].good == BGB_GOOD_CORES);
