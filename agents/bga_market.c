@@ -28,7 +28,7 @@ struct bga_market {
     void *socket;
     role_t role[2];
     double next_beat;
-    int standby; /* the resource role: the broker said another daemon sells the host */
+    int standby;       /* the resource role: the broker said another daemon sells the host */
     bga_bseller_t *bs; /* the basic-service seller role */
     bga_rseller_t *rs; /* the resource seller role (NULL: none) */
     /* The process's compute thread pools (OpenBLAS, OpenMP: CHOLMOD's
@@ -99,11 +99,6 @@ int bga_market_used(const bga_market_t *m)
 double bga_market_cores_used(const bga_market_t *m)
 {
     return m->rs ? bga_rseller_used(m->rs, 0) : 0;
-}
-
-int bga_market_standby(const bga_market_t *m)
-{
-    return m->standby;
 }
 
 uint32_t bga_market_id(const bga_market_t *m)
@@ -253,8 +248,7 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
      * so on a host with less memory than one job of every service takes (a
      * rotation fit in two parts, a sparse solve, an integration step) the
      * nominal needs shrink in proportion: such a job still fits. */
-    const double job_memory =
-        2 * m->c.unit_memory[0] + m->c.unit_memory[1] + m->c.unit_memory[2];
+    const double job_memory = 2 * m->c.unit_memory[0] + m->c.unit_memory[1] + m->c.unit_memory[2];
     if (job_memory > cap_memory)
         for (int g = 0; g < 3; g++)
             m->c.unit_memory[g] *= cap_memory / job_memory;

@@ -130,7 +130,5 @@ double bga_market_price(const bga_market_t *m, int good);
 int bga_market_used(const bga_market_t *m);
 /* Cores the resource seller has sold and not yet got back. */
 double bga_market_cores_used(const bga_market_t *m);
-/* Whether the resource role stands by (another daemon sells the host). */
-int bga_market_standby(const bga_market_t *m);
 
 #endif

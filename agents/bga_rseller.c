@@ -230,8 +230,7 @@ static void refusal_reason(const bga_rseller_t *rs, const bga_deal_t *d, double 
     /* Cores for a job's phase take only what it holds beyond the job's
      * widest phase here. */
     const double more =
-        k ? d->quantity
-          : bgm_resource_cores_added(rs->machine, d->group, d->serves, d->quantity);
+        k ? d->quantity : bgm_resource_cores_added(rs->machine, d->group, d->serves, d->quantity);
     if (d->state == RS_HELD)
         snprintf(out, n, "already sold %s for job %llu", k ? "memory" : "cores",
                  (unsigned long long)d->job);

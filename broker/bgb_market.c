@@ -419,8 +419,8 @@ static const agent_t *host_seller(const bgb_market_t *m, const uint8_t *idn, siz
 /* A resource role refused because its host has a seller: REGISTERED with
  * no id and the reason. It asks again at every heartbeat, so it takes the
  * host over once the first seller is dropped. */
-static bg_status send_standby(bgb_market_t *m, const uint8_t *idn, size_t len,
-                              const char *endpoint, const agent_t *first, bg_error_t *err)
+static bg_status send_standby(bgb_market_t *m, const uint8_t *idn, size_t len, const char *endpoint,
+                              const agent_t *first, bg_error_t *err)
 {
     agent_t tmp = {0};
     memcpy(tmp.identity, idn, len);
@@ -567,8 +567,8 @@ static void abandon_units(bgb_market_t *m, job_t *j)
 /* The cores the resource sub-jobs of job `parent` have at seller
  * `seller`, per service good they serve: bought (`held`), and bought or
  * being sold (`all`); the sub-job `skip` left out. */
-static void job_cores_at(const bgb_market_t *m, uint64_t parent, uint32_t seller,
-                         const job_t *skip, double held[3], double all[3])
+static void job_cores_at(const bgb_market_t *m, uint64_t parent, uint32_t seller, const job_t *skip,
+                         double held[3], double all[3])
 {
     for (int g = 0; g < 3; g++)
         held[g] = all[g] = 0.0;
@@ -924,8 +924,7 @@ static int has_room(void *ctx, const bgm_posting_t *p)
     room_ctx *r = ctx;
     agent_t *a = agent_by_id(r->m, p->seller);
     return a && a->info.alive && room_for(r->m, r->j, a, r->u) && on_host(r->j, a) &&
-           !tried(r->u, p->seller) &&
-           !need_has(r->j, r->u, p->seller);
+           !tried(r->u, p->seller) && !need_has(r->j, r->u, p->seller);
 }
 
 /* The sellers a unit must not get, as directory slots, for the market
@@ -1506,7 +1505,9 @@ static void central_clear(bgb_market_t *m, double now)
             const int room = alive_seller(a, g) ? bids_with_room(m, a, refs, nb) : 0;
             if (room == 0)
                 continue;
-            bgm_order_t o = {.ref = (uint64_t)ai, .owner = a->info.id, .quantity = room,
+            bgm_order_t o = {.ref = (uint64_t)ai,
+                             .owner = a->info.id,
+                             .quantity = room,
                              .price = a->info.price[g]};
             bgm_callmarket_ask(m->cm, &o);
         }
@@ -1550,8 +1551,8 @@ static int unbuyable(bgb_market_t *m, const job_t *j, const unit_t *u)
         const agent_t *a = &m->agents[i];
         if (alive_seller(a, u->good) && on_host(j, a) && !tried(u, a->info.id) &&
             !need_has(j, u, a->info.id) &&
-            (!j->resource || (room_for(m, j, a, u) && (j->mech != BGB_MECH_POSTED ||
-                                                 a->info.price[u->good] <= u->limit))))
+            (!j->resource || (room_for(m, j, a, u) &&
+                              (j->mech != BGB_MECH_POSTED || a->info.price[u->good] <= u->limit))))
             return 0;
     }
     return 1;

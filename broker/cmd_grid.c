@@ -503,8 +503,8 @@ static long spawn_agent(const char *self, const char *dir, const grid *g, const 
 {
     char slots[16];
     snprintf(slots, sizeof slots, "%d", a->spec.slots);
-    const char *args[20] = {"agent", "--listen", a->spec.listen, "--services", a->spec.services,
-                            "--slots", slots, "--name", a->spec.name};
+    const char *args[20] = {"agent",   "--listen", a->spec.listen, "--services", a->spec.services,
+                            "--slots", slots,      "--name",       a->spec.name};
     int n = 9;
     if (broker) {
         args[n++] = "--broker";

@@ -523,7 +523,6 @@ static void end_discovery(bgm_purchase_t *pu, req_t *q, double now)
     begin_nego(pu, q, now);
 }
 
-
 static void on_offer(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double now)
 {
     if (m->attempt != q->r.attempt || q->r.state != BGM_PU_NEGOTIATE || m->from != q->r.seller)

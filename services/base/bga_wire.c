@@ -212,12 +212,15 @@ static bga_wire_code check_market(const bga_msg_t *m, bga_wire_error_t *werr)
  * ranges are bga_mmsg's; the texts' and the neighbours' caps are its own
  * (it checks them on both sides), the wire only bounds them. */
 static const field_spec lm_fields[] = {
-    I64F("agent", 0, UINT32_MAX),  I64F("target", 0, UINT32_MAX), I64F("origin", 0, UINT32_MAX),
-    I64F("services", 0, 7),        I64F("resource", 0, 1),        I64F("slots", 0, 4096),
-    I64F("free_slots", 0, 4096),   I64F("good", -1, 4),           I64F("hops", 0, 16),
-    I64F("attempt", 0, 1000),      F64F("margin", 0.0, 1e15),     F64F("load_slope", 0.0, 1e15),
-    F64F("term", 0.0, 1e15),       F64F("quantity", 0.0, 1e15),   F64F("price", 0.0, 1e15),
-    I64F("parent", 0, (int64_t)1 << 53), I64F("serves", -1, 2)};
+    I64F("agent", 0, UINT32_MAX),  I64F("target", 0, UINT32_MAX),
+    I64F("origin", 0, UINT32_MAX), I64F("services", 0, 7),
+    I64F("resource", 0, 1),        I64F("slots", 0, 4096),
+    I64F("free_slots", 0, 4096),   I64F("good", -1, 4),
+    I64F("hops", 0, 16),           I64F("attempt", 0, 1000),
+    F64F("margin", 0.0, 1e15),     F64F("load_slope", 0.0, 1e15),
+    F64F("term", 0.0, 1e15),       F64F("quantity", 0.0, 1e15),
+    F64F("price", 0.0, 1e15),      I64F("parent", 0, (int64_t)1 << 53),
+    I64F("serves", -1, 2)};
 static const array_spec lm_arrays[] = {
     {"floor", BGA_ELEM_F64, 0, BGA_LIVE_GOODS, -1, -1, -1, 0, 1, NO_IDX},
     {"prices", BGA_ELEM_F64, 0, BGA_LIVE_GOODS, -1, -1, -1, 0, 1, NO_IDX},

@@ -713,9 +713,9 @@ static void test_resource_shares_cores_between_a_jobs_phases(void **state)
     for (int i = 0; i < 3; i++) {
         const double before = cores_used(rs);
         bgm_outbox_clear(ob);
-        assert_int_equal(bgm_resource_on_timer(rs, BGM_RS_TIMER_RELEASE, (uint64_t)releases[i][0],
-                                               2.0, 1, ob),
-                         BG_OK);
+        assert_int_equal(
+            bgm_resource_on_timer(rs, BGM_RS_TIMER_RELEASE, (uint64_t)releases[i][0], 2.0, 1, ob),
+            BG_OK);
         assert_true(fabs(before - cores_used(rs) - releases[i][1]) < 1e-12);
     }
     assert_true(fabs(cores_used(rs) - 2.0) < 1e-12); /* job 7's one core, job 8's one */

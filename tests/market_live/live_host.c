@@ -178,8 +178,8 @@ static void wait_agents(host_t *h, size_t n)
         if (roles[0] == n && roles[1] == 1)
             return;
     }
-    FAIL("%zu agents did not register with one resource seller within 30 s (%zu, %zu)", n,
-         roles[0], roles[1]);
+    FAIL("%zu agents did not register with one resource seller within 30 s (%zu, %zu)", n, roles[0],
+         roles[1]);
 }
 
 static const bgb_agent_info_t *find_agent(const bgb_agent_info_t *info, size_t n, uint32_t id)
