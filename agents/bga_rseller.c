@@ -384,12 +384,16 @@ bg_status bga_rseller_on_message(bga_rseller_t *rs, const bga_mmsg_t *in, double
     }
     d->quantity = in->quantity;
     d->term = in->term > 0 ? in->term : rs->c.lease;
-    if (d->state != RS_HELD && (d->parent != in->parent || (in->parent && !d->group))) {
-        d->parent = in->parent;
-        d->group = group_of(rs, d, in->parent);
-    }
-    if (d->state != RS_HELD)
+    /* A held deal (only a call for proposals gets here) keeps its job's
+     * number: the machine's hold is filed under it. A new deal's parent is
+     * 0, so a named job always gets its number. */
+    if (d->state != RS_HELD) {
+        if (d->parent != in->parent) {
+            d->parent = in->parent;
+            d->group = group_of(rs, d, in->parent);
+        }
         d->serves = in->serves;
+    }
     route_t r = {rs, in, d, in->price * in->quantity, 0, send, ctx};
     bgm_msg_t m;
     switch (in->type) {

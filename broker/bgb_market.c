@@ -290,13 +290,19 @@ static agent_t *agent_by_id(bgb_market_t *m, uint32_t id)
     return NULL;
 }
 
+/* Whether the agent's messages come from the socket with this routing
+ * identity. */
+static int same_identity(const agent_t *a, const uint8_t *idn, size_t len)
+{
+    return a->idlen == len && memcmp(a->identity, idn, len) == 0;
+}
+
 /* A daemon's two roles share its socket (identity); `resource` tells them apart. */
 static agent_t *agent_by_identity(bgb_market_t *m, const uint8_t *idn, size_t len, int resource)
 {
     for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
-        if (m->agents[i].used && m->agents[i].idlen == len &&
-            m->agents[i].info.resource == resource &&
-            memcmp(m->agents[i].identity, idn, len) == 0)
+        if (m->agents[i].used && m->agents[i].info.resource == resource &&
+            same_identity(&m->agents[i], idn, len))
             return &m->agents[i];
     return NULL;
 }
@@ -408,8 +414,7 @@ static const agent_t *host_seller(const bgb_market_t *m, const uint8_t *idn, siz
 {
     for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++) {
         const agent_t *b = &m->agents[i];
-        if (b->used && b->info.resource && b->info.alive &&
-            !(b->idlen == len && memcmp(b->identity, idn, len) == 0) &&
+        if (b->used && b->info.resource && b->info.alive && !same_identity(b, idn, len) &&
             same_host(b->info.endpoint, endpoint))
             return b;
     }

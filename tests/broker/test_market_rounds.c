@@ -206,10 +206,11 @@ static const bga_mmsg_t *last_to(const fake_t *f, int type, uint32_t to, int fro
 }
 
 /* Agent `who` (id `id`; its resource role when `resource`) answers about
- * `good` of job `job`; a resource seller says it has no core and 8 GiB
- * free left. */
-static void answer_from(bgb_market_t *m, uint8_t who, uint32_t id, int resource, uint64_t job,
-                        int type, int good, double quantity, double price, double now)
+ * `good` of job `job`; a resource seller says it has `free_cores` cores
+ * and 8 GiB free left. */
+static void answer_with(bgb_market_t *m, uint8_t who, uint32_t id, int resource, uint64_t job,
+                        int type, int good, double quantity, double price, double free_cores,
+                        double now)
 {
     bga_mmsg_t c;
     bga_mmsg_init(&c, type);
@@ -220,9 +221,18 @@ static void answer_from(bgb_market_t *m, uint8_t who, uint32_t id, int resource,
     c.quantity = quantity;
     c.price = price;
     c.floor[good] = price / 1.2;
-    if (resource)
+    if (resource) {
+        c.free_cores = free_cores;
         c.free_memory = 8;
+    }
     deliver_from(m, who, &c, now);
+}
+
+/* The same, a resource seller saying it has no core left. */
+static void answer_from(bgb_market_t *m, uint8_t who, uint32_t id, int resource, uint64_t job,
+                        int type, int good, double quantity, double price, double now)
+{
+    answer_with(m, who, id, resource, job, type, good, quantity, price, 0.0, now);
 }
 
 /* Rotation-fit seller `who` answers about its unit of job 1. */
@@ -545,23 +555,10 @@ static void confirm_orders(bgb_market_t *m, fake_t *f, uint32_t rid, int from, d
             *(f->sent[i].good == BGB_GOOD_CORES ? &oc : &om) = &f->sent[i];
     assert_non_null(oc);
     assert_non_null(om);
-    const bga_mmsg_t c = *oc, k = *om;
     for (int g = 0; g < 2; g++) {
-        const bga_mmsg_t *o = g ? &k : &c;
-        bga_mmsg_t a;
-        bga_mmsg_init(&a, BGA_MM_CONFIRM);
-        a.job = o->job;
-        a.agent = rid;
-        a.resource = 1;
-        a.good = o->good;
-        a.quantity = o->quantity;
-        a.price = o->price;
-        a.floor[o->good] = o->price;
-        a.cores = 2;
-        a.memory = 8;
-        a.free_cores = free_cores;
-        a.free_memory = 4;
-        deliver_from(m, 'r', &a, now);
+        const bga_mmsg_t o = g ? *om : *oc;
+        answer_with(m, 'r', rid, 1, o.job, BGA_MM_CONFIRM, o.good, o.quantity, o.price, free_cores,
+                    now);
     }
 }
 
