@@ -12,6 +12,7 @@
 #include "cmd_broker.h"
 #include "cmd_client.h"
 #include "cmd_grid.h"
+#include "cmd_mesh.h"
 #include "cmd_solve.h"
 #ifdef BIOTGRID_HAVE_MARKET
 #include "cmd_sim.h"
@@ -34,6 +35,8 @@ static const command_t COMMANDS[] = {
      bg_cmd_solve, bg_cmd_solve_usage},
     {"validate", "validate SCENE.json", "check a scene without solving it", bg_cmd_validate,
      bg_cmd_validate_usage},
+    {"mesh", "mesh info|convert|simplify ...", "look at, convert or simplify a mesh file",
+     bg_cmd_mesh, bg_cmd_mesh_usage},
 #ifdef BIOTGRID_HAVE_MARKET
     {"sim", "sim EXPERIMENT.json [options]", "run a market simulation experiment",
      bg_cmd_sim, bg_cmd_sim_usage},

@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "bg_file.h"
 
@@ -20,10 +21,36 @@ int bg_cmd_mesh_path_add(char *buf, size_t size, const char *folder)
     return 0;
 }
 
+int bg_cmd_mesh_folder(char *buf, size_t size)
+{
+    char exe[PATH_MAX];
+    const ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
+    if (n <= 0)
+        return -1;
+    exe[n] = '\0';
+    char *slash = strrchr(exe, '/');
+    if (!slash)
+        return -1;
+    *slash = '\0';
+    char folder[PATH_MAX + sizeof BG_CMD_MESH_FOLDER + 8], real[PATH_MAX];
+    if (snprintf(folder, sizeof folder, "%s/../" BG_CMD_MESH_FOLDER, exe) >= (int)sizeof folder)
+        return -1;
+    /* Messages name the folder as users would type it; a folder that does
+     * not exist (no meshes made) is kept as it is. */
+    const char *name = bg_file_canonical(folder, real, sizeof real) == 0 ? real : folder;
+    const int written = snprintf(buf, size, "%s", name);
+    return written > 0 && (size_t)written < size ? 0 : -1;
+}
+
 int bg_cmd_mesh_path_finish(char *buf, size_t size)
 {
     const char *env = getenv(BG_CMD_MESH_PATH_ENV);
-    return env ? bg_cmd_mesh_path_add(buf, size, env) : 0;
+    if (env && bg_cmd_mesh_path_add(buf, size, env) != 0)
+        return -1;
+    char folder[PATH_MAX + sizeof BG_CMD_MESH_FOLDER + 8];
+    /* No folder of its own (no /proc): the user's folders still serve. */
+    return bg_cmd_mesh_folder(folder, sizeof folder) == 0 ? bg_cmd_mesh_path_add(buf, size, folder)
+                                                          : 0;
 }
 
 int bg_cmd_make_directories(const char *path)

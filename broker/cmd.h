@@ -22,13 +22,26 @@
  * BIOTGRID_MESH_PATH (bg_cmd_mesh_path_finish).
  */
 int bg_cmd_mesh_path_add(char *buf, size_t size, const char *folder);
-/* Appends BIOTGRID_MESH_PATH to buf (if set); -1 when it would not fit. */
+/*
+ * Appends BIOTGRID_MESH_PATH (if set), then the command's own mesh folder
+ * (bg_cmd_mesh_folder), to buf; -1 when it would not fit.
+ */
 int bg_cmd_mesh_path_finish(char *buf, size_t size);
 
+/* The meshes the build makes (and `cmake --install` installs), relative to
+ * the folder above the executable's: build/share/... beside build/<dir>/biotgrid
+ * in a build tree, PREFIX/share/... beside PREFIX/bin/biotgrid once installed. */
+#define BG_CMD_MESH_FOLDER "share/biotgrid/meshes"
+
+/* The command's own mesh folder, "<executable's folder>/../share/biotgrid/meshes",
+ * into buf; -1 when the executable's path is unknown or does not fit. */
+int bg_cmd_mesh_folder(char *buf, size_t size);
+
 /* The hint printed under a "file not found" error of a scene. */
-#define BG_CMD_MESH_HINT                                                                       \
-    "  The public meshes the shipped scenes use are listed in README.md (\"Meshes\"). Put "    \
-    "them in a folder\n  and pass --mesh-path DIR or set " BG_CMD_MESH_PATH_ENV "=DIR.\n"
+#define BG_CMD_MESH_HINT                                                                           \
+    "  The shipped scenes' meshes are made by the build from Debian's libcgal-demo and\n"          \
+    "  tetgen into " BG_CMD_MESH_FOLDER " (see README.md, \"Meshes\"). For meshes of your\n"       \
+    "  own, pass --mesh-path DIR or set " BG_CMD_MESH_PATH_ENV "=DIR.\n"
 
 /* mkdir -p (bg_file_make_directories): creates path and its missing parents (mode
  * 0755); -1 on failure (errno set). */

@@ -76,9 +76,12 @@ bg_mesh_kind bg_mesh_kind_of(const bg_mesh_t *mesh)
 const char *bg_mesh_kind_name(bg_mesh_kind kind)
 {
     switch (kind) {
-    case BG_MESH_PLANAR: return "planar triangles";
-    case BG_MESH_VOLUME: return "tetrahedra";
-    case BG_MESH_SURFACE: return "surface triangles";
+    case BG_MESH_PLANAR:
+        return "planar triangles";
+    case BG_MESH_VOLUME:
+        return "tetrahedra";
+    case BG_MESH_SURFACE:
+        return "surface triangles";
     }
     return "unknown";
 }
@@ -95,7 +98,8 @@ double bg_mesh_element_measure(const bg_mesh_t *mesh, const double *x, int32_t e
             c[i] = x[(size_t)el[3] * d + i] - x[(size_t)el[0] * d + i];
     }
     switch (bg_mesh_kind_of(mesh)) {
-    case BG_MESH_PLANAR: return 0.5 * (a[0] * b[1] - a[1] * b[0]);
+    case BG_MESH_PLANAR:
+        return 0.5 * (a[0] * b[1] - a[1] * b[0]);
     case BG_MESH_VOLUME:
         return (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) +
                 a[2] * (b[0] * c[1] - b[1] * c[0])) /
@@ -151,9 +155,8 @@ bg_status bg_mesh_validate(bg_mesh_t *mesh, const char *source, int32_t *reorien
                                     (int)e + 1, (int)el[i] + 1, (int)mesh->nv);
             for (int j = 0; j < i; j++)
                 if (el[i] == el[j])
-                    return bg_error_set(err, BG_ERR_INVALID,
-                                        "%s: element %d repeats vertex %d", source, (int)e + 1,
-                                        (int)el[i] + 1);
+                    return bg_error_set(err, BG_ERR_INVALID, "%s: element %d repeats vertex %d",
+                                        source, (int)e + 1, (int)el[i] + 1);
         }
         double measure = bg_mesh_element_measure(mesh, mesh->x, e);
         double scale = pow(longest_edge(mesh, e), k - 1);
@@ -202,8 +205,8 @@ static bg_status check_cells(int n, const int32_t *cells, const double *size, bg
             return bg_error_set(err, BG_ERR_INVALID, "generator: cells[%d] = %d must be >= 1", i,
                                 (int)cells[i]);
         if (!(size[i] > 0.0) || !isfinite(size[i]))
-            return bg_error_set(err, BG_ERR_INVALID, "generator: size[%d] = %g must be positive",
-                                i, size[i]);
+            return bg_error_set(err, BG_ERR_INVALID, "generator: size[%d] = %g must be positive", i,
+                                size[i]);
         total *= (double)cells[i] + 1.0;
     }
     if (total > (double)BG_MESH_MAX_VERTICES)
@@ -212,8 +215,8 @@ static bg_status check_cells(int n, const int32_t *cells, const double *size, bg
     return BG_OK;
 }
 
-bg_status bg_mesh_generate_box(const int32_t cells[3], const double origin[3],
-                               const double size[3], bg_mesh_t **out, bg_error_t *err)
+bg_status bg_mesh_generate_box(const int32_t cells[3], const double origin[3], const double size[3],
+                               bg_mesh_t **out, bg_error_t *err)
 {
     *out = NULL;
     bg_status st = check_cells(3, cells, size, err);
@@ -300,6 +303,75 @@ bg_status bg_mesh_generate_rectangle(const int32_t cells[2], const double origin
                 memcpy(el, t, sizeof t);
             }
             el += 6;
+        }
+    *out = m;
+    return BG_OK;
+}
+
+/* Vertex j (taken modulo the ring's 6k vertices) of ring k; ring 0 is the centre. */
+static int32_t disk_vertex(int32_t k, int32_t j)
+{
+    if (k == 0)
+        return 0;
+    const int32_t count = 6 * k;
+    return 1 + 3 * k * (k - 1) + j % count;
+}
+
+bg_status bg_mesh_generate_disk(int32_t rings, const double center[3], double radius,
+                                bg_mesh_kind kind, bg_mesh_t **out, bg_error_t *err)
+{
+    *out = NULL;
+    if (kind != BG_MESH_PLANAR && kind != BG_MESH_SURFACE)
+        return bg_error_set(err, BG_ERR_INVALID, "generator: a disk is planar or a surface");
+    if (rings < 1)
+        return bg_error_set(err, BG_ERR_INVALID, "generator: rings = %d must be >= 1", (int)rings);
+    if (!(radius > 0.0) || !isfinite(radius))
+        return bg_error_set(err, BG_ERR_INVALID, "generator: radius = %g must be positive", radius);
+    const int dim = kind == BG_MESH_PLANAR ? 2 : 3;
+    for (int c = 0; c < dim; c++)
+        if (!isfinite(center[c]))
+            return bg_error_set(err, BG_ERR_INVALID, "generator: center[%d] is not finite", c);
+    const double vertices = 1.0 + 3.0 * rings * ((double)rings + 1.0),
+                 triangles = 6.0 * (double)rings * rings;
+    if (vertices > (double)BG_MESH_MAX_VERTICES || triangles > (double)BG_MESH_MAX_ELEMENTS)
+        return bg_error_set(err, BG_ERR_LIMIT, "generator: a disk of %d rings is too large",
+                            (int)rings);
+    bg_mesh_t *m = NULL;
+    bg_status st = bg_mesh_new(kind, (int32_t)vertices, (int32_t)triangles, &m, err);
+    if (st != BG_OK)
+        return st;
+    const double two_pi = 6.283185307179586476925;
+    for (int32_t k = 0; k <= rings; k++) {
+        const int32_t count = k ? 6 * k : 1;
+        const double r = radius * k / rings;
+        for (int32_t j = 0; j < count; j++) {
+            const double angle = two_pi * j / count;
+            double *p = m->x + (size_t)dim * disk_vertex(k, j);
+            p[0] = center[0] + r * cos(angle);
+            p[1] = center[1] + r * sin(angle);
+            if (dim == 3)
+                p[2] = center[2];
+        }
+    }
+    /* Between rings k−1 and k each of the six sectors holds k triangles with
+     * an edge on ring k and k − 1 with an edge on ring k − 1 (2k − 1 in all),
+     * every one counter-clockwise as angles grow counter-clockwise. */
+    int32_t *el = m->elements;
+    for (int32_t k = 1; k <= rings; k++)
+        for (int32_t s = 0; s < 6; s++) {
+            const int32_t in0 = s * (k - 1), out0 = s * k;
+            for (int32_t j = 0; j < k; j++) {
+                el[0] = disk_vertex(k - 1, in0 + j);
+                el[1] = disk_vertex(k, out0 + j);
+                el[2] = disk_vertex(k, out0 + j + 1);
+                el += 3;
+            }
+            for (int32_t i = 0; i + 1 < k; i++) {
+                el[0] = disk_vertex(k - 1, in0 + i);
+                el[1] = disk_vertex(k, out0 + i + 1);
+                el[2] = disk_vertex(k - 1, in0 + i + 1);
+                el += 3;
+            }
         }
     *out = m;
     return BG_OK;

@@ -84,8 +84,8 @@ void bg_mesh_bounds(const bg_mesh_t *mesh, double *lo, double *hi);
  * positively oriented tetrahedra (Kuhn subdivision, conforming across
  * cells): (nx+1)(ny+1)(nz+1) vertices, 6*nx*ny*nz tetrahedra.
  */
-bg_status bg_mesh_generate_box(const int32_t cells[3], const double origin[3],
-                               const double size[3], bg_mesh_t **out, bg_error_t *err);
+bg_status bg_mesh_generate_box(const int32_t cells[3], const double origin[3], const double size[3],
+                               bg_mesh_t **out, bg_error_t *err);
 
 /*
  * A rectangle [origin, origin + size] of nx*ny cells, each split into two
@@ -93,5 +93,16 @@ bg_status bg_mesh_generate_box(const int32_t cells[3], const double origin[3],
  */
 bg_status bg_mesh_generate_rectangle(const int32_t cells[2], const double origin[2],
                                      const double size[2], bg_mesh_t **out, bg_error_t *err);
+
+/*
+ * A disk of the given radius around center, in rings concentric rings: the
+ * centre vertex and 6k vertices on ring k (k = 1..rings, radius k/rings of
+ * the whole), 1 + 3 rings (rings + 1) vertices and 6 rings² counter-clockwise
+ * triangles of nearly equal size. kind is BG_MESH_PLANAR (2 coordinates,
+ * center[0..1] read) or BG_MESH_SURFACE (a flat triangle surface in the
+ * plane z = center[2], what parameterization and surface editing read).
+ */
+bg_status bg_mesh_generate_disk(int32_t rings, const double center[3], double radius,
+                                bg_mesh_kind kind, bg_mesh_t **out, bg_error_t *err);
 
 #endif

@@ -47,8 +47,8 @@ static const char AXIS_NAMES[] = "xyz";
 #define DEFAULT_MORPH_FRAMES 11
 
 typedef struct parser {
-    const char *file; /* the scene as named in messages */
-    char *dir;        /* base for relative paths: "" (cwd) or "dir/" */
+    const char *file;        /* the scene as named in messages */
+    char *dir;               /* base for relative paths: "" (cwd) or "dir/" */
     const char *search_path; /* ':'-separated folders for files not found beside the scene */
     int64_t max_vertices, max_elements; /* mesh size caps */
     int confined;                       /* files only inside the scene's folder */
@@ -56,10 +56,10 @@ typedef struct parser {
     bg_scene_t *scene;
     int dim;
     double lo[3], hi[3];
-    double extent;  /* largest side of the bounding box */
-    int32_t *owner; /* nv*dim: index of the handle prescribing a coordinate, or -1 */
-    uint8_t *flag;  /* nv: scratch marks for selections */
-    const char *morph_target; /* task.target, read once the mesh is known */
+    double extent;             /* largest side of the bounding box */
+    int32_t *owner;            /* nv*dim: index of the handle prescribing a coordinate, or -1 */
+    uint8_t *flag;             /* nv: scratch marks for selections */
+    const cJSON *morph_target; /* task.target, read once the mesh is known */
 } parser_t;
 
 /* A handle's selected vertices in increasing order, with the coordinates
@@ -184,7 +184,7 @@ static char *directory_of(const char *path)
  * A path inside the scene: absolute as given, else relative to the scene's
  * directory. A relative file that is not there is looked up by its file
  * name in each folder of the search path, in order, so that scenes written
- * for one layout of the data (configs/scenes -> ../../../shared/data/meshes)
+ * for one layout of the data (a bare "bunny.mesh" in configs/scenes)
  * run wherever a user keeps the public meshes. Not found anywhere:
  * BG_ERR_NOT_FOUND naming the path tried and the folders searched.
  */
@@ -206,8 +206,8 @@ static bg_status resolve_path(parser_t *p, const char *field, const char *relati
     char *tried = NULL;
     const char *why = "";
     const char *folders = p->search_path ? p->search_path : "";
-    const bg_status st = bg_file_lookup(p->dir, relative, folders, BG_FILE_TRUST_ABSOLUTE, out,
-                                        &tried, &why);
+    const bg_status st =
+        bg_file_lookup(p->dir, relative, folders, BG_FILE_TRUST_ABSOLUTE, out, &tried, &why);
     if (st == BG_ERR_NOMEM)
         return fail(p, BG_ERR_NOMEM, field, "out of memory");
     if (st != BG_OK) {
@@ -264,9 +264,12 @@ static bg_status finish_mesh(parser_t *p, bg_mesh_t *mesh)
     if (bg_mesh_validate(mesh, s->mesh_source, &s->reoriented, &inner) != BG_OK)
         return relay(p, "mesh", &inner);
     const int surface_task = s->task == BG_TASK_PARAMETERIZE || s->task == BG_TASK_SURFACE_EDIT;
-    if ((bg_mesh_kind_of(mesh) == BG_MESH_SURFACE) != surface_task && s->task == BG_TASK_SURFACE_EDIT)
-        return fail(p, BG_ERR_INVALID, "mesh", "%s holds %s; a surface-edit task needs a triangle "
-                    "surface in 3D", s->mesh_source, bg_mesh_kind_name(bg_mesh_kind_of(mesh)));
+    if ((bg_mesh_kind_of(mesh) == BG_MESH_SURFACE) != surface_task &&
+        s->task == BG_TASK_SURFACE_EDIT)
+        return fail(p, BG_ERR_INVALID, "mesh",
+                    "%s holds %s; a surface-edit task needs a triangle "
+                    "surface in 3D",
+                    s->mesh_source, bg_mesh_kind_name(bg_mesh_kind_of(mesh)));
     if (bg_mesh_kind_of(mesh) == BG_MESH_SURFACE && !surface_task)
         return fail(p, BG_ERR_INVALID, "mesh",
                     "%s is a triangle surface; static elasticity needs tetrahedra or planar "
@@ -319,15 +322,83 @@ out:
     return st;
 }
 
-static bg_status generate_mesh(parser_t *p, const cJSON *spec)
+/* Caps the generated mesh before the generator allocates: a few bytes of
+ * JSON can ask for billions of elements. */
+static bg_status check_generated_size(parser_t *p, const char *field, double vertices,
+                                      double elements)
 {
-    static const char *const keys[] = {"generate", "cells", "size", "origin", NULL};
+    if (vertices > (double)p->max_vertices || elements > (double)p->max_elements)
+        return fail(p, BG_ERR_LIMIT, field,
+                    "the generated mesh would have %.0f vertices and %.0f elements, over the "
+                    "limits of %lld vertices and %lld elements",
+                    vertices, elements, (long long)p->max_vertices, (long long)p->max_elements);
+    return BG_OK;
+}
+
+/* {"generate": "disk", "rings": R, "radius": r, "center": [...], "planar": b}:
+ * a flat triangle surface in z = center[2] (what parameterization and surface
+ * editing read), or planar triangles when "planar" is true. */
+static bg_status generate_disk(parser_t *p, const cJSON *spec)
+{
+    static const char *const keys[] = {"generate", "rings", "radius", "center", "planar", NULL};
     bg_scene_t *s = p->scene;
     bg_status st = check_keys(p, spec, "mesh", keys);
     if (st != BG_OK)
         return st;
+    int planar = 0;
+    if (member(spec, "planar") &&
+        (st = read_bool(p, member(spec, "planar"), "mesh.planar", &planar)) != BG_OK)
+        return st;
+    int64_t rings = 0;
+    if (!member(spec, "rings"))
+        return fail(p, BG_ERR_INVALID, "mesh.rings", "missing (required by the disk generator)");
+    st = read_integer(p, member(spec, "rings"), "mesh.rings", 1.0, (double)BG_MESH_MAX_VERTICES,
+                      &rings);
+    if (st != BG_OK)
+        return st;
+    double radius = 0.0, center[3] = {0, 0, 0};
+    if (!member(spec, "radius"))
+        return fail(p, BG_ERR_INVALID, "mesh.radius", "missing (required by the disk generator)");
+    st = read_number(p, member(spec, "radius"), "mesh.radius", &radius);
+    if (st != BG_OK)
+        return st;
+    if (!(radius > 0.0))
+        return fail(p, BG_ERR_INVALID, "mesh.radius", "radius = %g must be positive", radius);
+    if (member(spec, "center")) {
+        st = read_vector(p, member(spec, "center"), "mesh.center", planar ? 2 : 3, center);
+        if (st != BG_OK)
+            return st;
+    }
+    const double r = (double)rings;
+    st = check_generated_size(p, "mesh.rings", 1.0 + 3.0 * r * (r + 1.0), 6.0 * r * r);
+    if (st != BG_OK)
+        return st;
+    char source[FIELD_MAX];
+    snprintf(source, sizeof source, "generated disk of %d rings", (int)rings);
+    s->mesh_source = copy_string(source);
+    if (!s->mesh_source)
+        return fail(p, BG_ERR_NOMEM, "mesh", "out of memory");
+    s->mesh_format = BG_FORMAT_OBJ;
+    bg_error_t inner = BG_ERROR_INIT;
+    bg_mesh_t *mesh = NULL;
+    st = bg_mesh_generate_disk((int32_t)rings, center, radius,
+                               planar ? BG_MESH_PLANAR : BG_MESH_SURFACE, &mesh, &inner);
+    if (st != BG_OK)
+        return relay(p, "mesh", &inner);
+    return finish_mesh(p, mesh);
+}
+
+static bg_status generate_mesh(parser_t *p, const cJSON *spec)
+{
+    static const char *const keys[] = {"generate", "cells", "size", "origin", NULL};
+    bg_scene_t *s = p->scene;
     const char *kind = NULL;
-    st = read_string(p, member(spec, "generate"), "mesh.generate", &kind);
+    bg_status st = read_string(p, member(spec, "generate"), "mesh.generate", &kind);
+    if (st != BG_OK)
+        return st;
+    if (strcmp(kind, "disk") == 0)
+        return generate_disk(p, spec);
+    st = check_keys(p, spec, "mesh", keys);
     if (st != BG_OK)
         return st;
     int n = 0;
@@ -337,7 +408,7 @@ static bg_status generate_mesh(parser_t *p, const cJSON *spec)
         n = 2;
     else
         return fail(p, BG_ERR_INVALID, "mesh.generate",
-                    "unknown generator '%s' (expected box or rectangle)", kind);
+                    "unknown generator '%s' (expected box, rectangle or disk)", kind);
     const cJSON *cells_item = member(spec, "cells");
     if (!cJSON_IsArray(cells_item) || cJSON_GetArraySize(cells_item) != n)
         return fail(p, BG_ERR_INVALID, "mesh.cells", "expected an array of %d integers", n);
@@ -367,17 +438,13 @@ static bg_status generate_mesh(parser_t *p, const cJSON *spec)
         if (st != BG_OK)
             return st;
     }
-    /* Checked before the generator allocates: a few bytes of JSON can ask
-     * for billions of elements. */
     const double vertices = n == 3 ? ((double)cells[0] + 1) * (cells[1] + 1) * (cells[2] + 1)
                                    : ((double)cells[0] + 1) * (cells[1] + 1),
-                 elements = n == 3 ? 6.0 * cells[0] * cells[1] * cells[2]
-                                   : 2.0 * cells[0] * cells[1];
-    if (vertices > (double)p->max_vertices || elements > (double)p->max_elements)
-        return fail(p, BG_ERR_LIMIT, "mesh.cells",
-                    "the generated mesh would have %.0f vertices and %.0f elements, over the "
-                    "limits of %lld vertices and %lld elements",
-                    vertices, elements, (long long)p->max_vertices, (long long)p->max_elements);
+                 elements =
+                     n == 3 ? 6.0 * cells[0] * cells[1] * cells[2] : 2.0 * cells[0] * cells[1];
+    st = check_generated_size(p, "mesh.cells", vertices, elements);
+    if (st != BG_OK)
+        return st;
     char source[FIELD_MAX];
     if (n == 3)
         snprintf(source, sizeof source, "generated box %dx%dx%d", (int)cells[0], (int)cells[1],
@@ -1113,8 +1180,7 @@ static bg_status parse_handle(parser_t *p, const cJSON *spec, int index, const c
     for (int32_t i = 0; i < sel.count; i++)
         for (int c = 0; c < d; c++)
             motion->mean_displacement[c] +=
-                (goal[(size_t)i * d + c] - s->mesh->x[(size_t)sel.vertices[i] * d + c]) /
-                sel.count;
+                (goal[(size_t)i * d + c] - s->mesh->x[(size_t)sel.vertices[i] * d + c]) / sel.count;
     const double agree = AGREE_TOLERANCE * p->extent;
     for (int32_t i = 0; i < sel.count; i++) {
         int32_t v = sel.vertices[i];
@@ -1242,6 +1308,78 @@ static bg_status read_positions_file(parser_t *p, const char *field, const char 
     return st;
 }
 
+/*
+ * task.target = {"twist": {"axis": k, "degrees": d, "center": c}}: the rest
+ * shape twisted about the line through c (default: the centre of the mesh's
+ * bounding box) along k, each vertex turned by an angle growing linearly
+ * with its coordinate along k, from 0 at the mesh's lowest to d at its
+ * highest. The morph's far pose without a positions file. 3D meshes only.
+ */
+static bg_status twist_target(parser_t *p, const cJSON *spec, double *out)
+{
+    static const char *const keys[] = {"twist", NULL};
+    static const char *const twist_keys[] = {"axis", "degrees", "center", NULL};
+    const bg_mesh_t *mesh = p->scene->mesh;
+    bg_status st = check_keys(p, spec, "task.target", keys);
+    const cJSON *twist = member(spec, "twist");
+    if (st == BG_OK && !twist)
+        st =
+            fail(p, BG_ERR_INVALID, "task.target", "expected a positions file or {\"twist\": ...}");
+    if (st == BG_OK)
+        st = expect_object(p, twist, "task.target.twist");
+    if (st == BG_OK)
+        st = check_keys(p, twist, "task.target.twist", twist_keys);
+    if (st != BG_OK)
+        return st;
+    if (p->dim != 3)
+        return fail(p, BG_ERR_INVALID, "task.target.twist", "a twist needs a 3D mesh");
+    double k[3] = {0, 0, 0}, center[3], degrees = 0.0;
+    if (!member(twist, "axis") || !member(twist, "degrees"))
+        return fail(p, BG_ERR_INVALID, "task.target.twist", "needs 'axis' and 'degrees'");
+    st = read_vector(p, member(twist, "axis"), "task.target.twist.axis", 3, k);
+    if (st == BG_OK)
+        st = read_number(p, member(twist, "degrees"), "task.target.twist.degrees", &degrees);
+    if (st != BG_OK)
+        return st;
+    const double norm = sqrt(k[0] * k[0] + k[1] * k[1] + k[2] * k[2]);
+    if (!(norm > 0.0) || !isfinite(norm))
+        return fail(p, BG_ERR_INVALID, "task.target.twist.axis",
+                    "the axis must be a nonzero vector");
+    for (int c = 0; c < 3; c++) {
+        k[c] /= norm;
+        center[c] = 0.5 * (p->lo[c] + p->hi[c]);
+    }
+    if (member(twist, "center")) {
+        st = read_vector(p, member(twist, "center"), "task.target.twist.center", 3, center);
+        if (st != BG_OK)
+            return st;
+    }
+    double lo = INFINITY, hi = -INFINITY;
+    for (int32_t v = 0; v < mesh->nv; v++) {
+        const double *x = mesh->x + 3 * (size_t)v;
+        const double along = k[0] * x[0] + k[1] * x[1] + k[2] * x[2];
+        lo = fmin(lo, along);
+        hi = fmax(hi, along);
+    }
+    if (!(hi > lo))
+        return fail(p, BG_ERR_INVALID, "task.target.twist.axis",
+                    "the mesh has no length along the axis");
+    const double full = degrees * PI_VALUE / (FULL_TURN_DEGREES / 2);
+    for (int32_t v = 0; v < mesh->nv; v++) {
+        const double *x = mesh->x + 3 * (size_t)v;
+        double d[3] = {x[0] - center[0], x[1] - center[1], x[2] - center[2]};
+        const double along = k[0] * x[0] + k[1] * x[1] + k[2] * x[2];
+        const double angle = full * (along - lo) / (hi - lo);
+        const double c = cos(angle), s = sin(angle), kd = k[0] * d[0] + k[1] * d[1] + k[2] * d[2];
+        const double kxd[3] = {k[1] * d[2] - k[2] * d[1], k[2] * d[0] - k[0] * d[2],
+                               k[0] * d[1] - k[1] * d[0]};
+        /* Rodrigues: R d = c d + s (k × d) + (1 − c)(k·d) k. */
+        for (int r = 0; r < 3; r++)
+            out[3 * (size_t)v + r] = center[r] + c * d[r] + s * kxd[r] + (1.0 - c) * kd * k[r];
+    }
+    return BG_OK;
+}
+
 static bg_status read_all_positions(parser_t *p, const cJSON *item, const char *field, double *out)
 {
     const char *relative = NULL;
@@ -1261,8 +1399,8 @@ static bg_status parse_initial(parser_t *p, const cJSON *item)
     int moving = 0;
     for (int32_t h = 0; h < s->handle_count; h++)
         moving |= s->motions[h].kind != BG_MOTION_FIXED;
-    const int interpolate =
-        (!item && moving && s->task == BG_TASK_STATIC) || (cJSON_IsString(item) && strcmp(item->valuestring, "interpolate") == 0);
+    const int interpolate = (!item && moving && s->task == BG_TASK_STATIC) ||
+                            (cJSON_IsString(item) && strcmp(item->valuestring, "interpolate") == 0);
     if (interpolate) {
         /* The harmonic guess is a solve: bg_scene_prepare computes it. */
         s->initial_kind = BG_INITIAL_INTERPOLATE;
@@ -1344,9 +1482,9 @@ static bg_status parse_initial(parser_t *p, const cJSON *item)
 
 static bg_status parse_task(parser_t *p, const cJSON *item)
 {
-    static const char *const keys[] = {"kind",   "dt",     "steps", "output_every",
-                                       "damping", "energy_limit", "target", "frames",
-                                       "alpha",  "beta",   "barrier", NULL};
+    static const char *const keys[] = {"kind",    "dt",           "steps",   "output_every",
+                                       "damping", "energy_limit", "target",  "frames",
+                                       "alpha",   "beta",         "barrier", NULL};
     bg_scene_t *s = p->scene;
     s->task = BG_TASK_STATIC;
     if (!item)
@@ -1384,8 +1522,7 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
             if (st != BG_OK)
                 return st;
             if (!(s->barrier >= 0.0))
-                return fail(p, BG_ERR_INVALID, "task.barrier", "must be >= 0, got %g",
-                            s->barrier);
+                return fail(p, BG_ERR_INVALID, "task.barrier", "must be >= 0, got %g", s->barrier);
         }
         if (member(item, "alpha"))
             st = read_number(p, member(item, "alpha"), "task.alpha", &s->alpha);
@@ -1394,8 +1531,8 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
         if (st != BG_OK)
             return st;
         if (!(s->alpha >= 0.0) || !(s->beta > 0.0))
-            return fail(p, BG_ERR_INVALID, "task",
-                        "alpha = %g must be >= 0 and beta = %g positive", s->alpha, s->beta);
+            return fail(p, BG_ERR_INVALID, "task", "alpha = %g must be >= 0 and beta = %g positive",
+                        s->alpha, s->beta);
         return BG_OK;
     }
     if (strcmp(kind, "morph") == 0) {
@@ -1404,11 +1541,14 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
         if (st != BG_OK)
             return st;
         s->task = BG_TASK_MORPH;
-        if (!member(item, "target"))
-            return fail(p, BG_ERR_INVALID, "task.target", "missing (a positions file)");
-        st = read_string(p, member(item, "target"), "task.target", &p->morph_target);
-        if (st != BG_OK)
-            return st;
+        p->morph_target = member(item, "target");
+        if (!p->morph_target)
+            return fail(p, BG_ERR_INVALID, "task.target",
+                        "missing (a positions file or {\"twist\": ...})");
+        if (!cJSON_IsString(p->morph_target) && !cJSON_IsObject(p->morph_target))
+            return fail(p, BG_ERR_INVALID, "task.target",
+                        "expected a positions file or {\"twist\": ...}, got %s",
+                        json_type_name(p->morph_target));
         int64_t frames = DEFAULT_MORPH_FRAMES;
         if (member(item, "frames")) {
             st = read_integer(p, member(item, "frames"), "task.frames", 2.0, (double)MAX_STEPS,
@@ -1424,9 +1564,8 @@ static bg_status parse_task(parser_t *p, const cJSON *item)
                     "task kind '%s' is not supported (supported: static, dynamic, morph, "
                     "parameterize, surface-edit)",
                     kind);
-    static const char *const dynamic_keys[] = {"kind",    "dt",           "steps",
-                                               "output_every", "damping", "energy_limit",
-                                               NULL};
+    static const char *const dynamic_keys[] = {"kind",    "dt",           "steps", "output_every",
+                                               "damping", "energy_limit", NULL};
     st = check_keys(p, item, "task", dynamic_keys);
     if (st != BG_OK)
         return st;
@@ -1530,7 +1669,7 @@ static bg_status parse_solver(parser_t *p, const cJSON *item)
                                        NULL};
     bg_scene_t *s = p->scene;
     const int dynamic = s->task == BG_TASK_DYNAMIC;
-    s->method = dynamic                               ? BG_METHOD_VARIATIONAL
+    s->method = dynamic                           ? BG_METHOD_VARIATIONAL
                 : s->task == BG_TASK_SURFACE_EDIT ? BG_METHOD_LOCAL_GLOBAL
                                                   : BG_METHOD_NEWTON;
     s->tolerance = BG_SCENE_DEFAULT_TOLERANCE;
@@ -1551,15 +1690,13 @@ static bg_status parse_solver(parser_t *p, const cJSON *item)
         if (bg_method_parse(name, &s->method, &inner) != BG_OK)
             return relay(p, "solver.method", &inner);
         if (bg_method_is_dynamic(s->method) != dynamic)
-            return fail(p, BG_ERR_INVALID, "solver.method",
-                        "'%s' does not fit a %s task (use %s)", name,
-                        dynamic ? "dynamic" : "static",
+            return fail(p, BG_ERR_INVALID, "solver.method", "'%s' does not fit a %s task (use %s)",
+                        name, dynamic ? "dynamic" : "static",
                         dynamic ? "variational or backward-euler" : "newton or local-global");
     }
     if (member(item, "continuation")) {
         int on = 1;
-        if ((st = read_bool(p, member(item, "continuation"), "solver.continuation", &on)) !=
-            BG_OK)
+        if ((st = read_bool(p, member(item, "continuation"), "solver.continuation", &on)) != BG_OK)
             return st;
         s->continuation_off = !on;
     }
@@ -1747,8 +1884,8 @@ static bg_status parse_reference(parser_t *p, const cJSON *item)
 
 static bg_status parse_root(parser_t *p, const cJSON *root)
 {
-    static const char *const keys[] = {"name",    "description", "mesh",    "material",
-                                       "gravity", "handles",     "initial", "task",
+    static const char *const keys[] = {"name",    "description", "mesh",     "material",
+                                       "gravity", "handles",     "initial",  "task",
                                        "solver",  "reference",   "velocity", NULL};
     bg_scene_t *s = p->scene;
     if (!cJSON_IsObject(root))
@@ -1792,7 +1929,7 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
     if (s->task == BG_TASK_PARAMETERIZE) {
         /* The material comes from alpha and beta, the rigid modes are
          * removed by the setup, the start is a Tutte embedding. */
-        static const char *const unused[] = {"material", "gravity", "handles", "initial",
+        static const char *const unused[] = {"material",  "gravity",  "handles", "initial",
                                              "reference", "velocity", NULL};
         for (int i = 0; unused[i]; i++)
             if (member(root, unused[i]))
@@ -1825,7 +1962,10 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
         s->morph_target = malloc((n + 1) * sizeof *s->morph_target);
         if (!s->morph_target)
             return fail(p, BG_ERR_NOMEM, "task.target", "out of memory");
-        st = read_positions_file(p, "task.target", p->morph_target, s->morph_target);
+        st = cJSON_IsString(p->morph_target)
+                 ? read_positions_file(p, "task.target", p->morph_target->valuestring,
+                                       s->morph_target)
+                 : twist_target(p, p->morph_target, s->morph_target);
     }
     if (st == BG_OK)
         st = parse_velocity(p, member(root, "velocity"));
@@ -1837,21 +1977,18 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
 }
 
 bg_status bg_scene_parse_with(const char *json, size_t length, const char *path,
-                              const bg_scene_options_t *options, bg_scene_t **out,
-                              bg_error_t *err)
+                              const bg_scene_options_t *options, bg_scene_t **out, bg_error_t *err)
 {
     *out = NULL;
     parser_t p = {0};
-    p.file = options && options->display_name ? options->display_name
-             : path                            ? path
-                                               : MEMORY_NAME;
+    p.file = options && options->display_name ? options->display_name : path ? path : MEMORY_NAME;
     p.err = err;
     p.confined = options && options->confined;
     p.search_path = options && !p.confined ? options->search_path : NULL;
-    p.max_vertices = options && options->max_vertices > 0 ? options->max_vertices
-                                                           : BG_MESH_MAX_VERTICES;
-    p.max_elements = options && options->max_elements > 0 ? options->max_elements
-                                                           : BG_MESH_MAX_ELEMENTS;
+    p.max_vertices =
+        options && options->max_vertices > 0 ? options->max_vertices : BG_MESH_MAX_VERTICES;
+    p.max_elements =
+        options && options->max_elements > 0 ? options->max_elements : BG_MESH_MAX_ELEMENTS;
     cJSON *root = NULL;
     bg_status st = BG_OK;
     if (length > BG_SCENE_MAX_BYTES)
@@ -1914,8 +2051,8 @@ bg_status bg_scene_parse(const char *json, size_t length, const char *path, bg_s
     return st;
 }
 
-bg_status bg_scene_load_with(const char *path, const bg_scene_options_t *options,
-                             bg_scene_t **out, bg_error_t *err)
+bg_status bg_scene_load_with(const char *path, const bg_scene_options_t *options, bg_scene_t **out,
+                             bg_error_t *err)
 {
     *out = NULL;
     char *text = NULL;

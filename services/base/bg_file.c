@@ -1,3 +1,6 @@
+/* realpath is XSI: ask for it here rather than widen the whole build. */
+#define _XOPEN_SOURCE 700
+
 #include "bg_file.h"
 
 #include <errno.h>
@@ -140,8 +143,8 @@ static int lookup_hit(const char *path, unsigned flags, int *why)
     return *why == 0;
 }
 
-bg_status bg_file_lookup(const char *dir, const char *name, const char *search_path,
-                         unsigned flags, char **found, char **tried, const char **why)
+bg_status bg_file_lookup(const char *dir, const char *name, const char *search_path, unsigned flags,
+                         char **found, char **tried, const char **why)
 {
     *found = NULL;
     *tried = NULL;
@@ -190,4 +193,18 @@ bg_status bg_file_lookup(const char *dir, const char *name, const char *search_p
            : why_beside == LOOKUP_NOT_REGULAR ? "not a regular file"
                                               : strerror(why_beside ? why_beside : ENOENT);
     return BG_ERR_NOT_FOUND;
+}
+
+int bg_file_canonical(const char *path, char *out, size_t size)
+{
+    char real[PATH_BYTES];
+    if (!path || !realpath(path, real))
+        return -1;
+    const size_t n = strlen(real);
+    if (n + 1 > size) {
+        errno = ENAMETOOLONG;
+        return -1;
+    }
+    memcpy(out, real, n + 1);
+    return 0;
 }

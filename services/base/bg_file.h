@@ -26,6 +26,14 @@ int bg_file_make_directories(const char *path);
 bg_status bg_file_read_all(const char *path, size_t max_bytes, char **text, size_t *length,
                            bg_error_t *err);
 
+/*
+ * The canonical absolute path of an existing file or folder (symbolic
+ * links, "." and ".." resolved: ./x, x and /abs/x name one place) into
+ * out[size]. Returns 0, or −1 with errno set (ENOENT when path does not
+ * exist, ENAMETOOLONG when the result does not fit).
+ */
+int bg_file_canonical(const char *path, char *out, size_t size);
+
 /* bg_file_lookup flags. */
 #define BG_FILE_REGULAR 1u        /* found = a regular file (else anything but a directory) */
 #define BG_FILE_TRUST_ABSOLUTE 2u /* an absolute name is found as given, unchecked */
@@ -44,7 +52,7 @@ bg_status bg_file_read_all(const char *path, size_t max_bytes, char **text, size
  * regular file"; valid until the next strerror), for the caller's message
  * (it names the field). BG_ERR_NOMEM: *found and *tried NULL.
  */
-bg_status bg_file_lookup(const char *dir, const char *name, const char *search_path,
-                         unsigned flags, char **found, char **tried, const char **why);
+bg_status bg_file_lookup(const char *dir, const char *name, const char *search_path, unsigned flags,
+                         char **found, char **tried, const char **why);
 
 #endif

@@ -125,8 +125,7 @@ static int compare(const bg_scene_t *scene, const bg_solve_result_t *a, const bg
     }
     for (int s = 0; s < a->step_count && s < b->step_count; s++)
         if (a->steps[s].iterations != b->steps[s].iterations ||
-            rel_differs(a->steps[s].total_energy, b->steps[s].total_energy, ENERGY_TOL,
-                        scale)) {
+            rel_differs(a->steps[s].total_energy, b->steps[s].total_energy, ENERGY_TOL, scale)) {
             printf("    MISMATCH: step/frame %d: %d vs %d iterations, energy %.17g vs %.17g\n", s,
                    a->steps[s].iterations, b->steps[s].iterations, a->steps[s].total_energy,
                    b->steps[s].total_energy);
@@ -230,7 +229,9 @@ int main(int argc, char **argv)
         return 1;
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *scene = NULL;
-    if (bg_scene_load(argv[2], &scene, &err) != BG_OK) {
+    const bg_scene_options_t options = {.search_path = BG_MESH_DIR};
+    if (bg_scene_load_with(argv[2], &options, &scene, &err) != BG_OK ||
+        bg_scene_prepare(scene, &err) != BG_OK) {
         fprintf(stderr, "agent_solve: %s\n", err.message);
         return 1;
     }
@@ -261,8 +262,8 @@ int main(int argc, char **argv)
         } else {
             bad += compare(scene, &local, &r, n);
             bad += check_split("agents'", &r);
-            bad += check_integ(remote, scene->task == BG_TASK_DYNAMIC, r.step_count,
-                               r.limited_steps);
+            bad +=
+                check_integ(remote, scene->task == BG_TASK_DYNAMIC, r.step_count, r.limited_steps);
             if (r.limited_steps != local.limited_steps) {
                 printf("    MISMATCH: %d limited steps vs %d in process\n", r.limited_steps,
                        local.limited_steps);

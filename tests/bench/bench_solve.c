@@ -35,6 +35,9 @@
 #include "bg_sparse.h"
 #include "bg_static.h"
 
+/* Scenes name the public meshes the build makes by their bare names. */
+static const bg_scene_options_t MESH_OPTIONS = {.search_path = BG_MESH_DIR};
+
 /* A tolerance no run reaches within its cap: part 1 times whole iterations. */
 #define UNREACHABLE_TOLERANCE 1e-300
 /* Newton's per-iteration time over CHOLMOD factorize + solve alone. */
@@ -76,8 +79,8 @@ static const char BOX_SCENE_SMOKE[] =
 
 typedef struct iteration_case {
     const char *label;
-    const char *file;  /* scene file under BG_SOURCE_DIR, or NULL */
-    const char *json;  /* inline scene when file is NULL */
+    const char *file; /* scene file under BG_SOURCE_DIR, or NULL */
+    const char *json; /* inline scene when file is NULL */
     int newton_cap;
     int local_global_cap;
 } iteration_case_t;
@@ -87,12 +90,12 @@ typedef struct split {
     int iterations;
     int converged;
     double relative_gradient;
-    double setup;          /* until the first trace point: setup + first evaluation */
-    double once;           /* in the loop but paid once: analysis (+ prefactor) */
-    double per_iteration;  /* (loop time − once) / iterations */
+    double setup;         /* until the first trace point: setup + first evaluation */
+    double once;          /* in the loop but paid once: analysis (+ prefactor) */
+    double per_iteration; /* (loop time − once) / iterations */
     double rotfit, assembly, factor, solve, other; /* per iteration */
     int64_t factorizations;
-    double evaluations;    /* energy + gradient evaluations in all */
+    double evaluations; /* energy + gradient evaluations in all */
 } split_t;
 
 static bg_status load_scene(const iteration_case_t *c, bg_scene_t **scene, bg_error_t *err)
@@ -100,9 +103,12 @@ static bg_status load_scene(const iteration_case_t *c, bg_scene_t **scene, bg_er
     if (c->file) {
         char path[1024];
         snprintf(path, sizeof path, "%s/%s", BG_SOURCE_DIR, c->file);
-        return bg_scene_load(path, scene, err);
+        bg_status st = bg_scene_load_with(path, &MESH_OPTIONS, scene, err);
+        return st == BG_OK ? bg_scene_prepare(*scene, err) : st;
     }
-    return bg_scene_parse(c->json, strlen(c->json), c->label, scene, err);
+    bg_status st =
+        bg_scene_parse_with(c->json, strlen(c->json), c->label, &MESH_OPTIONS, scene, err);
+    return st == BG_OK ? bg_scene_prepare(*scene, err) : st;
 }
 
 static bg_status run_solver(const bg_scene_t *scene, bg_method method, double tolerance, int cap,
@@ -255,9 +261,9 @@ static void record_split(const char *label, const char *method, const split_t *s
     const struct {
         const char *key;
         double value;
-    } parts[] = {{"per_iteration", s->per_iteration}, {"rotfit_per_iteration", s->rotfit},
+    } parts[] = {{"per_iteration", s->per_iteration},     {"rotfit_per_iteration", s->rotfit},
                  {"assembly_per_iteration", s->assembly}, {"factor_per_iteration", s->factor},
-                 {"solve_per_iteration", s->solve}, {"one_time", s->once}};
+                 {"solve_per_iteration", s->solve},       {"one_time", s->once}};
     for (size_t i = 0; i < sizeof parts / sizeof parts[0]; i++) {
         snprintf(name, sizeof name, "solve.%s.%s.%s", label, method, parts[i].key);
         bench_record(name, 1e3 * parts[i].value, "ms");
@@ -346,7 +352,8 @@ static int bench_accuracy(const char *file, const char *label, int local_global_
     bg_scene_t *scene = NULL;
     char path[1024];
     snprintf(path, sizeof path, "%s/%s", BG_SOURCE_DIR, file);
-    if (bg_scene_load(path, &scene, &err) != BG_OK) {
+    if (bg_scene_load_with(path, &MESH_OPTIONS, &scene, &err) != BG_OK ||
+        bg_scene_prepare(scene, &err) != BG_OK) {
         fprintf(stderr, "bench_solve: %s\n", err.message);
         bench_fail("scene failed to load");
         return -1;
@@ -367,14 +374,13 @@ static int bench_accuracy(const char *file, const char *label, int local_global_
         reached[m] = time_to_reach(&r, thresholds[m], &at);
         const char *name = bg_method_name(methods[m]);
         if (isfinite(reached[m]))
-            printf("%-10s %-12s %9.0e %10.4f %10d %10d %12.3g  %s\n", label, name,
-                   thresholds[m], reached[m], at, r.iterations, r.relative_gradient,
-                   r.stop_reason);
+            printf("%-10s %-12s %9.0e %10.4f %10d %10d %12.3g  %s\n", label, name, thresholds[m],
+                   reached[m], at, r.iterations, r.relative_gradient, r.stop_reason);
         else
             printf("%-10s %-12s %9.0e %10s %10s %10d %12.3g  NOT REACHED in %d iterations "
                    "(%.3f s, %s)\n",
-                   label, name, thresholds[m], "-", "-", r.iterations, r.relative_gradient,
-                   caps[m], r.wall_seconds, r.stop_reason);
+                   label, name, thresholds[m], "-", "-", r.iterations, r.relative_gradient, caps[m],
+                   r.wall_seconds, r.stop_reason);
         char fig[BENCH_NAME_MAX];
         snprintf(fig, sizeof fig, "accuracy.%s.%s.seconds_to_threshold", label, name);
         if (isfinite(reached[m]))
@@ -428,14 +434,15 @@ static void bench_stiff(int smoke)
     for (int l = 0; l < (smoke ? 1 : 3); l++)
         for (int bent = 0; bent < (smoke ? 1 : 2); bent++) {
             char json[1024];
-            snprintf(json, sizeof json,
-                     "{\"mesh\": {\"generate\": \"box\", \"cells\": [16, 4, 4], \"size\": [4, 1, 1]},"
-                     "\"material\": {\"mu\": 1, \"lambda\": %s},"
-                     "\"handles\": [{\"select\": {\"box\": {\"min\": [0,0,0], \"max\": [0,1,1]}}},"
-                     "{\"select\": {\"box\": {\"min\": [4,0,0], \"max\": [4,1,1]}},"
-                     " \"transform\": {\"rotate\": {\"axis\": %s, \"degrees\": 90,"
-                     " \"center\": [4, 0.5, 0.5]}}}]}",
-                     lambdas[l], bent ? "[0, 0, 1]" : "[1, 0, 0]");
+            snprintf(
+                json, sizeof json,
+                "{\"mesh\": {\"generate\": \"box\", \"cells\": [16, 4, 4], \"size\": [4, 1, 1]},"
+                "\"material\": {\"mu\": 1, \"lambda\": %s},"
+                "\"handles\": [{\"select\": {\"box\": {\"min\": [0,0,0], \"max\": [0,1,1]}}},"
+                "{\"select\": {\"box\": {\"min\": [4,0,0], \"max\": [4,1,1]}},"
+                " \"transform\": {\"rotate\": {\"axis\": %s, \"degrees\": 90,"
+                " \"center\": [4, 0.5, 0.5]}}}]}",
+                lambdas[l], bent ? "[0, 0, 1]" : "[1, 0, 0]");
             bg_error_t err = BG_ERROR_INIT;
             bg_scene_t *scene = NULL;
             if (bg_scene_parse(json, strlen(json), "stiff.json", &scene, &err) != BG_OK) {
@@ -444,9 +451,8 @@ static void bench_stiff(int smoke)
             }
             bg_solve_result_t r = BG_SOLVE_RESULT_INIT, one = BG_SOLVE_RESULT_INIT,
                               plain = BG_SOLVE_RESULT_INIT;
-            bg_solve_options_t opts = {.method = BG_METHOD_NEWTON,
-                                       .tolerance = 1e-8,
-                                       .max_iterations = 1000};
+            bg_solve_options_t opts = {
+                .method = BG_METHOD_NEWTON, .tolerance = 1e-8, .max_iterations = 1000};
             bg_status st = bg_static_solve(scene, &opts, &r, &err);
             opts.continuation = -1;
             if (st == BG_OK)
@@ -523,15 +529,15 @@ int main(int argc, char **argv)
            "factorization; per_it excludes both.\nrotfit = rotation fit + energy + gradient "
            "(all line-search evaluations); fact/it = factorizations per iteration.\n\n");
     printf("%-11s %-12s %5s %4s %9s %9s %9s %10s %9s %9s %9s %9s %9s %6s\n", "scene", "method",
-           "iters", "conv", "rel_grad", "setup", "once", "per_it", "rotfit", "assembly",
-           "factor", "solve", "other", "fact/it");
+           "iters", "conv", "rel_grad", "setup", "once", "per_it", "rotfit", "assembly", "factor",
+           "solve", "other", "fact/it");
     for (size_t i = 0; i < case_count; i++)
         bench_iterations(&cases[i], smoke ? CHOLMOD_REPS_SMOKE : CHOLMOD_REPS_FULL);
 
     printf("\nPart 2: error against run time (seconds from the start of the solve, setup "
            "included)\n");
-    printf("%-10s %-12s %9s %10s %10s %10s %12s  %s\n", "scene", "method", "threshold",
-           "seconds", "at_iter", "iters", "final_rel_g", "stop reason");
+    printf("%-10s %-12s %9s %10s %10s %10s %12s  %s\n", "scene", "method", "threshold", "seconds",
+           "at_iter", "iters", "final_rel_g", "stop reason");
     const int lg_cap = smoke ? LOCAL_GLOBAL_MAX_ITERATIONS_SMOKE : LOCAL_GLOBAL_MAX_ITERATIONS_FULL;
     bench_accuracy("configs/scenes/bar-twist.json", "bar-twist", lg_cap);
     bench_accuracy("configs/scenes/stiff-bar.json", "stiff-bar", lg_cap);

@@ -32,7 +32,7 @@ since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
 # makes another job's purchase miss the market's 10 s buy timeout on a
 # loaded two-core host.
 alone() {
-  case $1 in bunny-drop|bunny-edit|inverted-bunny|camelhead-param) return 0 ;; esac
+  case $1 in bunny-drop|bunny-edit|inverted-bunny|lion-head-param) return 0 ;; esac
   return 1
 }
 
@@ -44,7 +44,7 @@ override() {
     beam-cantilever) echo '.task.steps = 30' ;;
     bunny-drop) echo '.task.steps = 2 | .task.output_every = 1' ;;
     bunny-edit) echo '.solver.max_iterations = 3 | del(.reference)' ;;
-    camelhead-param) echo '.solver.max_iterations = 4' ;;
+    lion-head-param) echo '.solver.max_iterations = 4' ;;
     inverted-bunny) echo '.solver.max_iterations = 3' ;;
     stiff-bar) echo '.solver.max_iterations = 12' ;;
     *) echo '.' ;;

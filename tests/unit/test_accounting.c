@@ -222,7 +222,7 @@ static void surface_edit_scene(void **state)
 {
     (void)state;
     off_cpu_start();
-    bg_scene_t *s = test_load_scene(SCENES "knight-edit.json");
+    bg_scene_t *s = test_load_scene(SCENES "armadillo-edit.json");
     const bg_solve_options_t o = {
         .method = BG_METHOD_LOCAL_GLOBAL, .tolerance = 1e-5, .max_iterations = 1000};
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;

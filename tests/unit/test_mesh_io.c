@@ -1,7 +1,7 @@
 /*
  * Tests of bg_mesh_io: round trips through every writer and reader, the
- * hand-written fixtures in tests/fixtures/mesh, the shared third-party
- * meshes, malformed input (with the messages it must produce) and a seeded
+ * hand-written fixtures in tests/fixtures/mesh, the public meshes the
+ * build makes, malformed input (with the messages it must produce) and a seeded
  * mutation fuzz loop. Parsers are always fed an exact-length heap copy with
  * no NUL after it, so ASan catches any read past `length`.
  */
@@ -25,7 +25,7 @@
 #include "bg_mesh_io.h"
 
 #define FIXTURES BG_SOURCE_DIR "/tests/fixtures/mesh/"
-#define SHARED BG_SHARED_MESHES "/"
+#define MESHES BG_MESH_DIR "/"
 
 /* Seed of the fuzz loop's xorshift generator (logged by the test). */
 #ifndef FUZZ_SEED
@@ -35,9 +35,10 @@
 #ifndef FUZZ_ROUNDS
 #define FUZZ_ROUNDS 1500
 #endif
-/* Generous bound on parsing bunny.mesh: the target is well under 100 ms in
- * an optimized build; this must also hold under ASan+UBSan in Debug. */
-#define BUNNY_PARSE_MAX_SECONDS 1.0
+/* A file declaring 40 million vertices must be refused by checking the
+ * declared counts against the input's length, not by reading or allocating
+ * first: a generous bound that also holds under ASan+UBSan in Debug. */
+#define FAIL_FAST_MAX_SECONDS 1.0
 /* Fake declared count: far beyond the input, below the vertex cap. */
 #define LYING_COUNT 40000000
 
@@ -448,7 +449,7 @@ static void test_fixture_tetgen(void **state)
     bg_mesh_destroy(&m);
 }
 
-/* ---- shared third-party meshes: missing files fail ---- */
+/* ---- the public meshes the build makes (cmake/Meshes.cmake): missing files fail ---- */
 
 static double seconds_now(void)
 {
@@ -457,69 +458,195 @@ static double seconds_now(void)
     return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
-static void check_shared(const char *file, bg_mesh_kind kind, int32_t nv, int32_t ne)
+/* Edges of a triangle list as (low, high) keys with the count of triangles
+ * using each and the sum of their orientations (+1 along low->high, -1
+ * against), sorted; returns the number of distinct edges. */
+typedef struct edge_use {
+    int64_t key;
+    int uses, direction;
+} edge_use_t;
+
+static int compare_edges(const void *a, const void *b)
 {
-    bg_mesh_t *m = read_ok(file, NULL);
-    assert_int_equal(bg_mesh_kind_of(m), kind);
-    assert_int_equal(m->nv, nv);
-    assert_int_equal(m->ne, ne);
-    bg_mesh_destroy(&m);
+    const int64_t x = ((const edge_use_t *)a)->key, y = ((const edge_use_t *)b)->key;
+    return (x > y) - (x < y);
 }
 
-static void test_shared_meshes(void **state)
+static int32_t count_edges(const int32_t *tris, int32_t nt, edge_use_t **out)
 {
-    (void)state;
+    edge_use_t *e = malloc(3 * (size_t)nt * sizeof *e);
+    assert_non_null(e);
+    for (int32_t t = 0; t < nt; t++)
+        for (int k = 0; k < 3; k++) {
+            const int32_t a = tris[3 * t + k], b = tris[3 * t + (k + 1) % 3];
+            e[3 * t + k].key = (int64_t)(a < b ? a : b) << 32 | (a < b ? b : a);
+            e[3 * t + k].uses = 1;
+            e[3 * t + k].direction = a < b ? 1 : -1;
+        }
+    qsort(e, 3 * (size_t)nt, sizeof *e, compare_edges);
+    int32_t n = 0;
+    for (int32_t i = 0; i < 3 * nt; i++) {
+        if (n > 0 && e[n - 1].key == e[i].key) {
+            e[n - 1].uses++;
+            e[n - 1].direction += e[i].direction;
+        } else {
+            e[n++] = e[i];
+        }
+    }
+    *out = e;
+    return n;
+}
+
+/* A tetrahedron's face: its vertices sorted (the key) and in outward order. */
+typedef struct tet_face {
+    int32_t sorted[3], face[3];
+} tet_face_t;
+
+/* Any total order groups equal keys: bytewise is enough. */
+static int compare_faces(const void *a, const void *b)
+{
+    return memcmp(((const tet_face_t *)a)->sorted, ((const tet_face_t *)b)->sorted,
+                  sizeof((const tet_face_t *)a)->sorted);
+}
+
+/* Faces of a tetrahedral mesh used by one tetrahedron only, outward (the
+ * mesh is positively oriented after reading), into a new array. */
+static int32_t boundary_faces(const bg_mesh_t *m, int32_t **out)
+{
+    static const int local[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {0, 2, 1}};
+    tet_face_t *f = malloc(4 * (size_t)m->ne * sizeof *f);
+    assert_non_null(f);
+    for (int32_t e = 0; e < m->ne; e++)
+        for (int k = 0; k < 4; k++) {
+            tet_face_t *x = &f[4 * e + k];
+            for (int i = 0; i < 3; i++)
+                x->face[i] = x->sorted[i] = m->elements[4 * (size_t)e + local[k][i]];
+            for (int i = 0; i < 3; i++) /* three-element sort */
+                for (int j = i + 1; j < 3; j++)
+                    if (x->sorted[j] < x->sorted[i]) {
+                        int32_t t = x->sorted[i];
+                        x->sorted[i] = x->sorted[j];
+                        x->sorted[j] = t;
+                    }
+        }
+    qsort(f, 4 * (size_t)m->ne, sizeof *f, compare_faces);
+    int32_t *b = malloc(12 * (size_t)m->ne * sizeof *b), n = 0;
+    assert_non_null(b);
+    for (int32_t i = 0; i < 4 * m->ne;) {
+        int32_t j = i + 1;
+        while (j < 4 * m->ne && memcmp(f[j].sorted, f[i].sorted, sizeof f[i].sorted) == 0)
+            j++;
+        assert_true(j - i <= 2); /* a face is shared by at most two tetrahedra */
+        if (j - i == 1) {
+            memcpy(b + 3 * (size_t)n, f[i].face, sizeof f[i].face);
+            n++;
+        }
+        i = j;
+    }
+    free(f);
+    *out = b;
+    return n;
+}
+
+/* Volume enclosed by outward triangles (divergence theorem, origin-based). */
+static double enclosed_volume(const double *x, const int32_t *tris, int32_t nt)
+{
+    double v = 0.0;
+    for (int32_t t = 0; t < nt; t++) {
+        const double *a = x + 3 * (size_t)tris[3 * t], *b = x + 3 * (size_t)tris[3 * t + 1],
+                     *c = x + 3 * (size_t)tris[3 * t + 2];
+        v += (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) +
+              a[2] * (b[0] * c[1] - b[1] * c[0])) /
+             6.0;
+    }
+    return v;
+}
+
+/* Euler characteristic V - E + F of a triangle surface, counting only the
+ * vertices its triangles use; boundary edges (one triangle) into *open. A
+ * closed surface or a disk must use every edge once or twice, consistently
+ * oriented (the two uses in opposite directions). */
+static int32_t surface_euler(const int32_t *tris, int32_t nt, int32_t nv, int32_t *open)
+{
+    edge_use_t *e = NULL;
+    const int32_t ne = count_edges(tris, nt, &e);
+    char *used = calloc((size_t)nv, 1);
+    assert_non_null(used);
+    int32_t vertices = 0;
+    for (int32_t i = 0; i < 3 * nt; i++)
+        if (!used[tris[i]]) {
+            used[tris[i]] = 1;
+            vertices++;
+        }
+    *open = 0;
+    for (int32_t i = 0; i < ne; i++) {
+        assert_true(e[i].uses == 1 || e[i].uses == 2);
+        if (e[i].uses == 2)
+            assert_int_equal(e[i].direction, 0);
+        *open += e[i].uses == 1;
+    }
+    free(used);
+    free(e);
+    return vertices - ne + nt;
+}
+
+/* The tetrahedral bunnies: conforming (every inner face shared by exactly
+ * two tetrahedra), their boundary a closed consistently oriented sphere
+ * (Euler characteristic 2), and the sum of the tetrahedra's volumes equal
+ * to the volume the boundary encloses, an independent computation that any
+ * overlap, gap or flipped element would break. */
+static void check_public_volume(const char *file, int32_t min_elements, int32_t max_elements)
+{
     size_t length = 0;
-    char *text = slurp(SHARED "bunny.mesh", &length);
+    char *text = slurp(file, &length);
     bg_mesh_t *m = NULL;
     bg_error_t err = BG_ERROR_INIT;
     double t0 = seconds_now();
-    if (parse_exact(BG_FORMAT_MEDIT, text, length, "bunny.mesh", &m, &err) != BG_OK)
+    if (parse_exact(BG_FORMAT_MEDIT, text, length, file, &m, &err) != BG_OK)
         fail_msg("%s", err.message);
-    double elapsed = seconds_now() - t0;
-    print_message("bunny.mesh parsed in %.1f ms\n", 1e3 * elapsed);
-    assert_true(elapsed < BUNNY_PARSE_MAX_SECONDS);
-    assert_int_equal(bg_mesh_kind_of(m), BG_MESH_VOLUME);
-    assert_int_equal(m->nv, 5433);
-    assert_int_equal(m->ne, 34055);
-    bg_mesh_destroy(&m);
+    print_message("%s: %d vertices, %d tetrahedra, parsed in %.1f ms\n", file, (int)m->nv,
+                  (int)m->ne, 1e3 * (seconds_now() - t0));
     free(text);
-
-    check_shared(SHARED "octopus-low.mesh", BG_MESH_VOLUME, 452, 1140);
-    check_shared(SHARED "bar-straight.mesh", BG_MESH_VOLUME, 750, 2784);
-    check_shared(SHARED "decimated-knight.off", BG_MESH_SURFACE, 502, 1000);
-    check_shared(SHARED "camelhead.off", BG_MESH_SURFACE, 11381, 22704);
-    check_shared(SHARED "circle.obj", BG_MESH_SURFACE, 5201, 10240);
-
-    bg_mesh_t *circle = read_ok(SHARED "circle.obj", NULL), *planar = NULL;
-    assert_int_equal(bg_mesh_to_planar(circle, &planar, &err), BG_OK);
-    assert_int_equal(bg_mesh_kind_of(planar), BG_MESH_PLANAR);
-    assert_int_equal(planar->nv, 5201);
-    assert_int_equal(planar->ne, 10240);
-    bg_mesh_destroy(&planar);
-    bg_mesh_destroy(&circle);
-
-    int32_t labels[502];
-    if (bg_selection_read(SHARED "decimated-knight-selection.dmat", 502, labels, &err) != BG_OK)
-        fail_msg("%s", err.message);
-    int handles = 0;
-    for (int i = 0; i < 502; i++) {
-        assert_true(labels[i] >= -1);
-        handles += labels[i] >= 0;
+    assert_int_equal(bg_mesh_kind_of(m), BG_MESH_VOLUME);
+    assert_true(m->ne >= min_elements && m->ne <= max_elements);
+    double total = 0.0;
+    for (int32_t e = 0; e < m->ne; e++) {
+        const double v = bg_mesh_element_measure(m, m->x, e);
+        assert_true(v > 0.0);
+        total += v;
     }
-    assert_int_equal(labels[0], -1);
-    assert_int_equal(labels[8], 1);
-    assert_true(handles > 0 && handles < 502);
+    int32_t *faces = NULL, open = 0;
+    const int32_t nf = boundary_faces(m, &faces);
+    assert_int_equal(surface_euler(faces, nf, m->nv, &open), 2);
+    assert_int_equal(open, 0);
+    /* Both sums add ~1e5 terms of one sign: relative round-off ~1e-12. */
+    assert_true(fabs(enclosed_volume(m->x, faces, nf) - total) <= 1e-9 * total);
+    free(faces);
+    bg_mesh_destroy(&m);
+}
 
-    double *bar = malloc(750 * 3 * sizeof *bar);
-    assert_non_null(bar);
-    if (bg_positions_read(SHARED "bar-twisted-positions.txt", 750, 3, bar, &err) != BG_OK)
-        fail_msg("%s", err.message);
-    assert_true(bar[0] == -11.2317 && bar[2] == -1.5492);
-    /* One line fewer than the file has must fail: exactly nv lines. */
-    assert_int_equal(bg_positions_read(SHARED "bar-twisted-positions.txt", 749, 3, bar, NULL),
-                     BG_ERR_PARSE);
-    free(bar);
+static void test_public_meshes(void **state)
+{
+    (void)state;
+    check_public_volume(MESHES "bunny.mesh", 20000, 45000);
+    check_public_volume(MESHES "bunny-fine.mesh", 150000, 300000);
+
+    /* The parameterization surface is a disk: V - E + F = 1, one boundary
+     * loop (as many boundary edges as boundary vertices, checked by the
+     * parameterization's own set-up elsewhere). */
+    bg_mesh_t *m = read_ok(MESHES "lion-head.off", NULL);
+    int32_t open = 0;
+    assert_int_equal(bg_mesh_kind_of(m), BG_MESH_SURFACE);
+    assert_int_equal(surface_euler(m->elements, m->ne, m->nv, &open), 1);
+    assert_true(open > 0);
+    bg_mesh_destroy(&m);
+
+    /* The surface-editing armadillo is closed and of genus 0. */
+    m = read_ok(MESHES "armadillo.off", NULL);
+    assert_int_equal(bg_mesh_kind_of(m), BG_MESH_SURFACE);
+    assert_int_equal(surface_euler(m->elements, m->ne, m->nv, &open), 2);
+    assert_int_equal(open, 0);
+    bg_mesh_destroy(&m);
 }
 
 /* ---- bad input ---- */
@@ -578,7 +705,7 @@ static void test_bad_counts_fail_fast(void **state)
         BG_ERR_PARSE);
     assert_non_null(strstr(err.message, "t.node:1:"));
     /* No allocation of LYING_COUNT records happened: all of this is instant. */
-    assert_true(seconds_now() - t0 < BUNNY_PARSE_MAX_SECONDS);
+    assert_true(seconds_now() - t0 < FAIL_FAST_MAX_SECONDS);
 }
 
 static void test_bad_other_formats(void **state)
@@ -899,7 +1026,7 @@ int main(void)
         cmocka_unit_test(test_fixture_off_obj),
         cmocka_unit_test(test_fixture_gmsh),
         cmocka_unit_test(test_fixture_tetgen),
-        cmocka_unit_test(test_shared_meshes),
+        cmocka_unit_test(test_public_meshes),
         cmocka_unit_test(test_bad_medit),
         cmocka_unit_test(test_bad_counts_fail_fast),
         cmocka_unit_test(test_bad_other_formats),

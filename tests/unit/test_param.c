@@ -22,15 +22,19 @@
 #include "test_scenes.h"
 #include "test_support.h"
 
+/* mesh: the scene's "mesh" value as JSON text. */
 static bg_scene_t *param_scene(const char *mesh, double alpha, double barrier)
 {
     char json[512];
     snprintf(json, sizeof json,
-             "{\"mesh\": \"%s/%s\", \"task\": {\"kind\": \"parameterize\", \"alpha\": %g, "
+             "{\"mesh\": %s, \"task\": {\"kind\": \"parameterize\", \"alpha\": %g, "
              "\"beta\": 1, \"barrier\": %g}}",
-             BG_SHARED_MESHES, mesh, alpha, barrier);
+             mesh, alpha, barrier);
     return test_parse_scene(json, "param.json");
 }
+
+#define FLAT_DISK "{\"generate\": \"disk\", \"rings\": 40, \"radius\": 1}"
+#define LION_HEAD "\"lion-head.off\""
 
 static void solve_map(const bg_scene_t *s, bg_method method, int max_iterations,
                       bg_solve_result_t *r)
@@ -48,7 +52,7 @@ static void solve_map(const bg_scene_t *s, bg_method method, int max_iterations,
 static void flat_disk_maps_to_itself(void **state)
 {
     for (int m = 0; m < 2; m++) {
-        bg_scene_t *s = param_scene("circle.obj", 1.0, 1.0);
+        bg_scene_t *s = param_scene(FLAT_DISK, 1.0, 1.0);
         bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
         solve_map(s, m ? BG_METHOD_LOCAL_GLOBAL : BG_METHOD_NEWTON, 300, &r);
         /* The minimum energy is 0, so the relative gradient can stop at its
@@ -72,11 +76,11 @@ static void flat_disk_maps_to_itself(void **state)
     }
 }
 
-static void camelhead_arap_versus_asap(void **state)
+static void lion_head_arap_versus_asap(void **state)
 {
-    bg_scene_t *arap = param_scene("camelhead.off", 1.0, 1.0);
-    bg_scene_t *asap = param_scene("camelhead.off", 0.0, 1.0);
-    bg_scene_t *bare = param_scene("camelhead.off", 1.0, 0.0);
+    bg_scene_t *arap = param_scene(LION_HEAD, 1.0, 1.0);
+    bg_scene_t *asap = param_scene(LION_HEAD, 0.0, 1.0);
+    bg_scene_t *bare = param_scene(LION_HEAD, 1.0, 0.0);
     bg_solve_result_t ra = BG_SOLVE_RESULT_INIT, rs = BG_SOLVE_RESULT_INIT;
     bg_solve_result_t rb = BG_SOLVE_RESULT_INIT;
     solve_map(arap, BG_METHOD_NEWTON, 60, &ra);
@@ -104,13 +108,12 @@ static void camelhead_arap_versus_asap(void **state)
 
 static void closed_surface_rejected(void **state)
 {
-    char json[512];
-    snprintf(json, sizeof json,
-             "{\"mesh\": \"%s/decimated-knight.off\", \"task\": {\"kind\": \"parameterize\"}}",
-             BG_SHARED_MESHES);
+    const char *json = "{\"mesh\": \"" MESHES "armadillo.off\", \"task\": {\"kind\": "
+                       "\"parameterize\"}}";
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *s = NULL;
-    assert_int_equal(bg_scene_parse(json, strlen(json), "knight.json", &s, &err), BG_ERR_INVALID);
+    assert_int_equal(bg_scene_parse(json, strlen(json), "armadillo.json", &s, &err),
+                     BG_ERR_INVALID);
     assert_non_null(strstr(err.message, "closed"));
 }
 
@@ -118,7 +121,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(flat_disk_maps_to_itself),
-        cmocka_unit_test(camelhead_arap_versus_asap),
+        cmocka_unit_test(lion_head_arap_versus_asap),
         cmocka_unit_test(closed_surface_rejected),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

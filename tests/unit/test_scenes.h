@@ -1,7 +1,9 @@
 /*
  * Scene helpers shared by the unit tests: load a scene file or parse an
  * inline JSON scene, failing the running cmocka test with the library's
- * message. Include after <cmocka.h>. The caller owns the scene.
+ * message. Files a scene names by a bare name ("bunny.mesh") are found in
+ * the build's public meshes (BG_MESH_DIR), as `biotgrid solve` finds them.
+ * Include after <cmocka.h>. The caller owns the scene.
  */
 #ifndef BG_TEST_SCENES_H
 #define BG_TEST_SCENES_H
@@ -11,12 +13,16 @@
 #include "bg_scene.h"
 
 #define SCENES BG_SOURCE_DIR "/configs/scenes/"
+/* The public meshes the build makes (cmake/Meshes.cmake). Scenes are
+ * parsed and prepared (bg_scene_prepare), ready to solve. */
+#define MESHES BG_MESH_DIR "/"
 
 static inline bg_scene_t *test_load_scene(const char *path)
 {
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *s = NULL;
-    if (bg_scene_load(path, &s, &err) != BG_OK)
+    const bg_scene_options_t o = {.search_path = BG_MESH_DIR};
+    if (bg_scene_load_with(path, &o, &s, &err) != BG_OK || bg_scene_prepare(s, &err) != BG_OK)
         fail_msg("%s", err.message);
     return s;
 }
@@ -26,7 +32,9 @@ static inline bg_scene_t *test_parse_scene(const char *json, const char *name)
 {
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *s = NULL;
-    if (bg_scene_parse(json, strlen(json), name, &s, &err) != BG_OK)
+    const bg_scene_options_t o = {.search_path = BG_MESH_DIR};
+    if (bg_scene_parse_with(json, strlen(json), name, &o, &s, &err) != BG_OK ||
+        bg_scene_prepare(s, &err) != BG_OK)
         fail_msg("%s: %s", name, err.message);
     return s;
 }

@@ -2,8 +2,8 @@
  * Spokes-and-rims surface editing: the gradient against central
  * differences of the energy (rotations refitted at every evaluation: they
  * are optimal, so their derivative does not enter), a rigid motion of every
- * handle reproduced exactly, and on the knight a monotone energy with the
- * handles at their targets.
+ * handle reproduced exactly, and on the armadillo a monotone energy with
+ * the handles at their targets.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -20,23 +20,26 @@
 #include "test_scenes.h"
 #include "test_support.h"
 
-static bg_scene_t *knight(const char *head_motion)
+/* The armadillo with three handles (feet, right fist, head), each moved by
+ * `motion` (a handle's "transform" member, or ""). */
+static bg_scene_t *armadillo(const char *motion)
 {
     char json[2048];
-    const char *dmat = BG_SHARED_MESHES "/decimated-knight-selection.dmat";
-    snprintf(json, sizeof json,
-             "{\"mesh\": \"%s/decimated-knight.off\", \"task\": {\"kind\": \"surface-edit\"},"
-             "\"handles\": [{\"select\": {\"file\": \"%s\", \"group\": 1}%s},"
-             "{\"select\": {\"file\": \"%s\", \"group\": 2}%s},"
-             "{\"select\": {\"file\": \"%s\", \"group\": 0}%s}],"
-             "\"initial\": \"rest\", \"solver\": {\"method\": \"local-global\"}}",
-             BG_SHARED_MESHES, dmat, head_motion, dmat, head_motion, dmat, head_motion);
-    return test_parse_scene(json, "knight.json");
+    snprintf(
+        json, sizeof json,
+        "{\"mesh\": \"armadillo.off\", \"task\": {\"kind\": \"surface-edit\"},"
+        "\"handles\": ["
+        "{\"select\": {\"box_fraction\": {\"min\": [0, 0, 0], \"max\": [1, 0.06, 1]}}%s},"
+        "{\"select\": {\"box_fraction\": {\"min\": [0.82, 0.62, 0], \"max\": [1, 1, 1]}}%s},"
+        "{\"select\": {\"box_fraction\": {\"min\": [0.35, 0.9, 0], \"max\": [0.65, 1, 1]}}%s}],"
+        "\"initial\": \"rest\", \"solver\": {\"method\": \"local-global\"}}",
+        motion, motion, motion);
+    return test_parse_scene(json, "armadillo.json");
 }
 
 static void gradient_matches_differences(void **state)
 {
-    bg_scene_t *s = knight("");
+    bg_scene_t *s = armadillo("");
     const size_t n = (size_t)s->mesh->nv * 3;
     double *q = malloc(n * sizeof *q), *g = malloc(n * sizeof *g);
     uint64_t rng = 5;
@@ -59,13 +62,14 @@ static void gradient_matches_differences(void **state)
 }
 
 /* Every handle moved by one rigid motion: the minimiser is the rigidly
- * moved knight (zero energy), whatever the free vertices start from. */
+ * moved armadillo (zero energy), whatever the free vertices start from. */
 static void rigid_motion_reproduced(void **state)
 {
-    bg_scene_t *s = knight(", \"transform\": {\"rotate\": {\"axis\": [0.2, 1, 0.1], "
-                           "\"degrees\": 40, \"center\": [0.5, 0.5, 0.5]}, \"translate\": [0.3, 0, -0.1]}");
-    const bg_solve_options_t o = {.method = BG_METHOD_LOCAL_GLOBAL, .tolerance = 1e-10,
-                                  .max_iterations = 5000};
+    bg_scene_t *s = armadillo(", \"transform\": {\"rotate\": {\"axis\": [0.2, 1, 0.1], "
+                              "\"degrees\": 40, \"center\": [0, 20, 0]}, \"translate\": [30, 0, "
+                              "-10]}");
+    const bg_solve_options_t o = {
+        .method = BG_METHOD_LOCAL_GLOBAL, .tolerance = 1e-10, .max_iterations = 5000};
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     bg_error_t err = BG_ERROR_INIT;
     if (bg_surface_arap_solve(s, &o, &r, &err) != BG_OK)
@@ -78,12 +82,12 @@ static void rigid_motion_reproduced(void **state)
     bg_scene_destroy(&s);
 }
 
-static void knight_edit_monotone(void **state)
+static void armadillo_edit_monotone(void **state)
 {
     bg_error_t err = BG_ERROR_INIT;
-    bg_scene_t *s = test_load_scene(SCENES "knight-edit.json");
-    const bg_solve_options_t o = {.method = s->method, .tolerance = s->tolerance,
-                                  .max_iterations = s->max_iterations};
+    bg_scene_t *s = test_load_scene(SCENES "armadillo-edit.json");
+    const bg_solve_options_t o = {
+        .method = s->method, .tolerance = s->tolerance, .max_iterations = s->max_iterations};
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     if (bg_surface_arap_solve(s, &o, &r, &err) != BG_OK)
         fail_msg("%s", err.message);
@@ -95,8 +99,8 @@ static void knight_edit_monotone(void **state)
         if (s->constrained[k])
             assert_true(r.q[k] == s->target[k]);
     /* Newton is not offered for this energy: a clear error. */
-    const bg_solve_options_t newton = {.method = BG_METHOD_NEWTON, .tolerance = 1e-6,
-                                       .max_iterations = 10};
+    const bg_solve_options_t newton = {
+        .method = BG_METHOD_NEWTON, .tolerance = 1e-6, .max_iterations = 10};
     bg_solve_result_t rn = BG_SOLVE_RESULT_INIT;
     bg_error_clear(&err);
     assert_int_equal(bg_surface_arap_solve(s, &newton, &rn, &err), BG_ERR_INVALID);
@@ -110,7 +114,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(gradient_matches_differences),
         cmocka_unit_test(rigid_motion_reproduced),
-        cmocka_unit_test(knight_edit_monotone),
+        cmocka_unit_test(armadillo_edit_monotone),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
