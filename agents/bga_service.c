@@ -10,7 +10,7 @@
 #include "bg_mesh.h"
 #include "bg_sparse.h"
 #include "bg_step.h"
-#include "bg_surface_arap.h"
+#include "bg_surface_cells.h"
 
 /* One job's state on this agent; a slot is free when id == 0. */
 typedef struct job {

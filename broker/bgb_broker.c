@@ -16,6 +16,7 @@
 #include "bg_json.h"
 #include "bg_plan.h"
 #include "bg_report.h"
+#include "bg_prepare.h"
 #include "bg_scene.h"
 #include "bg_static.h"
 #include "bg_svg.h"
@@ -809,7 +810,7 @@ static bg_status load_scene(bgb_broker_t *b, const bgb_job_t *job, const char *d
                                    .confined = 1,
                                    .display_name = "scene"};
     if ((st = bg_scene_parse_with(job->scene, job->scene_size, path, &so, scene, err)) == BG_OK)
-        st = bg_scene_prepare(*scene, err);
+        st = bg_prepare_scene(*scene, err);
     return st;
 }
 

@@ -17,6 +17,7 @@
 #include "bg_param.h"
 #include "bg_plan.h"
 #include "bg_report.h"
+#include "bg_prepare.h"
 #include "bg_scene.h"
 #include "bg_static.h"
 #include "bga_backend.h"
@@ -602,7 +603,7 @@ int bg_cmd_solve(int argc, char **argv)
                     dynamic ? "variational or backward-euler" : "newton or local-global");
             goto out;
         }
-    if (bg_scene_prepare(scene, &err) != BG_OK) {
+    if (bg_prepare_scene(scene, &err) != BG_OK) {
         fprintf(stderr, "biotgrid solve: %s\n", err.message);
         exit_code = err.status == BG_ERR_INVALID ? BG_EXIT_BAD_INPUT : BG_EXIT_FAILED;
         goto out;

@@ -2,7 +2,7 @@
 
 #include <stdlib.h>
 
-#include "bg_surface_arap.h"
+#include "bg_surface_cells.h"
 
 /* The in-process backend: the solver's own models and systems, called
  * directly. A session only remembers which object serves which id. */

@@ -376,3 +376,102 @@ bg_status bg_mesh_generate_disk(int32_t rings, const double center[3], double ra
     *out = m;
     return BG_OK;
 }
+
+/* ------------------------------------------------------ disk topology */
+
+typedef struct edge {
+    int32_t lo, hi;     /* undirected key */
+    int32_t from, to;   /* as the triangle runs it */
+} edge_t;
+
+static int edge_cmp(const void *a, const void *b)
+{
+    const edge_t *x = a, *y = b;
+    if (x->lo != y->lo)
+        return (x->lo > y->lo) - (x->lo < y->lo);
+    return (x->hi > y->hi) - (x->hi < y->hi);
+}
+
+/* Boundary edges are those used by one triangle; each gives next[from] = to. */
+bg_status bg_mesh_disk_boundary(const bg_mesh_t *m, const char *name, int32_t *loop,
+                                int32_t *count, bg_error_t *err)
+{
+    bg_status st = BG_OK;
+    const size_t ne3 = (size_t)m->ne * 3;
+    edge_t *edges = malloc(ne3 * sizeof *edges + 1);
+    int32_t *next = malloc(((size_t)m->nv + 1) * sizeof *next);
+    if (!edges || !next) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory finding the boundary");
+        goto out;
+    }
+    for (int32_t e = 0; e < m->ne; e++)
+        for (int i = 0; i < 3; i++) {
+            const int32_t a = m->elements[3 * e + i], b = m->elements[3 * e + (i + 1) % 3];
+            edges[3 * (size_t)e + i] = (edge_t){a < b ? a : b, a < b ? b : a, a, b};
+        }
+    qsort(edges, ne3, sizeof *edges, edge_cmp);
+    for (int32_t v = 0; v < m->nv; v++)
+        next[v] = -1;
+    int32_t boundary = 0, start = -1;
+    for (size_t i = 0; i < ne3;) {
+        size_t j = i;
+        while (j < ne3 && edges[j].lo == edges[i].lo && edges[j].hi == edges[i].hi)
+            j++;
+        if (j - i > 2) {
+            st = bg_error_set(err, BG_ERR_INVALID, "%s: edge %d-%d is shared by %zu triangles "
+                              "(not a manifold surface)", name, (int)edges[i].lo + 1,
+                              (int)edges[i].hi + 1, j - i);
+            goto out;
+        }
+        if (j - i == 1) {
+            if (next[edges[i].from] >= 0) {
+                st = bg_error_set(err, BG_ERR_INVALID, "%s: the boundary touches itself at "
+                                  "vertex %d", name, (int)edges[i].from + 1);
+                goto out;
+            }
+            next[edges[i].from] = edges[i].to;
+            start = edges[i].from;
+            boundary++;
+        }
+        i = j;
+    }
+    if (boundary == 0) {
+        st = bg_error_set(err, BG_ERR_INVALID, "%s: the surface is closed; parameterization needs "
+                          "a disk (one boundary loop)", name);
+        goto out;
+    }
+    int32_t n = 0;
+    for (int32_t v = start; n == 0 || v != start; v = next[v]) {
+        if (v < 0 || n >= boundary) {
+            st = bg_error_set(err, BG_ERR_INVALID, "%s: the boundary is not one closed loop",
+                              name);
+            goto out;
+        }
+        loop[n++] = v;
+    }
+    if (n != boundary) {
+        st = bg_error_set(err, BG_ERR_INVALID, "%s: the surface has several boundary loops (%d "
+                          "boundary edges, the first loop has %d); parameterization needs a "
+                          "disk", name, (int)boundary, (int)n);
+        goto out;
+    }
+    *count = n;
+out:
+    free(edges);
+    free(next);
+    return st;
+}
+
+bg_status bg_mesh_check_disk(const bg_mesh_t *surface, const char *name, bg_error_t *err)
+{
+    if (bg_mesh_kind_of(surface) != BG_MESH_SURFACE)
+        return bg_error_set(err, BG_ERR_INVALID, "%s: parameterization needs a triangle surface "
+                            "in 3D, got %s", name, bg_mesh_kind_name(bg_mesh_kind_of(surface)));
+    int32_t *loop = malloc(((size_t)surface->nv + 1) * sizeof *loop);
+    int32_t nloop = 0;
+    if (!loop)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory checking the parameterization");
+    bg_status st = bg_mesh_disk_boundary(surface, name, loop, &nloop, err);
+    free(loop);
+    return st;
+}

@@ -105,4 +105,19 @@ bg_status bg_mesh_generate_rectangle(const int32_t cells[2], const double origin
 bg_status bg_mesh_generate_disk(int32_t rings, const double center[3], double radius,
                                 bg_mesh_kind kind, bg_mesh_t **out, bg_error_t *err);
 
+/*
+ * The boundary loop of a disk-like triangle surface (named `name` in
+ * messages): its vertices in order into loop (nv entries available),
+ * their number into *count. BG_ERR_INVALID, naming the edge or vertex, if
+ * the boundary is not one simple loop: a closed surface, holes, an edge of
+ * more than two triangles, a boundary that touches itself.
+ */
+bg_status bg_mesh_disk_boundary(const bg_mesh_t *surface, const char *name, int32_t *loop,
+                                int32_t *count, bg_error_t *err);
+
+/* What a parameterization needs of its mesh, without any solve: a triangle
+ * surface in 3D with exactly one boundary loop (linear in the mesh size;
+ * what `biotgrid validate` runs). */
+bg_status bg_mesh_check_disk(const bg_mesh_t *surface, const char *name, bg_error_t *err);
+
 #endif

@@ -28,13 +28,6 @@
  */
 bg_status bg_param_setup(bg_scene_t *scene, bg_error_t *err);
 
-/*
- * The checks of bg_param_setup that need no solve: `surface` (named `name`
- * in messages) is a triangle surface in 3D with exactly one boundary loop.
- * Linear in the mesh size; what `biotgrid validate` runs.
- */
-bg_status bg_param_check(const bg_mesh_t *surface, const char *name, bg_error_t *err);
-
 /* The map's quality at uv (nv·2). */
 void bg_param_quality(const bg_scene_t *scene, const double *uv, bg_map_quality_t *quality);
 

@@ -1,9 +1,7 @@
 #include "bg_scene.h"
 
 #include "bg_file.h"
-#include "bg_initial.h"
 #include "bg_json.h"
-#include "bg_param.h"
 
 #include <cJSON.h>
 #include <errno.h>
@@ -1402,7 +1400,7 @@ static bg_status parse_initial(parser_t *p, const cJSON *item)
     const int interpolate = (!item && moving && s->task == BG_TASK_STATIC) ||
                             (cJSON_IsString(item) && strcmp(item->valuestring, "interpolate") == 0);
     if (interpolate) {
-        /* The harmonic guess is a solve: bg_scene_prepare computes it. */
+        /* The harmonic guess is a solve: bg_prepare_scene computes it. */
         s->initial_kind = BG_INITIAL_INTERPOLATE;
         memcpy(s->initial, s->mesh->x, n * sizeof *s->initial);
     } else if (!item || (cJSON_IsString(item) && strcmp(item->valuestring, "rest") == 0)) {
@@ -1936,7 +1934,7 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
                 return fail(p, BG_ERR_INVALID, unused[i], "not used by a parameterize task");
         st = parse_solver(p, member(root, "solver"));
         if (st == BG_OK)
-            st = bg_param_check(s->mesh, s->path, p->err);
+            st = bg_mesh_check_disk(s->mesh, s->path, p->err);
         if (st == BG_OK)
             s->mesh_format = BG_FORMAT_OBJ;
         return st;
@@ -2022,35 +2020,6 @@ out:
     return st;
 }
 
-bg_status bg_scene_prepare(bg_scene_t *s, bg_error_t *err)
-{
-    if (s->prepared)
-        return BG_OK;
-    bg_status st = BG_OK;
-    if (s->task == BG_TASK_PARAMETERIZE) {
-        st = bg_param_setup(s, err);
-    } else if (s->initial_kind == BG_INITIAL_INTERPOLATE) {
-        const size_t n = (size_t)s->mesh->nv * s->mesh->dim;
-        st = bg_initial_interpolate(s, s->initial, &s->prep[s->prep_count++], err);
-        for (size_t k = 0; st == BG_OK && k < n; k++)
-            if (s->constrained[k])
-                s->initial[k] = s->target[k];
-    }
-    if (st != BG_OK)
-        return st;
-    s->prepared = 1;
-    return BG_OK;
-}
-
-bg_status bg_scene_parse(const char *json, size_t length, const char *path, bg_scene_t **out,
-                         bg_error_t *err)
-{
-    bg_status st = bg_scene_parse_with(json, length, path, NULL, out, err);
-    if (st == BG_OK && (st = bg_scene_prepare(*out, err)) != BG_OK)
-        bg_scene_destroy(out);
-    return st;
-}
-
 bg_status bg_scene_load_with(const char *path, const bg_scene_options_t *options, bg_scene_t **out,
                              bg_error_t *err)
 {
@@ -2062,14 +2031,6 @@ bg_status bg_scene_load_with(const char *path, const bg_scene_options_t *options
         return st;
     st = bg_scene_parse_with(text, length, path, options, out, err);
     free(text);
-    return st;
-}
-
-bg_status bg_scene_load(const char *path, bg_scene_t **out, bg_error_t *err)
-{
-    bg_status st = bg_scene_load_with(path, NULL, out, err);
-    if (st == BG_OK && (st = bg_scene_prepare(*out, err)) != BG_OK)
-        bg_scene_destroy(out);
     return st;
 }
 

@@ -141,7 +141,7 @@ typedef struct bg_scene {
     double alpha, beta;
     double barrier;             /* parameterize: area-barrier weight relative to μ (default 1,
                                    0: none; see bg_elastic_set_barrier) */
-    int prepared;               /* bg_scene_prepare has run: the scene is ready to solve */
+    int prepared;               /* bg_prepare_scene has run: the scene is ready to solve */
     bg_method method;           /* solver.method, default newton */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
     int continuation_off;       /* solver.continuation false: Newton solves a nearly
@@ -151,7 +151,7 @@ typedef struct bg_scene {
     int method_max_iterations[BG_METHOD_COUNT]; /* solver.max_iterations given per method
                                                    ({"newton": n, ...}); 0 where not given */
     bg_scene_prep_t prep[BG_SCENE_MAX_PREP]; /* set-up done before solving (bg_initial,
-                                                bg_param), by bg_scene_prepare */
+                                                bg_param), by bg_prepare_scene */
     int prep_count;
 } bg_scene_t;
 
@@ -182,7 +182,7 @@ typedef struct bg_scene_options {
 
 /*
  * Parses and validates a scene from JSON text, running no solve (see
- * bg_scene_prepare). `path` names the scene in messages and
+ * bg_prepare_scene). `path` names the scene in messages and
  * its directory is the base for relative paths inside it (NULL: "<memory>"
  * and the current directory); `options` may be NULL. A file the scene names
  * that exists nowhere gives BG_ERR_NOT_FOUND. Caller owns *out.
@@ -191,28 +191,11 @@ bg_status bg_scene_parse_with(const char *json, size_t length, const char *path,
                               const bg_scene_options_t *options, bg_scene_t **out,
                               bg_error_t *err);
 
-/*
- * Runs the set-up a parsed scene needs before a solve, which parsing leaves
- * out so that validation stays cheap: the harmonic starting guess of an
- * "interpolate" start (a scalar Laplacian factorization) and, for a
- * parameterize task, the Tutte and conformal start that replaces the 3D
- * surface by the planar UV mesh (bg_param_setup). Idempotent; each step is
- * recorded in prep[] (name, factorizations, seconds), which every run of
- * the scene reports in its set-up list. Solvers need a prepared scene.
- */
-bg_status bg_scene_prepare(bg_scene_t *scene, bg_error_t *err);
-
-/* bg_scene_parse_with followed by bg_scene_prepare. */
-bg_status bg_scene_parse(const char *json, size_t length, const char *path, bg_scene_t **out,
-                         bg_error_t *err);
-
 /* Reads, parses and validates a scene file (at most BG_SCENE_MAX_BYTES), running no
  * solve; `options` may be NULL. */
 bg_status bg_scene_load_with(const char *path, const bg_scene_options_t *options,
                              bg_scene_t **out, bg_error_t *err);
 
-/* bg_scene_load_with followed by bg_scene_prepare: a scene ready to solve. */
-bg_status bg_scene_load(const char *path, bg_scene_t **out, bg_error_t *err);
 
 /*
  * A fraction f of a rigid motion applied to point x (dim coordinates):

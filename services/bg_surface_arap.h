@@ -21,6 +21,7 @@
 #include "bg_rotfit.h"
 #include "bg_scene.h"
 #include "bg_static.h"
+#include "bg_surface_cells.h"
 
 /*
  * Minimises E over the free coordinates from options->start (or the
@@ -33,24 +34,5 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
 
 /* E at positions q with each R_i fitted; grad (nv·3, may be NULL) gets ∂E/∂q. */
 double bg_surface_arap_energy(const bg_scene_t *scene, const double *q, double *grad);
-
-/*
- * The energy's cells over a subset of the vertices: the rotation-fit
- * service of this energy, the same code in process and on an agent. The
- * cells of the vertices flagged in owned (nv flags; NULL: all) on mesh (a
- * surface; its rest positions in mesh->x, borrowed for the cells' life):
- * for each, its incident triangles with their cotangent weights and rest
- * edges. E over all vertices is the sum of the cells' energies over any
- * partition of the vertices. Caller owns *out.
- */
-typedef struct bg_surface_cells bg_surface_cells_t;
-bg_status bg_surface_cells_new(const bg_mesh_t *mesh, const uint8_t *owned,
-                               bg_surface_cells_t **out, bg_error_t *err);
-void bg_surface_cells_destroy(bg_surface_cells_t **cells);
-/* Fits R_i of the owned vertices at q (warm-started from the previous
- * call) and returns their cells' energy; grad (nv·3, may be NULL) is
- * overwritten with its gradient (every vertex of the cells gets a share). */
-double bg_surface_cells_eval(bg_surface_cells_t *cells, const double *q, double *grad,
-                             bg_rotfit_stats_t *stats);
 
 #endif

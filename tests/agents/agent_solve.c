@@ -25,6 +25,7 @@
 
 #include "bg_dynamics.h"
 #include "bg_morph.h"
+#include "bg_prepare.h"
 #include "bg_scene.h"
 #include "bg_static.h"
 #include "bg_surface_arap.h"
@@ -231,7 +232,7 @@ int main(int argc, char **argv)
     bg_scene_t *scene = NULL;
     const bg_scene_options_t options = {.search_path = BG_MESH_DIR};
     if (bg_scene_load_with(argv[2], &options, &scene, &err) != BG_OK ||
-        bg_scene_prepare(scene, &err) != BG_OK) {
+        bg_prepare_scene(scene, &err) != BG_OK) {
         fprintf(stderr, "agent_solve: %s\n", err.message);
         return 1;
     }

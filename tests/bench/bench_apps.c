@@ -20,6 +20,7 @@
 #include "bg_dynamics.h"
 #include "bg_morph.h"
 #include "bg_param.h"
+#include "bg_prepare.h"
 #include "bg_scene.h"
 #include "bg_static.h"
 
@@ -51,7 +52,7 @@ static bg_scene_t *load(const char *path, const char *json)
         json ? bg_scene_parse_with(json, strlen(json), "bench.json", &MESH_OPTIONS, &s, &err)
              : bg_scene_load_with(path, &MESH_OPTIONS, &s, &err);
     if (st == BG_OK)
-        st = bg_scene_prepare(s, &err);
+        st = bg_prepare_scene(s, &err);
     if (st != BG_OK) {
         fprintf(stderr, "bench_apps: %s\n", err.message);
         bench_fail("scene");

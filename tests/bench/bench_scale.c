@@ -67,6 +67,7 @@
 #include "bench_common.h"
 #include "bg_clock.h"
 #include "bg_elastic.h"
+#include "bg_prepare.h"
 #include "bg_scene.h"
 #include "bg_sparse.h"
 #include "bg_static.h"
@@ -356,7 +357,7 @@ static void measure(const size_case_t *c, bg_method method, int cap, measurement
         goto out;
     m->parse = bg_clock_now() - t0;
     t0 = bg_clock_now();
-    if (bg_scene_prepare(scene, &err) != BG_OK)
+    if (bg_prepare_scene(scene, &err) != BG_OK)
         goto out;
     m->prepare = bg_clock_now() - t0;
     m->scene_mb = status_megabytes("VmRSS");

@@ -31,6 +31,7 @@
 #include "bench_common.h"
 #include "bg_clock.h"
 #include "bg_elastic.h"
+#include "bg_prepare.h"
 #include "bg_scene.h"
 #include "bg_sparse.h"
 #include "bg_static.h"
@@ -104,11 +105,11 @@ static bg_status load_scene(const iteration_case_t *c, bg_scene_t **scene, bg_er
         char path[1024];
         snprintf(path, sizeof path, "%s/%s", BG_SOURCE_DIR, c->file);
         bg_status st = bg_scene_load_with(path, &MESH_OPTIONS, scene, err);
-        return st == BG_OK ? bg_scene_prepare(*scene, err) : st;
+        return st == BG_OK ? bg_prepare_scene(*scene, err) : st;
     }
     bg_status st =
         bg_scene_parse_with(c->json, strlen(c->json), c->label, &MESH_OPTIONS, scene, err);
-    return st == BG_OK ? bg_scene_prepare(*scene, err) : st;
+    return st == BG_OK ? bg_prepare_scene(*scene, err) : st;
 }
 
 static bg_status run_solver(const bg_scene_t *scene, bg_method method, double tolerance, int cap,
@@ -353,7 +354,7 @@ static int bench_accuracy(const char *file, const char *label, int local_global_
     char path[1024];
     snprintf(path, sizeof path, "%s/%s", BG_SOURCE_DIR, file);
     if (bg_scene_load_with(path, &MESH_OPTIONS, &scene, &err) != BG_OK ||
-        bg_scene_prepare(scene, &err) != BG_OK) {
+        bg_prepare_scene(scene, &err) != BG_OK) {
         fprintf(stderr, "bench_solve: %s\n", err.message);
         bench_fail("scene failed to load");
         return -1;
@@ -445,7 +446,7 @@ static void bench_stiff(int smoke)
                 lambdas[l], bent ? "[0, 0, 1]" : "[1, 0, 0]");
             bg_error_t err = BG_ERROR_INIT;
             bg_scene_t *scene = NULL;
-            if (bg_scene_parse(json, strlen(json), "stiff.json", &scene, &err) != BG_OK) {
+            if (bg_prepare_parse(json, strlen(json), "stiff.json", NULL, &scene, &err) != BG_OK) {
                 bench_fail(err.message);
                 return;
             }

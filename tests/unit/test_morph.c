@@ -17,6 +17,7 @@
 #include <cmocka.h>
 
 #include "bg_morph.h"
+#include "bg_prepare.h"
 #include "bg_scene.h"
 #include "test_support.h"
 
@@ -42,7 +43,7 @@ static void bar_morph_newton(void **state)
 {
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *s = NULL;
-    if (bg_scene_load(SCENES "bar-morph.json", &s, &err) != BG_OK)
+    if (bg_prepare_load(SCENES "bar-morph.json", NULL, &s, &err) != BG_OK)
         fail_msg("%s", err.message);
     assert_int_equal(s->task, BG_TASK_MORPH);
     /* Nothing held: the parser adds the 3-2-1 mount, exactly six held
@@ -107,7 +108,7 @@ static void inverted_target_rejected(void **state)
              target);
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *s = NULL;
-    assert_int_equal(bg_scene_parse(json, strlen(json), "mirror.json", &s, &err), BG_OK);
+    assert_int_equal(bg_prepare_parse(json, strlen(json), "mirror.json", NULL, &s, &err), BG_OK);
     bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
     const bg_morph_options_t o = {.method = BG_METHOD_NEWTON};
     assert_int_equal(bg_morph_solve(s, &o, &r, &err), BG_ERR_INVALID);

@@ -17,6 +17,7 @@
 #include <cmocka.h>
 
 #include "bg_param.h"
+#include "bg_prepare.h"
 #include "bg_scene.h"
 #include "bg_static.h"
 #include "test_scenes.h"
@@ -112,7 +113,7 @@ static void closed_surface_rejected(void **state)
                        "\"parameterize\"}}";
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *s = NULL;
-    assert_int_equal(bg_scene_parse(json, strlen(json), "armadillo.json", &s, &err),
+    assert_int_equal(bg_prepare_parse(json, strlen(json), "armadillo.json", NULL, &s, &err),
                      BG_ERR_INVALID);
     assert_non_null(strstr(err.message, "closed"));
 }

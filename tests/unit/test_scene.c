@@ -17,6 +17,7 @@
 #include <cmocka.h>
 
 #include "bg_mesh_io.h"
+#include "bg_prepare.h"
 #include "bg_scene.h"
 #include "test_scenes.h"
 
@@ -620,7 +621,7 @@ static void test_morph_twist_target(void **state)
                  " \"task\": {\"kind\": \"morph\", \"target\": %s}}",
                  bad[b][0]);
         bg_error_t err = BG_ERROR_INIT;
-        assert_int_equal(bg_scene_parse(json, strlen(json), "twist.json", &s, &err),
+        assert_int_equal(bg_prepare_parse(json, strlen(json), "twist.json", NULL, &s, &err),
                          BG_ERR_INVALID);
         if (!strstr(err.message, bad[b][1]) || !strstr(err.message, "task.target"))
             fail_msg("%s: unexpected message: %s", bad[b][0], err.message);
@@ -795,7 +796,7 @@ static void test_bad_scenes(void **state)
         const bad_case_t *c = &BAD_CASES[i];
         bg_error_t err = BG_ERROR_INIT;
         bg_scene_t *s = NULL;
-        bg_status st = bg_scene_parse(c->json, strlen(c->json), "bad.json", &s, &err);
+        bg_status st = bg_prepare_parse(c->json, strlen(c->json), "bad.json", NULL, &s, &err);
         if (st != c->status || !strstr(err.message, c->needle) ||
             strncmp(err.message, "bad.json: ", 10) != 0)
             fail_msg("case %zu: status %d (want %d), message \"%s\" (want \"%s\")", i, (int)st,
@@ -810,7 +811,7 @@ static void test_missing_mesh_names_resolved_path(void **state)
     const char *json = "{\"mesh\": \"meshes/missing.mesh\", " MAT ", " FIX_ALL "}";
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *s = NULL;
-    bg_status st = bg_scene_parse(json, strlen(json), "/no/such/dir/scene.json", &s, &err);
+    bg_status st = bg_prepare_parse(json, strlen(json), "/no/such/dir/scene.json", NULL, &s, &err);
     assert_int_not_equal(st, BG_OK);
     assert_null(s);
     if (!strstr(err.message, "/no/such/dir/meshes/missing.mesh"))
@@ -824,7 +825,7 @@ static void test_surface_mesh_rejected(void **state)
     const char *json = "{\"mesh\": \"" MESHES "armadillo.off\", " MAT ", " FIX_ALL "}";
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *s = NULL;
-    bg_status st = bg_scene_parse(json, strlen(json), "armadillo.json", &s, &err);
+    bg_status st = bg_prepare_parse(json, strlen(json), "armadillo.json", NULL, &s, &err);
     assert_int_equal(st, BG_ERR_INVALID);
     assert_null(s);
     if (!strstr(err.message, "armadillo.off is a triangle surface; static elasticity needs "
@@ -834,7 +835,7 @@ static void test_surface_mesh_rejected(void **state)
     const char *flat = "{\"mesh\": {\"file\": \"" MESHES "armadillo.off\","
                        " \"planar\": true}, " MAT ", " FIX_ALL "}";
     bg_error_clear(&err);
-    st = bg_scene_parse(flat, strlen(flat), "armadillo.json", &s, &err);
+    st = bg_prepare_parse(flat, strlen(flat), "armadillo.json", NULL, &s, &err);
     assert_int_not_equal(st, BG_OK);
     assert_non_null(strstr(err.message, "armadillo.json: mesh.planar"));
 }

@@ -10,6 +10,7 @@
 
 #include <string.h>
 
+#include "bg_prepare.h"
 #include "bg_scene.h"
 
 #define SCENES BG_SOURCE_DIR "/configs/scenes/"
@@ -22,7 +23,7 @@ static inline bg_scene_t *test_load_scene(const char *path)
     bg_error_t err = BG_ERROR_INIT;
     bg_scene_t *s = NULL;
     const bg_scene_options_t o = {.search_path = BG_MESH_DIR};
-    if (bg_scene_load_with(path, &o, &s, &err) != BG_OK || bg_scene_prepare(s, &err) != BG_OK)
+    if (bg_scene_load_with(path, &o, &s, &err) != BG_OK || bg_prepare_scene(s, &err) != BG_OK)
         fail_msg("%s", err.message);
     return s;
 }
@@ -34,7 +35,7 @@ static inline bg_scene_t *test_parse_scene(const char *json, const char *name)
     bg_scene_t *s = NULL;
     const bg_scene_options_t o = {.search_path = BG_MESH_DIR};
     if (bg_scene_parse_with(json, strlen(json), name, &o, &s, &err) != BG_OK ||
-        bg_scene_prepare(s, &err) != BG_OK)
+        bg_prepare_scene(s, &err) != BG_OK)
         fail_msg("%s: %s", name, err.message);
     return s;
 }
