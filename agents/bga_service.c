@@ -859,3 +859,17 @@ bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int 
     const int have_header = m.header.version != 0;
     return bga_wire_error_reply(have_header ? &m.header : NULL, &werr, reply, err);
 }
+
+const char *bga_service_name(unsigned bit)
+{
+    switch (bit) {
+    case BGA_SERVICE_ROTFIT:
+        return "rotation-fit";
+    case BGA_SERVICE_SOLVE:
+        return "sparse-solve";
+    case BGA_SERVICE_INTEG:
+        return "integration-step";
+    default:
+        return NULL;
+    }
+}
