@@ -148,6 +148,7 @@ bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_er
         free(b);
         return st;
     }
+    bgb_limits_resolve(&b->config.limits, bgb_limits_ram());
     char path[BROKER_PATH_MAX + 32];
     snprintf(path, sizeof path, "%s/jobs", b->config.state_dir);
     if ((st = bg_file_make_directories_mode(path, 0700, err)) != BG_OK)
@@ -174,9 +175,7 @@ bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_er
     const bgb_rest_config_t rc = {.agents_json = b->pool_json,
                                   .address = b->config.address,
                                   .port = (uint16_t)b->config.port,
-                                  .max_body = (size_t)b->config.max_body,
-                                  .max_vertices = b->config.max_vertices,
-                                  .max_elements = b->config.max_elements,
+                                  .limits = &b->config.limits,
                                   .work_dir = path,
                                   .name = b->config.name,
                                   .market = "live",
@@ -195,6 +194,11 @@ out:
 uint16_t bgb_broker_rest_port(const bgb_broker_t *b)
 {
     return bgb_rest_port(b->rest);
+}
+
+const bgb_limits_t *bgb_broker_limits(const bgb_broker_t *b)
+{
+    return &b->config.limits;
 }
 
 const char *bgb_broker_endpoint(const bgb_broker_t *b)

@@ -33,6 +33,10 @@ typedef struct bgb_broker bgb_broker_t;
  * threads. config is copied. Caller owns *out (bgb_broker_stop). */
 bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_error_t *err);
 
+/* The limits in force: the configuration's, with the job size caps it
+ * left at 0 resolved for this machine (bgb_limits_resolve). */
+const bgb_limits_t *bgb_broker_limits(const bgb_broker_t *broker);
+
 /* The REST port and the ROUTER endpoint actually bound. */
 uint16_t bgb_broker_rest_port(const bgb_broker_t *broker);
 const char *bgb_broker_endpoint(const bgb_broker_t *broker);

@@ -1,6 +1,7 @@
 #include "bgb_config.h"
 
 #include <cJSON.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -25,6 +26,7 @@ bg_status bgb_config_init(bgb_config_t *c, bg_error_t *err)
     c->state_dir = strdup("out/broker");
     c->port = 8080;
     c->max_jobs = 4;
+    bgb_limits_default(&c->limits);
     c->agent_timeout_ms = 10000;
     bgb_market_config_default(&c->market);
     if (!c->name || !c->address || !c->endpoint || !c->state_dir) {
@@ -165,17 +167,93 @@ bg_status bgb_config_market_read(const cJSON *obj, const char *path, bgb_market_
     return BG_OK;
 }
 
+/* The integer limits' keys (bgb_limits.h), their ranges and where they go. */
+typedef enum { LIMIT_I64, LIMIT_INT, LIMIT_UNSIGNED, LIMIT_SIZE } limit_kind;
+static const struct {
+    const char *key;
+    double lo, hi;
+    size_t offset;
+    limit_kind kind;
+} INTEGER_LIMITS[] = {
+    {"max_vertices", 1, 5e7, offsetof(bgb_limits_t, max_vertices), LIMIT_I64},
+    {"max_elements", 1, 2e8, offsetof(bgb_limits_t, max_elements), LIMIT_I64},
+    {"max_body", 1024, 1 << 30, offsetof(bgb_limits_t, max_body), LIMIT_SIZE},
+    {"max_jobs_in_flight", 1, 1e6, offsetof(bgb_limits_t, max_jobs_in_flight), LIMIT_INT},
+    {"max_stored_bytes", 1, 1e15, offsetof(bgb_limits_t, max_stored_bytes), LIMIT_I64},
+    {"max_connections", 1, 1e5, offsetof(bgb_limits_t, max_connections), LIMIT_UNSIGNED},
+    {"max_connections_per_client", 1, 1e5, offsetof(bgb_limits_t, max_connections_per_client),
+     LIMIT_UNSIGNED},
+    {"idle_timeout", 1, 3600, offsetof(bgb_limits_t, idle_timeout), LIMIT_UNSIGNED},
+    {"request_timeout", 1, 3600, offsetof(bgb_limits_t, request_timeout), LIMIT_UNSIGNED},
+};
+
+/* One of the limits' keys into *l; BG_ERR_INVALID naming the field. */
+static bg_status read_limit(const cJSON *item, const char *path, const char *k, bgb_limits_t *l,
+                            bg_error_t *err)
+{
+    if (strcmp(k, "memory_fraction") == 0) {
+        bg_status st = bg_json_number_in(item, path, k, 0, 1, &l->memory_fraction, err);
+        if (st == BG_OK && !(l->memory_fraction > 0))
+            st = bg_json_fail(err, BG_ERR_INVALID, path, k, "must be in (0, 1]");
+        return st;
+    }
+    if (strcmp(k, "max_work") == 0)
+        return bg_json_number_in(item, path, k, 1, 1e18, &l->max_work, err);
+    for (size_t i = 0; i < sizeof INTEGER_LIMITS / sizeof INTEGER_LIMITS[0]; i++) {
+        if (strcmp(k, INTEGER_LIMITS[i].key) != 0)
+            continue;
+        int64_t v = 0;
+        bg_status st =
+            bg_json_integer(item, path, k, INTEGER_LIMITS[i].lo, INTEGER_LIMITS[i].hi, &v, err);
+        if (st != BG_OK)
+            return st;
+        char *at = (char *)l + INTEGER_LIMITS[i].offset;
+        switch (INTEGER_LIMITS[i].kind) {
+        case LIMIT_I64:
+            *(int64_t *)(void *)at = v;
+            break;
+        case LIMIT_INT:
+            *(int *)(void *)at = (int)v;
+            break;
+        case LIMIT_UNSIGNED:
+            *(unsigned *)(void *)at = (unsigned)v;
+            break;
+        case LIMIT_SIZE:
+            *(size_t *)(void *)at = (size_t)v;
+            break;
+        }
+        return BG_OK;
+    }
+    return bg_json_fail(err, BG_ERR_INVALID, path, k, "unknown limit");
+}
+
 bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
 {
     cJSON *root = NULL;
     bg_status st = bg_json_load(path, CONFIG_MAX_BYTES, &root, err);
     if (st != BG_OK)
         goto out;
-    static const char *const keys[] = {
-        "name",      "address",          "port",         "endpoint",
-        "state_dir", "max_body",         "max_vertices", "max_elements",
-        "max_jobs",  "agent_timeout_ms", "agents",       "market",
-        NULL};
+    static const char *const keys[] = {"name",
+                                       "address",
+                                       "port",
+                                       "endpoint",
+                                       "state_dir",
+                                       "max_jobs",
+                                       "agent_timeout_ms",
+                                       "agents",
+                                       "market",
+                                       "memory_fraction",
+                                       "max_vertices",
+                                       "max_elements",
+                                       "max_work",
+                                       "max_body",
+                                       "max_jobs_in_flight",
+                                       "max_stored_bytes",
+                                       "max_connections",
+                                       "max_connections_per_client",
+                                       "idle_timeout",
+                                       "request_timeout",
+                                       NULL};
     if ((st = bg_json_expect_object(root, path, NULL, err)) != BG_OK ||
         (st = bg_json_check_keys(root, path, NULL, keys, err)) != BG_OK)
         goto out;
@@ -206,13 +284,7 @@ bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
             st = bg_json_integer(item, path, k, 1, 3600000, &v, err);
             c->agent_timeout_ms = (int)v;
         } else {
-            st = bg_json_integer(item, path, k, 0, 1e15, &v, err);
-            if (strcmp(k, "max_body") == 0)
-                c->max_body = v;
-            else if (strcmp(k, "max_vertices") == 0)
-                c->max_vertices = v;
-            else
-                c->max_elements = v;
+            st = read_limit(item, path, k, &c->limits, err);
         }
         if (st != BG_OK)
             goto out;

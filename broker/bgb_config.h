@@ -12,6 +12,7 @@
 #include <cjson/cJSON.h>
 
 #include "bg_error.h"
+#include "bgb_limits.h"
 #include "bgb_market.h"
 
 #define BGB_CONFIG_MAX_AGENTS 32
@@ -31,9 +32,8 @@ typedef struct bgb_config {
     int port;             /* REST port, 8080; 0: ephemeral */
     char *endpoint;       /* ZeroMQ ROUTER endpoint, "tcp://127.0.0.1:5570"; port '*': ephemeral */
     char *state_dir;      /* the store and the jobs' folders, "out/broker" */
-    int64_t max_body;     /* bytes, 0: bgb_rest's default */
-    int64_t max_vertices; /* job size caps, 0: none beyond the engine's */
-    int64_t max_elements;
+    bgb_limits_t limits;  /* every limit (bgb_limits.h); the job size caps 0 until
+                             resolved for the machine (bgb_limits_resolve) */
     int max_jobs;         /* coordinators running at once, 4 */
     int agent_timeout_ms; /* per agent request, 10000 */
     bgb_config_agent_t agents[BGB_CONFIG_MAX_AGENTS];
@@ -46,8 +46,11 @@ bg_status bgb_config_init(bgb_config_t *config, bg_error_t *err);
 
 /*
  * Reads a JSON object over the defaults: name, address, port, endpoint,
- * state_dir, max_body, max_vertices, max_elements, max_jobs,
- * agent_timeout_ms, agents [{"endpoint", "services"}], market {period,
+ * state_dir, max_jobs, agent_timeout_ms, the limits (memory_fraction,
+ * max_vertices, max_elements, max_work, max_body, max_jobs_in_flight,
+ * max_stored_bytes, max_connections, max_connections_per_client,
+ * idle_timeout, request_timeout: bgb_limits.h), agents [{"endpoint",
+ * "services"}], market {period,
  * k, heartbeat_timeout, reply_timeout, buy_timeout (seconds, in (0, 3600);
  * k in [0, 1]), overlay_degree in [1, 8], hops in [1, 16], max_rounds in
  * [1, 1000], max_contracts in [1, 10^7]}. An unknown key, a wrong type or

@@ -269,9 +269,8 @@ static bg_status load_scene(bgb_coord_t *c, const bgb_job_t *job, const char *di
     }
     if (st == BG_OK)
         st = bgb_jobscene_unpack(input, files, in.count, err);
-    const bgb_jobscene_limits_t limits = {c->config->max_vertices, c->config->max_elements};
     if (st == BG_OK)
-        st = bgb_jobscene_load(job->scene, job->scene_size, input, &limits, js, err);
+        st = bgb_jobscene_load(job->scene, job->scene_size, input, &c->config->limits, js, err);
     if (st == BG_OK)
         st = bg_prepare_scene(js->scene, err);
     for (int i = 0; i < in.count; i++) {

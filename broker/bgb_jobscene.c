@@ -53,8 +53,17 @@ void bgb_jobscene_remove(const char *dir, const bgb_file_t *files, int count)
     rmdir(dir);
 }
 
+/* Removes every occurrence of prefix from message (in place). */
+static void strip_all(char *message, const char *prefix)
+{
+    const size_t n = strlen(prefix);
+    char *at;
+    while (message && n > 0 && (at = strstr(message, prefix)) != NULL)
+        memmove(at, at + n, strlen(at + n) + 1);
+}
+
 bg_status bgb_jobscene_load(const char *json, size_t length, const char *dir,
-                            const bgb_jobscene_limits_t *limits, bgb_jobscene_t *out,
+                            const bgb_limits_t *limits, bgb_jobscene_t *out,
                             bg_error_t *err)
 {
     memset(out, 0, sizeof *out);
@@ -64,11 +73,17 @@ bg_status bgb_jobscene_load(const char *json, size_t length, const char *dir,
         return bg_error_set(err, BG_ERR_INVALID, "the job's folder name is too long");
     const bg_scene_options_t options = {.max_vertices = limits ? limits->max_vertices : 0,
                                         .max_elements = limits ? limits->max_elements : 0,
+                                        .max_work = limits ? limits->max_work : 0,
                                         .confined = 1,
                                         .display_name = "scene"};
     bg_status st = bg_scene_parse_with(json, length, scene_path, &options, &out->scene, err);
-    if (st != BG_OK)
+    if (st != BG_OK) {
+        /* "dir/mesh.off: ..." → "mesh.off: ...": the client named the file,
+         * the folder is the broker's. */
+        scene_path[strlen(scene_path) - strlen("scene.json")] = '\0';
+        strip_all(err ? err->message : NULL, scene_path);
         return st;
+    }
     bg_plan_for_scene(out->scene, &out->scene->method, 1, &out->plan);
     return BG_OK;
 }

@@ -16,13 +16,8 @@
 #include "bg_error.h"
 #include "bg_plan.h"
 #include "bg_scene.h"
+#include "bgb_limits.h"
 #include "bgb_store.h"
-
-/* What a job may be, at most (0: the engine's own caps). */
-typedef struct bgb_jobscene_limits {
-    int64_t max_vertices;
-    int64_t max_elements;
-} bgb_jobscene_limits_t;
 
 typedef struct bgb_jobscene {
     bg_scene_t *scene; /* owned: parsed, not prepared */
@@ -50,12 +45,13 @@ void bgb_jobscene_remove(const char *dir, const bgb_file_t *files, int count);
 /*
  * Parses the scene text (json, length bytes) against the files in dir
  * (NULL: a job without files, whose every file reference is then not
- * found), named "scene" in messages, under limits (NULL: none), and plans
- * it, into *out (bgb_jobscene_release). Errors are the parser's: a 422's
- * message, naming the field.
+ * found), named "scene" in messages, under the job size and work caps of
+ * limits (NULL: none), and plans it, into *out (bgb_jobscene_release).
+ * Errors are the parser's, a 422's message naming the field, with the
+ * folder's path taken out: a client never sees the broker's paths.
  */
 bg_status bgb_jobscene_load(const char *json, size_t length, const char *dir,
-                            const bgb_jobscene_limits_t *limits, bgb_jobscene_t *out,
+                            const bgb_limits_t *limits, bgb_jobscene_t *out,
                             bg_error_t *err);
 
 /* The plan as JSON text, {"services": [{"service", "detail"}], "left_out":

@@ -13,6 +13,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
+#include <pthread.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <time.h>
@@ -20,23 +23,29 @@
 
 #include "bg_plan.h"
 #include "bg_scene.h"
+#include "bg_clock.h"
 #include "bgb_base64.h"
 #include "bgb_jobscene.h"
+#include "bgb_submission.h"
 
-#define REST_DEFAULT_CONNECTIONS 256
-#define REST_DEFAULT_BUDGET 1000.0
+/* The user of every request until requests carry tokens. */
+#define REST_OWNER "local"
+/* Threads serving connections (each request's work, never a wait). */
+#define REST_THREADS 8
+/* Memory MHD may use per connection for headers and buffers. */
+#define REST_CONNECTION_MEMORY (64 * 1024)
 #define REST_MAX_LIMIT 500
 #define REST_DEFAULT_LIMIT 50
-/* Server-sent events: how often a stream looks for new events, and how long
- * it stays silent before sending a keep-alive comment. */
-#define REST_EVENT_POLL_NS 100000000L
-#define REST_KEEPALIVE_POLLS 150
+/* Server-sent events: how long a stream stays silent before sending a
+ * keep-alive comment. */
+#define REST_KEEPALIVE_SECONDS 15.0
 #define REST_PATH_MAX 4096
 
 struct bgb_rest {
     struct MHD_Daemon *daemon;
     bgb_store_t *store;
     bgb_rest_config_t config;
+    bgb_limits_t limits; /* in force (a copy of the config's, or the defaults) */
     char *address, *work_dir, *name, *agents_json, *market;
     char *(*view)(void *ctx, int what);
     void *view_ctx;
@@ -44,6 +53,10 @@ struct bgb_rest {
     atomic_int stopping;
     atomic_llong responses[6]; /* by status class: index 1..5 */
     atomic_llong event_streams; /* event streams open now (for /metrics) */
+    pthread_mutex_t streams_lock;
+    struct stream *streams; /* every open event stream, under streams_lock */
+    pthread_t notifier;
+    int notifier_started;
 };
 
 /* A request's state across MHD's calls: the body as it arrives. */
@@ -51,6 +64,8 @@ typedef struct request {
     char *body;
     size_t size, cap;
     int too_large;
+    double started; /* monotonic seconds of its first call: the body must
+                       arrive within the request timeout */
 } request_t;
 
 /* ------------------------------------------------------------ responses */
@@ -131,8 +146,12 @@ static enum MHD_Result send_store_problem(bgb_rest_t *rest, struct MHD_Connectio
     if (st == BG_ERR_CONFLICT)
         return send_problem(rest, c, MHD_HTTP_CONFLICT, "job-ended", "Job already ended", NULL,
                             "%s", err->message);
+    /* The store's own message names its files: it goes to the broker's
+     * log, not to the client. */
+    fprintf(stderr, "broker: %s\n", err->message);
     return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "store-unavailable",
-                        "Job store unavailable", NULL, "%s", err->message);
+                        "Job store unavailable", NULL,
+                        "the job store cannot answer now; try again later");
 }
 
 /* ------------------------------------------------------------- job JSON */
@@ -305,301 +324,6 @@ static void field_of(const char *message, char *field, size_t size)
     snprintf(field, size, "scene.%.*s", (int)(end - start), start);
 }
 
-typedef struct upload {
-    char name[BGB_STORE_MAX_FILE_NAME + 1];
-    uint8_t *data;
-    size_t size;
-} upload_t;
-
-typedef struct submission {
-    char *scene;
-    const char *mechanism;
-    double budget;
-    upload_t files[BGB_STORE_MAX_FILES];
-    int file_count;
-    char dir[REST_PATH_MAX];
-} submission_t;
-
-static void submission_release(submission_t *s)
-{
-    free(s->scene);
-    bgb_file_t files[BGB_STORE_MAX_FILES];
-    for (int i = 0; i < s->file_count; i++)
-        files[i] = (bgb_file_t){s->files[i].name, s->files[i].data, s->files[i].size};
-    if (s->dir[0])
-        bgb_jobscene_remove(s->dir, files, s->file_count);
-    for (int i = 0; i < s->file_count; i++)
-        free(s->files[i].data);
-}
-
-/* Whether an object repeats a key; the first repeated key in *key. */
-static int repeats_key(const cJSON *object, const char **key)
-{
-    for (const cJSON *a = object->child; a; a = a->next)
-        for (const cJSON *b = a->next; b; b = b->next)
-            if (strcmp(a->string, b->string) == 0) {
-                *key = a->string;
-                return 1;
-            }
-    return 0;
-}
-
-static void locate(const char *text, size_t offset, int *line, int *column)
-{
-    *line = 1;
-    *column = 1;
-    for (size_t i = 0; i < offset; i++) {
-        if (text[i] == '\n') {
-            (*line)++;
-            *column = 1;
-        } else {
-            (*column)++;
-        }
-    }
-}
-
-/* JSON text scanning for scene_span, on a document cJSON has accepted. */
-static const char *skip_space(const char *p, const char *end)
-{
-    while (p < end && (*p == ' ' || *p == '\t' || *p == '\n' || *p == '\r'))
-        p++;
-    return p;
-}
-
-/* p at a '"': just past the closing quote. */
-static const char *skip_string(const char *p, const char *end)
-{
-    for (p++; p < end; p++) {
-        if (*p == '\\')
-            p++;
-        else if (*p == '"')
-            return p + 1;
-    }
-    return end;
-}
-
-static const char *skip_value(const char *p, const char *end)
-{
-    if (p < end && *p == '"')
-        return skip_string(p, end);
-    if (p < end && (*p == '{' || *p == '[')) {
-        int depth = 0;
-        while (p < end) {
-            if (*p == '"') {
-                p = skip_string(p, end);
-                continue;
-            }
-            if (*p == '{' || *p == '[')
-                depth++;
-            else if ((*p == '}' || *p == ']') && --depth == 0)
-                return p + 1;
-            p++;
-        }
-        return end;
-    }
-    while (p < end && !strchr(",}] \t\r\n", *p))
-        p++;
-    return p;
-}
-
-/*
- * The bytes of the top-level "scene" value of a request cJSON has parsed
- * (so valid JSON, no repeated key): the scene is stored and validated as
- * the client wrote it, instead of printing cJSON's tree again (printing
- * its numbers was the most expensive step of a small submit). 0 when the
- * key is not found as plain text (a key spelled with escapes): then the
- * caller prints the tree.
- */
-static int scene_span(const char *body, size_t size, const char **start, size_t *length)
-{
-    const char *end = body + size, *p = skip_space(body, end);
-    if (p >= end || *p != '{')
-        return 0;
-    for (p = skip_space(p + 1, end); p < end && *p == '"';) {
-        const char *key = p + 1, *after = skip_string(p, end);
-        const int is_scene = after - key == 6 && memcmp(key, "scene\"", 6) == 0;
-        p = skip_space(after, end);
-        if (p >= end || *p != ':')
-            return 0;
-        const char *value = skip_space(p + 1, end), *value_end = skip_value(value, end);
-        if (is_scene) {
-            *start = value;
-            *length = (size_t)(value_end - value);
-            return value_end > value;
-        }
-        p = skip_space(value_end, end);
-        if (p >= end || *p != ',')
-            return 0;
-        p = skip_space(p + 1, end);
-    }
-    return 0;
-}
-
-/* Reads the request document into s; on a problem sends it and returns 0. */
-static int read_submission(bgb_rest_t *rest, struct MHD_Connection *c, const request_t *req,
-                           submission_t *s, enum MHD_Result *sent)
-{
-    static const char *const keys[] = {"scene", "files", "mechanism", "budget"};
-    const char *end = NULL;
-    cJSON *root = cJSON_ParseWithLengthOpts(req->body ? req->body : "", req->size, &end, 0);
-    int ok = 0;
-    if (!root) {
-        int line = 0, column = 0;
-        const size_t offset = end && req->body && end >= req->body && end <= req->body + req->size
-                                  ? (size_t)(end - req->body)
-                                  : req->size;
-        locate(req->body ? req->body : "", offset, &line, &column);
-        *sent = send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "malformed-json", "Malformed JSON",
-                             NULL, "%s at line %d, column %d",
-                             req->size ? "malformed JSON" : "empty body", line, column);
-        return 0;
-    }
-    /* cJSON stops after the document; anything but blanks after it is as
-     * malformed as a document cut short. */
-    const char *body_end = req->body + req->size;
-    const char *rest_of = end && end >= req->body && end <= body_end ? skip_space(end, body_end)
-                                                                     : body_end;
-    if (rest_of != body_end) {
-        int line = 0, column = 0;
-        locate(req->body, (size_t)(rest_of - req->body), &line, &column);
-        *sent = send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "malformed-json", "Malformed JSON",
-                             NULL, "text after the JSON document at line %d, column %d", line,
-                             column);
-        goto out;
-    }
-    const char *repeated = NULL;
-    if (!cJSON_IsObject(root)) {
-        *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
-                             "Invalid request", NULL, "the request must be a JSON object");
-        goto out;
-    }
-    if (repeats_key(root, &repeated)) {
-        *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
-                             "Invalid request", repeated, "key '%s' is given twice", repeated);
-        goto out;
-    }
-    for (const cJSON *m = root->child; m; m = m->next) {
-        int known = 0;
-        for (int i = 0; i < 4; i++)
-            known |= strcmp(m->string, keys[i]) == 0;
-        if (!known) {
-            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
-                                 "Invalid request", m->string,
-                                 "unknown key '%s' (expected scene, files, mechanism, budget)",
-                                 m->string);
-            goto out;
-        }
-    }
-    const cJSON *scene = cJSON_GetObjectItemCaseSensitive(root, "scene");
-    if (!cJSON_IsObject(scene)) {
-        *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-scene",
-                             "Invalid scene", "scene",
-                             scene ? "scene: must be a JSON object (the scene file's content)"
-                                   : "scene: missing (required)");
-        goto out;
-    }
-    const char *span = NULL;
-    size_t span_length = 0;
-    if (scene_span(req->body, req->size, &span, &span_length)) {
-        s->scene = malloc(span_length + 1);
-        if (s->scene) {
-            memcpy(s->scene, span, span_length);
-            s->scene[span_length] = '\0';
-        }
-    } else {
-        s->scene = cJSON_PrintUnformatted(scene);
-    }
-    const cJSON *mechanism = cJSON_GetObjectItemCaseSensitive(root, "mechanism");
-    s->mechanism = "central";
-    if (mechanism) {
-        if (!cJSON_IsString(mechanism) ||
-            (strcmp(mechanism->valuestring, "central") != 0 &&
-             strcmp(mechanism->valuestring, "catallactic") != 0 &&
-             strcmp(mechanism->valuestring, "posted") != 0)) {
-            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
-                                 "Invalid request", "mechanism",
-                                 "mechanism: expected \"central\", \"catallactic\" or "
-                                 "\"posted\"");
-            goto out;
-        }
-        s->mechanism = strcmp(mechanism->valuestring, "central") == 0       ? "central"
-                       : strcmp(mechanism->valuestring, "catallactic") == 0 ? "catallactic"
-                                                                            : "posted";
-    }
-    const cJSON *budget = cJSON_GetObjectItemCaseSensitive(root, "budget");
-    s->budget = REST_DEFAULT_BUDGET;
-    if (budget) {
-        if (!cJSON_IsNumber(budget) || !isfinite(budget->valuedouble) ||
-            !(budget->valuedouble > 0.0)) {
-            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
-                                 "Invalid request", "budget",
-                                 "budget: expected a positive number");
-            goto out;
-        }
-        s->budget = budget->valuedouble;
-    }
-    const cJSON *files = cJSON_GetObjectItemCaseSensitive(root, "files");
-    if (files && !cJSON_IsArray(files)) {
-        *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
-                             "Invalid request", "files",
-                             "files: expected an array of {\"name\", \"base64\"}");
-        goto out;
-    }
-    if (files && cJSON_GetArraySize(files) > BGB_STORE_MAX_FILES) {
-        *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "too-many-files",
-                             "Too many files", "files", "files: at most %d files",
-                             BGB_STORE_MAX_FILES);
-        goto out;
-    }
-    int index = 0;
-    for (const cJSON *f = files ? files->child : NULL; f; f = f->next, index++) {
-        char field[64];
-        snprintf(field, sizeof field, "files[%d]", index);
-        const cJSON *name = cJSON_GetObjectItemCaseSensitive(f, "name");
-        const cJSON *data = cJSON_GetObjectItemCaseSensitive(f, "base64");
-        if (!cJSON_IsObject(f) || cJSON_GetArraySize(f) != 2 || !cJSON_IsString(name) ||
-            !cJSON_IsString(data)) {
-            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
-                                 "Invalid request", field,
-                                 "%s: expected {\"name\": string, \"base64\": string}", field);
-            goto out;
-        }
-        char name_field[80];
-        snprintf(name_field, sizeof name_field, "%s.name", field);
-        bg_error_t bad = BG_ERROR_INIT;
-        if (bgb_store_check_file_name(name->valuestring, name_field, &bad) != BG_OK) {
-            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-file-name",
-                                 "Invalid file name", field, "%s", bad.message);
-            goto out;
-        }
-        for (int j = 0; j < s->file_count; j++)
-            if (strcmp(s->files[j].name, name->valuestring) == 0) {
-                *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT,
-                                     "invalid-file-name", "Invalid file name", field,
-                                     "%s.name: '%s' is uploaded twice", field,
-                                     name->valuestring);
-                goto out;
-            }
-        upload_t *u = &s->files[s->file_count];
-        bg_error_t err = BG_ERROR_INIT;
-        if (bgb_base64_decode(data->valuestring, strlen(data->valuestring), rest->config.max_body,
-                              &u->data, &u->size, &err) != BG_OK) {
-            *sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-file",
-                                 "Invalid file", field, "%s.base64: %s", field, err.message);
-            goto out;
-        }
-        snprintf(u->name, sizeof u->name, "%s", name->valuestring);
-        s->file_count++;
-    }
-    ok = s->scene != NULL;
-    if (!ok)
-        *sent = send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal", "Internal error",
-                             NULL, "out of memory");
-out:
-    cJSON_Delete(root);
-    return ok;
-}
-
 /*
  * The resource of a job just stored, as GET /v1/jobs/{id} shows it then
  * (queued, its plan its only event view), written directly: the job is
@@ -626,55 +350,83 @@ static char *new_job_text(const char *id, const char *mechanism, double budget, 
     return text;
 }
 
-static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
-                                  const request_t *req)
+static enum MHD_Result send_problem_of(bgb_rest_t *rest, struct MHD_Connection *c,
+                                       const bgb_problem_t *p)
 {
-    /* Only what submission_release reads is cleared: the file table is
-     * 17 KB, and clearing it cost more than parsing a small request. */
-    submission_t s;
-    s.scene = NULL;
-    s.file_count = 0;
-    s.dir[0] = '\0';
+    return send_problem(rest, c, p->status, p->type, p->title, p->field[0] ? p->field : NULL,
+                        "%s", p->detail);
+}
+
+/*
+ * POST /v1/jobs: the body parsed (bgb_submission), the user's quotas
+ * checked (jobs in flight 429, stored bytes 413), the scene validated by
+ * the loader the coordinator runs it with (bgb_jobscene: size and work
+ * caps before any mesh is built), then stored durably.
+ */
+static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
+                                  const request_t *req, const char *owner)
+{
+    bgb_submission_t s;
+    bgb_problem_t problem;
+    char dir[REST_PATH_MAX] = "";
     enum MHD_Result sent = MHD_NO;
     bgb_jobscene_t scene = BGB_JOBSCENE_INIT;
     char *plan_text = NULL;
+    bgb_file_t files[BGB_STORE_MAX_FILES];
+    const bgb_limits_t *limits = &rest->limits;
     const char *key = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Idempotency-Key");
-    if (key && strlen(key) > BGB_STORE_MAX_KEY) {
-        sent = send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "invalid-header", "Invalid header",
+    if (key && strlen(key) > BGB_STORE_MAX_KEY)
+        return send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "invalid-header", "Invalid header",
                             "Idempotency-Key", "Idempotency-Key: longer than %d bytes",
                             BGB_STORE_MAX_KEY);
+    if (!bgb_submission_parse(req->body, req->size, limits->max_body, &s, &problem))
+        return send_problem_of(rest, c, &problem);
+    bgb_submission_files(&s, files);
+    bg_error_t err = BG_ERROR_INIT;
+    int in_flight = 0;
+    int64_t stored = 0;
+    if (bgb_store_usage(rest->store, owner, &in_flight, &stored, &err) != BG_OK) {
+        sent = send_store_problem(rest, c, BG_ERR_IO, &err);
         goto out;
     }
-    if (!read_submission(rest, c, req, &s, &sent))
+    /* A replay of an earlier submit is answered below whatever the quotas. */
+    if (!key && in_flight >= limits->max_jobs_in_flight) {
+        sent = send_problem(rest, c, MHD_HTTP_TOO_MANY_REQUESTS, "too-many-jobs",
+                            "Too many jobs in flight", NULL,
+                            "%d of your jobs are queued or running, the limit is %d: wait for "
+                            "one to end",
+                            in_flight, limits->max_jobs_in_flight);
         goto out;
-    bgb_file_t files[BGB_STORE_MAX_FILES];
-    for (int i = 0; i < s.file_count; i++) {
-        files[i].name = s.files[i].name;
-        files[i].data = s.files[i].data;
-        files[i].size = s.files[i].size;
+    }
+    if (!key && stored + s.upload_bytes > limits->max_stored_bytes) {
+        sent = send_problem(rest, c, MHD_HTTP_CONTENT_TOO_LARGE, "storage-quota",
+                            "Storage quota exceeded", NULL,
+                            "your jobs hold %lld bytes and this one brings %lld, over your quota "
+                            "of %lld bytes: delete ended jobs (DELETE /v1/jobs/{id})",
+                            (long long)stored, (long long)s.upload_bytes,
+                            (long long)limits->max_stored_bytes);
+        goto out;
     }
     /* A job without uploads needs no folder (creating and removing one per
      * submit costs more than the submit's own commit). */
-    bg_error_t err = BG_ERROR_INIT;
     if (s.file_count > 0) {
-        snprintf(s.dir, sizeof s.dir, "%s/bgb-job-XXXXXX", rest->work_dir);
-        if (!mkdtemp(s.dir)) {
-            s.dir[0] = '\0';
+        snprintf(dir, sizeof dir, "%s/bgb-job-XXXXXX", rest->work_dir);
+        if (!mkdtemp(dir)) {
+            dir[0] = '\0';
+            fprintf(stderr, "broker: cannot unpack a job's files: %s\n", strerror(errno));
             sent = send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
-                                "Internal error", NULL, "cannot unpack the job's files: %s",
-                                strerror(errno));
+                                "Internal error", NULL, "cannot unpack the job's files");
             goto out;
         }
-        if (bgb_jobscene_unpack(s.dir, files, s.file_count, &err) != BG_OK) {
+        if (bgb_jobscene_unpack(dir, files, s.file_count, &err) != BG_OK) {
+            fprintf(stderr, "broker: %s\n", err.message);
             sent = send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
-                                "Internal error", NULL, "cannot unpack the job's files: %s",
-                                err.message);
+                                "Internal error", NULL, "cannot unpack the job's files");
             goto out;
         }
     }
-    const bgb_jobscene_limits_t limits = {rest->config.max_vertices, rest->config.max_elements};
-    if (bgb_jobscene_load(s.scene, strlen(s.scene), s.file_count ? s.dir : NULL, &limits,
-                          &scene, &err) != BG_OK) {
+    if (bgb_jobscene_load(s.scene, strlen(s.scene), s.file_count ? dir : NULL, limits, &scene,
+                          &err) != BG_OK) {
         char field[256];
         field_of(err.message, field, sizeof field);
         sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT,
@@ -684,21 +436,24 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
         goto out;
     }
     plan_text = bgb_jobscene_plan_json(&scene);
-    const bgb_submit_t job = {
-        .idempotency_key = key,
-        .scene = s.scene,
-        .scene_size = strlen(s.scene),
-        .mechanism = s.mechanism,
-        .budget = s.budget,
-        .files = files,
-        .file_count = s.file_count,
-        .plan = plan_text};
+    const bgb_submit_t job = {.owner = owner,
+                              .idempotency_key = key,
+                              .fingerprint = s.fingerprint,
+                              .scene = s.scene,
+                              .scene_size = strlen(s.scene),
+                              .mechanism = s.mechanism,
+                              .budget = s.budget,
+                              .files = files,
+                              .file_count = s.file_count,
+                              .plan = plan_text};
     char id[BGB_JOB_ID_SIZE];
     int created = 0;
     double stored_at = 0.0;
     if (bgb_store_submit_at(rest->store, &job, id, &created, &stored_at, &err) != BG_OK) {
-        sent = err.status == BG_ERR_IO
-                   ? send_store_problem(rest, c, BG_ERR_IO, &err)
+        sent = err.status == BG_ERR_IO ? send_store_problem(rest, c, BG_ERR_IO, &err)
+               : err.status == BG_ERR_CONFLICT
+                   ? send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "idempotency-key-reused",
+                                  "Idempotency-Key reused", "Idempotency-Key", "%s", err.message)
                    : send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT, "invalid-request",
                                   "Invalid request", NULL, "%s", err.message);
         goto out;
@@ -716,19 +471,21 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
         free(text);
     } else {
         /* An Idempotency-Key replay: the earlier job as it is now. */
-        bgb_job_t stored = BGB_JOB_INIT;
-        if (bgb_store_get(rest->store, id, &stored, &err) != BG_OK) {
+        bgb_job_t earlier = BGB_JOB_INIT;
+        if (bgb_store_get(rest->store, id, &earlier, &err) != BG_OK) {
             sent = send_store_problem(rest, c, BG_ERR_IO, &err);
             goto out;
         }
-        sent = send_json(rest, c, MHD_HTTP_OK, job_json(rest, &stored, 1),
-                         "application/json", location);
-        bgb_job_release(&stored);
+        sent = send_json(rest, c, MHD_HTTP_OK, job_json(rest, &earlier, 1), "application/json",
+                         location);
+        bgb_job_release(&earlier);
     }
 out:
+    if (dir[0])
+        bgb_jobscene_remove(dir, files, s.file_count);
     free(plan_text);
     bgb_jobscene_release(&scene);
-    submission_release(&s);
+    bgb_submission_release(&s);
     return sent;
 }
 
@@ -817,6 +574,19 @@ static enum MHD_Result cancel_job(bgb_rest_t *rest, struct MHD_Connection *c, co
     return st == BG_OK ? get_job(rest, c, id) : send_store_problem(rest, c, st, &err);
 }
 
+/* DELETE /v1/jobs/{id}: an ended job and its files go, freeing their bytes
+ * from the user's quota; 204, or 409 while the job is active. */
+static enum MHD_Result delete_job(bgb_rest_t *rest, struct MHD_Connection *c, const char *id)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    const bg_status st = bgb_store_delete(rest->store, id, &err);
+    if (st != BG_OK)
+        return st == BG_ERR_CONFLICT ? send_problem(rest, c, MHD_HTTP_CONFLICT, "job-active",
+                                                    "Job still active", NULL, "%s", err.message)
+                                     : send_store_problem(rest, c, st, &err);
+    return send_text(rest, c, MHD_HTTP_NO_CONTENT, "text/plain", "", 0, NULL);
+}
+
 static void list_file(void *ctx, const char *name, size_t size)
 {
     cJSON *array = ctx;
@@ -885,12 +655,18 @@ static enum MHD_Result get_result(bgb_rest_t *rest, struct MHD_Connection *c, co
 
 typedef struct stream {
     bgb_rest_t *rest;
-    int fd; /* the client's socket, watched for its end; -1: unknown */
+    struct MHD_Connection *connection;
     char id[BGB_JOB_ID_SIZE];
     int64_t last;
     char *pending; /* formatted events not yet sent */
     size_t pending_size, pending_sent;
     int ended;
+    int64_t seen_epoch; /* the store's event epoch when it last read the store */
+    double last_sent;   /* monotonic seconds, for the keep-alive */
+    int suspended;      /* under rest->streams_lock */
+    int fd;             /* the client's socket, watched while suspended; -1: unknown */
+    int gone;           /* the client hung up (seen by the notifier) */
+    struct stream *next; /* rest->streams, under rest->streams_lock */
 } stream_t;
 
 typedef struct collect {
@@ -949,58 +725,50 @@ static void refill(stream_t *s)
 }
 
 /*
- * Waits one poll interval, watching the client's socket: 1 when the client
- * has gone (it closed its side or the connection broke), 0 otherwise. MHD
- * would only notice when a write fails, at the next keep-alive 15 s later,
- * holding a thread all along; the socket says so at once. A client that
- * sends more bytes while it listens (a pipelined request) is not gone: the
- * bytes stay for MHD, and the rest of the interval is slept.
+ * MHD asks for more of the stream. With nothing to send, the connection is
+ * suspended (it then holds no thread and no timer) until the notifier
+ * resumes it: events were committed since the stream last read the store,
+ * a keep-alive is due, or the server stops. The epoch is read before the
+ * store, so an event committed meanwhile moves the epoch on and is not
+ * missed.
  */
-static int client_gone(const stream_t *s)
-{
-    const struct timespec pause = {0, REST_EVENT_POLL_NS};
-    if (s->fd < 0) {
-        nanosleep(&pause, NULL);
-        return 0;
-    }
-    struct pollfd pfd = {.fd = s->fd, .events = POLLIN};
-    const int n = poll(&pfd, 1, (int)(REST_EVENT_POLL_NS / 1000000L));
-    if (n <= 0)
-        return 0;
-    if (pfd.revents & (POLLERR | POLLHUP | POLLNVAL))
-        return 1;
-    char byte;
-    const ssize_t got = recv(s->fd, &byte, 1, MSG_PEEK);
-    if (got == 0 || (got < 0 && errno != EINTR && errno != EAGAIN))
-        return 1;
-    nanosleep(&pause, NULL);
-    return 0;
-}
-
 static ssize_t read_events(void *cls, uint64_t pos, char *buf, size_t max)
 {
     stream_t *s = cls;
+    bgb_rest_t *rest = s->rest;
     (void)pos;
-    for (int polls = 0;; polls++) {
+    for (;;) {
         if (s->pending_sent < s->pending_size) {
             size_t n = s->pending_size - s->pending_sent;
             if (n > max)
                 n = max;
             memcpy(buf, s->pending + s->pending_sent, n);
             s->pending_sent += n;
+            s->last_sent = bg_clock_now();
             return (ssize_t)n;
         }
-        if (s->ended || atomic_load(&s->rest->stopping))
+        if (s->gone)
+            return MHD_CONTENT_READER_END_WITH_ERROR;
+        if (s->ended || atomic_load(&rest->stopping))
             return MHD_CONTENT_READER_END_OF_STREAM;
-        if (polls == REST_KEEPALIVE_POLLS) {
+        const int64_t epoch = bgb_store_wait_events(rest->store, -1, 0);
+        if (epoch != s->seen_epoch) {
+            s->seen_epoch = epoch;
+            refill(s);
+            continue;
+        }
+        if (bg_clock_now() - s->last_sent >= REST_KEEPALIVE_SECONDS) {
             static const char keepalive[] = ": keep-alive\n\n";
             const size_t n = sizeof keepalive - 1 < max ? sizeof keepalive - 1 : max;
             memcpy(buf, keepalive, n);
+            s->last_sent = bg_clock_now();
             return (ssize_t)n;
         }
-        if (polls > 0 && client_gone(s))
-            return MHD_CONTENT_READER_END_WITH_ERROR;
-        refill(s);
+        pthread_mutex_lock(&rest->streams_lock);
+        s->suspended = 1;
+        MHD_suspend_connection(s->connection);
+        pthread_mutex_unlock(&rest->streams_lock);
+        return 0;
     }
 }
 
@@ -1009,9 +777,65 @@ static ssize_t read_events(void *cls, uint64_t pos, char *buf, size_t max)
 static void free_stream(void *cls)
 {
     stream_t *s = cls;
-    atomic_fetch_sub(&s->rest->event_streams, 1);
+    bgb_rest_t *rest = s->rest;
+    pthread_mutex_lock(&rest->streams_lock);
+    for (stream_t **p = &rest->streams; *p; p = &(*p)->next)
+        if (*p == s) {
+            *p = s->next;
+            break;
+        }
+    pthread_mutex_unlock(&rest->streams_lock);
+    atomic_fetch_sub(&rest->event_streams, 1);
     free(s->pending);
     free(s);
+}
+
+/* Whether the client at fd hung up: MHD does not watch a suspended
+ * connection, and would only notice at the next keep-alive's write. Bytes
+ * the client sent (a pipelined request) are left for MHD. */
+static int client_gone(int fd)
+{
+    if (fd < 0)
+        return 0;
+    struct pollfd pfd = {.fd = fd, .events = POLLIN};
+    if (poll(&pfd, 1, 0) <= 0)
+        return 0;
+    if (pfd.revents & (POLLERR | POLLHUP | POLLNVAL))
+        return 1;
+    char byte;
+    const ssize_t got = recv(fd, &byte, 1, MSG_PEEK | MSG_DONTWAIT);
+    return got == 0 || (got < 0 && errno != EINTR && errno != EAGAIN);
+}
+
+/*
+ * The notifier: sleeps on the store's event epoch (at most a second, for
+ * keep-alives, hung-up clients and stop) and resumes the suspended streams
+ * that have something to send or whose client is gone. At stop it resumes
+ * them all (MHD must not be stopped with a suspended connection) and
+ * returns.
+ */
+static void *notifier_main(void *arg)
+{
+    bgb_rest_t *rest = arg;
+    int64_t epoch = bgb_store_wait_events(rest->store, -1, 0);
+    for (;;) {
+        const int stopping = atomic_load(&rest->stopping);
+        const double now = bg_clock_now();
+        pthread_mutex_lock(&rest->streams_lock);
+        for (stream_t *s = rest->streams; s; s = s->next) {
+            if (s->suspended && client_gone(s->fd))
+                s->gone = 1;
+            if (s->suspended && (stopping || s->gone || s->seen_epoch != epoch ||
+                                 now - s->last_sent >= REST_KEEPALIVE_SECONDS)) {
+                s->suspended = 0;
+                MHD_resume_connection(s->connection);
+            }
+        }
+        pthread_mutex_unlock(&rest->streams_lock);
+        if (stopping)
+            return NULL;
+        epoch = bgb_store_wait_events(rest->store, epoch, 1.0);
+    }
 }
 
 static enum MHD_Result stream_events(bgb_rest_t *rest, struct MHD_Connection *c, const char *id)
@@ -1027,11 +851,18 @@ static enum MHD_Result stream_events(bgb_rest_t *rest, struct MHD_Connection *c,
         return send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
                             "Internal error", NULL, "out of memory");
     s->rest = rest;
-    atomic_fetch_add(&rest->event_streams, 1);
+    s->connection = c;
+    s->seen_epoch = -1;
     const union MHD_ConnectionInfo *info =
         MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
     s->fd = info ? info->connect_fd : -1;
+    s->last_sent = bg_clock_now();
+    atomic_fetch_add(&rest->event_streams, 1);
     snprintf(s->id, sizeof s->id, "%s", id);
+    pthread_mutex_lock(&rest->streams_lock);
+    s->next = rest->streams;
+    rest->streams = s;
+    pthread_mutex_unlock(&rest->streams_lock);
     const char *resume = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Last-Event-ID");
     if (resume)
         s->last = strtoll(resume, NULL, 10);
@@ -1208,7 +1039,7 @@ static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const c
                    : method_not_allowed(rest, c, method, url, "GET");
     if (strcmp(url, "/v1/jobs") == 0) {
         if (post)
-            return submit_job(rest, c, req);
+            return submit_job(rest, c, req, REST_OWNER);
         return get ? list_jobs(rest, c) : method_not_allowed(rest, c, method, url, "GET or POST");
     }
     const char *prefix = "/v1/jobs/";
@@ -1221,8 +1052,10 @@ static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const c
             memcpy(job_id, id, n);
             job_id[n] = '\0';
             if (!rest_of[0])
-                return get ? get_job(rest, c, job_id)
-                           : method_not_allowed(rest, c, method, url, "GET");
+                return get                                ? get_job(rest, c, job_id)
+                       : strcmp(method, "DELETE") == 0 ? delete_job(rest, c, job_id)
+                                                         : method_not_allowed(rest, c, method, url,
+                                                                              "GET or DELETE");
             if (strcmp(rest_of, "/cancel") == 0)
                 return post ? cancel_job(rest, c, job_id)
                             : method_not_allowed(rest, c, method, url, "POST");
@@ -1243,6 +1076,77 @@ static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const c
                         "no resource at %s (see /openapi.json)", url);
 }
 
+/* Counts a request's Content-Length headers and remembers whether they agree. */
+typedef struct lengths {
+    int count, differ, chunked;
+    char first[32];
+} lengths_t;
+
+static enum MHD_Result count_lengths(void *cls, enum MHD_ValueKind kind, const char *key,
+                                     const char *value)
+{
+    (void)kind;
+    lengths_t *l = cls;
+    if (strcasecmp(key, MHD_HTTP_HEADER_CONTENT_LENGTH) == 0) {
+        if (l->count++ == 0)
+            snprintf(l->first, sizeof l->first, "%s", value ? value : "");
+        else if (strcmp(l->first, value ? value : "") != 0)
+            l->differ = 1;
+    } else if (strcasecmp(key, MHD_HTTP_HEADER_TRANSFER_ENCODING) == 0) {
+        l->chunked = 1;
+    }
+    return MHD_YES;
+}
+
+/* Whether a Content-Type names JSON ("application/json", parameters allowed). */
+static int is_json_type(const char *type)
+{
+    static const char json[] = "application/json";
+    if (!type || strncasecmp(type, json, sizeof json - 1) != 0)
+        return 0;
+    const char c = type[sizeof json - 1];
+    return c == '\0' || c == ';' || c == ' ';
+}
+
+/*
+ * The first call of a request: what its headers alone decide. Conflicting
+ * Content-Length headers, or one beside Transfer-Encoding (the request
+ * smuggling shapes), are a 400; a body over the cap a 413 before it is
+ * read; a body of another type than JSON a 415 (so that a web page's form
+ * cannot submit a job). 0: go on.
+ */
+static int refuse_headers(bgb_rest_t *rest, struct MHD_Connection *c, const char *method,
+                          request_t *req, enum MHD_Result *sent)
+{
+    lengths_t l = {0};
+    MHD_get_connection_values(c, MHD_HEADER_KIND, count_lengths, &l);
+    if (l.differ || (l.count > 0 && l.chunked)) {
+        *sent = send_problem(rest, c, MHD_HTTP_BAD_REQUEST, "conflicting-length",
+                             "Conflicting message length", "Content-Length",
+                             l.differ ? "Content-Length is given twice with different values"
+                                      : "Content-Length and Transfer-Encoding are both given");
+        return 1;
+    }
+    if (l.count > 0 && strtoull(l.first, NULL, 10) > rest->limits.max_body) {
+        req->too_large = 1;
+        *sent = send_problem(rest, c, MHD_HTTP_CONTENT_TOO_LARGE, "body-too-large",
+                             "Request body too large", NULL,
+                             "the body of %s bytes exceeds the limit of %zu bytes", l.first,
+                             rest->limits.max_body);
+        return 1;
+    }
+    const int has_body = (l.count > 0 && strtoull(l.first, NULL, 10) > 0) || l.chunked;
+    if (has_body && (strcmp(method, "POST") == 0 || strcmp(method, "PUT") == 0) &&
+        !is_json_type(MHD_lookup_connection_value(c, MHD_HEADER_KIND,
+                                                  MHD_HTTP_HEADER_CONTENT_TYPE))) {
+        *sent = send_problem(rest, c, MHD_HTTP_UNSUPPORTED_MEDIA_TYPE, "unsupported-media-type",
+                             "Unsupported media type", "Content-Type",
+                             "a request body must be application/json");
+        return 1;
+    }
+    return 0;
+}
+
 static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *url,
                               const char *method, const char *version, const char *upload_data,
                               size_t *upload_data_size, void **con_cls)
@@ -1255,28 +1159,25 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
         if (!req)
             return MHD_NO;
         *con_cls = req;
-        const char *length = MHD_lookup_connection_value(c, MHD_HEADER_KIND,
-                                                         MHD_HTTP_HEADER_CONTENT_LENGTH);
-        if (length && strtoull(length, NULL, 10) > rest->config.max_body) {
-            req->too_large = 1;
-            return send_problem(rest, c, MHD_HTTP_CONTENT_TOO_LARGE, "body-too-large",
-                                "Request body too large", NULL,
-                                "the body of %s bytes exceeds the limit of %zu bytes", length,
-                                rest->config.max_body);
-        }
-        return MHD_YES;
+        req->started = bg_clock_now();
+        enum MHD_Result sent = MHD_NO;
+        return refuse_headers(rest, c, method, req, &sent) ? sent : MHD_YES;
     }
     if (*upload_data_size > 0) {
+        /* A body trickled in slower than the request timeout allows: the
+         * connection is closed, whoever sends it. */
+        if (bg_clock_now() - req->started > (double)rest->limits.request_timeout)
+            return MHD_NO;
         if (!req->too_large) {
-            if (req->size + *upload_data_size > rest->config.max_body) {
+            if (req->size + *upload_data_size > rest->limits.max_body) {
                 req->too_large = 1;
             } else {
                 if (req->size + *upload_data_size + 1 > req->cap) {
                     size_t grown = req->cap ? req->cap : 65536;
                     while (grown < req->size + *upload_data_size + 1)
                         grown *= 2;
-                    if (grown > rest->config.max_body + 1)
-                        grown = rest->config.max_body + 1;
+                    if (grown > rest->limits.max_body + 1)
+                        grown = rest->limits.max_body + 1;
                     char *body = realloc(req->body, grown);
                     if (!body)
                         return MHD_NO;
@@ -1294,7 +1195,7 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     if (req->too_large)
         return send_problem(rest, c, MHD_HTTP_CONTENT_TOO_LARGE, "body-too-large",
                             "Request body too large", NULL,
-                            "the body exceeds the limit of %zu bytes", rest->config.max_body);
+                            "the body exceeds the limit of %zu bytes", rest->limits.max_body);
     return route(rest, c, url, method, req);
 }
 
@@ -1321,10 +1222,14 @@ bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bg
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the REST server");
     rest->store = store;
     rest->config = *config;
-    if (!rest->config.max_body)
-        rest->config.max_body = BGB_REST_DEFAULT_MAX_BODY;
-    if (!rest->config.connection_limit)
-        rest->config.connection_limit = REST_DEFAULT_CONNECTIONS;
+    if (config->limits) {
+        rest->limits = *config->limits;
+    } else {
+        bgb_limits_default(&rest->limits);
+        bgb_limits_resolve(&rest->limits, bgb_limits_ram());
+    }
+    rest->config.limits = &rest->limits;
+    pthread_mutex_init(&rest->streams_lock, NULL);
     rest->address = strdup(config->address ? config->address : "127.0.0.1");
     rest->work_dir = strdup(config->work_dir ? config->work_dir : "/tmp");
     rest->name = strdup(config->name ? config->name : "biotgrid");
@@ -1347,12 +1252,25 @@ bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bg
                           rest->address);
         goto out;
     }
+    /* Each connection is a descriptor: make room for the limit. */
+    struct rlimit files;
+    const rlim_t want = (rlim_t)rest->limits.max_connections + 256;
+    if (getrlimit(RLIMIT_NOFILE, &files) == 0 && files.rlim_cur < want) {
+        files.rlim_cur = files.rlim_max < want ? files.rlim_max : want;
+        setrlimit(RLIMIT_NOFILE, &files);
+    }
+    /* A pool of threads on epoll: a connection holds memory, never a
+     * thread, so clients that send half a request or nothing at all cannot
+     * take the server away from the others; event streams suspend while
+     * they have nothing to send. */
     rest->daemon = MHD_start_daemon(
-        MHD_USE_THREAD_PER_CONNECTION | MHD_USE_INTERNAL_POLLING_THREAD, config->port, NULL,
-        NULL, handle, rest, MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&addr,
-        MHD_OPTION_NOTIFY_COMPLETED, completed, rest, MHD_OPTION_CONNECTION_LIMIT,
-        rest->config.connection_limit, MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)120,
-        MHD_OPTION_END);
+        MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME, config->port,
+        NULL, NULL, handle, rest, MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&addr,
+        MHD_OPTION_NOTIFY_COMPLETED, completed, rest, MHD_OPTION_THREAD_POOL_SIZE,
+        (unsigned)REST_THREADS, MHD_OPTION_CONNECTION_LIMIT, rest->limits.max_connections,
+        MHD_OPTION_PER_IP_CONNECTION_LIMIT, rest->limits.max_connections_per_client,
+        MHD_OPTION_CONNECTION_TIMEOUT, rest->limits.idle_timeout,
+        MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)REST_CONNECTION_MEMORY, MHD_OPTION_END);
     if (!rest->daemon) {
         st = bg_error_set(err, BG_ERR_IO, "cannot listen on %s:%u: %s", rest->address,
                           (unsigned)config->port, strerror(errno));
@@ -1361,6 +1279,11 @@ bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bg
     const union MHD_DaemonInfo *info = MHD_get_daemon_info(rest->daemon,
                                                            MHD_DAEMON_INFO_BIND_PORT);
     rest->port = info ? info->port : config->port;
+    if (pthread_create(&rest->notifier, NULL, notifier_main, rest) != 0) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "cannot start the event streams' notifier");
+        goto out;
+    }
+    rest->notifier_started = 1;
 out:
     if (st != BG_OK)
         bgb_rest_stop(&rest);
@@ -1379,8 +1302,13 @@ void bgb_rest_stop(bgb_rest_t **restp)
         return;
     bgb_rest_t *rest = *restp;
     atomic_store(&rest->stopping, 1);
+    /* The notifier resumes every suspended stream before it returns: MHD
+     * may not be stopped with a connection suspended. */
+    if (rest->notifier_started)
+        pthread_join(rest->notifier, NULL);
     if (rest->daemon)
         MHD_stop_daemon(rest->daemon);
+    pthread_mutex_destroy(&rest->streams_lock);
     free(rest->address);
     free(rest->work_dir);
     free(rest->name);

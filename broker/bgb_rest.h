@@ -36,6 +36,7 @@
 #include <stdint.h>
 
 #include "bg_error.h"
+#include "bgb_limits.h"
 #include "bgb_store.h"
 
 typedef struct bgb_rest bgb_rest_t;
@@ -43,12 +44,11 @@ typedef struct bgb_rest bgb_rest_t;
 typedef struct bgb_rest_config {
     const char *address;     /* IPv4 address to bind; NULL: 127.0.0.1 */
     uint16_t port;           /* 0: an ephemeral port (bgb_rest_port tells which) */
-    size_t max_body;         /* request bodies over this are refused (413); 0: 64 MiB */
-    int64_t max_vertices;    /* job size caps (0: the engine's own limits) */
-    int64_t max_elements;
+    /* Every limit (bgb_limits.h), copied; NULL: the defaults, resolved
+     * for this machine. */
+    const bgb_limits_t *limits;
     const char *work_dir;    /* where submitted scenes are unpacked to be validated; NULL: /tmp */
     const char *name;        /* the broker's name in /healthz and /metrics; NULL: "biotgrid" */
-    unsigned connection_limit; /* concurrent connections (0: 256) */
     const char *agents_json; /* the agents known to the broker, a JSON array (copied);
                                 NULL: none */
     const char *market;      /* the live market attached, or NULL: none (then /v1/market
@@ -72,7 +72,6 @@ enum {
     BGB_REST_VIEW_AGENTS_CSV = 3 /* agents.csv */
 };
 
-#define BGB_REST_DEFAULT_MAX_BODY ((size_t)64 << 20)
 
 /* Starts serving; caller owns *out (bgb_rest_stop). */
 bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bgb_rest_t **out,

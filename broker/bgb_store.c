@@ -1,5 +1,7 @@
 #include "bgb_store.h"
 
+#include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <pthread.h>
 #include <sqlite3.h>
@@ -7,10 +9,15 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/random.h>
+#include <sys/stat.h>
 #include <time.h>
+#include <unistd.h>
 
-/* The schema version this code writes and reads (PRAGMA user_version). */
-#define STORE_SCHEMA_VERSION 1
+/* The schema version this code writes and reads (PRAGMA user_version);
+ * a version 1 store is migrated on open (MIGRATE_1_2). */
+#define STORE_SCHEMA_VERSION 2
+/* Jobs without a user (version 1 stores, and callers that give none). */
+#define STORE_DEFAULT_OWNER "local"
 /* How long a connection waits for another one's lock before failing. */
 #define STORE_BUSY_TIMEOUT_MS 10000
 /* Group commit: when the last batch held several submits (callers are
@@ -34,8 +41,12 @@ static const char SCHEMA[] =
     "  updated REAL NOT NULL,"
     "  reason TEXT,"
     "  idempotency_key TEXT UNIQUE,"
-    "  scene BLOB NOT NULL);"
+    "  scene BLOB NOT NULL,"
+    "  owner TEXT NOT NULL DEFAULT '" STORE_DEFAULT_OWNER "',"
+    "  bytes INTEGER NOT NULL DEFAULT 0,"
+    "  fingerprint TEXT);"
     "CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs(state, seq);"
+    "CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs(owner, state);"
     "CREATE TABLE IF NOT EXISTS files("
     "  job TEXT NOT NULL REFERENCES jobs(id),"
     "  kind TEXT NOT NULL,"
@@ -49,6 +60,18 @@ static const char SCHEMA[] =
     "  kind TEXT NOT NULL,"
     "  data TEXT NOT NULL);"
     "CREATE INDEX IF NOT EXISTS events_by_job ON events(job, seq);";
+
+/* Version 1 → 2: jobs get their user (owner), the bytes of their files
+ * (for the per-user quota) and the fingerprint of their submission (for
+ * Idempotency-Key replays); idempotency keys become "owner\x1fkey". */
+static const char MIGRATE_1_2[] =
+    "ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT '" STORE_DEFAULT_OWNER "';"
+    "ALTER TABLE jobs ADD COLUMN bytes INTEGER NOT NULL DEFAULT 0;"
+    "ALTER TABLE jobs ADD COLUMN fingerprint TEXT;"
+    "UPDATE jobs SET bytes = (SELECT COALESCE(SUM(length(data)), 0) FROM files "
+    "  WHERE files.job = jobs.id);"
+    "UPDATE jobs SET idempotency_key = owner || char(31) || idempotency_key "
+    "  WHERE idempotency_key IS NOT NULL;";
 
 static const char *const STATE_NAMES[BGB_JOB_STATE_COUNT] = {
     "queued", "allocating", "running", "succeeded", "failed", "cancelled"};
@@ -86,6 +109,9 @@ struct bgb_store {
     pending_t *queue, *queue_tail;
     later_t *later, *later_tail; /* under queue_lock */
     int nlater;
+    pthread_mutex_t notify_lock; /* guards event_epoch */
+    pthread_cond_t notify;       /* broadcast when events were committed */
+    int64_t event_epoch;
     int max_batch;   /* submits per transaction at most */
     int wake_at;     /* the writer waits for this many queued submits (0: it is not waiting) */
     int queued;      /* submits in queue */
@@ -197,6 +223,9 @@ static bg_status check_submit(const bgb_submit_t *job, bg_error_t *err)
                             job->budget);
     if (!job->scene || job->scene_size == 0)
         return bg_error_set(err, BG_ERR_INVALID, "scene: empty");
+    if (job->owner && strlen(job->owner) > BGB_STORE_MAX_OWNER)
+        return bg_error_set(err, BG_ERR_INVALID, "owner: longer than %d bytes",
+                            BGB_STORE_MAX_OWNER);
     if (job->idempotency_key && strlen(job->idempotency_key) > BGB_STORE_MAX_KEY)
         return bg_error_set(err, BG_ERR_LIMIT, "Idempotency-Key: longer than %d bytes",
                             BGB_STORE_MAX_KEY);
@@ -327,15 +356,29 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
     bg_error_t *err = &p->err;
     sqlite3_stmt *s = NULL;
     bg_status st = BG_OK;
+    const char *owner = job->owner && job->owner[0] ? job->owner : STORE_DEFAULT_OWNER;
+    /* A key names one job of its user forever: it is stored scoped by the
+     * user ("owner\x1fkey"), so two users' keys never meet. */
     const int keyed = job->idempotency_key && job->idempotency_key[0];
+    char key[2 * BGB_STORE_MAX_KEY + 2];
+    if (keyed)
+        snprintf(key, sizeof key, "%s\x1f%s", owner, job->idempotency_key);
     if (keyed) {
-        if ((st = prepare(db, "SELECT id FROM jobs WHERE idempotency_key = ?", &s, err)) != BG_OK)
+        if ((st = prepare(db, "SELECT id, fingerprint FROM jobs WHERE idempotency_key = ?", &s,
+                          err)) != BG_OK)
             return st;
-        sqlite3_bind_text(s, 1, job->idempotency_key, -1, SQLITE_STATIC);
+        sqlite3_bind_text(s, 1, key, -1, SQLITE_STATIC);
         const int rc = sqlite3_step(s);
         if (rc == SQLITE_ROW) {
             snprintf(p->id, BGB_JOB_ID_SIZE, "%s", (const char *)sqlite3_column_text(s, 0));
+            const char *earlier = (const char *)sqlite3_column_text(s, 1);
             p->created = 0;
+            /* The same key with another body is a client's mistake, not a
+             * replay: answering with the earlier job would hide it. */
+            if (job->fingerprint && earlier && strcmp(earlier, job->fingerprint) != 0)
+                st = bg_error_set(err, BG_ERR_CONFLICT,
+                                  "Idempotency-Key '%s' was used for job %s with another body",
+                                  job->idempotency_key, p->id);
         } else if (rc != SQLITE_DONE) {
             st = sql_fail(db, err, "look up the idempotency key");
         }
@@ -346,10 +389,14 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
     }
     if ((st = new_id(p->id, err)) != BG_OK)
         return st;
+    int64_t bytes = 0;
+    for (int i = 0; i < job->file_count; i++)
+        bytes += (int64_t)job->files[i].size;
     const double now = wall_clock();
     if ((st = prepare(db,
                       "INSERT INTO jobs(id, state, mechanism, budget, created, updated, "
-                      "idempotency_key, scene) VALUES(?, ?, ?, ?, ?, ?, ?, ?)",
+                      "idempotency_key, scene, owner, bytes, fingerprint) "
+                      "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                       &s, err)) != BG_OK)
         return st;
     sqlite3_bind_text(s, 1, p->id, -1, SQLITE_STATIC);
@@ -359,10 +406,16 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
     sqlite3_bind_double(s, 5, now);
     sqlite3_bind_double(s, 6, now);
     if (keyed)
-        sqlite3_bind_text(s, 7, job->idempotency_key, -1, SQLITE_STATIC);
+        sqlite3_bind_text(s, 7, key, -1, SQLITE_STATIC);
     else
         sqlite3_bind_null(s, 7);
     sqlite3_bind_blob64(s, 8, job->scene, job->scene_size, SQLITE_STATIC);
+    sqlite3_bind_text(s, 9, owner, -1, SQLITE_STATIC);
+    sqlite3_bind_int64(s, 10, bytes);
+    if (job->fingerprint)
+        sqlite3_bind_text(s, 11, job->fingerprint, -1, SQLITE_STATIC);
+    else
+        sqlite3_bind_null(s, 11);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "insert job");
     finish(s);
@@ -375,6 +428,15 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
     p->created = st == BG_OK;
     p->time = now;
     return st;
+}
+
+/* Events were committed: wakes bgb_store_wait_events. */
+static void events_committed(bgb_store_t *store)
+{
+    pthread_mutex_lock(&store->notify_lock);
+    store->event_epoch++;
+    pthread_cond_broadcast(&store->notify);
+    pthread_mutex_unlock(&store->notify_lock);
 }
 
 /* Writes a batch of submits in one transaction; each in its own savepoint so
@@ -417,9 +479,12 @@ static void write_batch(bgb_store_t *store, pending_t *batch)
     store->commits += st == BG_OK;
     store->submits += written;
     pthread_mutex_unlock(&store->write_lock);
+    if (written)
+        events_committed(store);
 }
 
 static bg_status job_exists(sqlite3 *db, const char *id, bg_error_t *err);
+
 
 /* Writes the events queued by bgb_store_add_event_later, oldest first, in
  * one transaction; called with write_lock held, so that a synchronous write
@@ -449,6 +514,7 @@ static void flush_later(bgb_store_t *store)
     }
     if (open && run(db, "COMMIT", &err) != BG_OK)
         run(db, "ROLLBACK", NULL);
+    events_committed(store);
 }
 
 static void *writer_main(void *arg)
@@ -541,6 +607,8 @@ bg_status bgb_store_open_with(const char *path, const bgb_store_options_t *optio
     pthread_mutex_init(&store->read_lock, NULL);
     pthread_mutex_init(&store->queue_lock, NULL);
     pthread_cond_init(&store->queue_ready, NULL);
+    pthread_mutex_init(&store->notify_lock, NULL);
+    pthread_cond_init(&store->notify, NULL);
     bg_status st = BG_OK;
     store->path = strdup(path);
     if (!store->path) {
@@ -548,6 +616,17 @@ bg_status bgb_store_open_with(const char *path, const bgb_store_options_t *optio
         goto out;
     }
     store->max_batch = options->max_batch ? options->max_batch : STORE_DEFAULT_MAX_BATCH;
+    /* The store holds every user's scenes and results: its owner alone may
+     * read it (SQLite gives its -wal and -shm files the same mode). */
+    const int fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0600);
+    if (fd < 0 || fchmod(fd, 0600) != 0) {
+        st = bg_error_set(err, BG_ERR_IO, "job store %s: cannot create: %s", path,
+                          strerror(errno));
+        if (fd >= 0)
+            close(fd);
+        goto out;
+    }
+    close(fd);
     if ((st = open_connection(path, options->durability, &store->writer, err)) != BG_OK)
         goto out;
     sqlite3_stmt *s = NULL;
@@ -555,7 +634,7 @@ bg_status bgb_store_open_with(const char *path, const bgb_store_options_t *optio
         goto out;
     const int version = sqlite3_step(s) == SQLITE_ROW ? sqlite3_column_int(s, 0) : -1;
     finish(s);
-    if (version != 0 && version != STORE_SCHEMA_VERSION) {
+    if (version != 0 && version != 1 && version != STORE_SCHEMA_VERSION) {
         st = bg_error_set(err, BG_ERR_UNSUPPORTED,
                           "job store %s: schema version %d, this broker reads version %d", path,
                           version, STORE_SCHEMA_VERSION);
@@ -563,6 +642,13 @@ bg_status bgb_store_open_with(const char *path, const bgb_store_options_t *optio
     }
     char pragma[64];
     snprintf(pragma, sizeof pragma, "PRAGMA user_version=%d", STORE_SCHEMA_VERSION);
+    if (version == 1 && ((st = exec(store->writer, "BEGIN IMMEDIATE", err)) != BG_OK ||
+                         (st = exec(store->writer, MIGRATE_1_2, err)) != BG_OK ||
+                         (st = exec(store->writer, pragma, err)) != BG_OK ||
+                         (st = exec(store->writer, "COMMIT", err)) != BG_OK)) {
+        exec(store->writer, "ROLLBACK", NULL);
+        goto out;
+    }
     if ((st = exec(store->writer, SCHEMA, err)) != BG_OK ||
         (st = exec(store->writer, pragma, err)) != BG_OK)
         goto out;
@@ -598,6 +684,8 @@ void bgb_store_destroy(bgb_store_t **storep)
     pthread_mutex_destroy(&store->read_lock);
     pthread_mutex_destroy(&store->queue_lock);
     pthread_cond_destroy(&store->queue_ready);
+    pthread_mutex_destroy(&store->notify_lock);
+    pthread_cond_destroy(&store->notify);
     free(store->path);
     free(store);
     *storep = NULL;
@@ -660,7 +748,7 @@ static char *column_copy(sqlite3_stmt *s, int column, size_t *size)
     return copy;
 }
 
-#define JOB_COLUMNS "id, state, mechanism, budget, created, updated, reason, scene, seq"
+#define JOB_COLUMNS "id, state, mechanism, budget, created, updated, reason, scene, seq, owner"
 
 static bg_status read_job(sqlite3_stmt *s, bgb_job_t *job, bg_error_t *err)
 {
@@ -673,6 +761,7 @@ static bg_status read_job(sqlite3_stmt *s, bgb_job_t *job, bg_error_t *err)
     job->reason = column_copy(s, 6, NULL);
     job->scene = column_copy(s, 7, &job->scene_size);
     job->sequence = sqlite3_column_int64(s, 8);
+    snprintf(job->owner, sizeof job->owner, "%s", (const char *)sqlite3_column_text(s, 9));
     if (!job->mechanism || !job->scene || (!job->reason && sqlite3_column_type(s, 6) != SQLITE_NULL)) {
         bgb_job_release(job);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory reading a job");
@@ -746,6 +835,34 @@ bg_status bgb_store_list(bgb_store_t *store, int state, int64_t after, int limit
     return st;
 }
 
+/*
+ * Under write_lock: writes what waits to be written later, opens a write
+ * transaction and reads job id's state into *state. On failure (no such
+ * job: BG_ERR_NOT_FOUND) the transaction is already rolled back.
+ */
+static bg_status begin_on_job(bgb_store_t *store, const char *id, int *state, bg_error_t *err)
+{
+    sqlite3 *db = store->writer;
+    sqlite3_stmt *s = NULL;
+    flush_later(store);
+    bg_status st = run(db, "BEGIN IMMEDIATE", err);
+    if (st != BG_OK)
+        return st;
+    if ((st = prepare(db, "SELECT state FROM jobs WHERE id = ?", &s, err)) == BG_OK) {
+        sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+        const int rc = sqlite3_step(s);
+        *state = rc == SQLITE_ROW ? sqlite3_column_int(s, 0) : -1;
+        if (rc == SQLITE_DONE)
+            st = bg_error_set(err, BG_ERR_NOT_FOUND, "no job '%s'", id);
+        else if (rc != SQLITE_ROW)
+            st = sql_fail(db, err, "read job state");
+        finish(s);
+    }
+    if (st != BG_OK)
+        run(db, "ROLLBACK", NULL);
+    return st;
+}
+
 bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from_mask,
                                bgb_job_state to, const char *reason, bg_error_t *err)
 {
@@ -753,26 +870,11 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
         return bg_error_set(err, BG_ERR_INVALID, "unknown job state %d", (int)to);
     sqlite3 *db = store->writer;
     sqlite3_stmt *s = NULL;
+    int current = -1;
     pthread_mutex_lock(&store->write_lock);
-    flush_later(store);
-    bg_status st = run(db, "BEGIN IMMEDIATE", err);
+    bg_status st = begin_on_job(store, id, &current, err);
     if (st != BG_OK)
         goto unlock;
-    if ((st = prepare(db, "SELECT state FROM jobs WHERE id = ?", &s, err)) != BG_OK)
-        goto rollback;
-    sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
-    const int rc = sqlite3_step(s);
-    const int current = rc == SQLITE_ROW ? sqlite3_column_int(s, 0) : -1;
-    finish(s);
-    s = NULL;
-    if (rc == SQLITE_DONE) {
-        st = bg_error_set(err, BG_ERR_NOT_FOUND, "no job '%s'", id);
-        goto rollback;
-    }
-    if (rc != SQLITE_ROW) {
-        st = sql_fail(db, err, "read job state");
-        goto rollback;
-    }
     if (!(from_mask & (1u << current))) {
         st = bg_error_set(err, BG_ERR_CONFLICT, "job %s is %s; it cannot become %s", id,
                           bgb_job_state_name((bgb_job_state)current), bgb_job_state_name(to));
@@ -799,8 +901,10 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
     }
     if (st == BG_OK) {
         st = run(db, "COMMIT", err);
-        if (st == BG_OK)
+        if (st == BG_OK) {
+            events_committed(store);
             goto unlock;
+        }
     }
 rollback:
     run(db, "ROLLBACK", NULL);
@@ -835,7 +939,27 @@ bg_status bgb_store_add_event(bgb_store_t *store, const char *id, const char *ki
     if (st == BG_OK)
         st = insert_event(store->writer, id, wall_clock(), kind, json, err);
     pthread_mutex_unlock(&store->write_lock);
+    if (st == BG_OK)
+        events_committed(store);
     return st;
+}
+
+int64_t bgb_store_wait_events(bgb_store_t *store, int64_t seen, double timeout)
+{
+    pthread_mutex_lock(&store->notify_lock);
+    if (store->event_epoch == seen && timeout > 0) {
+        struct timespec ts;
+        clock_gettime(CLOCK_REALTIME, &ts);
+        const double end = (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec + timeout;
+        ts.tv_sec = (time_t)end;
+        ts.tv_nsec = (long)((end - (double)ts.tv_sec) * 1e9);
+        while (store->event_epoch == seen &&
+               pthread_cond_timedwait(&store->notify, &store->notify_lock, &ts) == 0)
+            ;
+    }
+    const int64_t epoch = store->event_epoch;
+    pthread_mutex_unlock(&store->notify_lock);
+    return epoch;
 }
 
 bg_status bgb_store_add_event_later(bgb_store_t *store, const char *id, const char *kind,
@@ -919,10 +1043,100 @@ bg_status bgb_store_put_file(bgb_store_t *store, const char *id, const char *kin
         st = bgb_store_check_file_name(file->name, "files", err);
     if (st != BG_OK)
         return st;
+    sqlite3 *db = store->writer;
+    sqlite3_stmt *s = NULL;
     pthread_mutex_lock(&store->write_lock);
-    st = job_exists(store->writer, id, err);
-    if (st == BG_OK)
-        st = insert_file(store->writer, id, kind, file, err);
+    flush_later(store);
+    if ((st = run(db, "BEGIN IMMEDIATE", err)) != BG_OK)
+        goto unlock;
+    if ((st = job_exists(db, id, err)) != BG_OK)
+        goto rollback;
+    /* The job's bytes (its user's quota) count the file once, replaced or new. */
+    int64_t old = 0;
+    if ((st = prepare(db, "SELECT length(data) FROM files WHERE job = ? AND kind = ? AND name = ?",
+                      &s, err)) != BG_OK)
+        goto rollback;
+    sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+    sqlite3_bind_text(s, 2, kind, -1, SQLITE_STATIC);
+    sqlite3_bind_text(s, 3, file->name, -1, SQLITE_STATIC);
+    if (sqlite3_step(s) == SQLITE_ROW)
+        old = sqlite3_column_int64(s, 0);
+    finish(s);
+    s = NULL;
+    if ((st = insert_file(db, id, kind, file, err)) != BG_OK ||
+        (st = prepare(db, "UPDATE jobs SET bytes = bytes + ? WHERE id = ?", &s, err)) != BG_OK)
+        goto rollback;
+    sqlite3_bind_int64(s, 1, (int64_t)file->size - old);
+    sqlite3_bind_text(s, 2, id, -1, SQLITE_STATIC);
+    if (sqlite3_step(s) != SQLITE_DONE)
+        st = sql_fail(db, err, "count the job's bytes");
+    finish(s);
+    if (st == BG_OK && (st = run(db, "COMMIT", err)) == BG_OK)
+        goto unlock;
+rollback:
+    run(db, "ROLLBACK", NULL);
+unlock:
+    pthread_mutex_unlock(&store->write_lock);
+    return st;
+}
+
+bg_status bgb_store_usage(bgb_store_t *store, const char *owner, int *in_flight, int64_t *bytes,
+                          bg_error_t *err)
+{
+    *in_flight = 0;
+    *bytes = 0;
+    sqlite3_stmt *s = NULL;
+    pthread_mutex_lock(&store->read_lock);
+    bg_status st = prepare(store->reader,
+                           "SELECT COALESCE(SUM(state IN (0, 1, 2)), 0), COALESCE(SUM(bytes), 0) "
+                           "FROM jobs WHERE owner = ?",
+                           &s, err);
+    if (st == BG_OK) {
+        sqlite3_bind_text(s, 1, owner && owner[0] ? owner : STORE_DEFAULT_OWNER, -1,
+                          SQLITE_STATIC);
+        if (sqlite3_step(s) == SQLITE_ROW) {
+            *in_flight = sqlite3_column_int(s, 0);
+            *bytes = sqlite3_column_int64(s, 1);
+        } else {
+            st = sql_fail(store->reader, err, "count a user's jobs");
+        }
+    }
+    finish(s);
+    pthread_mutex_unlock(&store->read_lock);
+    return st;
+}
+
+bg_status bgb_store_delete(bgb_store_t *store, const char *id, bg_error_t *err)
+{
+    sqlite3 *db = store->writer;
+    sqlite3_stmt *s = NULL;
+    int state = -1;
+    pthread_mutex_lock(&store->write_lock);
+    bg_status st = begin_on_job(store, id, &state, err);
+    if (st != BG_OK)
+        goto unlock;
+    if (bgb_job_state_is_active((bgb_job_state)state)) {
+        st = bg_error_set(err, BG_ERR_CONFLICT, "job %s is %s; cancel it before deleting it", id,
+                          bgb_job_state_name((bgb_job_state)state));
+        goto rollback;
+    }
+    static const char *const deletes[] = {"DELETE FROM files WHERE job = ?",
+                                          "DELETE FROM events WHERE job = ?",
+                                          "DELETE FROM jobs WHERE id = ?"};
+    for (int i = 0; i < 3 && st == BG_OK; i++) {
+        if ((st = prepare(db, deletes[i], &s, err)) != BG_OK)
+            break;
+        sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+        if (sqlite3_step(s) != SQLITE_DONE)
+            st = sql_fail(db, err, "delete a job");
+        finish(s);
+        s = NULL;
+    }
+    if (st == BG_OK && (st = run(db, "COMMIT", err)) == BG_OK)
+        goto unlock;
+rollback:
+    run(db, "ROLLBACK", NULL);
+unlock:
     pthread_mutex_unlock(&store->write_lock);
     return st;
 }

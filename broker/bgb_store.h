@@ -36,6 +36,7 @@ typedef struct bgb_store bgb_store_t;
 #define BGB_STORE_MAX_FILES 64
 #define BGB_STORE_MAX_FILE_NAME 255
 #define BGB_STORE_MAX_KEY 255
+#define BGB_STORE_MAX_OWNER 64
 
 typedef enum bgb_job_state {
     BGB_JOB_QUEUED = 0,     /* accepted and stored, not yet allocated */
@@ -60,7 +61,10 @@ typedef struct bgb_file {
 } bgb_file_t;
 
 typedef struct bgb_submit {
-    const char *idempotency_key; /* NULL or "": none */
+    const char *owner;           /* the submitting user; NULL or "": "local" */
+    const char *idempotency_key; /* NULL or "": none; scoped to the owner */
+    const char *fingerprint;     /* what the submission is (bgb_submission): a key reused with
+                                    another fingerprint is refused; NULL: not compared */
     const char *scene;           /* the scene JSON, borrowed */
     size_t scene_size;
     const char *mechanism;       /* "central", "catallactic" or "posted" */
@@ -82,6 +86,7 @@ bg_status bgb_store_check_file_name(const char *name, const char *field, bg_erro
 /* A job as stored; strings owned by the record (bgb_job_release). */
 typedef struct bgb_job {
     char id[BGB_JOB_ID_SIZE];
+    char owner[BGB_STORE_MAX_OWNER + 1]; /* the user who submitted it */
     bgb_job_state state;
     char *mechanism;
     double budget;
@@ -93,7 +98,7 @@ typedef struct bgb_job {
     int64_t sequence; /* submission order, the pagination cursor */
 } bgb_job_t;
 
-#define BGB_JOB_INIT {{0}, BGB_JOB_QUEUED, NULL, 0.0, 0.0, 0.0, NULL, NULL, 0, 0}
+#define BGB_JOB_INIT {{0}, {0}, BGB_JOB_QUEUED, NULL, 0.0, 0.0, 0.0, NULL, NULL, 0, 0}
 
 void bgb_job_release(bgb_job_t *job);
 
@@ -122,9 +127,11 @@ void bgb_store_destroy(bgb_store_t **store);
 
 /*
  * Stores a new job in state queued, durably, and writes its id to id. With
- * an idempotency key already used, stores nothing and returns the earlier
- * job's id with *created = 0 (a key names one job forever). BG_ERR_INVALID
- * for a bad field (naming it), BG_ERR_LIMIT over the caps above.
+ * an idempotency key its owner already used, stores nothing and returns the
+ * earlier job's id with *created = 0 (a key names one job forever), or
+ * BG_ERR_CONFLICT when the earlier job's fingerprint differs (the key was
+ * reused with another body). BG_ERR_INVALID for a bad field (naming it),
+ * BG_ERR_LIMIT over the caps above.
  */
 bg_status bgb_store_submit(bgb_store_t *store, const bgb_submit_t *job,
                            char id[BGB_JOB_ID_SIZE], int *created, bg_error_t *err);
@@ -176,6 +183,14 @@ bg_status bgb_store_add_event(bgb_store_t *store, const char *id, const char *ki
 bg_status bgb_store_add_event_later(bgb_store_t *store, const char *id, const char *kind,
                                     const char *json, bg_error_t *err);
 
+/*
+ * Waits until events were committed since the caller saw epoch `seen`, or
+ * `timeout` seconds passed; returns the current epoch (start with the
+ * value of a call with timeout 0). What a server that pushes events to its
+ * clients sleeps on instead of polling the store.
+ */
+int64_t bgb_store_wait_events(bgb_store_t *store, int64_t seen, double timeout);
+
 /* Calls fn for each event of the job with sequence > after, in order. */
 typedef void (*bgb_event_fn)(void *ctx, int64_t sequence, double time, const char *kind,
                              const char *json);
@@ -196,6 +211,18 @@ bg_status bgb_store_get_file(bgb_store_t *store, const char *id, const char *kin
 typedef void (*bgb_file_fn)(void *ctx, const char *name, size_t size);
 bg_status bgb_store_list_files(bgb_store_t *store, const char *id, const char *kind,
                                bgb_file_fn fn, void *ctx, bg_error_t *err);
+
+/*
+ * A user's share of the store: their jobs still in flight (queued,
+ * allocating or running) and the bytes of all their jobs' files (inputs
+ * and results), for the per-user quotas. owner NULL or "": "local".
+ */
+bg_status bgb_store_usage(bgb_store_t *store, const char *owner, int *in_flight, int64_t *bytes,
+                          bg_error_t *err);
+
+/* Deletes an ended job with its files and events (freeing its user's
+ * quota); BG_ERR_CONFLICT while it is active, BG_ERR_NOT_FOUND. */
+bg_status bgb_store_delete(bgb_store_t *store, const char *id, bg_error_t *err);
 
 /* Jobs per state (counts[BGB_JOB_STATE_COUNT]), for /metrics. */
 bg_status bgb_store_count(bgb_store_t *store, int64_t counts[BGB_JOB_STATE_COUNT],

@@ -25,8 +25,12 @@ const char bg_cmd_broker_usage[] =
     "(STATE_DIR/broker.sqlite, default out/broker) and the ZeroMQ endpoint agents\n"
     "connect to (default tcp://127.0.0.1:5570), until SIGTERM or SIGINT.\n"
     "  --config FILE       JSON object with keys name, address, port, endpoint,\n"
-    "                      state_dir, max_body, max_vertices, max_elements, max_jobs,\n"
-    "                      agent_timeout_ms, agents ([{\"endpoint\", \"services\"}]),\n"
+    "                      state_dir, max_jobs, agent_timeout_ms, the limits\n"
+    "                      (memory_fraction, max_vertices, max_elements, max_work,\n"
+    "                      max_body, max_jobs_in_flight, max_stored_bytes,\n"
+    "                      max_connections, max_connections_per_client,\n"
+    "                      idle_timeout, request_timeout; printed at start),\n"
+    "                      agents ([{\"endpoint\", \"services\"}]),\n"
     "                      market ({period, k, heartbeat_timeout, reply_timeout,\n"
     "                      buy_timeout, overlay_degree, hops, max_rounds,\n"
     "                      max_contracts}: the live market's settings)\n"
@@ -121,8 +125,10 @@ int bg_cmd_broker(int argc, char **argv)
         rc = BG_EXIT_FAILED;
         goto out;
     }
-    printf("broker %s ready on %s, agents at %s\n", config.name, url,
-           bgb_broker_endpoint(broker));
+    char limits[1024];
+    bgb_limits_describe(bgb_broker_limits(broker), bgb_limits_ram(), limits, sizeof limits);
+    printf("broker %s ready on %s, agents at %s\nlimits:\n%s", config.name, url,
+           bgb_broker_endpoint(broker), limits);
     fflush(stdout);
     while (!bg_cmd_stop_requested)
         pause();

@@ -49,6 +49,9 @@ typedef struct parser {
     char *dir;               /* base for relative paths: "" (cwd) or "dir/" */
     const char *search_path; /* ':'-separated folders for files not found beside the scene */
     int64_t max_vertices, max_elements; /* mesh size caps */
+    double max_work;                    /* elements × (steps or frames), at most */
+    int material_form;                  /* -1: none read; 0 {mu, lambda}, 1 {E, nu}, 2 {alpha, beta} */
+    double material_a, material_b;      /* the form's two values, checked */
     int confined;                       /* files only inside the scene's folder */
     bg_error_t *err;
     bg_scene_t *scene;
@@ -244,6 +247,8 @@ static char *copy_string(const char *s)
 
 /* ------------------------------------------------------------------- mesh */
 
+static bg_status check_work(parser_t *p, double elements);
+
 /* Takes ownership of mesh (into the scene), validates it and records its
  * dimension and bounds for the fields that follow. */
 static bg_status finish_mesh(parser_t *p, bg_mesh_t *mesh)
@@ -257,6 +262,9 @@ static bg_status finish_mesh(parser_t *p, bg_mesh_t *mesh)
                     "%lld elements",
                     s->mesh_source, (int)mesh->nv, (int)mesh->ne, (long long)p->max_vertices,
                     (long long)p->max_elements);
+    bg_status wst = check_work(p, (double)mesh->ne);
+    if (wst != BG_OK)
+        return wst;
     /* Readers validate already (and do not report their count, so it is 0
      * for file meshes); generators do not, so validate here in all cases. */
     if (bg_mesh_validate(mesh, s->mesh_source, &s->reoriented, &inner) != BG_OK)
@@ -320,6 +328,24 @@ out:
     return st;
 }
 
+/* The work a job asks for, elements × its steps (dynamic) or frames
+ * (morph), against the cap; the task is parsed before the mesh, so this
+ * holds before a generated mesh is allocated. */
+static bg_status check_work(parser_t *p, double elements)
+{
+    const bg_scene_t *s = p->scene;
+    const int dynamic = s->task == BG_TASK_DYNAMIC, morph = s->task == BG_TASK_MORPH;
+    const double repeats = dynamic ? (double)s->dynamic.steps
+                           : morph ? (double)s->morph_frames
+                                   : 1.0;
+    if (p->max_work > 0 && elements * repeats > p->max_work)
+        return fail(p, BG_ERR_LIMIT, dynamic ? "task.steps" : morph ? "task.frames" : "mesh",
+                    "%.0f elements x %.0f %s = %.3g element-%s, over the limit of %.3g", elements,
+                    repeats, dynamic ? "steps" : morph ? "frames" : "solve", elements * repeats,
+                    dynamic ? "steps" : morph ? "frames" : "solves", p->max_work);
+    return BG_OK;
+}
+
 /* Caps the generated mesh before the generator allocates: a few bytes of
  * JSON can ask for billions of elements. */
 static bg_status check_generated_size(parser_t *p, const char *field, double vertices,
@@ -330,7 +356,7 @@ static bg_status check_generated_size(parser_t *p, const char *field, double ver
                     "the generated mesh would have %.0f vertices and %.0f elements, over the "
                     "limits of %lld vertices and %lld elements",
                     vertices, elements, (long long)p->max_vertices, (long long)p->max_elements);
-    return BG_OK;
+    return check_work(p, elements);
 }
 
 /* {"generate": "disk", "rings": R, "radius": r, "center": [...], "planar": b}:
@@ -494,6 +520,13 @@ static bg_status parse_mesh(parser_t *p, const cJSON *item)
 
 /* --------------------------------------------------------------- material */
 
+/*
+ * The material's values, checked as far as they can be without the mesh:
+ * the keys, exactly one of the three forms, finite numbers, E > 0, ν in
+ * (−1, ½), density > 0. Read before the mesh is built, so that a scene
+ * missing its material fails before any mesh is generated or read;
+ * finish_material converts them once the dimension is known.
+ */
 static bg_status parse_material(parser_t *p, const cJSON *item)
 {
     static const char *const keys[] = {"mu", "lambda", "E", "nu", "alpha", "beta", "density", NULL};
@@ -532,16 +565,39 @@ static bg_status parse_material(parser_t *p, const cJSON *item)
         st = read_number(p, member(item, forms[form][1]), fb, &b);
     if (st != BG_OK)
         return st;
-    const int n = p->dim;
-    bg_material_t *m = &p->scene->material;
-    if (form == 0) {
-        m->mu = a;
-        m->lambda = b;
-    } else if (form == 1) {
+    if (form == 1) {
         if (!(a > 0.0))
             return fail(p, BG_ERR_INVALID, fa, "Young's modulus must be positive, got %g", a);
         if (!(b > -1.0 && b < 0.5))
             return fail(p, BG_ERR_INVALID, fb, "Poisson's ratio must be in (-1, 0.5), got %g", b);
+    }
+    bg_material_t *m = &p->scene->material;
+    m->density = DEFAULT_DENSITY;
+    if (member(item, "density")) {
+        st = read_number(p, member(item, "density"), "material.density", &m->density);
+        if (st != BG_OK)
+            return st;
+        if (!(m->density > 0.0))
+            return fail(p, BG_ERR_INVALID, "material.density", "must be positive, got %g",
+                        m->density);
+    }
+    p->material_form = form;
+    p->material_a = a;
+    p->material_b = b;
+    return BG_OK;
+}
+
+/* The material's μ and λ in the mesh's dimension, and the stability check
+ * that depends on it. */
+static bg_status finish_material(parser_t *p)
+{
+    const int n = p->dim;
+    const double a = p->material_a, b = p->material_b;
+    bg_material_t *m = &p->scene->material;
+    if (p->material_form == 0) {
+        m->mu = a;
+        m->lambda = b;
+    } else if (p->material_form == 1) {
         m->mu = a / (2.0 * (1.0 + b));
         m->lambda = a * b / ((1.0 + b) * (1.0 - 2.0 * b));
     } else {
@@ -552,15 +608,6 @@ static bg_status parse_material(parser_t *p, const cJSON *item)
         return fail(p, BG_ERR_INVALID, "material",
                     "unstable material mu = %g, lambda = %g: need mu > 0 and %d*lambda + 2*mu > 0",
                     m->mu, m->lambda, n);
-    m->density = DEFAULT_DENSITY;
-    if (member(item, "density")) {
-        st = read_number(p, member(item, "density"), "material.density", &m->density);
-        if (st != BG_OK)
-            return st;
-        if (!(m->density > 0.0))
-            return fail(p, BG_ERR_INVALID, "material.density", "must be positive, got %g",
-                        m->density);
-    }
     return BG_OK;
 }
 
@@ -1910,9 +1957,26 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
     }
     if (!s->name)
         return fail(p, BG_ERR_NOMEM, "name", "out of memory");
-    /* The task first (an unsupported kind fails before any mesh is read),
+    /* Everything that does not depend on the mesh first — the task (an
+     * unsupported kind fails before any mesh is read), the solver, the
+     * material's values, the members a task does not use — so that a
+     * malformed scene is refused before any mesh is generated or read;
      * then the mesh, whose dimension every later field depends on. */
+    static const char *const unused_param[] = {"material",  "gravity",  "handles", "initial",
+                                               "reference", "velocity", NULL};
+    static const char *const unused_surface[] = {"material", "gravity", "velocity", NULL};
     st = parse_task(p, member(root, "task"));
+    if (st == BG_OK)
+        st = parse_solver(p, member(root, "solver"));
+    const char *const *unused = s->task == BG_TASK_PARAMETERIZE    ? unused_param
+                                : s->task == BG_TASK_SURFACE_EDIT ? unused_surface
+                                                                  : NULL;
+    for (int i = 0; st == BG_OK && unused && unused[i]; i++)
+        if (member(root, unused[i]))
+            return fail(p, BG_ERR_INVALID, unused[i], "not used by a %s task",
+                        s->task == BG_TASK_PARAMETERIZE ? "parameterize" : "surface-edit");
+    if (st == BG_OK && !unused)
+        st = parse_material(p, member(root, "material"));
     if (st == BG_OK)
         st = parse_mesh(p, member(root, "mesh"));
     if (st != BG_OK)
@@ -1927,28 +1991,17 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
     if (s->task == BG_TASK_PARAMETERIZE) {
         /* The material comes from alpha and beta, the rigid modes are
          * removed by the setup, the start is a Tutte embedding. */
-        static const char *const unused[] = {"material",  "gravity",  "handles", "initial",
-                                             "reference", "velocity", NULL};
-        for (int i = 0; unused[i]; i++)
-            if (member(root, unused[i]))
-                return fail(p, BG_ERR_INVALID, unused[i], "not used by a parameterize task");
-        st = parse_solver(p, member(root, "solver"));
-        if (st == BG_OK)
-            st = bg_mesh_check_disk(s->mesh, s->path, p->err);
+        st = bg_mesh_check_disk(s->mesh, s->path, p->err);
         if (st == BG_OK)
             s->mesh_format = BG_FORMAT_OBJ;
         return st;
     }
     if (s->task == BG_TASK_SURFACE_EDIT) {
         /* The spokes-and-rims energy has no material parameters. */
-        static const char *const unused[] = {"material", "gravity", "velocity", NULL};
-        for (int i = 0; unused[i]; i++)
-            if (member(root, unused[i]))
-                return fail(p, BG_ERR_INVALID, unused[i], "not used by a surface-edit task");
         s->material.mu = 1.0;
         s->material.density = 1.0;
     } else {
-        st = parse_material(p, member(root, "material"));
+        st = finish_material(p);
     }
     if (st == BG_OK)
         st = parse_gravity(p, member(root, "gravity"));
@@ -1968,8 +2021,6 @@ static bg_status parse_root(parser_t *p, const cJSON *root)
     if (st == BG_OK)
         st = parse_velocity(p, member(root, "velocity"));
     if (st == BG_OK)
-        st = parse_solver(p, member(root, "solver"));
-    if (st == BG_OK)
         st = parse_reference(p, member(root, "reference"));
     return st;
 }
@@ -1987,6 +2038,8 @@ bg_status bg_scene_parse_with(const char *json, size_t length, const char *path,
         options && options->max_vertices > 0 ? options->max_vertices : BG_MESH_MAX_VERTICES;
     p.max_elements =
         options && options->max_elements > 0 ? options->max_elements : BG_MESH_MAX_ELEMENTS;
+    p.max_work = options && options->max_work > 0 ? options->max_work : 0.0;
+    p.material_form = -1;
     cJSON *root = NULL;
     bg_status st = BG_OK;
     if (length > BG_SCENE_MAX_BYTES)

@@ -171,6 +171,9 @@ typedef struct bg_scene_options {
      * checked against the caps right after. A broker sets them per job. */
     int64_t max_vertices;
     int64_t max_elements;
+    /* Cap on elements × steps (dynamic) or × frames (morph), 0: none;
+     * checked, like the size caps, before a generated mesh is built. */
+    double max_work;
     /* Non-zero: the scene may name only files inside its own folder — a
      * relative path without ".." components; an absolute path or one that
      * leaves the folder is BG_ERR_INVALID, and the search path is not used.

@@ -157,7 +157,14 @@ static int rest_run(run_t *r, const char *path, const char *dir, const char *bod
         goto out;
     if (bgb_store_open_with(path, &r->options, &store, err) != BG_OK)
         goto out;
-    const bgb_rest_config_t config = {.work_dir = dir, .connection_limit = 512};
+    /* The benchmark measures submits, not the quotas: none of its jobs
+     * ever runs, so in flight they would all count. */
+    bgb_limits_t limits;
+    bgb_limits_default(&limits);
+    bgb_limits_resolve(&limits, bgb_limits_ram());
+    limits.max_jobs_in_flight = 1000000;
+    limits.max_stored_bytes = (int64_t)1 << 40;
+    const bgb_rest_config_t config = {.work_dir = dir, .limits = &limits};
     if (bgb_rest_start(&config, store, &rest, err) != BG_OK)
         goto out;
     char url[128];

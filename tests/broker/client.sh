@@ -93,8 +93,13 @@ id1=$(get id)
 [ "$(get budget)" = 12.5 ] || fail "submit --json: budget $(get budget), expected 12.5"
 printf '%s\n' "$id1" | grep -Eq '^j[0-9a-f]{16}$' || fail "submit --json: id '$id1'"
 check 0 '"id"' "$bin" submit "$fixtures/scenes/mesh-path.json" --mesh-path "$fixtures/mesh" \
-    --idempotency-key key-1 --json $b
+    --idempotency-key key-1 --mechanism posted --budget 12.5 --json $b
 [ "$(get id)" = "$id1" ] || fail "idempotent resubmit gave $(get id), expected $id1"
+# The same key with another body is refused, naming the key: a replay
+# would hide that the client sent something else.
+check 2 "422 Idempotency-Key reused: Idempotency-Key 'key-1' was used for job $id1 with another body" \
+    "$bin" submit "$fixtures/scenes/mesh-path.json" --mesh-path "$fixtures/mesh" \
+    --idempotency-key key-1 --budget 13 $b
 check 0 "^submitted job j[0-9a-f]{16} \\(queued, mechanism central, budget 1000\\)" \
     "$bin" submit "$fixtures/scenes/mesh-path.json" --mesh-path "$fixtures/mesh" $b
 id2=$(printf '%s\n' "$out" | sed -n 's/^submitted job \(j[0-9a-f]*\) .*/\1/p')

@@ -130,11 +130,14 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: rest_host DIR [--max-body BYTES] [--lifetime SECONDS]\n");
         return 2;
     }
-    bgb_rest_config_t config = {.work_dir = argv[1], .name = "rest-host"};
+    bgb_limits_t limits;
+    bgb_limits_default(&limits);
+    bgb_limits_resolve(&limits, bgb_limits_ram());
+    bgb_rest_config_t config = {.work_dir = argv[1], .name = "rest-host", .limits = &limits};
     unsigned lifetime = 300;
     for (int i = 2; i + 1 < argc; i += 2) {
         if (strcmp(argv[i], "--max-body") == 0)
-            config.max_body = (size_t)strtoull(argv[i + 1], NULL, 10);
+            limits.max_body = (size_t)strtoull(argv[i + 1], NULL, 10);
         else if (strcmp(argv[i], "--lifetime") == 0)
             lifetime = (unsigned)strtoul(argv[i + 1], NULL, 10);
     }

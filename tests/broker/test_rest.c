@@ -22,6 +22,9 @@
 #include <string.h>
 #include <strings.h>
 #include <time.h>
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -181,10 +184,13 @@ static void start_capped(fixture_t *f, int64_t max_vertices, int64_t max_element
 {
     bg_error_t err = BG_ERROR_INIT;
     assert_int_equal(bgb_store_open(f->path, &f->store, &err), BG_OK);
-    const bgb_rest_config_t config = {.port = 0, .max_body = MAX_BODY,
-                                      .max_vertices = max_vertices,
-                                      .max_elements = max_elements, .work_dir = f->dir,
-                                      .name = "test-broker"};
+    bgb_limits_t limits;
+    bgb_limits_default(&limits);
+    limits.max_body = MAX_BODY;
+    limits.max_vertices = max_vertices;
+    limits.max_elements = max_elements;
+    const bgb_rest_config_t config = {
+        .port = 0, .limits = &limits, .work_dir = f->dir, .name = "test-broker"};
     if (bgb_rest_start(&config, f->store, &f->rest, &err) != BG_OK)
         fail_msg("%s", err.message);
     assert_true(bgb_rest_port(f->rest) > 0);
@@ -559,8 +565,13 @@ static void test_bad_requests(void **state)
          "mechanism: expected"},
         {"{\"scene\":" SMALL_BOX ",\"budget\":1,\"budget\":2}", 422, "budget",
          "key 'budget' is given twice"},
-        {"{\"scene\":{\"mesh\":{\"generate\":\"box\",\"cells\":[1000,1000,30],\"size\":[1,1,1]}}}",
+        {"{\"scene\":{\"mesh\":{\"generate\":\"box\",\"cells\":[1000,1000,30],\"size\":[1,1,1]},"
+         "\"material\":{\"mu\":1,\"lambda\":1}}}",
          422, "scene.mesh.cells", "180000000 elements, over the limits"},
+        /* The 75-byte request of the broker's first audit: refused for the
+         * missing material before its 180 million elements are built. */
+        {"{\"scene\":{\"mesh\":{\"generate\":\"box\",\"cells\":[1000,1000,30],\"size\":[1,1,1]}}}",
+         422, "scene.material", "material: missing (required)"},
         {"{\"scene\":{\"mesh\":{\"generate\":\"box\",\"cells\":[2,2,2],\"size\":[1,1,1]},"
          "\"material\":{\"mu\":\"soft\",\"lambda\":1}}}",
          422, "scene.material.mu", "material.mu"},
@@ -874,8 +885,8 @@ static void test_filter_with_pagination(void **state)
 /* The caps hold for an uploaded mesh as for a generated one, a body sent
  * in chunks (no Content-Length) over the cap is a 413 too, an
  * Idempotency-Key over its cap is a 400 naming the header, and a key
- * names one job forever: a second submit with it and another body gets
- * the first job. */
+ * names one job forever: a second submit with it and the same body gets
+ * the first job, with another body a 422 naming the key. */
 static void test_caps_and_keys(void **state)
 {
     fixture_t *f = *state;
@@ -921,9 +932,18 @@ static void test_caps_and_keys(void **state)
     free(small);
 
     char *first = submit_small(f, "Idempotency-Key: once");
+    /* The same key with another body: 422 naming the key. */
     char *other = submission(SMALL_BOX, "\"budget\":99");
     r = request(f, "POST", "/v1/jobs", other, "Idempotency-Key: once");
     free(other);
+    assert_int_equal(r.status, 422);
+    conforms(f, "/v1/jobs", "POST", &r);
+    assert_non_null(strstr(r.body, "\"field\":\"Idempotency-Key\""));
+    release(&r);
+    /* The same key with the same body: the earlier job. */
+    char *same = submission(SMALL_BOX, "\"mechanism\":\"posted\",\"budget\":12.5");
+    r = request(f, "POST", "/v1/jobs", same, "Idempotency-Key: once");
+    free(same);
     assert_int_equal(r.status, 200);
     conforms(f, "/v1/jobs", "POST", &r);
     char *again = field_of(&r, "id");
@@ -1018,6 +1038,63 @@ static void test_dropped_event_stream(void **state)
     free(id);
 }
 
+/* Sends raw bytes to the server and returns the first line of its answer
+ * (the status line), for requests curl will not send. */
+static void raw_status(const fixture_t *f, const char *request, char *line, size_t size)
+{
+    line[0] = '\0';
+    const int fd = socket(AF_INET, SOCK_STREAM, 0);
+    assert_true(fd >= 0);
+    struct sockaddr_in addr;
+    memset(&addr, 0, sizeof addr);
+    addr.sin_family = AF_INET;
+    addr.sin_port = htons(bgb_rest_port(f->rest));
+    addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    assert_int_equal(connect(fd, (struct sockaddr *)&addr, sizeof addr), 0);
+    const size_t n = strlen(request);
+    assert_int_equal(write(fd, request, n), (ssize_t)n);
+    size_t got = 0;
+    while (got + 1 < size) {
+        const ssize_t r = read(fd, line + got, size - 1 - got);
+        if (r <= 0)
+            break;
+        got += (size_t)r;
+        line[got] = '\0';
+        if (strchr(line, '\n'))
+            break;
+    }
+    close(fd);
+}
+
+/* Two Content-Length headers that disagree, or one beside Transfer-
+ * Encoding, are the shapes of request smuggling: a 400, never a guess. */
+static void test_conflicting_lengths(void **state)
+{
+    fixture_t *f = *state;
+    char line[256];
+    raw_status(f,
+               "POST /v1/jobs HTTP/1.1\r\nHost: t\r\nContent-Type: application/json\r\n"
+               "Content-Length: 2\r\nContent-Length: 3\r\nConnection: close\r\n\r\n{}x",
+               line, sizeof line);
+    if (strncmp(line, "HTTP/1.1 400", 12) != 0)
+        fail_msg("two Content-Length headers: %s", line);
+    raw_status(f,
+               "POST /v1/jobs HTTP/1.1\r\nHost: t\r\nContent-Type: application/json\r\n"
+               "Content-Length: 2\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n"
+               "2\r\n{}\r\n0\r\n\r\n",
+               line, sizeof line);
+    if (strncmp(line, "HTTP/1.1 400", 12) != 0)
+        fail_msg("Content-Length with Transfer-Encoding: %s", line);
+    /* The same request with one length is served (a 422: the scene is
+     * empty), so the 400s above are about the lengths. */
+    raw_status(f,
+               "POST /v1/jobs HTTP/1.1\r\nHost: t\r\nContent-Type: application/json\r\n"
+               "Content-Length: 2\r\nConnection: close\r\n\r\n{}",
+               line, sizeof line);
+    if (strncmp(line, "HTTP/1.1 422", 12) != 0)
+        fail_msg("one Content-Length: %s", line);
+}
+
 int main(void)
 {
     curl_global_init(CURL_GLOBAL_DEFAULT);
@@ -1035,6 +1112,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_job_paths_and_results, setup, teardown),
         cmocka_unit_test_setup_teardown(test_filter_with_pagination, setup, teardown),
         cmocka_unit_test_setup_teardown(test_caps_and_keys, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_conflicting_lengths, setup, teardown),
     };
     const int failed = cmocka_run_group_tests(tests, NULL, NULL);
     curl_global_cleanup();

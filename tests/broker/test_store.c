@@ -17,6 +17,8 @@
 #include <string.h>
 #include <unistd.h>
 
+#include <sqlite3.h>
+
 #include "bgb_store.h"
 
 #define SCENE "{\"mesh\":{\"generate\":\"box\",\"cells\":[2,2,2],\"size\":[1,1,1]}}"
@@ -417,6 +419,102 @@ static void test_options(void **state)
     assert_int_equal(bgb_store_open(f->path, &f->store, &err), BG_OK);
 }
 
+/* The schema of a version 1 store, as a broker before owners wrote it. */
+static const char V1_SCHEMA[] =
+    "CREATE TABLE jobs(seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT NOT NULL UNIQUE,"
+    " state INTEGER NOT NULL, mechanism TEXT NOT NULL, budget REAL NOT NULL,"
+    " created REAL NOT NULL, updated REAL NOT NULL, reason TEXT,"
+    " idempotency_key TEXT UNIQUE, scene BLOB NOT NULL);"
+    "CREATE TABLE files(job TEXT NOT NULL REFERENCES jobs(id), kind TEXT NOT NULL,"
+    " name TEXT NOT NULL, data BLOB NOT NULL, PRIMARY KEY(job, kind, name));"
+    "CREATE TABLE events(seq INTEGER PRIMARY KEY AUTOINCREMENT,"
+    " job TEXT NOT NULL REFERENCES jobs(id), time REAL NOT NULL, kind TEXT NOT NULL,"
+    " data TEXT NOT NULL);"
+    "INSERT INTO jobs(id, state, mechanism, budget, created, updated, idempotency_key, scene)"
+    " VALUES('j0000000000000001', 3, 'central', 10, 1, 1, 'k1', '{}');"
+    "INSERT INTO files VALUES('j0000000000000001', 'input', 'a.mesh', zeroblob(1000));"
+    "INSERT INTO files VALUES('j0000000000000001', 'result', 'r.vtu', zeroblob(234));"
+    "PRAGMA user_version=1;";
+
+/* A version 1 store opens: its jobs are the "local" user's, their bytes
+ * counted from their files, their keys still replayed (and scoped). */
+static void test_migrates_version_1(void **state)
+{
+    fixture_t *f = *state;
+    bgb_store_destroy(&f->store);
+    char path[160];
+    snprintf(path, sizeof path, "%s/v1.db", f->dir);
+    sqlite3 *db = NULL;
+    assert_int_equal(sqlite3_open(path, &db), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db, V1_SCHEMA, NULL, NULL, NULL), SQLITE_OK);
+    sqlite3_close(db);
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgb_store_open(path, &f->store, &err) != BG_OK)
+        fail_msg("%s", err.message);
+    bgb_job_t job = BGB_JOB_INIT;
+    assert_int_equal(bgb_store_get(f->store, "j0000000000000001", &job, &err), BG_OK);
+    assert_string_equal(job.owner, "local");
+    assert_int_equal(job.state, BGB_JOB_SUCCEEDED);
+    bgb_job_release(&job);
+    int in_flight = -1;
+    int64_t bytes = -1;
+    assert_int_equal(bgb_store_usage(f->store, "local", &in_flight, &bytes, &err), BG_OK);
+    assert_int_equal(in_flight, 0);
+    assert_int_equal(bytes, 1234);
+    const bgb_submit_t again = {.idempotency_key = "k1", .scene = "{}", .scene_size = 2,
+                                .mechanism = "central", .budget = 10};
+    char id[BGB_JOB_ID_SIZE];
+    int created = 1;
+    assert_int_equal(bgb_store_submit(f->store, &again, id, &created, &err), BG_OK);
+    assert_int_equal(created, 0);
+    assert_string_equal(id, "j0000000000000001");
+    /* Another user's "k1" is another key. */
+    const bgb_submit_t other = {.owner = "ada", .idempotency_key = "k1", .scene = "{}",
+                                .scene_size = 2, .mechanism = "central", .budget = 10};
+    assert_int_equal(bgb_store_submit(f->store, &other, id, &created, &err), BG_OK);
+    assert_int_equal(created, 1);
+    assert_string_not_equal(id, "j0000000000000001");
+}
+
+/* Bytes and jobs in flight per user, result files included; a deleted job
+ * frees them; an active job cannot be deleted. */
+static void test_usage_and_delete(void **state)
+{
+    fixture_t *f = *state;
+    bg_error_t err = BG_ERROR_INIT;
+    const uint8_t data[300] = {0};
+    const bgb_file_t in = {"in.mesh", data, 100};
+    const bgb_submit_t job = {.owner = "ada", .scene = SCENE, .scene_size = strlen(SCENE),
+                              .mechanism = "central", .budget = 1, .files = &in,
+                              .file_count = 1};
+    char id[BGB_JOB_ID_SIZE], other[BGB_JOB_ID_SIZE];
+    int created = 0, in_flight = 0;
+    int64_t bytes = 0;
+    assert_int_equal(bgb_store_submit(f->store, &job, id, &created, &err), BG_OK);
+    assert_int_equal(bgb_store_submit(f->store, &job, other, &created, &err), BG_OK);
+    const bgb_file_t out = {"out.vtu", data, 300};
+    assert_int_equal(bgb_store_put_file(f->store, id, "result", &out, &err), BG_OK);
+    const bgb_file_t smaller = {"out.vtu", data, 50}; /* a replaced file counts once */
+    assert_int_equal(bgb_store_put_file(f->store, id, "result", &smaller, &err), BG_OK);
+    assert_int_equal(bgb_store_usage(f->store, "ada", &in_flight, &bytes, &err), BG_OK);
+    assert_int_equal(in_flight, 2);
+    assert_int_equal(bytes, 100 + 50 + 100);
+    assert_int_equal(bgb_store_usage(f->store, "bob", &in_flight, &bytes, &err), BG_OK);
+    assert_int_equal(in_flight, 0);
+    assert_int_equal(bytes, 0);
+    assert_int_equal(bgb_store_delete(f->store, id, &err), BG_ERR_CONFLICT);
+    assert_int_equal(bgb_store_transition(f->store, id, 1u << BGB_JOB_QUEUED, BGB_JOB_CANCELLED,
+                                          NULL, &err),
+                     BG_OK);
+    assert_int_equal(bgb_store_delete(f->store, id, &err), BG_OK);
+    assert_int_equal(bgb_store_usage(f->store, "ada", &in_flight, &bytes, &err), BG_OK);
+    assert_int_equal(in_flight, 1);
+    assert_int_equal(bytes, 100);
+    bgb_job_t gone = BGB_JOB_INIT;
+    assert_int_equal(bgb_store_get(f->store, id, &gone, &err), BG_ERR_NOT_FOUND);
+    assert_int_equal(bgb_store_delete(f->store, id, &err), BG_ERR_NOT_FOUND);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -427,6 +525,8 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_pagination, setup, teardown),
         cmocka_unit_test_setup_teardown(test_concurrent_submits, setup, teardown),
         cmocka_unit_test_setup_teardown(test_options, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_migrates_version_1, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_usage_and_delete, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -628,6 +628,47 @@ static void test_morph_twist_target(void **state)
     }
 }
 
+/* Elements × steps (or frames) against options.max_work, refused naming
+ * the task's field before the mesh is built: a 180-million-element box
+ * asked for 10 steps fails at once. */
+static void test_work_cap(void **state)
+{
+    (void)state;
+    static const char *const scenes[][2] = {
+        {"{\"mesh\": {\"generate\": \"box\", \"cells\": [10, 10, 10], \"size\": [1, 1, 1]},"
+         " \"material\": {\"E\": 1e4, \"nu\": 0.3}, \"task\": {\"kind\": \"dynamic\","
+         " \"dt\": 0.01, \"steps\": 1000}}",
+         "task.steps"},
+        {"{\"mesh\": {\"generate\": \"box\", \"cells\": [10, 10, 10], \"size\": [1, 1, 1]},"
+         " \"material\": {\"mu\": 1, \"lambda\": 1}, \"task\": {\"kind\": \"morph\","
+         " \"frames\": 1000, \"target\": {\"twist\": {\"axis\": [1, 0, 0], \"degrees\": 90}}}}",
+         "task.frames"},
+        {"{\"mesh\": {\"generate\": \"box\", \"cells\": [1000, 1000, 30], \"size\": [1, 1, 1]},"
+         " \"material\": {\"E\": 1e4, \"nu\": 0.3}, \"task\": {\"kind\": \"dynamic\","
+         " \"dt\": 0.01, \"steps\": 10}}",
+         "task.steps"},
+    };
+    for (size_t i = 0; i < sizeof scenes / sizeof scenes[0]; i++) {
+        bg_scene_options_t o = {.max_work = 1e6};
+        bg_scene_t *s = NULL;
+        bg_error_t err = BG_ERROR_INIT;
+        assert_int_equal(bg_scene_parse_with(scenes[i][0], strlen(scenes[i][0]), "work.json", &o,
+                                             &s, &err),
+                         BG_ERR_LIMIT);
+        if (!strstr(err.message, scenes[i][1]) || !strstr(err.message, "over the limit of 1e+06"))
+            fail_msg("case %zu: %s", i, err.message);
+        assert_null(s);
+        if (i < 2) { /* 6,000 elements x 1,000 = 6e6: within a cap of 1e7 */
+            o.max_work = 1e7;
+            bg_error_clear(&err);
+            if (bg_scene_parse_with(scenes[i][0], strlen(scenes[i][0]), "work.json", &o, &s,
+                                    &err) != BG_OK)
+                fail_msg("case %zu under the cap: %s", i, err.message);
+            bg_scene_destroy(&s);
+        }
+    }
+}
+
 /* A positions file with one line per mesh vertex (a twisted copy of the
  * bar) serves a handle (its selected rows) and a reference (all rows). */
 static void test_whole_mesh_positions_file(void **state)
@@ -876,6 +917,7 @@ int main(void)
         cmocka_unit_test(test_planar_file_fixture),
         cmocka_unit_test(test_whole_mesh_positions_file),
         cmocka_unit_test(test_morph_twist_target),
+        cmocka_unit_test(test_work_cap),
         cmocka_unit_test(test_bad_scenes),
         cmocka_unit_test(test_missing_mesh_names_resolved_path),
         cmocka_unit_test(test_surface_mesh_rejected),
