@@ -28,7 +28,7 @@
 #include "bga_transport.h"
 #include "bgb_market.h"
 #include "bgb_rest.h"
-#include "bgb_run.h"
+#include "bg_run.h"
 #include "bgb_store.h"
 
 #define BROKER_CONFIG_MAX_BYTES (1 << 20)
@@ -1106,16 +1106,16 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
      * does. */
     watch_init(&remote_watch, b, jr->id, bga_backend_services(remote), jr->used);
     const double *ref = NULL;
-    if ((st = bgb_run_reference(scene, &local_watch.backend, &reference, &ref, err)) != BG_OK)
+    if ((st = bg_run_reference(scene, &local_watch.backend, &reference, &ref, err)) != BG_OK)
         goto out;
-    const bgb_run_options_t ro = {.method = scene->method,
-                                  .tolerance = scene->tolerance,
-                                  .max_iterations = bg_scene_max_iterations(scene, scene->method),
-                                  .frames_prefix = "",
-                                  .progress = on_progress,
-                                  .progress_ctx = jr,
-                                  .backend = &remote_watch.backend};
-    st = bgb_run_method(scene, &ro, ref, dir, &run, err);
+    const bg_run_options_t ro = {.method = scene->method,
+                                 .tolerance = scene->tolerance,
+                                 .max_iterations = bg_scene_max_iterations(scene, scene->method),
+                                 .frames_prefix = "",
+                                 .progress = on_progress,
+                                 .progress_ctx = jr,
+                                 .backend = &remote_watch.backend};
+    st = bg_run_method(scene, &ro, ref, dir, &run, err);
     if (st != BG_OK)
         goto out;
     *converged = run.converged;
@@ -1139,7 +1139,7 @@ static bg_status solve_job(bgb_broker_t *b, job_run_t *jr, const bgb_job_t *job,
         goto out;
     snprintf(path, sizeof path, "%s/error-vs-time.svg", dir);
     if ((st = bg_report_write_plot(path, scene, &run, 1, err)) != BG_OK ||
-        (st = bgb_run_write_results(dir, scene, &run, paths, sizeof paths, err)) != BG_OK)
+        (st = bg_run_write_results(dir, scene, &run, paths, sizeof paths, err)) != BG_OK)
         goto out;
     trace = trace_json(&run);
     if (trace && (st = bgb_store_add_event(b->store, job->id, "trace", trace, err)) != BG_OK)

@@ -21,7 +21,8 @@
 #include "bg_scene.h"
 #include "bg_static.h"
 #include "bga_backend.h"
-#include "bgb_run.h"
+#include "bg_file.h"
+#include "bg_run.h"
 #include "bga_client.h"
 #include "bga_service.h"
 
@@ -421,7 +422,7 @@ static int parse_agent_list(const char *list, cli_agent *agents, int *count)
 static int read_grid_agents(const char *dir, cli_agent *agents, int *count)
 {
     char path[4200];
-    if (bgb_run_join_path(path, sizeof path, dir, "grid.json") != 0) {
+    if (bg_file_join(path, sizeof path, dir, "grid.json") != 0) {
         fprintf(stderr, "biotgrid solve: --grid: state directory name too long\n");
         return -1;
     }
@@ -661,7 +662,7 @@ int bg_cmd_solve(int argc, char **argv)
     if (scene->reference_kind == BG_REFERENCE_NEWTON && scene->task == BG_TASK_STATIC &&
         !o.quiet)
         fprintf(stderr, "computing the reference solution (Newton to its round-off floor)\n");
-    if (bgb_run_reference(scene, NULL, &reference, &ref, &err) != BG_OK) {
+    if (bg_run_reference(scene, NULL, &reference, &ref, &err) != BG_OK) {
         fprintf(stderr, "biotgrid solve: reference solve: %s\n", err.message);
         exit_code = BG_EXIT_FAILED;
         goto out;
@@ -672,14 +673,14 @@ int bg_cmd_solve(int argc, char **argv)
         const int max_iterations = o.max_iterations > 0
                                        ? o.max_iterations
                                        : bg_scene_max_iterations(scene, o.methods[i]);
-        const bgb_run_options_t ro = {.method = o.methods[i],
-                                      .tolerance = tolerance,
-                                      .max_iterations = max_iterations,
-                                      .frames_prefix = "frames/",
-                                      .progress = on_progress,
-                                      .progress_ctx = &pr,
-                                      .backend = backend};
-        const bg_status st = bgb_run_method(scene, &ro, ref, out_dir, &runs[i], &err);
+        const bg_run_options_t ro = {.method = o.methods[i],
+                                     .tolerance = tolerance,
+                                     .max_iterations = max_iterations,
+                                     .frames_prefix = "frames/",
+                                     .progress = on_progress,
+                                     .progress_ctx = &pr,
+                                     .backend = backend};
+        const bg_status st = bg_run_method(scene, &ro, ref, out_dir, &runs[i], &err);
         if (st != BG_OK) {
             if (pr.tty && !o.quiet)
                 fputc('\n', stderr);
@@ -727,15 +728,15 @@ int bg_cmd_solve(int argc, char **argv)
     }
     const int lines = remote ? agents_report(agents, agent_count, remote, agent_lines) : 0;
     char report_path[4200], plot_path[4200], result_paths[8500];
-    if (bgb_run_join_path(report_path, sizeof report_path, out_dir, "report.json") != 0 ||
-        bgb_run_join_path(plot_path, sizeof plot_path, out_dir, "error-vs-time.svg") != 0) {
+    if (bg_file_join(report_path, sizeof report_path, out_dir, "report.json") != 0 ||
+        bg_file_join(plot_path, sizeof plot_path, out_dir, "error-vs-time.svg") != 0) {
         fprintf(stderr, "biotgrid solve: output directory name too long\n");
         goto out;
     }
     if (bg_report_write_agents(report_path, scene, &plan, runs, run_count,
                                remote ? agent_lines : NULL, lines, &err) != BG_OK ||
         bg_report_write_plot(plot_path, scene, runs, run_count, &err) != BG_OK ||
-        bgb_run_write_results(out_dir, scene, &runs[0], result_paths, sizeof result_paths,
+        bg_run_write_results(out_dir, scene, &runs[0], result_paths, sizeof result_paths,
                               &err) !=
             BG_OK) {
         fprintf(stderr, "biotgrid solve: %s\n", err.message);
