@@ -29,8 +29,9 @@ int bg_cmd_mesh_path_add(char *buf, size_t size, const char *folder);
 int bg_cmd_mesh_path_finish(char *buf, size_t size);
 
 /* The meshes the build makes (and `cmake --install` installs), relative to
- * the folder above the executable's: build/share/... beside build/<dir>/biotgrid
- * in a build tree, PREFIX/share/... beside PREFIX/bin/biotgrid once installed. */
+ * the folder above the executable's: the build tree has the installed
+ * layout, so BUILD/share/... beside BUILD/bin/biotgrid as PREFIX/share/...
+ * beside PREFIX/bin/biotgrid (broker/cli/CMakeLists.txt). */
 #define BG_CMD_MESH_FOLDER "share/biotgrid/meshes"
 
 /* The command's own mesh folder, "<executable's folder>/../share/biotgrid/meshes",
