@@ -1,10 +1,12 @@
 #include "bg_report.h"
 
 #include <cjson/cJSON.h>
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "bg_json.h"
 #include "bg_svg.h"
 
 static cJSON *number_or_null(double x)
@@ -315,4 +317,247 @@ void bg_report_print_table(FILE *out, const bg_solve_result_t *runs, int run_cou
             if (j % stride == 0 || j == n - 1)
                 print_row(out, bg_method_name(r->method), &r->trace[j]);
     }
+}
+
+/* ------------------------------------------------- reading a report back */
+
+/* A number the report may write as null (a non-finite value: NAN). A
+ * missing key is an error when required, else fallback. */
+static bg_status read_real(const cJSON *obj, const char *key, int required, double fallback,
+                           const char *name, const char *parent, double *out, bg_error_t *err)
+{
+    char field[BG_JSON_PATH_MAX];
+    bg_json_path_key(field, parent, key);
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(obj, key);
+    if (!item) {
+        *out = fallback;
+        return required ? bg_json_fail(err, BG_ERR_INVALID, name, field, "missing") : BG_OK;
+    }
+    if (cJSON_IsNull(item)) {
+        *out = NAN;
+        return BG_OK;
+    }
+    return bg_json_number(item, name, field, out, err);
+}
+
+/* A count in [lo, INT_MAX]; missing: an error when required, else fallback. */
+static bg_status read_int(const cJSON *obj, const char *key, int required, int lo, int fallback,
+                          const char *name, const char *parent, int *out, bg_error_t *err)
+{
+    char field[BG_JSON_PATH_MAX];
+    bg_json_path_key(field, parent, key);
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(obj, key);
+    *out = fallback;
+    if (!item)
+        return required ? bg_json_fail(err, BG_ERR_INVALID, name, field, "missing") : BG_OK;
+    int64_t v = 0;
+    const bg_status st = bg_json_integer(item, name, field, lo, INT_MAX, &v, err);
+    if (st == BG_OK)
+        *out = (int)v;
+    return st;
+}
+
+/* true or false; missing: an error when required, else 0. */
+static bg_status read_flag(const cJSON *obj, const char *key, int required, const char *name,
+                           const char *parent, int *out, bg_error_t *err)
+{
+    char field[BG_JSON_PATH_MAX];
+    bg_json_path_key(field, parent, key);
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(obj, key);
+    *out = 0;
+    if (!item)
+        return required ? bg_json_fail(err, BG_ERR_INVALID, name, field, "missing") : BG_OK;
+    return bg_json_bool(item, name, field, out, err);
+}
+
+/* The array under key (NULL when absent and not required), its path in field. */
+static bg_status read_array(const cJSON *obj, const char *key, int required, const char *name,
+                            const char *parent, char *field, const cJSON **out, bg_error_t *err)
+{
+    bg_json_path_key(field, parent, key);
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(obj, key);
+    *out = NULL;
+    if (!item)
+        return required ? bg_json_fail(err, BG_ERR_INVALID, name, field, "missing") : BG_OK;
+    if (!cJSON_IsArray(item))
+        return bg_json_fail(err, BG_ERR_INVALID, name, field, "expected an array, got %s",
+                            bg_json_type_name(item));
+    *out = item;
+    return BG_OK;
+}
+
+static bg_status read_trace_point(const cJSON *o, const char *name, const char *at,
+                                  bg_trace_point_t *p, bg_error_t *err)
+{
+    bg_status st = bg_json_expect_object(o, name, at, err);
+    if (st == BG_OK)
+        st = read_real(o, "seconds", 1, 0.0, name, at, &p->seconds, err);
+    if (st == BG_OK)
+        st = read_int(o, "iteration", 1, 0, 0, name, at, &p->iteration, err);
+    if (st == BG_OK)
+        st = read_int(o, "stage", 0, 0, 0, name, at, &p->stage, err);
+    if (st == BG_OK)
+        st = read_real(o, "energy", 0, NAN, name, at, &p->energy, err);
+    if (st == BG_OK)
+        st = read_real(o, "gradient_norm", 0, NAN, name, at, &p->gradient_norm, err);
+    if (st == BG_OK)
+        st = read_real(o, "relative_gradient", 1, NAN, name, at, &p->relative_gradient, err);
+    if (st == BG_OK)
+        st = read_real(o, "error", 0, NAN, name, at, &p->error, err);
+    return st;
+}
+
+/* A dynamic run's step ("time", ...) or a morph's frame ("t", "energy"). */
+static bg_status read_step(const cJSON *o, int morph, const char *name, const char *at,
+                           bg_step_record_t *s, bg_error_t *err)
+{
+    bg_status st = bg_json_expect_object(o, name, at, err);
+    if (st == BG_OK)
+        st = read_real(o, morph ? "t" : "time", 1, 0.0, name, at, &s->time, err);
+    if (st == BG_OK)
+        st = read_real(o, morph ? "energy" : "total_energy", 0, NAN, name, at, &s->total_energy,
+                       err);
+    if (st == BG_OK && !morph)
+        st = read_real(o, "kinetic", 0, NAN, name, at, &s->kinetic, err);
+    if (st == BG_OK && !morph)
+        st = read_real(o, "potential", 0, NAN, name, at, &s->potential, err);
+    static const char *const momenta[2] = {"linear_momentum", "angular_momentum"};
+    for (int k = 0; k < 2 && st == BG_OK && !morph; k++) {
+        char field[BG_JSON_PATH_MAX];
+        bg_json_path_key(field, at, momenta[k]);
+        const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, momenta[k]);
+        if (v)
+            st = bg_json_vector(v, name, field, 3, k ? s->angular_momentum : s->linear_momentum,
+                                err);
+    }
+    if (st == BG_OK)
+        st = read_int(o, "iterations", 0, 0, 0, name, at, &s->iterations, err);
+    if (st == BG_OK && !morph)
+        st = read_flag(o, "limited", 0, name, at, &s->limited, err);
+    if (st == BG_OK)
+        st = read_real(o, "seconds", 0, 0.0, name, at, &s->seconds, err);
+    return st;
+}
+
+/* One element of "runs" into r; its stop reason into reason. */
+static bg_status read_run(const cJSON *o, const char *name, const char *at, bg_solve_result_t *r,
+                          char *reason, bg_error_t *err)
+{
+    char field[BG_JSON_PATH_MAX];
+    const char *text = NULL;
+    bg_status st = bg_json_expect_object(o, name, at, err);
+    if (st == BG_OK) {
+        bg_json_path_key(field, at, "method");
+        const cJSON *m = cJSON_GetObjectItemCaseSensitive(o, "method");
+        st = m ? bg_json_string(m, name, field, &text, err)
+               : bg_json_fail(err, BG_ERR_INVALID, name, field, "missing");
+        bg_error_t merr = BG_ERROR_INIT;
+        if (st == BG_OK && bg_method_parse(text, &r->method, &merr) != BG_OK)
+            st = bg_json_fail(err, BG_ERR_INVALID, name, field, "%s", merr.message);
+    }
+    if (st == BG_OK)
+        st = read_flag(o, "converged", 1, name, at, &r->converged, err);
+    if (st == BG_OK) {
+        bg_json_path_key(field, at, "stop_reason");
+        const cJSON *why = cJSON_GetObjectItemCaseSensitive(o, "stop_reason");
+        st = why ? bg_json_string(why, name, field, &text, err)
+                 : bg_json_fail(err, BG_ERR_INVALID, name, field, "missing");
+        if (st == BG_OK && strlen(text) >= BG_REPORT_REASON_MAX)
+            st = bg_json_fail(err, BG_ERR_LIMIT, name, field, "longer than %d bytes",
+                              BG_REPORT_REASON_MAX - 1);
+        if (st == BG_OK) {
+            strcpy(reason, text);
+            r->stop_reason = reason;
+        }
+    }
+    if (st == BG_OK)
+        st = read_int(o, "iterations", 1, 0, 0, name, at, &r->iterations, err);
+    if (st == BG_OK)
+        st = read_real(o, "wall_seconds", 1, 0.0, name, at, &r->wall_seconds, err);
+    if (st == BG_OK)
+        st = read_real(o, "energy", 0, NAN, name, at, &r->energy, err);
+    if (st == BG_OK)
+        st = read_real(o, "gradient_norm", 0, NAN, name, at, &r->gradient_norm, err);
+    if (st == BG_OK)
+        st = read_real(o, "relative_gradient", 1, NAN, name, at, &r->relative_gradient, err);
+    if (st == BG_OK)
+        st = read_real(o, "force_scale", 0, NAN, name, at, &r->force_scale, err);
+    if (st == BG_OK)
+        st = read_real(o, "gradient_roundoff", 0, NAN, name, at, &r->gradient_roundoff, err);
+    if (st == BG_OK)
+        st = read_flag(o, "roundoff_floor", 0, name, at, &r->roundoff_floor, err);
+    if (st == BG_OK)
+        st = read_int(o, "continuation_stages", 0, 0, 0, name, at, &r->continuation_stages,
+                      err);
+    if (st == BG_OK)
+        st = read_int(o, "limited_steps", 0, 0, 0, name, at, &r->limited_steps, err);
+    double inverted = -1.0;
+    if (st == BG_OK)
+        st = read_real(o, "inverted_elements", 0, -1.0, name, at, &inverted, err);
+    r->inverted_elements = isfinite(inverted) ? (int64_t)inverted : -1;
+
+    const cJSON *trace = NULL, *steps = NULL;
+    if (st == BG_OK)
+        st = read_array(o, "trace", 1, name, at, field, &trace, err);
+    const int npoints = trace ? cJSON_GetArraySize(trace) : 0;
+    if (st == BG_OK && !(r->trace = calloc((size_t)npoints + 1, sizeof *r->trace)))
+        st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory for %s", name, field);
+    const cJSON *item = trace ? trace->child : NULL;
+    for (int k = 0; st == BG_OK && k < npoints; k++, item = item->next) {
+        char point[BG_JSON_PATH_MAX];
+        bg_json_path_index(point, field, k);
+        st = read_trace_point(item, name, point, &r->trace[k], err);
+        r->trace_count = k + 1;
+    }
+    const int morph = cJSON_GetObjectItemCaseSensitive(o, "frames") != NULL;
+    if (st == BG_OK)
+        st = read_array(o, morph ? "frames" : "steps", 0, name, at, field, &steps, err);
+    const int nsteps = steps ? cJSON_GetArraySize(steps) : 0;
+    if (st == BG_OK && steps && !(r->steps = calloc((size_t)nsteps + 1, sizeof *r->steps)))
+        st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory for %s", name, field);
+    item = steps ? steps->child : NULL;
+    for (int k = 0; st == BG_OK && k < nsteps; k++, item = item->next) {
+        char step[BG_JSON_PATH_MAX];
+        bg_json_path_index(step, field, k);
+        st = read_step(item, morph, name, step, &r->steps[k], err);
+        r->step_count = k + 1;
+    }
+    return st;
+}
+
+bg_status bg_report_parse_runs(const char *text, size_t length, const char *name,
+                               bg_report_runs_t *out, bg_error_t *err)
+{
+    memset(out, 0, sizeof *out);
+    cJSON *root = NULL;
+    const cJSON *runs = NULL;
+    char field[BG_JSON_PATH_MAX];
+    bg_status st = bg_json_parse(text, length, name, &root, err);
+    if (st == BG_OK)
+        st = bg_json_expect_object(root, name, "", err);
+    if (st == BG_OK)
+        st = read_array(root, "runs", 1, name, "", field, &runs, err);
+    const int count = runs ? cJSON_GetArraySize(runs) : 0;
+    if (st == BG_OK && count > BG_REPORT_MAX_RUNS)
+        st = bg_json_fail(err, BG_ERR_LIMIT, name, "runs", "%d runs, at most %d are read", count,
+                          BG_REPORT_MAX_RUNS);
+    const cJSON *item = runs ? runs->child : NULL;
+    for (int i = 0; st == BG_OK && i < count; i++, item = item->next) {
+        bg_json_path_index(field, "runs", i);
+        out->count = i + 1; /* so a failure releases what this run holds */
+        st = read_run(item, name, field, &out->run[i], out->reason[i], err);
+    }
+    cJSON_Delete(root);
+    if (st != BG_OK)
+        bg_report_runs_release(out);
+    return st;
+}
+
+void bg_report_runs_release(bg_report_runs_t *runs)
+{
+    if (!runs)
+        return;
+    for (int i = 0; i < runs->count; i++)
+        bg_solve_result_release(&runs->run[i]);
+    memset(runs, 0, sizeof *runs);
 }
