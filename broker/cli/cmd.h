@@ -44,6 +44,13 @@ int bg_cmd_mesh_folder(char *buf, size_t size);
     "  tetgen into " BG_CMD_MESH_FOLDER " (see README.md, \"Meshes\"). For meshes of your\n"       \
     "  own, pass --mesh-path DIR or set " BG_CMD_MESH_PATH_ENV "=DIR.\n"
 
+/* The local grid's state folder (`grid up` writes grid.json there): the
+ * option's value when given (not NULL), else $BIOTGRID_GRID_DIR when set
+ * and not empty, else out/grid. */
+#define BG_CMD_GRID_DIR_ENV "BIOTGRID_GRID_DIR"
+#define BG_CMD_GRID_DIR "out/grid"
+const char *bg_cmd_grid_dir(const char *option);
+
 /* mkdir -p (bg_file_make_directories): creates path and its missing parents (mode
  * 0755); -1 on failure (errno set). */
 int bg_cmd_make_directories(const char *path);
