@@ -203,17 +203,10 @@ static int parse(int argc, char **argv, unsigned allowed, int positional, const 
     return 0;
 }
 
-static int exit_for(bg_status st)
-{
-    /* Unreachable broker, 5xx, out of memory: the request did not reach its goal;
-     * everything else is the input's fault (including the broker's 4xx). */
-    return st == BG_ERR_IO || st == BG_ERR_NOMEM ? BG_EXIT_FAILED : BG_EXIT_BAD_INPUT;
-}
-
 static int fail(const options_t *o, const bg_error_t *err)
 {
     fprintf(stderr, "biotgrid %s: %s\n", o->command, err->message);
-    return exit_for(err->status);
+    return bg_cmd_job_exit_for(err->status);
 }
 
 /* Parses the options and opens the client; returns -1 to go on, else the exit status. */

@@ -52,6 +52,11 @@ int bg_cmd_job_budget(const char *text, double *out)
     return 0;
 }
 
+int bg_cmd_job_exit_for(bg_status status)
+{
+    return status == BG_ERR_IO || status == BG_ERR_NOMEM ? BG_EXIT_FAILED : BG_EXIT_BAD_INPUT;
+}
+
 const char *bg_cmd_string_of(const cJSON *object, const char *key)
 {
     const cJSON *item = cJSON_GetObjectItemCaseSensitive(object, key);

@@ -48,6 +48,11 @@ int bg_cmd_job_mechanism_ok(const char *name);
 /* A --budget value: a finite positive number into *out; -1 otherwise. */
 int bg_cmd_job_budget(const char *text, double *out);
 
+/* The exit status for a failed request or job: the broker unreachable,
+ * a 5xx, out of memory, or the job's own failure are 1 (did not reach its
+ * goal); anything else, the broker's 4xx included, is the input's: 2. */
+int bg_cmd_job_exit_for(bg_status status);
+
 /* Member key of a JSON object as a string (NULL: absent or not a string)
  * or a number (NAN: absent or not a number). */
 const char *bg_cmd_string_of(const cJSON *object, const char *key);
