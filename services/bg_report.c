@@ -3,6 +3,7 @@
 #include <cjson/cJSON.h>
 #include <limits.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -386,41 +387,94 @@ static bg_status read_array(const cJSON *obj, const char *key, int required, con
     return BG_OK;
 }
 
-static bg_status read_trace_point(const cJSON *o, const char *name, const char *at,
-                                  bg_trace_point_t *p, bg_error_t *err)
+/* A member of a result read from its key: a number (null: NAN), a count
+ * or a flag, at offset in the struct; required, or fallback when absent. */
+typedef enum field_kind { FIELD_REAL, FIELD_COUNT, FIELD_FLAG } field_kind;
+typedef struct field {
+    const char *key;
+    field_kind kind;
+    int required;
+    double fallback;
+    size_t offset;
+} field_t;
+
+#define REAL(T, key, member, required, fallback)                                                  \
+    {key, FIELD_REAL, required, fallback, offsetof(T, member)}
+#define COUNT(T, key, member, required) {key, FIELD_COUNT, required, 0, offsetof(T, member)}
+#define FLAG(T, key, member, required) {key, FIELD_FLAG, required, 0, offsetof(T, member)}
+
+static const field_t TRACE_FIELDS[] = {
+    REAL(bg_trace_point_t, "seconds", seconds, 1, 0.0),
+    COUNT(bg_trace_point_t, "iteration", iteration, 1),
+    COUNT(bg_trace_point_t, "stage", stage, 0),
+    REAL(bg_trace_point_t, "energy", energy, 0, NAN),
+    REAL(bg_trace_point_t, "gradient_norm", gradient_norm, 0, NAN),
+    REAL(bg_trace_point_t, "relative_gradient", relative_gradient, 1, NAN),
+    REAL(bg_trace_point_t, "error", error, 0, NAN),
+};
+static const field_t STEP_FIELDS[] = {
+    REAL(bg_step_record_t, "time", time, 1, 0.0),
+    REAL(bg_step_record_t, "kinetic", kinetic, 0, NAN),
+    REAL(bg_step_record_t, "potential", potential, 0, NAN),
+    REAL(bg_step_record_t, "total_energy", total_energy, 0, NAN),
+    COUNT(bg_step_record_t, "iterations", iterations, 0),
+    FLAG(bg_step_record_t, "limited", limited, 0),
+    REAL(bg_step_record_t, "seconds", seconds, 0, 0.0),
+};
+static const field_t FRAME_FIELDS[] = {
+    REAL(bg_step_record_t, "t", time, 1, 0.0),
+    REAL(bg_step_record_t, "energy", total_energy, 0, NAN),
+    COUNT(bg_step_record_t, "iterations", iterations, 0),
+    REAL(bg_step_record_t, "seconds", seconds, 0, 0.0),
+};
+static const field_t RUN_FIELDS[] = {
+    FLAG(bg_solve_result_t, "converged", converged, 1),
+    COUNT(bg_solve_result_t, "iterations", iterations, 1),
+    REAL(bg_solve_result_t, "wall_seconds", wall_seconds, 1, 0.0),
+    REAL(bg_solve_result_t, "energy", energy, 0, NAN),
+    REAL(bg_solve_result_t, "gradient_norm", gradient_norm, 0, NAN),
+    REAL(bg_solve_result_t, "relative_gradient", relative_gradient, 1, NAN),
+    REAL(bg_solve_result_t, "force_scale", force_scale, 0, NAN),
+    REAL(bg_solve_result_t, "gradient_roundoff", gradient_roundoff, 0, NAN),
+    FLAG(bg_solve_result_t, "roundoff_floor", roundoff_floor, 0),
+    COUNT(bg_solve_result_t, "continuation_stages", continuation_stages, 0),
+    COUNT(bg_solve_result_t, "limited_steps", limited_steps, 0),
+};
+#define FIELDS(table) table, sizeof table / sizeof table[0]
+
+/* The fields of object o (its path: at) into the struct at base. */
+static bg_status read_fields(const cJSON *o, const field_t *fields, size_t count, void *base,
+                             const char *name, const char *at, bg_error_t *err)
 {
     bg_status st = bg_json_expect_object(o, name, at, err);
-    if (st == BG_OK)
-        st = read_real(o, "seconds", 1, 0.0, name, at, &p->seconds, err);
-    if (st == BG_OK)
-        st = read_int(o, "iteration", 1, 0, 0, name, at, &p->iteration, err);
-    if (st == BG_OK)
-        st = read_int(o, "stage", 0, 0, 0, name, at, &p->stage, err);
-    if (st == BG_OK)
-        st = read_real(o, "energy", 0, NAN, name, at, &p->energy, err);
-    if (st == BG_OK)
-        st = read_real(o, "gradient_norm", 0, NAN, name, at, &p->gradient_norm, err);
-    if (st == BG_OK)
-        st = read_real(o, "relative_gradient", 1, NAN, name, at, &p->relative_gradient, err);
-    if (st == BG_OK)
-        st = read_real(o, "error", 0, NAN, name, at, &p->error, err);
+    for (size_t i = 0; i < count && st == BG_OK; i++) {
+        const field_t *f = &fields[i];
+        void *member = (char *)base + f->offset;
+        if (f->kind == FIELD_REAL)
+            st = read_real(o, f->key, f->required, f->fallback, name, at, member, err);
+        else if (f->kind == FIELD_COUNT)
+            st = read_int(o, f->key, f->required, 0, 0, name, at, member, err);
+        else
+            st = read_flag(o, f->key, f->required, name, at, member, err);
+    }
     return st;
 }
 
-/* A dynamic run's step ("time", ...) or a morph's frame ("t", "energy"). */
-static bg_status read_step(const cJSON *o, int morph, const char *name, const char *at,
-                           bg_step_record_t *s, bg_error_t *err)
+/* One trace point (variant unused: the item readers share a signature). */
+static bg_status read_point(const cJSON *o, int variant, const char *name, const char *at,
+                            void *point, bg_error_t *err)
 {
-    bg_status st = bg_json_expect_object(o, name, at, err);
-    if (st == BG_OK)
-        st = read_real(o, morph ? "t" : "time", 1, 0.0, name, at, &s->time, err);
-    if (st == BG_OK)
-        st = read_real(o, morph ? "energy" : "total_energy", 0, NAN, name, at, &s->total_energy,
-                       err);
-    if (st == BG_OK && !morph)
-        st = read_real(o, "kinetic", 0, NAN, name, at, &s->kinetic, err);
-    if (st == BG_OK && !morph)
-        st = read_real(o, "potential", 0, NAN, name, at, &s->potential, err);
+    (void)variant;
+    return read_fields(o, FIELDS(TRACE_FIELDS), point, name, at, err);
+}
+
+/* A dynamic run's step or (morph) a morph's frame; a step's momenta too. */
+static bg_status read_step(const cJSON *o, int morph, const char *name, const char *at,
+                           void *step, bg_error_t *err)
+{
+    bg_step_record_t *s = step;
+    bg_status st = morph ? read_fields(o, FIELDS(FRAME_FIELDS), s, name, at, err)
+                         : read_fields(o, FIELDS(STEP_FIELDS), s, name, at, err);
     static const char *const momenta[2] = {"linear_momentum", "angular_momentum"};
     for (int k = 0; k < 2 && st == BG_OK && !morph; k++) {
         char field[BG_JSON_PATH_MAX];
@@ -430,12 +484,34 @@ static bg_status read_step(const cJSON *o, int morph, const char *name, const ch
             st = bg_json_vector(v, name, field, 3, k ? s->angular_momentum : s->linear_momentum,
                                 err);
     }
-    if (st == BG_OK)
-        st = read_int(o, "iterations", 0, 0, 0, name, at, &s->iterations, err);
-    if (st == BG_OK && !morph)
-        st = read_flag(o, "limited", 0, name, at, &s->limited, err);
-    if (st == BG_OK)
-        st = read_real(o, "seconds", 0, 0.0, name, at, &s->seconds, err);
+    return st;
+}
+
+typedef bg_status (*item_fn)(const cJSON *o, int variant, const char *name, const char *at,
+                             void *item, bg_error_t *err);
+
+/* The array under key of o, each element read by fn into a fresh array of
+ * size-byte items (*items, caller frees even on failure; *count those
+ * read). Absent and not required: nothing, *items NULL. */
+static bg_status read_list(const cJSON *o, const char *key, int required, const char *name,
+                           const char *at, size_t size, item_fn fn, int variant, void **items,
+                           int *count, bg_error_t *err)
+{
+    char field[BG_JSON_PATH_MAX];
+    const cJSON *list = NULL;
+    bg_status st = read_array(o, key, required, name, at, field, &list, err);
+    if (st != BG_OK || !list)
+        return st;
+    const int n = cJSON_GetArraySize(list);
+    if (!(*items = calloc((size_t)n + 1, size)))
+        return bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory for %s", name, field);
+    const cJSON *item = list->child;
+    for (int k = 0; st == BG_OK && k < n; k++, item = item->next) {
+        char path[BG_JSON_PATH_MAX];
+        bg_json_path_index(path, field, k);
+        st = fn(item, variant, name, path, (char *)*items + (size_t)k * size, err);
+        *count = k + 1;
+    }
     return st;
 }
 
@@ -455,8 +531,6 @@ static bg_status read_run(const cJSON *o, const char *name, const char *at, bg_s
         if (st == BG_OK && bg_method_parse(text, &r->method, &merr) != BG_OK)
             st = bg_json_fail(err, BG_ERR_INVALID, name, field, "%s", merr.message);
     }
-    if (st == BG_OK)
-        st = read_flag(o, "converged", 1, name, at, &r->converged, err);
     if (st == BG_OK) {
         bg_json_path_key(field, at, "stop_reason");
         const cJSON *why = cJSON_GetObjectItemCaseSensitive(o, "stop_reason");
@@ -471,57 +545,18 @@ static bg_status read_run(const cJSON *o, const char *name, const char *at, bg_s
         }
     }
     if (st == BG_OK)
-        st = read_int(o, "iterations", 1, 0, 0, name, at, &r->iterations, err);
-    if (st == BG_OK)
-        st = read_real(o, "wall_seconds", 1, 0.0, name, at, &r->wall_seconds, err);
-    if (st == BG_OK)
-        st = read_real(o, "energy", 0, NAN, name, at, &r->energy, err);
-    if (st == BG_OK)
-        st = read_real(o, "gradient_norm", 0, NAN, name, at, &r->gradient_norm, err);
-    if (st == BG_OK)
-        st = read_real(o, "relative_gradient", 1, NAN, name, at, &r->relative_gradient, err);
-    if (st == BG_OK)
-        st = read_real(o, "force_scale", 0, NAN, name, at, &r->force_scale, err);
-    if (st == BG_OK)
-        st = read_real(o, "gradient_roundoff", 0, NAN, name, at, &r->gradient_roundoff, err);
-    if (st == BG_OK)
-        st = read_flag(o, "roundoff_floor", 0, name, at, &r->roundoff_floor, err);
-    if (st == BG_OK)
-        st = read_int(o, "continuation_stages", 0, 0, 0, name, at, &r->continuation_stages,
-                      err);
-    if (st == BG_OK)
-        st = read_int(o, "limited_steps", 0, 0, 0, name, at, &r->limited_steps, err);
+        st = read_fields(o, FIELDS(RUN_FIELDS), r, name, at, err);
     double inverted = -1.0;
     if (st == BG_OK)
         st = read_real(o, "inverted_elements", 0, -1.0, name, at, &inverted, err);
     r->inverted_elements = isfinite(inverted) ? (int64_t)inverted : -1;
-
-    const cJSON *trace = NULL, *steps = NULL;
     if (st == BG_OK)
-        st = read_array(o, "trace", 1, name, at, field, &trace, err);
-    const int npoints = trace ? cJSON_GetArraySize(trace) : 0;
-    if (st == BG_OK && !(r->trace = calloc((size_t)npoints + 1, sizeof *r->trace)))
-        st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory for %s", name, field);
-    const cJSON *item = trace ? trace->child : NULL;
-    for (int k = 0; st == BG_OK && k < npoints; k++, item = item->next) {
-        char point[BG_JSON_PATH_MAX];
-        bg_json_path_index(point, field, k);
-        st = read_trace_point(item, name, point, &r->trace[k], err);
-        r->trace_count = k + 1;
-    }
+        st = read_list(o, "trace", 1, name, at, sizeof *r->trace, read_point, 0,
+                       (void **)&r->trace, &r->trace_count, err);
     const int morph = cJSON_GetObjectItemCaseSensitive(o, "frames") != NULL;
     if (st == BG_OK)
-        st = read_array(o, morph ? "frames" : "steps", 0, name, at, field, &steps, err);
-    const int nsteps = steps ? cJSON_GetArraySize(steps) : 0;
-    if (st == BG_OK && steps && !(r->steps = calloc((size_t)nsteps + 1, sizeof *r->steps)))
-        st = bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory for %s", name, field);
-    item = steps ? steps->child : NULL;
-    for (int k = 0; st == BG_OK && k < nsteps; k++, item = item->next) {
-        char step[BG_JSON_PATH_MAX];
-        bg_json_path_index(step, field, k);
-        st = read_step(item, morph, name, step, &r->steps[k], err);
-        r->step_count = k + 1;
-    }
+        st = read_list(o, morph ? "frames" : "steps", 0, name, at, sizeof *r->steps, read_step,
+                       morph, (void **)&r->steps, &r->step_count, err);
     return st;
 }
 

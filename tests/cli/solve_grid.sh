@@ -1,8 +1,8 @@
 #!/bin/sh
-# solve_grid.sh BIOTGRID GRID_CONFIG SCENE WORKDIR NO_AGENTS_LEFT
+# solve_grid.sh BIOTGRID GRID_CONFIG SCENE WORKDIR SOURCE_DIR
 # The README's `biotgrid grid up && biotgrid solve SCENE --grid` on the
 # default grid config (a broker and its agents; ephemeral loopback ports,
-# the state in WORKDIR): solve buys its services on the broker's market.
+# the state in WORKDIR/grid): solve buys its services on the broker's market.
 #   1. one method: exit 0, the job's events shown (its contracts), its
 #      result files in --out as solve writes them, the error-against-run-
 #      time table and the money it spent; its energy equals an in-process
@@ -15,15 +15,11 @@
 #      time-to-accuracy table with both methods, each job's money, and each
 #      method's energy equal to its in-process run's as above;
 #   3. --mechanism on a grid without a broker is refused (exit 2).
-# `grid down` then, and no process of the grid is left.
+# `grid down` then, and no process of the grid is left (broker_lib.sh).
 set -u
-bin=$1 config=$2 scene=$3 work=$4 no_left=$5
-rm -rf "$work"
-mkdir -p "$work"
-state="$work/grid"
-fails=0
-fail() { echo "FAIL: $*"; fails=$((fails + 1)); }
-trap '"$bin" grid down --state "$state" >/dev/null 2>&1; exit 1' INT TERM
+bin=$1 config=$2 scene=$3 work=$4 src=$5
+. "$src/tests/broker/broker_lib.sh"
+grid_test_begin "$bin" "$work"
 BIOTGRID_GRID_DIR=$state
 export BIOTGRID_GRID_DIR
 
@@ -34,63 +30,59 @@ same() {
         (($a.energy - $b.energy) | fabs) <= 1e-10 * ($b.energy | fabs) and
         $a.iterations == $b.iterations and $a.converged and $b.converged' >/dev/null 2>&1
 }
+# has FILE PATTERN MESSAGE: FILE has a line matching the extended regular expression.
+has() { grep -Eq -- "$2" "$1"; check $? "$3"; }
 
 "$bin" solve "$scene" --compare newton,local-global --quiet --out "$work/local" \
-    >"$work/local.txt" 2>&1 || fail "the in-process solve failed: $(cat "$work/local.txt")"
-
+    >"$work/local.txt" 2>&1
+check $? "the in-process solve"
 "$bin" grid up "$config" --state "$state" --broker-port 0 --broker-endpoint 'tcp://127.0.0.1:*' \
-    >"$work/up.txt" 2>&1 || fail "grid up: $(cat "$work/up.txt")"
+    >"$work/up.txt" 2>&1
+check $? "grid up"
 
 # 1. One method, the scene's; events on stderr (not a terminal: plain lines).
 timeout 200 "$bin" solve "$scene" --grid --out "$work/one" >"$work/one.out" 2>"$work/one.err"
-s=$?
+check $? "solve --grid"
 cat "$work/one.err" "$work/one.out"
-[ $s -eq 0 ] || fail "solve --grid exited $s"
-grep -Eq "^job j[0-9a-f]{16}: contract: rotation-fit from agent rotfit-[12], price " "$work/one.err" ||
-    fail "solve --grid does not show the job's contracts"
-grep -Eq "^newton: converged after [0-9]+ iterations" "$work/one.err" || fail "no outcome line"
-grep -Eq "^newton +2 +[0-9.]+ +[0-9.e+-]+ +[0-9.e+-]+ +[0-9.e+-]+$" "$work/one.out" ||
-    fail "no error-against-run-time table"
-grep -Eq "^  newton +job j[0-9a-f]{16}: 3 contracts, spent [0-9.e+]+ of budget 1000" "$work/one.out" ||
-    fail "the money the job spent is not shown"
+has "$work/one.err" "^job j[0-9a-f]{16}: contract: rotation-fit from agent rotfit-[12], price " \
+    "the job's contracts shown"
+has "$work/one.err" "^newton: converged after [0-9]+ iterations" "the run's outcome line"
+has "$work/one.out" "^newton +2 +[0-9.]+ +[0-9.e+-]+ +[0-9.e+-]+ +[0-9.e+-]+$" \
+    "the error-against-run-time table"
+has "$work/one.out" "^  newton +job j[0-9a-f]{16}: 3 contracts, spent [0-9.e+]+ of budget 1000" \
+    "the money the job spent"
 for f in report.json error-vs-time.svg result.vtu result.mesh; do
-    [ -s "$work/one/$f" ] || fail "solve --grid did not write $f"
+    [ -s "$work/one/$f" ]; check $? "$f written into --out"
 done
-[ "$(jq -r .market.mechanism "$work/one/report.json" 2>/dev/null)" = central ] ||
-    fail "the job was not bought under the central mechanism"
-same newton "$work/one/report.json" "$work/local/report.json" ||
-    fail "newton on the grid: energy $(jq .runs[0].energy "$work/one/report.json") or iterations differ from in process"
+[ "$(jq -r .market.mechanism "$work/one/report.json" 2>/dev/null)" = central ]
+check $? "bought under the central mechanism"
+same newton "$work/one/report.json" "$work/local/report.json"
+check $? "newton's energy and iterations on the grid equal the in-process solve's"
 
 # 2. Two methods compared, under posted with a budget.
 timeout 300 "$bin" solve "$scene" --grid --compare newton,local-global --mechanism posted \
     --budget 50 --quiet --out "$work/cmp" >"$work/cmp.out" 2>&1
-s=$?
+check $? "solve --grid --compare"
 cat "$work/cmp.out"
-[ $s -eq 0 ] || fail "solve --grid --compare exited $s"
 for m in newton local-global; do
-    [ -s "$work/cmp/$m/report.json" ] || fail "no $m/report.json"
-    [ "$(jq -r .market.mechanism "$work/cmp/$m/report.json" 2>/dev/null)" = posted ] ||
-        fail "$m: not bought under posted"
-    same $m "$work/cmp/$m/report.json" "$work/local/report.json" ||
-        fail "$m on the grid: energy or iterations differ from in process"
-    grep -Eq "^  $m +job j[0-9a-f]{16}: 3 contracts, spent [0-9.e+]+ of budget 50" "$work/cmp.out" ||
-        fail "$m: the money its job spent is not shown"
+    [ "$(jq -r .market.mechanism "$work/cmp/$m/report.json" 2>/dev/null)" = posted ]
+    check $? "$m: its files in --out/$m, bought under posted"
+    same $m "$work/cmp/$m/report.json" "$work/local/report.json"
+    check $? "$m: energy and iterations on the grid equal the in-process solve's"
+    has "$work/cmp.out" "^  $m +job j[0-9a-f]{16}: 3 contracts, spent [0-9.e+]+ of budget 50" \
+        "$m: the money its job spent"
 done
-[ "$(grep -c '<polyline' "$work/cmp/error-vs-time.svg" 2>/dev/null)" -ge 2 ] ||
-    fail "no combined plot with both methods"
-grep -Eq "^1e-08 +[0-9.]+ s \\(it [0-9]+\\) +[0-9.]+ s \\(it [0-9]+\\) +(newton|local-global)$" "$work/cmp.out" ||
-    fail "no time-to-accuracy table"
+[ "$(grep -c '<polyline' "$work/cmp/error-vs-time.svg" 2>/dev/null)" -ge 2 ]
+check $? "the combined plot has both methods"
+has "$work/cmp.out" "^1e-08 +[0-9.]+ s \\(it [0-9]+\\) +[0-9.]+ s \\(it [0-9]+\\) +(newton|local-global)$" \
+    "the time-to-accuracy table"
 
-"$bin" grid down --state "$state" >"$work/down.txt" 2>&1 || fail "grid down: $(cat "$work/down.txt")"
-sh "$no_left" "$state" || fail "a process of the grid is left"
+grid_test_end "$src/tests/agents"
 
 # 3. A grid without a broker has no market to buy on.
 mkdir -p "$work/plain"
 printf '{"name": "plain", "agents": []}\n' >"$work/plain/grid.json"
 "$bin" solve "$scene" --grid --grid-state "$work/plain" --mechanism posted >"$work/plain.txt" 2>&1
-s=$?
-[ $s -eq 2 ] && grep -q "has no broker" "$work/plain.txt" ||
-    fail "--mechanism on a grid without a broker: exit $s, $(cat "$work/plain.txt")"
-
-[ $fails -eq 0 ] && echo "solve_grid: ok"
-exit $fails
+[ $? -eq 2 ] && grep -q "has no broker" "$work/plain.txt"
+check $? "--mechanism on a grid without a broker is refused: $(cat "$work/plain.txt")"
+exit $fail
