@@ -885,3 +885,17 @@ bg_status bga_service_refuse(const bga_frame_t *frames, int nframes, const bga_w
                              .receiver = header_field(h, 32, 8)};
     return bga_wire_error_reply(&to, werr, reply, err);
 }
+
+const char *bga_service_name(unsigned bit)
+{
+    switch (bit) {
+    case BGA_SERVICE_ROTFIT:
+        return "rotation-fit";
+    case BGA_SERVICE_SOLVE:
+        return "sparse-solve";
+    case BGA_SERVICE_INTEG:
+        return "integration-step";
+    default:
+        return NULL;
+    }
+}

@@ -90,4 +90,8 @@ bga_service_stats_t bga_service_stats(const bga_service_t *svc);
  * 0 on an unknown name (err names it). */
 unsigned bga_service_parse_list(const char *list, bg_error_t *err);
 
+/* The name of one service bit as users read it ("rotation-fit",
+ * "sparse-solve", "integration-step"); NULL for any other value. */
+const char *bga_service_name(unsigned bit);
+
 #endif

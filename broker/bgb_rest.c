@@ -21,6 +21,7 @@
 #include "bg_plan.h"
 #include "bg_scene.h"
 #include "bgb_base64.h"
+#include "bgb_jobscene.h"
 
 #define REST_DEFAULT_CONNECTIONS 256
 #define REST_DEFAULT_BUDGET 1000.0
@@ -322,16 +323,13 @@ typedef struct submission {
 static void submission_release(submission_t *s)
 {
     free(s->scene);
-    for (int i = 0; i < s->file_count; i++) {
-        if (s->dir[0]) {
-            char path[REST_PATH_MAX + BGB_STORE_MAX_FILE_NAME + 2];
-            snprintf(path, sizeof path, "%s/%s", s->dir, s->files[i].name);
-            unlink(path);
-        }
-        free(s->files[i].data);
-    }
+    bgb_file_t files[BGB_STORE_MAX_FILES];
+    for (int i = 0; i < s->file_count; i++)
+        files[i] = (bgb_file_t){s->files[i].name, s->files[i].data, s->files[i].size};
     if (s->dir[0])
-        rmdir(s->dir);
+        bgb_jobscene_remove(s->dir, files, s->file_count);
+    for (int i = 0; i < s->file_count; i++)
+        free(s->files[i].data);
 }
 
 /* Whether an object repeats a key; the first repeated key in *key. */
@@ -602,57 +600,6 @@ out:
     return ok;
 }
 
-/* Writes the uploads to a fresh folder; 0 on failure (errno kept). */
-static int unpack(bgb_rest_t *rest, submission_t *s)
-{
-    snprintf(s->dir, sizeof s->dir, "%s/bgb-job-XXXXXX", rest->work_dir);
-    if (!mkdtemp(s->dir)) {
-        s->dir[0] = '\0';
-        return 0;
-    }
-    for (int i = 0; i < s->file_count; i++) {
-        char path[REST_PATH_MAX + BGB_STORE_MAX_FILE_NAME + 2];
-        snprintf(path, sizeof path, "%s/%s", s->dir, s->files[i].name);
-        const int fd = open(path, O_WRONLY | O_CREAT | O_EXCL, 0600);
-        if (fd < 0)
-            return 0;
-        size_t done = 0;
-        while (done < s->files[i].size) {
-            const ssize_t n = write(fd, s->files[i].data + done, s->files[i].size - done);
-            if (n <= 0) {
-                close(fd);
-                return 0;
-            }
-            done += (size_t)n;
-        }
-        if (close(fd) != 0)
-            return 0;
-    }
-    return 1;
-}
-
-static cJSON *plan_json(const bg_scene_t *scene)
-{
-    bg_plan_t plan;
-    bg_plan_for_scene(scene, &scene->method, 1, &plan);
-    cJSON *o = cJSON_CreateObject();
-    cJSON *services = cJSON_AddArrayToObject(o, "services");
-    cJSON *left_out = cJSON_AddArrayToObject(o, "left_out");
-    for (int i = 0; services && i < plan.service_count; i++) {
-        cJSON *item = cJSON_CreateObject();
-        cJSON_AddStringToObject(item, "service", plan.services[i].service);
-        cJSON_AddStringToObject(item, "detail", plan.services[i].detail);
-        cJSON_AddItemToArray(services, item);
-    }
-    for (int i = 0; left_out && i < plan.left_out_count; i++) {
-        cJSON *item = cJSON_CreateObject();
-        cJSON_AddStringToObject(item, "service", plan.left_out[i].service);
-        cJSON_AddStringToObject(item, "reason", plan.left_out[i].detail);
-        cJSON_AddItemToArray(left_out, item);
-    }
-    return o;
-}
-
 /*
  * The resource of a job just stored, as GET /v1/jobs/{id} shows it then
  * (queued, its plan its only event view), written directly: the job is
@@ -689,8 +636,7 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
     s.file_count = 0;
     s.dir[0] = '\0';
     enum MHD_Result sent = MHD_NO;
-    bg_scene_t *scene = NULL;
-    cJSON *plan = NULL;
+    bgb_jobscene_t scene = BGB_JOBSCENE_INIT;
     char *plan_text = NULL;
     const char *key = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "Idempotency-Key");
     if (key && strlen(key) > BGB_STORE_MAX_KEY) {
@@ -701,30 +647,34 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
     }
     if (!read_submission(rest, c, req, &s, &sent))
         goto out;
-    /* A job without uploads needs no folder: its scene is parsed as if it
-     * lived in one that mkdtemp can never create (no six-character suffix),
-     * so any file it names is not found there, and nothing touches the
-     * disk (creating and removing a folder per submit costs more than the
-     * submit's own commit). */
-    char scene_path[REST_PATH_MAX + 32];
-    if (s.file_count == 0) {
-        snprintf(scene_path, sizeof scene_path, "%s/bgb-job-none/scene.json", rest->work_dir);
-    } else {
-        if (!unpack(rest, &s)) {
+    bgb_file_t files[BGB_STORE_MAX_FILES];
+    for (int i = 0; i < s.file_count; i++) {
+        files[i].name = s.files[i].name;
+        files[i].data = s.files[i].data;
+        files[i].size = s.files[i].size;
+    }
+    /* A job without uploads needs no folder (creating and removing one per
+     * submit costs more than the submit's own commit). */
+    bg_error_t err = BG_ERROR_INIT;
+    if (s.file_count > 0) {
+        snprintf(s.dir, sizeof s.dir, "%s/bgb-job-XXXXXX", rest->work_dir);
+        if (!mkdtemp(s.dir)) {
+            s.dir[0] = '\0';
             sent = send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
                                 "Internal error", NULL, "cannot unpack the job's files: %s",
                                 strerror(errno));
             goto out;
         }
-        snprintf(scene_path, sizeof scene_path, "%s/scene.json", s.dir);
+        if (bgb_jobscene_unpack(s.dir, files, s.file_count, &err) != BG_OK) {
+            sent = send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
+                                "Internal error", NULL, "cannot unpack the job's files: %s",
+                                err.message);
+            goto out;
+        }
     }
-    const bg_scene_options_t options = {.max_vertices = rest->config.max_vertices,
-                                        .max_elements = rest->config.max_elements,
-                                        .confined = 1,
-                                        .display_name = "scene"};
-    bg_error_t err = BG_ERROR_INIT;
-    if (bg_scene_parse_with(s.scene, strlen(s.scene), scene_path, &options, &scene, &err) !=
-        BG_OK) {
+    const bgb_jobscene_limits_t limits = {rest->config.max_vertices, rest->config.max_elements};
+    if (bgb_jobscene_load(s.scene, strlen(s.scene), s.file_count ? s.dir : NULL, &limits,
+                          &scene, &err) != BG_OK) {
         char field[256];
         field_of(err.message, field, sizeof field);
         sent = send_problem(rest, c, MHD_HTTP_UNPROCESSABLE_CONTENT,
@@ -733,14 +683,7 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
                             "%s", err.message);
         goto out;
     }
-    plan = plan_json(scene);
-    plan_text = plan ? cJSON_PrintUnformatted(plan) : NULL;
-    bgb_file_t files[BGB_STORE_MAX_FILES];
-    for (int i = 0; i < s.file_count; i++) {
-        files[i].name = s.files[i].name;
-        files[i].data = s.files[i].data;
-        files[i].size = s.files[i].size;
-    }
+    plan_text = bgb_jobscene_plan_json(&scene);
     const bgb_submit_t job = {
         .idempotency_key = key,
         .scene = s.scene,
@@ -762,6 +705,8 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
     }
     char location[64];
     snprintf(location, sizeof location, "/v1/jobs/%s", id);
+    if (created && rest->config.on_queued)
+        rest->config.on_queued(rest->config.queued_ctx);
     if (created) {
         char *text = new_job_text(id, s.mechanism, s.budget, stored_at, plan_text);
         sent = text ? send_text(rest, c, MHD_HTTP_ACCEPTED, "application/json", text,
@@ -782,8 +727,7 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
     }
 out:
     free(plan_text);
-    cJSON_Delete(plan);
-    bg_scene_destroy(&scene);
+    bgb_jobscene_release(&scene);
     submission_release(&s);
     return sent;
 }

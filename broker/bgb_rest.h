@@ -58,6 +58,10 @@ typedef struct bgb_rest_config {
      * is called from the server's threads and must be thread-safe. */
     char *(*view)(void *view_ctx, int what);
     void *view_ctx;
+    /* Called (from a server thread) after a new job is stored, so that the
+     * broker's dispatcher looks at the queue; NULL: none. */
+    void (*on_queued)(void *queued_ctx);
+    void *queued_ctx;
 } bgb_rest_config_t;
 
 /* What a view is asked for. */

@@ -66,6 +66,17 @@ typedef struct pending {
     struct pending *next;
 } pending_t;
 
+/* An event appended later by the writer (bgb_store_add_event_later). */
+typedef struct later {
+    struct later *next;
+    double time;
+    char id[BGB_JOB_ID_SIZE];
+    char *kind, *json;
+} later_t;
+
+/* Events waiting for the writer, at most; beyond, add_event_later refuses. */
+#define STORE_MAX_LATER 65536
+
 struct bgb_store {
     char *path;
     sqlite3 *writer; /* every write, under write_lock */
@@ -73,6 +84,8 @@ struct bgb_store {
     pthread_mutex_t write_lock, read_lock, queue_lock;
     pthread_cond_t queue_ready;
     pending_t *queue, *queue_tail;
+    later_t *later, *later_tail; /* under queue_lock */
+    int nlater;
     int max_batch;   /* submits per transaction at most */
     int wake_at;     /* the writer waits for this many queued submits (0: it is not waiting) */
     int queued;      /* submits in queue */
@@ -406,6 +419,38 @@ static void write_batch(bgb_store_t *store, pending_t *batch)
     pthread_mutex_unlock(&store->write_lock);
 }
 
+static bg_status job_exists(sqlite3 *db, const char *id, bg_error_t *err);
+
+/* Writes the events queued by bgb_store_add_event_later, oldest first, in
+ * one transaction; called with write_lock held, so that a synchronous write
+ * that comes after them in time also comes after them in the log. An event
+ * of a job that does not exist (any more) is dropped, as add_event would
+ * refuse it. */
+static void flush_later(bgb_store_t *store)
+{
+    pthread_mutex_lock(&store->queue_lock);
+    later_t *list = store->later;
+    store->later = store->later_tail = NULL;
+    store->nlater = 0;
+    pthread_mutex_unlock(&store->queue_lock);
+    if (!list)
+        return;
+    sqlite3 *db = store->writer;
+    bg_error_t err = BG_ERROR_INIT;
+    const int open = run(db, "BEGIN IMMEDIATE", &err) == BG_OK;
+    for (later_t *l = list, *next; l; l = next) {
+        next = l->next;
+        bg_error_t e = BG_ERROR_INIT;
+        if (open && job_exists(db, l->id, &e) == BG_OK)
+            (void)insert_event(db, l->id, l->time, l->kind, l->json, &e);
+        free(l->kind);
+        free(l->json);
+        free(l);
+    }
+    if (open && run(db, "COMMIT", &err) != BG_OK)
+        run(db, "ROLLBACK", NULL);
+}
+
 static void *writer_main(void *arg)
 {
     bgb_store_t *store = arg;
@@ -414,8 +459,16 @@ static void *writer_main(void *arg)
         /* Submitters signal only when the queue reaches wake_at, so that
          * gathering a batch costs the writer one wake-up, not one per submit. */
         store->wake_at = 1;
-        while (!store->queue && !store->stopping)
+        while (!store->queue && !store->later && !store->stopping)
             pthread_cond_wait(&store->queue_ready, &store->queue_lock);
+        if (store->later) {
+            pthread_mutex_unlock(&store->queue_lock);
+            pthread_mutex_lock(&store->write_lock);
+            flush_later(store);
+            pthread_mutex_unlock(&store->write_lock);
+            pthread_mutex_lock(&store->queue_lock);
+            continue;
+        }
         if (!store->queue && store->stopping)
             break;
         if (store->last_batch > 1 && !store->stopping) {
@@ -701,6 +754,7 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
     sqlite3 *db = store->writer;
     sqlite3_stmt *s = NULL;
     pthread_mutex_lock(&store->write_lock);
+    flush_later(store);
     bg_status st = run(db, "BEGIN IMMEDIATE", err);
     if (st != BG_OK)
         goto unlock;
@@ -776,11 +830,52 @@ bg_status bgb_store_add_event(bgb_store_t *store, const char *id, const char *ki
                               const char *json, bg_error_t *err)
 {
     pthread_mutex_lock(&store->write_lock);
+    flush_later(store);
     bg_status st = job_exists(store->writer, id, err);
     if (st == BG_OK)
         st = insert_event(store->writer, id, wall_clock(), kind, json, err);
     pthread_mutex_unlock(&store->write_lock);
     return st;
+}
+
+bg_status bgb_store_add_event_later(bgb_store_t *store, const char *id, const char *kind,
+                                    const char *json, bg_error_t *err)
+{
+    later_t *l = calloc(1, sizeof *l);
+    if (l) {
+        l->kind = strdup(kind);
+        l->json = strdup(json);
+    }
+    if (!l || !l->kind || !l->json) {
+        if (l) {
+            free(l->kind);
+            free(l->json);
+        }
+        free(l);
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for an event");
+    }
+    snprintf(l->id, sizeof l->id, "%s", id);
+    l->time = wall_clock();
+    pthread_mutex_lock(&store->queue_lock);
+    const int full = store->nlater >= STORE_MAX_LATER;
+    if (!full) {
+        if (store->later_tail)
+            store->later_tail->next = l;
+        else
+            store->later = l;
+        store->later_tail = l;
+        store->nlater++;
+        pthread_cond_signal(&store->queue_ready);
+    }
+    pthread_mutex_unlock(&store->queue_lock);
+    if (full) {
+        free(l->kind);
+        free(l->json);
+        free(l);
+        return bg_error_set(err, BG_ERR_LIMIT, "%d events already wait for the writer",
+                            STORE_MAX_LATER);
+    }
+    return BG_OK;
 }
 
 bg_status bgb_store_events(bgb_store_t *store, const char *id, int64_t after, bgb_event_fn fn,

@@ -164,6 +164,18 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
 bg_status bgb_store_add_event(bgb_store_t *store, const char *id, const char *kind,
                               const char *json, bg_error_t *err);
 
+/*
+ * Appends an event without waiting for its commit: the store's writer
+ * thread writes it soon after, and before any later bgb_store_transition or
+ * bgb_store_add_event (from any thread), so the log keeps the order in
+ * which they were called. For a thread that must not wait for a disk (the
+ * broker's market loop). BG_ERR_LIMIT when too many already wait (the
+ * caller may then write it with bgb_store_add_event); an event of a job
+ * that does not exist is dropped when written.
+ */
+bg_status bgb_store_add_event_later(bgb_store_t *store, const char *id, const char *kind,
+                                    const char *json, bg_error_t *err);
+
 /* Calls fn for each event of the job with sequence > after, in order. */
 typedef void (*bgb_event_fn)(void *ctx, int64_t sequence, double time, const char *kind,
                              const char *json);

@@ -52,11 +52,11 @@ static int set_string(char **slot, const char *value)
 int bg_cmd_broker(int argc, char **argv)
 {
     bg_error_t err = BG_ERROR_INIT;
-    bgb_broker_config_t config;
+    bgb_config_t config;
     bgb_broker_t *broker = NULL;
     const char *ready_file = NULL;
     int rc = BG_EXIT_BAD_INPUT;
-    if (bgb_broker_config_init(&config, &err) != BG_OK) {
+    if (bgb_config_init(&config, &err) != BG_OK) {
         fprintf(stderr, "biotgrid broker: %s\n", err.message);
         return BG_EXIT_FAILED;
     }
@@ -80,7 +80,7 @@ int bg_cmd_broker(int argc, char **argv)
         }
         const char *v = argv[++i];
         if (strcmp(a, "--config") == 0) {
-            if (bgb_broker_config_read(v, &config, &err) != BG_OK) {
+            if (bgb_config_read(v, &config, &err) != BG_OK) {
                 fprintf(stderr, "biotgrid broker: %s\n", err.message);
                 goto out;
             }
@@ -129,6 +129,6 @@ int bg_cmd_broker(int argc, char **argv)
     rc = BG_EXIT_OK;
 out:
     bgb_broker_stop(&broker);
-    bgb_broker_config_release(&config);
+    bgb_config_release(&config);
     return rc;
 }

@@ -135,7 +135,7 @@ static int read_broker_config(const cJSON *obj, const char *path, grid *g)
             bgb_market_config_default(&mc);
             bg_error_t err = BG_ERROR_INIT;
             char *text = NULL;
-            if (bgb_broker_market_read(k, path, &mc, &err) != BG_OK) {
+            if (bgb_config_market_read(k, path, &mc, &err) != BG_OK) {
                 fprintf(stderr, "biotgrid grid: %s\n", err.message);
                 return 2;
             }

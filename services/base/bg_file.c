@@ -9,13 +9,16 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <fcntl.h>
 #include <sys/types.h>
+#include <unistd.h>
 
 /* Initial buffer for reading a file whose size stat cannot tell. */
 #define READ_CHUNK_BYTES ((size_t)1 << 16)
 #define PATH_BYTES 4096
 
-int bg_file_make_directories(const char *path)
+/* mkdir -p with `mode`; 0 or −1 with errno. */
+static int make_directories(const char *path, unsigned mode)
 {
     char buf[PATH_BYTES];
     size_t len = path ? strlen(path) : 0;
@@ -28,7 +31,7 @@ int bg_file_make_directories(const char *path)
         if (buf[i] == '/' || buf[i] == '\0') {
             char saved = buf[i];
             buf[i] = '\0';
-            if (mkdir(buf, 0755) != 0 && errno != EEXIST)
+            if (mkdir(buf, (mode_t)mode) != 0 && errno != EEXIST)
                 return -1;
             buf[i] = saved;
         }
@@ -41,6 +44,19 @@ int bg_file_make_directories(const char *path)
         return -1;
     }
     return 0;
+}
+
+int bg_file_make_directories(const char *path)
+{
+    return make_directories(path, 0755);
+}
+
+bg_status bg_file_make_directories_mode(const char *path, unsigned mode, bg_error_t *err)
+{
+    if (make_directories(path, mode) != 0)
+        return bg_error_set(err, BG_ERR_IO, "%s: cannot create the folder: %s",
+                            path ? path : "(null)", strerror(errno));
+    return BG_OK;
 }
 
 int bg_file_join(char *buf, size_t size, const char *dir, const char *name)
@@ -218,4 +234,35 @@ int bg_file_canonical(const char *path, char *out, size_t size)
     }
     memcpy(out, real, n + 1);
     return 0;
+}
+
+bg_status bg_file_write_all(const char *path, const void *data, size_t size, unsigned mode,
+                            bg_error_t *err)
+{
+    char temp[PATH_BYTES + 16];
+    if (!path || snprintf(temp, sizeof temp, "%s.part", path) >= (int)sizeof temp)
+        return bg_error_set(err, BG_ERR_INVALID, "%s: path too long", path ? path : "(null)");
+    const int fd = open(temp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, (mode_t)mode);
+    if (fd < 0)
+        return bg_error_set(err, BG_ERR_IO, "%s: cannot write: %s", path, strerror(errno));
+    const uint8_t *p = data;
+    size_t done = 0;
+    while (done < size) {
+        const ssize_t n = write(fd, p + done, size - done);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0) {
+            const int e = errno;
+            close(fd);
+            unlink(temp);
+            return bg_error_set(err, BG_ERR_IO, "%s: write failed: %s", path, strerror(e));
+        }
+        done += (size_t)n;
+    }
+    if (close(fd) != 0 || rename(temp, path) != 0) {
+        const int e = errno;
+        unlink(temp);
+        return bg_error_set(err, BG_ERR_IO, "%s: write failed: %s", path, strerror(e));
+    }
+    return BG_OK;
 }

@@ -18,6 +18,19 @@
  */
 int bg_file_make_directories(const char *path);
 
+/* bg_file_make_directories with the folders it creates given `mode`
+ * (0700 for a folder only its owner may read), in the status idiom:
+ * BG_ERR_IO naming the path and the OS error. */
+bg_status bg_file_make_directories_mode(const char *path, unsigned mode, bg_error_t *err);
+
+/*
+ * Writes size bytes to path whole or not at all: into path.part (created
+ * with `mode`, e.g. 0600), then renamed over path, so a reader never sees
+ * half a file. BG_ERR_IO naming the path and the OS error.
+ */
+bg_status bg_file_write_all(const char *path, const void *data, size_t size, unsigned mode,
+                            bg_error_t *err);
+
 /*
  * dir + "/" + name into buf (size bytes, NUL included): the one way every
  * library and the command build a path inside a folder. Returns 0, or −1

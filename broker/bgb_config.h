@@ -1,0 +1,68 @@
+/*
+ * bgb_config — the broker daemon's settings: defaults, the JSON file that
+ * overrides them (`biotgrid broker --config FILE`, what `grid up` writes),
+ * and the "market" object alone (what the grid checks before it starts a
+ * broker with it). Every error names the file and the field.
+ */
+#ifndef BGB_CONFIG_H
+#define BGB_CONFIG_H
+
+#include <stdint.h>
+
+#include <cjson/cJSON.h>
+
+#include "bg_error.h"
+#include "bgb_market.h"
+
+#define BGB_CONFIG_MAX_AGENTS 32
+/* Coordinators running at once, at most (max_jobs). */
+#define BGB_CONFIG_MAX_JOBS 64
+
+/* One agent of the fixed pool. */
+typedef struct bgb_config_agent {
+    char *endpoint;    /* tcp://HOST:PORT */
+    unsigned services; /* BGA_SERVICE_* bits */
+} bgb_config_agent_t;
+
+/* The daemon's settings; strings owned by the config (bgb_config_release). */
+typedef struct bgb_config {
+    char *name;           /* "biotgrid" */
+    char *address;        /* REST address, "127.0.0.1" */
+    int port;             /* REST port, 8080; 0: ephemeral */
+    char *endpoint;       /* ZeroMQ ROUTER endpoint, "tcp://127.0.0.1:5570"; port '*': ephemeral */
+    char *state_dir;      /* the store and the jobs' folders, "out/broker" */
+    int64_t max_body;     /* bytes, 0: bgb_rest's default */
+    int64_t max_vertices; /* job size caps, 0: none beyond the engine's */
+    int64_t max_elements;
+    int max_jobs;         /* coordinators running at once, 4 */
+    int agent_timeout_ms; /* per agent request, 10000 */
+    bgb_config_agent_t agents[BGB_CONFIG_MAX_AGENTS];
+    int agent_count;
+    bgb_market_config_t market; /* the live market's (bgb_market_config_default); name unused */
+} bgb_config_t;
+
+/* The defaults above. */
+bg_status bgb_config_init(bgb_config_t *config, bg_error_t *err);
+
+/*
+ * Reads a JSON object over the defaults: name, address, port, endpoint,
+ * state_dir, max_body, max_vertices, max_elements, max_jobs,
+ * agent_timeout_ms, agents [{"endpoint", "services"}], market {period,
+ * k, heartbeat_timeout, reply_timeout, buy_timeout (seconds, in (0, 3600);
+ * k in [0, 1]), overlay_degree in [1, 8], hops in [1, 16], max_rounds in
+ * [1, 1000], max_contracts in [1, 10^7]}. An unknown key, a wrong type or
+ * range is BG_ERR_INVALID naming the file and the field ("market.k").
+ */
+bg_status bgb_config_read(const char *path, bgb_config_t *config, bg_error_t *err);
+
+/* The "market" object alone, over *market (`path` names the file in
+ * errors): what the grid checks before it starts a broker with it. */
+bg_status bgb_config_market_read(const cJSON *obj, const char *path, bgb_market_config_t *market,
+                                 bg_error_t *err);
+
+void bgb_config_release(bgb_config_t *config);
+
+/* A deep copy of *from into *to (caller releases it); BG_ERR_NOMEM. */
+bg_status bgb_config_copy(bgb_config_t *to, const bgb_config_t *from, bg_error_t *err);
+
+#endif
