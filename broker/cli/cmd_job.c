@@ -118,15 +118,23 @@ static int terminal_state(const char *state)
            strcmp(state, "cancelled") == 0;
 }
 
-/* The progress event's unit, the finest it names: a dynamic run's step or
- * a morph's frame before the iteration inside it. */
+/* The progress event's unit: the one its "unit" names (the broker's: step,
+ * frame or iteration, with the count under that key and the total under
+ * "of"), else the finest it carries, a dynamic run's step or a morph's
+ * frame before the iteration inside it. "" when it has none. */
 static void read_unit(const cJSON *doc, char *unit, size_t size)
 {
     static const char *const units[] = {"step", "frame", "iteration"};
+    const char *named = bg_cmd_string_of(doc, "unit");
+    const double of = bg_cmd_number_of(doc, "of");
     for (size_t i = 0; i < sizeof units / sizeof units[0]; i++) {
-        const double n = bg_cmd_number_of(doc, units[i]);
+        const char *u = named && isfinite(bg_cmd_number_of(doc, named)) ? named : units[i];
+        const double n = bg_cmd_number_of(doc, u);
         if (isfinite(n)) {
-            snprintf(unit, size, "%s %.0f", units[i], n);
+            if (isfinite(of) && of > 0 && u == named)
+                snprintf(unit, size, "%s %.0f of %.0f", u, n, of);
+            else
+                snprintf(unit, size, "%s %.0f", u, n);
             return;
         }
     }

@@ -15,8 +15,9 @@
  *   allocation  "bought 3 services for 3.87 (central, 0.052 s)", a retry's
  *               "nothing bought yet (no seller): asking again in 0.4 s", or
  *               what the broker said ("allocation: ...")
- *   progress    "running 40% (iteration 12)": the event's fraction in [0, 1]
- *               and its unit (step, frame or iteration) when present
+ *   progress    "running 40% (iteration 12 of 200)": the event's fraction in
+ *               [0, 1] and its unit (step, frame or iteration; "unit" names it,
+ *               "of" its total) when present
  *   solved, stopped, trace: one short line each; another event its name.
  * On a terminal a bar on stderr shows the state, the fraction and the unit
  * instead, redrawn in place.

@@ -15,7 +15,8 @@
  *              allocation and a contract (rotation-fit from agent rotfit-1 at 2.5,
  *              spent 2.5, central), or for "free..." an allocation that bought
  *              nothing; a progress event {"fraction": 0.4, "iteration": 12} (for
- *              "dyn...": {"fraction": 0.25, "step": 5, "iteration": 40}); result
+ *              "dyn...", as the broker says it: {"fraction": 0.25, "unit": "step",
+ *              "step": 5, "of": 20, "iteration": 5}); result
  *              files report.json ({"job", "scene", "inputs": [{"name", "size"}]})
  *              and a copy of each uploaded file named "input-<name>"; a "solved"
  *              event, then succeeded.
@@ -67,8 +68,8 @@ static void complete(host_t *h, const bgb_job_t *job, const char *name)
                    "without contracts\"}"
                  : "{\"market\":\"live\",\"mechanism\":\"central\",\"contracts\":1,"
                    "\"spent\":2.5,\"latency_seconds\":0.05}";
-    const char *progress = dynamic ? "{\"method\":\"variational\",\"fraction\":0.25,\"step\":5,"
-                                     "\"iteration\":40}"
+    const char *progress = dynamic ? "{\"method\":\"variational\",\"fraction\":0.25,\"unit\":"
+                                     "\"step\",\"step\":5,\"of\":20,\"iteration\":5}"
                                    : "{\"method\":\"newton\",\"fraction\":0.4,\"iteration\":12}";
     if ((!free_job &&
          bgb_store_add_event(h->store, job->id, "contract",

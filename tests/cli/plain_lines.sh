@@ -4,7 +4,7 @@
 # an ephemeral loopback port, its stand-in coordinator giving each job the
 # events a live broker's job has): one readable line per event, never raw
 # JSON; the progress with its fraction and unit ("running 40% (iteration
-# 12)", a dynamic job's "step 5"); each contract as "contract: rotation-fit
+# 12)", a dynamic job's "step 5 of 20" from the event's "unit" and "of"); each contract as "contract: rotation-fit
 # from agent rotfit-1, price 2.5"; the money once; "succeeded" once; and no
 # "spent" line for a job that bought nothing. The host is stopped on exit.
 set -u
@@ -69,7 +69,7 @@ has "^job $id: succeeded$" "the outcome"
 printf '%s\n' "$out" | grep -q '[{}"]' && fail "raw JSON in the plain lines"
 
 wait_job dyn-spin
-has "^job $id: running 25% \\(step 5\\)$" "a dynamic job's progress by step"
+has "^job $id: running 25% \\(step 5 of 20\\)$" "a dynamic job's progress by step, as the broker names it"
 
 wait_job free-ride
 [ "$status" -eq 0 ] || fail "free-ride: exit $status"
