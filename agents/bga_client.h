@@ -8,7 +8,13 @@
  * within 2000 ms"), an error reply (its code, frame, field and message),
  * or a reply of the wrong shape. One request is in flight at a time; a
  * reply that arrives after its timeout is recognised by its sequence
- * number and dropped. The client owns its ZeroMQ context and DEALER socket.
+ * number and dropped (an error reply quoting no number answers the request
+ * in flight: the agent could not read its header). The typed calls turn an
+ * agent's refusal into a status by its code: no such job BG_ERR_NOT_FOUND,
+ * busy or wrong state BG_ERR_CONFLICT, numeric failure BG_ERR_NUMERIC,
+ * internal failure BG_ERR_IO, oversize BG_ERR_LIMIT, a type or version it
+ * does not serve BG_ERR_UNSUPPORTED, any other malformed request
+ * BG_ERR_INVALID. The client owns its ZeroMQ context and DEALER socket.
  */
 #ifndef BGA_CLIENT_H
 #define BGA_CLIENT_H

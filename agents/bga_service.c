@@ -854,10 +854,36 @@ bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int 
         bga_wire_fail(&werr, BGA_WIRE_INTERNAL, -1, "", "%s", e.message);
     }
     svc->stats.errors++;
-    /* The decoder fills the header once frame 0 has the right size and
-     * magic: quote it (job, seq) so the peer can match the error. */
-    const int have_header = m.header.version != 0;
-    return bga_wire_error_reply(have_header ? &m.header : NULL, &werr, reply, err);
+    return bga_service_refuse(frames, nframes, &werr, reply, err);
+}
+
+/* Little-endian field of a raw header (offsets as in bga_wire.h). */
+static uint64_t header_field(const uint8_t *h, size_t offset, size_t bytes)
+{
+    uint64_t v = 0;
+    for (size_t i = bytes; i-- > 0;)
+        v = v << 8 | h[offset + i];
+    return v;
+}
+
+bg_status bga_service_refuse(const bga_frame_t *frames, int nframes, const bga_wire_error_t *werr,
+                             bga_frames_t *reply, bg_error_t *err)
+{
+    /* Read in place rather than decoded: the decoder stops at the first
+     * fault, which may come before the header (an oversized frame) or
+     * concern it (a wrong version), and an over-long message is never
+     * decoded at all; the job and seq are still there. */
+    if (nframes < 1 || !frames || frames[0].size != BGA_WIRE_HEADER_BYTES || !frames[0].data ||
+        memcmp(frames[0].data, "bgwp", 4) != 0)
+        return bga_wire_error_reply(NULL, werr, reply, err);
+    const uint8_t *h = frames[0].data;
+    const bga_header_t to = {.version = (uint16_t)header_field(h, 4, 2),
+                             .type = (uint16_t)header_field(h, 6, 2),
+                             .job = header_field(h, 8, 8),
+                             .seq = header_field(h, 16, 8),
+                             .sender = header_field(h, 24, 8),
+                             .receiver = header_field(h, 32, 8)};
+    return bga_wire_error_reply(&to, werr, reply, err);
 }
 
 const char *bga_service_name(unsigned bit)

@@ -763,6 +763,38 @@ static void line_of(const char *text, size_t offset, int *line, int *column)
     }
 }
 
+/* Replaces member key of object by item (taken over, freed on failure). */
+static bg_status set_member(cJSON *object, const char *key, cJSON *item, bg_error_t *err)
+{
+    cJSON_DeleteItemFromObjectCaseSensitive(object, key);
+    if (!item || !cJSON_AddItemToObject(object, key, item)) {
+        cJSON_Delete(item);
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory");
+    }
+    return BG_OK;
+}
+
+/* The submission's solver settings into the scene's "solver" object. */
+static bg_status set_solver(cJSON *scene, const bgb_client_submit_t *s, bg_error_t *err)
+{
+    if (!s->method && !(s->tolerance > 0.0) && s->max_iterations <= 0)
+        return BG_OK;
+    cJSON *solver = cJSON_GetObjectItemCaseSensitive(scene, "solver");
+    if (!solver && !(solver = cJSON_AddObjectToObject(scene, "solver")))
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory");
+    if (!cJSON_IsObject(solver))
+        return bg_error_set(err, BG_ERR_INVALID, "%s: solver: expected an object",
+                            s->scene_path);
+    bg_status st = BG_OK;
+    if (s->method)
+        st = set_member(solver, "method", cJSON_CreateString(s->method), err);
+    if (st == BG_OK && s->tolerance > 0.0)
+        st = set_member(solver, "tolerance", cJSON_CreateNumber(s->tolerance), err);
+    if (st == BG_OK && s->max_iterations > 0)
+        st = set_member(solver, "max_iterations", cJSON_CreateNumber(s->max_iterations), err);
+    return st;
+}
+
 bg_status bgb_client_pack(const bgb_client_submit_t *submit, char **body, bg_error_t *err)
 {
     *body = NULL;
@@ -805,7 +837,7 @@ bg_status bgb_client_pack(const bgb_client_submit_t *submit, char **body, bg_err
         st = bg_error_set(err, BG_ERR_INVALID, "%s: a scene is a JSON object", submit->scene_path);
         goto out;
     }
-    if ((st = pack_refs(&p, scene, err)) != BG_OK)
+    if ((st = pack_refs(&p, scene, err)) != BG_OK || (st = set_solver(scene, submit, err)) != BG_OK)
         goto out;
     /* The broker sees the scene without its file: keep the name `solve` would give it. */
     if (!cJSON_GetObjectItemCaseSensitive(scene, "name")) {

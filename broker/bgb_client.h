@@ -50,6 +50,12 @@ typedef struct bgb_client_submit {
     const char *mechanism;       /* NULL: the broker's default */
     double budget;               /* <= 0: the broker's default */
     const char *idempotency_key; /* NULL or "": none */
+    /* The job's solver settings in place of the scene file's (the broker
+     * solves the scene's solver.method to its tolerance and cap), as
+     * `solve --method/--tolerance/--max-iterations` does locally: */
+    const char *method;          /* solver.method; NULL: the scene's */
+    double tolerance;            /* solver.tolerance; <= 0: the scene's */
+    int max_iterations;          /* solver.max_iterations, one cap; <= 0: the scene's */
 } bgb_client_submit_t;
 
 /*
@@ -61,7 +67,10 @@ typedef struct bgb_client_submit {
  * the scene, else by file name in search_path), uploaded under its plain
  * file name (prefixed "2-", "3-"... when two different files share one)
  * and renamed so in the uploaded scene. A scene without a "name" gets its
- * file's stem, the name `solve` reports (the broker never sees the file). *body is a NUL-terminated string
+ * file's stem, the name `solve` reports (the broker never sees the file).
+ * The solver settings given (method, tolerance, max_iterations) replace
+ * the scene's "solver" members of those names, the others kept; a
+ * "solver" that is not an object is BG_ERR_INVALID. *body is a NUL-terminated string
  * the caller frees. BG_ERR_NOT_FOUND / BG_ERR_PARSE / BG_ERR_INVALID name
  * the scene file and the field.
  */

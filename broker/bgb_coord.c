@@ -22,7 +22,7 @@
 #include "bga_service.h"
 #include "bgb_jobreport.h"
 #include "bgb_jobscene.h"
-#include "bgb_run.h"
+#include "bg_run.h"
 #include "bgb_watch.h"
 
 #define COORD_PATH_MAX 4096
@@ -389,16 +389,16 @@ static bg_status solve_job(job_run_t *jr, const bgb_job_t *job, const char *dir,
     bgb_watch_init(&remote_watch, still_running, jr, jr->what, bga_backend_services(remote),
                    jr->used);
     const double *ref = NULL;
-    if ((st = bgb_run_reference(scene, &local_watch.backend, &reference, &ref, err)) != BG_OK)
+    if ((st = bg_run_reference(scene, &local_watch.backend, &reference, &ref, err)) != BG_OK)
         goto out;
-    const bgb_run_options_t ro = {.method = scene->method,
-                                  .tolerance = jr->tolerance,
-                                  .max_iterations = jr->max_iterations,
-                                  .frames_prefix = "",
-                                  .progress = on_progress,
-                                  .progress_ctx = jr,
-                                  .backend = &remote_watch.backend};
-    if ((st = bgb_run_method(scene, &ro, ref, dir, &run, err)) != BG_OK)
+    const bg_run_options_t ro = {.method = scene->method,
+                                 .tolerance = jr->tolerance,
+                                 .max_iterations = jr->max_iterations,
+                                 .frames_prefix = "",
+                                 .progress = on_progress,
+                                 .progress_ctx = jr,
+                                 .backend = &remote_watch.backend};
+    if ((st = bg_run_method(scene, &ro, ref, dir, &run, err)) != BG_OK)
         goto out;
     *converged = run.converged;
     bg_report_agent_t lines[BGB_CONFIG_MAX_AGENTS];
@@ -424,7 +424,7 @@ static bg_status solve_job(job_run_t *jr, const bgb_job_t *job, const char *dir,
         goto out;
     snprintf(path, sizeof path, "%s/error-vs-time.svg", dir);
     if ((st = bg_report_write_plot(path, scene, &run, 1, err)) != BG_OK ||
-        (st = bgb_run_write_results(dir, scene, &run, paths, sizeof paths, err)) != BG_OK)
+        (st = bg_run_write_results(dir, scene, &run, paths, sizeof paths, err)) != BG_OK)
         goto out;
     trace = trace_json(&run);
     if (trace && (st = bgb_store_add_event(c->store, job->id, "trace", trace, err)) != BG_OK)

@@ -287,6 +287,67 @@ static void test_pack_files(void **state)
     cJSON_Delete(root);
 }
 
+/* The solver settings of a submission replace the scene's members of
+ * those names and keep the others; a scene without "solver" gets one, and
+ * one whose "solver" is not an object is refused naming the field. */
+static void test_pack_solver(void **state)
+{
+    folder_t *f = *state;
+    write_file(f, "s/with.json",
+               "{\"name\": \"w\", \"mesh\": {\"generate\": \"box\"}, \"solver\": {\"method\": "
+               "\"newton\", \"tolerance\": 1e-8, \"max_iterations\": {\"newton\": 200}, "
+               "\"continuation\": false}}");
+    write_file(f, "s/without.json", "{\"name\": \"o\", \"mesh\": {\"generate\": \"box\"}}");
+    write_file(f, "s/bad.json", "{\"name\": \"b\", \"solver\": [1]}");
+    char path[128];
+    snprintf(path, sizeof path, "%s/s/with.json", f->dir);
+    bgb_client_submit_t submit = {.scene_path = path, .method = "local-global",
+                                  .tolerance = 1e-6, .max_iterations = 50};
+    char *body = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_OK);
+    cJSON *root = cJSON_Parse(body);
+    free(body);
+    const cJSON *solver = cJSON_GetObjectItemCaseSensitive(
+        cJSON_GetObjectItemCaseSensitive(root, "scene"), "solver");
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(solver, "method")->valuestring,
+                        "local-global");
+    assert_true(cJSON_GetObjectItemCaseSensitive(solver, "tolerance")->valuedouble == 1e-6);
+    assert_int_equal(cJSON_GetObjectItemCaseSensitive(solver, "max_iterations")->valueint, 50);
+    assert_true(cJSON_IsFalse(cJSON_GetObjectItemCaseSensitive(solver, "continuation")));
+    assert_int_equal(cJSON_GetArraySize(solver), 4);
+    cJSON_Delete(root);
+
+    /* Only the method: the scene's tolerance and caps stay. */
+    submit = (bgb_client_submit_t){.scene_path = path, .method = "newton"};
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_OK);
+    root = cJSON_Parse(body);
+    free(body);
+    solver = cJSON_GetObjectItemCaseSensitive(cJSON_GetObjectItemCaseSensitive(root, "scene"),
+                                              "solver");
+    assert_true(cJSON_GetObjectItemCaseSensitive(solver, "tolerance")->valuedouble == 1e-8);
+    assert_true(cJSON_IsObject(cJSON_GetObjectItemCaseSensitive(solver, "max_iterations")));
+    cJSON_Delete(root);
+
+    snprintf(path, sizeof path, "%s/s/without.json", f->dir);
+    submit = (bgb_client_submit_t){.scene_path = path, .max_iterations = 7};
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_OK);
+    root = cJSON_Parse(body);
+    free(body);
+    solver = cJSON_GetObjectItemCaseSensitive(cJSON_GetObjectItemCaseSensitive(root, "scene"),
+                                              "solver");
+    assert_int_equal(cJSON_GetArraySize(solver), 1);
+    assert_int_equal(cJSON_GetObjectItemCaseSensitive(solver, "max_iterations")->valueint, 7);
+    cJSON_Delete(root);
+
+    snprintf(path, sizeof path, "%s/s/bad.json", f->dir);
+    submit = (bgb_client_submit_t){.scene_path = path, .tolerance = 1e-6};
+    body = NULL;
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_ERR_INVALID);
+    assert_null(body);
+    assert_non_null(strstr(err.message, "bad.json: solver: expected an object"));
+}
+
 static void test_pack_errors(void **state)
 {
     folder_t *f = *state;
@@ -563,6 +624,7 @@ int main(void)
         cmocka_unit_test(test_sse_caps),
         cmocka_unit_test(test_sse_stop),
         cmocka_unit_test_setup_teardown(test_pack_files, setup_folder, teardown_folder),
+        cmocka_unit_test_setup_teardown(test_pack_solver, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_pack_errors, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_lookup_kinds, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_download_names, setup_folder, teardown_folder),

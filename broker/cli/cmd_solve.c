@@ -21,16 +21,17 @@
 #include "bg_scene.h"
 #include "bg_static.h"
 #include "bga_backend.h"
-#include "bgb_run.h"
+#include "bg_file.h"
+#include "bg_run.h"
 #include "bga_client.h"
 #include "bga_service.h"
+#include "cmd_job.h"
+#include "cmd_runs.h"
+#include "cmd_solve_broker.h"
 
 #define CLI_MAX_METHODS 4
-#define CLI_TABLE_ROWS 24
 /* Room for the ':'-separated mesh folders. */
 #define CLI_MESH_PATH_MAX 8192
-/* Time-to-accuracy rows: decades from 1e-1 down to the tolerance, at most this many. */
-#define CLI_ACCURACY_ROWS 16
 /* Jobs across agents: at most this many endpoints, each request answered
  * within the timeout (default; --agent-timeout), the job's state on the
  * agents leased for this long (renewed by every request). */
@@ -39,6 +40,7 @@
 #define CLI_AGENT_TIMEOUT_MS 10000
 #define CLI_AGENT_LEASE_MS 600000
 #define CLI_GRID_STATE_MAX (1 << 20)
+#define CLI_BROKER_URL_MAX 1024
 
 typedef struct cli_options {
     const char *scene_path;
@@ -50,9 +52,11 @@ typedef struct cli_options {
     int quiet;
     char mesh_path[CLI_MESH_PATH_MAX];
     const char *agents;    /* --agents list, or NULL */
-    int grid;              /* --grid: the running local grid's agents */
-    const char *grid_dir;  /* its state directory (--grid-state, $BIOTGRID_GRID_DIR, out/grid) */
+    int grid;              /* --grid: the running local grid's broker, else its agents */
+    const char *grid_dir;  /* --grid-state, or NULL (bg_cmd_grid_dir) */
     int agent_timeout_ms;
+    const char *mechanism; /* --mechanism, or NULL: central (a grid with a broker) */
+    double budget;         /* --budget, or 0: the broker's */
 } cli_options_t;
 
 /* One agent named on the command line or in the grid's state file. */
@@ -93,8 +97,14 @@ const char bg_cmd_solve_usage[] =
     "                             endpoints, each optionally prefixed SERVICES= as in\n"
     "                             rotfit=tcp://127.0.0.1:5555; an endpoint without a prefix\n"
     "                             is asked for its services with a heartbeat)\n"
-    "  --grid                     the same with the agents of the running local grid\n"
+    "  --grid                     on the running local grid: through its broker when it\n"
+    "                             has one (the services bought on its market), else on\n"
+    "                             its agents as with --agents\n"
     "  --grid-state DIR           its state directory (default $BIOTGRID_GRID_DIR or out/grid)\n"
+    "  --mechanism M              a grid with a broker: central (default), catallactic or\n"
+    "                             posted\n"
+    "  --budget B                 a grid with a broker: the money each method's job may\n"
+    "                             spend (default: the broker's, 1000)\n"
     "  --agent-timeout MS         per request to an agent (default 10000)\n"
     "\n"
     "With agents, rotation-fit is split in balanced element ranges over every rotation-fit\n"
@@ -102,6 +112,12 @@ const char bg_cmd_solve_usage[] =
     "that serves only sparse-solve, else the first that serves it). The time loop of a\n"
     "dynamic scene and surface-edit's solver run in this process. An agent that fails or\n"
     "stops answering ends the solve with exit 1, naming the agent and the service.\n"
+    "\n"
+    "On a grid with a broker each method is a job submitted as `biotgrid submit` does\n"
+    "(the scene and its files, the method, tolerance and iteration cap in its solver\n"
+    "settings), one after another, followed as `submit --wait` follows it; its result\n"
+    "files go to DIR (several methods: DIR/<method>/, the combined plot in DIR), and the\n"
+    "tables below come from the jobs' reports, with the money each job spent.\n"
     "\n"
     "Every compared method gets the same stopping rule: the same tolerance, and its own\n"
     "iteration cap (the scene's per-method cap, else the common one). The table after the\n"
@@ -197,13 +213,27 @@ static int parse_args(int argc, char **argv, cli_options_t *o)
         } else if (strcmp(a, "--grid") == 0) {
             o->grid = 1;
         } else if ((strcmp(a, "--agents") == 0 || strcmp(a, "--grid-state") == 0 ||
-                    strcmp(a, "--agent-timeout") == 0) &&
+                    strcmp(a, "--agent-timeout") == 0 || strcmp(a, "--mechanism") == 0 ||
+                    strcmp(a, "--budget") == 0) &&
                    value) {
             i++;
             if (strcmp(a, "--agents") == 0) {
                 o->agents = value;
             } else if (strcmp(a, "--grid-state") == 0) {
                 o->grid_dir = value;
+            } else if (strcmp(a, "--mechanism") == 0) {
+                if (!bg_cmd_job_mechanism_ok(value)) {
+                    fprintf(stderr, "biotgrid solve: --mechanism: unknown mechanism '%s' "
+                                    "(expected central, catallactic or posted)\n", value);
+                    return -1;
+                }
+                o->mechanism = value;
+            } else if (strcmp(a, "--budget") == 0) {
+                if (bg_cmd_job_budget(value, &o->budget) != 0) {
+                    fprintf(stderr, "biotgrid solve: --budget: '%s' is not a positive number\n",
+                            value);
+                    return -1;
+                }
             } else {
                 char *end = NULL;
                 const long ms = strtol(value, &end, 10);
@@ -275,6 +305,11 @@ static int parse_args(int argc, char **argv, cli_options_t *o)
         fprintf(stderr, "biotgrid solve: --agents and --grid exclude each other\n");
         return -1;
     }
+    if ((o->mechanism || o->budget > 0.0) && !o->grid) {
+        fprintf(stderr, "biotgrid solve: --%s buys services on a grid's market: it needs --grid\n",
+                o->mechanism ? "mechanism" : "budget");
+        return -1;
+    }
     return finish_mesh_path(o->mesh_path, sizeof o->mesh_path, "solve");
 }
 
@@ -311,52 +346,6 @@ static void on_progress(void *ctx, bg_method method, const bg_trace_point_t *p)
 }
 
 
-
-/*
- * For a static comparison: which method reached each accuracy first. Rows
- * are decades of the relative gradient from 1e-1 down to the tolerance (the
- * tolerance itself last); a cell is the first trace point at or below it.
- */
-static void print_time_to_accuracy(FILE *out, const bg_solve_result_t *runs, int count,
-                                   double tolerance)
-{
-    double levels[CLI_ACCURACY_ROWS];
-    int rows = 0;
-    for (double level = 1e-1; level > tolerance * 1.0000001 && rows < CLI_ACCURACY_ROWS - 1;
-         level /= 10.0)
-        levels[rows++] = level;
-    levels[rows++] = tolerance;
-    fprintf(out, "\ntime to accuracy (relative gradient; first trace point at or below it)\n");
-    fprintf(out, "%-12s", "accuracy");
-    for (int m = 0; m < count; m++)
-        fprintf(out, "  %22s", bg_method_name(runs[m].method));
-    fprintf(out, "  first\n");
-    for (int r = 0; r < rows; r++) {
-        fprintf(out, "%-12.0e", levels[r]);
-        int best = -1;
-        double best_seconds = 0.0;
-        for (int m = 0; m < count; m++) {
-            const bg_solve_result_t *run = &runs[m];
-            int hit = -1;
-            for (int k = 0; k < run->trace_count && hit < 0; k++)
-                if (run->trace[k].relative_gradient <= levels[r])
-                    hit = k;
-            if (hit < 0) {
-                fprintf(out, "  %22s", "not reached");
-                continue;
-            }
-            char cell[64];
-            snprintf(cell, sizeof cell, "%.3f s (it %d)", run->trace[hit].seconds,
-                     run->trace[hit].iteration);
-            fprintf(out, "  %22s", cell);
-            if (best < 0 || run->trace[hit].seconds < best_seconds) {
-                best = m;
-                best_seconds = run->trace[hit].seconds;
-            }
-        }
-        fprintf(out, "  %s\n", best < 0 ? "none" : bg_method_name(runs[best].method));
-    }
-}
 
 /* Appends one more output path to the "results:" list in buf. */
 static void list_result(char *buf, size_t size, const char *dir, const char *name)
@@ -421,7 +410,7 @@ static int parse_agent_list(const char *list, cli_agent *agents, int *count)
 static int read_grid_agents(const char *dir, cli_agent *agents, int *count)
 {
     char path[4200];
-    if (bgb_run_join_path(path, sizeof path, dir, "grid.json") != 0) {
+    if (bg_file_join(path, sizeof path, dir, "grid.json") != 0) {
         fprintf(stderr, "biotgrid solve: --grid: state directory name too long\n");
         return -1;
     }
@@ -603,16 +592,39 @@ int bg_cmd_solve(int argc, char **argv)
                     dynamic ? "variational or backward-euler" : "newton or local-global");
             goto out;
         }
+    const char *grid_dir = bg_cmd_grid_dir(o.grid_dir);
+    char broker[CLI_BROKER_URL_MAX];
+    if (o.grid && bg_cmd_grid_broker(grid_dir, broker, sizeof broker)) {
+        /* The grid's broker prepares and solves the scene: nothing more here. */
+        const bg_cmd_broker_solve_t job = {.url = broker,
+                                           .scene_path = o.scene_path,
+                                           .search_path = o.mesh_path,
+                                           .scene = scene,
+                                           .methods = o.methods,
+                                           .method_count = o.method_count,
+                                           .tolerance = o.tolerance,
+                                           .max_iterations = o.max_iterations,
+                                           .mechanism = o.mechanism ? o.mechanism : "central",
+                                           .budget = o.budget,
+                                           .out_dir = o.out_dir,
+                                           .quiet = o.quiet};
+        exit_code = bg_cmd_solve_on_broker(&job);
+        goto out;
+    }
+    if (o.mechanism || o.budget > 0.0) {
+        fprintf(stderr, "biotgrid solve: --%s: the grid in %s has no broker (its agents are used "
+                        "directly, without a market)\n",
+                o.mechanism ? "mechanism" : "budget", grid_dir);
+        goto out;
+    }
     if (bg_prepare_scene(scene, &err) != BG_OK) {
         fprintf(stderr, "biotgrid solve: %s\n", err.message);
         exit_code = err.status == BG_ERR_INVALID ? BG_EXIT_BAD_INPUT : BG_EXIT_FAILED;
         goto out;
     }
     if (o.agents || o.grid) {
-        const char *env = getenv("BIOTGRID_GRID_DIR");
-        const char *dir = o.grid_dir ? o.grid_dir : env && *env ? env : "out/grid";
         if ((o.agents ? parse_agent_list(o.agents, agents, &agent_count)
-                      : read_grid_agents(dir, agents, &agent_count)) != 0)
+                      : read_grid_agents(grid_dir, agents, &agent_count)) != 0)
             goto out;
         const char *rotfit[CLI_MAX_AGENTS], *solve = NULL;
         int nrotfit = 0;
@@ -661,7 +673,7 @@ int bg_cmd_solve(int argc, char **argv)
     if (scene->reference_kind == BG_REFERENCE_NEWTON && scene->task == BG_TASK_STATIC &&
         !o.quiet)
         fprintf(stderr, "computing the reference solution (Newton to its round-off floor)\n");
-    if (bgb_run_reference(scene, NULL, &reference, &ref, &err) != BG_OK) {
+    if (bg_run_reference(scene, NULL, &reference, &ref, &err) != BG_OK) {
         fprintf(stderr, "biotgrid solve: reference solve: %s\n", err.message);
         exit_code = BG_EXIT_FAILED;
         goto out;
@@ -672,14 +684,14 @@ int bg_cmd_solve(int argc, char **argv)
         const int max_iterations = o.max_iterations > 0
                                        ? o.max_iterations
                                        : bg_scene_max_iterations(scene, o.methods[i]);
-        const bgb_run_options_t ro = {.method = o.methods[i],
-                                      .tolerance = tolerance,
-                                      .max_iterations = max_iterations,
-                                      .frames_prefix = "frames/",
-                                      .progress = on_progress,
-                                      .progress_ctx = &pr,
-                                      .backend = backend};
-        const bg_status st = bgb_run_method(scene, &ro, ref, out_dir, &runs[i], &err);
+        const bg_run_options_t ro = {.method = o.methods[i],
+                                     .tolerance = tolerance,
+                                     .max_iterations = max_iterations,
+                                     .frames_prefix = "frames/",
+                                     .progress = on_progress,
+                                     .progress_ctx = &pr,
+                                     .backend = backend};
+        const bg_status st = bg_run_method(scene, &ro, ref, out_dir, &runs[i], &err);
         if (st != BG_OK) {
             if (pr.tty && !o.quiet)
                 fputc('\n', stderr);
@@ -691,28 +703,7 @@ int bg_cmd_solve(int argc, char **argv)
         run_count++;
         if (pr.tty && !o.quiet)
             fputc('\n', stderr);
-        if (scene->task == BG_TASK_MORPH)
-            fprintf(stderr, "%s: %s, %d frames, %d iterations, %.3f s\n",
-                    bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].step_count,
-                    runs[i].iterations, runs[i].wall_seconds);
-        else if (dynamic)
-            fprintf(stderr, "%s: %s, %d steps, %d Newton iterations, %.3f s (energy drift "
-                            "%.3e)\n",
-                    bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].step_count - 1,
-                    runs[i].iterations, runs[i].wall_seconds,
-                    runs[i].trace[runs[i].trace_count - 1].error);
-        else
-            fprintf(stderr, "%s: %s after %d iterations (cap %d), %.3f s (relative gradient "
-                            "%.3e, tolerance %.0e)\n",
-                    bg_method_name(o.methods[i]), runs[i].stop_reason, runs[i].iterations,
-                    max_iterations, runs[i].wall_seconds, runs[i].relative_gradient, tolerance);
-        if (runs[i].continuation_stages > 0)
-            fprintf(stderr, "%s: %d stages of growing lambda before the scene's (continuation; "
-                            "the iterations are their total)\n",
-                    bg_method_name(o.methods[i]), runs[i].continuation_stages);
-        if (runs[i].inverted_elements >= 0)
-            fprintf(stderr, "%s: %lld inverted elements (det F <= 0) in the result\n",
-                    bg_method_name(o.methods[i]), (long long)runs[i].inverted_elements);
+        bg_cmd_runs_print_run(scene, &runs[i], max_iterations, tolerance);
         all_converged &= runs[i].converged;
     }
 
@@ -727,15 +718,15 @@ int bg_cmd_solve(int argc, char **argv)
     }
     const int lines = remote ? agents_report(agents, agent_count, remote, agent_lines) : 0;
     char report_path[4200], plot_path[4200], result_paths[8500];
-    if (bgb_run_join_path(report_path, sizeof report_path, out_dir, "report.json") != 0 ||
-        bgb_run_join_path(plot_path, sizeof plot_path, out_dir, "error-vs-time.svg") != 0) {
+    if (bg_file_join(report_path, sizeof report_path, out_dir, "report.json") != 0 ||
+        bg_file_join(plot_path, sizeof plot_path, out_dir, "error-vs-time.svg") != 0) {
         fprintf(stderr, "biotgrid solve: output directory name too long\n");
         goto out;
     }
     if (bg_report_write_agents(report_path, scene, &plan, runs, run_count,
                                remote ? agent_lines : NULL, lines, &err) != BG_OK ||
         bg_report_write_plot(plot_path, scene, runs, run_count, &err) != BG_OK ||
-        bgb_run_write_results(out_dir, scene, &runs[0], result_paths, sizeof result_paths,
+        bg_run_write_results(out_dir, scene, &runs[0], result_paths, sizeof result_paths,
                               &err) !=
             BG_OK) {
         fprintf(stderr, "biotgrid solve: %s\n", err.message);
@@ -753,14 +744,7 @@ int bg_cmd_solve(int argc, char **argv)
             list_result(result_paths, sizeof result_paths, out_dir, name);
         }
     }
-    printf("\nerror against run time (%s)\n",
-           dynamic ? "per step: energy = total energy, error = |E - E0| / |E0|"
-           : scene->task == BG_TASK_MORPH ? "per frame: energy and relative gradient at M_t"
-           : scene->reference_kind == BG_REFERENCE_NONE ? "no reference: error column empty"
-                                                        : "error = |q - q_ref| / |q_ref|");
-    bg_report_print_table(stdout, runs, run_count, CLI_TABLE_ROWS);
-    if (run_count > 1 && !dynamic && scene->task != BG_TASK_MORPH)
-        print_time_to_accuracy(stdout, runs, run_count, tolerance);
+    bg_cmd_runs_print_tables(scene, runs, run_count, tolerance);
     if (remote)
         print_agents(agent_lines, lines);
     printf("\nresults:\n  %s\n  %s\n  %s\n", report_path, plot_path, result_paths);

@@ -29,8 +29,9 @@ int bg_cmd_mesh_path_add(char *buf, size_t size, const char *folder);
 int bg_cmd_mesh_path_finish(char *buf, size_t size);
 
 /* The meshes the build makes (and `cmake --install` installs), relative to
- * the folder above the executable's: build/share/... beside build/<dir>/biotgrid
- * in a build tree, PREFIX/share/... beside PREFIX/bin/biotgrid once installed. */
+ * the folder above the executable's: the build tree has the installed
+ * layout, so BUILD/share/... beside BUILD/bin/biotgrid as PREFIX/share/...
+ * beside PREFIX/bin/biotgrid (broker/cli/CMakeLists.txt). */
 #define BG_CMD_MESH_FOLDER "share/biotgrid/meshes"
 
 /* The command's own mesh folder, "<executable's folder>/../share/biotgrid/meshes",
@@ -42,6 +43,13 @@ int bg_cmd_mesh_folder(char *buf, size_t size);
     "  The shipped scenes' meshes are made by the build from Debian's libcgal-demo and\n"          \
     "  tetgen into " BG_CMD_MESH_FOLDER " (see README.md, \"Meshes\"). For meshes of your\n"       \
     "  own, pass --mesh-path DIR or set " BG_CMD_MESH_PATH_ENV "=DIR.\n"
+
+/* The local grid's state folder (`grid up` writes grid.json there): the
+ * option's value when given (not NULL), else $BIOTGRID_GRID_DIR when set
+ * and not empty, else out/grid. */
+#define BG_CMD_GRID_DIR_ENV "BIOTGRID_GRID_DIR"
+#define BG_CMD_GRID_DIR "out/grid"
+const char *bg_cmd_grid_dir(const char *option);
 
 /* mkdir -p (bg_file_make_directories): creates path and its missing parents (mode
  * 0755); -1 on failure (errno set). */

@@ -842,7 +842,7 @@ int bg_cmd_grid(int argc, char **argv)
         return 2;
     }
     const char *sub = argv[1], *file = "configs/grids/local.json";
-    const char *dir = getenv("BIOTGRID_GRID_DIR") ? getenv("BIOTGRID_GRID_DIR") : "out/grid";
+    const char *dir = bg_cmd_grid_dir(NULL);
     double grace = 5.0;
     int broker_port = -1;
     const char *broker_ep = NULL;
@@ -851,7 +851,10 @@ int bg_cmd_grid(int argc, char **argv)
         return 0;
     }
     for (int i = 2; i < argc; i++) {
-        if (strcmp(argv[i], "--state") == 0 && i + 1 < argc) {
+        if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) {
+            usage(stdout); /* one page for the three verbs: `grid up --help` too */
+            return 0;
+        } else if (strcmp(argv[i], "--state") == 0 && i + 1 < argc) {
             dir = argv[++i];
         } else if (strcmp(argv[i], "--grace") == 0 && i + 1 < argc) {
             char *end;

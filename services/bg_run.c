@@ -1,4 +1,4 @@
-#include "bgb_run.h"
+#include "bg_run.h"
 
 #include <errno.h>
 #include <stdint.h>
@@ -8,26 +8,16 @@
 #include <sys/stat.h>
 
 #include "bg_dynamics.h"
+#include "bg_file.h"
 #include "bg_mesh_io.h"
 #include "bg_morph.h"
 #include "bg_param.h"
 #include "bg_surface_arap.h"
 
-int bgb_run_join_path(char *buf, size_t size, const char *dir, const char *name)
-{
-    const size_t a = strlen(dir), b = strlen(name);
-    if (a + 1 + b + 1 > size)
-        return -1;
-    memcpy(buf, dir, a);
-    buf[a] = '/';
-    memcpy(buf + a + 1, name, b + 1);
-    return 0;
-}
-
 /* Result files of the first run: result.vtu with displacement, the
  * constrained flag and ψ per element, and result.<input format> with the
  * constrained flag as the MEDIT vertex reference. */
-bg_status bgb_run_write_results(const char *dir, const bg_scene_t *scene,
+bg_status bg_run_write_results(const char *dir, const bg_scene_t *scene,
                                 const bg_solve_result_t *run, char *paths, size_t paths_size,
                                 bg_error_t *err)
 {
@@ -50,7 +40,7 @@ bg_status bgb_run_write_results(const char *dir, const bg_scene_t *scene,
         flag[v] = refs[v];
     }
     char vtu[4200], native[4200], name[32];
-    if (bgb_run_join_path(vtu, sizeof vtu, dir, "result.vtu") != 0) {
+    if (bg_file_join(vtu, sizeof vtu, dir, "result.vtu") != 0) {
         st = bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
         goto out;
     }
@@ -62,7 +52,7 @@ bg_status bgb_run_write_results(const char *dir, const bg_scene_t *scene,
     bg_mesh_format format = scene->mesh_format == BG_FORMAT_UNKNOWN ? BG_FORMAT_MEDIT
                                                                      : scene->mesh_format;
     snprintf(name, sizeof name, "result.%s", bg_mesh_format_extension(format));
-    if (bgb_run_join_path(native, sizeof native, dir, name) != 0) {
+    if (bg_file_join(native, sizeof native, dir, name) != 0) {
         st = bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
         goto out;
     }
@@ -114,7 +104,7 @@ static bg_status write_frame(void *ctx, int step, double time, const double *q, 
             f->displacement[3 * (size_t)v + c] = q[(size_t)v * n + c] - mesh->x[(size_t)v * n + c];
     char name[96], path[4400];
     snprintf(name, sizeof name, "%s%s-%06d.vtu", f->prefix, f->method, step);
-    if (bgb_run_join_path(path, sizeof path, f->dir, name) != 0)
+    if (bg_file_join(path, sizeof path, f->dir, name) != 0)
         return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
     const bg_vtu_array_t point_data[1] = {{"displacement", 3, f->displacement}};
     bg_status st = bg_mesh_write_vtu(mesh, q, point_data, 1, NULL, 0, path, err);
@@ -130,7 +120,7 @@ static bg_status write_pvd(const frames_t *f, bg_error_t *err)
 {
     char name[96], path[4400];
     snprintf(name, sizeof name, "%s.pvd", f->method);
-    if (bgb_run_join_path(path, sizeof path, f->dir, name) != 0)
+    if (bg_file_join(path, sizeof path, f->dir, name) != 0)
         return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
     FILE *out = fopen(path, "w");
     if (!out)
@@ -153,7 +143,7 @@ static bg_status write_parameterization(const bg_scene_t *scene, bg_solve_result
     char name[96], path[4400];
     bg_param_quality(scene, run->q, &run->map);
     snprintf(name, sizeof name, "%s-uv.obj", bg_method_name(run->method));
-    if (bgb_run_join_path(path, sizeof path, dir, name) != 0)
+    if (bg_file_join(path, sizeof path, dir, name) != 0)
         return bg_error_set(err, BG_ERR_INVALID, "output directory name too long");
     return bg_param_write_obj(scene, run->q, path, err);
 }
@@ -165,7 +155,7 @@ static bg_status write_parameterization(const bg_scene_t *scene, bg_solve_result
     .frame = write_frame, .frame_ctx = (frames), .progress = (o)->progress,                    \
     .progress_ctx = (o)->progress_ctx, .backend = (o)->backend
 
-static bg_status run_series(const bg_scene_t *scene, const bgb_run_options_t *o, const char *dir,
+static bg_status run_series(const bg_scene_t *scene, const bg_run_options_t *o, const char *dir,
                             bg_solve_result_t *run, bg_error_t *err)
 {
     const char *frames_prefix = o->frames_prefix ? o->frames_prefix : "";
@@ -187,7 +177,7 @@ static bg_status run_series(const bg_scene_t *scene, const bgb_run_options_t *o,
         }
         memcpy(sub, frames_prefix, plen - 1);
         sub[plen - 1] = '\0';
-        if (bgb_run_join_path(frames_dir, sizeof frames_dir, dir, sub) != 0 ||
+        if (bg_file_join(frames_dir, sizeof frames_dir, dir, sub) != 0 ||
             (mkdir(frames_dir, 0777) != 0 && errno != EEXIST)) {
             st = bg_error_set(err, BG_ERR_IO, "cannot create %s/%s: %s", dir, sub,
                               strerror(errno));
@@ -210,15 +200,15 @@ out:
     return st;
 }
 
-bg_status bgb_run_reference(const bg_scene_t *scene, const bg_backend_t *backend,
+bg_status bg_run_reference(const bg_scene_t *scene, const bg_backend_t *backend,
                             bg_solve_result_t *reference, const double **ref, bg_error_t *err)
 {
     *ref = scene->reference;
     if (scene->reference_kind != BG_REFERENCE_NEWTON || scene->task != BG_TASK_STATIC)
         return BG_OK;
     const bg_solve_options_t ro = {.method = BG_METHOD_NEWTON,
-                                   .tolerance = BGB_RUN_REFERENCE_TOLERANCE,
-                                   .max_iterations = BGB_RUN_REFERENCE_MAX_ITERATIONS,
+                                   .tolerance = BG_RUN_REFERENCE_TOLERANCE,
+                                   .max_iterations = BG_RUN_REFERENCE_MAX_ITERATIONS,
                                    .backend = backend};
     const bg_status st = bg_static_solve(scene, &ro, reference, err);
     if (st == BG_OK)
@@ -226,7 +216,7 @@ bg_status bgb_run_reference(const bg_scene_t *scene, const bg_backend_t *backend
     return st;
 }
 
-bg_status bgb_run_method(const bg_scene_t *scene, const bgb_run_options_t *o, const double *ref,
+bg_status bg_run_method(const bg_scene_t *scene, const bg_run_options_t *o, const double *ref,
                          const char *dir, bg_solve_result_t *run, bg_error_t *err)
 {
     if (scene->task == BG_TASK_DYNAMIC || scene->task == BG_TASK_MORPH)

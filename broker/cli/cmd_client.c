@@ -12,21 +12,16 @@
 #include "bg_mesh_io.h"
 #include "bgb_client.h"
 #include "cmd.h"
+#include "cmd_job.h"
 
-#define CLIENT_DEFAULT_BROKER "http://127.0.0.1:8080"
-#define CLIENT_BROKER_ENV "BIOTGRID_BROKER"
-#define CLIENT_GRID_DIR_ENV "BIOTGRID_GRID_DIR"
-#define CLIENT_GRID_DIR "out/grid"
 #define CLIENT_MESH_PATH_MAX 8192
 #define CLIENT_URL_MAX 1024
 #define CLIENT_DEFAULT_PAGE 100
 #define CLIENT_MAX_PAGE 500
-#define CLIENT_BAR_WIDTH 30
-#define CLIENT_WAIT_RETRIES 3
 
 #define BROKER_HELP                                                                                \
-    "  --broker URL        the broker (default $" CLIENT_BROKER_ENV ", else the local grid's\n"    \
-    "                      broker recorded by `biotgrid grid up`, else " CLIENT_DEFAULT_BROKER     \
+    "  --broker URL        the broker (default $" BG_CMD_BROKER_ENV ", else the local grid's\n"    \
+    "                      broker recorded by `biotgrid grid up`, else " BG_CMD_DEFAULT_BROKER     \
     ")\n"                                                                                          \
     "  --json              print the broker's JSON document instead of text\n"
 
@@ -165,16 +160,14 @@ static int parse(int argc, char **argv, unsigned allowed, int positional, const 
             if (bit == 0) {
                 o->broker = v;
             } else if (bit == OPT_MECHANISM) {
-                if (strcmp(v, "central") && strcmp(v, "catallactic") && strcmp(v, "posted"))
+                if (!bg_cmd_job_mechanism_ok(v))
                     return bad_usage(o,
                                      "--mechanism: unknown mechanism '%s' (expected central, "
                                      "catallactic or posted)",
                                      v);
                 o->mechanism = v;
             } else if (bit == OPT_BUDGET) {
-                char *end = NULL;
-                o->budget = strtod(v, &end);
-                if (!end || *end || end == v || !isfinite(o->budget) || !(o->budget > 0.0))
+                if (bg_cmd_job_budget(v, &o->budget) != 0)
                     return bad_usage(o, "--budget: '%s' is not a positive number", v);
             } else if (bit == OPT_KEY) {
                 o->key = v;
@@ -210,43 +203,10 @@ static int parse(int argc, char **argv, unsigned allowed, int positional, const 
     return 0;
 }
 
-/* The broker recorded in the local grid's state file, if any. */
-static int grid_broker(char *url, size_t size)
-{
-    const char *dir = getenv(CLIENT_GRID_DIR_ENV);
-    char path[4096];
-    snprintf(path, sizeof path, "%s/grid.json", dir && dir[0] ? dir : CLIENT_GRID_DIR);
-    if (access(path, R_OK) != 0)
-        return 0;
-    char *text = NULL;
-    size_t length = 0;
-    if (bg_file_read_all(path, 1 << 20, &text, &length, NULL) != BG_OK)
-        return 0;
-    cJSON *root = cJSON_ParseWithLength(text, length);
-    free(text);
-    const cJSON *broker = cJSON_GetObjectItemCaseSensitive(root, "broker");
-    if (cJSON_IsObject(broker))
-        broker = cJSON_GetObjectItemCaseSensitive(broker, "url");
-    int found = 0;
-    if (cJSON_IsString(broker) && broker->valuestring[0] && strlen(broker->valuestring) < size) {
-        snprintf(url, size, "%s", broker->valuestring);
-        found = 1;
-    }
-    cJSON_Delete(root);
-    return found;
-}
-
-static int exit_for(bg_status st)
-{
-    /* Unreachable broker, 5xx, out of memory: the request did not reach its goal;
-     * everything else is the input's fault (including the broker's 4xx). */
-    return st == BG_ERR_IO || st == BG_ERR_NOMEM ? BG_EXIT_FAILED : BG_EXIT_BAD_INPUT;
-}
-
 static int fail(const options_t *o, const bg_error_t *err)
 {
     fprintf(stderr, "biotgrid %s: %s\n", o->command, err->message);
-    return exit_for(err->status);
+    return bg_cmd_job_exit_for(err->status);
 }
 
 /* Parses the options and opens the client; returns -1 to go on, else the exit status. */
@@ -260,30 +220,18 @@ static int start(int argc, char **argv, unsigned allowed, int positional, const 
     if (p != 0)
         return p > 0 ? BG_EXIT_OK : BG_EXIT_BAD_INPUT;
     char url[CLIENT_URL_MAX];
-    const char *env = getenv(CLIENT_BROKER_ENV);
+    const char *env = getenv(BG_CMD_BROKER_ENV);
     if (o->broker)
         snprintf(url, sizeof url, "%s", o->broker);
     else if (env && env[0])
         snprintf(url, sizeof url, "%s", env);
-    else if (!grid_broker(url, sizeof url))
-        snprintf(url, sizeof url, "%s", CLIENT_DEFAULT_BROKER);
+    else if (!bg_cmd_grid_broker(bg_cmd_grid_dir(NULL), url, sizeof url))
+        snprintf(url, sizeof url, "%s", BG_CMD_DEFAULT_BROKER);
     const bgb_client_config_t config = {.url = url};
     bg_error_t err = BG_ERROR_INIT;
     if (bgb_client_new(&config, client, &err) != BG_OK)
         return fail(o, &err);
     return -1;
-}
-
-static const char *string_of(const cJSON *o, const char *key)
-{
-    const cJSON *item = cJSON_GetObjectItemCaseSensitive(o, key);
-    return cJSON_IsString(item) ? item->valuestring : NULL;
-}
-
-static double number_of(const cJSON *o, const char *key)
-{
-    const cJSON *item = cJSON_GetObjectItemCaseSensitive(o, key);
-    return cJSON_IsNumber(item) ? item->valuedouble : NAN;
 }
 
 /* Prints a document as JSON (--json) and frees it. */
@@ -310,20 +258,20 @@ static void format_time(double t, char *out, size_t size)
 
 static void print_job(const cJSON *job)
 {
-    const char *id = string_of(job, "id"), *state = string_of(job, "state");
-    const char *mechanism = string_of(job, "mechanism"), *reason = string_of(job, "reason");
+    const char *id = bg_cmd_string_of(job, "id"), *state = bg_cmd_string_of(job, "state");
+    const char *mechanism = bg_cmd_string_of(job, "mechanism"), *reason = bg_cmd_string_of(job, "reason");
     printf("job %s: %s\n", id ? id : "?", state ? state : "?");
-    printf("  mechanism %s, budget %g\n", mechanism ? mechanism : "?", number_of(job, "budget"));
+    printf("  mechanism %s, budget %g\n", mechanism ? mechanism : "?", bg_cmd_number_of(job, "budget"));
     char created[32], updated[32];
-    format_time(number_of(job, "created"), created, sizeof created);
-    format_time(number_of(job, "updated"), updated, sizeof updated);
+    format_time(bg_cmd_number_of(job, "created"), created, sizeof created);
+    format_time(bg_cmd_number_of(job, "updated"), updated, sizeof updated);
     printf("  submitted %s, updated %s\n", created, updated);
     const cJSON *plan = cJSON_GetObjectItemCaseSensitive(job, "plan");
     const cJSON *services = cJSON_GetObjectItemCaseSensitive(plan, "services");
     const cJSON *s;
     cJSON_ArrayForEach(s, services)
     {
-        const char *name = string_of(s, "service"), *detail = string_of(s, "detail");
+        const char *name = bg_cmd_string_of(s, "service"), *detail = bg_cmd_string_of(s, "detail");
         printf("  plan: %s%s%s\n", name ? name : "?", detail ? ": " : "", detail ? detail : "");
     }
     if (reason)
@@ -332,127 +280,23 @@ static void print_job(const cJSON *job)
 
 /* ------------------------------------------------------------- submit */
 
-typedef struct follow {
-    const char *id;
-    int tty, json;
-    char last_id[64]; /* the last event seen, to resume a dropped stream after it */
-    char state[32];
-    double fraction;
-    int bar_shown;
-} follow_t;
-
-static void draw_bar(follow_t *f)
-{
-    const double x = f->fraction < 0.0 ? 0.0 : f->fraction > 1.0 ? 1.0 : f->fraction;
-    const int filled = (int)lround(x * CLIENT_BAR_WIDTH);
-    char bar[CLIENT_BAR_WIDTH + 1];
-    for (int i = 0; i < CLIENT_BAR_WIDTH; i++)
-        bar[i] = i < filled ? '#' : '.';
-    bar[CLIENT_BAR_WIDTH] = '\0';
-    fprintf(stderr, "\r%s [%s] %3d%% %-10s", f->id, bar, (int)lround(100.0 * x), f->state);
-    fflush(stderr);
-    f->bar_shown = 1;
-}
-
-static int on_event(void *ctx, const char *id, const char *event, const char *data)
-{
-    follow_t *f = ctx;
-    snprintf(f->last_id, sizeof f->last_id, "%s", id);
-    cJSON *doc = cJSON_Parse(data);
-    if (strcmp(event, "state") == 0) {
-        const char *state = string_of(doc, "state");
-        snprintf(f->state, sizeof f->state, "%s", state ? state : "?");
-        if (strcmp(f->state, "succeeded") == 0)
-            f->fraction = 1.0;
-        if (!f->tty && !f->json)
-            printf("job %s: %s\n", f->id, f->state);
-    } else if (strcmp(event, "progress") == 0) {
-        double x = number_of(doc, "fraction");
-        if (!isfinite(x))
-            x = number_of(doc, "progress");
-        if (isfinite(x))
-            f->fraction = x;
-        if (!f->tty && !f->json && isfinite(x))
-            printf("job %s: progress %.0f%%\n", f->id, 100.0 * x);
-    } else if (!f->tty && !f->json) {
-        printf("job %s: %s %s\n", f->id, event, data);
-    }
-    if (f->tty)
-        draw_bar(f);
-    fflush(stdout);
-    cJSON_Delete(doc);
-    return 0;
-}
-
 /*
- * Follows the job until it ends, then prints it; exit 0 only if it
- * succeeded. A stream that drops, or that the broker ends while the job is
- * still active (a broker stopping), is resumed after the last event seen,
- * a few times, a second apart.
+ * Follows the job until it ends (cmd_job: plain lines on stdout, or the bar
+ * on a terminal; nothing with --json), then prints its outcome once; exit
+ * 0 only if it succeeded.
  */
-/* The job's market side in plain lines: each contract (service, agent,
- * quantity, price) and the money spent against the budget. */
-static void print_market_side(const cJSON *job)
-{
-    const cJSON *contracts = cJSON_GetObjectItemCaseSensitive(job, "contracts");
-    const cJSON *c;
-    cJSON_ArrayForEach(c, contracts)
-    {
-        printf("  contract: %s from %s, quantity %g, price %g\n",
-               string_of(c, "service") ? string_of(c, "service") : "?",
-               string_of(c, "agent") ? string_of(c, "agent") : "?", number_of(c, "quantity"),
-               number_of(c, "price"));
-    }
-    const cJSON *allocation = cJSON_GetObjectItemCaseSensitive(job, "allocation");
-    const cJSON *spent = cJSON_GetObjectItemCaseSensitive(allocation, "spent");
-    if (cJSON_IsNumber(spent))
-        printf("  spent %g of budget %g (%s)\n", spent->valuedouble, number_of(job, "budget"),
-               string_of(job, "mechanism") ? string_of(job, "mechanism") : "?");
-}
-
 static int wait_for(const options_t *o, bgb_client_t *client, const char *id)
 {
-    follow_t f = {.id = id, .tty = isatty(STDERR_FILENO), .json = o->json, .state = "queued"};
+    const int tty = isatty(STDERR_FILENO);
+    const bg_cmd_job_view_t view = {o->json ? NULL : stdout, tty && !o->json};
     bg_error_t err = BG_ERROR_INIT;
     cJSON *job = NULL;
-    const char *state = NULL;
-    for (int attempt = 0;; attempt++) {
-        bg_error_clear(&err);
-        bg_status st =
-            bgb_client_events(client, id, f.last_id[0] ? f.last_id : NULL, on_event, &f, &err);
-        if (st == BG_OK)
-            st = bgb_client_get_job(client, id, &job, &err);
-        if (st != BG_OK && st != BG_ERR_IO) {
-            if (f.bar_shown)
-                fputc('\n', stderr);
-            return fail(o, &err);
-        }
-        state = string_of(job, "state");
-        const int ended = state && strcmp(state, "queued") && strcmp(state, "allocating") &&
-                          strcmp(state, "running");
-        if (ended)
-            break;
-        if (st == BG_OK)
-            bg_error_set(&err, BG_ERR_IO,
-                         "the broker at %s closed the events stream while job %s is still %s",
-                         bgb_client_url(client), id, state ? state : "?");
-        cJSON_Delete(job);
-        job = NULL;
-        if (attempt == CLIENT_WAIT_RETRIES) {
-            if (f.bar_shown)
-                fputc('\n', stderr);
-            return fail(o, &err);
-        }
-        sleep(1);
-    }
-    if (f.bar_shown)
-        fputc('\n', stderr);
-    const int ok = state && strcmp(state, "succeeded") == 0;
+    if (bg_cmd_job_wait(client, id, &view, &job, &err) != BG_OK)
+        return fail(o, &err);
+    const int ok = bg_cmd_job_succeeded(job);
     if (o->json)
         return print_json(job) == BG_EXIT_OK && ok ? BG_EXIT_OK : BG_EXIT_FAILED;
-    const char *reason = string_of(job, "reason");
-    printf("job %s: %s%s%s\n", id, state ? state : "?", reason ? ": " : "", reason ? reason : "");
-    print_market_side(job);
+    bg_cmd_job_outcome(stdout, job, view.bar);
     if (ok && !o->out)
         printf("  its files: biotgrid result %s --out DIR\n", id);
     cJSON_Delete(job);
@@ -481,7 +325,7 @@ int bg_cmd_submit(int argc, char **argv)
         rc = fail(&o, &err);
         goto out;
     }
-    const char *id = string_of(job, "id");
+    const char *id = bg_cmd_string_of(job, "id");
     if (!id) {
         fprintf(stderr, "biotgrid submit: the broker's answer has no job id\n");
         rc = BG_EXIT_FAILED;
@@ -501,9 +345,9 @@ int bg_cmd_submit(int argc, char **argv)
         job = NULL;
     } else {
         printf("submitted job %s (%s, mechanism %s, budget %g) to %s\n", job_id,
-               string_of(job, "state") ? string_of(job, "state") : "?",
-               string_of(job, "mechanism") ? string_of(job, "mechanism") : "?",
-               number_of(job, "budget"), bgb_client_url(client));
+               bg_cmd_string_of(job, "state") ? bg_cmd_string_of(job, "state") : "?",
+               bg_cmd_string_of(job, "mechanism") ? bg_cmd_string_of(job, "mechanism") : "?",
+               bg_cmd_number_of(job, "budget"), bgb_client_url(client));
         rc = BG_EXIT_OK;
     }
 out:
@@ -548,7 +392,7 @@ int bg_cmd_jobs(int argc, char **argv)
             cJSON_AddItemToArray(all, cJSON_DetachItemViaPointer(jobs, jobs->child));
             listed++;
         }
-        const char *next = string_of(page, "next");
+        const char *next = bg_cmd_string_of(page, "next");
         if (!next || (o.limit && listed >= o.limit))
             break;
         if (strlen(next) >= sizeof cursor || strcmp(next, cursor) == 0) {
@@ -576,11 +420,11 @@ int bg_cmd_jobs(int argc, char **argv)
     cJSON_ArrayForEach(job, all)
     {
         char created[32];
-        format_time(number_of(job, "created"), created, sizeof created);
-        const char *id = string_of(job, "id"), *state = string_of(job, "state");
-        const char *mechanism = string_of(job, "mechanism");
+        format_time(bg_cmd_number_of(job, "created"), created, sizeof created);
+        const char *id = bg_cmd_string_of(job, "id"), *state = bg_cmd_string_of(job, "state");
+        const char *mechanism = bg_cmd_string_of(job, "mechanism");
         printf("%-18s %-10s %-11s %10g  %s\n", id ? id : "?", state ? state : "?",
-               mechanism ? mechanism : "?", number_of(job, "budget"), created);
+               mechanism ? mechanism : "?", bg_cmd_number_of(job, "budget"), created);
     }
     printf("%ld job%s\n", listed, listed == 1 ? "" : "s");
 out:
@@ -636,49 +480,19 @@ int bg_cmd_cancel(int argc, char **argv)
 static int download_result(const options_t *o, bgb_client_t *client, const char *id, int report)
 {
     cJSON *doc = NULL;
-    bg_error_t err = BG_ERROR_INIT;
-    int rc;
-    if (bgb_client_result(client, id, &doc, &err) != BG_OK) {
-        rc = fail(o, &err);
-        goto out;
-    }
-    if (bg_cmd_make_directories(o->out) != 0) {
-        fprintf(stderr, "biotgrid %s: --out %s: %s\n", o->command, o->out, strerror(errno));
-        rc = BG_EXIT_BAD_INPUT;
-        goto out;
-    }
-    const cJSON *files = cJSON_GetObjectItemCaseSensitive(doc, "files");
-    const cJSON *file;
     int count = 0;
-    rc = BG_EXIT_OK;
-    cJSON_ArrayForEach(file, files)
-    {
-        const char *name = string_of(file, "name");
-        size_t size = 0;
-        if (!name) {
-            fprintf(stderr, "biotgrid %s: the broker's file list has an entry without a name\n",
-                    o->command);
-            rc = BG_EXIT_FAILED;
-            goto out;
-        }
-        if (bgb_client_download(client, id, name, o->out, &size, &err) != BG_OK) {
-            rc = fail(o, &err);
-            goto out;
-        }
-        if (report && !o->json)
-            printf("%s/%s (%zu bytes)\n", o->out, name, size);
-        count++;
-    }
-    if (!report) {
-        rc = BG_EXIT_OK;
-    } else if (o->json) {
+    bg_error_t err = BG_ERROR_INIT;
+    if (bg_cmd_job_download(client, id, o->out, report && !o->json ? stdout : NULL, &doc, &count,
+                            &err) != BG_OK)
+        return fail(o, &err);
+    int rc = BG_EXIT_OK;
+    if (report && o->json) {
         cJSON_AddStringToObject(doc, "out", o->out);
         rc = print_json(doc);
         doc = NULL;
-    } else {
+    } else if (report) {
         printf("job %s: %d file%s in %s\n", id, count, count == 1 ? "" : "s", o->out);
     }
-out:
     cJSON_Delete(doc);
     return rc;
 }

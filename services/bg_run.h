@@ -1,5 +1,5 @@
 /*
- * bgb_run — one scene solved into an output folder, the part `biotgrid
+ * bg_run — one scene solved into an output folder, the part `biotgrid
  * solve` and the broker's job coordinators share: the reference solve,
  * one method's run (the dynamic and morph series with frames written as
  * they come and a ParaView collection at the end; the static, surface and
@@ -8,8 +8,8 @@
  *
  * Nothing here prints; every failure is a bg_error_t naming the file.
  */
-#ifndef BGB_RUN_H
-#define BGB_RUN_H
+#ifndef BG_RUN_H
+#define BG_RUN_H
 
 #include <stddef.h>
 
@@ -20,11 +20,11 @@
 
 /* The reference of a static scene with "reference": "newton", as `biotgrid
  * solve` computes it: Newton to its round-off floor. */
-#define BGB_RUN_REFERENCE_TOLERANCE 1e-13
-#define BGB_RUN_REFERENCE_MAX_ITERATIONS 200
+#define BG_RUN_REFERENCE_TOLERANCE 1e-13
+#define BG_RUN_REFERENCE_MAX_ITERATIONS 200
 
 /* One method of a scene. Every pointer is borrowed for the call. */
-typedef struct bgb_run_options {
+typedef struct bg_run_options {
     bg_method method;
     double tolerance;
     int max_iterations;
@@ -36,17 +36,17 @@ typedef struct bgb_run_options {
     void *progress_ctx;
     const bg_backend_t *backend; /* NULL: in process. surface-edit ignores it: its
                                     per-vertex rotations have no agent service */
-} bgb_run_options_t;
+} bg_run_options_t;
 
 /*
  * The reference positions a static run measures its error against: a
  * static scene with "reference": "newton" is solved by Newton at
- * BGB_RUN_REFERENCE_TOLERANCE on backend (NULL: in process) into
+ * BG_RUN_REFERENCE_TOLERANCE on backend (NULL: in process) into
  * *reference (the caller's, bg_solve_result_release) and *ref points at
  * its positions; otherwise *ref is the scene's own reference (borrowed,
  * may be NULL) and nothing is solved.
  */
-bg_status bgb_run_reference(const bg_scene_t *scene, const bg_backend_t *backend,
+bg_status bg_run_reference(const bg_scene_t *scene, const bg_backend_t *backend,
                             bg_solve_result_t *reference, const double **ref, bg_error_t *err);
 
 /*
@@ -54,10 +54,10 @@ bg_status bgb_run_reference(const bg_scene_t *scene, const bg_backend_t *backend
  * the broker's coordinators share: a dynamic run or a morph writes its
  * frames and collection (see frames_prefix); a static, surface-edit or
  * parameterize solve measures its error against ref (from
- * bgb_run_reference, may be NULL) and a parameterization writes
+ * bg_run_reference, may be NULL) and a parameterization writes
  * DIR/<method>-uv.obj. run is the caller's (bg_solve_result_release).
  */
-bg_status bgb_run_method(const bg_scene_t *scene, const bgb_run_options_t *opt,
+bg_status bg_run_method(const bg_scene_t *scene, const bg_run_options_t *opt,
                          const double *ref, const char *dir, bg_solve_result_t *run,
                          bg_error_t *err);
 
@@ -67,11 +67,8 @@ bg_status bgb_run_method(const bg_scene_t *scene, const bgb_run_options_t *opt,
  * constrained flag as the MEDIT vertex reference. Writes both paths,
  * separated by "\n  ", to paths (paths_size bytes).
  */
-bg_status bgb_run_write_results(const char *dir, const bg_scene_t *scene,
+bg_status bg_run_write_results(const char *dir, const bg_scene_t *scene,
                                 const bg_solve_result_t *run, char *paths, size_t paths_size,
                                 bg_error_t *err);
-
-/* dir + "/" + name into buf (size bytes); -1 if it does not fit. */
-int bgb_run_join_path(char *buf, size_t size, const char *dir, const char *name);
 
 #endif

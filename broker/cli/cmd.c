@@ -53,6 +53,12 @@ int bg_cmd_mesh_path_finish(char *buf, size_t size)
                                                           : 0;
 }
 
+const char *bg_cmd_grid_dir(const char *option)
+{
+    const char *env = getenv(BG_CMD_GRID_DIR_ENV);
+    return option ? option : env && env[0] ? env : BG_CMD_GRID_DIR;
+}
+
 int bg_cmd_make_directories(const char *path)
 {
     return bg_file_make_directories(path);
