@@ -31,6 +31,7 @@
 struct bgb_client {
     CURL *curl;
     char *url;
+    char *authorization; /* "Authorization: Bearer TOKEN", or NULL */
     bgb_client_config_t config;
     long status;
 };
@@ -188,7 +189,18 @@ bg_status bgb_client_new(const bgb_client_config_t *config, bgb_client_t **out, 
         c->config.max_file = CLIENT_MAX_FILE;
     c->url = strdup(config->url);
     c->curl = curl_easy_init();
-    if (!c->url || !c->curl) {
+    if (config->token && config->token[0]) {
+        if (strpbrk(config->token, "\r\n") || strlen(config->token) > CLIENT_URL_MAX) {
+            bgb_client_destroy(&c);
+            return bg_error_set(err, BG_ERR_INVALID, "the token is not one line of at most %d "
+                                "bytes", CLIENT_URL_MAX);
+        }
+        const size_t size = strlen(config->token) + 32;
+        if ((c->authorization = malloc(size)) != NULL)
+            snprintf(c->authorization, size, "Authorization: Bearer %s", config->token);
+    }
+    c->config.token = NULL; /* held as the header above */
+    if (!c->url || !c->curl || (config->token && config->token[0] && !c->authorization)) {
         bgb_client_destroy(&c);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the client");
     }
@@ -207,6 +219,7 @@ void bgb_client_destroy(bgb_client_t **client)
     if ((*client)->curl)
         curl_easy_cleanup((*client)->curl);
     free((*client)->url);
+    free((*client)->authorization);
     free(*client);
     *client = NULL;
     /* Pairs bgb_client_new's curl_global_init (libcurl counts them). */
@@ -339,6 +352,8 @@ static bg_status perform(bgb_client_t *c, const char *method, const char *path, 
     curl_easy_setopt(curl, CURLOPT_PROTOCOLS_STR, "http,https");
     headers = curl_slist_append(headers,
                                 stream ? "Accept: text/event-stream" : "Accept: application/json");
+    if (c->authorization)
+        headers = curl_slist_append(headers, c->authorization);
     if (body) {
         headers = curl_slist_append(headers, "Content-Type: application/json");
         curl_easy_setopt(curl, CURLOPT_POSTFIELDS, body);

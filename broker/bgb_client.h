@@ -28,6 +28,8 @@ typedef struct bgb_client bgb_client_t;
 
 typedef struct bgb_client_config {
     const char *url;         /* the broker's base URL, e.g. "http://127.0.0.1:8080" */
+    const char *token;       /* sent as "Authorization: Bearer TOKEN" on every request;
+                                NULL: none (only /healthz and /openapi.json answer then) */
     long connect_timeout_ms; /* 0: 5000 */
     long timeout_ms;         /* a whole request, events streams excepted; 0: 120000 */
     size_t max_response;     /* a JSON response over this is refused; 0: 16 MiB */

@@ -27,9 +27,8 @@
 #include "bgb_base64.h"
 #include "bgb_jobscene.h"
 #include "bgb_submission.h"
+#include "bgb_tokens.h"
 
-/* The user of every request until requests carry tokens. */
-#define REST_OWNER "local"
 /* Threads serving connections (each request's work, never a wait). */
 #define REST_THREADS 8
 /* Memory MHD may use per connection for headers and buffers. */
@@ -58,6 +57,12 @@ struct bgb_rest {
     pthread_t notifier;
     int notifier_started;
 };
+
+/* Who a request comes from: its bearer token's user and scope. */
+typedef struct principal {
+    char user[BGB_USER_MAX + 1];
+    int admin;
+} principal_t;
 
 /* A request's state across MHD's calls: the body as it arrives. */
 typedef struct request {
@@ -504,7 +509,8 @@ static enum MHD_Result get_job(bgb_rest_t *rest, struct MHD_Connection *c, const
     return sent;
 }
 
-static enum MHD_Result list_jobs(bgb_rest_t *rest, struct MHD_Connection *c)
+static enum MHD_Result list_jobs(bgb_rest_t *rest, struct MHD_Connection *c,
+                                 const principal_t *who)
 {
     const char *state_text = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "state");
     const char *limit_text = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "limit");
@@ -542,8 +548,8 @@ static enum MHD_Result list_jobs(bgb_rest_t *rest, struct MHD_Connection *c)
     int count = 0;
     int64_t next = 0;
     bg_error_t err = BG_ERROR_INIT;
-    if (bgb_store_list(rest->store, state, cursor, (int)limit, jobs, &count, &next, &err) !=
-        BG_OK) {
+    if (bgb_store_list_owner(rest->store, who->admin ? NULL : who->user, state, cursor,
+                             (int)limit, jobs, &count, &next, &err) != BG_OK) {
         free(jobs);
         return send_store_problem(rest, c, BG_ERR_IO, &err);
     }
@@ -1017,30 +1023,122 @@ static enum MHD_Result get_csv(bgb_rest_t *rest, struct MHD_Connection *c, int c
     return send_text(rest, c, MHD_HTTP_OK, "text/csv", header, strlen(header), NULL);
 }
 
+/*
+ * The request's bearer token: 0 with *who filled, or 1 with a 401 sent
+ * (WWW-Authenticate: Bearer) when it has none or a bad one. The problem
+ * says the same whatever was wrong with a presented token.
+ */
+static int authenticate(bgb_rest_t *rest, struct MHD_Connection *c, principal_t *who,
+                        enum MHD_Result *sent)
+{
+    const char *header = MHD_lookup_connection_value(c, MHD_HEADER_KIND,
+                                                     MHD_HTTP_HEADER_AUTHORIZATION);
+    static const char bearer[] = "Bearer ";
+    bg_error_t err = BG_ERROR_INIT;
+    bg_status st = BG_ERR_NOT_FOUND;
+    if (header && strncasecmp(header, bearer, sizeof bearer - 1) == 0) {
+        const char *token = header + sizeof bearer - 1;
+        while (*token == ' ')
+            token++;
+        st = bgb_tokens_check(rest->store, token, who->user, &who->admin, &err);
+    }
+    if (st == BG_OK)
+        return 0;
+    if (st == BG_ERR_IO) {
+        *sent = send_store_problem(rest, c, BG_ERR_IO, &err);
+        return 1;
+    }
+    char detail[160];
+    snprintf(detail, sizeof detail, "%s",
+             header ? "the bearer token is not valid"
+                    : "this resource needs a bearer token (Authorization: Bearer TOKEN; "
+                      "`biotgrid token create NAME` makes one)");
+    cJSON *doc = cJSON_CreateObject();
+    cJSON_AddStringToObject(doc, "type", "/problems/unauthorized");
+    cJSON_AddStringToObject(doc, "title", "Unauthorized");
+    cJSON_AddNumberToObject(doc, "status", MHD_HTTP_UNAUTHORIZED);
+    cJSON_AddStringToObject(doc, "detail", detail);
+    char *text = cJSON_PrintUnformatted(doc);
+    cJSON_Delete(doc);
+    struct MHD_Response *r = text ? MHD_create_response_from_buffer(strlen(text), text,
+                                                                    MHD_RESPMEM_MUST_COPY)
+                                  : NULL;
+    free(text);
+    if (!r) {
+        *sent = MHD_NO;
+        return 1;
+    }
+    MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, "application/problem+json");
+    MHD_add_response_header(r, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Bearer realm=\"biotgrid\"");
+    *sent = MHD_queue_response(c, MHD_HTTP_UNAUTHORIZED, r);
+    MHD_destroy_response(r);
+    atomic_fetch_add(&rest->responses[4], 1);
+    return 1;
+}
+
+/* Another user's job is, to this user, no job at all (404, never 403: its
+ * existence is not theirs to learn). 0 when who may see job id. */
+static int not_theirs(bgb_rest_t *rest, struct MHD_Connection *c, const principal_t *who,
+                      const char *id, enum MHD_Result *sent)
+{
+    if (who->admin)
+        return 0;
+    bgb_job_t job = BGB_JOB_INIT;
+    bg_error_t err = BG_ERROR_INIT;
+    const bg_status st = bgb_store_get(rest->store, id, &job, &err);
+    const int theirs = st == BG_OK && strcmp(job.owner, who->user) == 0;
+    bgb_job_release(&job);
+    if (theirs)
+        return 0;
+    *sent = st == BG_ERR_IO ? send_store_problem(rest, c, BG_ERR_IO, &err)
+                            : send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job",
+                                           "No such job", NULL, "no job '%s'", id);
+    return 1;
+}
+
+static enum MHD_Result admins_only(bgb_rest_t *rest, struct MHD_Connection *c, const char *url)
+{
+    return send_problem(rest, c, MHD_HTTP_FORBIDDEN, "forbidden", "Forbidden", NULL,
+                        "%s is for tokens with the admin scope", url);
+}
+
 static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const char *url,
                              const char *method, const request_t *req)
 {
     const int get = strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0;
     const int post = strcmp(method, "POST") == 0;
+    /* Open to all: the health probe and the API's description. */
     if (strcmp(url, "/healthz") == 0)
         return get ? health(rest, c) : method_not_allowed(rest, c, method, url, "GET");
-    if (strcmp(url, "/metrics") == 0)
-        return get ? metrics(rest, c) : method_not_allowed(rest, c, method, url, "GET");
     if (strcmp(url, "/openapi.json") == 0)
         return get ? send_text(rest, c, MHD_HTTP_OK, "application/json", bgb_rest_openapi(),
                                strlen(bgb_rest_openapi()), NULL)
                    : method_not_allowed(rest, c, method, url, "GET");
-    if (strcmp(url, "/v1/agents") == 0)
-        return get ? get_agents(rest, c) : method_not_allowed(rest, c, method, url, "GET");
-    if (strcmp(url, "/v1/market") == 0)
-        return get ? get_market(rest, c) : method_not_allowed(rest, c, method, url, "GET");
-    if (strcmp(url, "/v1/market/contracts.csv") == 0 || strcmp(url, "/v1/market/agents.csv") == 0)
-        return get ? get_csv(rest, c, strcmp(url, "/v1/market/contracts.csv") == 0)
-                   : method_not_allowed(rest, c, method, url, "GET");
+    principal_t who;
+    enum MHD_Result sent = MHD_NO;
+    if (authenticate(rest, c, &who, &sent))
+        return sent;
+    /* The market, the agents and the server's counters are the operator's. */
+    const int market = strncmp(url, "/v1/market", 10) == 0 && (!url[10] || url[10] == '/');
+    if (strcmp(url, "/metrics") == 0 || strcmp(url, "/v1/agents") == 0 || market) {
+        if (!who.admin)
+            return admins_only(rest, c, url);
+        if (strcmp(url, "/metrics") == 0)
+            return get ? metrics(rest, c) : method_not_allowed(rest, c, method, url, "GET");
+        if (strcmp(url, "/v1/agents") == 0)
+            return get ? get_agents(rest, c) : method_not_allowed(rest, c, method, url, "GET");
+        if (strcmp(url, "/v1/market") == 0)
+            return get ? get_market(rest, c) : method_not_allowed(rest, c, method, url, "GET");
+        if (strcmp(url, "/v1/market/contracts.csv") == 0 ||
+            strcmp(url, "/v1/market/agents.csv") == 0)
+            return get ? get_csv(rest, c, strcmp(url, "/v1/market/contracts.csv") == 0)
+                       : method_not_allowed(rest, c, method, url, "GET");
+    }
     if (strcmp(url, "/v1/jobs") == 0) {
         if (post)
-            return submit_job(rest, c, req, REST_OWNER);
-        return get ? list_jobs(rest, c) : method_not_allowed(rest, c, method, url, "GET or POST");
+            return submit_job(rest, c, req, who.user);
+        return get ? list_jobs(rest, c, &who)
+                   : method_not_allowed(rest, c, method, url, "GET or POST");
     }
     const char *prefix = "/v1/jobs/";
     if (strncmp(url, prefix, strlen(prefix)) == 0) {
@@ -1051,11 +1149,13 @@ static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const c
         if (is_job_id(id, n)) {
             memcpy(job_id, id, n);
             job_id[n] = '\0';
+            if (not_theirs(rest, c, &who, job_id, &sent))
+                return sent;
             if (!rest_of[0])
-                return get                                ? get_job(rest, c, job_id)
+                return get                             ? get_job(rest, c, job_id)
                        : strcmp(method, "DELETE") == 0 ? delete_job(rest, c, job_id)
-                                                         : method_not_allowed(rest, c, method, url,
-                                                                              "GET or DELETE");
+                                                       : method_not_allowed(rest, c, method, url,
+                                                                            "GET or DELETE");
             if (strcmp(rest_of, "/cancel") == 0)
                 return post ? cancel_job(rest, c, job_id)
                             : method_not_allowed(rest, c, method, url, "POST");

@@ -13,6 +13,7 @@
 #include "cmd_client.h"
 #include "cmd_grid.h"
 #include "cmd_mesh.h"
+#include "cmd_token.h"
 #include "cmd_solve.h"
 #ifdef BIOTGRID_HAVE_MARKET
 #include "cmd_sim.h"
@@ -57,6 +58,8 @@ static const command_t COMMANDS[] = {
     {"cancel", "cancel ID", "cancel a job", bg_cmd_cancel, bg_cmd_cancel_usage},
     {"agents", "agents", "list a broker's agents", bg_cmd_agents, bg_cmd_agents_usage},
     {"market", "market", "a broker's recent prices", bg_cmd_market, bg_cmd_market_usage},
+    {"token", "token create NAME [--admin]", "a bearer token for a broker's REST API",
+     bg_cmd_token, bg_cmd_token_usage},
 };
 #define COMMAND_COUNT (sizeof COMMANDS / sizeof COMMANDS[0])
 
@@ -144,6 +147,9 @@ static int manual(FILE *out)
           ".TP\n.B BIOTGRID_BROKER\n"
           "The broker's URL for submit, jobs, status, result, cancel, agents and market when "
           "--broker is not given.\n"
+          ".TP\n.B BIOTGRID_TOKEN\n"
+          "The bearer token those commands send when --token is not given (else the local "
+          "grid's, written by grid up).\n"
           ".SH EXIT STATUS\n0 success, 1 ran but did not reach its goal (a report is still "
           "written), 2 bad input or usage.\n",
           out);

@@ -23,6 +23,9 @@
     "  --broker URL        the broker (default $" BG_CMD_BROKER_ENV ", else the local grid's\n"    \
     "                      broker recorded by `biotgrid grid up`, else " BG_CMD_DEFAULT_BROKER     \
     ")\n"                                                                                          \
+    "  --token T           the bearer token (default $" BG_CMD_TOKEN_ENV ", else the local\n"       \
+    "                      grid's, written by `biotgrid grid up`; `biotgrid token create`\n"     \
+    "                      makes more)\n"                                                         \
     "  --json              print the broker's JSON document instead of text\n"
 
 const char bg_cmd_submit_usage[] =
@@ -83,7 +86,7 @@ enum {
 typedef struct options {
     const char *command;
     const char *usage;
-    const char *broker;
+    const char *broker, *token;
     int json, wait;
     const char *mechanism;
     double budget;
@@ -140,6 +143,7 @@ static int parse(int argc, char **argv, unsigned allowed, int positional, const 
             const char *name;
             unsigned bit;
         } valued[] = {{"--broker", 0},
+                      {"--token", 0},
                       {"--mechanism", OPT_MECHANISM},
                       {"--budget", OPT_BUDGET},
                       {"--idempotency-key", OPT_KEY},
@@ -157,7 +161,9 @@ static int parse(int argc, char **argv, unsigned allowed, int positional, const 
                 return bad_usage(o, "%s needs a value", a);
             const char *v = argv[++i];
             const unsigned bit = valued[matched].bit;
-            if (bit == 0) {
+            if (bit == 0 && strcmp(a, "--token") == 0) {
+                o->token = v;
+            } else if (bit == 0) {
                 o->broker = v;
             } else if (bit == OPT_MECHANISM) {
                 if (!bg_cmd_job_mechanism_ok(v))
@@ -227,7 +233,9 @@ static int start(int argc, char **argv, unsigned allowed, int positional, const 
         snprintf(url, sizeof url, "%s", env);
     else if (!bg_cmd_grid_broker(bg_cmd_grid_dir(NULL), url, sizeof url))
         snprintf(url, sizeof url, "%s", BG_CMD_DEFAULT_BROKER);
-    const bgb_client_config_t config = {.url = url};
+    char token[BG_CMD_TOKEN_MAX];
+    bg_cmd_token_find(o->token, bg_cmd_grid_dir(NULL), token, sizeof token);
+    const bgb_client_config_t config = {.url = url, .token = token};
     bg_error_t err = BG_ERROR_INIT;
     if (bgb_client_new(&config, client, &err) != BG_OK)
         return fail(o, &err);

@@ -35,6 +35,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <pwd.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -48,9 +49,13 @@
 #include "bg_clock.h"
 #include "bg_mesh_io.h"
 #include "bga_client.h"
+#include "bg_file.h"
 #include "bgb_broker.h"
+#include "bgb_tokens.h"
 #include "cmd.h"
 #include "cmd_agent.h"
+#include "cmd_job.h"
+#include "cmd_token.h"
 
 #define GRID_MAX_AGENTS 64
 #define GRID_READY_SECONDS 10.0
@@ -668,6 +673,43 @@ static int start_broker(grid *g, const char *self, const char *dir)
     return 0;
 }
 
+/* The local user's name as a token's user ("local" when it has none a
+ * token may carry). */
+static void local_user(char *out, size_t size)
+{
+    const char *env = getenv("USER");
+    const struct passwd *pw = getpwuid(getuid());
+    const char *name = env && bgb_tokens_valid_user(env) ? env
+                       : pw && bgb_tokens_valid_user(pw->pw_name) ? pw->pw_name
+                                                                  : "local";
+    snprintf(out, size, "%s", name);
+}
+
+/* An admin token for the local user in DIR/token (0600), which every
+ * client command reads by default: the README's commands need no option. */
+static int write_token(const char *dir)
+{
+    char state[PATH_MAX], path[PATH_MAX], user[BGB_USER_MAX + 1];
+    char token[BGB_TOKEN_SIZE], message[BG_ERROR_MESSAGE_MAX + 64];
+    local_user(user, sizeof user);
+    if (path_join(state, sizeof state, dir, "broker") || path_join(path, sizeof path, dir,
+                                                                    BG_CMD_TOKEN_FILE))
+        return -1;
+    if (bg_cmd_token_make(state, user, 1, token, sizeof token, message, sizeof message) != 0) {
+        fprintf(stderr, "biotgrid grid: cannot make a token: %s\n", message);
+        return -1;
+    }
+    char line[BGB_TOKEN_SIZE + 2];
+    snprintf(line, sizeof line, "%s\n", token);
+    bg_error_t err = BG_ERROR_INIT;
+    if (bg_file_write_all(path, line, strlen(line), 0600, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid grid: %s\n", err.message);
+        return -1;
+    }
+    printf("%-12s an admin token for %s in %s\n", "token", user, path);
+    return 0;
+}
+
 static int grid_up(const char *file, const char *dir, int broker_port, const char *broker_ep)
 {
     grid g;
@@ -746,6 +788,10 @@ static int grid_up(const char *file, const char *dir, int broker_port, const cha
     if (rc != 0) {
         stop_agents(&g, dir, 5.0, 1);
         return rc;
+    }
+    if (g.has_broker && write_token(dir) != 0) {
+        stop_agents(&g, dir, 5.0, 1);
+        return 1;
     }
     if (g.has_broker)
         printf("grid %s up: %d agents, broker on %s, state in %s/grid.json\n", g.name, g.count,

@@ -36,6 +36,24 @@ int bg_cmd_grid_broker(const char *dir, char *url, size_t size)
     return found;
 }
 
+void bg_cmd_token_find(const char *given, const char *grid_dir, char *out, size_t size)
+{
+    out[0] = '\0';
+    const char *env = getenv(BG_CMD_TOKEN_ENV);
+    if (given || (env && env[0])) {
+        snprintf(out, size, "%s", given ? given : env);
+        return;
+    }
+    char path[4096], *text = NULL;
+    size_t length = 0;
+    if (bg_file_join(path, sizeof path, grid_dir, BG_CMD_TOKEN_FILE) != 0 ||
+        bg_file_read_all(path, BG_CMD_TOKEN_MAX, &text, &length, NULL) != BG_OK)
+        return;
+    text[strcspn(text, "\r\n")] = '\0';
+    snprintf(out, size, "%s", text);
+    free(text);
+}
+
 int bg_cmd_job_mechanism_ok(const char *name)
 {
     return strcmp(name, "central") == 0 || strcmp(name, "catallactic") == 0 ||

@@ -43,6 +43,19 @@
  */
 int bg_cmd_grid_broker(const char *dir, char *url, size_t size);
 
+/* The bearer token from the environment, and the local grid's file of it. */
+#define BG_CMD_TOKEN_ENV "BIOTGRID_TOKEN"
+#define BG_CMD_TOKEN_FILE "token"
+#define BG_CMD_TOKEN_MAX 256
+
+/*
+ * The token a client command sends: `given` (--token) when not NULL, else
+ * $BIOTGRID_TOKEN when set, else the first line of DIR/token (what `grid
+ * up` wrote for its user), else "" (then only /healthz answers). Into
+ * out[size].
+ */
+void bg_cmd_token_find(const char *given, const char *grid_dir, char *out, size_t size);
+
 /* A --mechanism value: 1 for central, catallactic or posted. */
 int bg_cmd_job_mechanism_ok(const char *name);
 

@@ -596,7 +596,10 @@ int bg_cmd_solve(int argc, char **argv)
     char broker[CLI_BROKER_URL_MAX];
     if (o.grid && bg_cmd_grid_broker(grid_dir, broker, sizeof broker)) {
         /* The grid's broker prepares and solves the scene: nothing more here. */
+        char token[BG_CMD_TOKEN_MAX];
+        bg_cmd_token_find(NULL, grid_dir, token, sizeof token);
         const bg_cmd_broker_solve_t job = {.url = broker,
+                                           .token = token,
                                            .scene_path = o.scene_path,
                                            .search_path = o.mesh_path,
                                            .scene = scene,

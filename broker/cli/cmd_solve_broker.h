@@ -12,6 +12,7 @@
 /* One solve on a broker; every pointer borrowed for the call. */
 typedef struct bg_cmd_broker_solve {
     const char *url;         /* the broker's REST base URL */
+    const char *token;       /* its bearer token ("" or NULL: none) */
     const char *scene_path;  /* the scene file, packed as `submit` packs it */
     const char *search_path; /* ':'-separated folders for the files it names */
     const bg_scene_t *scene; /* the same scene, parsed and validated here (not prepared) */

@@ -7,6 +7,9 @@
 #   same_energy REPORT REFERENCE       whether two report.json files' first runs have the same
 #                                      energy (1e-10 relative to the reference's)
 #   check STATUS MESSAGE               "ok: MESSAGE", or "FAIL: MESSAGE" and fail=1
+#   bcurl ARGS...                      curl with the test's bearer token ($BIOTGRID_TOKEN, which
+#                                      start_broker and grid_up_market export): every /v1 path
+#                                      needs one
 #   grid_up_market BIN CONFIG STATE    `grid up` on ephemeral loopback ports; sets url and
 #                                      nagents; waits until every agent's service seller and the
 #                                      host's one resource seller are alive on the market, the
@@ -19,6 +22,27 @@
 #                                      grid left (SCRIPTS/no_agents_left.sh), both checked
 check() {
   if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
+}
+
+bcurl() {
+  curl -H "Authorization: Bearer ${BIOTGRID_TOKEN:-}" "$@"
+}
+
+# An admin token for the broker whose state folder is $2, exported as
+# BIOTGRID_TOKEN for bcurl and the biotgrid client commands.
+export_token() {
+  BIOTGRID_TOKEN=$("$1" token create tests --admin --state-dir "$2" 2>/dev/null)
+  export BIOTGRID_TOKEN
+  [ -n "$BIOTGRID_TOKEN" ]
+}
+
+# The admin token `grid up` wrote to the state folder $1, exported as
+# BIOTGRID_TOKEN; checked to exist and be readable by its owner only.
+grid_token() {
+  BIOTGRID_TOKEN=$(head -1 "$1/token" 2>/dev/null)
+  export BIOTGRID_TOKEN
+  [ -n "$BIOTGRID_TOKEN" ] && [ "$(stat -c %a "$1/token")" = 600 ]
+  check $? "grid up wrote an admin token only its owner may read"
 }
 
 start_broker() {
@@ -37,6 +61,8 @@ start_broker() {
     cat "$_dir/$_name.log" >&2
     return 1
   fi
+  export_token "$_bin" "$(jq -r '.state_dir // "out/broker"' "$_config")" ||
+    { echo "start_broker: no token for $_name" >&2; return 1; }
 }
 
 stop_broker() {
@@ -59,7 +85,7 @@ stop_broker() {
 }
 
 submit_job() {
-  curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$2" "$1/v1/jobs" | jq -r .id
+  bcurl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$2" "$1/v1/jobs" | jq -r .id
 }
 
 same_energy() {
@@ -70,9 +96,14 @@ same_energy() {
 
 wait_job() {
   _url=$1 _id=$2 _limit=$3
-  _i=0
+  _i=0 _bad=0
   while [ $_i -lt $((_limit * 10)) ]; do
-    _state=$(curl -sf "$_url/v1/jobs/$_id" | jq -r .state)
+    if _state=$(bcurl -sf --max-time 10 "$_url/v1/jobs/$_id" | jq -er .state); then
+      _bad=0
+    else
+      _bad=$((_bad + 1))
+      [ $_bad -lt 3 ] || { echo "unreachable"; return 0; }
+    fi
     case $_state in
       succeeded|failed|cancelled) echo "$_state"; return 0 ;;
     esac
@@ -88,7 +119,7 @@ market_sellers() {
   resource) _sel='(.services | length) == 0 and .slots == 0' ;;
   idle) _sel='(.services | length) > 0 and .free_slots == .slots' ;;
   esac
-  curl -sf "$1/v1/agents" | jq "[.agents[] | select(.source == \"market\" and .alive and $_sel)] | length"
+  bcurl -sf "$1/v1/agents" | jq "[.agents[] | select(.source == \"market\" and .alive and $_sel)] | length"
 }
 
 grid_up_market() {
@@ -98,6 +129,7 @@ grid_up_market() {
   check $? "grid up"
   url=$(jq -r '.broker.url // empty' "$_state/grid.json" 2>/dev/null)
   [ -n "$url" ]; check $? "the state file records the broker ($url)"
+  grid_token "$_state"
   nagents=$(jq '.agents | length' "$_config")
   # Each agent daemon is a service seller in the directory; the host's
   # cores and memory have one resource seller (no services, no slots), the

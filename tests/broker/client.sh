@@ -38,7 +38,11 @@ start_host() {
     i=0
     while [ $i -lt 100 ]; do
         port=$(sed -n 's/^port \([0-9][0-9]*\)$/\1/p' "$tmp/$name.out")
-        [ -n "$port" ] && return 0
+        if [ -n "$port" ]; then
+            BIOTGRID_TOKEN=$(sed -n 's/^token //p' "$tmp/$name.out")
+            export BIOTGRID_TOKEN
+            return 0
+        fi
         kill -0 "$pid" 2>/dev/null || break
         sleep 0.05
         i=$((i + 1))

@@ -58,12 +58,12 @@ for k in 1 0; do
     "$config" >"$work/k$k-grid.json"
   grid_up_market "$bin" "$work/k$k-grid.json" "$state"
   jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "central", budget: 100}' >"$work/submit.json"
-  id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
+  id=$(bcurl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
     "$url/v1/jobs" | jq -r .id)
   st=$(wait_job "$url" "$id" 300)
   [ "$st" = succeeded ]; check $? "central job at k = $k succeeded (got $st)"
   # Rows are logged when the job's purchase completes, before it runs.
-  curl -sf "$url/v1/market/contracts.csv" >"$work/contracts-k$k.csv"
+  bcurl -sf "$url/v1/market/contracts.csv" >"$work/contracts-k$k.csv"
   rows=$(awk -F, 'NR > 1 && $3 == "central" && $4 == "service"' "$work/contracts-k$k.csv" | wc -l)
   off=$(awk -F, -v k="$k" 'NR > 1 && $3 == "central" && $4 == "service" {
           at_limit = $13 >= $14 * (1 - 1e-9)

@@ -35,6 +35,7 @@
 
 #include "bgb_rest.h"
 #include "bgb_store.h"
+#include "bgb_tokens.h"
 
 #define HOST_BATCH 64
 #define HOST_POLL_NS 50000000L
@@ -189,7 +190,12 @@ int main(int argc, char **argv)
     }
     started = 1;
     alarm(lifetime);
-    printf("port %u\n", (unsigned)bgb_rest_port(rest));
+    char token[BGB_TOKEN_SIZE];
+    if (bgb_tokens_create(h.store, "tests", 1, token, &err) != BG_OK) {
+        fprintf(stderr, "rest_host: %s\n", err.message);
+        goto out;
+    }
+    printf("token %s\nport %u\n", token, (unsigned)bgb_rest_port(rest));
     fflush(stdout);
     int sig = 0;
     sigwait(&stop, &sig);

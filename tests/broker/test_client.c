@@ -26,6 +26,7 @@
 #include "bgb_client.h"
 #include "bgb_rest.h"
 #include "bgb_store.h"
+#include "bgb_tokens.h"
 
 /* ------------------------------------------------------------ events */
 
@@ -476,6 +477,7 @@ typedef struct served {
     bgb_store_t *store;
     bgb_rest_t *rest;
     char url[64];
+    char token[BGB_TOKEN_SIZE]; /* an admin's */
 } served_t;
 
 static int setup_server(void **state)
@@ -490,6 +492,7 @@ static int setup_server(void **state)
     const bgb_rest_config_t config = {.work_dir = s->folder.dir};
     assert_int_equal(bgb_rest_start(&config, s->store, &s->rest, &err), BG_OK);
     snprintf(s->url, sizeof s->url, "http://127.0.0.1:%u", (unsigned)bgb_rest_port(s->rest));
+    assert_int_equal(bgb_tokens_create(s->store, "tester", 1, s->token, &err), BG_OK);
     *state = s;
     return 0;
 }
@@ -530,8 +533,8 @@ static void test_caps_and_statuses(void **state)
     served_t *s = *state;
     bgb_client_t *client = NULL, *small = NULL;
     bg_error_t err = BG_ERROR_INIT;
-    const bgb_client_config_t config = {.url = s->url};
-    const bgb_client_config_t tiny = {.url = s->url, .max_response = 64};
+    const bgb_client_config_t config = {.url = s->url, .token = s->token};
+    const bgb_client_config_t tiny = {.url = s->url, .token = s->token, .max_response = 64};
     assert_int_equal(bgb_client_new(&config, &client, &err), BG_OK);
     assert_int_equal(bgb_client_new(&tiny, &small, &err), BG_OK);
     char id[32];
@@ -591,7 +594,7 @@ static void test_events_stream(void **state)
     served_t *s = *state;
     bgb_client_t *client = NULL;
     bg_error_t err = BG_ERROR_INIT;
-    const bgb_client_config_t config = {.url = s->url};
+    const bgb_client_config_t config = {.url = s->url, .token = s->token};
     assert_int_equal(bgb_client_new(&config, &client, &err), BG_OK);
     char id[32];
     submit_box(s, client, id);

@@ -30,7 +30,7 @@ done
 # Every verb of a command with verbs takes --help too: exit 0, the command's
 # page (its usage line first), nothing on stderr.
 errors=$(mktemp) || exit 1
-for cv in "grid up" "grid status" "grid down" "mesh info" "mesh convert" "mesh simplify"; do
+for cv in "grid up" "grid status" "grid down" "mesh info" "mesh convert" "mesh simplify" "token create"; do
     set -- $cv
     page=$("$bin" "$1" "$2" --help 2>"$errors")
     rc=$?

@@ -29,6 +29,8 @@ while [ -z "$port" ] && [ $i -lt 100 ] && kill -0 "$pid" 2>/dev/null; do
     i=$((i + 1))
 done
 [ -n "$port" ] || { echo "rest_host did not start: $(cat "$tmp/host.err")"; exit 1; }
+BIOTGRID_TOKEN=$(sed -n 's/^token //p' "$tmp/host.out")
+export BIOTGRID_TOKEN
 
 scene() { # scene NAME: a small generated-box scene in $tmp/NAME.json
     cat >"$tmp/$1.json" <<EOF

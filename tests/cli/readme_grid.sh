@@ -26,8 +26,9 @@ export BIOTGRID_GRID_DIR
         # this script and leave the grid running).
         echo "FAIL: submit did not finish within 200 s; the broker's view:"
         url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
-        curl -s "$url/v1/jobs" | jq -c '.jobs[] | {id, state}' 2>/dev/null
-        curl -s "$url/v1/agents" | jq -c '.agents[] | {name, alive, free_slots}' 2>/dev/null
+        auth="Authorization: Bearer $(head -1 "$state/token" 2>/dev/null)"
+        curl -s -H "$auth" "$url/v1/jobs" | jq -c '.jobs[] | {id, state}' 2>/dev/null
+        curl -s -H "$auth" "$url/v1/agents" | jq -c '.agents[] | {name, alive, free_slots}' 2>/dev/null
         tail -n 40 "$state/broker.log" 2>/dev/null
       fi
       "$bin" grid down --state "$state" >"$work/down.txt" 2>&1 && [ $s -eq 0 ]; }
