@@ -16,6 +16,11 @@
 #include "bgm_rng.h"
 
 #define BGM_RACK_SIZE 16
+/* The stream a replication's platform is drawn from (bgm_rng_derive's
+ * last argument, with the seed, scenario and replication): every
+ * mechanism of a replication runs on the same hosts, and a tool that
+ * rebuilds a run's platform draws the same one. */
+#define BGM_PLATFORM_STREAM 0xfffffff1ULL
 
 /*
  * Writes the platform for `nodes` hosts to f; speed (caller-allocated,

@@ -48,7 +48,7 @@ struct bgm_purchase {
     uint32_t nnego, nego_cap, nego_free;
     bgm_purchase_part_t *parts;
     size_t nparts, parts_cap;
-    double requests, timeouts;
+    bgm_purchase_tally_t tally;
     int fixed;                /* bgm_purchase_fix_strategy: no outcome is learnt */
     bgm_emitter_t em;         /* during a call: its outbox and first failure */
     bgm_purchase_event_t *ev; /* during a call */
@@ -275,10 +275,19 @@ void bgm_purchase_drop_parts(bgm_purchase_t *pu, uint32_t id)
     pu->nparts = keep;
 }
 
-void bgm_purchase_counts(const bgm_purchase_t *pu, double *requests, double *timeouts)
+void bgm_purchase_counts(const bgm_purchase_t *pu, bgm_purchase_tally_t *t)
 {
-    *requests = pu->requests;
-    *timeouts = pu->timeouts;
+    t->requests += pu->tally.requests;
+    t->attempts += pu->tally.attempts;
+    t->timeouts += pu->tally.timeouts;
+    for (int k = 0; k < BGM_PU_TO_KINDS; k++)
+        t->timeout[k] += pu->tally.timeout[k];
+}
+
+static void timed_out(bgm_purchase_t *pu, int kind)
+{
+    pu->tally.timeouts += 1.0;
+    pu->tally.timeout[kind] += 1.0;
 }
 
 /* ------------------------------------------------------------ acquisition */
@@ -347,6 +356,7 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
         final_fail(pu, q);
         return;
     }
+    pu->tally.attempts += 1.0;
     if (pu->p.mechanism != BGM_MECH_CENTRAL) {
         if (!nego_take(pu, q)) {
             bgm_emitter_fail(&pu->em, BG_ERR_NOMEM);
@@ -430,7 +440,7 @@ bg_status bgm_purchase_open(bgm_purchase_t *pu, const bgm_purchase_req_t *it, do
     q->r.deadline = it->deadline;
     q->r.deal = it->deal;
     q->r.state = BGM_PU_IDLE;
-    pu->requests += 1.0;
+    pu->tally.requests += 1.0;
     bgm_emitter_timer(&pu->em, q->r.deadline, BGM_PU_TIMER_DEADLINE, q->r.id);
     start_acquire(pu, q, now, up);
     return finish(pu);
@@ -515,7 +525,7 @@ static void end_discovery(bgm_purchase_t *pu, req_t *q, double now)
 {
     nego_state_t *g = ng(pu, q);
     if (g->nprop == 0) {
-        pu->timeouts += 1.0; /* nobody answered the call for proposals */
+        timed_out(pu, BGM_PU_TO_DISCOVERY); /* nobody answered the call for proposals */
         q->quiet++;
     }
     qsort(g->prop, (size_t)g->nprop, sizeof g->prop[0], cmp_prop);
@@ -700,12 +710,12 @@ bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, doub
         } else if (q->r.state == BGM_PU_DISCOVER) {
             end_discovery(pu, q, now);
         } else if (q->r.state == BGM_PU_NEGOTIATE || q->r.state == BGM_PU_COMMITTED) {
-            pu->timeouts += 1.0;
+            timed_out(pu, BGM_PU_TO_REPLY);
             q->r.state = BGM_PU_NEGOTIATE;
             q->r.attempt++; /* late answers from that seller are now stale */
             next_proposal(pu, q, now);
         } else if (q->r.state == BGM_PU_WAIT) {
-            pu->timeouts += 1.0;
+            timed_out(pu, BGM_PU_TO_DIRECTORY);
             attempt_failed(pu, q, now);
         }
         break;
@@ -720,7 +730,7 @@ bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, doub
                               (uint64_t)q->r.id | (1ULL << 63));
             break;
         }
-        pu->timeouts += 1.0;
+        timed_out(pu, BGM_PU_TO_DEADLINE);
         q->r.attempt++;
         final_fail(pu, q);
         break;

@@ -216,9 +216,27 @@ const bgm_purchase_part_t *bgm_purchase_part(const bgm_purchase_t *pu, size_t i)
 /* Forgets the parts of bundle `id` (its delivery was answered or is over). */
 void bgm_purchase_drop_parts(bgm_purchase_t *pu, uint32_t id);
 
-/* Counters for the host's metrics: requests opened, phase and deadline
- * timeouts (a call nobody answered, a seller that went quiet, a
- * deadline reached). */
-void bgm_purchase_counts(const bgm_purchase_t *pu, double *requests, double *timeouts);
+/* Which timeout fired: a round of calls for proposals nobody answered,
+ * a seller quiet after an offer, order or acceptance, the directory
+ * quiet after a query, a request's deadline. */
+enum {
+    BGM_PU_TO_DISCOVERY,
+    BGM_PU_TO_REPLY,
+    BGM_PU_TO_DIRECTORY,
+    BGM_PU_TO_DEADLINE,
+    BGM_PU_TO_KINDS
+};
+
+/* Counters for the host's metrics. */
+typedef struct bgm_purchase_tally {
+    double requests;                   /* opened */
+    double attempts;                   /* acquisitions started (first ones and retries) */
+    double timeouts;                   /* every kind */
+    double timeout[BGM_PU_TO_KINDS];   /* by kind */
+} bgm_purchase_tally_t;
+
+/* Adds its counters to *t (so that a host sums its machines'). */
+void bgm_purchase_counts(const bgm_purchase_t *pu, bgm_purchase_tally_t *t);
+
 
 #endif

@@ -1022,6 +1022,17 @@ out:
     return result;
 }
 
+void bgm_world_tally(const bgm_world_t *w, bgm_purchase_tally_t *service,
+                     bgm_purchase_tally_t *resource)
+{
+    memset(service, 0, sizeof *service);
+    memset(resource, 0, sizeof *resource);
+    for (uint32_t k = 0; k < w->ncomplex; k++)
+        bgm_buyer_counts(w->bm[k], service);
+    for (uint32_t k = 0; k < w->nbasic; k++)
+        bgm_seller_counts(w->sm[k], resource);
+}
+
 bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
 {
     for (int i = 0; i < BGM_M_COUNT; i++)
@@ -1034,17 +1045,10 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
             psq += w->log[i].price * w->log[i].price;
         }
     }
-    double service_requests = 0.0, resource_requests = 0.0, timeouts = 0.0, n, t;
-    for (uint32_t k = 0; k < w->ncomplex; k++) {
-        bgm_buyer_counts(w->bm[k], &n, &t);
-        service_requests += n;
-        timeouts += t;
-    }
-    for (uint32_t k = 0; k < w->nbasic; k++) {
-        bgm_seller_counts(w->sm[k], &n, &t);
-        resource_requests += n;
-        timeouts += t;
-    }
+    bgm_purchase_tally_t svc_tally, res_tally;
+    bgm_world_tally(w, &svc_tally, &res_tally);
+    const double service_requests = svc_tally.requests, resource_requests = res_tally.requests;
+    const double timeouts = svc_tally.timeouts + res_tally.timeouts;
     m[BGM_M_REQUESTS] = service_requests;
     m[BGM_M_CONTRACTS] = svc;
     m[BGM_M_MESSAGES] = w->msgs;

@@ -1179,9 +1179,9 @@ static void test_seller_match_rents_and_delivers(void **state)
     assert_non_null(only_msg(ob, BGM_MT_FREE));
     assert_int_equal(bgm_seller_used(s), 0);
     assert_true(bgm_seller_bundle(s, 101)->state == BGM_PU_FAILED);
-    double requests, timeouts;
-    bgm_seller_counts(s, &requests, &timeouts);
-    assert_true(requests == 2.0 && timeouts == 0.0);
+    bgm_purchase_tally_t tally = {0};
+    bgm_seller_counts(s, &tally);
+    assert_true(tally.requests == 2.0 && tally.timeouts == 0.0);
     bgm_outbox_destroy(&ob);
     bgm_seller_destroy(&s);
 }
@@ -1351,10 +1351,10 @@ static void test_buyer_retries_then_fails_at_deadline(void **state)
     p.price = 0.1;
     assert_int_equal(bgm_buyer_on_message(b, &p, failed_at + 1.0, 1, ob), BG_OK);
     assert_int_equal(bgm_outbox_count(ob), 0);
-    double requests, timeouts;
-    bgm_buyer_counts(b, &requests, &timeouts);
-    assert_true(requests == (double)items);
-    assert_true(timeouts >= (double)expected);
+    bgm_purchase_tally_t tally = {0};
+    bgm_buyer_counts(b, &tally);
+    assert_true(tally.requests == (double)items);
+    assert_true(tally.timeouts >= (double)expected);
     bgm_outbox_destroy(&ob);
     bgm_buyer_destroy(&b);
 }
