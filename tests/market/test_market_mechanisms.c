@@ -781,13 +781,22 @@ static void test_posted_first_fit(void **state)
     assert_int_equal(bgm_posted_post(d, 7, 1, 1.0), BG_OK);
     assert_int_equal(bgm_posted_post(d, 8, 0, 2.0), BG_OK);
     bgm_posting_t out[4];
-    size_t n = bgm_posted_query(d, 0, 2.5, 0, out, 4);
+    size_t first = 99;
+    size_t n = bgm_posted_query(d, 0, 2.5, 0, NULL, NULL, out, 4, &first);
     /* Registration order, not price order; the 3.0 posting is over limit. */
     assert_int_equal(n, 2);
     assert_int_equal(out[0].seller, 6);
     assert_int_equal(out[1].seller, 8);
+    assert_int_equal(first, 1);
+    /* Next fit: from the position after the first answer's first posting,
+     * wrapping around. */
+    n = bgm_posted_query(d, 0, 2.5, first + 1, NULL, NULL, out, 4, &first);
+    assert_int_equal(n, 2);
+    assert_int_equal(out[0].seller, 8);
+    assert_int_equal(out[1].seller, 6);
+    assert_int_equal(first, 3);
     bgm_posted_withdraw(d, 6);
-    n = bgm_posted_query(d, 0, 2.5, 0, out, 4);
+    n = bgm_posted_query(d, 0, 2.5, 0, NULL, NULL, out, 4, NULL);
     assert_int_equal(n, 1);
     bgm_posted_destroy(&d);
     assert_null(d);

@@ -325,6 +325,47 @@ static void test_directory_first_fit(void **state)
     bgm_market_agent_destroy(&ma);
 }
 
+/* Next fit: each answer for a good starts at the seller after the
+ * previous answer's first, wrapping around, so that buyers asking at
+ * about the same time are sent to different sellers first. Plain first
+ * fit gave every one of them the same list, whose head the directory's
+ * lagging view of free room showed as free while it was full (issue 31:
+ * 43 refused orders a request at 400 nodes). */
+static void test_directory_next_fit(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("baseline", 0.5);
+    bgm_market_agent_t *ma = agent(&cfg, BGM_MECH_BASELINE);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    for (uint32_t k = 0; k < NBASIC; k++)
+        ask(ma, ob, FIRST_BASIC + k, BGM_GOOD_ROTFIT, 1.0, 2.0);
+    ask(ma, ob, FIRST_BASIC, BGM_GOOD_SOLVE, 1.0, 2.0);
+    for (uint32_t i = 0; i < 2 * NBASIC; i++) {
+        bgm_outbox_clear(ob);
+        bgm_msg_t q = mk(BGM_MT_QUERY, 1 + i % 4, 100 + i);
+        q.good = BGM_GOOD_ROTFIT;
+        q.price = 2.0;
+        deliver(ma, &q, ob);
+        const bgm_msg_t *l = &bgm_outbox_item(ob, 0)->msg;
+        assert_int_equal(l->ncand, NBASIC); /* every seller, the cap being 3 */
+        for (uint32_t c = 0; c < NBASIC; c++)
+            assert_int_equal(l->cand[c], FIRST_BASIC + (i + c) % NBASIC);
+    }
+    /* Each good has its own position: the first query for another good
+     * starts from the first seller. */
+    bgm_outbox_clear(ob);
+    bgm_msg_t q = mk(BGM_MT_QUERY, 1, 200);
+    q.good = BGM_GOOD_SOLVE;
+    q.price = 2.0;
+    deliver(ma, &q, ob);
+    assert_int_equal(bgm_outbox_item(ob, 0)->msg.cand[0], FIRST_BASIC);
+    /* A query naming no good the directory lists is refused. */
+    q.good = BGM_GOOD_MEMORY_ID;
+    assert_int_equal(bgm_market_agent_on_message(ma, &q, 0.5, ob), BG_ERR_INVALID);
+    bgm_outbox_destroy(&ob);
+    bgm_market_agent_destroy(&ma);
+}
+
 /* What a live buyer adds to its bids and queries: sellers it excludes
  * are neither matched nor listed (and keep their slots for others); two
  * bids of one buyer's need group are matched with distinct sellers even
@@ -1418,6 +1459,7 @@ int main(void)
         cmocka_unit_test(test_auctioneer_clears_to_kdouble_price),
         cmocka_unit_test(test_auctioneer_exchange_rent),
         cmocka_unit_test(test_directory_first_fit),
+        cmocka_unit_test(test_directory_next_fit),
         cmocka_unit_test(test_auctioneer_exclusions_and_groups),
         cmocka_unit_test(test_auctioneer_refuses_bad_input),
         cmocka_unit_test(test_outbox_order_and_cap),
