@@ -52,7 +52,11 @@
 #define BGM_PU_TIMER_LEARN 8    /* a learning meeting */
 
 #define BGM_PU_MAX_NEIGHBOURS 64
+/* Proposals a round of discovery keeps, and so bargains with at most. */
 #define BGM_PU_MAX_PROPOSALS 8
+/* A failed round is retried after retry_backoff x 2^(rounds so far - 1),
+ * the doubling capped at this many times. */
+#define BGM_PU_RETRY_MAX_DOUBLINGS 5
 /* A request's good when it buys a resource bundle. */
 #define BGM_PU_BUNDLE (-1)
 /* How long past its deadline a request committed to a seller waits. */
@@ -237,6 +241,5 @@ typedef struct bgm_purchase_tally {
 
 /* Adds its counters to *t (so that a host sums its machines'). */
 void bgm_purchase_counts(const bgm_purchase_t *pu, bgm_purchase_tally_t *t);
-
 
 #endif
