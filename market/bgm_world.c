@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bgm_budget.h"
 #include "bgm_buyer.h"
 #include "bgm_market_agent.h"
 #include "bgm_optimum.h"
@@ -22,7 +23,8 @@ const char *const bgm_metric_names[BGM_M_COUNT] = {
     "utilization",          "job_completion_time",  "job_completion_rate",
     "resource_allocation_rate", "requests",         "contracts",
     "messages",             "bytes",                "combex_exact",
-    "combex_greedy",        "timeouts"};
+    "combex_greedy",        "timeouts",             "timeouts_per_request",
+    "messages_per_request", "message_bound"};
 const char *const bgm_good_names[5] = {"rotation-fit", "sparse-solve", "integration-step", "cores",
                                        "memory"};
 const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"};
@@ -1063,7 +1065,18 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
     m[BGM_M_ACCESS_TIME_P99] = quantile(w->acc_s, w->nacc_s, 0.99);
     m[BGM_M_RESOURCE_ACCESS_TIME_MEDIAN] = quantile(w->acc_r, w->nacc_r, 0.5);
     m[BGM_M_RESOURCE_ACCESS_TIME_P99] = quantile(w->acc_r, w->nacc_r, 0.99);
+    if (service_requests > 0) {
+        m[BGM_M_TIMEOUTS_PER_REQUEST] = timeouts / service_requests;
+        m[BGM_M_MESSAGES_PER_REQUEST] = w->msgs / service_requests;
+    }
+    /* The bound the mechanism's parameters put on this run's messages
+     * (bgm_budget), per allocation like the measured figure. */
+    const bgm_budget_t budget =
+        bgm_budget_of(&w->cfg, w->p.mechanism, w->horizon, (double)w->nresource);
+    const double bound = bgm_budget_messages(&budget, service_requests, resource_requests,
+                                             (double)w->nagents);
     if (svc > 0) {
+        m[BGM_M_MESSAGE_BOUND] = bound / svc;
         m[BGM_M_MESSAGES_PER_ALLOCATION] = w->msgs / svc;
         m[BGM_M_BYTES_PER_ALLOCATION] = w->bytes / svc;
         m[BGM_M_PRICE_MEAN] = psum / svc;

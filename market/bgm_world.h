@@ -78,6 +78,9 @@ typedef enum bgm_metric {
     BGM_M_COMBEX_EXACT,
     BGM_M_COMBEX_GREEDY,
     BGM_M_TIMEOUTS,
+    BGM_M_TIMEOUTS_PER_REQUEST,
+    BGM_M_MESSAGES_PER_REQUEST,
+    BGM_M_MESSAGE_BOUND,
     BGM_M_COUNT
 } bgm_metric;
 
