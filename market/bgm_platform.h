@@ -1,10 +1,10 @@
 /*
  * bgm_platform — generated SimGrid platforms (star, cluster of racks,
- * random graph) as platform XML, with per-host speeds drawn from the
- * experiment's seed. Hosts are "h0".."h{nodes-1}" plus "market" for the
- * auctioneer/directory; routing is Dijkstra over hosts, routers and links,
- * so one generator serves the three topologies. Pure except for writing
- * the file it is given.
+ * random graph, scale-free graph) as platform XML, with per-host speeds
+ * drawn from the experiment's seed. Hosts are "h0".."h{nodes-1}" plus
+ * "market" for the auctioneer/directory; routing is Dijkstra over hosts,
+ * routers and links, so one generator serves the four topologies. Pure
+ * except for writing the file it is given.
  */
 #ifndef BGM_PLATFORM_H
 #define BGM_PLATFORM_H
