@@ -13,6 +13,7 @@
 #include "bgm_resource.h"
 #include "bgm_rng.h"
 #include "bgm_seller.h"
+#include "bgm_stats.h"
 #include "bgm_strategy.h"
 
 const char *const bgm_metric_names[BGM_M_COUNT] = {
@@ -857,28 +858,6 @@ bg_status bgm_world_start(bgm_world_t *w, const bgm_sink_t *sink, double now)
 
 /* ---------------------------------------------------------------- metrics */
 
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-/* Quantile by the nearest-rank method on a sorted copy; NaN when empty. */
-static double quantile(const double *v, size_t n, double q)
-{
-    if (n == 0)
-        return NAN;
-    double *s = malloc(n * sizeof *s);
-    if (!s)
-        return NAN;
-    memcpy(s, v, n * sizeof *s);
-    qsort(s, n, sizeof *s, cmp_double);
-    size_t k = (size_t)ceil(q * (double)n);
-    double r = s[k == 0 ? 0 : k - 1];
-    free(s);
-    return r;
-}
-
 /*
  * Offline optimum of the same demand and supply (bgm_optimum): every
  * service request of the run with its delivery window, every basic agent
@@ -1061,10 +1040,10 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
         m[BGM_M_ALLOCATION_RATE] = svc / service_requests;
     if (resource_requests > 0)
         m[BGM_M_RESOURCE_ALLOCATION_RATE] = w->bundles / resource_requests;
-    m[BGM_M_ACCESS_TIME_MEDIAN] = quantile(w->acc_s, w->nacc_s, 0.5);
-    m[BGM_M_ACCESS_TIME_P99] = quantile(w->acc_s, w->nacc_s, 0.99);
-    m[BGM_M_RESOURCE_ACCESS_TIME_MEDIAN] = quantile(w->acc_r, w->nacc_r, 0.5);
-    m[BGM_M_RESOURCE_ACCESS_TIME_P99] = quantile(w->acc_r, w->nacc_r, 0.99);
+    m[BGM_M_ACCESS_TIME_MEDIAN] = bgm_quantile(w->acc_s, w->nacc_s, 0.5);
+    m[BGM_M_ACCESS_TIME_P99] = bgm_quantile(w->acc_s, w->nacc_s, 0.99);
+    m[BGM_M_RESOURCE_ACCESS_TIME_MEDIAN] = bgm_quantile(w->acc_r, w->nacc_r, 0.5);
+    m[BGM_M_RESOURCE_ACCESS_TIME_P99] = bgm_quantile(w->acc_r, w->nacc_r, 0.99);
     if (service_requests > 0) {
         m[BGM_M_TIMEOUTS_PER_REQUEST] = timeouts / service_requests;
         m[BGM_M_MESSAGES_PER_REQUEST] = w->msgs / service_requests;

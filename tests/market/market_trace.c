@@ -41,6 +41,7 @@
 #include "bgm_purchase.h"
 #include "bgm_rng.h"
 #include "bgm_simdriver.h"
+#include "bgm_stats.h"
 #include "bgm_world.h"
 
 #define TYPES 26
@@ -71,20 +72,6 @@ typedef struct trace {
     size_t n, cap;
     int failed;
 } trace_t;
-
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-static double quantile_sorted(const double *v, size_t n, double q)
-{
-    if (n == 0)
-        return NAN;
-    size_t k = (size_t)ceil(q * (double)n);
-    return v[k == 0 ? 0 : k - 1];
-}
 
 static int route_hops(trace_t *t, uint32_t a, uint32_t b, double *latency)
 {
@@ -169,10 +156,10 @@ static void print_types(const trace_t *t)
             }
         if (k == 0)
             continue;
-        qsort(lat, k, sizeof *lat, cmp_double);
+        bgm_sort(lat, k);
         printf("| %s | %zu | %.2f | %.3f | %.3f | %.3f | %.2f |\n", type_names[ty], k,
-               (double)k / fmax(svc.requests, 1), quantile_sorted(lat, k, 0.5),
-               quantile_sorted(lat, k, 0.99), lat[k - 1], hops / (double)k);
+               (double)k / fmax(svc.requests, 1), bgm_quantile_sorted(lat, k, 0.5),
+               bgm_quantile_sorted(lat, k, 0.99), lat[k - 1], hops / (double)k);
     }
     free(lat);
 }
@@ -221,12 +208,12 @@ static uint32_t *print_requests(const trace_t *t, uint32_t first_basic, uint32_t
                 v[k++] = count[r];
                 sum += count[r];
             }
-        qsort(v, k, sizeof *v, cmp_double);
+        bgm_sort(v, k);
         if (k > 0)
             printf("%s requests: %zu, messages about one: mean %.1f, median %.0f, p99 %.0f, max "
                    "%.0f\n",
                    layer ? "bundle (basic seller)" : "service (job's agent)", k, sum / (double)k,
-                   quantile_sorted(v, k, 0.5), quantile_sorted(v, k, 0.99), v[k - 1]);
+                   bgm_quantile_sorted(v, k, 0.5), bgm_quantile_sorted(v, k, 0.99), v[k - 1]);
         free(v);
     }
     free(count);
