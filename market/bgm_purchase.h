@@ -18,14 +18,21 @@
  *
  * Acquisition by mechanism: central, one BID (a service) or RBID (a
  * bundle) and the auctioneer's answer; catallactic, a hop-limited CFP
- * over the overlay, the proposals gathered for discovery_timeout, then
+ * over the overlay (at most overlay_degree calls from each agent,
+ * bgm_flood), the proposals gathered for a discovery window, then
  * bargaining with them cheapest first; baseline, a QUERY to the
  * directory, then an ORDER at the posted price to the first candidate
- * within the limit. A failed attempt is retried after the mechanism's
- * backoff while the deadline allows; at the deadline (or when the
- * owner's host is down as it starts) the request fails for good. A
- * request committed to a seller gets BGM_PU_COMMIT_GRACE past its
- * deadline for the seller's delivery.
+ * within the limit. Its timers follow what it measures, as TCP's do
+ * (RFC 6298): a phase waits the owner's smoothed round trip plus four
+ * mean deviations (doubled after each timeout until the next answer),
+ * a discovery window the same of the delays of proposals, never less
+ * than the configured reply_timeout (4x for the directory) and
+ * discovery_timeout. A failed attempt is retried after the mechanism's
+ * backoff, doubling with each round (BGM_PU_RETRY_MAX_DOUBLINGS), while
+ * the deadline allows; at the deadline (or when the owner's host is down
+ * as it starts) the request fails for good. A request committed to a
+ * seller gets BGM_PU_COMMIT_GRACE past its deadline for the seller's
+ * delivery.
  *
  * Request numbers are the host's: the owner opens each request under a
  * number it is given, in increasing order (the simulator numbers every
