@@ -61,8 +61,7 @@ static double call_parts(const bgm_config_t *c, double nresource)
     return cores + fmin(nresource, mib);
 }
 
-bgm_budget_t bgm_budget_of(const bgm_config_t *c, int mechanism, double horizon,
-                           double nresource)
+bgm_budget_t bgm_budget_of(const bgm_config_t *c, int mechanism, double horizon, double nresource)
 {
     bgm_budget_t b = {0};
     const double delivery = 2.0; /* CONFIRM and TAKE or REFUSE; or CANCEL */
@@ -76,10 +75,10 @@ bgm_budget_t bgm_budget_of(const bgm_config_t *c, int mechanism, double horizon,
         /* FREE and a refreshed ASK; one RBID, no retry (an RFAIL ends the
          * bundle), answered by an award, the seller's answer and its RFREE
          * (on refusal or release) per part. */
-        b.per_deal = delivery + 2.0 +
-                     (c->central.resource_market == BGM_RM_CALL
-                          ? 1.0 + 3.0 * call_parts(c, nresource)
-                          : 4.0);
+        b.per_deal =
+            delivery + 2.0 +
+            (c->central.resource_market == BGM_RM_CALL ? 1.0 + 3.0 * call_parts(c, nresource)
+                                                       : 4.0);
         b.per_agent = types; /* an ASK per type sold, or one RASK */
         break;
     case BGM_MECH_CATALLACTIC:

@@ -15,8 +15,8 @@ static uint64_t mix(uint64_t x)
     return x ^ (x >> 31);
 }
 
-uint32_t bgm_flood_pass(bgm_emitter_t *em, const bgm_msg_t *proto, const uint32_t *nbr,
-                        int degree, uint32_t except, int cap)
+uint32_t bgm_flood_pass(bgm_emitter_t *em, const bgm_msg_t *proto, const uint32_t *nbr, int degree,
+                        uint32_t except, int cap)
 {
     if (degree <= 0)
         return 0;
@@ -25,9 +25,9 @@ uint32_t bgm_flood_pass(bgm_emitter_t *em, const bgm_msg_t *proto, const uint32_
     /* With room for every neighbour the order is the list's; otherwise
      * the window starts where the call's key and the agent put it. */
     const int start =
-        room >= degree ? 0
-                       : (int)(mix(bgm_flood_key(proto) ^ ((uint64_t)em->self << 32)) %
-                               (uint64_t)degree);
+        room >= degree
+            ? 0
+            : (int)(mix(bgm_flood_key(proto) ^ ((uint64_t)em->self << 32)) % (uint64_t)degree);
     uint32_t n = 0;
     for (int j = 0; j < degree && (int)n < room; j++) {
         const uint32_t to = nbr[(start + j) % degree];

@@ -35,8 +35,8 @@ uint64_t bgm_flood_key(const bgm_msg_t *call);
  * <= 0: all), each copy from the emitter's agent. Returns how many it
  * emitted.
  */
-uint32_t bgm_flood_pass(bgm_emitter_t *em, const bgm_msg_t *proto, const uint32_t *nbr,
-                        int degree, uint32_t except, int cap);
+uint32_t bgm_flood_pass(bgm_emitter_t *em, const bgm_msg_t *proto, const uint32_t *nbr, int degree,
+                        uint32_t except, int cap);
 
 /* The calls an agent saw last: a ring of keys. */
 typedef struct bgm_flood_seen {

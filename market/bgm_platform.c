@@ -75,7 +75,8 @@ static bg_status scale_free(FILE *f, FILE *rt, const bgm_config_t *c, int nodes,
     if (m > BGM_MAX_CHORDS)
         m = BGM_MAX_CHORDS;
     const int core = m + 1 < nodes ? m + 1 : nodes;
-    int *ends = malloc(((size_t)core * (size_t)core + 2 * (size_t)m * (size_t)nodes) * sizeof *ends);
+    int *ends =
+        malloc(((size_t)core * (size_t)core + 2 * (size_t)m * (size_t)nodes) * sizeof *ends);
     if (!ends)
         return BG_ERR_NOMEM;
     size_t nends = 0;

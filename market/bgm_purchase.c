@@ -364,12 +364,12 @@ static void attempt_failed(bgm_purchase_t *pu, req_t *q, double now)
 {
     const uint32_t doublings =
         q->rounds > 0 ? (q->rounds - 1 < BGM_PU_RETRY_MAX_DOUBLINGS ? q->rounds - 1
-                                                                  : BGM_PU_RETRY_MAX_DOUBLINGS)
+                                                                    : BGM_PU_RETRY_MAX_DOUBLINGS)
                       : 0;
-    const double backoff = (pu->p.mechanism == BGM_MECH_BASELINE
-                                ? pu->cfg->baseline.retry_backoff
-                                : pu->cfg->catallactic.retry_backoff) *
-                           (double)(1u << doublings);
+    const double backoff =
+        (pu->p.mechanism == BGM_MECH_BASELINE ? pu->cfg->baseline.retry_backoff
+                                              : pu->cfg->catallactic.retry_backoff) *
+        (double)(1u << doublings);
     learn(pu, 0, 0.0);
     q->r.attempt++;
     if (now + backoff >= q->r.deadline) {

@@ -240,10 +240,10 @@ enum {
 
 /* Counters for the host's metrics. */
 typedef struct bgm_purchase_tally {
-    double requests;                   /* opened */
-    double attempts;                   /* acquisitions started (first ones and retries) */
-    double timeouts;                   /* every kind */
-    double timeout[BGM_PU_TO_KINDS];   /* by kind */
+    double requests;                 /* opened */
+    double attempts;                 /* acquisitions started (first ones and retries) */
+    double timeouts;                 /* every kind */
+    double timeout[BGM_PU_TO_KINDS]; /* by kind */
 } bgm_purchase_tally_t;
 
 /* Adds its counters to *t (so that a host sums its machines'). */

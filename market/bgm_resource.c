@@ -315,8 +315,7 @@ static void on_cfp(bgm_resource_t *rs, const bgm_msg_t *m)
     if (m->hops > 1) {
         bgm_msg_t f = *m;
         f.hops--;
-        bgm_flood_pass(&rs->em, &f, rs->nbr, rs->p.degree, m->from,
-                       rs->cfg.agents.overlay_degree);
+        bgm_flood_pass(&rs->em, &f, rs->nbr, rs->p.degree, m->from, rs->cfg.agents.overlay_degree);
     }
 }
 

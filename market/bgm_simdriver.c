@@ -393,9 +393,8 @@ bg_status bgm_simdriver_run(bgm_world_t *w, int user_platform, bgm_sim_stats_t *
     return bgm_simdriver_run_traced(w, user_platform, NULL, stats, err);
 }
 
-bg_status bgm_simdriver_run_traced(bgm_world_t *w, int user_platform,
-                                   const bgm_sim_trace_t *trace, bgm_sim_stats_t *stats,
-                                   bg_error_t *err)
+bg_status bgm_simdriver_run_traced(bgm_world_t *w, int user_platform, const bgm_sim_trace_t *trace,
+                                   bgm_sim_stats_t *stats, bg_error_t *err)
 {
     bg_status st = BG_OK;
     driver_t d;

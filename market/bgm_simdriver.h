@@ -63,8 +63,7 @@ typedef struct bgm_sim_trace {
 } bgm_sim_trace_t;
 
 /* bgm_simdriver_run with a trace (NULL: none); the run is the same. */
-bg_status bgm_simdriver_run_traced(bgm_world_t *w, int user_platform,
-                                   const bgm_sim_trace_t *trace, bgm_sim_stats_t *stats,
-                                   bg_error_t *err);
+bg_status bgm_simdriver_run_traced(bgm_world_t *w, int user_platform, const bgm_sim_trace_t *trace,
+                                   bgm_sim_stats_t *stats, bg_error_t *err);
 
 #endif

@@ -1052,8 +1052,8 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
      * (bgm_budget), per allocation like the measured figure. */
     const bgm_budget_t budget =
         bgm_budget_of(&w->cfg, w->p.mechanism, w->horizon, (double)w->nresource);
-    const double bound = bgm_budget_messages(&budget, service_requests, resource_requests,
-                                             (double)w->nagents);
+    const double bound =
+        bgm_budget_messages(&budget, service_requests, resource_requests, (double)w->nagents);
     if (svc > 0) {
         m[BGM_M_MESSAGE_BOUND] = bound / svc;
         m[BGM_M_MESSAGES_PER_ALLOCATION] = w->msgs / svc;

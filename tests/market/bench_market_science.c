@@ -138,8 +138,9 @@ static int run_sim(const opts_t *o, const char *config, const char *dir)
     if (pid < 0)
         return -1;
     if (pid == 0) {
-        char *argv[] = {(char *)o->biotgrid, "sim", (char *)config, "--out", (char *)dir,
-                        "--jobs", jobs, "--quiet", NULL};
+        char *argv[] = {
+            (char *)o->biotgrid, "sim", (char *)config, "--out", (char *)dir, "--jobs", jobs,
+            "--quiet",           NULL};
         execv(o->biotgrid, argv);
         _exit(127);
     }
@@ -170,8 +171,8 @@ static double mean_of(const cJSON *metrics, const char *name, double *half)
     const cJSON *ci = m ? cJSON_GetObjectItemCaseSensitive(m, "ci95") : NULL;
     *half = NAN;
     if (cJSON_IsArray(ci) && cJSON_GetArraySize(ci) == 2)
-        *half = (cJSON_GetArrayItem(ci, 1)->valuedouble - cJSON_GetArrayItem(ci, 0)->valuedouble) /
-                2.0;
+        *half =
+            (cJSON_GetArrayItem(ci, 1)->valuedouble - cJSON_GetArrayItem(ci, 0)->valuedouble) / 2.0;
     return cJSON_IsNumber(mean) ? mean->valuedouble : NAN;
 }
 

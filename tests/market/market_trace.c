@@ -48,10 +48,9 @@
 #define MAX_RECORDS ((size_t)1 << 26)
 
 static const char *const type_names[TYPES] = {
-    "?",       "BID",    "ASK",    "FREE",   "MATCH",  "RBID",     "RASK",
-    "RFREE",   "RAWARD", "RFAIL",  "RCONFIRM", "CONFIRM", "CANCEL", "CFP",
-    "PROPOSE", "OFFER",  "ACCEPT", "REJECT", "GENES",  "QUERY",    "LIST",
-    "ORDER",   "AVAIL",  "RPART",  "TAKE",   "REFUSE"};
+    "?",     "BID",      "ASK",     "FREE",   "MATCH", "RBID",    "RASK",  "RFREE",  "RAWARD",
+    "RFAIL", "RCONFIRM", "CONFIRM", "CANCEL", "CFP",   "PROPOSE", "OFFER", "ACCEPT", "REJECT",
+    "GENES", "QUERY",    "LIST",    "ORDER",  "AVAIL", "RPART",   "TAKE",  "REFUSE"};
 
 typedef struct record {
     double sent, received;
@@ -82,8 +81,7 @@ static int route_hops(trace_t *t, uint32_t a, uint32_t b, double *latency)
     return (int)xbt_dynar_length(t->route);
 }
 
-static void on_delivered(void *ctx, const bgm_msg_t *m, long bytes, double sent,
-                         double received)
+static void on_delivered(void *ctx, const bgm_msg_t *m, long bytes, double sent, double received)
 {
     trace_t *t = ctx;
     if (t->failed)
@@ -99,8 +97,8 @@ static void on_delivered(void *ctx, const bgm_msg_t *m, long bytes, double sent,
         t->cap = c;
     }
     uint32_t a = bgm_world_agent_node(t->w, m->from), b = bgm_world_agent_node(t->w, m->to);
-    t->rec[t->n++] = (record_t){sent,   received,   m->from, m->to, m->req,
-                                m->attempt, m->type, (uint16_t)route_hops(t, a, b, NULL)};
+    t->rec[t->n++] = (record_t){sent,   received,   m->from, m->to,
+                                m->req, m->attempt, m->type, (uint16_t)route_hops(t, a, b, NULL)};
     size_t sec = (size_t)sent < t->seconds ? (size_t)sent : t->seconds - 1;
     for (unsigned i = 0; i < xbt_dynar_length(t->route); i++) {
         sg_link_t l = xbt_dynar_get_as(t->route, i, sg_link_t);
@@ -133,8 +131,8 @@ static void print_platform(trace_t *t)
     }
     printf("platform: %zu links; node to node: %.2f links (max %.0f), summed latency %.4f s "
            "(max %.4f s); node to market: %.2f links (max %.0f), %.4f s\n",
-           sg_link_count(), n > 0 ? hs / n : 0.0, hmax, n > 0 ? ls / n : 0.0, lmax,
-           mh / t->nodes, mhmax, ml / t->nodes);
+           sg_link_count(), n > 0 ? hs / n : 0.0, hmax, n > 0 ? ls / n : 0.0, lmax, mh / t->nodes,
+           mhmax, ml / t->nodes);
 }
 
 static void print_types(const trace_t *t)
@@ -184,11 +182,11 @@ static uint32_t *print_requests(const trace_t *t, uint32_t first_basic, uint32_t
     for (uint32_t r = 0; r <= max; r++)
         owner[r] = UINT32_MAX;
     static const int about_request[TYPES] = {
-        [BGM_MT_BID] = 1,     [BGM_MT_MATCH] = 1,   [BGM_MT_RBID] = 1,   [BGM_MT_RAWARD] = 1,
-        [BGM_MT_RFAIL] = 1,   [BGM_MT_RCONFIRM] = 1, [BGM_MT_CONFIRM] = 1, [BGM_MT_CANCEL] = 1,
-        [BGM_MT_CFP] = 1,     [BGM_MT_PROPOSE] = 1, [BGM_MT_OFFER] = 1,  [BGM_MT_ACCEPT] = 1,
-        [BGM_MT_REJECT] = 1,  [BGM_MT_QUERY] = 1,   [BGM_MT_LIST] = 1,   [BGM_MT_ORDER] = 1,
-        [BGM_MT_RPART] = 1,   [BGM_MT_TAKE] = 1,    [BGM_MT_REFUSE] = 1};
+        [BGM_MT_BID] = 1,    [BGM_MT_MATCH] = 1,    [BGM_MT_RBID] = 1,    [BGM_MT_RAWARD] = 1,
+        [BGM_MT_RFAIL] = 1,  [BGM_MT_RCONFIRM] = 1, [BGM_MT_CONFIRM] = 1, [BGM_MT_CANCEL] = 1,
+        [BGM_MT_CFP] = 1,    [BGM_MT_PROPOSE] = 1,  [BGM_MT_OFFER] = 1,   [BGM_MT_ACCEPT] = 1,
+        [BGM_MT_REJECT] = 1, [BGM_MT_QUERY] = 1,    [BGM_MT_LIST] = 1,    [BGM_MT_ORDER] = 1,
+        [BGM_MT_RPART] = 1,  [BGM_MT_TAKE] = 1,     [BGM_MT_REFUSE] = 1};
     for (size_t i = 0; i < t->n; i++) {
         const record_t *r = &t->rec[i];
         if (!about_request[r->type])
@@ -462,8 +460,7 @@ int main(int argc, char **argv)
         return 1;
     }
     bgm_rng_t prng;
-    bgm_rng_derive(&prng, cfg.seed, (uint64_t)scenario, (uint64_t)replication,
-                   BGM_PLATFORM_STREAM);
+    bgm_rng_derive(&prng, cfg.seed, (uint64_t)scenario, (uint64_t)replication, BGM_PLATFORM_STREAM);
     bg_status st = bgm_platform_write(f, &cfg, nodes, &prng, speed);
     fclose(f);
     if (st) {
@@ -504,8 +501,7 @@ int main(int argc, char **argv)
         t.host[i] = sg_host_by_name(name);
     }
     printf("market_trace: %s, scenario %d (%d nodes, density %g, %s), %s, replication %d\n",
-           cfg.name, scenario, nodes, density, dyn->name, bgm_mechanism_names[mech],
-           replication);
+           cfg.name, scenario, nodes, density, dyn->name, bgm_mechanism_names[mech], replication);
     bgm_sim_trace_t hook = {&t, on_delivered};
     bgm_sim_stats_t ss;
     st = bgm_simdriver_run_traced(t.w, 0, &hook, &ss, &err);

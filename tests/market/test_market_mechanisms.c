@@ -1524,7 +1524,8 @@ static double attempts_by_definition(double deadline, double backoff)
 {
     double sum = 0.0, rounds = 1.0;
     for (int i = 0;; i++) {
-        sum += backoff * (double)(1 << (i < BGM_PU_RETRY_MAX_DOUBLINGS ? i : BGM_PU_RETRY_MAX_DOUBLINGS));
+        sum += backoff *
+               (double)(1 << (i < BGM_PU_RETRY_MAX_DOUBLINGS ? i : BGM_PU_RETRY_MAX_DOUBLINGS));
         if (sum >= deadline)
             return rounds;
         rounds += 1.0;
@@ -1541,10 +1542,10 @@ static void check_budget(bgm_world_t *w, const bgm_config_t *cfg, int mech, int 
     assert_int_equal(bgm_world_metrics(w, m), BG_OK);
     bgm_purchase_tally_t svc, res;
     bgm_world_tally(w, &svc, &res);
-    const bgm_budget_t b = bgm_budget_of(cfg, mech, bgm_world_horizon(w),
-                                         (double)lround(nodes * density));
-    const double bound = bgm_budget_messages(&b, svc.requests, res.requests,
-                                             (double)bgm_world_agent_count(w));
+    const bgm_budget_t b =
+        bgm_budget_of(cfg, mech, bgm_world_horizon(w), (double)lround(nodes * density));
+    const double bound =
+        bgm_budget_messages(&b, svc.requests, res.requests, (double)bgm_world_agent_count(w));
     assert_true(svc.requests > 0 && m[BGM_M_MESSAGES] > 0);
     if (m[BGM_M_MESSAGES] > bound)
         fail_msg("%s: %.0f messages over the bound %.0f", bgm_mechanism_names[mech],

@@ -22,8 +22,8 @@
 #include "bgm_config.h"
 #include "bgm_market_agent.h"
 #include "bgm_outbox.h"
-#include "bgm_resource.h"
 #include "bgm_purchase.h"
+#include "bgm_resource.h"
 #include "bgm_rng.h"
 #include "bgm_role.h"
 #include "bgm_seller.h"
@@ -1363,8 +1363,8 @@ static void test_buyer_retries_then_fails_at_deadline(void **state)
         last_start = next_start;
         expected++;
     }
-    assert_true(expected >= 3 &&
-                expected <= bgm_budget_attempts(cfg.demand.deadline, cfg.catallactic.retry_backoff));
+    assert_true(expected >= 3 && expected <= bgm_budget_attempts(cfg.demand.deadline,
+                                                                 cfg.catallactic.retry_backoff));
     int calls = 0;
     double last_call = -1.0, failed_at = -1.0;
     for (;;) {
