@@ -32,8 +32,10 @@ struct bgb_client {
     CURL *curl;
     char *url;
     char *authorization; /* "Authorization: Bearer TOKEN", or NULL */
+    char *cacert;        /* the --cacert file, or NULL */
     bgb_client_config_t config;
     long status;
+    char curl_error[CURL_ERROR_SIZE]; /* libcurl's detail of the last failure */
 };
 
 /* ------------------------------------------------ server-sent events */
@@ -200,7 +202,11 @@ bg_status bgb_client_new(const bgb_client_config_t *config, bgb_client_t **out, 
             snprintf(c->authorization, size, "Authorization: Bearer %s", config->token);
     }
     c->config.token = NULL; /* held as the header above */
-    if (!c->url || !c->curl || (config->token && config->token[0] && !c->authorization)) {
+    if (config->cacert && config->cacert[0])
+        c->cacert = strdup(config->cacert);
+    c->config.cacert = c->cacert;
+    if (!c->url || !c->curl || (config->token && config->token[0] && !c->authorization) ||
+        (config->cacert && config->cacert[0] && !c->cacert)) {
         bgb_client_destroy(&c);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the client");
     }
@@ -220,6 +226,7 @@ void bgb_client_destroy(bgb_client_t **client)
         curl_easy_cleanup((*client)->curl);
     free((*client)->url);
     free((*client)->authorization);
+    free((*client)->cacert);
     free(*client);
     *client = NULL;
     /* Pairs bgb_client_new's curl_global_init (libcurl counts them). */
@@ -350,6 +357,10 @@ static bg_status perform(bgb_client_t *c, const char *method, const char *path, 
     curl_easy_setopt(curl, CURLOPT_WRITEFUNCTION, on_body);
     curl_easy_setopt(curl, CURLOPT_WRITEDATA, s);
     curl_easy_setopt(curl, CURLOPT_PROTOCOLS_STR, "http,https");
+    c->curl_error[0] = '\0';
+    curl_easy_setopt(curl, CURLOPT_ERRORBUFFER, c->curl_error);
+    if (c->cacert)
+        curl_easy_setopt(curl, CURLOPT_CAINFO, c->cacert);
     headers = curl_slist_append(headers,
                                 stream ? "Accept: text/event-stream" : "Accept: application/json");
     if (c->authorization)
@@ -399,8 +410,24 @@ static bg_status perform(bgb_client_t *c, const char *method, const char *path, 
                           c->url, curl_easy_strerror(rc));
         goto out;
     }
+    if (rc == CURLE_PEER_FAILED_VERIFICATION || rc == CURLE_SSL_CACERT_BADFILE) {
+        st = bg_error_set(err, BG_ERR_IO,
+                          "%s: the broker's TLS certificate is not trusted (%s): give the "
+                          "certificate of the CA that signed it, or its own when self-signed, "
+                          "with --cacert FILE",
+                          c->url, c->curl_error[0] ? c->curl_error : curl_easy_strerror(rc));
+        goto out;
+    }
+    if (rc == CURLE_GOT_NOTHING && strncmp(c->url, "http://", 7) == 0) {
+        st = bg_error_set(err, BG_ERR_IO,
+                          "%s %s: the broker closed the connection without an answer (does it "
+                          "serve https? then name it https://)",
+                          method, url);
+        goto out;
+    }
     if (rc != CURLE_OK && !(status >= 400 && rc == CURLE_SEND_ERROR)) {
-        st = bg_error_set(err, BG_ERR_IO, "%s %s: %s", method, url, curl_easy_strerror(rc));
+        st = bg_error_set(err, BG_ERR_IO, "%s %s: %s", method, url,
+                          c->curl_error[0] ? c->curl_error : curl_easy_strerror(rc));
         goto out;
     }
     if (status < 200 || status >= 300)

@@ -7,7 +7,9 @@
  * "<METHOD> <url>: <status> <title>: <detail> (field <field>)" and a status
  * by HTTP code: 404 BG_ERR_NOT_FOUND, 409 BG_ERR_CONFLICT, 413
  * BG_ERR_LIMIT, any other 4xx BG_ERR_INVALID, 5xx BG_ERR_IO. A broker that
- * cannot be reached is BG_ERR_IO naming the URL and how to start one.
+ * cannot be reached is BG_ERR_IO naming the URL and how to start one; an
+ * https broker whose certificate is not trusted (or does not name its
+ * host) is BG_ERR_IO saying so and naming --cacert.
  * bgb_client_http_status tells the HTTP status of the last response.
  *
  * Every response body is capped (config.max_response for JSON documents,
@@ -30,6 +32,8 @@ typedef struct bgb_client_config {
     const char *url;         /* the broker's base URL, e.g. "http://127.0.0.1:8080" */
     const char *token;       /* sent as "Authorization: Bearer TOKEN" on every request;
                                 NULL: none (only /healthz and /openapi.json answer then) */
+    const char *cacert;      /* PEM file of the CAs an https broker's certificate must chain
+                                to (e.g. its self-signed certificate); NULL: the system's */
     long connect_timeout_ms; /* 0: 5000 */
     long timeout_ms;         /* a whole request, events streams excepted; 0: 120000 */
     size_t max_response;     /* a JSON response over this is refused; 0: 16 MiB */

@@ -4,6 +4,7 @@
 #include <cJSON.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <gnutls/gnutls.h>
 #include <math.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
@@ -33,6 +34,8 @@
 #define REST_THREADS 8
 /* Memory MHD may use per connection for headers and buffers. */
 #define REST_CONNECTION_MEMORY (64 * 1024)
+/* GnuTLS priorities: its defaults without TLS 1.0 and 1.1. */
+#define REST_TLS_PRIORITIES "NORMAL:-VERS-ALL:+VERS-TLS1.3:+VERS-TLS1.2"
 #define REST_MAX_LIMIT 500
 #define REST_DEFAULT_LIMIT 50
 /* Server-sent events: how long a stream stays silent before sending a
@@ -46,6 +49,8 @@ struct bgb_rest {
     bgb_rest_config_t config;
     bgb_limits_t limits; /* in force (a copy of the config's, or the defaults) */
     char *address, *work_dir, *name, *agents_json, *market;
+    char *tls_cert, *tls_key; /* the PEM texts, held while the server runs */
+    int tls;
     char *(*view)(void *ctx, int what);
     void *view_ctx;
     uint16_t port;
@@ -1299,6 +1304,27 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     return route(rest, c, url, method, req);
 }
 
+/* Loads the pair as the server will, so that a bad file is a message
+ * saying what is wrong with it rather than a server that does not start. */
+static bg_status check_tls_pair(const char *cert_pem, const char *key_pem, bg_error_t *err)
+{
+    if (!cert_pem || !key_pem)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "TLS needs both a certificate and its private key");
+    gnutls_certificate_credentials_t cred = NULL;
+    if (gnutls_certificate_allocate_credentials(&cred) < 0)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the TLS credentials");
+    const gnutls_datum_t cert = {(unsigned char *)cert_pem, (unsigned)strlen(cert_pem)};
+    const gnutls_datum_t key = {(unsigned char *)key_pem, (unsigned)strlen(key_pem)};
+    const int rc = gnutls_certificate_set_x509_key_mem(cred, &cert, &key, GNUTLS_X509_FMT_PEM);
+    gnutls_certificate_free_credentials(cred);
+    if (rc < 0)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "the TLS certificate and key do not load as a PEM pair: %s",
+                            gnutls_strerror(rc));
+    return BG_OK;
+}
+
 static void completed(void *cls, struct MHD_Connection *c, void **con_cls,
                       enum MHD_RequestTerminationCode code)
 {
@@ -1329,6 +1355,7 @@ bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bg
         bgb_limits_resolve(&rest->limits, bgb_limits_ram());
     }
     rest->config.limits = &rest->limits;
+    rest->config.tls_cert_pem = rest->config.tls_key_pem = NULL; /* held below */
     pthread_mutex_init(&rest->streams_lock, NULL);
     rest->address = strdup(config->address ? config->address : "127.0.0.1");
     rest->work_dir = strdup(config->work_dir ? config->work_dir : "/tmp");
@@ -1363,14 +1390,38 @@ bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bg
      * thread, so clients that send half a request or nothing at all cannot
      * take the server away from the others; event streams suspend while
      * they have nothing to send. */
-    rest->daemon = MHD_start_daemon(
-        MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME, config->port,
-        NULL, NULL, handle, rest, MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&addr,
-        MHD_OPTION_NOTIFY_COMPLETED, completed, rest, MHD_OPTION_THREAD_POOL_SIZE,
-        (unsigned)REST_THREADS, MHD_OPTION_CONNECTION_LIMIT, rest->limits.max_connections,
-        MHD_OPTION_PER_IP_CONNECTION_LIMIT, rest->limits.max_connections_per_client,
-        MHD_OPTION_CONNECTION_TIMEOUT, rest->limits.idle_timeout,
-        MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)REST_CONNECTION_MEMORY, MHD_OPTION_END);
+    unsigned flags = MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME;
+    struct MHD_OptionItem options[16];
+    int n = 0;
+#define REST_OPTION(o, v, p) (options[n++] = (struct MHD_OptionItem){(o), (intptr_t)(v), (p)})
+    REST_OPTION(MHD_OPTION_SOCK_ADDR, 0, &addr);
+    REST_OPTION(MHD_OPTION_NOTIFY_COMPLETED, (intptr_t)completed, rest);
+    REST_OPTION(MHD_OPTION_THREAD_POOL_SIZE, REST_THREADS, NULL);
+    REST_OPTION(MHD_OPTION_CONNECTION_LIMIT, rest->limits.max_connections, NULL);
+    REST_OPTION(MHD_OPTION_PER_IP_CONNECTION_LIMIT, rest->limits.max_connections_per_client, NULL);
+    REST_OPTION(MHD_OPTION_CONNECTION_TIMEOUT, rest->limits.idle_timeout, NULL);
+    REST_OPTION(MHD_OPTION_CONNECTION_MEMORY_LIMIT, REST_CONNECTION_MEMORY, NULL);
+    if (config->tls_cert_pem || config->tls_key_pem) {
+        if ((st = check_tls_pair(config->tls_cert_pem, config->tls_key_pem, err)) != BG_OK)
+            goto out;
+        rest->tls_cert = strdup(config->tls_cert_pem);
+        rest->tls_key = strdup(config->tls_key_pem);
+        if (!rest->tls_cert || !rest->tls_key) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the TLS credentials");
+            goto out;
+        }
+        flags |= MHD_USE_TLS;
+        REST_OPTION(MHD_OPTION_HTTPS_MEM_CERT, 0, rest->tls_cert);
+        REST_OPTION(MHD_OPTION_HTTPS_MEM_KEY, 0, rest->tls_key);
+        REST_OPTION(MHD_OPTION_HTTPS_PRIORITIES, 0, (void *)REST_TLS_PRIORITIES);
+        rest->tls = 1;
+    }
+    REST_OPTION(MHD_OPTION_END, 0, NULL);
+#undef REST_OPTION
+    /* MHD_OPTION_NOTIFY_COMPLETED takes the function in value and its
+     * closure in ptr_value through MHD_OPTION_ARRAY. */
+    rest->daemon = MHD_start_daemon(flags, config->port, NULL, NULL, handle, rest,
+                                    MHD_OPTION_ARRAY, options, MHD_OPTION_END);
     if (!rest->daemon) {
         st = bg_error_set(err, BG_ERR_IO, "cannot listen on %s:%u: %s", rest->address,
                           (unsigned)config->port, strerror(errno));
@@ -1396,6 +1447,19 @@ uint16_t bgb_rest_port(const bgb_rest_t *rest)
     return rest->port;
 }
 
+int bgb_rest_tls(const bgb_rest_t *rest)
+{
+    return rest->tls;
+}
+
+int bgb_rest_address_is_loopback(const char *address)
+{
+    struct in_addr a;
+    if (!address || inet_pton(AF_INET, address, &a) != 1)
+        return 0;
+    return (ntohl(a.s_addr) >> 24) == 127;
+}
+
 void bgb_rest_stop(bgb_rest_t **restp)
 {
     if (!restp || !*restp)
@@ -1414,6 +1478,11 @@ void bgb_rest_stop(bgb_rest_t **restp)
     free(rest->name);
     free(rest->agents_json);
     free(rest->market);
+    free(rest->tls_cert);
+    if (rest->tls_key) {
+        gnutls_memset(rest->tls_key, 0, strlen(rest->tls_key)); /* not optimised away */
+        free(rest->tls_key);
+    }
     free(rest);
     *restp = NULL;
 }

@@ -1,9 +1,9 @@
 /*
- * biotgrid broker [--config FILE] [--port N] [--endpoint EP] [--state-dir DIR]
- *                 [--ready-file FILE]
+ * biotgrid broker [--config FILE] [--address A] [--port N] [--tls-cert F --tls-key F]
+ *                 [--insecure] [--endpoint EP] [--state-dir DIR] [--ready-file FILE]
  *
- * Starts the broker, prints "broker NAME ready on http://ADDR:PORT, agents
- * at ENDPOINT", writes "http://ADDR:PORT ENDPOINT PID" to the ready file
+ * Starts the broker, prints "broker NAME ready on URL, agents at
+ * ENDPOINT" (URL http[s]://ADDR:PORT), writes "URL ENDPOINT PID" to the ready file
  * if asked (written to a temporary name and renamed, so a reader never
  * sees half a line), and runs until SIGTERM or SIGINT.
  */
@@ -19,12 +19,14 @@
 #include "bgb_broker.h"
 
 const char bg_cmd_broker_usage[] =
-    "usage: biotgrid broker [--config FILE] [--port N] [--endpoint ENDPOINT]\n"
-    "                       [--state-dir DIR] [--ready-file FILE]\n"
+    "usage: biotgrid broker [--config FILE] [--address A] [--port N]\n"
+    "                       [--tls-cert FILE --tls-key FILE] [--insecure]\n"
+    "                       [--endpoint ENDPOINT] [--state-dir DIR] [--ready-file FILE]\n"
     "Runs the broker: the REST API (default http://127.0.0.1:8080), the job store\n"
     "(STATE_DIR/broker.sqlite, default out/broker) and the ZeroMQ endpoint agents\n"
     "connect to (default tcp://127.0.0.1:5570), until SIGTERM or SIGINT.\n"
-    "  --config FILE       JSON object with keys name, address, port, endpoint,\n"
+    "  --config FILE       JSON object with keys name, address, port, tls_cert,\n"
+    "                      tls_key, insecure, endpoint,\n"
     "                      state_dir, max_jobs, agent_timeout_ms, the limits\n"
     "                      (memory_fraction, max_vertices, max_elements, max_work,\n"
     "                      max_body, max_jobs_in_flight, max_stored_bytes,\n"
@@ -34,7 +36,13 @@ const char bg_cmd_broker_usage[] =
     "                      market ({period, k, heartbeat_timeout, reply_timeout,\n"
     "                      buy_timeout, overlay_degree, hops, max_rounds,\n"
     "                      max_contracts}: the live market's settings)\n"
+    "  --address A         REST IPv4 address (default 127.0.0.1; 0.0.0.0: every one)\n"
     "  --port N            REST port (0: an ephemeral one); overrides the config\n"
+    "  --tls-cert FILE     serve REST over TLS with this PEM certificate (chain)...\n"
+    "  --tls-key FILE      ...and its PEM private key; clients trust it with --cacert\n"
+    "  --insecure          serve plain HTTP beyond loopback anyway: without TLS an\n"
+    "                      address other than 127.x is refused, as it would show\n"
+    "                      every bearer token to the network\n"
     "  --endpoint EP       ZeroMQ ROUTER endpoint (port * : an ephemeral one)\n"
     "  --state-dir DIR     where the store and the jobs' folders live\n"
     "  --ready-file FILE   write \"URL ENDPOINT PID\" there once serving\n"
@@ -71,9 +79,17 @@ int bg_cmd_broker(int argc, char **argv)
             rc = BG_EXIT_OK;
             goto out;
         }
-        if (strcmp(a, "--config") != 0 && strcmp(a, "--port") != 0 &&
-            strcmp(a, "--endpoint") != 0 && strcmp(a, "--state-dir") != 0 &&
-            strcmp(a, "--ready-file") != 0) {
+        if (strcmp(a, "--insecure") == 0) {
+            config.insecure = 1;
+            continue;
+        }
+        static const char *const valued[] = {"--config",   "--port",     "--endpoint",
+                                             "--state-dir", "--ready-file", "--address",
+                                             "--tls-cert", "--tls-key",  NULL};
+        int known = 0;
+        for (int k = 0; valued[k]; k++)
+            known |= strcmp(a, valued[k]) == 0;
+        if (!known) {
             fprintf(stderr, "biotgrid broker: unknown option '%s' (see biotgrid broker --help)\n",
                     a);
             goto out;
@@ -99,8 +115,11 @@ int bg_cmd_broker(int argc, char **argv)
             config.port = (int)p;
         } else if (strcmp(a, "--ready-file") == 0) {
             ready_file = v;
-        } else if (set_string(strcmp(a, "--endpoint") == 0 ? &config.endpoint
-                                                           : &config.state_dir,
+        } else if (set_string(strcmp(a, "--endpoint") == 0    ? &config.endpoint
+                              : strcmp(a, "--address") == 0   ? &config.address
+                              : strcmp(a, "--tls-cert") == 0  ? &config.tls_cert
+                              : strcmp(a, "--tls-key") == 0   ? &config.tls_key
+                                                              : &config.state_dir,
                               v) != 0) {
             fprintf(stderr, "biotgrid broker: out of memory\n");
             rc = BG_EXIT_FAILED;
@@ -114,8 +133,11 @@ int bg_cmd_broker(int argc, char **argv)
         goto out;
     }
     char url[128];
-    snprintf(url, sizeof url, "http://%s:%u", config.address,
-             (unsigned)bgb_broker_rest_port(broker));
+    if (bgb_broker_rest_url(broker, url, sizeof url) != 0) {
+        fprintf(stderr, "biotgrid broker: the REST address %s is too long\n", config.address);
+        rc = BG_EXIT_BAD_INPUT;
+        goto out;
+    }
     char ready[1024];
     const int ready_length = snprintf(ready, sizeof ready, "%s %s %ld\n", url,
                                       bgb_broker_endpoint(broker), (long)getpid());

@@ -26,6 +26,8 @@
     "  --token T           the bearer token (default $" BG_CMD_TOKEN_ENV ", else the local\n"       \
     "                      grid's, written by `biotgrid grid up`; `biotgrid token create`\n"     \
     "                      makes more)\n"                                                         \
+    "  --cacert FILE       trust an https broker whose certificate chains to FILE\n"             \
+    "                      (default $" BG_CMD_CACERT_ENV ", else the system's CAs)\n"             \
     "  --json              print the broker's JSON document instead of text\n"
 
 const char bg_cmd_submit_usage[] =
@@ -86,7 +88,7 @@ enum {
 typedef struct options {
     const char *command;
     const char *usage;
-    const char *broker, *token;
+    const char *broker, *token, *cacert;
     int json, wait;
     const char *mechanism;
     double budget;
@@ -144,6 +146,7 @@ static int parse(int argc, char **argv, unsigned allowed, int positional, const 
             unsigned bit;
         } valued[] = {{"--broker", 0},
                       {"--token", 0},
+                      {"--cacert", 0},
                       {"--mechanism", OPT_MECHANISM},
                       {"--budget", OPT_BUDGET},
                       {"--idempotency-key", OPT_KEY},
@@ -163,6 +166,8 @@ static int parse(int argc, char **argv, unsigned allowed, int positional, const 
             const unsigned bit = valued[matched].bit;
             if (bit == 0 && strcmp(a, "--token") == 0) {
                 o->token = v;
+            } else if (bit == 0 && strcmp(a, "--cacert") == 0) {
+                o->cacert = v;
             } else if (bit == 0) {
                 o->broker = v;
             } else if (bit == OPT_MECHANISM) {
@@ -235,7 +240,8 @@ static int start(int argc, char **argv, unsigned allowed, int positional, const 
         snprintf(url, sizeof url, "%s", BG_CMD_DEFAULT_BROKER);
     char token[BG_CMD_TOKEN_MAX];
     bg_cmd_token_find(o->token, bg_cmd_grid_dir(NULL), token, sizeof token);
-    const bgb_client_config_t config = {.url = url, .token = token};
+    const bgb_client_config_t config = {
+        .url = url, .token = token, .cacert = bg_cmd_cacert_find(o->cacert)};
     bg_error_t err = BG_ERROR_INIT;
     if (bgb_client_new(&config, client, &err) != BG_OK)
         return fail(o, &err);

@@ -54,6 +54,12 @@ void bg_cmd_token_find(const char *given, const char *grid_dir, char *out, size_
     free(text);
 }
 
+const char *bg_cmd_cacert_find(const char *given)
+{
+    const char *env = getenv(BG_CMD_CACERT_ENV);
+    return given ? given : env && env[0] ? env : NULL;
+}
+
 int bg_cmd_job_mechanism_ok(const char *name)
 {
     return strcmp(name, "central") == 0 || strcmp(name, "catallactic") == 0 ||

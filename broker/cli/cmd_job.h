@@ -56,6 +56,12 @@ int bg_cmd_grid_broker(const char *dir, char *url, size_t size);
  */
 void bg_cmd_token_find(const char *given, const char *grid_dir, char *out, size_t size);
 
+/* The CA file an https broker's certificate is checked against: `given`
+ * (--cacert) when not NULL, else $BIOTGRID_CACERT when set, else NULL
+ * (the system's CAs). */
+#define BG_CMD_CACERT_ENV "BIOTGRID_CACERT"
+const char *bg_cmd_cacert_find(const char *given);
+
 /* A --mechanism value: 1 for central, catallactic or posted. */
 int bg_cmd_job_mechanism_ok(const char *name);
 

@@ -174,7 +174,8 @@ int bg_cmd_solve_on_broker(const bg_cmd_broker_solve_t *r)
         rc = BG_EXIT_BAD_INPUT;
         goto out;
     }
-    const bgb_client_config_t config = {.url = r->url, .token = r->token};
+    const bgb_client_config_t config = {
+        .url = r->url, .token = r->token, .cacert = bg_cmd_cacert_find(NULL)};
     if (bgb_client_new(&config, &client, &err) != BG_OK) {
         rc = failed(NULL, &err);
         goto out;
