@@ -390,13 +390,33 @@ static const char *protocol_reason(uint32_t code, int server)
     }
 }
 
-static void remember(watch_t *w, int fd)
+/* The port of a sockaddr (0: not IP). */
+static unsigned port_of(const struct sockaddr_storage *sa)
 {
-    struct sockaddr_storage sa;
-    socklen_t len = sizeof sa;
+    if (sa->ss_family == AF_INET)
+        return ntohs(((const struct sockaddr_in *)sa)->sin_port);
+    if (sa->ss_family == AF_INET6)
+        return ntohs(((const struct sockaddr_in6 *)sa)->sin6_port);
+    return 0;
+}
+
+/*
+ * The peer's address of an accepted connection, read from its fd as the
+ * event arrives. libzmq may have closed the fd already (a peer refused at
+ * once), and the number may then name another socket of the process: the
+ * fd counts only while its local port is the listening endpoint's
+ * (`local`, the event's tcp://HOST:PORT).
+ */
+static void remember(watch_t *w, int fd, const char *local)
+{
+    struct sockaddr_storage sa, mine;
+    socklen_t len = sizeof sa, mine_len = sizeof mine;
     char host[64] = "?";
     unsigned port = 0;
-    if (getpeername(fd, (struct sockaddr *)&sa, &len) == 0) {
+    const char *colon = strrchr(local, ':');
+    const unsigned listening = colon ? (unsigned)strtoul(colon + 1, NULL, 10) : 0;
+    if (getsockname(fd, (struct sockaddr *)&mine, &mine_len) == 0 && port_of(&mine) == listening &&
+        getpeername(fd, (struct sockaddr *)&sa, &len) == 0) {
         if (sa.ss_family == AF_INET) {
             const struct sockaddr_in *in = (const struct sockaddr_in *)&sa;
             inet_ntop(AF_INET, &in->sin_addr, host, sizeof host);
@@ -418,14 +438,15 @@ static void remember(watch_t *w, int fd)
     w->conn[slot].fd = fd;
     if (port)
         snprintf(w->conn[slot].address, sizeof w->conn[slot].address, "%s:%u", host, port);
-    else /* closed before it could be read */
-        snprintf(w->conn[slot].address, sizeof w->conn[slot].address, "an unknown address");
+    else /* closed before it could be read: the peer's next try shows it */
+        snprintf(w->conn[slot].address, sizeof w->conn[slot].address,
+                 "a peer gone before its address was read");
 }
 
 /* The address an accepted connection had, forgotten as it closes. */
 static void recall(watch_t *w, int fd, char *out, size_t size)
 {
-    snprintf(out, size, "an unknown address");
+    snprintf(out, size, "a peer whose address was not read");
     for (int i = 0; i < CONNECTIONS; i++)
         if (w->conn[i].fd == fd && w->conn[i].address[0]) {
             snprintf(out, size, "%s", w->conn[i].address);
@@ -455,7 +476,7 @@ static void on_event(bga_zap_t *z, watch_t *w, uint16_t event, uint32_t value, c
     if (w->server) {
         switch (event) {
         case ZMQ_EVENT_ACCEPTED:
-            remember(w, (int)value);
+            remember(w, (int)value, peer);
             return;
         case ZMQ_EVENT_HANDSHAKE_SUCCEEDED:
             w->pending = 0;
@@ -742,6 +763,17 @@ bg_status bga_zap_watch(bga_zap_t *z, void *socket, const char *label, int serve
         return bg_error_set(err, BG_ERR_LIMIT, "cannot watch %s: %d sockets are watched already",
                             label, BGA_ZAP_MAX_WATCHES);
     return BG_OK;
+}
+
+bg_status bga_zap_check_folder(const char *folder, int *count, bg_error_t *err)
+{
+    allow_t a;
+    *count = 0;
+    const bg_status st = load_folder(folder, &a, NULL, err);
+    if (st == BG_OK)
+        *count = a.n;
+    allow_free(&a);
+    return st;
 }
 
 int bga_zap_count(const bga_zap_t *z)

@@ -86,6 +86,11 @@ bg_status bga_zap_new(void *zmq_ctx, const bga_zap_config_t *config, bga_zap_t *
 bg_status bga_zap_watch(bga_zap_t *zap, void *socket, const char *label, int server,
                         bg_error_t *err);
 
+/* Reads a folder of NAME.pub files as bga_zap_new does (strictly) and
+ * counts its keys, starting nothing: a daemon refuses a bad folder before
+ * it makes any state. BG_ERR_INVALID naming the folder or the file. */
+bg_status bga_zap_check_folder(const char *folder, int *count, bg_error_t *err);
+
 /* Keys in the allowlist when it was made. */
 int bga_zap_count(const bga_zap_t *zap);
 
