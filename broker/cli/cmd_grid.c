@@ -1115,7 +1115,12 @@ const char bg_cmd_grid_usage[] =
     "broker (REST on --broker-port, 0: an ephemeral port; agents' endpoint\n"
     "--broker-endpoint) and `down` stops it first. The agents sell the machine's\n"
     "cores and memory on the broker's market, one of them for all (the others stand\n"
-    "by); a \"host\" object in FILE, {\"cores\": N, \"memory\": GIB}, says how many.\n";
+    "by); a \"host\" object in FILE, {\"cores\": N, \"memory\": GIB}, says how many.\n"
+    "\"security\": \"curve\" in FILE encrypts every ZeroMQ link of the grid: `up` keeps a\n"
+    "key pair per process in DIR/keys and the broker admits the agents' public keys\n"
+    "in DIR/authorized (add a remote agent's NAME.pub there); without it every\n"
+    "endpoint must be loopback. `status` also lists the agents registered with the\n"
+    "broker that `up` did not start, with their address and key.\n";
 
 static void usage(FILE *out)
 {
