@@ -1,10 +1,11 @@
 #!/bin/sh
 # job.sh BIOTGRID STATE WORK SCENE
-# A job across hosts (the fixture's namespaces, netns.sh): a CURVE broker
+# A job across hosts (its own namespaces, netns.sh): a CURVE broker
 # on one host, an agent on each of two others, each with its own key in
 # the broker's allowlist and each host selling its own cores; the job's
 # rotation fit runs on both hosts and its energy is `biotgrid solve`'s in
-# process (1e-10 relative); /v1/agents shows each agent with its host's
+# process (1e-10 relative) and its bytes crossed the bridge's port of
+# each agent's host; /v1/agents shows each agent with its host's
 # address and its key; every daemon stops on SIGTERM with status 0.
 set -u
 bin=$1 state=$2 work=$3 scene=$4
@@ -47,6 +48,9 @@ for h in h1 h2; do
   check $? "/v1/agents: agent-$h from $ip with its key, both its roles"
 done
 
+# The bridge's counters: the job's traffic must cross it, port by port.
+port_bytes() { ip -n "$NS_SW" -s -j link show "v$1" | jq '.[0].stats64.rx.bytes + .[0].stats64.tx.bytes'; }
+for h in h1 h2; do eval "before_$h=\$(port_bytes $h)"; done
 jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "posted", budget: 100}' >"$work/submit.json"
 id=$(submit_job "$url" "$work/submit.json")
 st=$(wait_job "$url" "$id" 300)
@@ -60,6 +64,14 @@ for ip in "$IP_H1" "$IP_H2"; do
     '[.agents[] | select(.service == "rotation-fit" and .calls > 0 and (.endpoint | startswith($p)))] | length == 1' \
     "$work/report.json" >/dev/null
   check $? "the rotation fit computed on the host at $ip"
+done
+for h in h1 h2; do
+  eval "b=\$before_$h"
+  a=$(port_bytes $h)
+  sent=$(jq '[.agents[] | select(.endpoint | startswith("tcp://" + $ip + ":")) | .bytes_sent] | add // 0' \
+    --arg ip "$(eval echo \$IP_$(echo $h | tr a-z A-Z))" "$work/report.json")
+  [ $((a - b)) -ge "${sent%.*}" ] && [ "${sent%.*}" -gt 0 ]
+  check $? "the bridge port of $h carried the job's traffic to it ($((a - b)) bytes >= $sent sent)"
 done
 jq -e '[.agents[] | select(.service == "sparse-solve" and .calls > 0)] | length == 1' \
   "$work/report.json" >/dev/null

@@ -1,7 +1,13 @@
 # mh_lib.sh — sourced by the multi-host tests (after broker_lib.sh): the
-# fixture's hosts (netns.sh), and daemons started on them.
-#   mh_begin STATE WORK        loads STATE/env, or exits 77 (skipped) saying
-#                              why the fixture could not be made; WORK emptied
+# test's own hosts (netns.sh), and daemons started on them.
+#   mh_begin FIXTURE WORK      WORK emptied, then this test's own hosts made
+#                              (netns.sh up WORK/net, the run listed in
+#                              FIXTURE/runs) and their env loaded, or exit 77
+#                              (skipped) saying why they cannot be made; on
+#                              any exit (a failure, a signal) the daemons
+#                              still running are stopped and the namespaces
+#                              removed (netns.sh down: one that still held a
+#                              process, or could not be removed, fails the test)
 #   mh_keys DIR NAME...        a key pair DIR/NAME.{key,pub} per name
 #   mh_broker NS NAME STATE ARGS...
 #                              `biotgrid broker --state-dir STATE` on host NS
@@ -16,20 +22,42 @@
 #   bcurl ARGS...              curl on the broker's host with the token
 #   wait_for FILE SECONDS TEXT whether FILE holds the fixed TEXT within SECONDS
 # Every daemon runs under `setpriv --pdeathsig KILL`: it dies with
-# the test's shell, and the fixture's cleanup stops whatever is left.
+# the test's shell even when that is SIGKILLed, and the fixture's sweep
+# (multihost.net_down) removes any namespace a killed test left.
 
 mh_begin() {
-  _state=$1 work=$2
-  if [ ! -s "$_state/env" ]; then
-    echo "SKIPPED: the multi-host fixture was not made: $(cat "$_state/skip" 2>/dev/null || echo "no $_state/env")"
+  _fixture=$1 work=$2
+  if [ -e "$_fixture/skip" ]; then
+    echo "SKIPPED: network namespaces cannot be made here: $(cat "$_fixture/skip")"
     exit 77
   fi
-  . "$_state/env"
   rm -rf "$work"
-  mkdir -p "$work"
+  mkdir -p "$work" "$_fixture"
   fail=0
   mh_daemons=""
-  trap 'mh_stop_all; exit 1' INT TERM
+  trap 'mh_end' EXIT
+  trap 'exit 1' INT TERM HUP
+  sh "$here/netns.sh" up "$work/net" "$_fixture"
+  _rc=$?
+  if [ $_rc -eq 77 ]; then
+    trap - EXIT
+    echo "SKIPPED: $(cat "$work/net/skip" 2>/dev/null)"
+    exit 77
+  fi
+  [ $_rc -eq 0 ] || { echo "FAIL: the test's namespaces were not made" >&2; exit 1; }
+  . "$work/net/env"
+}
+
+# The EXIT trap: what runs is stopped, the namespaces removed; the test's
+# status is kept, or made a failure when the removal found a leftover.
+mh_end() {
+  _rc=$?
+  trap - EXIT
+  [ -z "$mh_daemons" ] || { echo "stopping the daemons still running (the test ended early)"; mh_stop_all; }
+  sh "$here/netns.sh" down "$work/net" || _rc=1
+  [ -z "$(ip netns list 2>/dev/null | awk '{print $1}' | grep "^$RUN-")" ] ||
+    { echo "FAIL: namespaces of run $RUN left" >&2; _rc=1; }
+  exit $_rc
 }
 
 mh_keys() {

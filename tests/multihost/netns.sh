@@ -1,26 +1,35 @@
 #!/bin/sh
-# netns.sh up|down STATE_DIR
-# The multi-host fixture: hosts as Linux network namespaces joined by a
-# bridge, all on this machine.
+# netns.sh up|down|probe|sweep STATE_DIR [FIXTURE_DIR]
+# The multi-host hosts: Linux network namespaces joined by a bridge, all
+# on this machine. Each test makes its own (up, from mh_begin) and removes
+# them on any exit (down, from its EXIT trap), so no namespace outlives
+# the test that made it; the CTest fixture only probes and sweeps.
 #
-#   up    makes, for one test run, namespaces RUN-sw (the switch: a bridge
+#   up    makes, for one test, namespaces RUN-sw (the switch: a bridge
 #         and one veth per host, nothing else), RUN-b (the broker's host),
 #         RUN-h1 and RUN-h2 (two agents' hosts) and RUN-x (a stranger's
 #         host), each host on the bridge through its own veth pair with an
 #         address 10.77.N.* /24, N chosen so no interface of this machine
 #         is in that subnet. RUN is unique per run (the PID and random
-#         bytes). The switch has no link to this machine's namespace and
-#         no host has a route beyond 10.77.N.0/24, so no packet leaves the
-#         bridge. It checks every host reaches the broker's host, writes
-#         STATE_DIR/env (the names and addresses, for the tests) and exits
-#         0; where namespaces cannot be made (not root, no `ip`, no veth
-#         or bridge support) it says why in STATE_DIR/skip, undoes what it
-#         made and exits 77 (CTest SKIP_RETURN_CODE: skipped, never passed).
+#         bytes) and is appended to FIXTURE_DIR/runs when given. The switch
+#         has no link to this machine's namespace and no host has a route
+#         beyond 10.77.N.0/24, so no packet leaves the bridge. It checks
+#         every host reaches the broker's host, writes STATE_DIR/env (the
+#         names and addresses, for the tests) and exits 0; where namespaces
+#         cannot be made (not root, no `ip`, no veth or bridge support) it
+#         says why in STATE_DIR/skip, undoes what it made and exits 77
+#         (CTest SKIP_RETURN_CODE: skipped, never passed).
 #   down  stops every process still in the run's namespaces (SIGTERM,
 #         SIGKILL after 5 s; one found there outlived its test: a failure),
 #         deletes the namespaces (the bridge and veths go with them),
 #         checks nothing of the run is left and exits 0, or 1 if something
 #         was; 77 when up was skipped.
+#   probe up then down at once (multihost.net_up, the FIXTURES_SETUP):
+#         exits 0 when namespaces can be made here, else 77 with the reason
+#         in STATE_DIR/skip, which the tests then report as their skip.
+#   sweep (multihost.net_down, the FIXTURES_CLEANUP, run after a failure
+#         or a timeout too): every run listed in STATE_DIR/runs whose
+#         namespaces are still there is removed, and that is a failure.
 #
 # Tests run a command on a host with:
 #   . STATE_DIR/env && host_exec "$NS_B" biotgrid ...
@@ -28,8 +37,9 @@
 # test's shell whatever kills that (a CTest timeout included).
 set -u
 SKIP=77
-mode=${1:-} state=${2:-}
-[ -n "$mode" ] && [ -n "$state" ] || { echo "usage: netns.sh up|down STATE_DIR" >&2; exit 2; }
+mode=${1:-} state=${2:-} fixture=${3:-}
+usage="usage: netns.sh up|down|probe|sweep STATE_DIR [FIXTURE_DIR]"
+[ -n "$mode" ] && [ -n "$state" ] || { echo "$usage" >&2; exit 2; }
 
 say() { echo "netns: $*"; }
 
@@ -69,6 +79,32 @@ remove_run() {
   done
 }
 
+if [ "$mode" = probe ]; then
+  sh "$0" up "$state/probe" || {
+    rc=$?
+    [ -e "$state/probe/skip" ] && cp "$state/probe/skip" "$state/skip"
+    exit $rc
+  }
+  sh "$0" down "$state/probe"
+  exit $?
+fi
+
+if [ "$mode" = sweep ]; then
+  [ -e "$state/skip" ] && { say "nothing to sweep: skipped ($(cat "$state/skip"))"; exit $SKIP; }
+  leftover=0
+  for r in $(cat "$state/runs" 2>/dev/null); do
+    if ip netns list 2>/dev/null | awk '{print $1}' | grep -q "^$r-"; then
+      say "FAIL: the namespaces of run $r outlived their test"
+      leftover=1
+      remove_run "$r"
+    fi
+  done
+  left=$(ip netns list 2>/dev/null | awk '{print $1}' | grep -E "^($(cat "$state/runs" 2>/dev/null | tr '\n' '|')x)-" )
+  [ -z "$left" ] || { say "FAIL: namespaces left: $left"; exit 1; }
+  say "no namespace of this group's $(wc -l <"$state/runs" 2>/dev/null || echo 0) run(s) is left"
+  exit $leftover
+fi
+
 if [ "$mode" = down ]; then
   if [ -e "$state/skip" ]; then
     say "nothing to remove: the fixture was skipped ($(cat "$state/skip"))"
@@ -87,14 +123,15 @@ if [ "$mode" = down ]; then
   exit $leftover
 fi
 
-[ "$mode" = up ] || { echo "usage: netns.sh up|down STATE_DIR" >&2; exit 2; }
+[ "$mode" = up ] || { echo "$usage" >&2; exit 2; }
 rm -rf "$state"
 mkdir -p "$state"
 [ "$(id -u)" = 0 ] || skip "network namespaces need root (uid $(id -u))"
 command -v ip >/dev/null 2>&1 || skip "no 'ip' command (iproute2)"
 
 RUN="bgmh$$$(od -An -N3 -tx1 /dev/urandom | tr -d ' \n')"
-trap 'remove_run "$RUN"; exit 1' INT TERM
+trap 'remove_run "$RUN"; exit 1' INT TERM HUP
+[ -z "$fixture" ] || echo "$RUN" >>"$fixture/runs"
 ip netns add "$RUN-sw" 2>"$state/why" ||
   skip "cannot make a network namespace: $(cat "$state/why")"
 

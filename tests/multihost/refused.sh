@@ -1,6 +1,6 @@
 #!/bin/sh
 # refused.sh BIOTGRID STATE WORK
-# Strangers on the network (the fixture's namespaces, netns.sh): a CURVE
+# Strangers on the network (its own namespaces, netns.sh): a CURVE
 # broker admits the agent whose key it lists (from another host) and
 # refuses, from a third host, an agent with a key it does not list and a
 # plaintext agent; the broker logs each refusal with the peer's address
