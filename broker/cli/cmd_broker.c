@@ -152,8 +152,7 @@ int bg_cmd_broker(int argc, char **argv)
     printf("broker %s ready on %s, agents at %s\nlimits:\n%s", config.name, url,
            bgb_broker_endpoint(broker), limits);
     fflush(stdout);
-    while (!bg_cmd_stop_requested)
-        pause();
+    bg_cmd_wait_for_stop();
     rc = BG_EXIT_OK;
 out:
     bgb_broker_stop(&broker);
