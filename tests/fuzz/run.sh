@@ -8,6 +8,12 @@
 # FUZZ_BIN      the folder of the fuzz_NAME executables (default: build-fuzz/tests/fuzz)
 # FUZZ_WORK     where the grown corpora and crash files go (default: $FUZZ_BIN/work)
 # FUZZ_WORKERS  libFuzzer processes per harness (-fork=N), 1 by default
+# FUZZ_RUNS     stop a harness after this many executions if it gets there
+#               before SECONDS (-runs=N; one process only)
+#
+# Each input may take 10 s and one allocation 64 MB at most: inputs are
+# a few KB, so anything more is a hang or an allocation the input does not
+# justify, and is reported (timeout-*, oom-*) like a crash.
 #
 # The checked-in corpus (tests/fuzz/corpus/NAME) is read, never written:
 # new inputs go to $FUZZ_WORK/NAME/corpus, crashes to $FUZZ_WORK/NAME/ as
@@ -38,13 +44,17 @@ for name in $names; do
     mkdir -p "$dir/corpus"
     log=$dir/fuzz.log
     before=$(load)
+    start=$(date +%s)
     fork=""
     [ "$workers" -gt 1 ] && fork="-fork=$workers -ignore_crashes=1"
+    runs=""
+    [ -n "${FUZZ_RUNS:-}" ] && [ -z "$fork" ] && runs="-runs=$FUZZ_RUNS"
     # shellcheck disable=SC2086
     (cd "$dir" && "$exe" -max_total_time="$seconds" -print_final_stats=1 -timeout=10 \
-        -rss_limit_mb=2048 -artifact_prefix="$dir/" $fork \
+        -rss_limit_mb=2048 -malloc_limit_mb=64 -artifact_prefix="$dir/" $fork $runs \
         "$dir/corpus" "$here/corpus/$name" >"$log" 2>&1)
     after=$(load)
+    took=$(($(date +%s) - start))
     # One process: its final stats; -fork: the last status line's count.
     execs=$(grep 'stat::number_of_executed_units' "$log" | awk '{s += $2} END {print s + 0}')
     if [ -n "$fork" ]; then
@@ -53,7 +63,7 @@ for name in $names; do
     crashes=$(find "$dir" -maxdepth 1 \( -name 'crash-*' -o -name 'leak-*' -o -name 'timeout-*' \
         -o -name 'oom-*' \) | wc -l)
     [ "$crashes" -gt 0 ] && failed=1
-    rows="$rows| $name | $seconds | ${execs:-0} | $crashes | $before → $after |
+    rows="$rows| $name | $took | ${execs:-0} | $crashes | $before → $after |
 "
     echo "fuzz_$name: ${execs:-0} executions, $crashes crashes (log: $log)" >&2
 done
