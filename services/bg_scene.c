@@ -1266,6 +1266,9 @@ static bg_status parse_handles(parser_t *p, const cJSON *item)
         return fail(p, BG_ERR_INVALID, "handles", "expected an array, got %s",
                     json_type_name(item));
     int count = item ? cJSON_GetArraySize(item) : 0;
+    if (count > BG_SCENE_MAX_HANDLES)
+        return fail(p, BG_ERR_LIMIT, "handles", "%d handles, over the limit of %d", count,
+                    BG_SCENE_MAX_HANDLES);
     bg_status st = BG_OK;
     p->owner = malloc((n + 1) * sizeof *p->owner);
     p->flag = calloc((size_t)s->mesh->nv + 1, 1);

@@ -23,6 +23,10 @@
 
 /* Scene files larger than this are refused. */
 #define BG_SCENE_MAX_BYTES ((size_t)16 << 20)
+/* Handles a scene may have: each one's selection scans every vertex, so
+ * without a cap a 16 MB scene of tiny handles costs handles × vertices
+ * (minutes on a million vertices). */
+#define BG_SCENE_MAX_HANDLES 1024
 
 typedef enum bg_method {
     BG_METHOD_NEWTON = 0,         /* static */
