@@ -10,16 +10,10 @@ set -u
 bin=$1 work=$2 scene=$3
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
-mkdir -p "$work"
-fail=0
-trap 'stop_broker "$work" b; exit 1' INT TERM
+broker_test_begin "$work"
 # A fixed pool (nothing listens on the discard port): the coordinator
 # prepares the job at once instead of waiting for a market agent.
-cat >"$work/broker.json" <<JSON
-{"name": "prep", "port": 0, "endpoint": "tcp://127.0.0.1:*", "state_dir": "$work/state",
- "agents": [{"endpoint": "tcp://127.0.0.1:9", "services": "rotfit,solve"}]}
-JSON
+broker_config "$work" prep '{"agents": [{"endpoint": "tcp://127.0.0.1:9", "services": "rotfit,solve"}]}'
 # 345,600 tetrahedra: preparing takes seconds, well inside the limits.
 jq '.mesh.cells = [100, 24, 24] | .name = "big-bar"' "$scene" >"$work/scene.json"
 jq -n --slurpfile s "$work/scene.json" '{scene: $s[0], mechanism: "central", budget: 100}' \
