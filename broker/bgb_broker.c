@@ -953,10 +953,10 @@ static bg_status watch_solve_factor(void *session, int id, double shift, bg_erro
     WATCH_FORWARD(USE_SOLVE, solve_factor, id, shift);
 }
 
-static bg_status watch_solve(void *session, int id, const double *rhs, double *x,
+static bg_status watch_solve(void *session, int id, int nrhs, const double *rhs, double *x,
                              bg_error_t *err)
 {
-    WATCH_FORWARD(USE_SOLVE, solve, id, rhs, x);
+    WATCH_FORWARD(USE_SOLVE, solve, id, nrhs, rhs, x);
 }
 
 static void watch_solve_cost(void *session, int id, double *flops, double *nonzeros)

@@ -311,8 +311,10 @@ static bg_status lg_factor(problem_t *p, bg_error_t *err)
 static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
 {
     const int32_t nv = p->mesh->nv;
-    p->lg_rhs = malloc(((size_t)nv + 1) * sizeof *p->lg_rhs);
-    p->lg_x = malloc(((size_t)nv + 1) * sizeof *p->lg_x);
+    /* Room for every coordinate of one system side by side: the
+     * coordinates that share a Laplacian are solved as one block. */
+    p->lg_rhs = malloc((3 * (size_t)nv + 1) * sizeof *p->lg_rhs);
+    p->lg_x = malloc((3 * (size_t)nv + 1) * sizeof *p->lg_x);
     if (!p->lg_rhs || !p->lg_x)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for local/global");
     const double scale = 2.0 * scene->material.mu + scene->material.lambda;
@@ -613,50 +615,75 @@ static bg_status push_trace(bg_solve_result_t *r, int *cap, const bg_trace_point
     return BG_OK;
 }
 
-/* Local/global direction: each coordinate's block solved with its own
- * prefactored Laplacian; *slope as for solve_direction. */
-static bg_status lg_direction(problem_t *p, double *slope, bg_error_t *err)
+/*
+ * out = (c L)⁻¹ r on the free coordinates (r and out: nfree values, may
+ * not alias): local/global's fixed matrix, block diagonal with one scalar
+ * Laplacian per coordinate. The coordinates that share a Laplacian (the
+ * same free vertices: usually all three) go to it as one block of
+ * right-hand sides, so the factor is streamed from memory once per
+ * iteration instead of once per coordinate, and an agent is asked once.
+ */
+static bg_status lg_solve(problem_t *p, const double *restrict r, double *restrict out,
+                          bg_error_t *err)
 {
     const int32_t nv = p->mesh->nv;
-    double s = 0.0;
-    for (int c = 0; c < p->n; c++) {
-        bg_sparse_t *sys = p->lg[p->lg_system[c]];
-        if (!sys)
+    for (int s = 0; s < p->n; s++) {
+        if (!p->lg[s])
             continue;
-        const int32_t *idx = p->lg_index[c];
+        const size_t size = (size_t)bg_sparse_size(p->lg[s]);
+        int cols[3], ncols = 0;
+        for (int c = 0; c < p->n; c++)
+            if (p->lg_system[c] == s)
+                cols[ncols++] = c;
         double tv = bg_clock_now();
-        for (int32_t v = 0; v < nv; v++)
-            if (idx[v] >= 0)
-                p->lg_rhs[idx[v]] = p->rhs[p->free_index[(size_t)v * p->n + c]];
+        for (int k = 0; k < ncols; k++) {
+            const int c = cols[k];
+            const int32_t *idx = p->lg_index[c];
+            double *col = p->lg_rhs + (size_t)k * size;
+            for (int32_t v = 0; v < nv; v++)
+                if (idx[v] >= 0)
+                    col[idx[v]] = r[p->free_index[(size_t)v * p->n + c]];
+        }
         p->vector_seconds += bg_clock_now() - tv;
-        bg_status st =
-            p->backend->ops->solve(p->session, 1 + p->lg_system[c], p->lg_rhs, p->lg_x, err);
+        bg_status st = p->backend->ops->solve(p->session, 1 + s, ncols, p->lg_rhs, p->lg_x, err);
         if (st != BG_OK)
             return st;
         tv = bg_clock_now();
-        for (int32_t v = 0; v < nv; v++)
-            if (idx[v] >= 0) {
-                const int32_t f = p->free_index[(size_t)v * p->n + c];
-                p->step[f] = p->lg_x[idx[v]];
-                s -= p->rhs[f] * p->step[f];
-            }
+        for (int k = 0; k < ncols; k++) {
+            const int c = cols[k];
+            const int32_t *idx = p->lg_index[c];
+            const double *col = p->lg_x + (size_t)k * size;
+            for (int32_t v = 0; v < nv; v++)
+                if (idx[v] >= 0)
+                    out[p->free_index[(size_t)v * p->n + c]] = col[idx[v]];
+        }
         p->vector_seconds += bg_clock_now() - tv;
     }
-    *slope = isfinite(s) ? s : NAN;
     return BG_OK;
 }
 
-/* d = A⁻¹ rhs with the current factorization; *slope = ∇Wᵀd (= −rhsᵀd),
- * NaN if d is not finite. */
+/* out = H₀⁻¹ r (free coordinates): the factored Newton matrix when the
+ * solver has one (Newton's factor reuse), else local/global's Laplacian
+ * (local/global, and quasi-Newton's initial Hessian). */
+static bg_status apply_h0(problem_t *p, const double *r, double *out, bg_error_t *err)
+{
+    return p->sys ? p->backend->ops->solve(p->session, 0, 1, r, out, err)
+                  : lg_solve(p, r, out, err);
+}
+
+/* d = H₀⁻¹ rhs into p->step with the current factorization; *slope = ∇Wᵀd
+ * (= −rhsᵀd), NaN if d is not finite. */
 static bg_status solve_direction(problem_t *p, double *slope, bg_error_t *err)
 {
-    bg_status st = p->backend->ops->solve(p->session, 0, p->rhs, p->step, err);
+    bg_status st = apply_h0(p, p->rhs, p->step, err);
     if (st != BG_OK)
         return st;
+    const double tv = bg_clock_now();
     double s = 0.0;
     for (int32_t i = 0; i < p->nfree; i++)
         s -= p->rhs[i] * p->step[i];
     *slope = isfinite(s) ? s : NAN;
+    p->vector_seconds += bg_clock_now() - tv;
     return BG_OK;
 }
 
@@ -843,7 +870,7 @@ static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
             r[i] -= a * yk[i];
     }
     p->vector_seconds += bg_clock_now() - tv;
-    bg_status st = p->backend->ops->solve(p->session, 0, r, p->step, err);
+    bg_status st = apply_h0(p, r, p->step, err);
     if (st != BG_OK)
         return st;
     tv = bg_clock_now();
@@ -1179,7 +1206,7 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
             refactor = 0;
             p->qn_cost = 0.0;
         } else {
-            st = lg_direction(p, &slope, err);
+            st = solve_direction(p, &slope, err);
         }
         if (st != BG_OK)
             goto out;

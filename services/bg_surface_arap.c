@@ -168,7 +168,7 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
                 if (index[c][v] >= 0)
                     rhs[index[c][v]] = grad[3 * (size_t)v + c];
             res->vector_seconds += bg_clock_now() - tv;
-            st = ops->solve(session, system_of[c], rhs, x, err);
+            st = ops->solve(session, system_of[c], 1, rhs, x, err);
             if (st != BG_OK)
                 goto out;
             tv = bg_clock_now();
