@@ -4,19 +4,55 @@
 #include <stdlib.h>
 #include <string.h>
 
+/*
+ * Per-element data lives in blocks of ELASTIC_BLOCK elements, each block
+ * in structure-of-arrays form: entry i of element e at
+ * (e / B)·width·B + i·B + e % B (soa below). The 3D kernel loads a whole
+ * block's D_m⁻¹ or rotations with one aligned vector load per entry
+ * instead of gathering 8 strided records; scalar code reads an element
+ * through elastic_dminv / quat_load. Arrays are padded to whole blocks.
+ */
+#define ELASTIC_BLOCK 8
+
 struct bg_elastic {
     const bg_mesh_t *mesh;
     int n;              /* spatial dimension */
     int m;              /* local dofs per element: (n+1)*n */
     double mu, lambda;
-    double *dminv;      /* ne*n*n: D_m⁻¹, row-major */
-    double *volume;     /* ne */
-    double *quat;       /* ne*4 (3D): warm-start rotations */
+    double *dminv;      /* blocks × n·n: D_m⁻¹, row-major per element (soa) */
+    double *volume;     /* ne, padded with zeros to whole blocks */
+    double *quat;       /* blocks × 4 (3D): warm-start rotations (soa) */
     double *psi;        /* ne: energy density of the last eval */
     double total_volume;
     double barrier;     /* 2D: weight of the area barrier (0: none) */
     bg_rotfit_stats_t stats;
 };
+
+/* Position of entry i (of width per element) of element e, block-SoA. */
+static inline size_t soa(size_t e, int i, int width)
+{
+    return (e / ELASTIC_BLOCK) * (size_t)width * ELASTIC_BLOCK + (size_t)i * ELASTIC_BLOCK +
+           e % ELASTIC_BLOCK;
+}
+
+static inline void elastic_dminv(const bg_elastic_t *md, size_t e, double *restrict Di)
+{
+    const int nn = md->n * md->n;
+    for (int i = 0; i < nn; i++)
+        Di[i] = md->dminv[soa(e, i, nn)];
+}
+
+static inline void quat_load(const bg_elastic_t *md, size_t e, double q[4])
+{
+    for (int i = 0; i < 4; i++)
+        q[i] = md->quat[soa(e, i, 4)];
+}
+
+static inline void quat_store(bg_elastic_t *md, size_t e, const double q[4])
+{
+    for (int i = 0; i < 4; i++)
+        md->quat[soa(e, i, 4)] = q[i];
+}
 
 /* A pair sum σi + σj of the stretch below this (relative to tr Y) makes
  * W = (tr Y·I − Y)⁻¹ unbounded: R is not differentiable there, and the
@@ -41,17 +77,23 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
     md->mu = mu;
     md->lambda = lambda;
     const size_t ne = (size_t)mesh->ne, n = (size_t)md->n;
-    md->dminv = malloc(ne * n * n * sizeof *md->dminv + 1);
-    md->volume = malloc(ne * sizeof *md->volume + 1);
-    md->quat = calloc(ne * 4 + 1, sizeof *md->quat);
+    const size_t padded = (ne + ELASTIC_BLOCK - 1) / ELASTIC_BLOCK * ELASTIC_BLOCK;
+    /* Padding lanes: D_m⁻¹ = I and no volume, so the kernel computes
+     * finite nothing there. */
+    md->dminv = calloc(padded * n * n + 1, sizeof *md->dminv);
+    md->volume = calloc(padded + 1, sizeof *md->volume);
+    md->quat = calloc(padded * 4 + 1, sizeof *md->quat);
     md->psi = calloc(ne + 1, sizeof *md->psi);
     if (!md->dminv || !md->volume || !md->quat || !md->psi) {
         bg_elastic_destroy(&md);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the elastic model");
     }
+    for (size_t e = ne; md->dminv && e < padded; e++)
+        for (size_t a = 0; a < n; a++)
+            md->dminv[soa(e, (int)(a * n + a), (int)(n * n))] = 1.0;
     for (size_t e = 0; e < ne; e++) {
         const int32_t *el = mesh->elements + e * (n + 1);
-        double D[9];
+        double D[9], Di[9];
         if (rest_edges)
             memcpy(D, rest_edges + e * n * n, n * n * sizeof *D);
         else
@@ -59,7 +101,6 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
                 for (size_t a = 0; a < n; a++)
                     D[a * n + j] =
                         mesh->x[(size_t)el[j + 1] * n + a] - mesh->x[(size_t)el[0] * n + a];
-        double *Di = md->dminv + e * n * n;
         double det;
         if (n == 2) {
             det = D[0] * D[3] - D[1] * D[2];
@@ -83,6 +124,8 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
             Di[8] = (D[0] * D[4] - D[1] * D[3]) / det;
             md->volume[e] = fabs(det) / 6.0;
         }
+        for (size_t i = 0; i < n * n; i++)
+            md->dminv[soa(e, (int)i, (int)(n * n))] = Di[i];
         if (!(det > 0.0) || !isfinite(det)) {
             bg_elastic_destroy(&md);
             return bg_error_set(err, BG_ERR_INVALID,
@@ -174,7 +217,8 @@ void bg_elastic_reset_stats(bg_elastic_t *model)
 
 void bg_elastic_forget_rotations(bg_elastic_t *model)
 {
-    memset(model->quat, 0, (size_t)model->mesh->ne * 4 * sizeof *model->quat);
+    const size_t blocks = ((size_t)model->mesh->ne + ELASTIC_BLOCK - 1) / ELASTIC_BLOCK;
+    memset(model->quat, 0, blocks * ELASTIC_BLOCK * 4 * sizeof *model->quat);
 }
 
 /*
@@ -455,25 +499,32 @@ static void deformation_gradient(int n, const int32_t *restrict el, const double
 
 
 /*
- * The 3D fast path works on blocks of elements in structure-of-arrays form,
- * so that the compiler vectorises across elements (one lane per element)
- * and target_clones picks AVX-512, AVX2+FMA or baseline code at run time
- * from one portable binary. Each block runs a fixed number of
- * warm-started Newton steps on SO(3) without branches; a lane that has no
- * warm start, a Newton matrix that is not positive definite, det F ≤ ε or
- * a skew residual above tolerance afterwards is redone by the scalar
- * bg_rotfit3 (polar iteration or SVD), so results equal the scalar path.
+ * The 3D fast path works on blocks of ELASTIC_BLOCK elements in
+ * structure-of-arrays form, so that the compiler vectorises across
+ * elements (one lane per element) and target_clones picks AVX-512,
+ * AVX2+FMA or baseline code at run time from one portable binary; nothing
+ * is compiled for the build machine alone. Per block: the edge vectors are
+ * gathered lane by lane (the only scattered reads), then F = D D_m⁻¹, the
+ * rotation fit, P, ψ and the nodal forces V P D_m⁻ᵀ run vectorised, and
+ * the forces are added into the gradient lane by lane (lanes may share a
+ * vertex). The fit takes warm-started Newton steps on SO(3) until every
+ * lane's skew residual is at rounding level (a lane already there is
+ * left alone: repeated evaluations at the same positions return the same
+ * rotations) or ELASTIC_BLOCK_STEPS steps are spent; a lane without a warm
+ * start, with det F ≤ ε, a Newton matrix that is not positive definite or
+ * a residual still above tolerance is redone by the scalar bg_rotfit3
+ * (polar iteration or SVD) from its stored rotation.
  */
-#define ELASTIC_BLOCK 8
 #define ELASTIC_BLOCK_STEPS 3
 
 typedef struct block3 {
     double F[9][ELASTIC_BLOCK];
     double q[4][ELASTIC_BLOCK];
-    double R[9][ELASTIC_BLOCK];
     double P[9][ELASTIC_BLOCK];
+    double f[9][ELASTIC_BLOCK]; /* forces on nodes 1..3, entry 3j + a */
     double psi[ELASTIC_BLOCK];
-    double ok[ELASTIC_BLOCK]; /* 1.0: the lane's result is final */
+    double ok[ELASTIC_BLOCK];   /* 1.0: the lane's rotation is final */
+    int moved;                  /* some lane's rotation changed (it must be stored) */
 } block3_t;
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_ADDRESS__)
@@ -482,71 +533,115 @@ typedef struct block3 {
 #define ELASTIC_CLONES
 #endif
 
-
-/* Lane b's F and q, its current rotation R = R(q) and S = Rᵀ F. */
-static inline void lane_rotation(const block3_t *restrict blk, int b, double F[9], double q[4],
-                                 double R[9], double S[9])
+/* F = D D_m⁻¹ for the block, D the edge vectors gathered from the
+ * positions (el: the block's element records, 4 vertices per lane;
+ * gathers where the target has them) and Di the block's D_m⁻¹ (soa,
+ * 9 × B). */
+ELASTIC_CLONES
+static void block3_gradient(block3_t *restrict blk, const int32_t *restrict el,
+                            const double *restrict q, const double *restrict Di)
 {
-    for (int i = 0; i < 9; i++)
-        F[i] = blk->F[i][b];
-    for (int i = 0; i < 4; i++)
-        q[i] = blk->q[i][b];
-    bg_quat_rotation(q, R);
-    bg_mul_tn3(R, F, S);
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < ELASTIC_BLOCK; b++) {
+            const double x0 = q[3 * (size_t)el[4 * b] + a];
+            const double d0 = q[3 * (size_t)el[4 * b + 1] + a] - x0,
+                         d1 = q[3 * (size_t)el[4 * b + 2] + a] - x0,
+                         d2 = q[3 * (size_t)el[4 * b + 3] + a] - x0;
+            for (int c = 0; c < 3; c++)
+                blk->F[3 * a + c][b] = d0 * Di[c * ELASTIC_BLOCK + b] +
+                                       d1 * Di[(3 + c) * ELASTIC_BLOCK + b] +
+                                       d2 * Di[(6 + c) * ELASTIC_BLOCK + b];
+        }
 }
 
+/* The fit, P and ψ of every lane (see above). */
 ELASTIC_CLONES
 static void block3_fit(block3_t *restrict blk, double mu, double lambda)
 {
-    double ok[ELASTIC_BLOCK], tol2[ELASTIC_BLOCK];
+    double ok[ELASTIC_BLOCK], tol2[ELASTIC_BLOCK], settled[ELASTIC_BLOCK];
+    double R[9][ELASTIC_BLOCK], S[9][ELASTIC_BLOCK];
+    double f2[ELASTIC_BLOCK] = {0};
+    for (int i = 0; i < 9; i++)
+        for (int b = 0; b < ELASTIC_BLOCK; b++)
+            f2[b] += blk->F[i][b] * blk->F[i][b];
     for (int b = 0; b < ELASTIC_BLOCK; b++) {
-        double f2 = 0.0;
-        for (int i = 0; i < 9; i++)
-            f2 += blk->F[i][b] * blk->F[i][b];
-        tol2[b] = BG_ROTFIT_SKEW_TOL * BG_ROTFIT_SKEW_TOL * f2;
+        tol2[b] = BG_ROTFIT_SKEW_TOL * BG_ROTFIT_SKEW_TOL * f2[b];
         const double det = blk->F[0][b] * (blk->F[4][b] * blk->F[8][b] - blk->F[5][b] * blk->F[7][b]) -
                            blk->F[1][b] * (blk->F[3][b] * blk->F[8][b] - blk->F[5][b] * blk->F[6][b]) +
                            blk->F[2][b] * (blk->F[3][b] * blk->F[7][b] - blk->F[4][b] * blk->F[6][b]);
-        const double scale = f2 / 3.0;
+        /* det F > ε s^{3/2}, s = ‖F‖²/3, as bg_rotfit3 asks, without the root */
+        const double scale = f2[b] / 3.0;
         const double qn = blk->q[0][b] * blk->q[0][b] + blk->q[1][b] * blk->q[1][b] +
                           blk->q[2][b] * blk->q[2][b] + blk->q[3][b] * blk->q[3][b];
-        ok[b] = (det > BG_ROTFIT_DET_EPS * scale * sqrt(scale) && qn > 0.5) ? 1.0 : 0.0;
+        ok[b] = (det > 0.0 &&
+                 det * det > BG_ROTFIT_DET_EPS * BG_ROTFIT_DET_EPS * scale * scale * scale &&
+                 qn > 0.5)
+                    ? 1.0
+                    : 0.0;
     }
-    for (int step = 0; step < ELASTIC_BLOCK_STEPS; step++) {
-        double settled[ELASTIC_BLOCK];
+    blk->moved = 0;
+    for (int step = 0;; step++) {
+        double done[ELASTIC_BLOCK];
         for (int b = 0; b < ELASTIC_BLOCK; b++) {
-            double F[9], q[4], R[9], S[9];
-            lane_rotation(blk, b, F, q, R, S);
-            settled[b] = bg_rotfit_skew2(S) <= tol2[b] ? 1.0 : 0.0;
-            /* A settled lane's step is zero to rounding. */
-            ok[b] = bg_rotfit_step(S, q) ? ok[b] : 0.0;
+            double q[4], Rb[9], F[9], Sb[9];
             for (int i = 0; i < 4; i++)
-                blk->q[i][b] = q[i];
+                q[i] = blk->q[i][b];
+            for (int i = 0; i < 9; i++)
+                F[i] = blk->F[i][b];
+            bg_quat_rotation(q, Rb);
+            bg_mul_tn3(Rb, F, Sb);
+            for (int i = 0; i < 9; i++) {
+                R[i][b] = Rb[i];
+                S[i][b] = Sb[i];
+            }
+            settled[b] = bg_rotfit_skew2(Sb) <= tol2[b] ? 1.0 : 0.0;
+            done[b] = settled[b] != 0.0 || ok[b] == 0.0 ? 1.0 : 0.0;
         }
-        /* Every lane was settled (or is going to the scalar path) before
-         * this step: further steps cannot change anything. */
-        double all = 1.0;
+        int all = 1;
         for (int b = 0; b < ELASTIC_BLOCK; b++)
-            all = fmin(all, fmax(settled[b], 1.0 - ok[b]));
-        if (all == 1.0)
+            all &= done[b] != 0.0;
+        if (all || step == ELASTIC_BLOCK_STEPS)
             break;
+        blk->moved = 1;
+        for (int b = 0; b < ELASTIC_BLOCK; b++) {
+            double q[4], Sb[9];
+            for (int i = 0; i < 4; i++)
+                q[i] = blk->q[i][b];
+            for (int i = 0; i < 9; i++)
+                Sb[i] = S[i][b];
+            const int pd = bg_rotfit_step(Sb, q);
+            ok[b] = pd || settled[b] != 0.0 ? ok[b] : 0.0;
+            /* a settled lane keeps its rotation (its step is rounding) */
+            for (int i = 0; i < 4; i++)
+                blk->q[i][b] = settled[b] != 0.0 ? blk->q[i][b] : q[i];
+        }
     }
     for (int b = 0; b < ELASTIC_BLOCK; b++) {
-        double F[9], q[4], R[9], S[9], dev = 0.0;
-        lane_rotation(blk, b, F, q, R, S);
+        double dev = 0.0;
         for (int i = 0; i < 9; i++) {
-            const double d = F[i] - R[i];
+            const double d = blk->F[i][b] - R[i][b];
             dev += d * d;
         }
-        ok[b] = bg_rotfit_skew2(S) <= tol2[b] ? ok[b] : 0.0;
-        const double vol = S[0] + S[4] + S[8] - 3.0;
-        for (int i = 0; i < 9; i++) {
-            blk->R[i][b] = R[i];
-            blk->P[i][b] = 2.0 * mu * (blk->F[i][b] - R[i]) + lambda * vol * R[i];
-        }
+        const double vol = S[0][b] + S[4][b] + S[8][b] - 3.0;
+        for (int i = 0; i < 9; i++)
+            blk->P[i][b] = 2.0 * mu * (blk->F[i][b] - R[i][b]) + lambda * vol * R[i][b];
         blk->psi[b] = mu * dev + 0.5 * lambda * vol * vol;
-        blk->ok[b] = ok[b];
+        blk->ok[b] = settled[b] != 0.0 ? ok[b] : 0.0;
     }
+}
+
+/* Forces on nodes 1..3 of every lane: f_j = V P (row j of D_m⁻¹)ᵀ. */
+ELASTIC_CLONES
+static void block3_forces(block3_t *restrict blk, const double *restrict Di,
+                          const double *restrict V)
+{
+    for (int j = 0; j < 3; j++)
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < ELASTIC_BLOCK; b++)
+                blk->f[3 * j + a][b] = (blk->P[3 * a][b] * Di[3 * j * ELASTIC_BLOCK + b] +
+                                        blk->P[3 * a + 1][b] * Di[(3 * j + 1) * ELASTIC_BLOCK + b] +
+                                        blk->P[3 * a + 2][b] * Di[(3 * j + 2) * ELASTIC_BLOCK + b]) *
+                                       V[b];
 }
 
 /* V P D_m⁻ᵀ into the element's nodes (node 0 gets minus the sum). */
@@ -574,46 +669,68 @@ static double eval3(bg_elastic_t *md, const double *restrict q, double *restrict
     block3_t blk;
     for (int32_t e0 = 0; e0 < mesh->ne; e0 += ELASTIC_BLOCK) {
         const int count = mesh->ne - e0 < ELASTIC_BLOCK ? (int)(mesh->ne - e0) : ELASTIC_BLOCK;
-        for (int b = 0; b < ELASTIC_BLOCK; b++) {
-            if (b >= count) { /* padding lanes: identity, never read back */
-                for (int i = 0; i < 9; i++)
-                    blk.F[i][b] = i % 4 == 0 ? 1.0 : 0.0;
-                blk.q[0][b] = 1.0, blk.q[1][b] = blk.q[2][b] = blk.q[3][b] = 0.0;
+        const size_t block = (size_t)e0 / ELASTIC_BLOCK;
+        const double *Di = md->dminv + block * 9 * ELASTIC_BLOCK;
+        double *quat = md->quat + block * 4 * ELASTIC_BLOCK;
+        const int32_t *el = mesh->elements + (size_t)e0 * 4;
+        int32_t tail[4 * ELASTIC_BLOCK];
+        if (count < ELASTIC_BLOCK) { /* padding lanes repeat the first element, never read back */
+            for (int i = 0; i < 4 * ELASTIC_BLOCK; i++)
+                tail[i] = el[i < 4 * count ? i : i % 4];
+            el = tail;
+        }
+        memcpy(blk.q, quat, sizeof blk.q);
+        block3_gradient(&blk, el, q, Di);
+        block3_fit(&blk, md->mu, md->lambda);
+        int warm = 0;
+        for (int b = 0; b < count; b++) {
+            if (blk.ok[b] != 0.0) {
+                warm++;
                 continue;
             }
-            const size_t e = (size_t)(e0 + b);
-            double F[9];
-            deformation_gradient(3, mesh->elements + e * 4, q, md->dminv + e * 9, F);
+            /* the scalar path, from the lane's stored warm start */
+            double F[9], R[9], P[9], qs[4];
+            int path;
             for (int i = 0; i < 9; i++)
-                blk.F[i][b] = F[i];
+                F[i] = blk.F[i][b];
             for (int i = 0; i < 4; i++)
-                blk.q[i][b] = md->quat[4 * e + i];
+                qs[i] = quat[i * ELASTIC_BLOCK + b];
+            blk.psi[b] = material_point(3, md->mu, md->lambda, F, qs, R, P, NULL, 0, &path);
+            for (int i = 0; i < 4; i++)
+                blk.q[i][b] = qs[i];
+            for (int i = 0; i < 9; i++)
+                blk.P[i][b] = P[i];
+            bg_rotfit_stats_count(&md->stats, (bg_rotfit_path)path);
         }
-        block3_fit(&blk, md->mu, md->lambda);
+        md->stats.calls += warm;
+        md->stats.warm += warm;
+        /* Settled blocks (later iterations near a solution, repeated
+         * evaluations) leave their rotations' cache lines clean: 64 bytes
+         * per element not written back. */
+        if (blk.moved || warm < count)
+            for (int i = 0; i < 4; i++)
+                for (int b = 0; b < count; b++)
+                    quat[i * ELASTIC_BLOCK + b] = blk.q[i][b];
         for (int b = 0; b < count; b++) {
-            const size_t e = (size_t)(e0 + b);
-            double P[9], psi;
-            if (blk.ok[b] != 0.0) {
-                for (int i = 0; i < 4; i++)
-                    md->quat[4 * e + i] = blk.q[i][b];
-                for (int i = 0; i < 9; i++)
-                    P[i] = blk.P[i][b];
-                psi = blk.psi[b];
-                bg_rotfit_stats_count(&md->stats, BG_ROTFIT_WARM);
-            } else {
-                double F[9], R[9];
-                int path;
-                for (int i = 0; i < 9; i++)
-                    F[i] = blk.F[i][b];
-                psi = material_point(3, md->mu, md->lambda, F, md->quat + 4 * e, R, P, NULL, 0,
-                                     &path);
-                bg_rotfit_stats_count(&md->stats, (bg_rotfit_path)path);
+            md->psi[e0 + b] = blk.psi[b];
+            energy += md->volume[e0 + b] * blk.psi[b];
+        }
+        if (!grad)
+            continue;
+        block3_forces(&blk, Di, md->volume + e0);
+        for (int b = 0; b < count; b++) {
+            const int32_t *nodes = el + 4 * b;
+            double f0[3] = {0, 0, 0};
+            for (int j = 0; j < 3; j++) {
+                double *gj = grad + (size_t)nodes[j + 1] * 3;
+                for (int a = 0; a < 3; a++) {
+                    gj[a] += blk.f[3 * j + a][b];
+                    f0[a] += blk.f[3 * j + a][b];
+                }
             }
-            md->psi[e] = psi;
-            energy += md->volume[e] * psi;
-            if (grad)
-                scatter_force(3, mesh->elements + e * 4, md->dminv + e * 9, md->volume[e], P,
-                              grad);
+            double *g0 = grad + (size_t)nodes[0] * 3;
+            for (int a = 0; a < 3; a++)
+                g0[a] -= f0[a];
         }
     }
     return energy;
@@ -631,8 +748,8 @@ double bg_elastic_eval(bg_elastic_t *md, const double *restrict q, double *restr
     double zero_quat[4];
     for (int32_t e = 0; e < mesh->ne; e++) {
         const int32_t *el = mesh->elements + (size_t)e * k;
-        const double *Di = md->dminv + (size_t)e * n * n;
-        double F[9], R[9], P[9];
+        double Di[9], F[9], R[9], P[9];
+        elastic_dminv(md, (size_t)e, Di);
         deformation_gradient(n, el, q, Di, F);
         int path;
         double psi = material_point(n, md->mu, md->lambda, F, zero_quat, R,
@@ -675,9 +792,9 @@ static void assemble3(const bg_elastic_t *md, const double *q, int project, doub
     const bg_mesh_t *mesh = md->mesh;
     for (int32_t e = 0; e < mesh->ne; e++) {
         const int32_t *el = mesh->elements + (size_t)e * 4;
-        const double *Di = md->dminv + (size_t)e * 9;
-        double F[9], R[9], S[9], A[9], g[4][3], quat[4];
-        memcpy(quat, md->quat + 4 * (size_t)e, sizeof quat);
+        double Di[9], F[9], R[9], S[9], A[9], g[4][3], quat[4];
+        elastic_dminv(md, (size_t)e, Di);
+        quat_load(md, (size_t)e, quat);
         deformation_gradient(3, el, q, Di, F);
         bg_rotfit3(F, quat, R);
         bg_mul_tn3(R, F, S);
@@ -730,11 +847,9 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
     }
     for (int32_t e = 0; e < mesh->ne; e++) {
         const int32_t *el = mesh->elements + (size_t)e * k;
-        const double *Di = md->dminv + (size_t)e * nn;
-        double F[9], R[9], H[81], g[4][3];
-        double quat[4];
-        if (n == 3)
-            memcpy(quat, md->quat + 4 * (size_t)e, sizeof quat);
+        double Di[9], F[9], R[9], H[81], g[4][3];
+        double quat[4] = {0, 0, 0, 0}; /* 2D: unused */
+        elastic_dminv(md, (size_t)e, Di);
         deformation_gradient(n, el, q, Di, F);
         int path;
         material_point(n, md->mu, md->lambda, F, quat, R, NULL, H, project, &path);
@@ -786,10 +901,10 @@ void bg_elastic_force_magnitude(const bg_elastic_t *md, const double *q, double 
     const bg_mesh_t *mesh = md->mesh;
     for (int32_t e = 0; e < mesh->ne; e++) {
         const int32_t *el = mesh->elements + (size_t)e * k;
-        const double *Di = md->dminv + (size_t)e * nn;
-        double F[9], R[9], P[9], quat[4] = {0, 0, 0, 0}, g[4][3];
+        double Di[9], F[9], R[9], P[9], quat[4] = {0, 0, 0, 0}, g[4][3];
+        elastic_dminv(md, (size_t)e, Di);
         if (n == 3)
-            memcpy(quat, md->quat + 4 * (size_t)e, sizeof quat);
+            quat_load(md, (size_t)e, quat);
         deformation_gradient(n, el, q, Di, F);
         int path;
         material_point(n, md->mu, md->lambda, F, quat, R, NULL, NULL, 0, &path);
@@ -834,8 +949,9 @@ void bg_elastic_apply_laplacian(const bg_elastic_t *md, const double *restrict u
     memset(out, 0, (size_t)mesh->nv * n * sizeof *out);
     for (int32_t e = 0; e < mesh->ne; e++) {
         const int32_t *el = mesh->elements + (size_t)e * k;
-        double g[4][3];
-        barycentric_gradients(n, md->dminv + (size_t)e * n * n, g);
+        double Di[9], g[4][3];
+        elastic_dminv(md, (size_t)e, Di);
+        barycentric_gradients(n, Di, g);
         for (int i = 0; i < k; i++)
             for (int j = 0; j < k; j++) {
                 double s = 0.0;
@@ -853,8 +969,9 @@ void bg_elastic_assemble_scalar_laplacian(const bg_elastic_t *md, double scale,
 {
     const int n = md->n, k = n + 1, T = BG_ELASTIC_TRI_SIZE(k);
     for (int32_t e = 0; e < md->mesh->ne; e++) {
-        double g[4][3];
-        barycentric_gradients(n, md->dminv + (size_t)e * n * n, g);
+        double Di[9], g[4][3];
+        elastic_dminv(md, (size_t)e, Di);
+        barycentric_gradients(n, Di, g);
         const double w = scale * md->volume[e];
         const int32_t *sc = scatter + (size_t)e * T;
         for (int i = 0; i < k; i++)
