@@ -162,6 +162,7 @@ cell() { # key side [format]
     printf "${3:-%.3g}" "$m"
 }
 raw() { # key side: every round's value
+    [ -n "$(eval echo \$$2)" ] || { echo "-"; return; }
     r=1 vals=""
     while [ $r -le "$rounds" ]; do
         v=$(value "$1" "$2" $r)
