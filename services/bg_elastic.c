@@ -5,12 +5,23 @@
 #include <string.h>
 
 /*
- * Per-element data lives in blocks of ELASTIC_BLOCK elements, each block
- * in structure-of-arrays form: entry i of element e at
- * (e / B)·width·B + i·B + e % B (soa below). The 3D kernel loads a whole
- * block's D_m⁻¹ or rotations with one aligned vector load per entry
- * instead of gathering 8 strided records; scalar code reads an element
- * through elastic_dminv / quat_load. Arrays are padded to whole blocks.
+ * The elements are processed in an order of their own: sorted along a
+ * Morton (Z-order) curve through their rest centroids, so that elements
+ * handled one after another are neighbours in space and share vertices.
+ * Meshes from a tetrahedralizer number their vertices without regard to
+ * the elements (the bunny's tets span 4,163 of its 7,248 vertex numbers
+ * on average, consecutive tets jump by 2,036): in mesh order every
+ * element reads and writes four scattered vertex records and Hessian
+ * columns; in curve order they are mostly still in cache from the
+ * element before. Results are those of the same sums in another order.
+ *
+ * Per-element data is stored at the element's position p in that order,
+ * in blocks of ELASTIC_BLOCK elements, each block in structure-of-arrays
+ * form: entry i of position p at (p / B)·width·B + i·B + p % B (soa
+ * below). The 3D kernel loads a whole block's D_m⁻¹ or rotations with one
+ * aligned vector load per entry; scalar code reads a position through
+ * elastic_dminv / quat_load. Arrays are padded to whole blocks (the
+ * padding positions repeat the block's first element's vertices).
  */
 #define ELASTIC_BLOCK 8
 
@@ -19,10 +30,13 @@ struct bg_elastic {
     int n;              /* spatial dimension */
     int m;              /* local dofs per element: (n+1)*n */
     double mu, lambda;
+    int32_t *order;     /* ne: position → element (mesh numbering) */
+    int32_t *slot;      /* ne: element → position */
+    int32_t *nodes;     /* padded positions × (n+1): each position's vertices */
     double *dminv;      /* blocks × n·n: D_m⁻¹, row-major per element (soa) */
-    double *volume;     /* ne, padded with zeros to whole blocks */
+    double *volume;     /* padded positions, zeros in the padding */
     double *quat;       /* blocks × 4 (3D): warm-start rotations (soa) */
-    double *psi;        /* ne: energy density of the last eval */
+    double *psi;        /* ne, mesh numbering: energy density of the last eval */
     double total_volume;
     double barrier;     /* 2D: weight of the area barrier (0: none) */
     bg_rotfit_stats_t stats;
@@ -59,6 +73,61 @@ static inline void quat_store(bg_elastic_t *md, size_t e, const double q[4])
  * Hessian uses this floor instead of dividing by zero. */
 #define ELASTIC_PAIR_SUM_FLOOR 1e-10
 
+/* Spreads the low 21 bits of x to every third bit (Morton interleave). */
+static uint64_t spread3(uint64_t x)
+{
+    x &= 0x1fffff;
+    x = (x | x << 32) & 0x1f00000000ffffULL;
+    x = (x | x << 16) & 0x1f0000ff0000ffULL;
+    x = (x | x << 8) & 0x100f00f00f00f00fULL;
+    x = (x | x << 4) & 0x10c30c30c30c30c3ULL;
+    x = (x | x << 2) & 0x1249249249249249ULL;
+    return x;
+}
+
+typedef struct order_key {
+    uint64_t key;
+    int32_t element;
+} order_key;
+
+static int compare_keys(const void *a, const void *b)
+{
+    const order_key *x = a, *y = b;
+    if (x->key != y->key)
+        return x->key < y->key ? -1 : 1;
+    return (x->element > y->element) - (x->element < y->element);
+}
+
+/* md->order: the elements sorted along the Morton curve through their
+ * centroids at mesh->x (ties by element number: deterministic). */
+static bg_status elastic_order(bg_elastic_t *md)
+{
+    const bg_mesh_t *mesh = md->mesh;
+    const int k = mesh->nodes_per_element, d = mesh->dim;
+    order_key *keys = malloc((size_t)mesh->ne * sizeof *keys + 1);
+    if (!keys)
+        return BG_ERR_NOMEM;
+    double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+    bg_mesh_bounds(mesh, lo, hi);
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        uint64_t key = 0;
+        for (int c = 0; c < d && c < 3; c++) {
+            double centre = 0.0;
+            for (int i = 0; i < k; i++)
+                centre += mesh->x[(size_t)mesh->elements[(size_t)e * k + i] * d + c] / k;
+            const double span = hi[c] - lo[c];
+            const double t = span > 0.0 ? (centre - lo[c]) / span : 0.0;
+            key |= spread3((uint64_t)(fmin(fmax(t, 0.0), 1.0) * 2097151.0)) << c;
+        }
+        keys[e] = (order_key){key, e};
+    }
+    qsort(keys, (size_t)mesh->ne, sizeof *keys, compare_keys);
+    for (int32_t p = 0; p < mesh->ne; p++)
+        md->order[p] = keys[p].element;
+    free(keys);
+    return BG_OK;
+}
+
 /* The model over mesh's connectivity with n-dimensional unknowns; rest
  * edge matrices from rest_edges (ne·n·n, row-major, column j = edge j) or,
  * when NULL, from the mesh's positions. */
@@ -78,20 +147,32 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
     md->lambda = lambda;
     const size_t ne = (size_t)mesh->ne, n = (size_t)md->n;
     const size_t padded = (ne + ELASTIC_BLOCK - 1) / ELASTIC_BLOCK * ELASTIC_BLOCK;
-    /* Padding lanes: D_m⁻¹ = I and no volume, so the kernel computes
+    /* Padding positions: D_m⁻¹ = I and no volume, so the kernel computes
      * finite nothing there. */
+    md->order = malloc(ne * sizeof *md->order + 1);
+    md->slot = malloc(ne * sizeof *md->slot + 1);
+    md->nodes = malloc(padded * (n + 1) * sizeof *md->nodes + 1);
     md->dminv = calloc(padded * n * n + 1, sizeof *md->dminv);
     md->volume = calloc(padded + 1, sizeof *md->volume);
     md->quat = calloc(padded * 4 + 1, sizeof *md->quat);
     md->psi = calloc(ne + 1, sizeof *md->psi);
-    if (!md->dminv || !md->volume || !md->quat || !md->psi) {
+    if (!md->order || !md->slot || !md->nodes || !md->dminv || !md->volume || !md->quat || !md->psi ||
+        elastic_order(md) != BG_OK) {
         bg_elastic_destroy(&md);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the elastic model");
     }
-    for (size_t e = ne; md->dminv && e < padded; e++)
+    for (size_t p = 0; p < ne; p++)
+        md->slot[md->order[p]] = (int32_t)p;
+    for (size_t p = 0; p < padded; p++) {
+        const size_t e = (size_t)md->order[p < ne ? p : p - p % ELASTIC_BLOCK];
+        memcpy(md->nodes + p * (n + 1), mesh->elements + e * (n + 1),
+               (n + 1) * sizeof *md->nodes);
+    }
+    for (size_t p = ne; p < padded; p++)
         for (size_t a = 0; a < n; a++)
-            md->dminv[soa(e, (int)(a * n + a), (int)(n * n))] = 1.0;
-    for (size_t e = 0; e < ne; e++) {
+            md->dminv[soa(p, (int)(a * n + a), (int)(n * n))] = 1.0;
+    for (size_t p = 0; p < ne; p++) {
+        const size_t e = (size_t)md->order[p];
         const int32_t *el = mesh->elements + e * (n + 1);
         double D[9], Di[9];
         if (rest_edges)
@@ -108,7 +189,7 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
             Di[1] = -D[1] / det;
             Di[2] = -D[2] / det;
             Di[3] = D[0] / det;
-            md->volume[e] = 0.5 * fabs(det);
+            md->volume[p] = 0.5 * fabs(det);
         } else {
             const double c0 = D[4] * D[8] - D[5] * D[7], c1 = D[5] * D[6] - D[3] * D[8],
                          c2 = D[3] * D[7] - D[4] * D[6];
@@ -122,10 +203,10 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
             Di[6] = c2 / det;
             Di[7] = (D[1] * D[6] - D[0] * D[7]) / det;
             Di[8] = (D[0] * D[4] - D[1] * D[3]) / det;
-            md->volume[e] = fabs(det) / 6.0;
+            md->volume[p] = fabs(det) / 6.0;
         }
         for (size_t i = 0; i < n * n; i++)
-            md->dminv[soa(e, (int)i, (int)(n * n))] = Di[i];
+            md->dminv[soa(p, (int)i, (int)(n * n))] = Di[i];
         if (!(det > 0.0) || !isfinite(det)) {
             bg_elastic_destroy(&md);
             return bg_error_set(err, BG_ERR_INVALID,
@@ -133,7 +214,7 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
                                 "first)",
                                 e + 1);
         }
-        md->total_volume += md->volume[e];
+        md->total_volume += md->volume[p];
     }
     *out = md;
     return BG_OK;
@@ -167,6 +248,9 @@ void bg_elastic_destroy(bg_elastic_t **model)
     if (!model || !*model)
         return;
     bg_elastic_t *md = *model;
+    free(md->order);
+    free(md->slot);
+    free(md->nodes);
     free(md->dminv);
     free(md->volume);
     free(md->quat);
@@ -192,7 +276,7 @@ const bg_mesh_t *bg_elastic_mesh(const bg_elastic_t *model)
 
 double bg_elastic_volume(const bg_elastic_t *model, int32_t e)
 {
-    return model->volume[e];
+    return model->volume[model->slot[e]];
 }
 
 double bg_elastic_total_volume(const bg_elastic_t *model)
@@ -672,13 +756,7 @@ static double eval3(bg_elastic_t *md, const double *restrict q, double *restrict
         const size_t block = (size_t)e0 / ELASTIC_BLOCK;
         const double *Di = md->dminv + block * 9 * ELASTIC_BLOCK;
         double *quat = md->quat + block * 4 * ELASTIC_BLOCK;
-        const int32_t *el = mesh->elements + (size_t)e0 * 4;
-        int32_t tail[4 * ELASTIC_BLOCK];
-        if (count < ELASTIC_BLOCK) { /* padding lanes repeat the first element, never read back */
-            for (int i = 0; i < 4 * ELASTIC_BLOCK; i++)
-                tail[i] = el[i < 4 * count ? i : i % 4];
-            el = tail;
-        }
+        const int32_t *el = md->nodes + (size_t)e0 * 4;
         memcpy(blk.q, quat, sizeof blk.q);
         block3_gradient(&blk, el, q, Di);
         block3_fit(&blk, md->mu, md->lambda);
@@ -712,7 +790,7 @@ static double eval3(bg_elastic_t *md, const double *restrict q, double *restrict
                 for (int b = 0; b < count; b++)
                     quat[i * ELASTIC_BLOCK + b] = blk.q[i][b];
         for (int b = 0; b < count; b++) {
-            md->psi[e0 + b] = blk.psi[b];
+            md->psi[md->order[e0 + b]] = blk.psi[b];
             energy += md->volume[e0 + b] * blk.psi[b];
         }
         if (!grad)
@@ -746,10 +824,10 @@ double bg_elastic_eval(bg_elastic_t *md, const double *restrict q, double *restr
         return eval3(md, q, grad);
     double energy = 0.0;
     double zero_quat[4];
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        const int32_t *el = mesh->elements + (size_t)e * k;
+    for (int32_t p = 0; p < mesh->ne; p++) {
+        const int32_t *el = md->nodes + (size_t)p * k;
         double Di[9], F[9], R[9], P[9];
-        elastic_dminv(md, (size_t)e, Di);
+        elastic_dminv(md, (size_t)p, Di);
         deformation_gradient(n, el, q, Di, F);
         int path;
         double psi = material_point(n, md->mu, md->lambda, F, zero_quat, R,
@@ -757,10 +835,10 @@ double bg_elastic_eval(bg_elastic_t *md, const double *restrict q, double *restr
         if (md->barrier > 0.0)
             psi += barrier_point(md->barrier, F, grad ? P : NULL, NULL, 0);
         bg_rotfit_stats_count(&md->stats, (bg_rotfit_path)path);
-        md->psi[e] = psi;
-        energy += md->volume[e] * psi;
+        md->psi[md->order[p]] = psi;
+        energy += md->volume[p] * psi;
         if (grad)
-            scatter_force(n, el, Di, md->volume[e], P, grad);
+            scatter_force(n, el, Di, md->volume[p], P, grad);
     }
     return energy;
 }
@@ -784,53 +862,199 @@ static void barycentric_gradients(int n, const double *Di, double g[4][3])
  * twist columns are R[e_k]× g_i = r_k × h_i (r_k the k-th column of R; a
  * rotation preserves cross products). Then
  *   K[(i,c),(j,d)] = V (2μ δ_cd g_i·g_j + Σ_kl BG_(i,c)k A_kl BG_(j,d)l + λ h_ic h_jd).
+ *
+ * Like the evaluation, the assembly runs on blocks of ELASTIC_BLOCK
+ * elements across vector lanes: F, the rotations, the twist blocks and the
+ * 78 packed entries of every K_e, then the entries are added into the
+ * pattern lane by lane. The rotations are the ones the last evaluation
+ * fitted at these positions (the contract: assemble after bg_elastic_eval
+ * at the same q); a lane whose stored rotation is not settled at q, or
+ * whose element is inverted or flat (the SVD's rotation), is fitted again
+ * by the scalar bg_rotfit3 from it, which returns exactly the settled
+ * rotation in the other case, so the matrix is the same either way. The
+ * twist block's closed form covers every lane whose shifted M is safely
+ * positive definite; the others take the scalar eigen-decomposition.
  */
+#define ELASTIC_TRI3 BG_ELASTIC_TRI_SIZE(12)
+
+typedef struct hess3 {
+    double R[9][ELASTIC_BLOCK];
+    double S[9][ELASTIC_BLOCK];
+    double A[9][ELASTIC_BLOCK];
+    double ok[ELASTIC_BLOCK];
+    double K[ELASTIC_TRI3][ELASTIC_BLOCK]; /* V·scale·(packed upper triangle of K_e) */
+} hess3_t;
+
+/* The block's rotations from its stored quaternions (blk->q) and S = Rᵀ F;
+ * ok when the rotation is settled at F and det F > ε (see above). */
+ELASTIC_CLONES
+static void block3_rotations(const block3_t *restrict blk, hess3_t *restrict h)
+{
+    for (int b = 0; b < ELASTIC_BLOCK; b++) {
+        double q[4], R[9], F[9], S[9], f2 = 0.0;
+        for (int i = 0; i < 4; i++)
+            q[i] = blk->q[i][b];
+        for (int i = 0; i < 9; i++) {
+            F[i] = blk->F[i][b];
+            f2 += F[i] * F[i];
+        }
+        bg_quat_rotation(q, R);
+        bg_mul_tn3(R, F, S);
+        const double det = F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) +
+                           F[2] * (F[3] * F[7] - F[4] * F[6]);
+        const double scale = f2 / 3.0;
+        const int safe = det > 0.0 &&
+                         det * det > BG_ROTFIT_DET_EPS * BG_ROTFIT_DET_EPS * scale * scale * scale;
+        const int settled = bg_rotfit_skew2(S) <= BG_ROTFIT_SKEW_TOL * BG_ROTFIT_SKEW_TOL * f2;
+        h->ok[b] = safe && settled ? 1.0 : 0.0;
+        for (int i = 0; i < 9; i++) {
+            h->R[i][b] = R[i];
+            h->S[i][b] = S[i];
+        }
+    }
+}
+
+/* twist_block3's closed form across the lanes; ok cleared where it does
+ * not apply (the lane takes the scalar twist_block3). */
+ELASTIC_CLONES
+static void block3_twist(hess3_t *restrict h, double mu, double lambda, int project)
+{
+    for (int b = 0; b < ELASTIC_BLOCK; b++) {
+        const double trY = h->S[0][b] + h->S[4][b] + h->S[8][b];
+        double M[9];
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                M[3 * i + j] = (i == j ? trY : 0.0) - 0.5 * (h->S[3 * i + j][b] + h->S[3 * j + i][b]);
+        const double c = lambda * (trY - 3.0) - 2.0 * mu;
+        const double floor_ = ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY));
+        const double theta = project && c < 0.0 ? fmax(floor_, -c / mu) : floor_;
+        const int pd = pd3_shifted(M, theta);
+        const double c00 = M[4] * M[8] - M[5] * M[7], c01 = M[2] * M[7] - M[1] * M[8],
+                     c02 = M[1] * M[5] - M[2] * M[4], c11 = M[0] * M[8] - M[2] * M[6],
+                     c12 = M[2] * M[3] - M[0] * M[5], c22 = M[0] * M[4] - M[1] * M[3];
+        const double det = M[0] * c00 + M[1] * c01 + M[2] * c02;
+        const double f = c / (pd ? det : 1.0);
+        h->A[0][b] = f * c00, h->A[1][b] = f * c01, h->A[2][b] = f * c02;
+        h->A[3][b] = f * c01, h->A[4][b] = f * c11, h->A[5][b] = f * c12;
+        h->A[6][b] = f * c02, h->A[7][b] = f * c12, h->A[8][b] = f * c22;
+        h->ok[b] = pd ? h->ok[b] : 0.0;
+    }
+}
+
+/* A block's lanes as one vector: GCC's and clang's vector extension
+ * (each target_clones clone maps it to its own registers). Used where the
+ * vectoriser gives up on the lane loops (78 entries of twelve small
+ * products each). Loads and stores through memcpy: no alignment assumed. */
+typedef double lanes_t __attribute__((vector_size(ELASTIC_BLOCK * sizeof(double))));
+/* (a macro, not a function: a vector passed by value would change the ABI
+ * between the clones and the baseline) */
+#define LANES_LOAD(v, p) memcpy(&(v), (p), sizeof(lanes_t))
+
+/* The 78 packed entries of every lane's K_e, times V·scale (V: the
+ * block's volumes, Di its D_m⁻¹), from R and A; the same products in the
+ * same order as one element at a time. */
+ELASTIC_CLONES
+static void block3_stiffness(hess3_t *restrict h, const double *restrict Di,
+                             const double *restrict V, double scale, double mu, double lambda)
+{
+    const lanes_t zero = {0.0};
+    lanes_t g[4][3], R[9], A[9], hv[12], BG[12][3], BA[12][3], w;
+    for (int i = 0; i < 9; i++) {
+        LANES_LOAD(R[i], h->R[i]);
+        LANES_LOAD(A[i], h->A[i]);
+    }
+    for (int c = 0; c < 3; c++) {
+        g[0][c] = zero;
+        for (int j = 0; j < 3; j++) {
+            LANES_LOAD(g[j + 1][c], Di + (3 * j + c) * ELASTIC_BLOCK);
+            g[0][c] -= g[j + 1][c];
+        }
+    }
+    for (int i = 0; i < 4; i++) {
+        for (int c = 0; c < 3; c++)
+            hv[3 * i + c] = R[3 * c] * g[i][0] + R[3 * c + 1] * g[i][1] + R[3 * c + 2] * g[i][2];
+        for (int k = 0; k < 3; k++) {
+            const lanes_t r0 = R[k], r1 = R[3 + k], r2 = R[6 + k];
+            BG[3 * i + 0][k] = r1 * hv[3 * i + 2] - r2 * hv[3 * i + 1];
+            BG[3 * i + 1][k] = r2 * hv[3 * i] - r0 * hv[3 * i + 2];
+            BG[3 * i + 2][k] = r0 * hv[3 * i + 1] - r1 * hv[3 * i];
+        }
+    }
+    for (int a = 0; a < 12; a++)
+        for (int l = 0; l < 3; l++)
+            BA[a][l] = BG[a][0] * A[l] + BG[a][1] * A[3 + l] + BG[a][2] * A[6 + l];
+    LANES_LOAD(w, V);
+    w *= scale;
+    const double two_mu = 2.0 * mu;
+    int t = 0;
+    for (int a = 0; a < 12; a++)
+        for (int bb = a; bb < 12; bb++, t++) {
+            lanes_t v = BA[a][0] * BG[bb][0] + BA[a][1] * BG[bb][1] + BA[a][2] * BG[bb][2] +
+                        lambda * hv[a] * hv[bb];
+            if (a % 3 == bb % 3) {
+                const int i = a / 3, j = bb / 3;
+                v += two_mu * (g[i][0] * g[j][0] + g[i][1] * g[j][1] + g[i][2] * g[j][2]);
+            }
+            v = w * v;
+            memcpy(h->K[t], &v, sizeof v);
+        }
+}
+
 static void assemble3(const bg_elastic_t *md, const double *q, int project, double scale,
                       const int32_t *restrict scatter, double *restrict values)
 {
-    const int m = 12, T = BG_ELASTIC_TRI_SIZE(12);
     const bg_mesh_t *mesh = md->mesh;
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        const int32_t *el = mesh->elements + (size_t)e * 4;
-        double Di[9], F[9], R[9], S[9], A[9], g[4][3], quat[4];
-        elastic_dminv(md, (size_t)e, Di);
-        quat_load(md, (size_t)e, quat);
-        deformation_gradient(3, el, q, Di, F);
-        bg_rotfit3(F, quat, R);
-        bg_mul_tn3(R, F, S);
-        twist_block3(md->mu, md->lambda, S, S[0] + S[4] + S[8], project, A);
-        barycentric_gradients(3, Di, g);
-        double h[12], BG[12][3], BA[12][3];
-        for (int i = 0; i < 4; i++) {
-            double *hi = h + 3 * i;
-            for (int c = 0; c < 3; c++)
-                hi[c] = R[3 * c] * g[i][0] + R[3 * c + 1] * g[i][1] + R[3 * c + 2] * g[i][2];
-            for (int k = 0; k < 3; k++) {
-                const double r0 = R[k], r1 = R[3 + k], r2 = R[6 + k];
-                BG[3 * i + 0][k] = r1 * hi[2] - r2 * hi[1];
-                BG[3 * i + 1][k] = r2 * hi[0] - r0 * hi[2];
-                BG[3 * i + 2][k] = r0 * hi[1] - r1 * hi[0];
+    block3_t blk;
+    hess3_t h;
+    for (int32_t e0 = 0; e0 < mesh->ne; e0 += ELASTIC_BLOCK) {
+        const int count = mesh->ne - e0 < ELASTIC_BLOCK ? (int)(mesh->ne - e0) : ELASTIC_BLOCK;
+        const size_t block = (size_t)e0 / ELASTIC_BLOCK;
+        const double *Di = md->dminv + block * 9 * ELASTIC_BLOCK;
+        const double *quat = md->quat + block * 4 * ELASTIC_BLOCK;
+        memcpy(blk.q, quat, sizeof blk.q);
+        block3_gradient(&blk, md->nodes + (size_t)e0 * 4, q, Di);
+        block3_rotations(&blk, &h);
+        for (int b = 0; b < count; b++) {
+            if (h.ok[b] != 0.0)
+                continue;
+            double F[9], R[9], S[9], qs[4];
+            for (int i = 0; i < 9; i++)
+                F[i] = blk.F[i][b];
+            for (int i = 0; i < 4; i++)
+                qs[i] = blk.q[i][b];
+            bg_rotfit3(F, qs, R);
+            bg_mul_tn3(R, F, S);
+            for (int i = 0; i < 9; i++) {
+                h.R[i][b] = R[i];
+                h.S[i][b] = S[i];
             }
+            h.ok[b] = 1.0;
         }
-        for (int a = 0; a < m; a++)
-            for (int l = 0; l < 3; l++)
-                BA[a][l] = BG[a][0] * A[l] + BG[a][1] * A[3 + l] + BG[a][2] * A[6 + l];
-        const double w = scale * md->volume[e];
-        const double two_mu = 2.0 * md->mu, lambda = md->lambda;
-        const int32_t *sc = scatter + (size_t)e * T;
-        for (int a = 0; a < m; a++) {
-            const int i = a / 3, c = a % 3;
-            for (int b = a; b < m; b++) {
-                const int32_t pos = sc[BG_ELASTIC_TRI_INDEX(m, a, b)];
-                if (pos < 0)
-                    continue;
-                const int j = b / 3;
-                double v = BA[a][0] * BG[b][0] + BA[a][1] * BG[b][1] + BA[a][2] * BG[b][2] +
-                           lambda * h[a] * h[b];
-                if (c == b % 3)
-                    v += two_mu * (g[i][0] * g[j][0] + g[i][1] * g[j][1] + g[i][2] * g[j][2]);
-                values[pos] += w * v;
-            }
+        block3_twist(&h, md->mu, md->lambda, project);
+        for (int b = 0; b < count; b++) {
+            if (h.ok[b] != 0.0)
+                continue;
+            double S[9], A[9];
+            for (int i = 0; i < 9; i++)
+                S[i] = h.S[i][b];
+            twist_block3(md->mu, md->lambda, S, S[0] + S[4] + S[8], project, A);
+            for (int i = 0; i < 9; i++)
+                h.A[i][b] = A[i];
+        }
+        /* The next block's scatter rows: elements in curve order sit at
+         * scattered rows of the map (mesh order), so ask for them early. */
+        for (int b = 0; b < ELASTIC_BLOCK && e0 + ELASTIC_BLOCK + b < mesh->ne; b++) {
+            const char *row = (const char *)(scatter + (size_t)md->order[e0 + ELASTIC_BLOCK + b] *
+                                                           ELASTIC_TRI3);
+            for (size_t off = 0; off < ELASTIC_TRI3 * sizeof *scatter; off += 64)
+                __builtin_prefetch(row + off);
+        }
+        block3_stiffness(&h, Di, md->volume + e0, scale, md->mu, md->lambda);
+        for (int b = 0; b < count; b++) {
+            const int32_t *sc = scatter + (size_t)md->order[e0 + b] * ELASTIC_TRI3;
+            for (int t = 0; t < ELASTIC_TRI3; t++)
+                if (sc[t] >= 0)
+                    values[sc[t]] += h.K[t][b];
         }
     }
 }
@@ -845,11 +1069,11 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
         assemble3(md, q, project, scale, scatter, values);
         return;
     }
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        const int32_t *el = mesh->elements + (size_t)e * k;
+    for (int32_t p = 0; p < mesh->ne; p++) {
+        const int32_t *el = md->nodes + (size_t)p * k;
         double Di[9], F[9], R[9], H[81], g[4][3];
         double quat[4] = {0, 0, 0, 0}; /* 2D: unused */
-        elastic_dminv(md, (size_t)e, Di);
+        elastic_dminv(md, (size_t)p, Di);
         deformation_gradient(n, el, q, Di, F);
         int path;
         material_point(n, md->mu, md->lambda, F, quat, R, NULL, H, project, &path);
@@ -867,8 +1091,8 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
                         s += H[r * nn + d * n + ep] * g[j][ep];
                     HB[r][j * n + d] = s;
                 }
-        const double w = scale * md->volume[e];
-        const int32_t *sc = scatter + (size_t)e * T;
+        const double w = scale * md->volume[p];
+        const int32_t *sc = scatter + (size_t)md->order[p] * T;
         for (int a = 0; a < m; a++) {
             const int i = a / n, c = a % n;
             for (int bcol = a; bcol < m; bcol++) {
@@ -899,12 +1123,12 @@ void bg_elastic_force_magnitude(const bg_elastic_t *md, const double *q, double 
 {
     const int n = md->n, k = n + 1, nn = n * n;
     const bg_mesh_t *mesh = md->mesh;
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        const int32_t *el = mesh->elements + (size_t)e * k;
+    for (int32_t p = 0; p < mesh->ne; p++) {
+        const int32_t *el = md->nodes + (size_t)p * k;
         double Di[9], F[9], R[9], P[9], quat[4] = {0, 0, 0, 0}, g[4][3];
-        elastic_dminv(md, (size_t)e, Di);
+        elastic_dminv(md, (size_t)p, Di);
         if (n == 3)
-            quat_load(md, (size_t)e, quat);
+            quat_load(md, (size_t)p, quat);
         deformation_gradient(n, el, q, Di, F);
         int path;
         material_point(n, md->mu, md->lambda, F, quat, R, NULL, NULL, 0, &path);
@@ -930,7 +1154,7 @@ void bg_elastic_force_magnitude(const bg_elastic_t *md, const double *q, double 
                 P[i] += fabs(Pb[i]);
         }
         barycentric_gradients(n, Di, g);
-        const double w = scale * md->volume[e];
+        const double w = scale * md->volume[p];
         for (int i = 0; i < k; i++)
             for (int a = 0; a < n; a++) {
                 double s = 0.0;
@@ -947,17 +1171,17 @@ void bg_elastic_apply_laplacian(const bg_elastic_t *md, const double *restrict u
     const int n = md->n, k = n + 1;
     const bg_mesh_t *mesh = md->mesh;
     memset(out, 0, (size_t)mesh->nv * n * sizeof *out);
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        const int32_t *el = mesh->elements + (size_t)e * k;
+    for (int32_t p = 0; p < mesh->ne; p++) {
+        const int32_t *el = md->nodes + (size_t)p * k;
         double Di[9], g[4][3];
-        elastic_dminv(md, (size_t)e, Di);
+        elastic_dminv(md, (size_t)p, Di);
         barycentric_gradients(n, Di, g);
         for (int i = 0; i < k; i++)
             for (int j = 0; j < k; j++) {
                 double s = 0.0;
                 for (int b = 0; b < n; b++)
                     s += g[i][b] * g[j][b];
-                s *= md->volume[e];
+                s *= md->volume[p];
                 for (int c = 0; c < n; c++)
                     out[(size_t)el[i] * n + c] += s * u[(size_t)el[j] * n + c];
             }
@@ -968,12 +1192,12 @@ void bg_elastic_assemble_scalar_laplacian(const bg_elastic_t *md, double scale,
                                           const int32_t *restrict scatter, double *restrict values)
 {
     const int n = md->n, k = n + 1, T = BG_ELASTIC_TRI_SIZE(k);
-    for (int32_t e = 0; e < md->mesh->ne; e++) {
+    for (int32_t p = 0; p < md->mesh->ne; p++) {
         double Di[9], g[4][3];
-        elastic_dminv(md, (size_t)e, Di);
+        elastic_dminv(md, (size_t)p, Di);
         barycentric_gradients(n, Di, g);
-        const double w = scale * md->volume[e];
-        const int32_t *sc = scatter + (size_t)e * T;
+        const double w = scale * md->volume[p];
+        const int32_t *sc = scatter + (size_t)md->order[p] * T;
         for (int i = 0; i < k; i++)
             for (int j = i; j < k; j++) {
                 const int32_t pos = sc[BG_ELASTIC_TRI_INDEX(k, i, j)];
