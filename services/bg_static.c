@@ -162,6 +162,8 @@ struct bg_solver {
     double *qn_s, *qn_y, *qn_rho, *qn_alpha, *qn_grad; /* pairs, 1/yᵀs, scratch, ∇ (free) */
     bg_method method;
     double last_magnitude; /* |elastic| + |gravity work| + inertia of the last evaluation */
+    int fitted_elsewhere;  /* the last evaluation was at a rejected chord step, not the
+                              iterate: the model's energy density is not the iterate's */
     double rotfit_seconds; /* evaluations not yet reported (bg_solver_minimize, _report) */
     int mass_ready;        /* mass holds the lumped masses */
     double vector_seconds; /* vector work of the iterations, not yet reported */
@@ -488,6 +490,7 @@ static double fit_eval(problem_t *p, int id, const double *q, double *grad)
 static double potential(problem_t *p, const double *q, double *grad)
 {
     const double t0 = bg_clock_now();
+    p->fitted_elsewhere = 0;
     double elastic = fit_eval(p, 0, q, grad);
     if (p->target_model) {
         const double b = p->blend, e1 = fit_eval(p, 1, q, p->grad_target);
@@ -792,8 +795,15 @@ static void swap_arrays(double **a, double **b)
  * when W falls by the Armijo fraction of its slope; the first that does
  * not, one that inverts an element when keep_orientation, or a gradient
  * at or below g_stop, ends them. On return q_trial,
- * grad_trial, *W and *g describe the last kept point (the model's
- * rotations are those of that point); *taken counts the kept steps.
+ * grad_trial, *W and *g describe the last kept point; *taken counts the
+ * kept steps. A rejected step leaves the model's rotations at the point
+ * it tried (fitted_elsewhere): they serve only as warm starts, since the
+ * next Hessian is assembled after refitting them at the iterate
+ * (bg_elastic_assemble_hessian takes settled rotations as they are and
+ * refits the others, an agent evaluates first), so evaluating the kept
+ * point again, as this once did, cost an evaluation per iteration for
+ * nothing; minimize evaluates once at the end if the result's energy
+ * density needs it.
  */
 static bg_status chord_steps(problem_t *p, int most, double g_stop, int keep_orientation,
                              double *W, double *g, int *taken, bg_error_t *err)
@@ -824,8 +834,7 @@ static bg_status chord_steps(problem_t *p, int most, double g_stop, int keep_ori
         if (p->failed != BG_OK)
             return BG_OK;
         if (!(W_c <= *W + STATIC_ARMIJO * slope)) {
-            /* back to the kept point's rotations (and energy density) */
-            potential(p, p->q_trial, p->chord_grad);
+            p->fitted_elsewhere = 1;
             return BG_OK;
         }
         swap_arrays(&p->q_trial, &p->chord_q);
@@ -1402,10 +1411,13 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         goto out;
     }
     memcpy(res->q, p->q, ndof * sizeof *res->q);
-    /* A remote backend fitted the rotations on the agents: the energy
-     * density of the result comes from one evaluation here. */
+    /* A remote backend fitted the rotations on the agents, and a rejected
+     * chord step leaves them elsewhere: the energy density of the result
+     * comes from one evaluation here. */
     if (p->backend != bg_backend_local())
         bg_elastic_eval(p->model, p->q, p->mag);
+    else if (p->fitted_elsewhere)
+        potential(p, p->q, p->mag);
     memcpy(res->energy_density, bg_elastic_energy_density(p->model),
            (size_t)scene->mesh->ne * sizeof *res->energy_density);
     res->wall_seconds = bg_clock_now() - t_start;

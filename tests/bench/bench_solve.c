@@ -21,6 +21,7 @@
  *
  * --smoke: a tiny box for part 1, and part 2 with capped local/global.
  * --stiff: part 3 alone (the README's stiff-bar table).
+ * --only CASE: part 1 alone on one of its cases (bunny-edit, box-201600).
  */
 #include <math.h>
 #include <stdint.h>
@@ -492,13 +493,17 @@ static void bench_stiff(int smoke)
 int main(int argc, char **argv)
 {
     int smoke = 0, stiff_only = 0;
+    const char *only = NULL;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "--smoke") == 0) {
             smoke = 1;
         } else if (strcmp(argv[i], "--stiff") == 0) {
             stiff_only = 1; /* Part 3 alone, full */
+        } else if (strcmp(argv[i], "--only") == 0 && i + 1 < argc) {
+            only = argv[++i]; /* one case of part 1 alone */
         } else {
-            fprintf(stderr, "usage: OPENBLAS_NUM_THREADS=1 bench_solve [--smoke | --stiff]\n");
+            fprintf(stderr,
+                    "usage: OPENBLAS_NUM_THREADS=1 bench_solve [--smoke | --stiff | --only CASE]\n");
             return 2;
         }
     }
@@ -532,8 +537,18 @@ int main(int argc, char **argv)
     printf("%-11s %-12s %5s %4s %9s %9s %9s %10s %9s %9s %9s %9s %9s %6s\n", "scene", "method",
            "iters", "conv", "rel_grad", "setup", "once", "per_it", "rotfit", "assembly", "factor",
            "solve", "other", "fact/it");
+    int ran = 0;
     for (size_t i = 0; i < case_count; i++)
-        bench_iterations(&cases[i], smoke ? CHOLMOD_REPS_SMOKE : CHOLMOD_REPS_FULL);
+        if (!only || strcmp(only, cases[i].label) == 0) {
+            bench_iterations(&cases[i], smoke ? CHOLMOD_REPS_SMOKE : CHOLMOD_REPS_FULL);
+            ran++;
+        }
+    if (only) {
+        if (!ran)
+            bench_fail("--only names no case of part 1");
+        bench_print_figures();
+        return bench_failures > 0 ? 1 : 0;
+    }
 
     printf("\nPart 2: error against run time (seconds from the start of the solve, setup "
            "included)\n");
