@@ -222,7 +222,8 @@ static bg_status solve_factor(void *opaque, int id, double shift, bg_error_t *er
     const double t_setup = bg_clock_now();
     if (st == BG_OK && !s->set_up[id]) {
         st = bga_client_solve_setup(s->solver, job, bg_sparse_size(sys), bg_sparse_colptr(sys),
-                                    bg_sparse_rowidx(sys), s->b->lease_ms, err);
+                                    bg_sparse_rowidx(sys), bg_sparse_prefers_solves(sys),
+                                    s->b->lease_ms, err);
         s->set_up[id] = st == BG_OK;
     }
     int posdef = 0;

@@ -16,6 +16,7 @@ struct bg_sparse {
     cholmod_factor *L;
     cholmod_dense *B, *X, *Y, *E;
     int analyzed;
+    int prefer_solves;                    /* bg_sparse_prefer_solves */
     double factor_flops, factor_nonzeros; /* from the analysis */
     bg_sparse_timing_t timing;
 };
@@ -310,6 +311,22 @@ double *bg_sparse_values(bg_sparse_t *sys)
 void bg_sparse_zero(bg_sparse_t *sys)
 {
     memset(sys->A->x, 0, sys->nnz * sizeof(double));
+}
+
+void bg_sparse_prefer_solves(bg_sparse_t *sys)
+{
+    sys->prefer_solves = 1;
+    sys->common.supernodal_switch = BG_SPARSE_SOLVES_SWITCH;
+}
+
+int bg_sparse_prefers_solves(const bg_sparse_t *sys)
+{
+    return sys->prefer_solves;
+}
+
+int bg_sparse_supernodal(const bg_sparse_t *sys)
+{
+    return sys->L ? sys->L->is_super != 0 : -1;
 }
 
 void bg_sparse_add_diagonal(bg_sparse_t *sys, const double *d)

@@ -67,6 +67,26 @@ const int32_t *bg_sparse_scatter(const bg_sparse_t *sys);
 double *bg_sparse_values(bg_sparse_t *sys);
 void bg_sparse_zero(bg_sparse_t *sys);
 
+/*
+ * The system will be solved far more often than it is factored (a
+ * prefactored method's Laplacian: hundreds of solves per factorization):
+ * the factor is made simplicial, not supernodal, unless its flops per
+ * nonzero reach BG_SPARSE_SOLVES_SWITCH (CHOLMOD's own switch is 40).
+ * A simplicial solve streams the factor with none of the supernodal
+ * solve's per-supernode BLAS calls, which dominate on the small
+ * supernodes of these matrices: three right-hand sides on the bunny's
+ * scalar Laplacian (flops/nnz 85) 0.46 ms against 0.87, the bending
+ * slab's (188) 1.26 against 1.81, bar-twist's (66) 0.08 against 0.16;
+ * the 32³ box's (722) stays supernodal, where the simplicial solve is
+ * slower and its factorization 12 times slower. Call before the first
+ * factorization; the sparse-solve agent is told (solve-setup).
+ */
+#define BG_SPARSE_SOLVES_SWITCH 200.0
+void bg_sparse_prefer_solves(bg_sparse_t *sys);
+int bg_sparse_prefers_solves(const bg_sparse_t *sys);
+/* 1 when the factor is supernodal, 0 simplicial, −1 before the analysis. */
+int bg_sparse_supernodal(const bg_sparse_t *sys);
+
 /* Adds d[i] to diagonal entry i (d holds size() values). */
 void bg_sparse_add_diagonal(bg_sparse_t *sys, const double *d);
 

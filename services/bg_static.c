@@ -349,8 +349,10 @@ static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
         if (p->lg_system[c] != c)
             continue; /* same free vertices as an earlier coordinate: same matrix */
         bg_status st = bg_sparse_new(p->mesh, 1, p->lg_index[c], count, &p->lg[c], err);
-        if (st == BG_OK)
+        if (st == BG_OK) {
+            bg_sparse_prefer_solves(p->lg[c]); /* factored once, solved every iteration */
             st = p->backend->ops->solve_open(p->session, 1 + c, p->lg[c], err);
+        }
         if (st != BG_OK)
             return st;
     }
