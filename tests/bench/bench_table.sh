@@ -15,8 +15,11 @@
 # build of a commit without the quasi-newton method leaves that method's
 # cells empty. The scenes are this checkout's (configs/scenes,
 # tests/bench/scenes). Run it with the machine otherwise idle if you can;
-# OPENBLAS_NUM_THREADS=1 and OMP_NUM_THREADS=1 (CHOLMOD's OpenMP loops) are
-# set for every run: one core per figure.
+# Every run has one core: OPENBLAS_NUM_THREADS=1, OMP_NUM_THREADS=1 and
+# OMP_THREAD_LIMIT=1. The last is the one that counts for CHOLMOD: its
+# supernodal factorization opens OpenMP teams of a fixed four threads
+# (a num_threads clause, which OMP_NUM_THREADS does not cap) whose waiting
+# cost 15-30 % more CPU time on this 2-core machine's bunny-edit solves.
 #
 # What each row measures:
 #   slab, bunny    biotgrid solve --compare (every static method) to
@@ -51,7 +54,7 @@ while [ $# -gt 0 ]; do
 done
 [ -n "$out" ] || out=$(mktemp -d "${TMPDIR:-/tmp}/bench-table.XXXXXX")
 mkdir -p "$out" || exit 1
-export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1
+export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 OMP_THREAD_LIMIT=1
 command -v jq >/dev/null || { echo "bench_table.sh: needs jq" >&2; exit 1; }
 for b in $before $after; do
     for f in broker/biotgrid tests/bench/bench_rotfit tests/bench/bench_solve; do
@@ -193,7 +196,8 @@ echo "| rotation fit, bench_rotfit warm (M tets/s) | $(cell rotfit before "%.1f"
 echo "| local/global iteration, $(basename "$bunny" .json) / $(basename "$box" .json) (ms) | $(cell lg_bunny before "%.2f") / $(cell lg_box before "%.1f") | $(cell lg_bunny after "%.2f") / $(cell lg_box after "%.1f") | about half of before |"
 echo
 echo "Medians over $rounds round(s), runs alternated (odd rounds before then after, even rounds"
-echo "after then before); OPENBLAS_NUM_THREADS=1, OMP_NUM_THREADS=1. Every round's value:"
+echo "after then before); one thread (OPENBLAS_NUM_THREADS, OMP_NUM_THREADS, OMP_THREAD_LIMIT = 1)."
+echo "Every round's value:"
 echo
 for key in rotfit ratio bartwist lg_bunny lg_box; do
     echo "- $key: before [$(raw $key before)], after [$(raw $key after)]"
