@@ -19,7 +19,8 @@
 # OMP_THREAD_LIMIT=1. The last is the one that counts for CHOLMOD: its
 # supernodal factorization opens OpenMP teams of a fixed four threads
 # (a num_threads clause, which OMP_NUM_THREADS does not cap) whose waiting
-# cost 15-30 % more CPU time on this 2-core machine's bunny-edit solves.
+# cost 30-65 % more CPU time (user + system) in two Newton solves of bunny-edit
+# on this 2-core machine.
 #
 # What each row measures:
 #   slab, bunny    biotgrid solve --compare (every static method) to
