@@ -941,6 +941,101 @@ static void block3_twist(hess3_t *restrict h, double mu, double lambda, int proj
     }
 }
 
+/*
+ * twist_block3's other branch, for the lanes block3_twist left (ok = 0):
+ * the eigenvectors of sym(S) by the cyclic Jacobi method of
+ * bg_sym3_eigen, the pair sums floored and, when projecting, the twist
+ * eigenvalues clamped, A = V diag(a) Vᵀ. The lanes run the scalar
+ * routine's sweeps in step with the same arithmetic; a lane that has
+ * converged (or whose pivot is zero) takes the identity rotation (c = 1,
+ * s = 0) while the others go on. In the projected Hessian of a bent or
+ * compressed body this is most elements (any pair sum σi + σj below
+ * −c/μ ≈ 2 sends a lane here), so it runs vectorised.
+ */
+/* One Jacobi rotation in the (p, q) plane on every live lane (the
+ * others rotate by the identity); inline, so that p and q are constants
+ * and the lane loop vectorises. */
+static inline __attribute__((always_inline)) void
+jacobi_lanes(double (*restrict a)[ELASTIC_BLOCK], double (*restrict Q)[ELASTIC_BLOCK],
+             const double *restrict live, int p, int q)
+{
+    for (int b = 0; b < ELASTIC_BLOCK; b++) {
+        const double apq = a[3 * p + q][b];
+        const int active = live[b] != 0.0 && apq != 0.0;
+        const double theta = (a[3 * q + q][b] - a[3 * p + p][b]) / (2.0 * (active ? apq : 1.0));
+        const double t = copysign(1.0, theta) / (fabs(theta) + sqrt(theta * theta + 1.0));
+        const double c0 = 1.0 / sqrt(t * t + 1.0);
+        const double c = active ? c0 : 1.0, s = active ? t * c0 : 0.0;
+        for (int i = 0; i < 3; i++) {
+            const double aip = a[3 * i + p][b], aiq = a[3 * i + q][b];
+            a[3 * i + p][b] = c * aip - s * aiq;
+            a[3 * i + q][b] = s * aip + c * aiq;
+        }
+        for (int j = 0; j < 3; j++) {
+            const double apj = a[3 * p + j][b], aqj = a[3 * q + j][b];
+            a[3 * p + j][b] = c * apj - s * aqj;
+            a[3 * q + j][b] = s * apj + c * aqj;
+        }
+        for (int i = 0; i < 3; i++) {
+            const double qip = Q[3 * i + p][b], qiq = Q[3 * i + q][b];
+            Q[3 * i + p][b] = c * qip - s * qiq;
+            Q[3 * i + q][b] = s * qip + c * qiq;
+        }
+    }
+}
+
+ELASTIC_CLONES
+static void block3_twist_eigen(hess3_t *restrict h, double mu, double lambda, int project)
+{
+    enum { B = ELASTIC_BLOCK };
+    double a[9][B], Q[9][B], live[B];
+    for (int b = 0; b < B; b++) {
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) {
+                a[3 * i + j][b] = 0.5 * (h->S[3 * i + j][b] + h->S[3 * j + i][b]);
+                Q[3 * i + j][b] = i == j ? 1.0 : 0.0;
+            }
+        live[b] = h->ok[b] == 0.0 ? 1.0 : 0.0;
+    }
+    for (int sweep = 0; sweep < BG_ROTFIT_JACOBI_SWEEPS; sweep++) {
+        int any = 0;
+        for (int b = 0; b < B; b++) {
+            const double off = a[1][b] * a[1][b] + a[2][b] * a[2][b] + a[5][b] * a[5][b];
+            const double diag = a[0][b] * a[0][b] + a[4][b] * a[4][b] + a[8][b] * a[8][b];
+            live[b] = live[b] != 0.0 && !(off <= 1e-32 * diag || off == 0.0) ? 1.0 : 0.0;
+        }
+        for (int b = 0; b < B; b++)
+            any |= live[b] != 0.0;
+        if (!any)
+            break;
+        jacobi_lanes(a, Q, live, 0, 1);
+        jacobi_lanes(a, Q, live, 0, 2);
+        jacobi_lanes(a, Q, live, 1, 2);
+    }
+    for (int b = 0; b < B; b++) {
+        const double trY = h->S[0][b] + h->S[4][b] + h->S[8][b];
+        const double c = lambda * (trY - 3.0) - 2.0 * mu;
+        const double floor_ = ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY));
+        double w[3];
+        for (int k = 0; k < 3; k++) {
+            double sk = trY - a[4 * k][b];
+            if (sk < floor_)
+                sk = floor_;
+            double t = 2.0 * mu + 2.0 * c / sk;
+            if (project && t < 0.0)
+                t = 0.0;
+            w[k] = 0.5 * (t - 2.0 * mu);
+        }
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) {
+                const double v = Q[3 * i][b] * w[0] * Q[3 * j][b] +
+                                 Q[3 * i + 1][b] * w[1] * Q[3 * j + 1][b] +
+                                 Q[3 * i + 2][b] * w[2] * Q[3 * j + 2][b];
+                h->A[3 * i + j][b] = h->ok[b] == 0.0 ? v : h->A[3 * i + j][b];
+            }
+    }
+}
+
 /* A block's lanes as one vector: GCC's and clang's vector extension
  * (each target_clones clone maps it to its own registers). Used where the
  * vectoriser gives up on the lane loops (78 entries of twelve small
@@ -1031,16 +1126,11 @@ static void assemble3(const bg_elastic_t *md, const double *q, int project, doub
             h.ok[b] = 1.0;
         }
         block3_twist(&h, md->mu, md->lambda, project);
-        for (int b = 0; b < count; b++) {
-            if (h.ok[b] != 0.0)
-                continue;
-            double S[9], A[9];
-            for (int i = 0; i < 9; i++)
-                S[i] = h.S[i][b];
-            twist_block3(md->mu, md->lambda, S, S[0] + S[4] + S[8], project, A);
-            for (int i = 0; i < 9; i++)
-                h.A[i][b] = A[i];
-        }
+        int rest = 0;
+        for (int b = 0; b < count; b++)
+            rest |= h.ok[b] == 0.0;
+        if (rest)
+            block3_twist_eigen(&h, md->mu, md->lambda, project);
         /* The next block's scatter rows: elements in curve order sit at
          * scattered rows of the map (mesh order), so ask for them early. */
         for (int b = 0; b < ELASTIC_BLOCK && e0 + ELASTIC_BLOCK + b < mesh->ne; b++) {
