@@ -333,6 +333,19 @@ static int pd3_shifted(const double M[9], double theta)
  * A = c M⁻¹ directly; otherwise an eigen-decomposition floors s_k and, when
  * projecting, clamps negative t_k to zero.
  */
+/* The twist block's weight along an eigenvector of M whose eigenvalue is
+ * the pair sum s: a = (t − 2μ)/2 with t = 2μ + 2c/s the twist eigenvalue,
+ * s floored, t clamped at 0 when projecting. */
+static inline double twist_weight(double mu, double c, double s, double floor_, int project)
+{
+    if (s < floor_)
+        s = floor_;
+    double t = 2.0 * mu + 2.0 * c / s;
+    if (project && t < 0.0)
+        t = 0.0;
+    return 0.5 * (t - 2.0 * mu);
+}
+
 static void twist_block3(double mu, double lambda, const double S[9], double trY, int project,
                          double A[9])
 {
@@ -360,15 +373,8 @@ static void twist_block3(double mu, double lambda, const double S[9], double trY
     double y[3], V[9];
     bg_sym3_eigen(Ysym, y, V);
     double a[3];
-    for (int k = 0; k < 3; k++) {
-        double sk = trY - y[k];
-        if (sk < floor_)
-            sk = floor_;
-        double t = 2.0 * mu + 2.0 * c / sk;
-        if (project && t < 0.0)
-            t = 0.0;
-        a[k] = 0.5 * (t - 2.0 * mu);
-    }
+    for (int k = 0; k < 3; k++)
+        a[k] = twist_weight(mu, c, trY - y[k], floor_, project);
     for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++)
             A[3 * i + j] = V[3 * i] * a[0] * V[3 * j] + V[3 * i + 1] * a[1] * V[3 * j + 1] +
@@ -1017,15 +1023,8 @@ static void block3_twist_eigen(hess3_t *restrict h, double mu, double lambda, in
         const double c = lambda * (trY - 3.0) - 2.0 * mu;
         const double floor_ = ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY));
         double w[3];
-        for (int k = 0; k < 3; k++) {
-            double sk = trY - a[4 * k][b];
-            if (sk < floor_)
-                sk = floor_;
-            double t = 2.0 * mu + 2.0 * c / sk;
-            if (project && t < 0.0)
-                t = 0.0;
-            w[k] = 0.5 * (t - 2.0 * mu);
-        }
+        for (int k = 0; k < 3; k++)
+            w[k] = twist_weight(mu, c, trY - a[4 * k][b], floor_, project);
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) {
                 const double v = Q[3 * i][b] * w[0] * Q[3 * j][b] +
