@@ -1,10 +1,10 @@
 #!/bin/sh
-# soak.sh BIOTGRID AGENT_SCRIPTS WORKDIR GRID_CONFIG AUDIT JOBS KILLS
+# soak.sh BIOTGRID AGENT_SCRIPTS WORKDIR GRID_CONFIG AUDIT JOBS KILLS [BROKER_KILL]
 # The soak benchmark: JOBS jobs of mixed scenes (static, dynamic, morph)
 # and mechanisms (central, catallactic, posted) submitted to a local grid
 # while KILLS times a random agent is killed with SIGKILL and the grid
-# repaired (`grid up` again), and once, half way, the broker is killed
-# with SIGKILL and restarted the same way. Every submit carries an
+# repaired (`grid up` again), and (BROKER_KILL 1, the default) once, half
+# way, the broker is killed with SIGKILL and restarted the same way. Every submit carries an
 # Idempotency-Key and is retried while the broker is down.
 #
 # Checked (the smoke in the suite runs a few jobs): no job lost (every
@@ -14,7 +14,7 @@
 # the kills, time to the end, broker and agents' memory before and after.
 # Run by hand for the full figures: JOBS=100, KILLS=10.
 set -u
-bin=$1 scripts=$2 work=$3 config=$4 audit=$5 jobs=${6:-100} kills=${7:-10}
+bin=$1 scripts=$2 work=$3 config=$4 audit=$5 jobs=${6:-100} kills=${7:-10} broker_kill=${8:-1}
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(cd "$here/../.." && pwd)
 . "$here/broker_lib.sh"
@@ -57,7 +57,7 @@ t0=$(now)
   while [ $r -lt "$kills" ]; do
     sleep 1.5
     r=$((r + 1))
-    if [ $r -eq $(((kills + 1) / 2)) ]; then
+    if [ "$broker_kill" = 1 ] && [ $r -eq $(((kills + 1) / 2)) ]; then
       pid=$(jq -r .broker.pid "$state/grid.json")
       echo "kill broker $pid" >>"$work/kills.txt"
     else

@@ -927,7 +927,12 @@ static void test_method_names(void **state)
     assert_string_equal(bg_method_name(BG_METHOD_NEWTON), "newton");
     bg_error_t err = BG_ERROR_INIT;
     assert_int_equal(bg_method_parse("Newton", &m, &err), BG_ERR_INVALID);
-    assert_non_null(strstr(err.message, "newton, local-global, variational or backward-euler"));
+    assert_non_null(
+        strstr(err.message, "newton, local-global, quasi-newton, variational or backward-euler"));
+    assert_int_equal(bg_method_parse("quasi-newton", &m, NULL), BG_OK);
+    assert_int_equal(m, BG_METHOD_QUASI_NEWTON);
+    assert_string_equal(bg_method_name(m), "quasi-newton");
+    assert_false(bg_method_is_dynamic(m));
     assert_int_equal(bg_method_parse("backward-euler", &m, NULL), BG_OK);
     assert_int_equal(m, BG_METHOD_BACKWARD_EULER);
     assert_true(bg_method_is_dynamic(m));
