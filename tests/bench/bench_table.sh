@@ -9,7 +9,7 @@
 #   sh tests/bench/bench_table.sh [--before BUILD] [--after BUILD] [--rounds N]
 #                                 [--out DIR] [--smoke]
 #
-# BUILD is a build folder of this project (its broker/biotgrid and
+# BUILD is a build folder of this project (its bin/biotgrid and
 # tests/bench/bench_rotfit, bench_solve are used); --after defaults to
 # ./build, --before to nothing (then the table has one column). A before
 # build of a commit without the quasi-newton method leaves that method's
@@ -59,8 +59,12 @@ done
 mkdir -p "$out" || exit 1
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 OMP_THREAD_LIMIT=1
 command -v jq >/dev/null || { echo "bench_table.sh: needs jq" >&2; exit 1; }
+# The command: bin/biotgrid in this tree, broker/biotgrid in builds of
+# commits before it moved.
+cmd() { if [ -x "$1/bin/biotgrid" ]; then echo "$1/bin/biotgrid"; else echo "$1/broker/biotgrid"; fi; }
 for b in $before $after; do
-    for f in broker/biotgrid tests/bench/bench_rotfit tests/bench/bench_solve; do
+    [ -x "$(cmd "$b")" ] || { echo "bench_table.sh: $b/bin/biotgrid missing (build it first)" >&2; exit 1; }
+    for f in tests/bench/bench_rotfit tests/bench/bench_solve; do
         [ -x "$b/$f" ] || { echo "bench_table.sh: $b/$f missing (build it first)" >&2; exit 1; }
     done
 done
@@ -82,7 +86,7 @@ note_load() { loads="$loads
 # method refuses its per-method cap, so it gets a copy without it (in $3;
 # meshes named by bare file names are found in the build's own folder).
 scene_for() {
-    if "$2/broker/biotgrid" solve --help | grep -q quasi-newton; then
+    if "$(cmd "$2")" solve --help | grep -q quasi-newton; then
         echo "$1"
     else
         jq 'if (.solver.max_iterations | type) == "object"
@@ -96,16 +100,16 @@ measure() {
     b=$1 d=$2
     mkdir -p "$d"
     methods=newton,local-global
-    "$b/broker/biotgrid" solve --help | grep -q quasi-newton && methods=$methods,quasi-newton
+    "$(cmd "$b")" solve --help | grep -q quasi-newton && methods=$methods,quasi-newton
     "$b/tests/bench/bench_rotfit" $sflag > "$d/rotfit.txt" 2>&1 || failed=1
     "$b/tests/bench/bench_solve" $sflag > "$d/solve.txt" 2>&1 || failed=1
     for s in slab bunny; do
         eval scene=\$$s
-        "$b/broker/biotgrid" solve "$(scene_for "$scene" "$b" "$d")" --compare $methods \
+        "$(cmd "$b")" solve "$(scene_for "$scene" "$b" "$d")" --compare $methods \
             --tolerance $tol --quiet --out "$d/$s" > "$d/$s.txt" 2>&1
         [ $? -le 1 ] || failed=1
     done
-    "$b/broker/biotgrid" solve "$(scene_for "$box" "$b" "$d")" --method local-global \
+    "$(cmd "$b")" solve "$(scene_for "$box" "$b" "$d")" --method local-global \
         --tolerance 1e-12 --max-iterations $boxits --quiet --out "$d/box" > "$d/box.txt" 2>&1
     [ $? -le 1 ] || failed=1
 }
