@@ -150,8 +150,11 @@ bg_status bga_client_rotfit_start(bga_client_t *c, uint64_t job, const double *p
                                   size_t count, unsigned want, bg_error_t *err);
 bg_status bga_client_rotfit_finish(bga_client_t *c, bga_rotfit_out_t *out, bg_error_t *err);
 
+/* prefer_solves: the system will be solved far more often than factored
+ * (bg_sparse_prefer_solves). */
 bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const int32_t *colptr,
-                                 const int32_t *rowidx, int64_t lease_ms, bg_error_t *err);
+                                 const int32_t *rowidx, int prefer_solves, int64_t lease_ms,
+                                 bg_error_t *err);
 /* *posdef = 0 when the matrix (plus shift·I) is not positive definite:
  * the caller may retry with a larger shift. */
 bg_status bga_client_solve_factor(bga_client_t *c, uint64_t job, const double *values, size_t nnz,

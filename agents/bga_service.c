@@ -491,6 +491,8 @@ static bga_wire_code solve_setup(bga_service_t *svc, const bga_msg_t *m, double 
         bga_msg_copy_i32(m, BGA_SS_COLPTR, colptr);
         bga_msg_copy_i32(m, BGA_SS_ROWIDX, rowidx);
         st = bg_sparse_new_csc(n, colptr, rowidx, &j->sys, &e);
+        if (st == BG_OK && m->field[BGA_SS_PREFER_SOLVES].i)
+            bg_sparse_prefer_solves(j->sys);
     }
     free(colptr);
     free(rowidx);
@@ -574,11 +576,9 @@ static bga_wire_code solve_rhs(job *j, const bga_msg_t *m, bga_msg_t *rep,
     }
     bga_msg_copy_f64(m, BGA_SR_RHS, j->x);
     const double t0 = bg_clock_now();
-    for (size_t r = 0; r < nrhs; r++) {
-        bg_error_t e = BG_ERROR_INIT;
-        if (bg_sparse_solve(j->sys, j->x + r * n, j->x + r * n, &e) != BG_OK)
-            return bga_wire_fail(werr, BGA_WIRE_NUMERIC, -1, "", "solve %zu: %s", r, e.message);
-    }
+    bg_error_t e = BG_ERROR_INIT;
+    if (bg_sparse_solve_many(j->sys, (int)nrhs, j->x, j->x, &e) != BG_OK)
+        return bga_wire_fail(werr, BGA_WIRE_NUMERIC, -1, "", "solve: %s", e.message);
     const double seconds = bg_clock_now() - t0;
     stats->compute_seconds += seconds;
     bga_msg_init(rep, BGA_SOLVE_RESULT, m->header.job, m->header.seq);

@@ -545,6 +545,11 @@ bg_status bgb_client_market(bgb_client_t *c, cJSON **out, bg_error_t *err)
     return request_json(c, "GET", "/v1/market", NULL, NULL, out, err);
 }
 
+bg_status bgb_client_health(bgb_client_t *c, cJSON **out, bg_error_t *err)
+{
+    return request_json(c, "GET", "/healthz", NULL, NULL, out, err);
+}
+
 bg_status bgb_client_download(bgb_client_t *c, const char *id, const char *name, const char *dir,
                               size_t *size, bg_error_t *err)
 {

@@ -102,6 +102,8 @@ bg_status bgb_client_cancel_job(bgb_client_t *client, const char *id, cJSON **ou
 bg_status bgb_client_result(bgb_client_t *client, const char *id, cJSON **out, bg_error_t *err);
 bg_status bgb_client_agents(bgb_client_t *client, cJSON **out, bg_error_t *err);
 bg_status bgb_client_market(bgb_client_t *client, cJSON **out, bg_error_t *err);
+/* GET /healthz (no token needed): the broker's name and state. */
+bg_status bgb_client_health(bgb_client_t *client, cJSON **out, bg_error_t *err);
 
 /*
  * Downloads result file `name` of job `id` into folder dir (which must

@@ -131,6 +131,10 @@ struct bgb_market {
     double next_clear;
     bgb_contract_t *log; /* ring of c.max_contracts */
     size_t log_head, log_count;
+    /* Agents dropped from the directory (dead or gone), newest last: their
+     * contracts stay in the log, so agents.csv still lists them. */
+    bgb_agent_info_t *departed; /* ring of MARKET_MAX_DEPARTED */
+    size_t departed_head, departed_count;
     bgb_contract_fn on_contract;
     void *on_contract_ctx;
     struct bidref *refs; /* central: the book's bids, MAX_JOBS * MAX_UNITS */
@@ -140,6 +144,10 @@ struct bgb_market {
     bgm_outbox_t *ob;      /* a purchase call's outbox, emptied after each */
     double memory[3];      /* catallactic: remembered price per service good */
 };
+
+/* Departed agents kept for agents.csv: one row each for this many agent
+ * deaths, far more than a contract log of a grid's size sees. */
+#define MARKET_MAX_DEPARTED 4096
 
 static const char *const mech_names[] = {"central", "catallactic", "posted"};
 static const char *const good_names[] = {"rotation-fit", "sparse-solve", "integration-step",
@@ -209,6 +217,7 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     m->agents = calloc(BGB_MARKET_MAX_AGENTS, sizeof *m->agents);
     m->jobs = calloc(MAX_JOBS, sizeof *m->jobs);
     m->log = calloc(c->max_contracts, sizeof *m->log);
+    m->departed = calloc(MARKET_MAX_DEPARTED, sizeof *m->departed);
     m->posted = bgm_posted_new(BGB_MARKET_MAX_AGENTS * BGB_GOODS);
     m->cm = bgm_callmarket_new(MAX_JOBS * MAX_UNITS);
     m->refs = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->refs);
@@ -226,7 +235,7 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     m->ob = bgm_outbox_new(16 * MAX_UNITS);
     bg_error_t aerr = BG_ERROR_INIT;
     if (bgb_auction_new(c->k, c->period, 0.0, &m->auction, &aerr) != BG_OK || !m->refs || !m->ob ||
-        !m->agents || !m->jobs || !m->log || !m->posted || !m->cm) {
+        !m->agents || !m->jobs || !m->log || !m->departed || !m->posted || !m->cm) {
         bgb_market_destroy(&m);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market");
     }
@@ -264,6 +273,7 @@ void bgb_market_destroy(bgb_market_t **pm)
             forget_job(&m->jobs[i]);
     bgm_outbox_destroy(&m->ob);
     free(m->agents);
+    free(m->departed);
     free(m->jobs);
     free(m->log);
     free(m->refs);
@@ -489,6 +499,11 @@ static bg_status on_register(bgb_market_t *m, const uint8_t *idn, size_t len,
 
 static void drop_agent(bgb_market_t *m, agent_t *a)
 {
+    m->departed[(m->departed_head + m->departed_count) % MARKET_MAX_DEPARTED] = a->info;
+    if (m->departed_count < MARKET_MAX_DEPARTED)
+        m->departed_count++;
+    else
+        m->departed_head = (m->departed_head + 1) % MARKET_MAX_DEPARTED;
     bgm_posted_withdraw(m->posted, a->info.id);
     bgb_auction_forget_seller(m->auction, slot_of(m, a));
     a->used = 0;
@@ -2076,26 +2091,34 @@ bg_status bgb_market_write_contracts_csv(const bgb_market_t *m, FILE *out, bg_er
     return BG_OK;
 }
 
+/* One agent's rows of agents.csv under one mechanism; nonzero on a write error. */
+static int agent_rows(const bgb_market_t *m, const bgb_agent_info_t *a, int mech, FILE *out)
+{
+    int failed = 0;
+    for (int g = 0; g < 3; g++)
+        if (a->services & (1u << g))
+            failed |= fprintf(out, "%s,0,%s,%u,basic,%s,%d,%.9g\n", m->name, mech_names[mech],
+                              a->id, good_names[g], a->slots, a->floor[g]) < 0;
+    if (a->resource)
+        for (int g = BGB_GOOD_CORES; g <= BGB_GOOD_MEMORY; g++)
+            failed |= fprintf(out, "%s,0,%s,%u,resource,%s,%.9g,%.9g\n", m->name,
+                              mech_names[mech], a->id, good_names[g],
+                              g == BGB_GOOD_CORES ? a->cores : a->memory, a->floor[g]) < 0;
+    return failed;
+}
+
 bg_status bgb_market_write_agents_csv(const bgb_market_t *m, FILE *out, bg_error_t *err)
 {
     int failed = fputs("scenario,replication,mechanism,agent,role,good,capacity,limit\n", out) < 0;
-    for (int mech = 0; mech < 3; mech++)
-        for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++) {
-            const agent_t *a = &m->agents[i];
-            if (!a->used)
-                continue;
-            for (int g = 0; g < 3; g++)
-                if (a->info.services & (1u << g))
-                    failed |= fprintf(out, "%s,0,%s,%u,basic,%s,%d,%.9g\n", m->name,
-                                      mech_names[mech], a->info.id, good_names[g], a->info.slots,
-                                      a->info.floor[g]) < 0;
-            if (a->info.resource)
-                for (int g = BGB_GOOD_CORES; g <= BGB_GOOD_MEMORY; g++)
-                    failed |= fprintf(out, "%s,0,%s,%u,resource,%s,%.9g,%.9g\n", m->name,
-                                      mech_names[mech], a->info.id, good_names[g],
-                                      g == BGB_GOOD_CORES ? a->info.cores : a->info.memory,
-                                      a->info.floor[g]) < 0;
-        }
+    for (int mech = 0; mech < 3; mech++) {
+        /* The departed first (they registered earlier), then the directory. */
+        for (size_t k = 0; k < m->departed_count; k++)
+            failed |= agent_rows(m, &m->departed[(m->departed_head + k) % MARKET_MAX_DEPARTED],
+                                 mech, out);
+        for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
+            if (m->agents[i].used)
+                failed |= agent_rows(m, &m->agents[i].info, mech, out);
+    }
     if (failed || fflush(out) != 0)
         return bg_error_set(err, BG_ERR_IO, "cannot write agents.csv");
     return BG_OK;

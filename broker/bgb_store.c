@@ -858,6 +858,20 @@ bg_status bgb_store_list_owner(bgb_store_t *store, const char *owner, int state,
     return st;
 }
 
+/* Ends a write transaction begun under write_lock: COMMIT when st is
+ * BG_OK, ROLLBACK when it is not or the COMMIT fails (harmless where no
+ * transaction is open), then releases write_lock. Returns the first
+ * failure. */
+static bg_status end_write(bgb_store_t *store, bg_status st, bg_error_t *err)
+{
+    if (st == BG_OK)
+        st = run(store->writer, "COMMIT", err);
+    if (st != BG_OK)
+        run(store->writer, "ROLLBACK", NULL);
+    pthread_mutex_unlock(&store->write_lock);
+    return st;
+}
+
 /*
  * Under write_lock: writes what waits to be written later, opens a write
  * transaction and reads job id's state into *state. On failure (no such
@@ -897,16 +911,16 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
     pthread_mutex_lock(&store->write_lock);
     bg_status st = begin_on_job(store, id, &current, err);
     if (st != BG_OK)
-        goto unlock;
+        goto out;
     if (!(from_mask & (1u << current))) {
         st = bg_error_set(err, BG_ERR_CONFLICT, "job %s is %s; it cannot become %s", id,
                           bgb_job_state_name((bgb_job_state)current), bgb_job_state_name(to));
-        goto rollback;
+        goto out;
     }
     const double now = wall_clock();
     if ((st = prepare(db, "UPDATE jobs SET state = ?, updated = ?, reason = ? WHERE id = ?", &s,
                       err)) != BG_OK)
-        goto rollback;
+        goto out;
     sqlite3_bind_int(s, 1, to);
     sqlite3_bind_double(s, 2, now);
     if (reason)
@@ -922,17 +936,9 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
         snprintf(json, sizeof json, "{\"state\":\"%s\"}", bgb_job_state_name(to));
         st = insert_event(db, id, now, "state", json, err);
     }
-    if (st == BG_OK) {
-        st = run(db, "COMMIT", err);
-        if (st == BG_OK) {
-            events_committed(store);
-            goto unlock;
-        }
-    }
-rollback:
-    run(db, "ROLLBACK", NULL);
-unlock:
-    pthread_mutex_unlock(&store->write_lock);
+out:
+    if ((st = end_write(store, st, err)) == BG_OK)
+        events_committed(store);
     return st;
 }
 
@@ -1071,14 +1077,14 @@ bg_status bgb_store_put_file(bgb_store_t *store, const char *id, const char *kin
     pthread_mutex_lock(&store->write_lock);
     flush_later(store);
     if ((st = run(db, "BEGIN IMMEDIATE", err)) != BG_OK)
-        goto unlock;
+        goto out;
     if ((st = job_exists(db, id, err)) != BG_OK)
-        goto rollback;
+        goto out;
     /* The job's bytes (its user's quota) count the file once, replaced or new. */
     int64_t old = 0;
     if ((st = prepare(db, "SELECT length(data) FROM files WHERE job = ? AND kind = ? AND name = ?",
                       &s, err)) != BG_OK)
-        goto rollback;
+        goto out;
     sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
     sqlite3_bind_text(s, 2, kind, -1, SQLITE_STATIC);
     sqlite3_bind_text(s, 3, file->name, -1, SQLITE_STATIC);
@@ -1088,19 +1094,14 @@ bg_status bgb_store_put_file(bgb_store_t *store, const char *id, const char *kin
     s = NULL;
     if ((st = insert_file(db, id, kind, file, err)) != BG_OK ||
         (st = prepare(db, "UPDATE jobs SET bytes = bytes + ? WHERE id = ?", &s, err)) != BG_OK)
-        goto rollback;
+        goto out;
     sqlite3_bind_int64(s, 1, (int64_t)file->size - old);
     sqlite3_bind_text(s, 2, id, -1, SQLITE_STATIC);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "count the job's bytes");
     finish(s);
-    if (st == BG_OK && (st = run(db, "COMMIT", err)) == BG_OK)
-        goto unlock;
-rollback:
-    run(db, "ROLLBACK", NULL);
-unlock:
-    pthread_mutex_unlock(&store->write_lock);
-    return st;
+out:
+    return end_write(store, st, err);
 }
 
 bg_status bgb_store_usage(bgb_store_t *store, const char *owner, int *in_flight, int64_t *bytes,
@@ -1137,11 +1138,11 @@ bg_status bgb_store_delete(bgb_store_t *store, const char *id, bg_error_t *err)
     pthread_mutex_lock(&store->write_lock);
     bg_status st = begin_on_job(store, id, &state, err);
     if (st != BG_OK)
-        goto unlock;
+        goto out;
     if (bgb_job_state_is_active((bgb_job_state)state)) {
         st = bg_error_set(err, BG_ERR_CONFLICT, "job %s is %s; cancel it before deleting it", id,
                           bgb_job_state_name((bgb_job_state)state));
-        goto rollback;
+        goto out;
     }
     static const char *const deletes[] = {"DELETE FROM files WHERE job = ?",
                                           "DELETE FROM events WHERE job = ?",
@@ -1155,13 +1156,8 @@ bg_status bgb_store_delete(bgb_store_t *store, const char *id, bg_error_t *err)
         finish(s);
         s = NULL;
     }
-    if (st == BG_OK && (st = run(db, "COMMIT", err)) == BG_OK)
-        goto unlock;
-rollback:
-    run(db, "ROLLBACK", NULL);
-unlock:
-    pthread_mutex_unlock(&store->write_lock);
-    return st;
+out:
+    return end_write(store, st, err);
 }
 
 bg_status bgb_store_get_file(bgb_store_t *store, const char *id, const char *kind,

@@ -167,6 +167,8 @@ int main(int argc, char **argv)
     }
     const char *cmd = argv[1];
     const command_t *c = find(cmd);
+    if (c && (strcmp(c->name, "broker") == 0 || strcmp(c->name, "agent") == 0))
+        bg_cmd_daemon_reexec(argv); /* see cmd.h: stop signals blocked in every thread */
     if (c)
         return c->run(argc - 1, argv + 1);
     if (strcmp(cmd, "--version") == 0 || strcmp(cmd, "version") == 0) {

@@ -1,6 +1,8 @@
 #include "cmd.h"
 
 #include <limits.h>
+#include <pthread.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -66,20 +68,72 @@ int bg_cmd_make_directories(const char *path)
 
 volatile sig_atomic_t bg_cmd_stop_requested;
 
-static void on_stop_signal(int sig)
+static pthread_mutex_t stop_lock = PTHREAD_MUTEX_INITIALIZER;
+static pthread_cond_t stop_cond = PTHREAD_COND_INITIALIZER;
+static sigset_t stop_signals;
+
+/* The one place SIGTERM and SIGINT are received: every thread blocks them
+ * and this one takes them with sigwait, so no handler ever runs on a
+ * thread's stack. (METIS, through CHOLMOD, installs its own SIGTERM
+ * handler while it orders a matrix, one that longjmps to the ordering
+ * thread's stack: delivered to another thread, it crashed the broker.) */
+static void *stop_waiter(void *arg)
 {
-    (void)sig;
-    bg_cmd_stop_requested = 1;
+    (void)arg;
+    for (;;) {
+        int sig = 0;
+        if (sigwait(&stop_signals, &sig) != 0)
+            continue;
+        pthread_mutex_lock(&stop_lock);
+        bg_cmd_stop_requested = 1;
+        pthread_cond_broadcast(&stop_cond);
+        pthread_mutex_unlock(&stop_lock);
+    }
+    return NULL;
+}
+
+void bg_cmd_daemon_reexec(char **argv)
+{
+    sigset_t set, old;
+    sigemptyset(&set);
+    sigaddset(&set, SIGTERM);
+    sigaddset(&set, SIGINT);
+    pthread_sigmask(SIG_BLOCK, &set, &old);
+    if (sigismember(&old, SIGTERM) && sigismember(&old, SIGINT))
+        return; /* born blocked: every thread has the mask */
+    /* A signal that arrives from here on stays pending across the exec
+     * and is taken by the new image's waiter. */
+    /* The program's own path, so that its name (comm) stays "biotgrid". */
+    char self[PATH_MAX];
+    const ssize_t n = readlink("/proc/self/exe", self, sizeof self - 1);
+    if (n > 0) {
+        self[n] = '\0';
+        execv(self, argv);
+    }
+    /* No /proc: go on; a stop signal may then reach a library's thread. */
 }
 
 void bg_cmd_stop_on_signals(void)
 {
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_stop_signal; /* no SA_RESTART: see cmd.h */
-    sigemptyset(&sa.sa_mask);
-    sigaction(SIGTERM, &sa, NULL);
-    sigaction(SIGINT, &sa, NULL);
+    sigemptyset(&stop_signals);
+    sigaddset(&stop_signals, SIGTERM);
+    sigaddset(&stop_signals, SIGINT);
+    pthread_sigmask(SIG_BLOCK, &stop_signals, NULL);
+    pthread_t waiter;
+    if (pthread_create(&waiter, NULL, stop_waiter, NULL) == 0) {
+        pthread_detach(waiter);
+    } else {
+        /* No thread to take them: the default action (exit) stays. */
+        pthread_sigmask(SIG_UNBLOCK, &stop_signals, NULL);
+    }
+}
+
+void bg_cmd_wait_for_stop(void)
+{
+    pthread_mutex_lock(&stop_lock);
+    while (!bg_cmd_stop_requested)
+        pthread_cond_wait(&stop_cond, &stop_lock);
+    pthread_mutex_unlock(&stop_lock);
 }
 
 int bg_cmd_write_ready_file(const char *path, const char *line)

@@ -56,12 +56,27 @@ const char *bg_cmd_grid_dir(const char *option);
 int bg_cmd_make_directories(const char *path);
 
 /*
- * Daemons (agent, broker): SIGTERM and SIGINT set bg_cmd_stop_requested,
- * without SA_RESTART so a blocking poll returns EINTR at once and the
- * daemon finishes the call in progress and exits.
+ * Daemons (agent, broker): call bg_cmd_stop_on_signals before any thread
+ * is started. SIGTERM and SIGINT are then blocked in every thread (the
+ * mask is inherited) and taken by one waiter thread that sets
+ * bg_cmd_stop_requested: loops see it at their next poll timeout, and
+ * bg_cmd_wait_for_stop returns. No signal handler runs, so a library that
+ * swaps handlers meanwhile (METIS does) cannot hijack the signal.
  */
 extern volatile sig_atomic_t bg_cmd_stop_requested;
 void bg_cmd_stop_on_signals(void);
+/*
+ * Called first thing by a daemon's main: libraries start threads before
+ * main (OpenBLAS's pool) with the mask the process was born with, and a
+ * stop signal delivered to one of them would run whatever handler is in
+ * place. Unless SIGTERM and SIGINT are blocked already, this blocks them
+ * and execs the program (/proc/self/exe) with argv again, so that every thread of the
+ * new image is born with them blocked. Returns when they were (or when
+ * the exec failed).
+ */
+void bg_cmd_daemon_reexec(char **argv);
+/* Sleeps until a stop signal has arrived. */
+void bg_cmd_wait_for_stop(void);
 
 /*
  * Writes line to path atomically (path.tmp, then rename), so a process

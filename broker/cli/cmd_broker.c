@@ -184,8 +184,7 @@ int bg_cmd_broker(int argc, char **argv)
                                                : "beyond loopback: --insecure");
     printf("limits:\n%s", limits);
     fflush(stdout);
-    while (!bg_cmd_stop_requested)
-        pause();
+    bg_cmd_wait_for_stop();
     rc = BG_EXIT_OK;
 out:
     bgb_broker_stop(&broker);

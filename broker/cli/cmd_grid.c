@@ -23,11 +23,15 @@
  * it), waits until each has written its endpoint and answers a heartbeat,
  * and writes DIR/grid.json (name, endpoint, PID, services, slots per
  * agent). If any agent fails, every agent started so far is stopped.
- * `down` sends SIGTERM to each recorded agent, SIGKILL to any still alive
- * after the grace (default 5 s), and removes the state file. A PID is
- * signalled only while /proc says it still runs this grid's agent (its
- * command line names the grid's ready file), so a recycled PID is never
- * hit. DIR defaults to $BIOTGRID_GRID_DIR or out/grid.
+ * `down` sends SIGTERM to the broker, then to each recorded agent, SIGKILL
+ * to any still alive after the grace (default 5 s), says for each what it
+ * did, and removes the state file once nothing of the grid runs (else it
+ * keeps what still runs and exits 1). A PID is signalled only while /proc
+ * shows the process the state recorded (PID and start time), so a
+ * recycled PID is never hit. `up` on a grid some of whose processes died
+ * keeps what runs and starts the rest (a broker again on its endpoint and
+ * port, with its store). DIR defaults to $BIOTGRID_GRID_DIR or out/grid
+ * and is resolved to its canonical path.
  *
  * "security": "curve" in FILE makes every ZeroMQ link of the grid speak
  * CURVE: `up` keeps a key pair per process in DIR/keys (made once, kept
@@ -62,6 +66,7 @@
 #include "bga_client.h"
 #include "bga_curve.h"
 #include "bgb_broker.h"
+#include "bgb_client.h"
 #include "bgb_tokens.h"
 #include "cmd.h"
 #include "cmd_agent.h"
@@ -340,6 +345,21 @@ static int is_our_agent(long pid, const char *dir, const char *name)
     return strstr(cmd, want) != NULL;
 }
 
+/* Whether the process recorded as a still runs: its PID names a live
+ * process with the recorded start time (a PID reused by another process
+ * has another), or, for a record without one, whose command line names
+ * the grid's ready file. A zombie counts as gone. */
+static int runs_now(const grid_agent *a, const char *dir)
+{
+    if (a->pid <= 0)
+        return 0;
+    unsigned long long start = 0;
+    const char state = proc_state(a->pid, &start);
+    if (!state || state == 'Z')
+        return 0;
+    return a->start_time ? start == a->start_time : is_our_agent(a->pid, dir, a->spec.name);
+}
+
 /* Whether agent a still runs. `children`: a is this process's child (in
  * `up`), tracked by waitpid, which also reaps it; otherwise it is known
  * only by its PID and command line. A stopped agent's pid becomes 0. */
@@ -404,6 +424,7 @@ static int write_state(const grid *g, const char *dir)
         cJSON_AddStringToObject(a, "name", g->agent[i].spec.name);
         cJSON_AddStringToObject(a, "endpoint", g->agent[i].endpoint);
         cJSON_AddNumberToObject(a, "pid", (double)g->agent[i].pid);
+        cJSON_AddNumberToObject(a, "start_time", (double)g->agent[i].start_time);
         cJSON_AddStringToObject(a, "services", g->agent[i].spec.services);
         cJSON_AddNumberToObject(a, "slots", g->agent[i].spec.slots);
         cJSON_AddItemToArray(arr, a);
@@ -413,6 +434,7 @@ static int write_state(const grid *g, const char *dir)
         cJSON_AddStringToObject(br, "url", g->broker_url);
         cJSON_AddStringToObject(br, "endpoint", g->broker.endpoint);
         cJSON_AddNumberToObject(br, "pid", (double)g->broker.pid);
+        cJSON_AddNumberToObject(br, "start_time", (double)g->broker.start_time);
     }
     char *text = cJSON_Print(root);
     cJSON_Delete(root);
@@ -432,6 +454,13 @@ static int write_state(const grid *g, const char *dir)
         return -1;
     }
     return 0;
+}
+
+/* A process's recorded start time (0: not recorded, an older state file). */
+static unsigned long long recorded_start(const cJSON *obj)
+{
+    const cJSON *t = cJSON_GetObjectItemCaseSensitive(obj, "start_time");
+    return cJSON_IsNumber(t) && t->valuedouble > 0 ? (unsigned long long)t->valuedouble : 0;
 }
 
 /* The recorded grid; 1 when there is none, 2 when it is malformed. */
@@ -468,6 +497,7 @@ static int read_state(const char *dir, grid *g)
         snprintf(ga->spec.services, sizeof ga->spec.services, "%s", s->valuestring);
         snprintf(ga->endpoint, sizeof ga->endpoint, "%s", e->valuestring);
         ga->pid = (long)p->valuedouble;
+        ga->start_time = recorded_start(a);
     }
     const cJSON *br = cJSON_GetObjectItemCaseSensitive(root, "broker");
     if (rc == 0 && br) {
@@ -479,6 +509,7 @@ static int read_state(const char *dir, grid *g)
             snprintf(g->broker_url, sizeof g->broker_url, "%s", u->valuestring);
             snprintf(g->broker.endpoint, sizeof g->broker.endpoint, "%s", e->valuestring);
             g->broker.pid = (long)p->valuedouble;
+            g->broker.start_time = recorded_start(br);
         } else {
             rc = 2;
         }
@@ -615,19 +646,11 @@ static int still_runs(grid_agent *a, const char *dir, int children)
     if (children) {
         gone = child_exited(a->pid);
     } else {
-        /* Known by PID: ours while the process that matched our command
-         * line lives (same start time), through its exit. */
-        unsigned long long start = 0;
-        const char state = proc_state(a->pid, &start);
-        if (!state || state == 'Z') {
-            gone = 1;
-        } else if (a->start_time) {
-            gone = start != a->start_time;
-        } else {
-            gone = !is_our_agent(a->pid, dir, a->spec.name);
-            if (!gone)
-                a->start_time = start;
-        }
+        /* Known by PID: ours while the process with the recorded start
+         * time lives, through its exit. */
+        gone = !runs_now(a, dir);
+        if (!gone && !a->start_time)
+            (void)proc_state(a->pid, &a->start_time);
     }
     if (gone) {
         a->pid = 0;
@@ -711,9 +734,9 @@ static int ping(const grid *g, const char *dir, const grid_agent *a, bga_agent_s
 static int any_alive(const grid *g, const char *dir)
 {
     for (int i = 0; i < g->count; i++)
-        if (is_our_agent(g->agent[i].pid, dir, g->agent[i].spec.name))
+        if (runs_now(&g->agent[i], dir))
             return 1;
-    return 0;
+    return g->has_broker && runs_now(&g->broker, dir);
 }
 
 /* Starts the broker once the agents are ready; 1 on failure (the caller stops everything). */
@@ -742,6 +765,7 @@ static int start_broker(grid *g, const char *self, const char *dir)
                 GRID_BROKER_NAME);
         return 1;
     }
+    (void)proc_state(g->broker.pid, &g->broker.start_time);
     printf("%-12s %-28s pid %-7ld REST %s\n", GRID_BROKER_NAME, g->broker.endpoint,
            g->broker.pid, g->broker_url);
     return 0;
@@ -882,6 +906,89 @@ static int make_keys(const grid *g, const char *dir)
     return 0;
 }
 
+/* Whether the broker's REST API answers /healthz (no token needed); the
+ * reason into msg when it does not. */
+static int broker_health(const char *url, char *msg, size_t size)
+{
+    const bgb_client_config_t config = {
+        .url = url, .cacert = bg_cmd_cacert_find(NULL), .connect_timeout_ms = GRID_PING_MS,
+        .timeout_ms = GRID_PING_MS};
+    bgb_client_t *client = NULL;
+    cJSON *doc = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    bg_status st = bgb_client_new(&config, &client, &err);
+    if (st == BG_OK)
+        st = bgb_client_health(client, &doc, &err);
+    cJSON_Delete(doc);
+    bgb_client_destroy(&client);
+    if (st != BG_OK)
+        snprintf(msg, size, "%s", err.message);
+    return st == BG_OK ? 0 : -1;
+}
+
+/* The REST port of a recorded URL "http[s]://HOST:PORT" (-1: none). */
+static int url_port(const char *url)
+{
+    const char *colon = strrchr(url, ':');
+    char *end = NULL;
+    const long p = colon ? strtol(colon + 1, &end, 10) : -1;
+    return colon && end && !*end && p > 0 && p <= 65535 ? (int)p : -1;
+}
+
+/*
+ * `up` on a grid some of whose processes still run: the config must name
+ * the same grid (its name and agents). What runs is kept; a dead broker is
+ * started again on the endpoint and REST port it had, with its store, so
+ * the agents that kept running find it there and its jobs are recovered;
+ * dead agents are started again. 1 on failure.
+ */
+static int adopt_running(grid *g, const grid *old, const char *dir)
+{
+    if (strcmp(g->name, old->name) != 0 || g->count != old->count) {
+        fprintf(stderr,
+                "biotgrid grid: another grid (%s, %d agents) is up in %s: `biotgrid grid down "
+                "--state %s` first\n",
+                old->name, old->count, dir, dir);
+        return 1;
+    }
+    if (g->curve != old->curve) {
+        fprintf(stderr,
+                "biotgrid grid: the grid up in %s runs with security \"%s\" where the config "
+                "says \"%s\": `biotgrid grid down --state %s` first\n",
+                dir, old->curve ? "curve" : "none", g->curve ? "curve" : "none", dir);
+        return 1;
+    }
+    for (int i = 0; i < g->count; i++) {
+        if (strcmp(g->agent[i].spec.name, old->agent[i].spec.name) != 0) {
+            fprintf(stderr,
+                    "biotgrid grid: the grid up in %s has agent '%s' where the config has "
+                    "'%s': `biotgrid grid down --state %s` first\n",
+                    dir, old->agent[i].spec.name, g->agent[i].spec.name, dir);
+            return 1;
+        }
+        if (runs_now(&old->agent[i], dir)) {
+            g->agent[i].pid = old->agent[i].pid;
+            g->agent[i].start_time = old->agent[i].start_time;
+            snprintf(g->agent[i].endpoint, sizeof g->agent[i].endpoint, "%s",
+                     old->agent[i].endpoint);
+        }
+    }
+    if (old->has_broker) {
+        g->has_broker = 1;
+        snprintf(g->broker.spec.listen, sizeof g->broker.spec.listen, "%s", old->broker.endpoint);
+        snprintf(g->broker_url, sizeof g->broker_url, "%s", old->broker_url);
+        snprintf(g->broker.endpoint, sizeof g->broker.endpoint, "%s", old->broker.endpoint);
+        const int port = url_port(old->broker_url);
+        if (port > 0)
+            g->broker_port = port;
+        if (runs_now(&old->broker, dir)) {
+            g->broker.pid = old->broker.pid;
+            g->broker.start_time = old->broker.start_time;
+        }
+    }
+    return 0;
+}
+
 static int grid_up(const char *file, const char *dir, int broker_port, const char *broker_ep)
 {
     grid g;
@@ -900,17 +1007,9 @@ static int grid_up(const char *file, const char *dir, int broker_port, const cha
     if ((rc = check_security(&g, file)) != 0)
         return rc;
     grid old;
-    if (read_state(dir, &old) == 0 && any_alive(&old, dir)) {
-        fprintf(stderr,
-                "biotgrid grid: a grid (%s) is already up in %s: `biotgrid grid down` "
-                "first\n",
-                old.name, dir);
+    const int adopting = read_state(dir, &old) == 0 && any_alive(&old, dir);
+    if (adopting && adopt_running(&g, &old, dir) != 0)
         return 1;
-    }
-    if (bg_cmd_make_directories(dir) != 0) {
-        fprintf(stderr, "biotgrid grid: cannot create %s: %s\n", dir, strerror(errno));
-        return 1;
-    }
     if (g.curve && make_keys(&g, dir) != 0)
         return 1;
     char self[PATH_MAX];
@@ -920,33 +1019,56 @@ static int grid_up(const char *file, const char *dir, int broker_port, const cha
         return 1;
     }
     self[n] = 0;
-    if (g.has_broker && start_broker(&g, self, dir) != 0) {
-        stop_agents(&g, dir, 5.0, 1);
-        return 1;
+    /* On failure only what this call started is stopped. */
+    grid started = g;
+    started.count = 0;
+    started.has_broker = 0;
+    int kept = 0, starting = 0;
+    if (g.has_broker && g.broker.pid > 0) {
+        printf("%-12s %-28s pid %-7ld REST %s (kept: it runs)\n", GRID_BROKER_NAME,
+               g.broker.endpoint, g.broker.pid, g.broker_url);
+        kept++;
+    } else if (g.has_broker) {
+        rc = start_broker(&g, self, dir);
+        started.has_broker = 1;
+        started.broker = g.broker;
+        starting++;
+        if (rc != 0) {
+            stop_agents(&started, dir, 5.0, 1);
+            return 1;
+        }
     }
     for (int i = 0; i < g.count; i++) {
+        if (g.agent[i].pid > 0)
+            continue;
         g.agent[i].pid =
             spawn_agent(self, dir, &g, &g.agent[i], g.has_broker ? g.broker.endpoint : NULL);
         if (g.agent[i].pid < 0) {
             fprintf(stderr, "biotgrid grid: cannot start %s: %s\n", g.agent[i].spec.name,
                     strerror(errno));
-            g.count = i;
-            stop_agents(&g, dir, 5.0, 1);
+            g.agent[i].pid = 0;
+            stop_agents(&started, dir, 5.0, 1);
             return 1;
         }
+        started.agent[started.count++] = g.agent[i];
+        starting++;
     }
     const double deadline = bg_clock_now() + GRID_READY_SECONDS;
-    for (int i = 0; i < g.count && rc == 0; i++) {
+    for (int i = 0, k = 0; i < g.count && rc == 0; i++) {
         grid_agent *a = &g.agent[i];
+        const int ours = k < started.count && started.agent[k].pid == a->pid;
         int exited = 0;
-        while (read_ready_file(dir, a) != 0 && bg_clock_now() < deadline &&
-               !(exited = child_exited(a->pid)))
-            sleep_ms(20);
-        if (exited)
-            a->pid = 0; /* reaped: nothing to stop */
+        if (ours) {
+            while (read_ready_file(dir, a) != 0 && bg_clock_now() < deadline &&
+                   !(exited = child_exited(a->pid)))
+                sleep_ms(20);
+            if (exited)
+                started.agent[k].pid = a->pid = 0; /* reaped: nothing to stop */
+            k++;
+        }
         bga_agent_status_t st;
         char msg[BG_ERROR_MESSAGE_MAX] = "";
-        if (read_ready_file(dir, a) != 0) {
+        if (ours && read_ready_file(dir, a) != 0) {
             fprintf(stderr, "biotgrid grid: %s %s (see %s/%s.log)\n", a->spec.name,
                     exited ? "exited before it was ready" : "did not become ready within 10 s", dir,
                     a->spec.name);
@@ -955,21 +1077,33 @@ static int grid_up(const char *file, const char *dir, int broker_port, const cha
             fprintf(stderr, "biotgrid grid: %s\n", msg);
             rc = 1;
         } else {
-            printf("%-12s %-28s pid %-7ld services %-18s slots %lld\n", a->spec.name, a->endpoint,
-                   a->pid, a->spec.services, (long long)st.slots);
+            if (ours)
+                (void)proc_state(a->pid, &a->start_time);
+            else
+                kept++;
+            printf("%-12s %-28s pid %-7ld services %-18s slots %lld%s\n", a->spec.name,
+                   a->endpoint, a->pid, a->spec.services, (long long)st.slots,
+                   ours ? "" : " (kept: it runs)");
         }
     }
     if (rc == 0 && write_state(&g, dir) != 0)
         rc = 1;
     if (rc != 0) {
-        stop_agents(&g, dir, 5.0, 1);
+        stop_agents(&started, dir, 5.0, 1);
         return rc;
     }
-    if (g.has_broker && write_token(dir) != 0) {
-        stop_agents(&g, dir, 5.0, 1);
+    char token_path[PATH_MAX];
+    const int has_token = path_join(token_path, sizeof token_path, dir, BG_CMD_TOKEN_FILE) == 0 &&
+                          access(token_path, R_OK) == 0;
+    /* A kept store keeps its tokens: the user's stays valid. */
+    if (g.has_broker && !(adopting && has_token) && write_token(dir) != 0) {
+        stop_agents(&started, dir, 5.0, 1);
         return 1;
     }
-    if (g.has_broker)
+    if (adopting)
+        printf("grid %s up again in %s: %d processes kept, %d started\n", g.name, dir, kept,
+               starting);
+    else if (g.has_broker)
         printf("grid %s up: %d agents, broker on %s, state in %s/grid.json\n", g.name, g.count,
                g.broker_url, dir);
     else
@@ -1056,7 +1190,7 @@ static int grid_status(const char *dir)
         const grid_agent *a = &g.agent[i];
         bga_agent_status_t st;
         char msg[BG_ERROR_MESSAGE_MAX] = "";
-        if (!is_our_agent(a->pid, dir, a->spec.name)) {
+        if (!runs_now(a, dir)) {
             printf("%-12s %-28s pid %-7ld not running\n", a->spec.name, a->endpoint, a->pid);
             bad = 1;
         } else if (ping(&g, dir, a, &st, msg, sizeof msg) != 0) {
@@ -1070,9 +1204,14 @@ static int grid_status(const char *dir)
         }
     }
     if (g.has_broker) {
-        if (!is_our_agent(g.broker.pid, dir, GRID_BROKER_NAME)) {
+        char msg[BG_ERROR_MESSAGE_MAX] = "";
+        if (!runs_now(&g.broker, dir)) {
             printf("%-12s %-28s pid %-7ld not running\n", GRID_BROKER_NAME, g.broker.endpoint,
                    g.broker.pid);
+            bad = 1;
+        } else if (broker_health(g.broker_url, msg, sizeof msg) != 0) {
+            printf("%-12s %-28s pid %-7ld REST %s not answering: %s\n", GRID_BROKER_NAME,
+                   g.broker.endpoint, g.broker.pid, g.broker_url, msg);
             bad = 1;
         } else {
             printf("%-12s %-28s pid %-7ld up, REST %s%s\n", GRID_BROKER_NAME, g.broker.endpoint,
@@ -1080,10 +1219,74 @@ static int grid_status(const char *dir)
             bad |= other_agents(&g, dir);
         }
     }
-    printf("grid %s: %s\n", g.name, bad ? "degraded" : "up");
+    printf("grid %s: %s\n", g.name,
+           bad ? "degraded (`biotgrid grid up` again starts what is missing)" : "up");
     return bad;
 }
 
+/* How stopping a process went. */
+typedef enum { STOP_NOT_RUNNING, STOP_TERM, STOP_KILL, STOP_FAILED } stop_outcome;
+
+/* Signals every process of procs[0..n) that still runs with SIGTERM, waits
+ * up to grace seconds for all of them, then SIGKILLs the others and waits
+ * at most 5 s more. Each outcome into out[i], with a line saying it into
+ * what[i]. Returns how many still run. */
+static int stop_processes(grid_agent *const *procs, int n, const char *dir, double grace,
+                          stop_outcome *out, char (*what)[160])
+{
+    long pid[GRID_MAX_AGENTS + 1];
+    for (int i = 0; i < n; i++) {
+        pid[i] = procs[i]->pid;
+        out[i] = STOP_NOT_RUNNING;
+        if (!still_runs(procs[i], dir, 0)) {
+            unsigned long long start = 0;
+            snprintf(what[i], sizeof what[i], "was not running (pid %ld %s)", pid[i],
+                     pid[i] > 0 && proc_state(pid[i], &start) ? "is another process now"
+                                                              : "is gone");
+        } else if (kill((pid_t)pid[i], SIGTERM) != 0) {
+            out[i] = STOP_FAILED;
+            snprintf(what[i], sizeof what[i], "NOT stopped: SIGTERM to pid %ld: %s", pid[i],
+                     strerror(errno));
+        } else {
+            out[i] = STOP_TERM;
+        }
+    }
+    for (int pass = 0; pass < 2; pass++) {
+        const double deadline = bg_clock_now() + (pass == 0 ? grace : 5.0);
+        for (int i = 0; i < n; i++)
+            while (out[i] != STOP_NOT_RUNNING && out[i] != STOP_FAILED &&
+                   still_runs(procs[i], dir, 0) && bg_clock_now() < deadline)
+                sleep_ms(pass == 0 ? 20 : 10);
+        for (int i = 0; i < n && pass == 0; i++)
+            if (out[i] == STOP_TERM && still_runs(procs[i], dir, 0)) {
+                kill((pid_t)pid[i], SIGKILL);
+                out[i] = STOP_KILL;
+            }
+    }
+    int left = 0;
+    for (int i = 0; i < n; i++) {
+        if (out[i] == STOP_TERM)
+            snprintf(what[i], sizeof what[i], "stopped (pid %ld, SIGTERM)", pid[i]);
+        else if (out[i] == STOP_KILL && !still_runs(procs[i], dir, 0))
+            snprintf(what[i], sizeof what[i], "stopped (pid %ld, SIGKILL after %.1f s of SIGTERM)",
+                     pid[i], grace);
+        else if (out[i] == STOP_KILL) {
+            out[i] = STOP_FAILED;
+            snprintf(what[i], sizeof what[i], "NOT stopped: pid %ld still runs after SIGKILL",
+                     pid[i]);
+        }
+        left += out[i] == STOP_FAILED;
+    }
+    return left;
+}
+
+/*
+ * Stops the broker first (its running jobs need the agents), then every
+ * agent, each only while it is provably the process the state recorded
+ * (PID and start time). Says what it did for each. The state file is
+ * removed once nothing of the grid runs; otherwise it is rewritten with
+ * what still runs and the exit status is 1.
+ */
 static int grid_down(const char *dir, double grace)
 {
     grid g;
@@ -1094,15 +1297,43 @@ static int grid_down(const char *dir, double grace)
     }
     if (rc)
         return rc;
-    const int broker_killed = stop_broker(&g, dir, grace, 0);
-    const int killed = stop_agents(&g, dir, grace, 0);
+    /* The broker first, alone: its running jobs need the agents. Then the
+     * agents, all at once (one grace for all). */
+    stop_outcome out[GRID_MAX_AGENTS];
+    char what[GRID_MAX_AGENTS][160];
+    grid_agent *procs[GRID_MAX_AGENTS];
+    int left = 0, stopped = 0;
+    if (g.has_broker) {
+        procs[0] = &g.broker;
+        left += stop_processes(procs, 1, dir, grace, out, what);
+        printf("%-12s %s\n", GRID_BROKER_NAME, what[0]);
+        stopped += out[0] == STOP_TERM || out[0] == STOP_KILL;
+    }
+    for (int i = 0; i < g.count; i++)
+        procs[i] = &g.agent[i];
+    left += stop_processes(procs, g.count, dir, grace, out, what);
+    for (int i = 0; i < g.count; i++) {
+        printf("%-12s %s\n", g.agent[i].spec.name, what[i]);
+        stopped += out[i] == STOP_TERM || out[i] == STOP_KILL;
+    }
     char path[PATH_MAX];
+    if (left) {
+        /* Keep the record of what still runs, so a later `down` finds it. */
+        grid rest = g;
+        rest.count = 0;
+        for (int i = 0; i < g.count; i++)
+            if (g.agent[i].pid > 0)
+                rest.agent[rest.count++] = g.agent[i];
+        rest.has_broker = g.has_broker && g.broker.pid > 0;
+        (void)write_state(&rest, dir);
+        printf("grid %s: %d processes stopped, %d still run: the state in %s/grid.json "
+               "keeps them\n",
+               g.name, stopped, left, dir);
+        return 1;
+    }
     if (path_join(path, sizeof path, dir, "grid.json") == 0)
         unlink(path);
-    if (g.has_broker)
-        printf("grid %s down: the broker stopped%s\n", g.name,
-               broker_killed ? " (with SIGKILL)" : "");
-    printf("grid %s down: %d agents stopped (%d with SIGKILL)\n", g.name, g.count, killed);
+    printf("grid %s down: %d processes stopped, none of the grid runs\n", g.name, stopped);
     return 0;
 }
 
@@ -1184,12 +1415,33 @@ int bg_cmd_grid(int argc, char **argv)
             return 2;
         }
     }
-    if (strcmp(sub, "up") == 0)
-        return grid_up(file, dir, broker_port, broker_ep);
+    const int up = strcmp(sub, "up") == 0;
+    if (!up && strcmp(sub, "status") != 0 && strcmp(sub, "down") != 0) {
+        fprintf(stderr, "biotgrid grid: unknown subcommand '%s'\n", sub);
+        usage(stderr);
+        return 2;
+    }
+    /* One grid, one name: ./x, x and /abs/x are the same state folder, and
+     * the processes' command lines name it canonically. */
+    if (up && bg_cmd_make_directories(dir) != 0) {
+        fprintf(stderr, "biotgrid grid: cannot create %s: %s\n", dir, strerror(errno));
+        return 1;
+    }
+    char canonical[PATH_MAX];
+    if (bg_file_canonical(dir, canonical, sizeof canonical) != 0) {
+        if (errno == ENOENT && !up) {
+            printf("no grid is up in %s (no such folder)\n", dir);
+            return strcmp(sub, "down") == 0 ? 0 : 1;
+        }
+        fprintf(stderr, "biotgrid grid: %s: %s\n", dir, strerror(errno));
+        return 1;
+    }
+    if (up)
+        return grid_up(file, canonical, broker_port, broker_ep);
     if (strcmp(sub, "status") == 0)
-        return grid_status(dir);
+        return grid_status(canonical);
     if (strcmp(sub, "down") == 0)
-        return grid_down(dir, grace);
+        return grid_down(canonical, grace);
     fprintf(stderr, "biotgrid grid: unknown subcommand '%s'\n", sub);
     usage(stderr);
     return 2;

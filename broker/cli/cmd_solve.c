@@ -80,8 +80,9 @@ const char bg_cmd_solve_usage[] =
     "\n"
     "Solves an elastic deformation scene in this process and reports error against run time.\n"
     "\n"
-    "  --method M                 one solver; static, morph and parameterize scenes: newton or\n"
-    "                             local-global; dynamic scenes: variational or backward-euler;\n"
+    "  --method M                 one solver; static, morph and parameterize scenes: newton,\n"
+    "                             local-global or quasi-newton; dynamic scenes: variational or\n"
+    "                             backward-euler;\n"
     "                             surface-edit scenes: local-global (default: the scene's)\n"
     "  --compare M1,M2            run several methods on the same scene, one curve each\n"
     "  --tolerance T              stop at relative gradient T, for every method (default: the\n"
@@ -589,7 +590,8 @@ int bg_cmd_solve(int argc, char **argv)
         if (bg_method_is_dynamic(o.methods[i]) != dynamic) {
             fprintf(stderr, "biotgrid solve: %s: method %s does not fit a %s scene (use %s)\n",
                     o.scene_path, bg_method_name(o.methods[i]), dynamic ? "dynamic" : "static",
-                    dynamic ? "variational or backward-euler" : "newton or local-global");
+                    dynamic ? "variational or backward-euler"
+                            : "newton, local-global or quasi-newton");
             goto out;
         }
     const char *grid_dir = bg_cmd_grid_dir(o.grid_dir);

@@ -273,7 +273,7 @@ static int run_compute(const char *dir)
     for (size_t i = 0; i < 3 * (size_t)n; i++)
         rhs[i] = cos(0.11 * (double)i) - 0.5;
     const uint64_t job = 2000;
-    bg_status st = bga_client_solve_setup(c, job, n, bg_sparse_colptr(sys), bg_sparse_rowidx(sys),
+    bg_status st = bga_client_solve_setup(c, job, n, bg_sparse_colptr(sys), bg_sparse_rowidx(sys), 0,
                                           60000, &err);
     CHECK(st == BG_OK, "solve set-up: %s", err.message);
     for (int round = 0; round < 2 && st == BG_OK; round++) {

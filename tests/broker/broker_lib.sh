@@ -16,6 +16,8 @@
 #                                      other agents standing by (checks each step)
 #   market_sellers URL KIND            alive market sellers: KIND service, resource or idle
 #                                      (service sellers with every slot free)
+#   broker_test_begin WORK             WORK emptied, fail=0, INT/TERM stop broker b, exit 1
+#   broker_config WORK NAME [JSON]     WORK/broker.json: ephemeral loopback ports, WORK/state
 #   grid_test_begin BIN WORK           a grid test's start: WORK emptied, state=WORK/grid,
 #                                      fail=0, INT/TERM stop the grid and exit 1
 #   grid_test_end SCRIPTS              `grid down` (to WORK/down.txt) and no process of the
@@ -145,6 +147,26 @@ grid_up_market() {
   done
   [ "${_live:-0}" -eq "$nagents" ] && [ "${_res:-0}" -eq 1 ] && [ "$_by" -eq $((nagents - 1)) ]
   check $? "all $nagents agents registered on the market, one selling the host's resources (got $_live, $_res; $_by stand by)"
+}
+
+# broker_test_begin WORK: WORK emptied, fail=0, INT/TERM stop the broker
+# named b (start_broker WORK b) and exit 1.
+broker_test_begin() {
+  _bt_work=$1
+  rm -rf "$_bt_work"
+  mkdir -p "$_bt_work"
+  fail=0
+  trap 'stop_broker "$_bt_work" b; exit 1' INT TERM
+}
+
+# broker_config WORK NAME [JSON]: WORK/broker.json for a broker named NAME
+# on ephemeral loopback ports with its state in WORK/state, JSON's keys
+# (an object) added.
+broker_config() {
+  _bc_extra=${3:-}
+  [ -n "$_bc_extra" ] || _bc_extra='{}'
+  jq -n --arg n "$2" --arg d "$1/state" --argjson x "$_bc_extra" \
+    '{name: $n, port: 0, endpoint: "tcp://127.0.0.1:*", state_dir: $d} + $x' >"$1/broker.json"
 }
 
 grid_test_begin() {

@@ -10,13 +10,8 @@ set -u
 bin=$1 work=$2 scene=$3
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
-mkdir -p "$work"
-fail=0
-trap 'stop_broker "$work" b; exit 1' INT TERM
-cat >"$work/broker.json" <<JSON
-{"name": "restart", "port": 0, "endpoint": "tcp://127.0.0.1:*", "state_dir": "$work/state"}
-JSON
+broker_test_begin "$work"
+broker_config "$work" restart
 jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "central", budget: 1000}' >"$work/submit.json"
 start_broker "$bin" "$work" b "$work/broker.json" || exit 1
 url=$(cut -d' ' -f1 "$work/b.ready")

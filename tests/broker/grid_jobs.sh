@@ -35,5 +35,5 @@ used=$(jq '[.agents[] | select(.calls > 0)] | length' "$work/report.json")
 [ "$used" -ge 2 ]; check $? "the job ran on $used of the grid's agents"
 
 grid_test_end "$scripts"
-grep -q "the broker stopped$" "$work/down.txt"; check $? "grid down stopped the broker by SIGTERM"
+grep -q "^broker  *stopped (pid [0-9]*, SIGTERM)$" "$work/down.txt"; check $? "grid down stopped the broker by SIGTERM"
 exit $fail

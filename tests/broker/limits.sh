@@ -15,14 +15,8 @@ set -u
 bin=$1 slow=$2 work=$3
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
-mkdir -p "$work"
-fail=0
-trap 'stop_broker "$work" b; exit 1' INT TERM
-cat >"$work/broker.json" <<EOF
-{"name": "limits", "port": 0, "endpoint": "tcp://127.0.0.1:*", "state_dir": "$work/state",
- "max_jobs_in_flight": 2, "max_stored_bytes": 3000}
-EOF
+broker_test_begin "$work"
+broker_config "$work" limits '{"max_jobs_in_flight": 2, "max_stored_bytes": 3000}'
 start_broker "$bin" "$work" b "$work/broker.json" || exit 1
 url=$(cut -d' ' -f1 "$work/b.ready")
 pid=$(cut -d' ' -f3 "$work/b.ready")

@@ -11,10 +11,7 @@ set -u
 bin=$1 work=$2
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
-mkdir -p "$work"
-fail=0
-trap 'stop_broker "$work" b; exit 1' INT TERM
+broker_test_begin "$work"
 
 # Two self-signed certificates for 127.0.0.1 (P-256, a day): A serves,
 # B is another party's.
@@ -24,9 +21,7 @@ for n in a b; do
     -keyout "$work/$n.key" -out "$work/$n.pem" >/dev/null 2>&1 ||
     { echo "FAIL: openssl cannot make a test certificate" >&2; exit 1; }
 done
-cat >"$work/broker.json" <<JSON
-{"name": "tls", "port": 0, "endpoint": "tcp://127.0.0.1:*", "state_dir": "$work/state"}
-JSON
+broker_config "$work" tls
 
 # Refusals: each exits 2 before anything listens, with a message naming the fix.
 refused() { # WHAT PATTERN ARGS...
