@@ -88,6 +88,13 @@ before=$(cat "$state/keys/broker.pub")
 check $? "a second grid up"
 [ -n "$before" ] && [ "$(cat "$state/keys/broker.pub")" = "$before" ]; check $? "the second up keeps the grid's keys"
 "$bin" grid status --state "$state" >"$work/status2.txt" 2>&1; check $? "and its grid is up"
+jq '.security = "none"' "$work/curve.json" >"$work/plain.json"
+"$bin" grid up "$work/plain.json" --state "$state" >"$work/up3.txt" 2>&1
+[ $? -eq 1 ] && grep -q 'runs with security "curve" where the config says "none"' "$work/up3.txt"
+check $? "up with another security on the running grid is refused (got $(cat "$work/up3.txt"))"
+"$bin" grid status --state "$state" >"$work/status3.txt" 2>&1
+[ $? -eq 0 ] && grep -q "^broker .*, CURVE$" "$work/status3.txt"
+check $? "and the CURVE grid still runs as it was"
 
 # Refused before anything starts (exit 2 naming the field).
 sed 's/"security": "curve",/"security": "none",/; s|"tcp://127.0.0.1:\*"|"tcp://0.0.0.0:*"|' \
