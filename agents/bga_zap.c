@@ -336,7 +336,7 @@ static void on_request(bga_zap_t *z)
         text = "ZAP version 1.0 only";
     } else if (!curve) {
         text = "CURVE only";
-        snprintf(line, sizeof line, "refused %s: not a CURVE request (ZAP, %d frames)", address,
+        snprintf(line, sizeof line, "refused %.100s: not a CURVE request (ZAP, %d frames)", address,
                  count);
         note(z, line, line);
     } else {
@@ -350,11 +350,11 @@ static void on_request(bga_zap_t *z)
         } else {
             if (z->use_folder)
                 snprintf(line, sizeof line,
-                         "refused %s: CURVE key %s is not among %s (%d in %.200s)", address, key,
-                         z->whose, z->allow.n, z->folder);
+                         "refused %.100s: CURVE key %.40s is not among %.159s (%d in %.200s)",
+                         address, key, z->whose, z->allow.n, z->folder);
             else
-                snprintf(line, sizeof line, "refused %s: CURVE key %s is not %s", address, key,
-                         z->whose);
+                snprintf(line, sizeof line, "refused %.100s: CURVE key %.40s is not %.159s",
+                         address, key, z->whose);
             note(z, line, line);
         }
     }
