@@ -11,6 +11,7 @@
 
 struct bga_agent {
     void *ctx, *socket;
+    bga_zap_t *zap; /* with CURVE: the context's ZAP handler */
     bga_service_t *service;
     bga_market_t *market;
     int poll_ms;
@@ -42,6 +43,26 @@ bg_status bga_agent_new(const bga_agent_config_t *config, bga_agent_t **out, bg_
         config->service.limits.max_frame_bytes ? config->service.limits : bga_wire_default_limits();
     const int64_t maxmsg = (int64_t)(2 * lim.max_frame_bytes);
     zmq_setsockopt(a->socket, ZMQ_MAXMSGSIZE, &maxmsg, sizeof maxmsg);
+    if (config->curve) {
+        /* The handler first: a CURVE socket of a context without one
+         * admits every client that knows its public key. */
+        const char *names[] = {"broker"};
+        const char *keys[] = {config->broker_key ? config->broker_key : ""};
+        const bga_zap_config_t zc = {.names = names,
+                                     .keys = keys,
+                                     .count = 1,
+                                     .whose = "the broker's key (--broker-key)",
+                                     .log = config->log,
+                                     .log_ctx = config->log_ctx};
+        if (!bga_curve_key_valid(config->broker_key)) {
+            st = bg_error_set(err, BG_ERR_INVALID, "CURVE needs the broker's public key");
+            goto fail;
+        }
+        if ((st = bga_zap_new(a->ctx, &zc, &a->zap, err)) != BG_OK ||
+            (st = bga_curve_server(a->socket, config->curve, err)) != BG_OK ||
+            (st = bga_zap_watch(a->zap, a->socket, "compute endpoint", 1, err)) != BG_OK)
+            goto fail;
+    }
     if (zmq_bind(a->socket, config->listen) != 0) {
         st =
             bg_error_set(err, BG_ERR_IO, "cannot bind %s: %s", config->listen, zmq_strerror(errno));
@@ -57,6 +78,9 @@ bg_status bga_agent_new(const bga_agent_config_t *config, bga_agent_t **out, bg_
         bga_market_config_t mc = *config->market;
         mc.endpoint = a->endpoint;
         mc.name = config->service.name;
+        mc.curve = config->curve;
+        mc.broker_key = config->broker_key;
+        mc.zap = a->zap;
         if ((st = bga_market_new(a->ctx, &mc, bg_clock_now(), &a->market, err)) != BG_OK)
             goto fail;
     }
@@ -75,6 +99,7 @@ void bga_agent_destroy(bga_agent_t **pa)
     if (a->socket)
         zmq_close(a->socket);
     bga_market_destroy(&a->market);
+    bga_zap_destroy(&a->zap); /* after the sockets it watched, before the context */
     if (a->ctx)
         zmq_ctx_term(a->ctx);
     bga_service_destroy(&a->service);

@@ -18,6 +18,7 @@
 #include <signal.h>
 
 #include "bg_error.h"
+#include "bga_curve.h"
 #include "bga_market.h"
 #include "bga_service.h"
 
@@ -36,6 +37,19 @@ typedef struct bga_agent_config {
      * agent's own. With a market, a compute call for a job the agent holds
      * no contract for gets a NO_JOB error naming the job. */
     const bga_market_config_t *market;
+    /* CURVE (NULL: plaintext, as before): the agent's key pair, its
+     * listening socket's server key and, with a market, its identity to
+     * the broker; broker_key is the broker's public key (Z85), the one key
+     * the listening socket admits (the broker's coordinators present it)
+     * and the key the market connection expects. Both borrowed for
+     * bga_agent_new. A ZAP handler (bga_zap) in the agent's context
+     * answers for the listening socket and watches both sockets. */
+    const bga_curve_keypair_t *curve;
+    const char *broker_key;
+    /* Refusals on the agent's sockets, one line each, called on the ZAP
+     * handler's thread (bga_zap.h); NULL: not logged. */
+    bga_zap_log_fn log;
+    void *log_ctx;
 } bga_agent_config_t;
 
 /* Creates the job table and binds. Caller owns *out. */

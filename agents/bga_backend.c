@@ -23,6 +23,7 @@ struct bga_backend {
     int has_integ; /* endpoint[nrotfit + 1] is the integration-step agent */
     int timeout_ms;
     int64_t lease_ms;
+    const bga_curve_peers_t *curve; /* borrowed; NULL: plaintext */
     uint64_t sessions;
     bga_agent_usage_t usage[BGA_BACKEND_MAX_AGENTS];
 };
@@ -156,7 +157,8 @@ static bg_status fit_open(void *opaque, int id, const bg_backend_fit_t *fit, bg_
                                    .job = s->job + (uint64_t)id,
                                    .timeout_ms = b->timeout_ms,
                                    .lease_ms = b->lease_ms,
-                                   .rest_edges = fit->rest_edges};
+                                   .rest_edges = fit->rest_edges,
+                                   .curve = b->curve};
     bg_status st = check(s, err);
     if (st == BG_OK && fit->scatter) {
         s->scratch[id] = malloc(fit->nval * sizeof *s->scratch[id] + 1);
@@ -205,8 +207,8 @@ static bg_status solve_open(void *opaque, int id, bg_sparse_t *sys, bg_error_t *
     session *s = opaque;
     bg_status st = check(s, err);
     if (st == BG_OK && !s->solver)
-        st = bga_client_new(s->b->endpoint[s->b->nrotfit], "sparse-solve", s->b->timeout_ms,
-                            &s->solver, err);
+        st = bga_client_new_curve(s->b->endpoint[s->b->nrotfit], "sparse-solve", s->b->timeout_ms,
+                                  s->b->curve, &s->solver, err);
     if (st != BG_OK)
         return fail(s, st, err);
     s->sys[id] = sys;
@@ -296,8 +298,8 @@ static bg_status step_open(void *opaque, const bg_step_setup_t *setup, bg_step_m
                     err);
     s->sbuf = (bga_step_buffers_t){ndof,           s->sblock,        s->sblock + ndof,
                                    s->sblock + 2 * ndof, s->sblock + 4 * ndof, s->sblock + 3 * ndof};
-    st = bga_client_new(b->endpoint[b->nrotfit + 1], "integration-step", b->timeout_ms, &s->integ,
-                        err);
+    st = bga_client_new_curve(b->endpoint[b->nrotfit + 1], "integration-step", b->timeout_ms,
+                              b->curve, &s->integ, err);
     if (st == BG_OK)
         st = bga_client_step_setup(s->integ, s->job + BACKEND_STEP_JOB, setup, b->lease_ms,
                                    &s->sbuf, motion, err);
@@ -376,7 +378,8 @@ static bg_status surface_open(void *opaque, const bg_mesh_t *mesh, bg_error_t *e
                                    .job = s->job + BACKEND_SURFACE_JOB,
                                    .timeout_ms = b->timeout_ms,
                                    .lease_ms = b->lease_ms,
-                                   .surface = 1};
+                                   .surface = 1,
+                                   .curve = b->curve};
     st = bga_rotfit_pool_new(&cfg, &s->surface, err);
     return st == BG_OK ? BG_OK : fail(s, st, err);
 }
@@ -424,6 +427,7 @@ bg_status bga_backend_new(const bga_backend_config_t *cfg, bga_backend_t **out, 
     }
     b->timeout_ms = cfg->timeout_ms;
     b->lease_ms = cfg->lease_ms;
+    b->curve = cfg->curve;
     /* Several coordinators share agents: job ids start from this
      * process's id and the clock, so two jobs never meet on an agent. */
     b->sessions = ((uint64_t)getpid() << 20 | ((uint64_t)(bg_clock_now() * 1e3) & 0xfffffu))

@@ -46,6 +46,8 @@ typedef struct bga_backend_config {
     uint64_t job_base;         /* 0: job ids from this process and the clock; else every
                                   compute job id lies in job_base + [16, 2^32), the range a
                                   market contract for job_base covers (bga_market.h) */
+    const bga_curve_peers_t *curve; /* CURVE keys to reach the agents; NULL: plaintext.
+                                       Borrowed: must outlive the backend */
 } bga_backend_config_t;
 
 typedef struct bga_backend bga_backend_t;

@@ -26,6 +26,12 @@ struct bga_client {
 bg_status bga_client_new(const char *endpoint, const char *service, int timeout_ms,
                          bga_client_t **out, bg_error_t *err)
 {
+    return bga_client_new_curve(endpoint, service, timeout_ms, NULL, out, err);
+}
+
+bg_status bga_client_new_curve(const char *endpoint, const char *service, int timeout_ms,
+                               const bga_curve_peers_t *curve, bga_client_t **out, bg_error_t *err)
+{
     *out = NULL;
     bga_client_t *c = calloc(1, sizeof *c);
     if (!c)
@@ -45,6 +51,16 @@ bg_status bga_client_new(const char *endpoint, const char *service, int timeout_
     zmq_setsockopt(c->socket, ZMQ_LINGER, &linger, sizeof linger);
     /* A send never blocks longer than a reply may take. */
     zmq_setsockopt(c->socket, ZMQ_SNDTIMEO, &c->timeout_ms, sizeof c->timeout_ms);
+    if (curve) {
+        char key[BGA_CURVE_KEY_SIZE];
+        bg_error_t kerr = BG_ERROR_INIT;
+        if ((st = curve->key_of(curve->ctx, endpoint, key, &kerr)) == BG_OK)
+            st = bga_curve_client(c->socket, curve->self, key, &kerr);
+        if (st != BG_OK) {
+            bg_error_set(err, st, "agent %s (%s): %s", endpoint, c->service, kerr.message);
+            goto fail;
+        }
+    }
     if (zmq_connect(c->socket, endpoint) != 0) {
         st = bg_error_set(err, BG_ERR_IO, "agent %s (%s): cannot connect: %s", endpoint, c->service,
                           zmq_strerror(errno));

@@ -25,6 +25,7 @@
 #include "bg_error.h"
 #include "bg_rotfit.h"
 #include "bg_step.h"
+#include "bga_curve.h"
 #include "bga_transport.h"
 #include "bga_wire.h"
 
@@ -51,6 +52,15 @@ typedef struct bga_reply {
  */
 bg_status bga_client_new(const char *endpoint, const char *service, int timeout_ms,
                          bga_client_t **out, bg_error_t *err);
+/*
+ * The same over CURVE when curve is not NULL: the connection presents
+ * curve->self and expects the agent's public key that curve->key_of gives
+ * for the endpoint (borrowed for the call). An endpoint without a known
+ * key is BG_ERR_NOT_FOUND naming it; an agent that refuses the key
+ * answers nothing (its log says why), so the first call times out.
+ */
+bg_status bga_client_new_curve(const char *endpoint, const char *service, int timeout_ms,
+                               const bga_curve_peers_t *curve, bga_client_t **out, bg_error_t *err);
 void bga_client_destroy(bga_client_t **client);
 const char *bga_client_endpoint(const bga_client_t *client);
 bga_traffic_t bga_client_traffic(const bga_client_t *client);

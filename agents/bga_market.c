@@ -29,6 +29,9 @@ struct bga_market {
     role_t role[2];
     double next_beat;
     int standby;       /* the resource role: the broker said another daemon sells the host */
+    char refused[BGA_MMSG_REASON_MAX];  /* the broker's last ERROR reason told ("" none) */
+    char broker[BGA_MMSG_ENDPOINT_MAX]; /* its endpoint, to connect again */
+    double heard;                       /* when the broker last wrote (or the connection began) */
     bga_bseller_t *bs; /* the basic-service seller role */
     bga_rseller_t *rs; /* the resource seller role (NULL: none) */
     /* The process's compute thread pools (OpenBLAS, OpenMP: CHOLMOD's
@@ -259,6 +262,19 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
     }
     const int linger = 500;
     zmq_setsockopt(m->socket, ZMQ_LINGER, &linger, sizeof linger);
+    if (c->curve &&
+        ((st = bga_curve_client(m->socket, c->curve, c->broker_key, err)) != BG_OK ||
+         (c->zap && (st = bga_zap_watch(c->zap, m->socket, "broker", 0, err)) != BG_OK)))
+        goto fail;
+    m->c.curve = NULL; /* borrowed for the call only */
+    m->c.broker_key = NULL;
+    /* Never block the agent's loop on the broker: a message that cannot be
+     * queued (no connection, say a refused handshake) is dropped, and the
+     * registration goes again at the next beat. */
+    const int no_wait = 0;
+    zmq_setsockopt(m->socket, ZMQ_SNDTIMEO, &no_wait, sizeof no_wait);
+    snprintf(m->broker, sizeof m->broker, "%s", config->broker);
+    m->heard = now;
     if (zmq_connect(m->socket, config->broker) != 0) {
         st = bg_error_set(err, BG_ERR_IO, "cannot connect to the broker %s: %s", config->broker,
                           zmq_strerror(errno));
@@ -344,6 +360,17 @@ bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err)
     if (now < m->next_beat)
         return BG_OK;
     m->next_beat = now + m->c.heartbeat;
+    /* Unregistered and unheard for a while: connect afresh. libzmq does
+     * not retry a handshake the broker refused (a key it did not list yet,
+     * a mechanism it does not speak), so a key added to the broker's
+     * folder is used without restarting the agent. */
+    if (!m->role[0].id && now - m->heard > BGA_MARKET_RECONNECT) {
+        (void)zmq_disconnect(m->socket, m->broker);
+        if (zmq_connect(m->socket, m->broker) != 0)
+            return bg_error_set(err, BG_ERR_IO, "cannot connect to the broker %s again: %s",
+                                m->broker, zmq_strerror(zmq_errno()));
+        m->heard = now;
+    }
     bg_status st = BG_OK;
     const int roles = m->c.cores > 0 ? 2 : 1;
     for (int r = 0; r < roles && st == BG_OK; r++) {
@@ -370,6 +397,8 @@ static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_er
             return BG_OK;
     }
     if (in->type == BGA_MM_REGISTERED) {
+        if (in->agent && role == ROLE_BASIC)
+            m->refused[0] = '\0'; /* a later refusal is news again */
         m->role[role].id = in->agent;
         m->role[role].nneighbours = in->nneighbours;
         memcpy(m->role[role].neighbours, in->neighbours, sizeof m->role[role].neighbours);
@@ -381,7 +410,10 @@ static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_er
     }
     if (in->type == BGA_MM_ERROR) {
         /* The broker forgot this agent (it restarted, or dropped it as
-         * dead): both roles register again. */
+         * dead) or refused it: both roles register again. */
+        if (m->c.on_refused && strcmp(m->refused, in->reason) != 0)
+            m->c.on_refused(m->c.refused_ctx, in->reason);
+        snprintf(m->refused, sizeof m->refused, "%s", in->reason);
         m->role[0].id = m->role[1].id = 0;
         m->next_beat = now;
         return BG_OK;
@@ -417,6 +449,7 @@ bg_status bga_market_on_readable(bga_market_t *m, double now, bg_error_t *err)
         bga_received_view(&r, views);
         bga_mmsg_t in;
         bg_error_t derr = BG_ERROR_INIT;
+        m->heard = now;
         /* A malformed message from the broker is answered with an ERROR
          * naming what is wrong, and otherwise ignored: never fatal. */
         if (r.total != r.count)

@@ -41,6 +41,11 @@
  * It heartbeats what is free. It sells on the same mechanism as the job
  * that causes the purchase.
  *
+ * The connection never blocks the agent: a message that cannot be queued
+ * (no connection yet, or a handshake the broker refused) is dropped, and
+ * an unregistered seller that has heard nothing for BGA_MARKET_RECONNECT
+ * seconds connects afresh.
+ *
  * Ownership: the socket is created in the caller's ZeroMQ context and
  * closed by bga_market_destroy. Single-threaded: called from the agent's
  * loop only.
@@ -51,7 +56,9 @@
 #include <stdint.h>
 
 #include "bg_error.h"
+#include "bga_curve.h"
 #include "bga_mmsg.h"
+#include "bga_zap.h"
 
 typedef struct bga_market bga_market_t;
 
@@ -77,6 +84,18 @@ typedef struct bga_market_config {
      * from the agent's loop, `why` borrowed for the call. NULL: not told. */
     void (*on_standby)(void *ctx, const char *why);
     void *standby_ctx;
+    /* Told when the broker answers with an ERROR (it refused a
+     * registration, say because the name is another agent's): `why` is
+     * its reason, said once until it changes or the agent registers.
+     * Called from the agent's loop, `why` borrowed. NULL: not told. */
+    void (*on_refused)(void *ctx, const char *why);
+    void *refused_ctx;
+    /* CURVE to the broker (NULL: plaintext): the agent's key pair and the
+     * broker's public key (Z85), both borrowed for bga_market_new; the
+     * connection is watched by zap (may be NULL) so a refusal is logged. */
+    const bga_curve_keypair_t *curve;
+    const char *broker_key;
+    bga_zap_t *zap;
 } bga_market_config_t;
 
 /* Defaults: floors 1.0, margin 0.2, load slope 0.5, heartbeat 0.5 s;
@@ -105,6 +124,10 @@ bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err);
  * a solver opens several sessions (and matrices) per job, each with its
  * own compute job id, all drawn from that range (bga_backend job_base). */
 #define BGA_MARKET_JOB_SPAN ((uint64_t)1 << 32)
+
+/* Seconds unregistered and unheard after which the seller connects to the
+ * broker afresh (a refused handshake is not retried by libzmq). */
+#define BGA_MARKET_RECONNECT 10.0
 
 /* Whether the agent holds a service contract (any good) covering this
  * compute job id together with the resources bought for it. */

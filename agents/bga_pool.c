@@ -211,7 +211,8 @@ bg_status bga_rotfit_pool_new(const bga_pool_config_t *cfg, bga_rotfit_pool_t **
         part *p = &pool->parts[i];
         const int32_t v0 = (int32_t)((int64_t)cfg->mesh->nv * i / pool->n);
         const int32_t v1 = (int32_t)((int64_t)cfg->mesh->nv * (i + 1) / pool->n);
-        st = bga_client_new(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms, &p->client, err);
+        st = bga_client_new_curve(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms, cfg->curve,
+                                  &p->client, err);
         if (st == BG_OK)
             st = setup_surface_part(cfg, v0, v1, p, err);
     }
@@ -222,7 +223,8 @@ bg_status bga_rotfit_pool_new(const bga_pool_config_t *cfg, bga_rotfit_pool_t **
         int32_t *elements = NULL, *scatter = NULL;
         double *rest = NULL;
         bga_partition_t bp;
-        st = bga_client_new(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms, &p->client, err);
+        st = bga_client_new_curve(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms, cfg->curve,
+                                  &p->client, err);
         if (st == BG_OK)
             st = make_part(cfg, e0, e1, p, &bp, &elements, &scatter, &rest, err);
         if (st == BG_OK)

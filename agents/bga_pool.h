@@ -42,6 +42,8 @@ typedef struct bga_pool_config {
     int surface; /* 1: a surface (BG_MESH_SURFACE) for the spokes-and-rims energy: balanced
                     vertex ranges, each agent owning its range's cells (the triangles around
                     them); material, scatter and rest_edges unused, no Hessian */
+    const bga_curve_peers_t *curve; /* CURVE keys to reach the agents (bga_client_new_curve);
+                                       NULL: plaintext. Borrowed, outlives the pool */
 } bga_pool_config_t;
 
 /* Connects, partitions and sets up every agent. Caller owns *out. */

@@ -86,6 +86,10 @@ static bg_status send_part(void *socket, const void *data, size_t size, int more
     do
         rc = zmq_send(socket, data, size, more ? ZMQ_SNDMORE : 0);
     while (rc < 0 && errno == EINTR);
+    if (rc < 0 && errno == EAGAIN)
+        return bg_error_set(err, BG_ERR_IO,
+                            "send failed: no connection took the message before the send "
+                            "timeout (the peer is not reachable, or refused the handshake)");
     if (rc < 0)
         return bg_error_set(err, BG_ERR_IO, "send failed: %s", zmq_strerror(errno));
     return BG_OK;

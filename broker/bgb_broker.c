@@ -8,7 +8,9 @@
 #include <string.h>
 
 #include "bg_file.h"
+#include "bga_curve.h"
 #include "bga_service.h"
+#include "bga_zap.h"
 #include "bgb_coord.h"
 #include "bgb_loop.h"
 #include "bgb_rest.h"
@@ -141,6 +143,50 @@ static bg_status recover(bgb_broker_t *b, bg_error_t *err)
     return BG_OK;
 }
 
+/*
+ * ZeroMQ beyond loopback without CURVE would let anyone on the network
+ * register as an agent and read every job's meshes: refused unless the
+ * operator says --insecure. With CURVE, the key pair is read (pair) and a
+ * fixed pool is refused: its agents would be reached in clear, with keys
+ * nobody vouched for.
+ */
+static bg_status curve_check(const bgb_config_t *c, bga_curve_keypair_t *pair, bg_error_t *err)
+{
+    if (!c->curve_key != !c->authorized_agents)
+        return bg_error_set(err, BG_ERR_INVALID, "%s",
+                            c->curve_key ? "--curve-key needs --authorized-agents DIR, the folder "
+                                           "of the agents' public keys (NAME.pub)"
+                                         : "--authorized-agents needs --curve-key FILE, the "
+                                           "broker's secret key (biotgrid keygen)");
+    if (!c->curve_key) {
+        if (!c->insecure && !bga_curve_endpoint_is_loopback(c->endpoint))
+            return bg_error_set(err, BG_ERR_INVALID,
+                                "--curve-key: the agents' endpoint %s is beyond loopback and "
+                                "without CURVE anyone who reaches it could register as an agent "
+                                "and read the jobs: give --curve-key FILE --authorized-agents "
+                                "DIR (biotgrid keygen), or --insecure to run it in clear anyway",
+                                c->endpoint);
+        return BG_OK;
+    }
+    if (c->agent_count > 0)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "agents: a fixed pool's agents would be reached without CURVE: with "
+                            "--curve-key agents register on the market (biotgrid agent --broker "
+                            "ENDPOINT --curve-key FILE --broker-key FILE)");
+    bg_error_t kerr = BG_ERROR_INIT;
+    bg_status st = bga_curve_read_secret(c->curve_key, pair, &kerr);
+    if (st != BG_OK)
+        return bg_error_set(err, st == BG_ERR_UNSUPPORTED ? st : BG_ERR_INVALID, "--curve-key %s",
+                            kerr.message);
+    /* The folder read now, so a bad one is refused before any state is made. */
+    int keys = 0;
+    bg_error_t ferr = BG_ERROR_INIT;
+    if ((st = bga_zap_check_folder(c->authorized_agents, &keys, &ferr)) != BG_OK)
+        return bg_error_set(err, st == BG_ERR_NOMEM ? st : BG_ERR_INVALID, "--authorized-agents %s",
+                            ferr.message);
+    return BG_OK;
+}
+
 /* Plain HTTP beyond loopback would carry every bearer token in clear:
  * refused unless the operator says --insecure. */
 static bg_status transport_check(const bgb_config_t *c, bg_error_t *err)
@@ -187,7 +233,10 @@ bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_er
     }
     bgb_limits_resolve(&b->config.limits, bgb_limits_ram());
     char path[BROKER_PATH_MAX + 32];
+    bga_curve_keypair_t pair;
+    memset(&pair, 0, sizeof pair);
     if ((st = transport_check(&b->config, err)) != BG_OK ||
+        (st = curve_check(&b->config, &pair, err)) != BG_OK ||
         (st = read_pem(b->config.tls_cert, "--tls-cert", &b->tls_cert, err)) != BG_OK ||
         (st = read_pem(b->config.tls_key, "--tls-key", &b->tls_key, err)) != BG_OK)
         goto out;
@@ -200,9 +249,15 @@ bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_er
     bgb_loop_config_t lc = {.endpoint = b->config.endpoint,
                             .market = b->config.market,
                             .on_contract = on_contract,
-                            .contract_ctx = b};
+                            .contract_ctx = b,
+                            .curve = b->config.curve_key ? &pair : NULL,
+                            .authorized_agents = b->config.authorized_agents,
+                            .log = b->config.log,
+                            .log_ctx = b->config.log_ctx};
     lc.market.name = b->config.name;
-    if ((st = bgb_loop_start(&lc, &b->loop, err)) != BG_OK)
+    st = bgb_loop_start(&lc, &b->loop, err);
+    memset(&pair, 0, sizeof pair); /* the loop keeps its copy */
+    if (st != BG_OK)
         goto out;
     if ((st = bgb_coord_start(&b->config, b->store, b->loop, &b->coord, err)) != BG_OK)
         goto out;
@@ -260,6 +315,16 @@ const bgb_limits_t *bgb_broker_limits(const bgb_broker_t *b)
 const char *bgb_broker_endpoint(const bgb_broker_t *b)
 {
     return bgb_loop_endpoint(b->loop);
+}
+
+int bgb_broker_curve(const bgb_broker_t *b, char public_key[BGA_CURVE_KEY_SIZE], int *keys)
+{
+    const bga_curve_peers_t *curve = bgb_loop_curve(b->loop);
+    if (!curve)
+        return 0;
+    snprintf(public_key, BGA_CURVE_KEY_SIZE, "%s", curve->self->public_key);
+    *keys = bgb_loop_authorized_keys(b->loop);
+    return 1;
 }
 
 void bgb_broker_stop(bgb_broker_t **bp)

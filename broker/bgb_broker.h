@@ -25,6 +25,7 @@
 #include <cjson/cJSON.h>
 
 #include "bg_error.h"
+#include "bga_curve.h"
 #include "bgb_config.h"
 
 typedef struct bgb_broker bgb_broker_t;
@@ -35,7 +36,12 @@ typedef struct bgb_broker bgb_broker_t;
  * Transport security comes first: config->tls_cert and tls_key (PEM
  * files, both or neither; read and checked as a pair) make REST speak
  * TLS; a REST address beyond loopback without them is BG_ERR_INVALID
- * naming --tls-cert, unless config->insecure. */
+ * naming --tls-cert, unless config->insecure. Likewise the agents'
+ * endpoint: config->curve_key and authorized_agents (both or neither)
+ * make it speak CURVE, admitting the keys in that folder, each agent
+ * under its key's name (bgb_loop.h); an endpoint beyond loopback without
+ * them is BG_ERR_INVALID naming --curve-key, unless config->insecure; a
+ * fixed pool (config->agents) with CURVE is BG_ERR_INVALID. */
 bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_error_t *err);
 
 /* The limits in force: the configuration's, with the job size caps it
@@ -48,6 +54,9 @@ uint16_t bgb_broker_rest_port(const bgb_broker_t *broker);
  * -1 when it does not fit. */
 int bgb_broker_rest_url(const bgb_broker_t *broker, char *buf, size_t size);
 const char *bgb_broker_endpoint(const bgb_broker_t *broker);
+/* Over CURVE: 1, the broker's public key and how many agents' keys the
+ * folder held at start; 0 in plaintext. */
+int bgb_broker_curve(const bgb_broker_t *broker, char public_key[BGA_CURVE_KEY_SIZE], int *keys);
 
 /* Stops REST, waits for the coordinators (a running solve finishes
  * first), stops the loop, closes the store; accepts NULL. */

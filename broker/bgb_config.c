@@ -44,6 +44,8 @@ void bgb_config_release(bgb_config_t *c)
     free(c->address);
     free(c->tls_cert);
     free(c->tls_key);
+    free(c->curve_key);
+    free(c->authorized_agents);
     free(c->endpoint);
     free(c->state_dir);
     for (int i = 0; i < c->agent_count; i++)
@@ -240,6 +242,8 @@ bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
                                        "tls_cert",
                                        "tls_key",
                                        "insecure",
+                                       "curve_key",
+                                       "authorized_agents",
                                        "port",
                                        "endpoint",
                                        "state_dir",
@@ -281,6 +285,10 @@ bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
             c->insecure = cJSON_IsTrue(item);
         } else if (strcmp(k, "endpoint") == 0)
             st = replace_string(&c->endpoint, item, path, k, err);
+        else if (strcmp(k, "curve_key") == 0)
+            st = replace_string(&c->curve_key, item, path, k, err);
+        else if (strcmp(k, "authorized_agents") == 0)
+            st = replace_string(&c->authorized_agents, item, path, k, err);
         else if (strcmp(k, "state_dir") == 0)
             st = replace_string(&c->state_dir, item, path, k, err);
         else if (strcmp(k, "agents") == 0)
@@ -314,10 +322,14 @@ bg_status bgb_config_copy(bgb_config_t *to, const bgb_config_t *from, bg_error_t
     to->address = dup_or_null(from->address);
     to->tls_cert = dup_or_null(from->tls_cert);
     to->tls_key = dup_or_null(from->tls_key);
+    to->curve_key = dup_or_null(from->curve_key);
+    to->authorized_agents = dup_or_null(from->authorized_agents);
     to->endpoint = dup_or_null(from->endpoint);
     to->state_dir = dup_or_null(from->state_dir);
     int ok = to->name && to->address && to->endpoint && to->state_dir &&
-             (!from->tls_cert || to->tls_cert) && (!from->tls_key || to->tls_key);
+             (!from->tls_cert || to->tls_cert) && (!from->tls_key || to->tls_key) &&
+             (!from->curve_key || to->curve_key) &&
+             (!from->authorized_agents || to->authorized_agents);
     for (int i = 0; i < from->agent_count; i++) {
         to->agents[i].endpoint = dup_or_null(from->agents[i].endpoint);
         ok &= to->agents[i].endpoint != NULL;

@@ -31,9 +31,12 @@ typedef struct bgb_config {
     char *address;        /* REST address, "127.0.0.1" */
     char *tls_cert;       /* PEM certificate chain for REST over TLS; NULL: plain HTTP */
     char *tls_key;        /* its PEM private key; NULL: plain HTTP (both or neither) */
-    int insecure;         /* 1: serve plain HTTP beyond loopback anyway (tokens in clear) */
+    int insecure;         /* 1: serve plain HTTP, and the agents' endpoint without CURVE,
+                             beyond loopback anyway (tokens and jobs in clear) */
     int port;             /* REST port, 8080; 0: ephemeral */
     char *endpoint;       /* ZeroMQ ROUTER endpoint, "tcp://127.0.0.1:5570"; port '*': ephemeral */
+    char *curve_key;      /* the broker's CURVE secret key file; NULL: plaintext ZeroMQ */
+    char *authorized_agents; /* the folder of the agents' NAME.pub files (with curve_key) */
     char *state_dir;      /* the store and the jobs' folders, "out/broker" */
     bgb_limits_t limits;  /* every limit (bgb_limits.h); the job size caps 0 until
                              resolved for the machine (bgb_limits_resolve) */
@@ -42,6 +45,10 @@ typedef struct bgb_config {
     bgb_config_agent_t agents[BGB_CONFIG_MAX_AGENTS];
     int agent_count;
     bgb_market_config_t market; /* the live market's (bgb_market_config_default); name unused */
+    /* Not from the file: where the broker's refusals of agents go (one
+     * line each, from its threads; bgb_loop.h); NULL: nowhere. */
+    void (*log)(void *ctx, const char *line);
+    void *log_ctx;
 } bgb_config_t;
 
 /* The defaults above. */
@@ -49,7 +56,8 @@ bg_status bgb_config_init(bgb_config_t *config, bg_error_t *err);
 
 /*
  * Reads a JSON object over the defaults: name, address, port, endpoint,
- * tls_cert, tls_key (file paths), insecure (boolean), state_dir, max_jobs, agent_timeout_ms, the limits (memory_fraction,
+ * tls_cert, tls_key (file paths), insecure (boolean), curve_key (a file),
+ * authorized_agents (a folder), state_dir, max_jobs, agent_timeout_ms, the limits (memory_fraction,
  * max_vertices, max_elements, max_work, max_body, max_jobs_in_flight,
  * max_stored_bytes, max_connections, max_connections_per_client,
  * idle_timeout, request_timeout: bgb_limits.h), agents [{"endpoint",

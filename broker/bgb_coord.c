@@ -378,7 +378,8 @@ static bg_status solve_job(job_run_t *jr, const bgb_job_t *job, const char *dir,
                                      solver,
                                      c->config->agent_timeout_ms,
                                      COORD_AGENT_LEASE_MS,
-                                     alloc->bought ? alloc->bought->job : 0};
+                                     alloc->bought ? alloc->bought->job : 0,
+                                     bgb_loop_curve(c->loop)};
     if ((st = bga_backend_new(&bc, &remote, err)) != BG_OK)
         goto out;
     /* The time loop's state goes to the job's integration-step agent; a

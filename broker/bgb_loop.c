@@ -14,6 +14,7 @@
 #include "bga_service.h"
 #include "bga_transport.h"
 #include "bga_wire.h"
+#include "bgb_peers.h"
 #include "bgb_rest.h"
 
 /* Command names on the inproc pipe (the first frame after the routing id). */
@@ -62,6 +63,14 @@ struct bgb_loop {
     pthread_mutex_t lock; /* guards alive */
     pthread_cond_t agents_changed;
     int alive;
+    /* Identity: the registrations' names, endpoints and keys (any thread
+     * reads keys), and over CURVE the ZAP handler and the coordinators'
+     * view of the keys. */
+    bgb_peers_t *peers;
+    bga_zap_t *zap;
+    bga_curve_keypair_t curve_pair;
+    bga_curve_peers_t curve;
+    int secure;
 };
 
 /* ------------------------------------------------------------ the market's io */
@@ -137,6 +146,13 @@ static char *agents_json(bgb_loop_t *l)
         cJSON_AddStringToObject(o, "endpoint", a->endpoint);
         add_services(o, a->services);
         cJSON_AddStringToObject(o, "source", "market");
+        char address[BGB_PEERS_ADDRESS_MAX] = "", key[BGA_CURVE_KEY_SIZE] = "";
+        bgb_peers_lookup(l->peers, a->name, address, sizeof address, key);
+        cJSON_AddStringToObject(o, "address", address);
+        if (key[0])
+            cJSON_AddStringToObject(o, "key", key);
+        else
+            cJSON_AddNullToObject(o, "key");
         cJSON_AddBoolToObject(o, "alive", a->alive != 0);
         cJSON_AddNumberToObject(o, "slots", a->slots);
         cJSON_AddNumberToObject(o, "free_slots", a->free_slots);
@@ -393,6 +409,78 @@ static int on_command(bgb_loop_t *l, double now)
     return stop;
 }
 
+/* Whether frames are a market REGISTER (the header's type, in place). */
+static int is_register(const bga_frame_t *views, int count)
+{
+    if (!bga_mmsg_is_market(views, count))
+        return 0;
+    const unsigned type = views[0].data[6] | (unsigned)views[0].data[7] << 8;
+    return (type & 0xff) == BGA_MM_REGISTER;
+}
+
+/* A property of the connection a message came on ("" when it has none);
+ * read on the body: libzmq 4.3's ROUTER drops them from the routing frame
+ * of a message zmq_poll looked at. */
+static const char *property(const bga_received_t *r, const char *name)
+{
+    if (r->count < 1)
+        return "";
+    const char *v = zmq_msg_gets((zmq_msg_t *)&r->part[0], name);
+    return v ? v : "";
+}
+
+/*
+ * A registration may take its name and endpoint (bgb_peers: over CURVE the
+ * name is its key's, and no live agent holds either); a refused one is
+ * answered with an ERROR saying why and logged once with the peer's
+ * address and key. Returns 1 when the market may see it.
+ */
+static int admitted(bgb_loop_t *l, const bga_received_t *r, const bga_frame_t *views, double now)
+{
+    const uint8_t *idn = zmq_msg_data((zmq_msg_t *)&r->route);
+    const size_t idlen = zmq_msg_size((zmq_msg_t *)&r->route);
+    if (!is_register(views, r->count)) {
+        bgb_peers_seen(l->peers, idn, idlen, now);
+        return 1;
+    }
+    bga_mmsg_t in;
+    bg_error_t derr = BG_ERROR_INIT;
+    if (bga_mmsg_decode(views, r->count, &in, &derr) != BG_OK)
+        return 1; /* the market answers a malformed message itself */
+    const char *address = property(r, "Peer-Address");
+    const char *key_name = property(r, "User-Id");
+    const char *key = property(r, BGA_ZAP_KEY_PROPERTY);
+    const bgb_peer_claim_t claim = {.connection = idn,
+                                    .connection_len = idlen,
+                                    .name = in.name,
+                                    .endpoint = in.endpoint,
+                                    .address = address,
+                                    .key_name = l->secure ? key_name : NULL,
+                                    .key = l->secure ? key : NULL};
+    char why[BGA_MMSG_REASON_MAX - 40];
+    int say = 0;
+    if (bgb_peers_admit(l->peers, &claim, now, why, sizeof why, &say))
+        return 1;
+    char reason[BGA_MMSG_REASON_MAX];
+    snprintf(reason, sizeof reason, "registration refused: %s", why);
+    bg_error_t err = BG_ERROR_INIT;
+    (void)bgb_market_refuse(l->market, idn, idlen, reason, &err);
+    if (say && l->config.log) {
+        char line[768];
+        if (l->secure)
+            snprintf(line, sizeof line,
+                     "refused the registration of agent '%.63s' from %s (CURVE key %s, "
+                     "authorized as '%.63s'): %s",
+                     in.name, address[0] ? address : "an unknown address", key, key_name, why);
+        else
+            snprintf(line, sizeof line,
+                     "refused the registration of agent '%.63s' from %s (no key: plaintext): %s",
+                     in.name, address[0] ? address : "an unknown address", why);
+        l->config.log(l->config.log_ctx, line);
+    }
+    return 0;
+}
+
 /* Up to AGENT_BATCH agent messages, without blocking. */
 static void on_agents(bgb_loop_t *l)
 {
@@ -406,7 +494,9 @@ static void on_agents(bgb_loop_t *l)
             return;
         bga_frame_t views[BGA_WIRE_MAX_FRAMES + 1];
         bga_received_view(&r, views);
-        if (r.total == r.count) {
+        if (r.total == r.count && !admitted(l, &r, views, bg_clock_now())) {
+            /* refused and answered */
+        } else if (r.total == r.count) {
             (void)bgb_market_on_frames(l->market, zmq_msg_data(&r.route), zmq_msg_size(&r.route),
                                        views, r.count, bg_clock_now(), &err);
         } else {
@@ -498,6 +588,36 @@ bg_status bgb_loop_start(const bgb_loop_config_t *config, bgb_loop_t **out, bg_e
     }
     zmq_setsockopt(l->agents, ZMQ_LINGER, &linger, sizeof linger);
     zmq_setsockopt(l->pipe, ZMQ_LINGER, &linger, sizeof linger);
+    if ((st = bgb_peers_new(config->curve != NULL, config->market.heartbeat_timeout, &l->peers,
+                            err)) != BG_OK)
+        goto out;
+    if (config->curve) {
+        /* The ZAP handler before the bind: a CURVE socket whose context
+         * has none admits every client that knows the broker's key. */
+        const bga_zap_config_t zc = {
+            .folder = config->authorized_agents, .log = config->log, .log_ctx = config->log_ctx};
+        char label[BGB_MARKET_ENDPOINT_MAX + 32];
+        snprintf(label, sizeof label, "agents' endpoint %s", config->endpoint);
+        bg_error_t zerr = BG_ERROR_INIT;
+        if (!config->authorized_agents) {
+            st = bg_error_set(err, BG_ERR_INVALID,
+                              "--authorized-agents: CURVE needs the folder of the agents' keys");
+            goto out;
+        }
+        if ((st = bga_zap_new(l->zmq, &zc, &l->zap, &zerr)) != BG_OK) {
+            st = bg_error_set(err, st == BG_ERR_IO ? BG_ERR_IO : BG_ERR_INVALID,
+                              "--authorized-agents %s", zerr.message);
+            goto out;
+        }
+        if ((st = bga_curve_server(l->agents, config->curve, err)) != BG_OK ||
+            (st = bga_zap_watch(l->zap, l->agents, label, 1, err)) != BG_OK)
+            goto out;
+        l->curve_pair = *config->curve;
+        l->curve = (bga_curve_peers_t){&l->curve_pair, bgb_peers_key_of, l->peers};
+        l->secure = 1;
+    }
+    l->config.curve = NULL; /* copied above, or none */
+    l->config.authorized_agents = NULL;
     size_t len = sizeof l->endpoint;
     if (zmq_bind(l->agents, config->endpoint) != 0 ||
         zmq_getsockopt(l->agents, ZMQ_LAST_ENDPOINT, l->endpoint, &len) != 0) {
@@ -534,6 +654,16 @@ out:
 const char *bgb_loop_endpoint(const bgb_loop_t *l)
 {
     return l->endpoint;
+}
+
+const bga_curve_peers_t *bgb_loop_curve(const bgb_loop_t *l)
+{
+    return l->secure ? &l->curve : NULL;
+}
+
+int bgb_loop_authorized_keys(const bgb_loop_t *l)
+{
+    return l->zap ? bga_zap_count(l->zap) : 0;
 }
 
 /* A DEALER on the loop's pipe for the calling thread; NULL on failure. */
@@ -620,8 +750,11 @@ void bgb_loop_stop(bgb_loop_t **lp)
         zmq_close(l->pipe);
     if (l->agents)
         zmq_close(l->agents);
+    bga_zap_destroy(&l->zap); /* after the socket it watched, before the context */
     if (l->zmq)
         zmq_ctx_term(l->zmq);
+    bgb_peers_destroy(&l->peers);
+    memset(&l->curve_pair, 0, sizeof l->curve_pair);
     pthread_mutex_destroy(&l->lock);
     pthread_cond_destroy(&l->agents_changed);
     free(l);

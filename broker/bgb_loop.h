@@ -10,9 +10,17 @@
  * a callback that must not block (the broker queues them for the store's
  * writer thread, bgb_store_add_event_later).
  *
+ * Identity. Every registration passes bgb_peers before the market sees
+ * it: over CURVE (config.curve) the agents' endpoint admits only the keys
+ * in config.authorized_agents (a ZAP handler, bga_zap) and an agent's name
+ * must be its key's; with or without CURVE, a name or compute endpoint a
+ * live agent holds is not taken by another. A refused registration gets
+ * an ERROR naming why, and a line in config.log with the peer's address
+ * and key, as do connections refused by ZAP or by the handshake.
+ *
  * Threads: bgb_loop_start/stop from one thread; a buyer (bgb_loop_buyer_*)
  * belongs to the thread that made it (a ZeroMQ socket is not shared);
- * bgb_loop_view and bgb_loop_live_agents from any thread.
+ * bgb_loop_view, bgb_loop_live_agents and bgb_loop_curve from any thread.
  */
 #ifndef BGB_LOOP_H
 #define BGB_LOOP_H
@@ -20,6 +28,8 @@
 #include <stdint.h>
 
 #include "bg_error.h"
+#include "bga_curve.h"
+#include "bga_zap.h"
 #include "bgb_market.h"
 
 /* Rotation fit is split over at most this many agents. */
@@ -37,13 +47,31 @@ typedef struct bgb_loop_config {
      * the loop thread: it must not block. NULL: none. */
     void (*on_contract)(void *ctx, const char *label, const bgb_contract_t *row);
     void *contract_ctx;
+    /* CURVE on the agents' endpoint (NULL: plaintext): the broker's key
+     * pair (copied) and the folder of the agents' NAME.pub files. */
+    const bga_curve_keypair_t *curve;
+    const char *authorized_agents;
+    /* Refused connections and registrations, one line each, called on the
+     * loop's or the ZAP handler's thread; NULL: not logged. */
+    bga_zap_log_fn log;
+    void *log_ctx;
 } bgb_loop_config_t;
 
-/* Binds the endpoint and starts the thread. Caller owns *out (bgb_loop_stop). */
+/* Binds the endpoint and starts the thread. Caller owns *out (bgb_loop_stop).
+ * With CURVE, a bad authorized_agents folder is BG_ERR_INVALID naming it
+ * (and the file). */
 bg_status bgb_loop_start(const bgb_loop_config_t *config, bgb_loop_t **out, bg_error_t *err);
 
 /* The endpoint actually bound (the port chosen for '*'). */
 const char *bgb_loop_endpoint(const bgb_loop_t *loop);
+
+/* Over CURVE, what a coordinator needs to reach the agents: the broker's
+ * key pair and each registered agent's key by its endpoint (lives as long
+ * as the loop); NULL in plaintext. */
+const bga_curve_peers_t *bgb_loop_curve(const bgb_loop_t *loop);
+
+/* Keys in the authorized folder when the loop started (0 in plaintext). */
+int bgb_loop_authorized_keys(const bgb_loop_t *loop);
 
 /* Stops the thread (buyers must be gone) and frees; accepts NULL. */
 void bgb_loop_stop(bgb_loop_t **loop);

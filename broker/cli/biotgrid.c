@@ -12,6 +12,7 @@
 #include "cmd_broker.h"
 #include "cmd_client.h"
 #include "cmd_grid.h"
+#include "cmd_keygen.h"
 #include "cmd_mesh.h"
 #include "cmd_token.h"
 #include "cmd_solve.h"
@@ -60,6 +61,8 @@ static const command_t COMMANDS[] = {
     {"market", "market", "a broker's recent prices", bg_cmd_market, bg_cmd_market_usage},
     {"token", "token create NAME [--admin]", "a bearer token for a broker's REST API",
      bg_cmd_token, bg_cmd_token_usage},
+    {"keygen", "keygen PREFIX", "a CURVE key pair for the grid's ZeroMQ links", bg_cmd_keygen,
+     bg_cmd_keygen_usage},
 };
 #define COMMAND_COUNT (sizeof COMMANDS / sizeof COMMANDS[0])
 

@@ -4,6 +4,7 @@
  *                [--broker ENDPOINT [--floor X] [--margin X] [--load-slope X]
  *                 [--cores N] [--memory GIB] [--core-floor X] [--memory-floor X]
  *                 [--resource-margin X] [--resource-load-slope X] [--lease S]]
+ *                [--curve-key FILE --broker-key FILE] [--insecure]
  *
  * With --broker the agent also sells on the broker's live market
  * (bga_market): it registers, heartbeats, sells at its price policy and
@@ -16,6 +17,15 @@
  * temporary name and renamed, so a reader never sees half of it), serves
  * until SIGTERM or SIGINT, finishes the request in progress and exits 0.
  * Command-line options override the config file's keys.
+ *
+ * With --curve-key (its secret key file) and --broker-key (the broker's
+ * public key file) every socket of the agent speaks CURVE: its listening
+ * socket admits only the broker's key (the broker's coordinators present
+ * it) and its market connection expects the broker's; its name defaults
+ * to the key file's (NAME.key). Without keys, an endpoint beyond loopback
+ * (--listen or --broker) is refused (exit 2 naming --curve-key) unless
+ * --insecure. Refusals are printed on stderr with the peer's address and
+ * key.
  */
 #include "cmd_agent.h"
 
@@ -36,6 +46,7 @@ const char bg_cmd_agent_usage[] =
     "                      [--broker ENDPOINT [--floor X] [--margin X] [--load-slope X]\n"
     "                       [--cores N] [--memory GIB] [--core-floor X] [--memory-floor X]\n"
     "                       [--resource-margin X] [--resource-load-slope X] [--lease S]]\n"
+    "                      [--curve-key FILE --broker-key FILE] [--insecure]\n"
     "  --listen ENDPOINT   ZeroMQ endpoint to bind (default tcp://127.0.0.1:*,\n"
     "                      an ephemeral port; the resolved one is printed)\n"
     "  --services LIST     rotfit,solve,integ or all (default all)\n"
@@ -52,7 +63,25 @@ const char bg_cmd_agent_usage[] =
     "  --memory-floor X    resource floor per GiB-second, > 0 (default 2e-6)\n"
     "  --resource-margin X, --resource-load-slope X\n"
     "                      the resource role's markup and load slope (default 0.2, 0.5)\n"
-    "  --lease S           seconds a service contract's resources are rented (default 3600)\n";
+    "  --lease S           seconds a service contract's resources are rented (default 3600)\n"
+    "  --curve-key FILE    this agent's CURVE secret key (biotgrid keygen; mode 0600):\n"
+    "                      every socket speaks CURVE, the name defaults to FILE's (NAME.key)\n"
+    "  --broker-key FILE   the broker's public key (.pub): the only key the agent's\n"
+    "                      socket admits, and the key its market connection expects\n"
+    "  --insecure          listen or reach the broker beyond loopback without keys\n"
+    "                      (refused otherwise: every message would travel in clear)\n";
+
+/* A refusal on one of the agent's sockets (the ZAP handler's thread). */
+static void say_refusal(void *ctx, const char *line)
+{
+    fprintf(stderr, "agent %s: %s\n", (const char *)ctx, line);
+}
+
+/* The broker's ERROR answer, said once until it changes. */
+static void say_refused(void *ctx, const char *why)
+{
+    fprintf(stderr, "agent %s: the broker says: %s\n", (const char *)ctx, why);
+}
 
 /* The resource role's standing, said once per change. */
 static void say_standby(void *ctx, const char *why)
@@ -73,6 +102,8 @@ typedef struct options {
     bg_agent_spec_t spec;
     const char *ready_file;
     const char *broker;
+    const char *curve_key, *broker_key;
+    int insecure;
     double floor, margin, load_slope;
     double cores, memory, core_floor, memory_floor, res_margin, res_load_slope, lease;
 } options;
@@ -184,6 +215,54 @@ static int read_config(const char *path, options *o)
     return rc;
 }
 
+/*
+ * The transport's security from the options: with --curve-key and
+ * --broker-key the key pair and the broker's key (2 on a bad or missing
+ * file, or one without the other); without them an endpoint beyond
+ * loopback is refused unless --insecure.
+ */
+static int security(options *o, bga_curve_keypair_t *pair, char *broker_key)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    if (!o->curve_key != !o->broker_key) {
+        fprintf(stderr, "biotgrid agent: %s\n",
+                o->curve_key ? "--curve-key needs --broker-key FILE, the broker's public key: "
+                               "the only key this agent's socket admits"
+                             : "--broker-key needs --curve-key FILE, this agent's secret key "
+                               "(biotgrid keygen)");
+        return 2;
+    }
+    if (!o->curve_key) {
+        const char *beyond = !bga_curve_endpoint_is_loopback(o->spec.listen) ? o->spec.listen
+                             : o->broker && !bga_curve_endpoint_is_loopback(o->broker) ? o->broker
+                                                                                       : NULL;
+        if (beyond && !o->insecure) {
+            fprintf(stderr,
+                    "biotgrid agent: --curve-key: %s is beyond loopback and every message "
+                    "would travel in clear: give --curve-key FILE --broker-key FILE (biotgrid "
+                    "keygen), or --insecure to run without keys anyway\n",
+                    beyond);
+            return 2;
+        }
+        return 0;
+    }
+    if (bga_curve_read_secret(o->curve_key, pair, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid agent: --curve-key %s\n", err.message);
+        return err.status == BG_ERR_UNSUPPORTED ? 1 : 2;
+    }
+    bg_error_t perr = BG_ERROR_INIT;
+    if (bga_curve_read_public(o->broker_key, broker_key, &perr) != BG_OK) {
+        fprintf(stderr, "biotgrid agent: --broker-key %s\n", perr.message);
+        return 2;
+    }
+    /* The name the broker binds to the key: the key file's, unless given. */
+    char name[BGA_CURVE_NAME_MAX];
+    if (!o->spec.name[0] &&
+        bga_curve_name_of(o->curve_key, BGA_CURVE_SECRET_SUFFIX, name, NULL) == BG_OK)
+        snprintf(o->spec.name, sizeof o->spec.name, "%s", name);
+    return 0;
+}
+
 static int parse_args(int argc, char **argv, options *o)
 {
     const char *config = NULL;
@@ -197,6 +276,10 @@ static int parse_args(int argc, char **argv, options *o)
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             return -1;
+        }
+        if (strcmp(a, "--insecure") == 0) {
+            o->insecure = 1;
+            continue;
         }
         if (i + 1 >= argc) {
             fprintf(stderr, "biotgrid agent: unknown option or missing value: '%s'\n", a);
@@ -238,6 +321,10 @@ static int parse_args(int argc, char **argv, options *o)
             o->ready_file = v;
         else if (strcmp(a, "--broker") == 0)
             o->broker = v;
+        else if (strcmp(a, "--curve-key") == 0)
+            o->curve_key = v;
+        else if (strcmp(a, "--broker-key") == 0)
+            o->broker_key = v;
         else if (money)
             rc = parse_money(v, a, money);
         else {
@@ -289,10 +376,21 @@ int bg_cmd_agent(int argc, char **argv)
         fprintf(stderr, "biotgrid agent: --services: %s\n", err.message);
         return 2;
     }
+    bga_curve_keypair_t pair;
+    char broker_key[BGA_CURVE_KEY_SIZE] = "";
+    const int src = security(&o, &pair, broker_key);
+    if (src != 0)
+        return src;
     bg_agent_spec_t *sp = &o.spec;
     if (!sp->name[0])
         snprintf(sp->name, sizeof sp->name, "agent-%ld", (long)getpid());
-    bga_agent_config_t cfg = {sp->listen, {sp->slots, services, sp->name, {0, 0}}, 100, NULL};
+    bga_agent_config_t cfg = {.listen = sp->listen,
+                              .service = {sp->slots, services, sp->name, {0, 0}},
+                              .poll_ms = 100,
+                              .curve = o.curve_key ? &pair : NULL,
+                              .broker_key = o.curve_key ? broker_key : NULL,
+                              .log = say_refusal,
+                              .log_ctx = sp->name};
     if (o.broker) {
         mc.broker = o.broker;
         mc.services = services;
@@ -310,10 +408,14 @@ int bg_cmd_agent(int argc, char **argv)
         mc.lease = o.lease;
         mc.on_standby = say_standby;
         mc.standby_ctx = sp->name;
+        mc.on_refused = say_refused;
+        mc.refused_ctx = sp->name;
         cfg.market = &mc;
     }
     bga_agent_t *agent = NULL;
-    if (bga_agent_new(&cfg, &agent, &err) != BG_OK) {
+    const bg_status made = bga_agent_new(&cfg, &agent, &err);
+    memset(&pair, 0, sizeof pair); /* the socket holds its copy */
+    if (made != BG_OK) {
         fprintf(stderr, "biotgrid agent: %s\n", err.message);
         return err.status == BG_ERR_IO || err.status == BG_ERR_INVALID ? 2 : 1;
     }

@@ -1,11 +1,16 @@
 /*
  * biotgrid broker [--config FILE] [--address A] [--port N] [--tls-cert F --tls-key F]
- *                 [--insecure] [--endpoint EP] [--state-dir DIR] [--ready-file FILE]
+ *                 [--insecure] [--endpoint EP] [--curve-key F --authorized-agents DIR]
+ *                 [--state-dir DIR] [--ready-file FILE]
  *
  * Starts the broker, prints "broker NAME ready on URL, agents at
  * ENDPOINT" (URL http[s]://ADDR:PORT), writes "URL ENDPOINT PID" to the ready file
  * if asked (written to a temporary name and renamed, so a reader never
  * sees half a line), and runs until SIGTERM or SIGINT.
+ *
+ * With --curve-key and --authorized-agents the agents' endpoint speaks
+ * CURVE (bgb_broker.h); every refused agent (its key, its handshake, its
+ * registration) is a line on stderr with the peer's address and key.
  */
 #include "cmd_broker.h"
 
@@ -21,12 +26,13 @@
 const char bg_cmd_broker_usage[] =
     "usage: biotgrid broker [--config FILE] [--address A] [--port N]\n"
     "                       [--tls-cert FILE --tls-key FILE] [--insecure]\n"
-    "                       [--endpoint ENDPOINT] [--state-dir DIR] [--ready-file FILE]\n"
+    "                       [--endpoint ENDPOINT] [--curve-key FILE --authorized-agents DIR]\n"
+    "                       [--state-dir DIR] [--ready-file FILE]\n"
     "Runs the broker: the REST API (default http://127.0.0.1:8080), the job store\n"
     "(STATE_DIR/broker.sqlite, default out/broker) and the ZeroMQ endpoint agents\n"
     "connect to (default tcp://127.0.0.1:5570), until SIGTERM or SIGINT.\n"
     "  --config FILE       JSON object with keys name, address, port, tls_cert,\n"
-    "                      tls_key, insecure, endpoint,\n"
+    "                      tls_key, insecure, endpoint, curve_key, authorized_agents,\n"
     "                      state_dir, max_jobs, agent_timeout_ms, the limits\n"
     "                      (memory_fraction, max_vertices, max_elements, max_work,\n"
     "                      max_body, max_jobs_in_flight, max_stored_bytes,\n"
@@ -42,14 +48,26 @@ const char bg_cmd_broker_usage[] =
     "  --tls-key FILE      ...and its PEM private key; clients trust it with --cacert\n"
     "  --insecure          serve plain HTTP beyond loopback anyway: without TLS an\n"
     "                      address other than 127.x is refused, as it would show\n"
-    "                      every bearer token to the network\n"
+    "                      every bearer token to the network; likewise the agents'\n"
+    "                      endpoint beyond loopback without CURVE keys\n"
     "  --endpoint EP       ZeroMQ ROUTER endpoint (port * : an ephemeral one)\n"
+    "  --curve-key FILE    the broker's CURVE secret key (biotgrid keygen): the agents'\n"
+    "                      endpoint speaks CURVE; agents give its .pub as --broker-key\n"
+    "  --authorized-agents DIR\n"
+    "                      the agents' public keys, one NAME.pub each (read again when\n"
+    "                      it changes): only those keys get in, each under its NAME\n"
     "  --state-dir DIR     where the store and the jobs' folders live\n"
     "  --ready-file FILE   write \"URL ENDPOINT PID\" there once serving\n"
     "Agents started with `biotgrid agent --broker ENDPOINT` sell on its live market;\n"
     "each job buys its plan's services there (its mechanism: central, catallactic or\n"
     "posted; at most its budget) and runs on the agents it bought. With no agent on\n"
     "the market, a job runs on the config's agents without contracts, or waits.\n";
+
+/* A refused agent, from the broker's threads: one line on stderr. */
+static void say_refusal(void *ctx, const char *line)
+{
+    fprintf(stderr, "broker %s: %s\n", *(char *const *)ctx, line);
+}
 
 static int set_string(char **slot, const char *value)
 {
@@ -83,9 +101,10 @@ int bg_cmd_broker(int argc, char **argv)
             config.insecure = 1;
             continue;
         }
-        static const char *const valued[] = {"--config",   "--port",     "--endpoint",
-                                             "--state-dir", "--ready-file", "--address",
-                                             "--tls-cert", "--tls-key",  NULL};
+        static const char *const valued[] = {
+            "--config",  "--port",     "--endpoint", "--state-dir", "--ready-file",
+            "--address", "--tls-cert", "--tls-key",  "--curve-key", "--authorized-agents",
+            NULL};
         int known = 0;
         for (int k = 0; valued[k]; k++)
             known |= strcmp(a, valued[k]) == 0;
@@ -115,11 +134,13 @@ int bg_cmd_broker(int argc, char **argv)
             config.port = (int)p;
         } else if (strcmp(a, "--ready-file") == 0) {
             ready_file = v;
-        } else if (set_string(strcmp(a, "--endpoint") == 0    ? &config.endpoint
-                              : strcmp(a, "--address") == 0   ? &config.address
-                              : strcmp(a, "--tls-cert") == 0  ? &config.tls_cert
-                              : strcmp(a, "--tls-key") == 0   ? &config.tls_key
-                                                              : &config.state_dir,
+        } else if (set_string(strcmp(a, "--endpoint") == 0            ? &config.endpoint
+                              : strcmp(a, "--address") == 0           ? &config.address
+                              : strcmp(a, "--tls-cert") == 0          ? &config.tls_cert
+                              : strcmp(a, "--tls-key") == 0           ? &config.tls_key
+                              : strcmp(a, "--curve-key") == 0         ? &config.curve_key
+                              : strcmp(a, "--authorized-agents") == 0 ? &config.authorized_agents
+                                                                      : &config.state_dir,
                               v) != 0) {
             fprintf(stderr, "biotgrid broker: out of memory\n");
             rc = BG_EXIT_FAILED;
@@ -127,6 +148,8 @@ int bg_cmd_broker(int argc, char **argv)
         }
     }
     bg_cmd_stop_on_signals();
+    config.log = say_refusal;
+    config.log_ctx = &config.name;
     if (bgb_broker_start(&config, &broker, &err) != BG_OK) {
         fprintf(stderr, "biotgrid broker: %s\n", err.message);
         rc = err.status == BG_ERR_INVALID ? BG_EXIT_BAD_INPUT : BG_EXIT_FAILED;
@@ -149,8 +172,17 @@ int bg_cmd_broker(int argc, char **argv)
     }
     char limits[1024];
     bgb_limits_describe(bgb_broker_limits(broker), bgb_limits_ram(), limits, sizeof limits);
-    printf("broker %s ready on %s, agents at %s\nlimits:\n%s", config.name, url,
-           bgb_broker_endpoint(broker), limits);
+    printf("broker %s ready on %s, agents at %s\n", config.name, url, bgb_broker_endpoint(broker));
+    char public_key[BGA_CURVE_KEY_SIZE];
+    int keys = 0;
+    if (bgb_broker_curve(broker, public_key, &keys))
+        printf("agents: CURVE, public key %s, %d authorized in %s\n", public_key, keys,
+               config.authorized_agents);
+    else
+        printf("agents: plaintext (%s)\n", bga_curve_endpoint_is_loopback(config.endpoint)
+                                               ? "loopback"
+                                               : "beyond loopback: --insecure");
+    printf("limits:\n%s", limits);
     fflush(stdout);
     bg_cmd_wait_for_stop();
     rc = BG_EXIT_OK;

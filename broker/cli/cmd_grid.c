@@ -32,6 +32,16 @@
  * keeps what runs and starts the rest (a broker again on its endpoint and
  * port, with its store). DIR defaults to $BIOTGRID_GRID_DIR or out/grid
  * and is resolved to its canonical path.
+ *
+ * "security": "curve" in FILE makes every ZeroMQ link of the grid speak
+ * CURVE: `up` keeps a key pair per process in DIR/keys (made once, kept
+ * across ups: NAME.key, NAME.pub, broker.key, broker.pub), gives the
+ * broker the folder DIR/authorized of its agents' public keys (a remote
+ * agent's NAME.pub may be added there) and each agent its key and the
+ * broker's; `up` and `status` reach the agents with the broker's key.
+ * Without it ("none", the default) every endpoint must be loopback (exit
+ * 2 naming the one that is not). `status` also lists the agents
+ * registered with the grid's broker that `up` did not start.
  */
 #include "cmd_grid.h"
 
@@ -51,9 +61,10 @@
 #include <unistd.h>
 
 #include "bg_clock.h"
+#include "bg_file.h"
 #include "bg_mesh_io.h"
 #include "bga_client.h"
-#include "bg_file.h"
+#include "bga_curve.h"
 #include "bgb_broker.h"
 #include "bgb_client.h"
 #include "bgb_tokens.h"
@@ -63,6 +74,8 @@
 #include "cmd_token.h"
 
 #define GRID_MAX_AGENTS 64
+#define GRID_KEYS "keys"             /* DIR/keys: the grid's key pairs */
+#define GRID_AUTHORIZED "authorized" /* DIR/authorized: the agents' public keys */
 #define GRID_READY_SECONDS 10.0
 #define GRID_PING_MS 2000
 
@@ -86,6 +99,7 @@ typedef struct grid {
     char broker_url[128];
     char market[2048]; /* the broker's "market" object, compact JSON ("" none) */
     char cores[32], memory[32]; /* the "host" object's, as agent options ("" none) */
+    int curve;                  /* "security": "curve" */
 } grid;
 
 /* The broker's name among the grid's processes (its ready and log files). */
@@ -250,10 +264,20 @@ static int read_grid_config(const char *path, grid *g)
             rc = read_broker_config(it, path, g);
         } else if (strcmp(it->string, "host") == 0 && cJSON_IsObject(it)) {
             rc = read_host_config(it, path, g);
+        } else if (strcmp(it->string, "security") == 0 && cJSON_IsString(it) &&
+                   (strcmp(it->valuestring, "curve") == 0 ||
+                    strcmp(it->valuestring, "none") == 0)) {
+            g->curve = strcmp(it->valuestring, "curve") == 0;
+        } else if (strcmp(it->string, "security") == 0) {
+            fprintf(stderr,
+                    "biotgrid grid: %s: security: \"curve\" (every ZeroMQ link encrypted, keys "
+                    "made by grid up) or \"none\" (loopback only)\n",
+                    path);
+            rc = 2;
         } else {
             fprintf(stderr,
                     "biotgrid grid: %s: unknown key or wrong type '%s' (name: string, "
-                    "agents: array, broker: object, host: object)\n",
+                    "agents: array, broker: object, host: object, security: string)\n",
                     path, it->string);
             rc = 2;
         }
@@ -394,6 +418,7 @@ static int write_state(const grid *g, const char *dir)
 {
     cJSON *root = cJSON_CreateObject(), *arr = cJSON_AddArrayToObject(root, "agents");
     cJSON_AddStringToObject(root, "name", g->name);
+    cJSON_AddStringToObject(root, "security", g->curve ? "curve" : "none");
     for (int i = 0; i < g->count; i++) {
         cJSON *a = cJSON_CreateObject();
         cJSON_AddStringToObject(a, "name", g->agent[i].spec.name);
@@ -455,6 +480,8 @@ static int read_state(const char *dir, grid *g)
     int rc = cJSON_IsString(name) && cJSON_IsArray(arr) ? 0 : 2;
     if (rc == 0)
         snprintf(g->name, sizeof g->name, "%s", name->valuestring);
+    const cJSON *security = cJSON_GetObjectItemCaseSensitive(root, "security");
+    g->curve = cJSON_IsString(security) && strcmp(security->valuestring, "curve") == 0;
     for (const cJSON *a = rc == 0 ? arr->child : NULL; a && g->count < GRID_MAX_AGENTS;
          a = a->next) {
         const cJSON *n = cJSON_GetObjectItemCaseSensitive(a, "name");
@@ -506,10 +533,10 @@ static long spawn_process(const char *self, const char *dir, const char *name,
     snprintf(tmp, sizeof tmp, "%s.log", name);
     if (path_join(log, sizeof log, dir, tmp))
         return -1;
-    const char *argv[24];
+    const char *argv[32];
     int n = 0;
     argv[n++] = self;
-    for (int i = 0; args[i] && n < 21; i++)
+    for (int i = 0; args[i] && n < 29; i++)
         argv[n++] = args[i];
     argv[n++] = "--ready-file";
     argv[n++] = ready;
@@ -537,11 +564,21 @@ static long spawn_process(const char *self, const char *dir, const char *name,
 static long spawn_agent(const char *self, const char *dir, const grid *g, const grid_agent *a,
                         const char *broker)
 {
-    char slots[16];
+    char slots[16], key[PATH_MAX], broker_key[PATH_MAX];
     snprintf(slots, sizeof slots, "%d", a->spec.slots);
-    const char *args[20] = {"agent",   "--listen", a->spec.listen, "--services", a->spec.services,
+    const char *args[24] = {"agent",   "--listen", a->spec.listen, "--services", a->spec.services,
                             "--slots", slots,      "--name",       a->spec.name};
     int n = 9;
+    if (g->curve) {
+        snprintf(key, sizeof key, "%s/%s/%s%s", dir, GRID_KEYS, a->spec.name,
+                 BGA_CURVE_SECRET_SUFFIX);
+        snprintf(broker_key, sizeof broker_key, "%s/%s/%s%s", dir, GRID_KEYS, GRID_BROKER_NAME,
+                 BGA_CURVE_PUBLIC_SUFFIX);
+        args[n++] = "--curve-key";
+        args[n++] = key;
+        args[n++] = "--broker-key";
+        args[n++] = broker_key;
+    }
     if (broker) {
         args[n++] = "--broker";
         args[n++] = broker;
@@ -572,6 +609,14 @@ static int write_broker_config(const grid *g, const char *dir, char *path, size_
     cJSON_AddStringToObject(root, "state_dir", store);
     if (g->market[0])
         cJSON_AddItemToObject(root, "market", cJSON_Parse(g->market));
+    if (g->curve) {
+        char key[PATH_MAX], authorized[PATH_MAX];
+        snprintf(key, sizeof key, "%s/%s/%s%s", dir, GRID_KEYS, GRID_BROKER_NAME,
+                 BGA_CURVE_SECRET_SUFFIX);
+        snprintf(authorized, sizeof authorized, "%s/%s", dir, GRID_AUTHORIZED);
+        cJSON_AddStringToObject(root, "curve_key", key);
+        cJSON_AddStringToObject(root, "authorized_agents", authorized);
+    }
     char *text = cJSON_Print(root);
     cJSON_Delete(root);
     FILE *f = text ? fopen(path, "w") : NULL;
@@ -644,11 +689,40 @@ static int read_broker_ready(const char *dir, grid *g)
     return n == 3 && pid == g->broker.pid ? 0 : -1;
 }
 
-static int ping(const grid_agent *a, bga_agent_status_t *st, char *msg, size_t cap)
+/* A CURVE grid's agents are known by their NAME.pub: key_of's answer. */
+static bg_status known_key(void *ctx, const char *endpoint, char key[BGA_CURVE_KEY_SIZE],
+                           bg_error_t *err)
+{
+    (void)endpoint;
+    (void)err;
+    snprintf(key, BGA_CURVE_KEY_SIZE, "%s", (const char *)ctx);
+    return BG_OK;
+}
+
+/* Pings agent a; over CURVE as the broker (the one key agents admit),
+ * expecting the agent's key from DIR/keys. */
+static int ping(const grid *g, const char *dir, const grid_agent *a, bga_agent_status_t *st,
+                char *msg, size_t cap)
 {
     bga_client_t *c = NULL;
     bg_error_t err = BG_ERROR_INIT;
-    bg_status s = bga_client_new(a->endpoint, a->spec.services, GRID_PING_MS, &c, &err);
+    bga_curve_keypair_t pair;
+    char key[BGA_CURVE_KEY_SIZE] = "", path[PATH_MAX];
+    bga_curve_peers_t peers = {&pair, known_key, key};
+    bg_status s = BG_OK;
+    if (g->curve) {
+        snprintf(path, sizeof path, "%s/%s/%s%s", dir, GRID_KEYS, GRID_BROKER_NAME,
+                 BGA_CURVE_SECRET_SUFFIX);
+        s = bga_curve_read_secret(path, &pair, &err);
+        snprintf(path, sizeof path, "%s/%s/%s%s", dir, GRID_KEYS, a->spec.name,
+                 BGA_CURVE_PUBLIC_SUFFIX);
+        if (s == BG_OK)
+            s = bga_curve_read_public(path, key, &err);
+    }
+    if (s == BG_OK)
+        s = bga_client_new_curve(a->endpoint, a->spec.services, GRID_PING_MS,
+                                 g->curve ? &peers : NULL, &c, &err);
+    memset(&pair, 0, sizeof pair);
     if (s == BG_OK)
         s = bga_client_heartbeat(c, 0, st, &err);
     bga_client_destroy(&c);
@@ -734,6 +808,104 @@ static int write_token(const char *dir)
     return 0;
 }
 
+/*
+ * A grid without keys stays on this machine: with "security": "none" every
+ * endpoint must be loopback; "curve" needs the broker that holds the
+ * agents' keys. 2 with the message, else 0.
+ */
+static int check_security(const grid *g, const char *file)
+{
+    if (g->curve && !g->has_broker) {
+        fprintf(stderr,
+                "biotgrid grid: %s: security \"curve\" needs a \"broker\" object (or "
+                "--broker-port): the broker holds the agents' keys\n",
+                file);
+        return 2;
+    }
+    if (g->curve)
+        return 0;
+    const char *where = NULL, *endpoint = NULL;
+    char agent[96];
+    if (g->has_broker && !bga_curve_endpoint_is_loopback(g->broker.spec.listen)) {
+        where = "broker.endpoint";
+        endpoint = g->broker.spec.listen;
+    }
+    for (int i = 0; !where && i < g->count; i++)
+        if (!bga_curve_endpoint_is_loopback(g->agent[i].spec.listen)) {
+            snprintf(agent, sizeof agent, "agents[%d].listen", i);
+            where = agent;
+            endpoint = g->agent[i].spec.listen;
+        }
+    if (!where)
+        return 0;
+    fprintf(stderr,
+            "biotgrid grid: %s: %s %s is beyond loopback: add \"security\": \"curve\" to the "
+            "config (grid up makes the keys) so the grid's links are encrypted\n",
+            file, where, endpoint);
+    return 2;
+}
+
+/* DIR/keys/NAME.{key,pub}: kept when there (checked), else made. */
+static int ensure_pair(const char *keys, const char *name)
+{
+    char prefix[PATH_MAX], secret[PATH_MAX + 8];
+    snprintf(prefix, sizeof prefix, "%s/%s", keys, name);
+    snprintf(secret, sizeof secret, "%s%s", prefix, BGA_CURVE_SECRET_SUFFIX);
+    bga_curve_keypair_t pair;
+    bg_error_t err = BG_ERROR_INIT;
+    bg_status s = access(secret, F_OK) == 0 ? bga_curve_read_secret(secret, &pair, &err)
+                                            : bga_curve_generate(&pair, &err);
+    if (s == BG_OK && access(secret, F_OK) != 0)
+        s = bga_curve_write(prefix, &pair, &err);
+    memset(&pair, 0, sizeof pair);
+    if (s != BG_OK) {
+        fprintf(stderr, "biotgrid grid: %s\n", err.message);
+        return -1;
+    }
+    return 0;
+}
+
+/*
+ * The grid's keys: a pair for the broker and for each agent in DIR/keys
+ * (0700), and each agent's public key copied to DIR/authorized/NAME.pub,
+ * the broker's allowlist (other files there, a remote agent's key, are
+ * left as they are).
+ */
+static int make_keys(const grid *g, const char *dir)
+{
+    char keys[PATH_MAX], authorized[PATH_MAX];
+    bg_error_t err = BG_ERROR_INIT;
+    if (path_join(keys, sizeof keys, dir, GRID_KEYS) ||
+        path_join(authorized, sizeof authorized, dir, GRID_AUTHORIZED))
+        return -1;
+    if (bg_file_make_directories_mode(keys, 0700, &err) != BG_OK ||
+        bg_file_make_directories_mode(authorized, 0700, &err) != BG_OK) {
+        fprintf(stderr, "biotgrid grid: %s\n", err.message);
+        return -1;
+    }
+    if (ensure_pair(keys, GRID_BROKER_NAME) != 0)
+        return -1;
+    for (int i = 0; i < g->count; i++) {
+        char from[PATH_MAX + 80], to[PATH_MAX + 80], key[BGA_CURVE_KEY_SIZE + 1];
+        const char *name = g->agent[i].spec.name;
+        snprintf(from, sizeof from, "%s/%s%s", keys, name, BGA_CURVE_PUBLIC_SUFFIX);
+        snprintf(to, sizeof to, "%s/%s%s", authorized, name, BGA_CURVE_PUBLIC_SUFFIX);
+        if (ensure_pair(keys, name) != 0 || bga_curve_read_public(from, key, &err) != BG_OK) {
+            if (err.message[0])
+                fprintf(stderr, "biotgrid grid: %s\n", err.message);
+            return -1;
+        }
+        strcat(key, "\n");
+        if (bg_file_write_all(to, key, strlen(key), 0644, &err) != BG_OK) {
+            fprintf(stderr, "biotgrid grid: %s\n", err.message);
+            return -1;
+        }
+    }
+    printf("%-12s CURVE: key pairs in %s, the broker admits the keys in %s\n", "security", keys,
+           authorized);
+    return 0;
+}
+
 /* Whether the broker's REST API answers /healthz (no token needed); the
  * reason into msg when it does not. */
 static int broker_health(const char *url, char *msg, size_t size)
@@ -777,6 +949,13 @@ static int adopt_running(grid *g, const grid *old, const char *dir)
                 "biotgrid grid: another grid (%s, %d agents) is up in %s: `biotgrid grid down "
                 "--state %s` first\n",
                 old->name, old->count, dir, dir);
+        return 1;
+    }
+    if (g->curve != old->curve) {
+        fprintf(stderr,
+                "biotgrid grid: the grid up in %s runs with security \"%s\" where the config "
+                "says \"%s\": `biotgrid grid down --state %s` first\n",
+                dir, old->curve ? "curve" : "none", g->curve ? "curve" : "none", dir);
         return 1;
     }
     for (int i = 0; i < g->count; i++) {
@@ -825,9 +1004,13 @@ static int grid_up(const char *file, const char *dir, int broker_port, const cha
         if (broker_port >= 0)
             g.broker_port = broker_port;
     }
+    if ((rc = check_security(&g, file)) != 0)
+        return rc;
     grid old;
     const int adopting = read_state(dir, &old) == 0 && any_alive(&old, dir);
     if (adopting && adopt_running(&g, &old, dir) != 0)
+        return 1;
+    if (g.curve && make_keys(&g, dir) != 0)
         return 1;
     char self[PATH_MAX];
     const ssize_t n = readlink("/proc/self/exe", self, sizeof self - 1);
@@ -890,7 +1073,7 @@ static int grid_up(const char *file, const char *dir, int broker_port, const cha
                     exited ? "exited before it was ready" : "did not become ready within 10 s", dir,
                     a->spec.name);
             rc = 1;
-        } else if (ping(a, &st, msg, sizeof msg) != 0) {
+        } else if (ping(&g, dir, a, &st, msg, sizeof msg) != 0) {
             fprintf(stderr, "biotgrid grid: %s\n", msg);
             rc = 1;
         } else {
@@ -928,6 +1111,70 @@ static int grid_up(const char *file, const char *dir, int broker_port, const cha
     return 0;
 }
 
+/* Whether the grid started an agent of this name. */
+static int ours(const grid *g, const char *name)
+{
+    for (int i = 0; i < g->count; i++)
+        if (strcmp(g->agent[i].spec.name, name) == 0)
+            return 1;
+    return 0;
+}
+
+/*
+ * The agents registered with the grid's broker that `up` did not start
+ * (GET /v1/agents with the grid's token): one line each, their address,
+ * liveness, slots and key. They do not make the grid degraded; a broker
+ * that does not answer does (1).
+ */
+static int other_agents(const grid *g, const char *dir)
+{
+    char token[BG_CMD_TOKEN_MAX];
+    bg_cmd_token_find(NULL, dir, token, sizeof token);
+    const bgb_client_config_t cc = {.url = g->broker_url,
+                                    .token = token[0] ? token : NULL,
+                                    .cacert = bg_cmd_cacert_find(NULL),
+                                    .connect_timeout_ms = GRID_PING_MS,
+                                    .timeout_ms = 2 * GRID_PING_MS};
+    bgb_client_t *client = NULL;
+    cJSON *doc = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgb_client_new(&cc, &client, &err) != BG_OK ||
+        bgb_client_agents(client, &doc, &err) != BG_OK) {
+        printf("%-12s %-28s the agents it knows are not listed: %s\n", GRID_BROKER_NAME,
+               g->broker_url, err.message);
+        bgb_client_destroy(&client);
+        return 1;
+    }
+    const cJSON *list = cJSON_GetObjectItemCaseSensitive(doc, "agents"), *a;
+    int others = 0;
+    cJSON_ArrayForEach(a, list)
+    {
+        const char *name = bg_cmd_string_of(a, "name"), *source = bg_cmd_string_of(a, "source");
+        const cJSON *services = cJSON_GetObjectItemCaseSensitive(a, "services");
+        /* Each daemon once: its service seller (its resource seller has no services). */
+        if (!name || !source || strcmp(source, "market") != 0 ||
+            cJSON_GetArraySize(services) == 0 || ours(g, name))
+            continue;
+        const char *endpoint = bg_cmd_string_of(a, "endpoint");
+        const char *address = bg_cmd_string_of(a, "address");
+        const char *key = bg_cmd_string_of(a, "key");
+        const double slots = bg_cmd_number_of(a, "slots");
+        const double free_slots = bg_cmd_number_of(a, "free_slots");
+        printf("%-12s %-28s registered from %s, not started by this grid: %s, %.0f of %.0f slots "
+               "free, %s%s\n",
+               name, endpoint ? endpoint : "?", address && address[0] ? address : "?",
+               cJSON_IsTrue(cJSON_GetObjectItemCaseSensitive(a, "alive")) ? "up" : "silent",
+               free_slots, slots, key ? "CURVE key " : "no key (plaintext)", key ? key : "");
+        others++;
+    }
+    if (others)
+        printf("%-12s %d agent%s registered with the broker beside the grid's\n", "", others,
+               others == 1 ? "" : "s");
+    cJSON_Delete(doc);
+    bgb_client_destroy(&client);
+    return 0;
+}
+
 static int grid_status(const char *dir)
 {
     grid g;
@@ -946,7 +1193,7 @@ static int grid_status(const char *dir)
         if (!runs_now(a, dir)) {
             printf("%-12s %-28s pid %-7ld not running\n", a->spec.name, a->endpoint, a->pid);
             bad = 1;
-        } else if (ping(a, &st, msg, sizeof msg) != 0) {
+        } else if (ping(&g, dir, a, &st, msg, sizeof msg) != 0) {
             printf("%-12s %-28s pid %-7ld not answering: %s\n", a->spec.name, a->endpoint, a->pid,
                    msg);
             bad = 1;
@@ -967,8 +1214,9 @@ static int grid_status(const char *dir)
                    g.broker.endpoint, g.broker.pid, g.broker_url, msg);
             bad = 1;
         } else {
-            printf("%-12s %-28s pid %-7ld up, REST %s\n", GRID_BROKER_NAME, g.broker.endpoint,
-                   g.broker.pid, g.broker_url);
+            printf("%-12s %-28s pid %-7ld up, REST %s%s\n", GRID_BROKER_NAME, g.broker.endpoint,
+                   g.broker.pid, g.broker_url, g.curve ? ", CURVE" : "");
+            bad |= other_agents(&g, dir);
         }
     }
     printf("grid %s: %s\n", g.name,
@@ -1098,7 +1346,12 @@ const char bg_cmd_grid_usage[] =
     "broker (REST on --broker-port, 0: an ephemeral port; agents' endpoint\n"
     "--broker-endpoint) and `down` stops it first. The agents sell the machine's\n"
     "cores and memory on the broker's market, one of them for all (the others stand\n"
-    "by); a \"host\" object in FILE, {\"cores\": N, \"memory\": GIB}, says how many.\n";
+    "by); a \"host\" object in FILE, {\"cores\": N, \"memory\": GIB}, says how many.\n"
+    "\"security\": \"curve\" in FILE encrypts every ZeroMQ link of the grid: `up` keeps a\n"
+    "key pair per process in DIR/keys and the broker admits the agents' public keys\n"
+    "in DIR/authorized (add a remote agent's NAME.pub there); without it every\n"
+    "endpoint must be loopback. `status` also lists the agents registered with the\n"
+    "broker that `up` did not start, with their address and key.\n";
 
 static void usage(FILE *out)
 {

@@ -639,8 +639,8 @@ int bg_cmd_solve(int argc, char **argv)
             exit_code = arc == 1 ? BG_EXIT_FAILED : BG_EXIT_BAD_INPUT;
             goto out;
         }
-        const bga_backend_config_t bc = {rotfit, nrotfit, solve, o.agent_timeout_ms,
-                                         CLI_AGENT_LEASE_MS, 0};
+        const bga_backend_config_t bc = {
+            rotfit, nrotfit, solve, o.agent_timeout_ms, CLI_AGENT_LEASE_MS, 0, NULL};
         if (bga_backend_new(&bc, &remote, &err) != BG_OK) {
             fprintf(stderr, "biotgrid solve: %s\n", err.message);
             goto out;

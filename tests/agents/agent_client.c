@@ -229,7 +229,7 @@ static int run_compute(const char *dir)
             return 1;
         const char *eps[2] = {r1.endpoint, r2.endpoint};
         bga_pool_config_t pc = {mesh, mu,   lambda,     0.0,  bg_sparse_scatter(sys), nnz, eps,
-                                2,    3000, TIMEOUT_MS, 60000, NULL, 0};
+                                2,    3000, TIMEOUT_MS, 60000, NULL, 0,   NULL};
         bga_rotfit_pool_t *pool = NULL;
         bg_status st = bga_rotfit_pool_new(&pc, &pool, &err);
         CHECK(st == BG_OK, "pool: %s", err.message);

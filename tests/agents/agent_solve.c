@@ -252,7 +252,7 @@ int main(int argc, char **argv)
         const char *rot[MAX_AGENTS];
         for (int i = 0; i < n; i++)
             rot[i] = eps[i];
-        const bga_backend_config_t bc = {rot, n, solve_ep, TIMEOUT_MS, 60000, 0};
+        const bga_backend_config_t bc = {rot, n, solve_ep, TIMEOUT_MS, 60000, 0, NULL};
         bga_backend_t *remote = NULL;
         bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
         if (bga_backend_new(&bc, &remote, &err) != BG_OK ||
