@@ -47,7 +47,7 @@ typedef struct held {
 
 struct bgb_loop {
     bgb_loop_config_t config;
-    char market_name[BGB_MARKET_NAME_MAX];
+    char market_name[BGB_DIRECTORY_NAME_MAX];
     void *zmq;
     void *agents; /* ROUTER, tcp: the agents; the loop thread's alone */
     void *pipe;   /* ROUTER, inproc: buyers, views, stop; the loop thread's alone */
@@ -104,8 +104,9 @@ static char *csv_text(const bgb_market_t *m, int contracts)
     if (!f)
         return NULL;
     bg_error_t err = BG_ERROR_INIT;
-    const bg_status st = contracts ? bgb_market_write_contracts_csv(m, f, &err)
-                                   : bgb_market_write_agents_csv(m, f, &err);
+    const bg_status st = contracts ? bgb_ledger_write_contracts_csv(bgb_market_ledger(m), f, &err)
+                                   : bgb_ledger_write_agents_csv(bgb_market_ledger(m),
+                                                                 bgb_market_directory(m), f, &err);
     fclose(f);
     if (st != BG_OK) {
         free(buf);
@@ -125,9 +126,10 @@ static void add_services(cJSON *a, unsigned services)
 /* The directory as a JSON array (GET /v1/agents' market rows). */
 static char *agents_json(bgb_loop_t *l)
 {
-    size_t n = bgb_market_agents(l->market, l->live, BGB_MARKET_MAX_AGENTS);
-    if (n > BGB_MARKET_MAX_AGENTS)
-        n = BGB_MARKET_MAX_AGENTS;
+    size_t n =
+        bgb_directory_agents(bgb_market_directory(l->market), l->live, BGB_DIRECTORY_MAX_AGENTS);
+    if (n > BGB_DIRECTORY_MAX_AGENTS)
+        n = BGB_DIRECTORY_MAX_AGENTS;
     cJSON *arr = cJSON_CreateArray();
     for (size_t i = 0; arr && i < n; i++) {
         const bgb_agent_info_t *a = &l->live[i];
@@ -159,7 +161,8 @@ static char *market_json(const bgb_market_t *m)
     for (int mech = BGB_MECH_CENTRAL; mech <= BGB_MECH_POSTED; mech++)
         for (int g = BGB_GOOD_ROTFIT; g <= BGB_GOOD_INTEG; g++) {
             double mean = 0;
-            const int n = bgb_market_recent_price(m, g, (bgb_mechanism)mech, 20, &mean);
+            const int n =
+                bgb_ledger_recent_price(bgb_market_ledger(m), g, (bgb_mechanism)mech, 20, &mean);
             if (n == 0)
                 continue;
             cJSON *e = cJSON_CreateObject();
@@ -198,10 +201,11 @@ static char *render_view(bgb_loop_t *l, int what)
  * each. */
 static int rotfit_sellers(bgb_loop_t *l)
 {
-    size_t n = bgb_market_agents(l->market, l->live, BGB_MARKET_MAX_AGENTS);
+    size_t n =
+        bgb_directory_agents(bgb_market_directory(l->market), l->live, BGB_DIRECTORY_MAX_AGENTS);
     int count = 0, agents = 0, hosts = 0;
     double cores = 0;
-    for (size_t i = 0; i < n && i < BGB_MARKET_MAX_AGENTS; i++) {
+    for (size_t i = 0; i < n && i < BGB_DIRECTORY_MAX_AGENTS; i++) {
         const bgb_agent_info_t *a = &l->live[i];
         agents += a->alive != 0;
         count += a->alive && (a->services & BGA_SERVICE_ROTFIT);
@@ -220,9 +224,10 @@ static int rotfit_sellers(bgb_loop_t *l)
 /* Publishes the number of live agents; wakes whoever waits for the first. */
 static void count_alive(bgb_loop_t *l)
 {
-    size_t n = bgb_market_agents(l->market, l->live, BGB_MARKET_MAX_AGENTS);
+    size_t n =
+        bgb_directory_agents(bgb_market_directory(l->market), l->live, BGB_DIRECTORY_MAX_AGENTS);
     int alive = 0;
-    for (size_t i = 0; i < n && i < BGB_MARKET_MAX_AGENTS; i++)
+    for (size_t i = 0; i < n && i < BGB_DIRECTORY_MAX_AGENTS; i++)
         alive += l->live[i].alive != 0;
     pthread_mutex_lock(&l->lock);
     if (alive != l->alive)
@@ -511,7 +516,7 @@ bg_status bgb_loop_start(const bgb_loop_config_t *config, bgb_loop_t **out, bg_e
                           zmq_strerror(zmq_errno()));
         goto out;
     }
-    if (!(l->live = calloc(BGB_MARKET_MAX_AGENTS, sizeof *l->live))) {
+    if (!(l->live = calloc(BGB_DIRECTORY_MAX_AGENTS, sizeof *l->live))) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the agents' directory");
         goto out;
     }

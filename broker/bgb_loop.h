@@ -66,7 +66,7 @@ int bgb_loop_live_agents(bgb_loop_t *loop, double wait_seconds);
 /* One job's purchase: what to buy, then what was bought. */
 typedef struct bgb_loop_purchase {
     /* in */
-    char label[BGB_MARKET_LABEL_MAX]; /* the store's job id, for the contract log */
+    char label[BGB_LEDGER_LABEL_MAX]; /* the store's job id, for the contract log */
     bgb_mechanism mechanism;
     double budget;
     int integ; /* the plan needs an integration step */

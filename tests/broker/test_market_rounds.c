@@ -362,7 +362,6 @@ static void central_refusal_bids_again(void **state)
     bgb_market_destroy(&m);
 }
 
-
 /* ------------------------------------------- resource sub-jobs (layer 1) */
 
 /* The resource role of fake daemon `who` on host `host` registers at
@@ -494,7 +493,7 @@ static void catallactic_subjob_bargains_when_heard(void **state)
 static int resource_sellers(const bgb_market_t *m)
 {
     bgb_agent_info_t info[16];
-    const size_t n = bgb_market_agents(m, info, 16);
+    const size_t n = bgb_directory_agents(bgb_market_directory(m), info, 16);
     int k = 0;
     for (size_t i = 0; i < n && i < 16; i++)
         k += info[i].resource;

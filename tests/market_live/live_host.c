@@ -141,7 +141,7 @@ static void count_cb(void *ctx, const bgb_contract_t *r)
 static size_t contracts(host_t *h)
 {
     count_contracts_cb_n = 0;
-    bgb_market_contracts(h->market, count_cb, NULL);
+    bgb_ledger_each(bgb_market_ledger(h->market), count_cb, NULL);
     return count_contracts_cb_n;
 }
 
@@ -149,7 +149,7 @@ static size_t contracts(host_t *h)
 static void count_roles(host_t *h, size_t out[2])
 {
     bgb_agent_info_t info[64];
-    const size_t n = bgb_market_agents(h->market, info, 64);
+    const size_t n = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     out[0] = out[1] = 0;
     for (size_t i = 0; i < n && i < 64; i++)
         out[info[i].resource != 0]++;
@@ -159,7 +159,7 @@ static void count_roles(host_t *h, size_t out[2])
 static uint32_t resource_seller(host_t *h)
 {
     bgb_agent_info_t info[64];
-    const size_t n = bgb_market_agents(h->market, info, 64);
+    const size_t n = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     for (size_t i = 0; i < n && i < 64; i++)
         if (info[i].resource)
             return info[i].id;
@@ -202,7 +202,7 @@ static void check_awards(host_t *h, const outcome_t *o, double budget, const cha
     int rot = 0, solve = 0;
     double spent = 0;
     bgb_agent_info_t info[64];
-    const size_t na = bgb_market_agents(h->market, info, 64);
+    const size_t na = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     for (int i = 0; i < o->nawards; i++) {
         const bgb_award_t *a = &o->awards[i];
         rot += a->good == BGB_GOOD_ROTFIT;
@@ -268,7 +268,8 @@ static void check_refusal(void *ctx, const char *endpoint, uint64_t job)
         FAIL("refusal probe: the agent did not refuse job %llu with NO_JOB",
              (unsigned long long)job);
     char text[256] = {0}, want[64];
-    const size_t n = rep.array[BGA_ERR_MESSAGE].count < 255 ? rep.array[BGA_ERR_MESSAGE].count : 255;
+    const size_t n =
+        rep.array[BGA_ERR_MESSAGE].count < 255 ? rep.array[BGA_ERR_MESSAGE].count : 255;
     memcpy(text, rep.array[BGA_ERR_MESSAGE].data, n);
     snprintf(want, sizeof want, "job %llu", (unsigned long long)job);
     if (!strstr(text, want))
@@ -304,9 +305,9 @@ static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char
 {
     static rows_t rows;
     rows.n = 0;
-    bgb_market_contracts(h->market, collect, &rows);
+    bgb_ledger_each(bgb_market_ledger(h->market), collect, &rows);
     bgb_agent_info_t info[64];
-    const size_t na = bgb_market_agents(h->market, info, 64);
+    const size_t na = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     for (int i = 0; i < o->nawards; i++) {
         const bgb_award_t *a = &o->awards[i];
         const bgb_contract_t *svc = NULL;
@@ -334,8 +335,8 @@ static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char
                 FAIL("%s: resource price %g outside [%g, %g]", mech, r->price, r->seller_limit,
                      r->buyer_limit);
             if (r->start > svc->start || !(r->end > r->start))
-                FAIL("%s: resource row [%g, %g] does not start by the service's %g", mech,
-                     r->start, r->end, svc->start);
+                FAIL("%s: resource row [%g, %g] does not start by the service's %g", mech, r->start,
+                     r->end, svc->start);
             if (r->good == BGB_GOOD_CORES)
                 cores += r->quantity;
             else if (r->good == BGB_GOOD_MEMORY)
@@ -350,15 +351,15 @@ static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char
                  a->agent, cores, memory, bgb_good_name(a->good), unit_cores[a->good],
                  unit_memory[a->good]);
         if (!(spent > 0) || spent > svc->price * svc->quantity)
-            FAIL("%s: agent %u pays %g for resources, its service earns %g", mech, a->agent,
-                 spent, svc->price * svc->quantity);
+            FAIL("%s: agent %u pays %g for resources, its service earns %g", mech, a->agent, spent,
+                 svc->price * svc->quantity);
     }
 }
 
 static long refusals(host_t *h)
 {
     bgb_agent_info_t info[64];
-    const size_t n = bgb_market_agents(h->market, info, 64);
+    const size_t n = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     long sum = 0;
     for (size_t i = 0; i < n && i < 64; i++)
         sum += info[i].refusals;
@@ -378,7 +379,7 @@ static void check_no_cores(host_t *h, uint64_t job)
     check_awards(h, &a, 1e5, "posted, first of two");
     pump(h, 0.7, NULL); /* heartbeats: the directory sees the cores sold */
     bgb_agent_info_t info[64];
-    const size_t na = bgb_market_agents(h->market, info, 64);
+    const size_t na = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     double free_cores = 0;
     for (size_t i = 0; i < na && i < 64; i++) {
         if (info[i].resource)
@@ -397,8 +398,8 @@ static void check_no_cores(host_t *h, uint64_t job)
         FAIL("the job that found no cores left contracts");
     if (refusals(h) <= refused)
         FAIL("no seller refused a service order for want of cores");
-    printf("no free cores: the second job failed (%s) after %ld refusals, no contract\n",
-           b.reason, refusals(h) - refused);
+    printf("no free cores: the second job failed (%s) after %ld refusals, no contract\n", b.reason,
+           refusals(h) - refused);
     bgb_market_release(h->market, job, bg_clock_now());
     pump(h, 0.7, NULL);
     buy(h, job + 2, BGB_MECH_POSTED, 1e5, &b);
@@ -413,12 +414,13 @@ static void write_csvs(host_t *h, const char *dir)
     bg_error_t err = BG_ERROR_INIT;
     snprintf(path, sizeof path, "%s/contracts.csv", dir);
     FILE *f = fopen(path, "w");
-    if (!f || bgb_market_write_contracts_csv(h->market, f, &err) != BG_OK)
+    if (!f || bgb_ledger_write_contracts_csv(bgb_market_ledger(h->market), f, &err) != BG_OK)
         FAIL("cannot write %s", path);
     fclose(f);
     snprintf(path, sizeof path, "%s/agents.csv", dir);
     f = fopen(path, "w");
-    if (!f || bgb_market_write_agents_csv(h->market, f, &err) != BG_OK)
+    if (!f || bgb_ledger_write_agents_csv(bgb_market_ledger(h->market),
+                                          bgb_market_directory(h->market), f, &err) != BG_OK)
         FAIL("cannot write %s", path);
     fclose(f);
 }
