@@ -86,6 +86,9 @@ static void on_contract(void *ctx, const char *label, const bgb_contract_t *row)
     cJSON_AddNumberToObject(o, "price", row->price);
     cJSON_AddNumberToObject(o, "buyer_limit", row->buyer_limit);
     cJSON_AddNumberToObject(o, "seller_limit", row->seller_limit);
+    cJSON_AddNumberToObject(o, "use", row->use);
+    if (row->clearing)
+        cJSON_AddNumberToObject(o, "clearing", (double)row->clearing);
     cJSON_AddNumberToObject(o, "time", row->time);
     char *json = cJSON_PrintUnformatted(o);
     cJSON_Delete(o);

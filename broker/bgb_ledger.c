@@ -7,6 +7,9 @@ struct bgb_ledger {
     char name[BGB_DIRECTORY_NAME_MAX];
     bgb_contract_t *log; /* ring of max rows */
     size_t max, head, count;
+    bgb_clearing_t *clearings; /* ring of max clearings */
+    size_t chead, ccount;
+    uint64_t next_clearing;
     bgb_contract_fn on_contract;
     void *on_contract_ctx;
 };
@@ -17,9 +20,15 @@ bg_status bgb_ledger_new(const char *name, size_t max_rows, bgb_ledger_t **out, 
     if (max_rows < 1)
         return bg_error_set(err, BG_ERR_INVALID, "market: max_contracts must be >= 1");
     bgb_ledger_t *l = calloc(1, sizeof *l);
-    if (l)
+    if (l) {
         l->log = calloc(max_rows, sizeof *l->log);
-    if (!l || !l->log) {
+        l->clearings = calloc(max_rows, sizeof *l->clearings);
+    }
+    if (!l || !l->log || !l->clearings) {
+        if (l) {
+            free(l->log);
+            free(l->clearings);
+        }
         free(l);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for %zu contract rows", max_rows);
     }
@@ -34,6 +43,7 @@ void bgb_ledger_destroy(bgb_ledger_t **pl)
     if (!pl || !*pl)
         return;
     free((*pl)->log);
+    free((*pl)->clearings);
     free(*pl);
     *pl = NULL;
 }
@@ -59,6 +69,18 @@ void bgb_ledger_add(bgb_ledger_t *l, const bgb_contract_t *row)
         l->head = (l->head + 1) % l->max;
     if (l->on_contract)
         l->on_contract(l->on_contract_ctx, row);
+}
+
+uint64_t bgb_ledger_add_clearing(bgb_ledger_t *l, const bgb_clearing_t *c)
+{
+    bgb_clearing_t *at = &l->clearings[(l->chead + l->ccount) % l->max];
+    *at = *c;
+    at->id = ++l->next_clearing;
+    if (l->ccount < l->max)
+        l->ccount++;
+    else
+        l->chead = (l->chead + 1) % l->max;
+    return at->id;
 }
 
 void bgb_ledger_close(bgb_ledger_t *l, uint64_t job, double now)
@@ -110,10 +132,14 @@ static void write_row(void *ctx, const bgb_contract_t *r)
         snprintf(buyer, sizeof buyer, "%s", r->buyer_label);
     else
         snprintf(buyer, sizeof buyer, "%llu", (unsigned long long)r->buyer);
-    if (fprintf(c->out, "%s,0,%s,%s,%llu,%.9g,%.9g,%.9g,%s,%u,%s,%.9g,%.9g,%.9g,%.9g\n", c->l->name,
-                bgb_mechanism_name((bgb_mechanism)r->mechanism), r->layer ? "resource" : "service",
-                (unsigned long long)r->request, r->time, r->start, end, buyer, r->seller,
-                bgb_good_name(r->good), r->quantity, r->price, r->buyer_limit, r->seller_limit) < 0)
+    char clearing[24] = "";
+    if (r->clearing)
+        snprintf(clearing, sizeof clearing, "%llu", (unsigned long long)r->clearing);
+    if (fprintf(c->out, "%s,0,%s,%s,%llu,%.9g,%.9g,%.9g,%s,%u,%s,%.9g,%.9g,%.9g,%.9g,%.9g,%s\n",
+                c->l->name, bgb_mechanism_name((bgb_mechanism)r->mechanism),
+                r->layer ? "resource" : "service", (unsigned long long)r->request, r->time,
+                r->start, end, buyer, r->seller, bgb_good_name(r->good), r->quantity, r->price,
+                r->buyer_limit, r->seller_limit, r->use, clearing) < 0)
         c->failed = 1;
 }
 
@@ -121,12 +147,43 @@ bg_status bgb_ledger_write_contracts_csv(const bgb_ledger_t *l, FILE *out, bg_er
 {
     csv_ctx c = {l, out, 0};
     if (fputs("scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,good,"
-              "quantity,price,buyer_limit,seller_limit\n",
+              "quantity,price,buyer_limit,seller_limit,use,clearing\n",
               out) < 0)
         c.failed = 1;
     bgb_ledger_each(l, write_row, &c);
     if (c.failed || fflush(out) != 0)
         return bg_error_set(err, BG_ERR_IO, "cannot write contracts.csv");
+    return BG_OK;
+}
+
+/* "agent:ID" or "job:LABEL", the owner of a clearing's bound. */
+static const char *owner(const bgb_clearing_bound_t *b, char *buf, size_t size)
+{
+    if (b->is_bid)
+        snprintf(buf, size, "job:%s", b->job);
+    else
+        snprintf(buf, size, "agent:%u", b->agent);
+    return buf;
+}
+
+bg_status bgb_ledger_write_clearings_csv(const bgb_ledger_t *l, FILE *out, bg_error_t *err)
+{
+    int failed = fputs("clearing,time,layer,good,volume,k,rule,price,low,low_order,low_owner,"
+                       "high,high_order,high_owner\n",
+                       out) < 0;
+    for (size_t i = 0; i < l->ccount; i++) {
+        const bgb_clearing_t *c = &l->clearings[(l->chead + i) % l->max];
+        char lo[BGB_LEDGER_LABEL_MAX + 8], hi[BGB_LEDGER_LABEL_MAX + 8];
+        failed |= fprintf(out, "%llu,%.9g,%s,%s,%d,%.9g,%s,%.9g,%.9g,%s,%s,%.9g,%s,%s\n",
+                          (unsigned long long)c->id, c->time, c->layer ? "resource" : "service",
+                          bgb_good_name(c->good), c->volume, c->k, c->rationed ? "k" : "ask",
+                          c->price, c->low, c->low_by.is_bid ? "excluded bid" : "matched ask",
+                          owner(&c->low_by, lo, sizeof lo), c->high,
+                          c->high_by.is_bid ? "matched bid" : "excluded ask",
+                          owner(&c->high_by, hi, sizeof hi)) < 0;
+    }
+    if (failed || fflush(out) != 0)
+        return bg_error_set(err, BG_ERR_IO, "cannot write clearings.csv");
     return BG_OK;
 }
 

@@ -96,7 +96,7 @@ static void on_bought(void *ctx, const bgb_outcome_t *o)
 
 /* ------------------------------------------------------------- views */
 
-static char *csv_text(const bgb_market_t *m, int contracts)
+static char *csv_text(const bgb_market_t *m, int what)
 {
     char *buf = NULL;
     size_t len = 0;
@@ -104,9 +104,12 @@ static char *csv_text(const bgb_market_t *m, int contracts)
     if (!f)
         return NULL;
     bg_error_t err = BG_ERROR_INIT;
-    const bg_status st = contracts ? bgb_ledger_write_contracts_csv(bgb_market_ledger(m), f, &err)
-                                   : bgb_ledger_write_agents_csv(bgb_market_ledger(m),
-                                                                 bgb_market_directory(m), f, &err);
+    const bgb_ledger_t *ledger = bgb_market_ledger(m);
+    const bg_status st =
+        what == BGB_REST_VIEW_CONTRACTS ? bgb_ledger_write_contracts_csv(ledger, f, &err)
+        : what == BGB_REST_VIEW_CLEARINGS
+            ? bgb_ledger_write_clearings_csv(ledger, f, &err)
+            : bgb_ledger_write_agents_csv(ledger, bgb_market_directory(m), f, &err);
     fclose(f);
     if (st != BG_OK) {
         free(buf);
@@ -185,9 +188,9 @@ static char *render_view(bgb_loop_t *l, int what)
     case BGB_REST_VIEW_MARKET:
         return market_json(l->market);
     case BGB_REST_VIEW_CONTRACTS:
-        return csv_text(l->market, 1);
     case BGB_REST_VIEW_AGENTS_CSV:
-        return csv_text(l->market, 0);
+    case BGB_REST_VIEW_CLEARINGS:
+        return csv_text(l->market, what);
     default:
         return NULL;
     }

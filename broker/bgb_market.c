@@ -55,6 +55,7 @@ typedef struct unit {
     int in_book;    /* central: its bid is in the book (services: the auctioneer's) */
     double heard;   /* resource units: the seller's last price per unit-second */
     uint32_t drawn; /* catallactic: the round its job's buyer last drew a strategy for */
+    uint64_t clearing; /* central: the ledger's clearing that priced its order (0: none) */
 } unit_t;
 
 typedef struct ptimer {
@@ -117,6 +118,8 @@ struct bgb_market {
     double next_auction;    /* when the auctioneer clears next */
     double next_clear;
     struct bidref *refs;   /* central: the book's bids, MAX_JOBS * MAX_UNITS */
+    struct bidref *run;    /* central: one host's bids, as many */
+    bgm_fill_t *fills;     /* central: a host's clearing, 2 * MAX_JOBS * MAX_UNITS + 2 */
     uint64_t next_sub;     /* resource sub-job ids */
     uint64_t next_request; /* service items logged */
     bgm_config_t pcfg;     /* what the purchase machines read (borrowed by each) */
@@ -175,6 +178,8 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     m->posted = bgm_posted_new(BGB_DIRECTORY_MAX_AGENTS * BGB_GOODS);
     m->cm = bgm_callmarket_new(MAX_JOBS * MAX_UNITS);
     m->refs = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->refs);
+    m->run = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->run);
+    m->fills = calloc(2 * (size_t)MAX_JOBS * MAX_UNITS + 2, sizeof *m->fills);
     /* The purchase machines' timing, from the live market's: a round of
      * discovery an eighth of the reply timeout (doubling when quiet), a
      * failed catallactic round or refused central bid tried again at once
@@ -188,8 +193,8 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     m->pcfg.baseline.retry_backoff = c->period;
     m->ob = bgm_outbox_new(16 * MAX_UNITS);
     bg_error_t aerr = BG_ERROR_INIT;
-    if (bgb_auction_new(c->k, c->period, 0.0, &m->auction, &aerr) != BG_OK || !m->refs || !m->ob ||
-        !m->jobs || !m->posted || !m->cm) {
+    if (bgb_auction_new(c->k, c->period, 0.0, &m->auction, &aerr) != BG_OK || !m->refs || !m->run ||
+        !m->fills || !m->ob || !m->jobs || !m->posted || !m->cm) {
         bgb_market_destroy(&m);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market");
     }
@@ -230,6 +235,8 @@ void bgb_market_destroy(bgb_market_t **pm)
     bgb_ledger_destroy(&m->ledger);
     free(m->jobs);
     free(m->refs);
+    free(m->run);
+    free(m->fills);
     bgm_posted_destroy(&m->posted);
     bgm_callmarket_destroy(&m->cm);
     bgb_auction_destroy(&m->auction);
@@ -428,8 +435,55 @@ static const job_t *bought_subjob(const bgb_market_t *m, uint64_t parent, uint32
     return NULL;
 }
 
+/*
+ * The cores job `parent` pays for in cores unit `cu` of its sub-job `cs`
+ * at that unit's seller: what the unit's phase (its service) adds to the
+ * widest phase the job holds there, with the job's bought sub-jobs taken
+ * in the order they were bought (then by number). A job's phases run one
+ * after another and its host's seller counts its cores as its widest
+ * phase's (room_for, bgm_resource share_phases), so that is what it can
+ * occupy, and the sum over its units is that widest phase, paid once:
+ * rotation fit 1 + 1 and sparse solve 2 on a host pay for 2 cores, not 4.
+ * The unit keeps its phase's cores (the row's `use`).
+ */
+static double cores_paid(const bgb_market_t *m, uint64_t parent, const unit_t *cu)
+{
+    const job_t *subs[MAX_UNITS];
+    int n = 0;
+    for (int i = 0; i < MAX_JOBS && n < MAX_UNITS; i++) {
+        const job_t *s = &m->jobs[i];
+        if (s->used && s->resource && s->finished && s->parent == parent && s->sgood >= 0 &&
+            s->sgood < 3)
+            subs[n++] = s;
+    }
+    double phase[3] = {0, 0, 0}, most = 0;
+    for (int done = 0; done < n; done++) {
+        int next = done; /* the earliest bought of those left */
+        for (int i = done + 1; i < n; i++)
+            if (subs[i]->bought_at < subs[next]->bought_at ||
+                (subs[i]->bought_at == subs[next]->bought_at && subs[i]->id < subs[next]->id))
+                next = i;
+        const job_t *s = subs[next];
+        subs[next] = subs[done];
+        subs[done] = s;
+        for (int k = 0; k < s->nunits; k++) {
+            const unit_t *u = &s->unit[k];
+            if (u->good != BGB_GOOD_CORES || u->agent != cu->agent || u->state != U_DONE)
+                continue;
+            phase[s->sgood] += u->quantity;
+            const double added = phase[s->sgood] > most ? phase[s->sgood] - most : 0.0;
+            most += added;
+            if (u == cu)
+                return added;
+        }
+    }
+    return cu->quantity; /* not found among the bought: counted whole */
+}
+
 /* The resource rows of a service item: one per unit of its sub-job,
- * priced per unit-second, for the lease from when they were bought. */
+ * priced per unit-second, for the lease from when they were bought. A
+ * cores row pays for what its phase adds to the job's widest phase on
+ * the host (cores_paid) and says, as `use`, what the phase holds. */
 static void log_resources(bgb_market_t *m, const job_t *j, const unit_t *su, uint64_t request,
                           double now)
 {
@@ -439,6 +493,7 @@ static void log_resources(bgb_market_t *m, const job_t *j, const unit_t *su, uin
     for (int i = 0; i < s->nunits; i++) {
         const unit_t *u = &s->unit[i];
         const bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, u->agent);
+        const double paid = u->good == BGB_GOOD_CORES ? cores_paid(m, j->id, u) : u->quantity;
         bgb_contract_t row = {.job = j->id,
                               .request = request,
                               .time = now,
@@ -449,10 +504,12 @@ static void log_resources(bgb_market_t *m, const job_t *j, const unit_t *su, uin
                               .mechanism = j->mech,
                               .layer = 1,
                               .good = u->good,
-                              .quantity = u->quantity,
+                              .quantity = paid,
                               .price = u->price,
                               .buyer_limit = u->limit,
-                              .seller_limit = u->seller_floor};
+                              .seller_limit = u->seller_floor,
+                              .use = u->quantity,
+                              .clearing = u->clearing};
         if (a)
             snprintf(row.seller_name, sizeof row.seller_name, "%s", a->info.name);
         bgb_ledger_add(m->ledger, &row);
@@ -546,7 +603,9 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
                                   .quantity = u->quantity,
                                   .price = u->price,
                                   .buyer_limit = u->limit,
-                                  .seller_limit = u->seller_floor};
+                                  .seller_limit = u->seller_floor,
+                                  .use = u->quantity,
+                                  .clearing = u->clearing};
             snprintf(row.buyer_label, sizeof row.buyer_label, "%s", j->label);
             snprintf(row.seller_name, sizeof row.seller_name, "%s", w->name);
             bgb_ledger_add(m->ledger, &row);
@@ -771,6 +830,7 @@ static void unit_lost(bgb_market_t *m, job_t *j, unit_t *u);
 typedef struct match_ctx {
     bgb_market_t *m;
     double now;
+    uint64_t logged[BGB_AUCTION_MAX_CLEARINGS]; /* the tick's clearings' ledger ids (0: not yet) */
 } match_ctx;
 
 /* ------------------------------------------------------ a job's purchase */
@@ -1218,6 +1278,79 @@ static void admit_one(bgb_market_t *m, double now)
     }
 }
 
+/* ------------------------------------------------------ clearing records */
+
+/* A job's name in the log: its label (a sub-job's: its job's), else its
+ * number. */
+static void job_name(const bgb_market_t *m, const job_t *j, char *buf, size_t size)
+{
+    const job_t *named = j->resource ? job_by_id((bgb_market_t *)m, j->parent) : j;
+    if (named && named->label[0])
+        snprintf(buf, size, "%s", named->label);
+    else
+        snprintf(buf, size, "%llu", (unsigned long long)(named ? named->id : j->parent));
+}
+
+/* Logs a service clearing of this tick once; returns its ledger id. */
+static uint64_t log_service_clearing(bgb_market_t *m, match_ctx *mc,
+                                     const bgb_auction_clearing_t *x)
+{
+    if (x->index < 0 || x->index >= BGB_AUCTION_MAX_CLEARINGS)
+        return 0;
+    if (mc->logged[x->index])
+        return mc->logged[x->index];
+    bgb_clearing_t c = {.time = mc->now,
+                        .layer = 0,
+                        .good = x->good,
+                        .volume = x->volume,
+                        .rationed = x->rationed,
+                        .k = x->k,
+                        .price = x->price,
+                        .low = x->low,
+                        .high = x->high};
+    const bgb_auction_bound_t *in[2] = {&x->low_by, &x->high_by};
+    bgb_clearing_bound_t *out[2] = {&c.low_by, &c.high_by};
+    for (int e = 0; e < 2; e++) {
+        *out[e] = (bgb_clearing_bound_t){
+            .is_bid = in[e]->is_bid, .excluded = in[e]->excluded, .price = in[e]->price};
+        if (in[e]->is_bid && in[e]->buyer < MAX_JOBS)
+            job_name(m, &m->jobs[in[e]->buyer], out[e]->job, sizeof out[e]->job);
+        else if (!in[e]->is_bid && in[e]->slot >= 0 && in[e]->slot < BGB_DIRECTORY_MAX_AGENTS)
+            out[e]->agent = bgb_directory_rows(m->dir)[in[e]->slot].info.id;
+    }
+    return mc->logged[x->index] = bgb_ledger_add_clearing(m->ledger, &c);
+}
+
+/* Logs a resource clearing (good g) of the host's call market; bids name
+ * the sub-jobs' units (refs), asks the sellers' directory slots. */
+static uint64_t log_resource_clearing(bgb_market_t *m, int g, const bgm_clearing_t *res,
+                                      const bidref_t *refs, double now)
+{
+    bgb_clearing_t c = {.time = now,
+                        .layer = 1,
+                        .good = g,
+                        .volume = res->volume,
+                        .rationed = res->rationed,
+                        .k = m->c.k,
+                        .price = res->price,
+                        .low = res->low,
+                        .high = res->high};
+    const bgm_bound_t *in[2] = {&res->low_by, &res->high_by};
+    bgb_clearing_bound_t *out[2] = {&c.low_by, &c.high_by};
+    for (int e = 0; e < 2; e++) {
+        *out[e] = (bgb_clearing_bound_t){
+            .is_bid = in[e]->is_bid, .excluded = in[e]->excluded, .price = in[e]->price};
+        if (in[e]->is_bid) {
+            const job_t *sj = refs[in[e]->ref].j;
+            job_name(m, sj, out[e]->job, sizeof out[e]->job);
+            out[e]->agent = sj->buyer;
+        } else {
+            out[e]->agent = in[e]->owner;
+        }
+    }
+    return bgb_ledger_add_clearing(m->ledger, &c);
+}
+
 /* The auctioneer matched a unit's bid: the purchase hears the market
  * agent's acceptance, and the unit orders from that seller at the
  * clearing price, unless the host's checks (a seller it tried beyond the
@@ -1245,6 +1378,7 @@ static void on_match(void *ctx, const bgb_auction_match_t *x)
     answer(j, BGM_MT_ACCEPT, PU_MARKET, id, x->attempt, x->price);
     if (may_have(m, j, u, a)) {
         order(m, j, u, a, x->price, mc->now);
+        u->clearing = x->clearing ? log_service_clearing(m, mc, x->clearing) : 0;
     } else {
         answer(j, BGM_MT_CANCEL, a->info.id, id, x->attempt, 0);
         if (a->used)
@@ -1263,65 +1397,76 @@ static int bids_with_room(const bgb_market_t *m, const bgb_dir_agent_t *a, const
     return n;
 }
 
-/* Central resources (layer 1): one call market per resource, bids = open
- * units at their limit, asks = each live seller's room, in bids it could
- * take one at a time (a host has one seller, and a job's sub-jobs share its
- * cores, so a count of cores would not say what it can serve), at its
- * asking price. A fill the unit cannot use (a seller it tried, another
- * host's, room taken by the fills before it) stays open for the next call. */
+/* One host's call market for resource good g: its sub-jobs' open units
+ * (run, n of them) bid at their limits; its seller asks, at its asking
+ * price, as many units as bids it has room for, each taken alone (a job's
+ * sub-jobs share its cores, so a count of cores would not say what it can
+ * serve). A fill the unit cannot use (a seller it tried, room taken by
+ * the fills before it) stays open for the next call. */
+static void clear_host(bgb_market_t *m, int g, bgb_dir_agent_t *seller, bidref_t *run, size_t n,
+                       double now)
+{
+    bgm_callmarket_reset(m->cm);
+    for (size_t i = 0; i < n; i++) {
+        bgm_order_t o = {
+            .ref = i, .owner = buyer_of(m, run[i].j), .quantity = 1, .price = run[i].u->limit};
+        bgm_callmarket_bid(m->cm, &o);
+    }
+    const int room = bids_with_room(m, seller, run, n);
+    if (room == 0)
+        return;
+    bgm_order_t o = {.ref = (uint64_t)bgb_directory_slot_of(m->dir, seller),
+                     .owner = seller->info.id,
+                     .quantity = room,
+                     .price = seller->info.price[g]};
+    bgm_callmarket_ask(m->cm, &o);
+    bgm_clearing_t res;
+    if (bgm_callmarket_clear(m->cm, m->c.k, &res, m->fills, 2 * n + 2) != BG_OK || res.volume == 0)
+        return;
+    const uint64_t clearing = log_resource_clearing(m, g, &res, run, now);
+    const bgm_order_t *bids = bgm_callmarket_bids(m->cm);
+    for (size_t f = 0; f < res.fill_count; f++) {
+        bidref_t *r = &run[bids[m->fills[f].bid].ref];
+        if (need_has(r->j, r->u, seller->info.id) || tried(r->u, seller->info.id) ||
+            !room_for(m, r->j, seller, r->u))
+            continue;
+        order(m, r->j, r->u, seller, res.price, now);
+        r->u->clearing = clearing;
+    }
+}
+
+/* Central resources (layer 1): a call market per resource good and host,
+ * each cleared on its own (clear_host): a sub-job buys only on its basic
+ * agent's host, so its bid meets that host's seller and no other, and
+ * every fill is one it can take. (A book of every host's bids and sellers
+ * paired bids with other hosts' sellers, and those fills were dropped
+ * until a later clearing happened to pair them right.) */
 static void central_clear(bgb_market_t *m, double now)
 {
-    bidref_t *refs = m->refs;
+    bidref_t *refs = m->refs, *run = m->run;
     for (int g = BGB_GOOD_CORES; g < BGB_GOODS; g++) {
-        bgm_callmarket_reset(m->cm);
         size_t nb = 0;
         for (int ji = 0; ji < MAX_JOBS; ji++) {
             job_t *j = &m->jobs[ji];
-            if (!j->used || j->finished || j->mech != BGB_MECH_CENTRAL)
+            if (!j->used || j->finished || j->mech != BGB_MECH_CENTRAL || !j->resource)
                 continue;
             for (int i = 0; i < j->nunits; i++) {
                 unit_t *u = &j->unit[i];
-                if (u->state != U_OPEN || u->good != g || !u->in_book)
-                    continue;
-                refs[nb] = (bidref_t){j, u};
-                bgm_order_t o = {
-                    .ref = nb, .owner = (uint32_t)ji, .quantity = 1, .price = u->limit};
-                if (bgm_callmarket_bid(m->cm, &o) == BG_OK)
-                    nb++;
+                if (u->state == U_OPEN && u->good == g && u->in_book)
+                    refs[nb++] = (bidref_t){j, u};
             }
         }
-        if (nb == 0)
-            continue;
-        for (int ai = 0; ai < BGB_DIRECTORY_MAX_AGENTS; ai++) {
+        for (int ai = 0; ai < BGB_DIRECTORY_MAX_AGENTS && nb > 0; ai++) {
             bgb_dir_agent_t *a = &bgb_directory_rows(m->dir)[ai];
-            const int room = alive_seller(a, g) ? bids_with_room(m, a, refs, nb) : 0;
-            if (room == 0)
+            if (!alive_seller(a, g))
                 continue;
-            bgm_order_t o = {.ref = (uint64_t)ai,
-                             .owner = a->info.id,
-                             .quantity = room,
-                             .price = a->info.price[g]};
-            bgm_callmarket_ask(m->cm, &o);
+            size_t n = 0;
+            for (size_t i = 0; i < nb; i++)
+                if (on_host(refs[i].j, a))
+                    run[n++] = refs[i];
+            if (n > 0)
+                clear_host(m, g, a, run, n, now);
         }
-        const size_t nbids = bgm_callmarket_bid_count(m->cm),
-                     nasks = bgm_callmarket_ask_count(m->cm);
-        if (nasks == 0)
-            continue;
-        bgm_fill_t *fills = malloc((nbids + nasks) * sizeof *fills);
-        bgm_clearing_t res;
-        if (fills && bgm_callmarket_clear(m->cm, m->c.k, &res, fills, nbids + nasks) == BG_OK) {
-            const bgm_order_t *bids = bgm_callmarket_bids(m->cm),
-                              *asks = bgm_callmarket_asks(m->cm);
-            for (size_t f = 0; f < res.fill_count; f++) {
-                bidref_t *r = &refs[bids[fills[f].bid].ref];
-                bgb_dir_agent_t *a = &bgb_directory_rows(m->dir)[asks[fills[f].ask].ref];
-                if (need_has(r->j, r->u, a->info.id) || tried(r->u, a->info.id) ||
-                    !on_host(r->j, a) || !room_for(m, r->j, a, r->u))
-                    continue;
-                order(m, r->j, r->u, a, res.price, now);
-            }
-        }
-        free(fills);
     }
 }
 
@@ -1740,7 +1885,7 @@ bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t 
 double bgb_market_tick(bgb_market_t *m, double now)
 {
     bgb_directory_expire(m->dir, now, withdraw, m);
-    match_ctx mc = {m, now};
+    match_ctx mc = {.m = m, .now = now};
     if (now >= m->next_auction)
         admit_one(m, now);
     bgb_auction_tick(m->auction, now, on_match, &mc, &m->next_auction, NULL);

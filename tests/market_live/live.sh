@@ -5,8 +5,9 @@
 # test: 3 rotation-fit agents and 1 sparse-solve agent on one host that
 # sells 2 cores and 16 GiB: r2 and r3 may sell it (the first to register
 # does, the other stands by), r1 and s1 sell no resources. After the
-# market checks the simulator's audit (MARKET_AUDIT --live) runs on the
-# contracts.csv and agents.csv the host wrote; then the daemon selling
+# market checks the simulator's audit (MARKET_AUDIT --live, jobs paying
+# for what they can hold within 5 %) runs on the contracts.csv and
+# agents.csv the host wrote; then the daemon selling
 # the host is killed and the host must drop it and take the standby.
 # bench: 8 agents (6 rotation-fit, 2 sparse-solve), latency per mechanism.
 # Every process started here is killed on exit; the script then checks
@@ -52,7 +53,7 @@ else
     done
     # The log of phase 1 passes the simulator's audit (both layers).
     if [ -e "$WORK/phase2" ] && [ -n "$AUDIT" ]; then
-        "$AUDIT" --live "$WORK" || { echo "live.sh: the audit failed"; exit 1; }
+        "$AUDIT" --live --paid-ratio 0.05 "$WORK" || { echo "live.sh: the audit failed"; exit 1; }
         grep -q ',resource,' "$WORK/contracts.csv" ||
             { echo "live.sh: contracts.csv has no resource row"; exit 1; }
     fi

@@ -299,8 +299,10 @@ static const double unit_cores[3] = {1.0, 2.0, 1.0}, unit_memory[3] = {1.0, 4.0,
 /* Every awarded seller of job `job` bought its unit's resources: the
  * service row's request has a cores row and a memory row, bought by that
  * seller from a resource seller, each price within both limits, the
- * resources held from before the service started, and costing the seller
- * over their lease no more than the service earns. */
+ * resources held (`use`) from before the service started, and costing the
+ * seller over their lease no more than the service earns. The job pays
+ * for its cores once, at its widest phase: the cores rows' quantities add
+ * up to 2 (rotation fit 1 + 1, sparse solve 2, one after another). */
 static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char *mech)
 {
     static rows_t rows;
@@ -320,7 +322,7 @@ static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char
             }
         if (!svc)
             FAIL("%s: no service row for award %d (agent %u)", mech, i, a->agent);
-        double cores = 0, memory = 0, spent = 0;
+        double cores = 0, memory = 0, spent = 0, paid = 0;
         for (int k = 0; k < rows.n; k++) {
             const bgb_contract_t *r = &rows.r[k];
             if (r->layer != 1 || r->request != svc->request)
@@ -337,10 +339,15 @@ static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char
             if (r->start > svc->start || !(r->end > r->start))
                 FAIL("%s: resource row [%g, %g] does not start by the service's %g", mech, r->start,
                      r->end, svc->start);
-            if (r->good == BGB_GOOD_CORES)
-                cores += r->quantity;
-            else if (r->good == BGB_GOOD_MEMORY)
-                memory += r->quantity;
+            if (r->good == BGB_GOOD_CORES) {
+                cores += r->use;
+                paid += r->quantity;
+            } else if (r->good == BGB_GOOD_MEMORY) {
+                memory += r->use;
+                if (r->quantity != r->use)
+                    FAIL("%s: a memory row pays for %g GiB and holds %g", mech, r->quantity,
+                         r->use);
+            }
             else
                 FAIL("%s: a resource row sells %s", mech, bgb_good_name(r->good));
             spent += r->price * r->quantity * (r->end - r->start);
@@ -353,7 +360,15 @@ static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char
         if (!(spent > 0) || spent > svc->price * svc->quantity)
             FAIL("%s: agent %u pays %g for resources, its service earns %g", mech, a->agent, spent,
                  svc->price * svc->quantity);
+        if (paid > cores + 1e-12)
+            FAIL("%s: agent %u pays for %g cores, holds %g", mech, a->agent, paid, cores);
     }
+    double paid = 0;
+    for (int k = 0; k < rows.n; k++)
+        if (rows.r[k].job == job && rows.r[k].layer == 1 && rows.r[k].good == BGB_GOOD_CORES)
+            paid += rows.r[k].quantity;
+    if (fabs(paid - 2.0) > 1e-12)
+        FAIL("%s: the job pays for %g cores, its widest phase holds 2", mech, paid);
 }
 
 static long refusals(host_t *h)
