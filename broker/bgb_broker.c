@@ -107,6 +107,14 @@ static void on_queued(void *ctx)
         bgb_coord_notify(b->coord);
 }
 
+/* A job is being cancelled (REST thread): its contracts are settled first. */
+static void on_cancel(void *ctx, const char *id)
+{
+    bgb_broker_t *b = ctx;
+    if (b->loop)
+        bgb_loop_settle(b->loop, id);
+}
+
 /* Jobs a previous broker process left half done (see the header). */
 static bg_status recover(bgb_broker_t *b, bg_error_t *err)
 {
@@ -185,7 +193,8 @@ bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_er
                                   .view = rest_view,
                                   .view_ctx = b,
                                   .on_queued = on_queued,
-                                  .queued_ctx = b};
+                                  .queued_ctx = b,
+                                  .on_cancel = on_cancel};
     st = bgb_rest_start(&rc, b->store, &b->rest, err);
 out:
     if (st != BG_OK)

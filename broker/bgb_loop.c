@@ -23,6 +23,8 @@
 #define CMD_RELEASED "RELEASED"
 #define CMD_FORGET "FORGET"
 #define CMD_VIEW "VIEW"
+#define CMD_SETTLE "SETTLE"
+#define CMD_SETTLED "SETTLED"
 #define CMD_STOP "STOP"
 #define CMD_MAX 16
 /* A buyer's wait between two calls of keep_going, and an answer's at most. */
@@ -333,6 +335,23 @@ static void forget(bgb_loop_t *l, const uint8_t *identity, size_t identity_len, 
     }
 }
 
+/* A job being cancelled: its bought purchase is settled, one still
+ * buying abandoned (bgb_loop_settle). */
+static void settle(bgb_loop_t *l, const char *label, double now)
+{
+    for (held_t *h = l->held; h; h = h->next) {
+        if (strcmp(h->p.label, label) != 0 || (h->done && h->p.reason[0]))
+            continue;
+        if (h->done) {
+            bgb_market_settle(l->market, h->p.job, now);
+        } else {
+            bgb_market_release(l->market, h->p.job, now);
+            snprintf(h->p.reason, sizeof h->p.reason, "cancelled");
+            h->done = h->orphan = 1; /* answer_done frees it */
+        }
+    }
+}
+
 /* One command from the pipe; returns 1 on STOP. */
 static int on_command(bgb_loop_t *l, double now)
 {
@@ -391,6 +410,10 @@ static int on_command(bgb_loop_t *l, double now)
             char *text = render_view(l, what);
             reply(l, id, idlen, CMD_VIEW, text ? text : "", text ? strlen(text) + 1 : 1);
             free(text);
+        } else if (strcmp(cmd, CMD_SETTLE) == 0 && size > 0 && size <= BGB_LEDGER_LABEL_MAX &&
+                   ((const char *)data)[size - 1] == '\0') {
+            settle(l, data, now);
+            reply(l, id, idlen, CMD_SETTLED, NULL, 0);
         } else if (strcmp(cmd, CMD_STOP) == 0) {
             reply(l, id, idlen, CMD_STOP, NULL, 0);
             stop = 1;
@@ -652,6 +675,21 @@ char *bgb_loop_view(bgb_loop_t *l, int what)
     if (s)
         zmq_close(s);
     return data;
+}
+
+void bgb_loop_settle(bgb_loop_t *l, const char *label)
+{
+    char text[BGB_LEDGER_LABEL_MAX];
+    snprintf(text, sizeof text, "%s", label);
+    void *s = pipe_socket(l);
+    char cmd[CMD_MAX];
+    void *data = NULL;
+    size_t size = 0;
+    if (s && send_command(s, CMD_SETTLE, text, strlen(text) + 1) == 0)
+        (void)receive_answer(s, ANSWER_TIMEOUT_MS, cmd, &data, &size);
+    free(data);
+    if (s)
+        zmq_close(s);
 }
 
 int bgb_loop_live_agents(bgb_loop_t *l, double wait_seconds)

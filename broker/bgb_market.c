@@ -634,6 +634,12 @@ void bgb_market_release(bgb_market_t *m, uint64_t job, double now)
     forget_job(j);
 }
 
+void bgb_market_settle(bgb_market_t *m, uint64_t job, double now)
+{
+    if (job_by_id(m, job))
+        bgb_ledger_close(m->ledger, job, now);
+}
+
 void bgb_market_label(bgb_market_t *m, uint64_t job, const char *label)
 {
     job_t *j = job_by_id(m, job);

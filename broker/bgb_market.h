@@ -189,6 +189,13 @@ bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism,
  * are released too. */
 void bgb_market_release(bgb_market_t *m, uint64_t job, double now);
 
+/* The job's account is settled now, its sellers not yet released: its
+ * rows end now (bgb_ledger_close; a release later moves no end), so the
+ * log says what it owes before the job's end is announced, while its
+ * coordinator, which releases it, may still be stopping its agents (a
+ * cancel). Unknown job: no effect. */
+void bgb_market_settle(bgb_market_t *m, uint64_t job, double now);
+
 /* Names a buying or bought job in the contract log (the broker's store id,
  * copied, truncated to BGB_LEDGER_LABEL_MAX − 1). Unknown job: no effect. */
 void bgb_market_label(bgb_market_t *m, uint64_t job, const char *label);

@@ -569,6 +569,8 @@ static enum MHD_Result cancel_job(bgb_rest_t *rest, struct MHD_Connection *c, co
     const unsigned active = (1u << BGB_JOB_QUEUED) | (1u << BGB_JOB_ALLOCATING) |
                             (1u << BGB_JOB_RUNNING);
     bg_error_t err = BG_ERROR_INIT;
+    if (rest->config.on_cancel)
+        rest->config.on_cancel(rest->config.queued_ctx, id);
     const bg_status st = bgb_store_transition(rest->store, id, active, BGB_JOB_CANCELLED,
                                               "cancelled by the client", &err);
     return st == BG_OK ? get_job(rest, c, id) : send_store_problem(rest, c, st, &err);

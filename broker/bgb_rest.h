@@ -64,6 +64,10 @@ typedef struct bgb_rest_config {
      * broker's dispatcher looks at the queue; NULL: none. */
     void (*on_queued)(void *queued_ctx);
     void *queued_ctx;
+    /* Called (from a server thread) before job `id` is marked cancelled,
+     * so that its market account is settled before the `cancelled` event
+     * (bgb_loop_settle); with queued_ctx; NULL: none. */
+    void (*on_cancel)(void *queued_ctx, const char *id);
 } bgb_rest_config_t;
 
 /* What a view is asked for. */
