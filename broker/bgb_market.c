@@ -1,5 +1,6 @@
 #include "bgb_market.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -37,6 +38,9 @@
 #define PU_WIDEN 3
 
 typedef struct bidref bidref_t;
+typedef struct admit admit_t;
+static admit_t *admit_new(void);
+static void admit_free(admit_t *a);
 
 typedef enum unit_state { U_OPEN = 0, U_ORDERED = 1, U_DONE = 2 } unit_state;
 
@@ -56,6 +60,8 @@ typedef struct unit {
     double heard;   /* resource units: the seller's last price per unit-second */
     uint32_t drawn; /* catallactic: the round its job's buyer last drew a strategy for */
     uint64_t clearing; /* central: the ledger's clearing that priced its order (0: none) */
+    int proposals; /* catallactic: proposals its request heard in round `round` */
+    uint32_t round;
 } unit_t;
 
 typedef struct ptimer {
@@ -80,7 +86,7 @@ struct job {
     uint32_t touched[MAX_UNITS]; /* agents that may hold a slot for it */
     int ntouched;
     int finished; /* outcome delivered; kept until release */
-    int admitted; /* central: its service units may bid (see admit_one) */
+    int admitted; /* central: its service units may bid (see admit_fitting) */
     /* The job's buyer: the simulator's purchase machine, one request per
      * unit (request id = unit index + 1), its timers, and the answers the
      * host has for it next. A resource sub-job's machine reads a copy of
@@ -119,6 +125,7 @@ struct bgb_market {
     double next_clear;
     struct bidref *refs;   /* central: the book's bids, MAX_JOBS * MAX_UNITS */
     struct bidref *run;    /* central: one host's bids, as many */
+    admit_t *admit;        /* central: admission's placement (admit_fitting) */
     bgm_fill_t *fills;     /* central: a host's clearing, 2 * MAX_JOBS * MAX_UNITS + 2 */
     uint64_t next_sub;     /* resource sub-job ids */
     uint64_t next_request; /* service items logged */
@@ -179,6 +186,7 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     m->cm = bgm_callmarket_new(MAX_JOBS * MAX_UNITS);
     m->refs = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->refs);
     m->run = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->run);
+    m->admit = admit_new();
     m->fills = calloc(2 * (size_t)MAX_JOBS * MAX_UNITS + 2, sizeof *m->fills);
     /* The purchase machines' timing, from the live market's: a round of
      * discovery an eighth of the reply timeout (doubling when quiet), a
@@ -194,7 +202,7 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     m->ob = bgm_outbox_new(16 * MAX_UNITS);
     bg_error_t aerr = BG_ERROR_INIT;
     if (bgb_auction_new(c->k, c->period, 0.0, &m->auction, &aerr) != BG_OK || !m->refs || !m->run ||
-        !m->fills || !m->ob || !m->jobs || !m->posted || !m->cm) {
+        !m->admit || !m->fills || !m->ob || !m->jobs || !m->posted || !m->cm) {
         bgb_market_destroy(&m);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market");
     }
@@ -236,6 +244,7 @@ void bgb_market_destroy(bgb_market_t **pm)
     free(m->jobs);
     free(m->refs);
     free(m->run);
+    admit_free(m->admit);
     free(m->fills);
     bgm_posted_destroy(&m->posted);
     bgm_callmarket_destroy(&m->cm);
@@ -621,12 +630,29 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
         forget_job(j);
 }
 
+/* The slots a released job held count as free before their sellers'
+ * next heartbeats say so (a heartbeat comes every half second), so the
+ * next job is let into the book and matched at once. A seller that holds
+ * no slot for it any more is corrected by its heartbeat. */
+static void free_slots_of(bgb_market_t *m, const job_t *j)
+{
+    for (int i = 0; i < j->nunits; i++) {
+        bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, j->unit[i].agent);
+        if (j->unit[i].state != U_DONE || !a || a->info.resource)
+            continue;
+        if (a->info.free_slots < a->info.slots)
+            a->info.free_slots++;
+        announce(m, a);
+    }
+}
+
 void bgb_market_release(bgb_market_t *m, uint64_t job, double now)
 {
     job_t *j = job_by_id(m, job);
     if (!j)
         return;
     bgb_ledger_close(m->ledger, job, now);
+    free_slots_of(m, j);
     drop_subjobs(m, job, 0, -1);
     abandon_units(m, j);
     send_release(m, j);
@@ -811,6 +837,20 @@ static int exclusions(bgb_market_t *m, const job_t *j, const unit_t *u, int *out
     return k;
 }
 
+/* The live service sellers of unit u's good with a free slot net of the
+ * orders in flight to them, that do not serve its need already; those
+ * marked in `only` alone when it is not NULL (slots). */
+static int sellers_with_room(const bgb_market_t *m, const job_t *j, const unit_t *u,
+                             const uint8_t *only)
+{
+    int n = 0;
+    const bgb_dir_agent_t *rows = bgb_directory_rows_const(m->dir);
+    for (int i = 0; i < BGB_DIRECTORY_MAX_AGENTS; i++)
+        n += (!only || only[i]) && alive_seller(&rows[i], u->good) &&
+             rows[i].info.free_slots - rows[i].pending > 0 && !need_has(j, u, rows[i].info.id);
+    return n;
+}
+
 /* Whether the host lets unit u of job j have seller a now: what the
  * market agent's answers and a purchase's choices are checked against
  * (what a message could not carry, a seller gone since). A seller of
@@ -993,19 +1033,43 @@ static void to_seller(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *o, 
         send_price(m, j, u, a, o->type == BGM_MT_ORDER ? BGA_MM_ORDER : BGA_MM_OFFER, u->price);
 }
 
-/* Entry points of a catallactic job's calls for proposals: a few live
- * sellers of its layer (a sub-job: its host's resource sellers, the only
- * ones it may buy from), from an offset that spreads jobs over the
- * directory; the overlay carries the calls on. */
+/* Entry points of a catallactic job's calls for proposals: for each good
+ * its units buy, a live seller of that good (so every good's sellers hear
+ * a call, wherever the overlay would or would not carry it within its
+ * hops: a job's calls reached no sparse-solve seller when its entry
+ * agents, the same for every job, all sold rotation fit and none of
+ * their neighbours sold sparse solve, and every job timed out), then
+ * other live sellers of its layer up to the overlay degree; each from an
+ * offset that spreads jobs over the directory (a job number's high bits
+ * too: the broker's are multiples of 2^32). A sub-job's: its host's
+ * resource seller, the only one it may buy from. The overlay carries the
+ * calls on. */
 static int entry_agents(const bgb_market_t *m, const job_t *j, uint32_t *ids)
 {
+    const bgb_dir_agent_t *rows = bgb_directory_rows_const(m->dir);
+    const int offset = (int)((j->id ^ (j->id >> 32)) % BGB_DIRECTORY_MAX_AGENTS);
     int n = 0;
-    for (int k = 0; k < BGB_DIRECTORY_MAX_AGENTS && n < m->c.overlay_degree; k++) {
-        const bgb_dir_agent_t *a = &bgb_directory_rows_const(
-            m->dir)[(k + (int)(j->id % BGB_DIRECTORY_MAX_AGENTS)) % BGB_DIRECTORY_MAX_AGENTS];
-        if (a->used && a->info.alive && a->info.resource == j->resource && on_host(j, a))
-            ids[n++] = a->info.id;
-    }
+    for (int pass = 0; pass < 2; pass++)
+        for (int i = 0; i < (pass ? 1 : j->nunits); i++) {
+            const int good = j->unit[i].good;
+            int seen = 0;
+            for (int k = 0; k < i && !pass; k++)
+                seen |= j->unit[k].good == good;
+            for (int k = 0; k < BGB_DIRECTORY_MAX_AGENTS && !seen; k++) {
+                const bgb_dir_agent_t *a = &rows[(k + offset) % BGB_DIRECTORY_MAX_AGENTS];
+                int have = 0;
+                for (int q = 0; q < n; q++)
+                    have |= ids[q] == a->info.id;
+                if (n >= (pass ? m->c.overlay_degree : BGA_MMSG_MAX_NEIGHBOURS))
+                    break;
+                if (!have && a->used && a->info.alive && a->info.resource == j->resource &&
+                    on_host(j, a) && (pass || alive_seller(a, good))) {
+                    ids[n++] = a->info.id;
+                    if (!pass)
+                        break;
+                }
+            }
+        }
     return n;
 }
 
@@ -1261,24 +1325,156 @@ static int start_purchase(bgb_market_t *m, job_t *j, const double *ref)
     return 1;
 }
 
-/* Before each clearing one more central job is let into the book, the
- * one waiting longest: its bids all enter together. A seller's slots are
- * shared by the goods it sells and the auctioneer clears good by good, so
- * jobs let in all at once could fill a seller with one good of each, none
- * of them able to buy the rest, and hold that until they time out, again
- * at every retry (broker.restart found it: four jobs, one agent). Let in
- * one a period, each job is bought whole, or refused at once where the
- * jobs before it hold what it needs, and asks again. */
-static void admit_one(bgb_market_t *m, double now)
+/*
+ * Central admission. A seller's slots are shared by the goods it sells and
+ * the auctioneer clears good by good, so jobs let in all at once could
+ * fill a seller with one good of each, none of them able to buy the rest,
+ * and hold that until they time out, again at every retry (broker.restart
+ * found it: four jobs, one agent). The book took one job a clearing
+ * (about 5 jobs/s). Now, before each clearing, the waiting jobs are let in
+ * in the order they came for as long as the open units of every job in the
+ * book can be placed at once on the sellers' free slots (net of orders in
+ * flight): a unit on a live seller of its good that its need has not
+ * tried or taken, a need's units on distinct sellers. That is a flow
+ * problem (needs to sellers, unit edges, sellers' free slots as
+ * capacities), solved by augmenting paths; the first job that does not fit
+ * waits with those after it, so a large job is not passed over for ever.
+ */
+#define ADMIT_NEEDS 256 /* (job, need) pairs placed at once, at most */
+#define ADMIT_WORDS (BGB_DIRECTORY_MAX_AGENTS / 64)
+
+struct admit {
+    const job_t *job[ADMIT_NEEDS];
+    int need[ADMIT_NEEDS], good[ADMIT_NEEDS];
+    int n;
+    uint64_t flow[ADMIT_NEEDS][ADMIT_WORDS]; /* bit r of row l: need l has a unit on seller r */
+    int used[BGB_DIRECTORY_MAX_AGENTS], room[BGB_DIRECTORY_MAX_AGENTS];
+    uint8_t seen[BGB_DIRECTORY_MAX_AGENTS];
+};
+
+static admit_t *admit_new(void)
 {
-    job_t *first = NULL;
-    for (int i = 0; i < MAX_JOBS; i++) {
-        job_t *j = &m->jobs[i];
-        if (j->used && !j->finished && !j->resource && j->mech == BGB_MECH_CENTRAL &&
-            !j->admitted && (!first || j->started < first->started))
-            first = j;
+    return malloc(sizeof(admit_t));
+}
+
+static void admit_free(admit_t *a)
+{
+    free(a);
+}
+
+static int has_flow(const admit_t *a, int l, int r)
+{
+    return (int)((a->flow[l][r / 64] >> (r % 64)) & 1u);
+}
+
+static void set_flow(admit_t *a, int l, int r, int on)
+{
+    if (on)
+        a->flow[l][r / 64] |= (uint64_t)1 << (r % 64);
+    else
+        a->flow[l][r / 64] &= ~((uint64_t)1 << (r % 64));
+}
+
+/* Whether a unit of need l may go to the seller in slot r: it sells the
+ * good, and no unit of the need has tried it or is ordered from it. */
+static int admit_edge(const bgb_market_t *m, const admit_t *a, int l, int r)
+{
+    const bgb_dir_agent_t *s = &bgb_directory_rows_const(m->dir)[r];
+    if (a->room[r] <= 0 || !alive_seller(s, a->good[l]))
+        return 0;
+    const job_t *j = a->job[l];
+    for (int i = 0; i < j->nunits; i++) {
+        const unit_t *u = &j->unit[i];
+        if (u->need == a->need[l] &&
+            (tried(u, s->info.id) || (u->state != U_OPEN && u->agent == s->info.id)))
+            return 0;
     }
-    if (first) {
+    return 1;
+}
+
+/* One more unit of need l, on a seller with a free slot, moving units
+ * already placed to other sellers where that makes room (an augmenting
+ * path); 0 when there is none. */
+static int admit_augment(const bgb_market_t *m, admit_t *a, int l)
+{
+    for (int r = 0; r < BGB_DIRECTORY_MAX_AGENTS; r++) {
+        if (a->seen[r] || has_flow(a, l, r) || !admit_edge(m, a, l, r))
+            continue;
+        a->seen[r] = 1;
+        if (a->used[r] < a->room[r]) {
+            set_flow(a, l, r, 1);
+            a->used[r]++;
+            return 1;
+        }
+        for (int k = 0; k < a->n; k++)
+            if (k != l && has_flow(a, k, r) && admit_augment(m, a, k)) {
+                /* k found another seller (one more unit there); it
+                 * leaves r, where l takes its place. */
+                set_flow(a, k, r, 0);
+                set_flow(a, l, r, 1);
+                return 1;
+            }
+    }
+    return 0;
+}
+
+/* Places job j's open service units; 0 when they do not all fit (the
+ * placement is then partial, and the caller stops). */
+static int admit_place(const bgb_market_t *m, admit_t *a, const job_t *j)
+{
+    for (int i = 0; i < j->nunits; i++) {
+        const unit_t *u = &j->unit[i];
+        if (u->state != U_OPEN)
+            continue;
+        int l = 0;
+        while (l < a->n && !(a->job[l] == j && a->need[l] == u->need))
+            l++;
+        if (l == a->n) {
+            if (a->n == ADMIT_NEEDS)
+                return 0;
+            a->job[l] = j;
+            a->need[l] = u->need;
+            a->good[l] = u->good;
+            memset(a->flow[l], 0, sizeof a->flow[l]);
+            a->n++;
+        }
+        memset(a->seen, 0, sizeof a->seen);
+        if (!admit_augment(m, a, l))
+            return 0;
+    }
+    return 1;
+}
+
+static void admit_fitting(bgb_market_t *m, double now)
+{
+    admit_t *a = m->admit;
+    a->n = 0;
+    const bgb_dir_agent_t *rows = bgb_directory_rows_const(m->dir);
+    for (int r = 0; r < BGB_DIRECTORY_MAX_AGENTS; r++) {
+        const bgb_dir_agent_t *s = &rows[r];
+        a->used[r] = 0;
+        a->room[r] = s->used && s->info.alive && !s->info.resource
+                         ? s->info.free_slots - s->pending
+                         : 0;
+    }
+    /* The jobs already in the book keep their place. */
+    for (int i = 0; i < MAX_JOBS; i++) {
+        const job_t *j = &m->jobs[i];
+        if (j->used && !j->finished && !j->resource && j->mech == BGB_MECH_CENTRAL &&
+            j->admitted && !admit_place(m, a, j))
+            return;
+    }
+    for (;;) {
+        job_t *first = NULL;
+        for (int i = 0; i < MAX_JOBS; i++) {
+            job_t *j = &m->jobs[i];
+            if (j->used && !j->finished && !j->resource && j->mech == BGB_MECH_CENTRAL &&
+                !j->admitted && (!first || j->started < first->started ||
+                                 (j->started == first->started && j->id < first->id)))
+                first = j;
+        }
+        if (!first || !admit_place(m, a, first))
+            return;
         first->admitted = 1;
         open_requests(m, first, now);
     }
@@ -1535,6 +1731,18 @@ static void step_job(bgb_market_t *m, job_t *j, double now)
     deliver_answers(m, j, now);
     if (j->finished)
         return;
+    /* A catallactic job with a unit that no seller has a slot for gives
+     * up now ("no seller") rather than at its deadline: meanwhile it would
+     * hold the slots its other units bought, and jobs that each hold part
+     * of what they need wait for one another until they time out (16 jobs
+     * at once on 8 agents bought 0.6 a second). Its buyer asks again
+     * later, as a central or posted one does. */
+    if (j->mech == BGB_MECH_CATALLACTIC && !j->resource)
+        for (int i = 0; i < j->nunits; i++)
+            if (j->unit[i].state == U_OPEN && sellers_with_room(m, j, &j->unit[i], NULL) == 0) {
+                finish(m, j, "no seller", now);
+                return;
+            }
     if (j->mech != BGB_MECH_CATALLACTIC)
         for (int i = 0; i < j->nunits; i++)
             if (j->unit[i].state == U_OPEN && unbuyable(m, j, &j->unit[i])) {
@@ -1614,7 +1822,7 @@ static void begin(bgb_market_t *m, job_t *j, const bgb_need_t *needs, int nneeds
         finish(m, j, "market: out of memory", now);
         return;
     }
-    /* Central services bid when the job is let into the book (admit_one). */
+    /* Central services bid when the job is let into the book (admit_fitting). */
     if (j->resource || j->mech != BGB_MECH_CENTRAL)
         open_requests(m, j, now);
     if (!j->finished)
@@ -1786,6 +1994,57 @@ static void on_answer(bgb_market_t *m, bgb_dir_agent_t *a, const bga_mmsg_t *in,
     }
 }
 
+/* The service sellers that could answer unit u's call for proposals now:
+ * those its calls reach (its job's entry agents and, while hops are left,
+ * their overlay neighbours, as the agents pass calls on: bgm_purchase
+ * cfp_forward), alive, selling its good, with a free slot net of the
+ * orders in flight to them, and not serving its need already (those do
+ * not propose). INT_MAX when there is none: the round runs its window. */
+static int could_propose(bgb_market_t *m, const job_t *j, const unit_t *u)
+{
+    uint32_t frontier[BGB_DIRECTORY_MAX_AGENTS];
+    uint8_t reached[BGB_DIRECTORY_MAX_AGENTS] = {0};
+    int n = entry_agents(m, j, frontier), first = 0, count = 0;
+    for (int i = 0; i < n; i++) {
+        bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, frontier[i]);
+        reached[a ? bgb_directory_slot_of(m->dir, a) : 0] = a != NULL;
+    }
+    for (int hop = 1; hop < m->c.hops; hop++) {
+        const int last = n;
+        for (int i = first; i < last; i++) {
+            const bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, frontier[i]);
+            for (int k = 0; a && k < a->nnb; k++) {
+                bgb_dir_agent_t *b = bgb_directory_by_id(m->dir, a->nb[k]);
+                if (b && b->info.alive && !reached[bgb_directory_slot_of(m->dir, b)]) {
+                    reached[bgb_directory_slot_of(m->dir, b)] = 1;
+                    frontier[n++] = b->info.id;
+                }
+            }
+        }
+        first = last;
+    }
+    count = sellers_with_room(m, j, u, reached);
+    return count > 0 ? count : INT_MAX;
+}
+
+/* Unit u's round of discovery ends now rather than at its window's end:
+ * every seller that could propose has (could_propose). Its purchase's
+ * discovery timer is brought forward and run, so the machine bargains
+ * with the proposals it holds exactly as it would at the window's end;
+ * the window stays the wait for sellers that are slow or unknown. */
+static void close_discovery(bgb_market_t *m, job_t *j, const unit_t *u, double now)
+{
+    const bgm_purchase_req_t *q = request_of(j, u);
+    if (!q || q->state != BGM_PU_DISCOVER)
+        return;
+    const uint32_t id = (uint32_t)(u - j->unit) + 1;
+    for (int i = 0; i < j->ntimers; i++)
+        if (j->timers[i].kind == BGM_PU_TIMER_REQ && (uint32_t)j->timers[i].arg == id &&
+            j->timers[i].at > now)
+            j->timers[i].at = now;
+    run_timers(m, j, now);
+}
+
 /* A seller's bargaining message: a proposal goes to every request of its
  * good discovering in the round it answers (the seller answers one call
  * per good and round: two units of a need hear the same sellers); a
@@ -1811,7 +2070,13 @@ static void on_bargain_msg(bgb_market_t *m, bgb_dir_agent_t *a, const bga_mmsg_t
             p.good = (int16_t)q->good;
             p.price = machine_price(j, u, in->price);
             p.a = 1.0;
+            if (u->round != q->attempt)
+                u->proposals = 0;
+            u->round = q->attempt;
+            u->proposals++;
             tell(m, j, &p, now);
+            if (!j->resource && j->pu && u->proposals >= could_propose(m, j, u))
+                close_discovery(m, j, u, now);
         }
         return;
     }
@@ -1893,7 +2158,7 @@ double bgb_market_tick(bgb_market_t *m, double now)
     bgb_directory_expire(m->dir, now, withdraw, m);
     match_ctx mc = {.m = m, .now = now};
     if (now >= m->next_auction)
-        admit_one(m, now);
+        admit_fitting(m, now);
     bgb_auction_tick(m->auction, now, on_match, &mc, &m->next_auction, NULL);
     for (int i = 0; i < MAX_JOBS; i++)
         if (m->jobs[i].used)

@@ -5,7 +5,8 @@
  *   it answers. A late one from an earlier round leaves the round
  *   unanswered, so the next round's window widens, and the buyer never
  *   bargains on it; a proposal for the current round is taken up with an
- *   OFFER below it;
+ *   OFFER below it, at once when every seller its calls reach that could
+ *   propose has, else when the window closes;
  * - a need split over two sellers goes to two distinct agents under each
  *   mechanism, and a seller's no moves the unit on to another seller;
  * - a sub-job orders its cores and memory at the posted rates (unit
@@ -131,15 +132,13 @@ static void stale_proposal_is_not_counted(void **state)
     assert_int_equal(cfp->attempt, 1);
     assert_false(f.done);
 
-    /* The round heard nothing: its window is twice as long. An answer to
-     * it (attempt 1) is bargained on once the window closes. */
+    /* An answer to the new round (attempt 1), from the only seller that
+     * could propose, is bargained on at once (quiet_round_widens_window
+     * has the window itself). */
     const double round1 = 1.0 + mc.reply_timeout / 8 + 0.01;
     p.attempt = 1;
-    deliver(m, &p, round1 + 0.1);
     const int mark2 = f.nsent;
-    (void)bgb_market_tick(m, round1 + mc.reply_timeout / 8 + 0.01);
-    assert_null(last_of(&f, BGA_MM_OFFER, mark2)); /* the wider window is still open */
-    (void)bgb_market_tick(m, round1 + 2 * mc.reply_timeout / 8 + 0.01);
+    deliver(m, &p, round1 + 0.1);
     const bga_mmsg_t *offer = last_of(&f, BGA_MM_OFFER, mark2);
     assert_non_null(offer);
     assert_int_equal(offer->agent, id);
@@ -296,8 +295,57 @@ static void posted_split_need_and_refusal(void **state)
     bgb_market_destroy(&m);
 }
 
+/* A proposal for round `attempt` of unit `job`'s rotation fit from
+ * agent `who` (id `id`). */
+static void propose_in(bgb_market_t *m, uint8_t who, uint32_t id, int attempt, double price,
+                       double now)
+{
+    bga_mmsg_t p;
+    bga_mmsg_init(&p, BGA_MM_PROPOSE);
+    p.job = 1;
+    p.agent = id;
+    p.good = BGB_GOOD_ROTFIT;
+    p.quantity = 5;
+    p.price = price;
+    p.attempt = attempt;
+    deliver_from(m, who, &p, now);
+}
+
+/* A round nobody answered doubles the next one's window: two sellers
+ * could propose, one does, and the buyer waits out the doubled window
+ * for the other before it bargains. */
+static void quiet_round_widens_window(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.2, 2);
+    (void)seller(m, &f, 'b', 1.3, 2);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 1};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(
+        bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
+    const double w = mc.reply_timeout / 8, round1 = 0.1 + w + 0.01;
+    int mark = f.nsent;
+    (void)bgb_market_tick(m, round1);
+    const bga_mmsg_t *cfp = last_of(&f, BGA_MM_CFP, mark);
+    assert_non_null(cfp);
+    assert_int_equal(cfp->attempt, 1);
+    mark = f.nsent;
+    propose_in(m, 'a', a, 1, 1.2, round1 + 0.05);
+    (void)bgb_market_tick(m, round1 + w + 0.01);
+    assert_null(last_of(&f, BGA_MM_OFFER, mark)); /* b could still propose: the window is open */
+    (void)bgb_market_tick(m, round1 + 2 * w + 0.01);
+    const bga_mmsg_t *offer = last_of(&f, BGA_MM_OFFER, mark);
+    assert_non_null(offer);
+    assert_int_equal(offer->agent, a);
+    bgb_market_destroy(&m);
+}
+
 /* Catallactic: both units of the need hear both sellers' proposals; once
- * the window closes they bargain with different sellers (the cheapest
+ * both have proposed (every seller that could), at once rather than at
+ * the window's end, they bargain with different sellers (the cheapest
  * first), each opening below the proposal; the deliveries buy the job. */
 static void catallactic_split_need(void **state)
 {
@@ -311,10 +359,11 @@ static void catallactic_split_need(void **state)
     assert_int_equal(
         bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
     assert_true(count_to(&f, BGA_MM_CFP, a, 0) >= 1 && count_to(&f, BGA_MM_CFP, b, 0) >= 1);
-    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.2, 0.15);
-    answer_as(m, 'b', b, BGA_MM_PROPOSE, 1.3, 0.15);
     const int mark = f.nsent;
-    (void)bgb_market_tick(m, 0.1 + mc.reply_timeout / 8 + 0.01);
+    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.2, 0.15);
+    assert_int_equal(count_to(&f, BGA_MM_OFFER, a, mark) + count_to(&f, BGA_MM_OFFER, b, mark), 0);
+    answer_as(m, 'b', b, BGA_MM_PROPOSE, 1.3, 0.15);
+    assert_true(0.15 < 0.1 + mc.reply_timeout / 8); /* well before the window's end */
     assert_int_equal(count_to(&f, BGA_MM_OFFER, a, mark), 1);
     assert_int_equal(count_to(&f, BGA_MM_OFFER, b, mark), 1);
     const double pa = last_to(&f, BGA_MM_OFFER, a, mark)->price,
@@ -635,6 +684,7 @@ int main(void)
     const struct CMUnitTest tests[] = {cmocka_unit_test(stale_proposal_is_not_counted),
                                        cmocka_unit_test(posted_split_need_and_refusal),
                                        cmocka_unit_test(catallactic_split_need),
+                                       cmocka_unit_test(quiet_round_widens_window),
                                        cmocka_unit_test(central_refusal_bids_again),
                                        cmocka_unit_test(posted_subjob),
                                        cmocka_unit_test(catallactic_subjob_bargains_when_heard),
