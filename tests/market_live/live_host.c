@@ -22,14 +22,9 @@
  *       the directory to lose the agent selling the host (the script kills
  *       it) and a standby daemon of the host to take its place, and buys
  *       from the survivors.
- *   live_host bench DIR NAGENTS ROUNDS   prints allocation latency per
- *       mechanism (submit → all services bought), median, p90 and max; an
- *       allocation that fails for want of a free seller or by timeout is
- *       asked again with backoff, as the broker's coordinator does, its
- *       latency counted from the first ask, and the count is printed.
- * Exits 0 when every check holds, 1 with the first failure otherwise.
+ * (The latency benchmark that lived here is bench_alloc.) Exits 0 when
+ * every check holds, 1 with the first failure otherwise.
  */
-#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -40,10 +35,7 @@
 #include "bga_transport.h"
 #include "bga_wire.h"
 #include "bgb_market.h"
-
-/* s: how long the bench asks again after a transient failure (the
- * broker asks for 120 s; the test's timeout leaves this half). */
-#define BENCH_PATIENCE 60.0
+#include "live_net.h"
 
 #define FAIL(...)                                                                                  \
     do {                                                                                           \
@@ -52,50 +44,7 @@
         exit(1);                                                                                   \
     } while (0)
 
-typedef struct host {
-    void *ctx, *router;
-    bgb_market_t *market;
-} host_t;
-
-static bg_status host_send(void *ctx, const uint8_t *idn, size_t len, const bga_frame_t *frames,
-                           int nframes)
-{
-    host_t *h = ctx;
-    if (zmq_send(h->router, idn, len, ZMQ_SNDMORE) < 0)
-        return BG_ERR_IO;
-    for (int i = 0; i < nframes; i++)
-        if (zmq_send(h->router, frames[i].data, frames[i].size, i + 1 < nframes ? ZMQ_SNDMORE : 0) <
-            0)
-            return BG_ERR_IO;
-    return BG_OK;
-}
-
-/* Runs the loop for at most `seconds`, or until *flag becomes non-zero. */
-static void pump(host_t *h, double seconds, const int *flag)
-{
-    const double end = bg_clock_now() + seconds;
-    while ((!flag || !*flag) && bg_clock_now() < end) {
-        double next = bgb_market_tick(h->market, bg_clock_now());
-        long ms = (long)ceil((next - bg_clock_now()) * 1000);
-        if (ms < 1)
-            ms = 1;
-        if (ms > 50)
-            ms = 50;
-        zmq_pollitem_t it = {h->router, 0, ZMQ_POLLIN, 0};
-        if (zmq_poll(&it, 1, ms) <= 0)
-            continue;
-        bga_received_t r;
-        if (bga_recv(h->router, 1, &r, NULL) != BG_OK)
-            continue;
-        bga_frame_t v[BGA_WIRE_MAX_FRAMES + 1];
-        bga_received_view(&r, v);
-        bg_error_t err = BG_ERROR_INIT;
-        if (bgb_market_on_frames(h->market, zmq_msg_data(&r.route), zmq_msg_size(&r.route), v,
-                                 r.count, bg_clock_now(), &err) != BG_OK)
-            FAIL("on_frames: %s", err.message);
-        bga_received_close(&r);
-    }
-}
+typedef live_net_t host_t;
 
 typedef struct outcome {
     int done;
@@ -125,7 +74,7 @@ static void buy(host_t *h, uint64_t job, bgb_mechanism mech, double budget, outc
     if (bgb_market_buy(h->market, job, mech, budget, plan, 2, bg_clock_now(), on_done, o, &err) !=
         BG_OK)
         FAIL("buy job %llu: %s", (unsigned long long)job, err.message);
-    pump(h, 20.0, &o->done);
+    live_net_pump(h, 20.0, &o->done);
     if (!o->done)
         FAIL("job %llu under %s: no outcome in 20 s", (unsigned long long)job,
              bgb_mechanism_name(mech));
@@ -164,22 +113,6 @@ static uint32_t resource_seller(host_t *h)
         if (info[i].resource)
             return info[i].id;
     return 0;
-}
-
-/* n basic sellers and their host's one resource seller (all agents run
- * on loopback: one host). */
-static void wait_agents(host_t *h, size_t n)
-{
-    const double end = bg_clock_now() + 30;
-    size_t roles[2] = {0, 0};
-    while (bg_clock_now() < end) {
-        pump(h, 0.1, NULL);
-        count_roles(h, roles);
-        if (roles[0] == n && roles[1] == 1)
-            return;
-    }
-    FAIL("%zu agents did not register with one resource seller within 30 s (%zu, %zu)", n, roles[0],
-         roles[1]);
 }
 
 static const bgb_agent_info_t *find_agent(const bgb_agent_info_t *info, size_t n, uint32_t id)
@@ -392,7 +325,7 @@ static void check_no_cores(host_t *h, uint64_t job)
     outcome_t a, b;
     buy(h, job, BGB_MECH_POSTED, 1e5, &a);
     check_awards(h, &a, 1e5, "posted, first of two");
-    pump(h, 0.7, NULL); /* heartbeats: the directory sees the cores sold */
+    live_net_pump(h, 0.7, NULL); /* heartbeats: the directory sees the cores sold */
     bgb_agent_info_t info[64];
     const size_t na = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     double free_cores = 0;
@@ -416,7 +349,7 @@ static void check_no_cores(host_t *h, uint64_t job)
     printf("no free cores: the second job failed (%s) after %ld refusals, no contract\n", b.reason,
            refusals(h) - refused);
     bgb_market_release(h->market, job, bg_clock_now());
-    pump(h, 0.7, NULL);
+    live_net_pump(h, 0.7, NULL);
     buy(h, job + 2, BGB_MECH_POSTED, 1e5, &b);
     check_awards(h, &b, 1e5, "posted, after the release");
     check_layer1(h, job + 2, &b, "posted, after the release");
@@ -440,105 +373,21 @@ static void write_csvs(host_t *h, const char *dir)
     fclose(f);
 }
 
-static int cmp_double(const void *a, const void *b)
-{
-    const double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
 int main(int argc, char **argv)
 {
-    if (argc < 4 || (strcmp(argv[1], "bench") == 0 && argc < 5))
-        FAIL("usage: live_host test|bench DIR NAGENTS [ROUNDS]");
+    if (argc < 4 || strcmp(argv[1], "test") != 0)
+        FAIL("usage: live_host test DIR NAGENTS");
     const char *dir = argv[2];
     const size_t nagents = (size_t)atoi(argv[3]);
-    host_t h = {0};
-    h.ctx = zmq_ctx_new();
-    h.router = zmq_socket(h.ctx, ZMQ_ROUTER);
-    const int linger = 0;
-    zmq_setsockopt(h.router, ZMQ_LINGER, &linger, sizeof linger);
-    if (zmq_bind(h.router, "tcp://127.0.0.1:*") != 0)
-        FAIL("bind: %s", zmq_strerror(errno));
-    char ep[256];
-    size_t len = sizeof ep;
-    zmq_getsockopt(h.router, ZMQ_LAST_ENDPOINT, ep, &len);
-    bgb_market_config_t mc;
-    bgb_market_config_default(&mc);
-    mc.name = "live-test";
-    mc.heartbeat_timeout = 3.0;
-    mc.period = 0.05;
-    bgb_market_io_t io = {&h, host_send};
-    bg_error_t err = BG_ERROR_INIT;
-    if (bgb_market_new(&mc, &io, &h.market, &err) != BG_OK)
-        FAIL("market: %s", err.message);
+    host_t h;
+    live_net_open(&h, dir, "live-test", 0.05);
+    live_net_wait(&h, nagents);
     char path[4096];
-    snprintf(path, sizeof path, "%s/endpoint", dir);
-    FILE *f = fopen(path, "w");
-    if (!f)
-        FAIL("cannot write %s", path);
-    fprintf(f, "%s\n", ep);
-    fclose(f);
-    wait_agents(&h, nagents);
-    pump(&h, 0.6, NULL); /* every agent has heartbeaten its prices */
+    FILE *f = NULL;
 
     const bgb_mechanism mechs[] = {BGB_MECH_POSTED, BGB_MECH_CENTRAL, BGB_MECH_CATALLACTIC};
     const int nmech = 3;
-    if (strcmp(argv[1], "bench") == 0) {
-        const int rounds = atoi(argv[4]);
-        double *lat = calloc((size_t)rounds, sizeof *lat);
-        uint64_t job = 1;
-        printf("allocation latency, %zu agents on loopback, plan rotation-fit x2 + sparse-solve, "
-               "%d rounds\n",
-               nagents, rounds);
-        for (int mi = 0; mi < nmech; mi++) {
-            int retried = 0;
-            for (int r = 0; r < rounds; r++) {
-                /* As the broker's coordinator does: a transient failure
-                 * (every able seller busy, a buy past its timeout on a
-                 * loaded host) is asked again after a backoff, for up to
-                 * BENCH_PATIENCE; the latency runs from the first ask. */
-                const double first = bg_clock_now();
-                double backoff = 0.1, last = first;
-                outcome_t o;
-                for (;;) {
-                    last = bg_clock_now();
-                    buy(&h, job, mechs[mi], 1e6, &o);
-                    const int transient =
-                        strstr(o.reason, "no seller") != NULL || strcmp(o.reason, "timeout") == 0;
-                    if (!o.reason[0] || !transient ||
-                        bg_clock_now() + backoff > first + BENCH_PATIENCE)
-                        break;
-                    fprintf(stderr, "bench: %s job %llu: %s after %.3f s, asked again\n",
-                            bgb_mechanism_name(mechs[mi]), (unsigned long long)job, o.reason,
-                            bg_clock_now() - last);
-                    bgb_market_release(h.market, job++, bg_clock_now());
-                    retried++;
-                    pump(&h, backoff, NULL);
-                    backoff = backoff * 2 < 2.0 ? backoff * 2 : 2.0;
-                }
-                if (o.reason[0])
-                    FAIL("bench: %s failed: %s", bgb_mechanism_name(mechs[mi]), o.reason);
-                lat[r] = (last - first) + o.latency;
-                bgb_market_release(h.market, job++, bg_clock_now());
-                pump(&h, 0.01, NULL);
-            }
-            /* The mean of each half in submission order: whether later
-             * jobs allocate faster or slower than early ones (the sellers'
-             * prices and the price the buyers last paid carry over). */
-            double half[2] = {0, 0};
-            for (int r = 0; r < rounds; r++)
-                half[2 * r >= rounds] += lat[r];
-            const int early = (rounds + 1) / 2, late = rounds - early;
-            qsort(lat, (size_t)rounds, sizeof *lat, cmp_double);
-            printf("%-12s median %8.3f ms  p90 %8.3f ms  max %8.3f ms  mean %8.3f ms (first half "
-                   "%.3f, second %.3f)  (%d asked again)\n",
-                   bgb_mechanism_name(mechs[mi]), lat[rounds / 2] * 1e3,
-                   lat[(rounds * 9) / 10] * 1e3, lat[rounds - 1] * 1e3,
-                   (half[0] + half[1]) / rounds * 1e3, early ? half[0] / early * 1e3 : 0.0,
-                   late ? half[1] / late * 1e3 : 0.0, retried);
-        }
-        free(lat);
-    } else {
+    {
         uint64_t job = 100;
         for (int mi = 0; mi < nmech; mi++) {
             const double budget = 1e5;
@@ -564,10 +413,10 @@ int main(int argc, char **argv)
                 FAIL("%s: a failed job left contracts", bgb_mechanism_name(mechs[mi]));
             job++;
         }
-        pump(&h, 0.7, NULL);
+        live_net_pump(&h, 0.7, NULL);
         check_no_cores(&h, job);
         job += 3;
-        pump(&h, 0.3, NULL);
+        live_net_pump(&h, 0.3, NULL);
         write_csvs(&h, dir);
         /* Phase 2: the script kills the daemon selling the host; the
          * directory drops it and the standby daemon takes the host over. */
@@ -580,7 +429,7 @@ int main(int argc, char **argv)
         size_t roles[2] = {nagents, 1};
         uint32_t next = first;
         while (bg_clock_now() < end && (roles[0] == nagents || roles[1] != 1 || next == first)) {
-            pump(&h, 0.1, NULL);
+            live_net_pump(&h, 0.1, NULL);
             count_roles(&h, roles);
             next = resource_seller(&h);
         }
@@ -589,7 +438,7 @@ int main(int argc, char **argv)
             FAIL("the killed agent was not dropped or not replaced (%zu basic, %zu resource "
                  "entries listed, seller %u, was %u)",
                  roles[0], roles[1], next, first);
-        pump(&h, 0.6, NULL); /* its heartbeat gives its prices */
+        live_net_pump(&h, 0.6, NULL); /* its heartbeat gives its prices */
         /* The survivors still sell, with the new seller's cores. */
         outcome_t o;
         buy(&h, job, BGB_MECH_POSTED, 1e5, &o);
@@ -599,8 +448,6 @@ int main(int argc, char **argv)
                "%zu agents left and still selling\n",
                first, next, n);
     }
-    bgb_market_destroy(&h.market);
-    zmq_close(h.router);
-    zmq_ctx_term(h.ctx);
+    live_net_close(&h);
     return 0;
 }
