@@ -1493,6 +1493,26 @@ static void job_name(const bgb_market_t *m, const job_t *j, char *buf, size_t si
         snprintf(buf, size, "%llu", (unsigned long long)(named ? named->id : j->parent));
 }
 
+/* Logs a clearing that traded with the bounds its orders set; returns
+ * its ledger id. */
+static uint64_t log_clearing(bgb_market_t *m, double now, int layer, int good,
+                             const bgm_clearing_t *res, double k,
+                             const bgb_clearing_bound_t bounds[2])
+{
+    bgb_clearing_t c = {.time = now,
+                        .layer = layer,
+                        .good = good,
+                        .volume = res->volume,
+                        .rationed = res->rationed,
+                        .k = k,
+                        .price = res->price,
+                        .low = res->low,
+                        .high = res->high,
+                        .low_by = bounds[0],
+                        .high_by = bounds[1]};
+    return bgb_ledger_add_clearing(m->ledger, &c);
+}
+
 /* Logs a service clearing of this tick once; returns its ledger id. */
 static uint64_t log_service_clearing(bgb_market_t *m, match_ctx *mc,
                                      const bgb_auction_clearing_t *x)
@@ -1501,56 +1521,43 @@ static uint64_t log_service_clearing(bgb_market_t *m, match_ctx *mc,
         return 0;
     if (mc->logged[x->index])
         return mc->logged[x->index];
-    bgb_clearing_t c = {.time = mc->now,
-                        .layer = 0,
-                        .good = x->good,
-                        .volume = x->volume,
-                        .rationed = x->rationed,
-                        .k = x->k,
-                        .price = x->price,
-                        .low = x->low,
-                        .high = x->high};
+    const bgm_clearing_t res = {.volume = x->volume,
+                                .price = x->price,
+                                .low = x->low,
+                                .high = x->high,
+                                .rationed = x->rationed};
     const bgb_auction_bound_t *in[2] = {&x->low_by, &x->high_by};
-    bgb_clearing_bound_t *out[2] = {&c.low_by, &c.high_by};
+    bgb_clearing_bound_t out[2];
     for (int e = 0; e < 2; e++) {
-        *out[e] = (bgb_clearing_bound_t){
+        out[e] = (bgb_clearing_bound_t){
             .is_bid = in[e]->is_bid, .excluded = in[e]->excluded, .price = in[e]->price};
         if (in[e]->is_bid && in[e]->buyer < MAX_JOBS)
-            job_name(m, &m->jobs[in[e]->buyer], out[e]->job, sizeof out[e]->job);
+            job_name(m, &m->jobs[in[e]->buyer], out[e].job, sizeof out[e].job);
         else if (!in[e]->is_bid && in[e]->slot >= 0 && in[e]->slot < BGB_DIRECTORY_MAX_AGENTS)
-            out[e]->agent = bgb_directory_rows(m->dir)[in[e]->slot].info.id;
+            out[e].agent = bgb_directory_rows(m->dir)[in[e]->slot].info.id;
     }
-    return mc->logged[x->index] = bgb_ledger_add_clearing(m->ledger, &c);
+    return mc->logged[x->index] = log_clearing(m, mc->now, 0, x->good, &res, x->k, out);
 }
 
-/* Logs a resource clearing (good g) of the host's call market; bids name
- * the sub-jobs' units (refs), asks the sellers' directory slots. */
+/* Logs a resource clearing (good g) of a host's call market; its bids
+ * name the sub-jobs' units (refs), its asks the sellers. */
 static uint64_t log_resource_clearing(bgb_market_t *m, int g, const bgm_clearing_t *res,
                                       const bidref_t *refs, double now)
 {
-    bgb_clearing_t c = {.time = now,
-                        .layer = 1,
-                        .good = g,
-                        .volume = res->volume,
-                        .rationed = res->rationed,
-                        .k = m->c.k,
-                        .price = res->price,
-                        .low = res->low,
-                        .high = res->high};
     const bgm_bound_t *in[2] = {&res->low_by, &res->high_by};
-    bgb_clearing_bound_t *out[2] = {&c.low_by, &c.high_by};
+    bgb_clearing_bound_t out[2];
     for (int e = 0; e < 2; e++) {
-        *out[e] = (bgb_clearing_bound_t){
+        out[e] = (bgb_clearing_bound_t){
             .is_bid = in[e]->is_bid, .excluded = in[e]->excluded, .price = in[e]->price};
         if (in[e]->is_bid) {
             const job_t *sj = refs[in[e]->ref].j;
-            job_name(m, sj, out[e]->job, sizeof out[e]->job);
-            out[e]->agent = sj->buyer;
+            job_name(m, sj, out[e].job, sizeof out[e].job);
+            out[e].agent = sj->buyer;
         } else {
-            out[e]->agent = in[e]->owner;
+            out[e].agent = in[e]->owner;
         }
     }
-    return bgb_ledger_add_clearing(m->ledger, &c);
+    return log_clearing(m, now, 1, g, res, m->c.k, out);
 }
 
 /* The auctioneer matched a unit's bid: the purchase hears the market

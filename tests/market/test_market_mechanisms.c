@@ -136,6 +136,20 @@ static void two_trades(bgm_callmarket_t *cm)
     add_ask(cm, 12, 1, 2.0);
 }
 
+/* A random book: 1 to `most` bids and asks of 1-3 units each, limits
+ * uniform in [0, 10); their numbers into *nb and *na. */
+static void random_book(bgm_callmarket_t *cm, bgm_rng_t *rng, uint32_t most, int *nb, int *na)
+{
+    bgm_callmarket_reset(cm);
+    *nb = 1 + (int)bgm_rng_below(rng, most);
+    *na = 1 + (int)bgm_rng_below(rng, most);
+    for (int i = 0; i < *nb; i++)
+        add_bid(cm, (uint64_t)i, 1 + (int)bgm_rng_below(rng, 3), 10.0 * bgm_rng_uniform(rng));
+    for (int i = 0; i < *na; i++)
+        add_ask(cm, (uint64_t)(100 + i), 1 + (int)bgm_rng_below(rng, 3),
+                10.0 * bgm_rng_uniform(rng));
+}
+
 /* Scarcity moves the price: the same two trades clear higher when buyers
  * who would pay the sellers' asks are left out (excess demand), and at the
  * marginal ask when none is, however many sellers are left out; the old
@@ -174,13 +188,8 @@ static void test_callmarket_scarcity(void **state)
     bgm_rng_seed(&rng, 77);
     bgm_fill_t fills[64];
     for (int trial = 0; trial < 200; trial++) {
-        bgm_callmarket_reset(cm);
-        int nb = 1 + (int)bgm_rng_below(&rng, 8), na = 1 + (int)bgm_rng_below(&rng, 8);
-        for (int i = 0; i < nb; i++)
-            add_bid(cm, (uint64_t)i, 1 + (int)bgm_rng_below(&rng, 3), 10.0 * bgm_rng_uniform(&rng));
-        for (int i = 0; i < na; i++)
-            add_ask(cm, (uint64_t)(100 + i), 1 + (int)bgm_rng_below(&rng, 3),
-                    10.0 * bgm_rng_uniform(&rng));
+        int nb, na;
+        random_book(cm, &rng, 8, &nb, &na);
         const double k = bgm_rng_uniform(&rng);
         bgm_clearing_t res;
         assert_int_equal(bgm_callmarket_clear(cm, k, &res, fills, 64), BG_OK);
@@ -287,13 +296,8 @@ static void test_callmarket_monotone(void **state)
     bgm_rng_seed(&rng, 2028);
     int compared = 0;
     for (int trial = 0; trial < 2000; trial++) {
-        bgm_callmarket_reset(cm);
-        const int nb = 1 + (int)bgm_rng_below(&rng, 6), na = 1 + (int)bgm_rng_below(&rng, 6);
-        for (int i = 0; i < nb; i++)
-            add_bid(cm, (uint64_t)i, 1 + (int)bgm_rng_below(&rng, 3), 10.0 * bgm_rng_uniform(&rng));
-        for (int i = 0; i < na; i++)
-            add_ask(cm, (uint64_t)(100 + i), 1 + (int)bgm_rng_below(&rng, 3),
-                    10.0 * bgm_rng_uniform(&rng));
+        int nb, na;
+        random_book(cm, &rng, 6, &nb, &na);
         const double k = bgm_rng_uniform(&rng);
         bgm_clearing_t res;
         const double before = clear_into(cm, k, &res);
