@@ -17,6 +17,19 @@
  *       again after a backoff (0.1 s doubling to 2 s, as the broker's
  *       coordinator does; counted), its latency running from its first ask.
  *
+ *   bench_alloc stream DIR NAGENTS SEED RATE DURATION HOLD [REPS]
+ *       the live half of the live-against-simulated experiment
+ *       (tests/market_live/live_vs_sim.sh): jobs arrive as a Poisson
+ *       stream of RATE a second for DURATION seconds (the arrivals, works
+ *       and valuations drawn from SEED), each buying a rotation fit and a
+ *       sparse solve of 3 units of work each with a budget of its two
+ *       valuations (uniform in [1.5, 4.5] per unit) times the work, asked
+ *       again after transient failures until 30 s after it arrived (its
+ *       deadline), and held HOLD seconds once bought. Prints, per
+ *       mechanism and replication (REPS of them, seeds SEED, SEED + 1, ...):
+ *       jobs requested and allocated, the mean price per unit of work and
+ *       the mean spend of an allocated job.
+ *
  * It uses only the market's calls that older trees have too
  * (bgb_market_new, _buy, _release, _tick, _on_frames), so the same source
  * measures the code before a change and after it in one run
@@ -27,6 +40,7 @@
 #include <string.h>
 
 #include "bg_clock.h"
+#include "bgm_rng.h"
 #include "live_net.h"
 
 #define BENCH_PATIENCE 60.0 /* s: how long a job is asked again after transient failures */
@@ -37,6 +51,7 @@ static const bgb_mechanism mechs[3] = {BGB_MECH_POSTED, BGB_MECH_CENTRAL, BGB_ME
 
 typedef struct slot {
     int done;
+    double spent;
     char reason[64];
     uint64_t job;
     double asked;    /* first ask of this slot's current job */
@@ -48,6 +63,7 @@ static void on_done(void *ctx, const bgb_outcome_t *o)
 {
     slot_t *s = ctx;
     s->done = 1;
+    s->spent = o->spent;
     snprintf(s->reason, sizeof s->reason, "%s", o->reason ? o->reason : "");
 }
 
@@ -195,13 +211,115 @@ static void saturation(live_net_t *h, size_t nagents, int jobs, int inflight)
     free(lat);
 }
 
+/* One job of the stream: its arrival, budget and what became of it. */
+typedef struct arrival {
+    double at, budget, hold_until, retry_at, backoff;
+    int state; /* 0 not yet, 1 buying, 2 holding, 3 done */
+    int allocated;
+    slot_t slot;
+} arrival_t;
+
+#define STREAM_WORK 3.0
+#define STREAM_DEADLINE 30.0
+
+static void stream(live_net_t *h, uint64_t seed, double rate, double duration, double hold)
+{
+    const bgb_need_t needs[2] = {{BGB_GOOD_ROTFIT, STREAM_WORK, 1},
+                                 {BGB_GOOD_SOLVE, STREAM_WORK, 1}};
+    const int max = (int)(rate * duration * 3 + 16);
+    arrival_t *a = calloc((size_t)max, sizeof *a);
+    uint64_t job = 2000000;
+    for (int mi = 0; mi < 3; mi++) {
+        /* The same arrivals, works and valuations under each mechanism. */
+        bgm_rng_t rng;
+        bgm_rng_seed(&rng, seed);
+        int n = 0;
+        for (double t = bgm_rng_exponential(&rng, 1.0 / rate); t < duration && n < max;
+             t += bgm_rng_exponential(&rng, 1.0 / rate)) {
+            memset(&a[n], 0, sizeof a[n]);
+            a[n].at = t;
+            for (int k = 0; k < 2; k++)
+                a[n].budget += (1.5 + 3.0 * bgm_rng_uniform(&rng)) * STREAM_WORK;
+            n++;
+        }
+        const double start = bg_clock_now();
+        int open = n, allocated = 0;
+        double spent = 0;
+        while (open > 0) {
+            live_net_pump(h, 0.005, NULL);
+            const double now = bg_clock_now(), t = now - start;
+            for (int i = 0; i < n; i++) {
+                arrival_t *x = &a[i];
+                if ((x->state == 0 && t >= x->at) ||
+                    (x->state == 1 && x->retry_at > 0 && t >= x->retry_at)) {
+                    x->state = 1;
+                    x->retry_at = 0;
+                    x->slot.done = 0;
+                    x->slot.job = job++;
+                    bg_error_t err = BG_ERROR_INIT;
+                    if (bgb_market_buy(h->market, x->slot.job, mechs[mi], x->budget, needs, 2, now,
+                                       on_done, &x->slot, &err) != BG_OK)
+                        live_net_fail("buy: %s", err.message);
+                } else if (x->state == 1 && x->slot.done) {
+                    x->slot.done = 0;
+                    if (!x->slot.reason[0]) {
+                        x->state = 2;
+                        x->allocated = 1;
+                        x->hold_until = t + hold;
+                        continue;
+                    }
+                    bgb_market_release(h->market, x->slot.job, now);
+                    x->backoff = x->backoff > 0 ? (x->backoff * 2 < 2.0 ? x->backoff * 2 : 2.0) : 0.1;
+                    if (transient(x->slot.reason) && t + x->backoff < x->at + STREAM_DEADLINE) {
+                        x->retry_at = t + x->backoff;
+                    } else {
+                        x->state = 3;
+                        open--;
+                    }
+                } else if (x->state == 2 && t >= x->hold_until) {
+                    bgb_market_release(h->market, x->slot.job, now);
+                    x->state = 3;
+                    open--;
+                }
+            }
+        }
+        /* What an allocated job paid: its outcome's spend (the services'
+         * price times work), which older trees report alike. */
+        for (int i = 0; i < n; i++)
+            if (a[i].allocated) {
+                allocated++;
+                spent += a[i].slot.spent;
+            }
+        printf("stream %s seed %llu requested %d allocated %d rate %.4f price_per_unit %.6g "
+               "spend_per_job %.6g\n",
+               bgb_mechanism_name(mechs[mi]), (unsigned long long)seed, n, allocated,
+               n ? (double)allocated / n : 0.0,
+               allocated ? spent / (allocated * 2 * STREAM_WORK) : 0.0,
+               allocated ? spent / allocated : 0.0);
+        fflush(stdout);
+        live_net_pump(h, 1.0, NULL); /* heartbeats: every seller idle again */
+    }
+    free(a);
+}
+
 int main(int argc, char **argv)
 {
     const int lat_mode = argc == 5 && strcmp(argv[1], "latency") == 0;
     const int sat_mode = argc == 6 && strcmp(argv[1], "saturation") == 0;
+    if ((argc == 8 || argc == 9) && strcmp(argv[1], "stream") == 0) {
+        live_net_t h;
+        live_net_open(&h, argv[2], "stream", 0.2);
+        live_net_wait(&h, (size_t)atoi(argv[3]));
+        const uint64_t seed = strtoull(argv[4], NULL, 10);
+        const int reps = argc == 9 ? atoi(argv[8]) : 1;
+        for (int r = 0; r < reps; r++)
+            stream(&h, seed + (uint64_t)r, atof(argv[5]), atof(argv[6]), atof(argv[7]));
+        live_net_close(&h);
+        return 0;
+    }
     if (!lat_mode && !sat_mode)
         live_net_fail("usage: bench_alloc latency DIR NAGENTS ROUNDS | saturation DIR NAGENTS "
-                      "JOBS INFLIGHT");
+                      "JOBS INFLIGHT | stream DIR NAGENTS SEED RATE DURATION HOLD [REPS]");
     const size_t nagents = (size_t)atoi(argv[3]);
     const int n = atoi(argv[4]), inflight = sat_mode ? atoi(argv[5]) : 1;
     if (n < 1 || inflight < 1 || inflight > MAX_INFLIGHT)
