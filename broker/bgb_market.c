@@ -445,8 +445,8 @@ static const job_t *bought_subjob(const bgb_market_t *m, uint64_t parent, uint32
 }
 
 /*
- * The cores job `parent` pays for in cores unit `cu` of its sub-job `cs`
- * at that unit's seller: what the unit's phase (its service) adds to the
+ * The cores job `parent` pays for in cores unit `cu` of one of its
+ * sub-jobs, at that unit's seller: what the unit's phase (its service) adds to the
  * widest phase the job holds there, with the job's bought sub-jobs taken
  * in the order they were bought (then by number). A job's phases run one
  * after another and its host's seller counts its cores as its widest
