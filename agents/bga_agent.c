@@ -131,22 +131,21 @@ static bg_status serve_one(bga_agent_t *a, bg_error_t *err)
     bga_frame_t views[BGA_WIRE_MAX_FRAMES + 1];
     bga_received_view(&r, views);
     bga_frames_t reply;
+    bga_wire_error_t werr;
     uint64_t job = 0;
+    /* Both refusals quote the request's header (job, seq), as the
+     * service's own do: the peer sees the agent's message at once. */
     if (r.total > r.count) {
-        bga_wire_error_t werr;
         bga_wire_fail(&werr, BGA_WIRE_FRAME_COUNT, -1, "",
                       "%d frames, no message type has "
                       "more than %d",
                       r.total, BGA_WIRE_MAX_FRAMES);
-        st = bga_wire_error_reply(NULL, &werr, &reply, err);
+        st = bga_service_refuse(views, r.count, &werr, &reply, err);
     } else if (refused_for_contract(a, views, r.count, &job)) {
-        bga_wire_error_t werr;
-        bga_header_t to = {0};
-        to.job = job;
         bga_wire_fail(&werr, BGA_WIRE_NO_JOB, 0, "job",
                       "agent holds no contract for job %llu: buy it on the market first",
                       (unsigned long long)job);
-        st = bga_wire_error_reply(&to, &werr, &reply, err);
+        st = bga_service_refuse(views, r.count, &werr, &reply, err);
     } else {
         st = bga_service_handle(a->service, views, r.count, bg_clock_now(), &reply, err);
     }

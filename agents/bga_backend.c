@@ -222,7 +222,8 @@ static bg_status solve_factor(void *opaque, int id, double shift, bg_error_t *er
     const double t_setup = bg_clock_now();
     if (st == BG_OK && !s->set_up[id]) {
         st = bga_client_solve_setup(s->solver, job, bg_sparse_size(sys), bg_sparse_colptr(sys),
-                                    bg_sparse_rowidx(sys), s->b->lease_ms, err);
+                                    bg_sparse_rowidx(sys), bg_sparse_prefers_solves(sys),
+                                    s->b->lease_ms, err);
         s->set_up[id] = st == BG_OK;
     }
     int posdef = 0;
@@ -251,15 +252,16 @@ static bg_status solve_factor(void *opaque, int id, double shift, bg_error_t *er
     return BG_OK;
 }
 
-static bg_status solve(void *opaque, int id, const double *rhs, double *x, bg_error_t *err)
+static bg_status solve(void *opaque, int id, int nrhs, const double *rhs, double *x,
+                       bg_error_t *err)
 {
     session *s = opaque;
     bg_status st = check(s, err);
     const double t0 = bg_clock_now();
     if (st == BG_OK)
         st = bga_client_solve(s->solver, s->job + BACKEND_SYSTEM_JOB + (uint64_t)id, rhs,
-                              bg_sparse_size(s->sys[id]), 1, x, err);
-    const bg_sparse_timing_t spent = {0.0, 0.0, bg_clock_now() - t0, 0, st == BG_OK};
+                              bg_sparse_size(s->sys[id]), nrhs, x, err);
+    const bg_sparse_timing_t spent = {0.0, 0.0, bg_clock_now() - t0, 0, st == BG_OK ? nrhs : 0};
     bg_sparse_add_timing(s->sys[id], &spent);
     return st == BG_OK ? BG_OK : fail(s, st, err);
 }

@@ -126,7 +126,12 @@ static bg_status await_reply(bga_client_t *c, uint64_t seq, int raw, uint16_t ty
                                 wc == BGA_WIRE_FRAME_COUNT && rep->frames.total ? "too many frames"
                                                                                 : werr.message);
         }
-        if (raw || rep->msg.header.seq == seq) {
+        /* An ERROR that quotes no sequence number comes from an agent that
+         * could not read the request's header: with one request in flight
+         * it is that request's answer, shown at once rather than waited
+         * past (requests are numbered from 1, so no reply quotes 0). */
+        if (raw || rep->msg.header.seq == seq ||
+            (rep->msg.header.type == BGA_ERROR && rep->msg.header.seq == 0)) {
             c->traffic.wait_seconds += t_got - t_sent;
             return BG_OK;
         }
@@ -201,8 +206,29 @@ static void copy_text(char *dst, size_t cap, const bga_array_t *a)
     dst[n] = 0;
 }
 
+/* What an agent's refusal means to the caller: a job the agent does not
+ * hold (never set up, released, no contract) is not found; a busy agent or
+ * a call out of order conflicts with its state; its own failures are
+ * numeric or I/O; a request it cannot read is invalid (or over a cap). */
+static bg_status refusal_status(bga_wire_code code)
+{
+    switch (code) {
+    case BGA_WIRE_NO_JOB: return BG_ERR_NOT_FOUND;
+    case BGA_WIRE_BUSY:
+    case BGA_WIRE_WRONG_STATE: return BG_ERR_CONFLICT;
+    case BGA_WIRE_NUMERIC: return BG_ERR_NUMERIC;
+    case BGA_WIRE_INTERNAL: return BG_ERR_IO;
+    case BGA_WIRE_OVERSIZE: return BG_ERR_LIMIT;
+    case BGA_WIRE_UNKNOWN_TYPE:
+    case BGA_WIRE_WRONG_VERSION:
+    case BGA_WIRE_UNEXPECTED: return BG_ERR_UNSUPPORTED;
+    default: return BG_ERR_INVALID;
+    }
+}
+
 /* Turns an ERROR reply or a reply of the wrong type into a message that
- * names the agent, the service and the request. */
+ * names the agent, the service and the request, with the status of
+ * refusal_status. */
 static bg_status expect(bga_client_t *c, const bga_reply_t *rep, uint16_t req_type, uint16_t want,
                         bg_error_t *err)
 {
@@ -213,7 +239,7 @@ static bg_status expect(bga_client_t *c, const bga_reply_t *rep, uint16_t req_ty
         char field[64], text[BG_ERROR_MESSAGE_MAX];
         copy_text(field, sizeof field, &m->array[BGA_ERR_FIELD]);
         copy_text(text, sizeof text, &m->array[BGA_ERR_MESSAGE]);
-        return bg_error_set(err, BG_ERR_INVALID,
+        return bg_error_set(err, refusal_status((bga_wire_code)m->field[BGA_ERR_CODE].i),
                             "agent %s (%s): %s refused: %s (frame %lld%s%s): "
                             "%s",
                             c->endpoint, c->service, bga_type_name(req_type),
@@ -377,13 +403,15 @@ bg_status bga_client_rotfit(bga_client_t *c, uint64_t job, const double *positio
 }
 
 bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const int32_t *colptr,
-                                 const int32_t *rowidx, int64_t lease_ms, bg_error_t *err)
+                                 const int32_t *rowidx, int prefer_solves, int64_t lease_ms,
+                                 bg_error_t *err)
 {
     bga_msg_t m;
     bga_msg_init(&m, BGA_SOLVE_SETUP, job, 0);
     m.field[BGA_SS_N].i = n;
     m.field[BGA_SS_NNZ].i = colptr[n];
     m.field[BGA_SS_LEASE_MS].i = lease_ms;
+    m.field[BGA_SS_PREFER_SOLVES].i = prefer_solves != 0;
     m.array[BGA_SS_COLPTR] = (bga_array_t){colptr, (size_t)n + 1};
     m.array[BGA_SS_ROWIDX] = (bga_array_t){rowidx, (size_t)colptr[n]};
     return simple(c, &m, err);

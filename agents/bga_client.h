@@ -8,7 +8,13 @@
  * within 2000 ms"), an error reply (its code, frame, field and message),
  * or a reply of the wrong shape. One request is in flight at a time; a
  * reply that arrives after its timeout is recognised by its sequence
- * number and dropped. The client owns its ZeroMQ context and DEALER socket.
+ * number and dropped (an error reply quoting no number answers the request
+ * in flight: the agent could not read its header). The typed calls turn an
+ * agent's refusal into a status by its code: no such job BG_ERR_NOT_FOUND,
+ * busy or wrong state BG_ERR_CONFLICT, numeric failure BG_ERR_NUMERIC,
+ * internal failure BG_ERR_IO, oversize BG_ERR_LIMIT, a type or version it
+ * does not serve BG_ERR_UNSUPPORTED, any other malformed request
+ * BG_ERR_INVALID. The client owns its ZeroMQ context and DEALER socket.
  */
 #ifndef BGA_CLIENT_H
 #define BGA_CLIENT_H
@@ -134,8 +140,11 @@ bg_status bga_client_rotfit_start(bga_client_t *c, uint64_t job, const double *p
                                   size_t count, unsigned want, bg_error_t *err);
 bg_status bga_client_rotfit_finish(bga_client_t *c, bga_rotfit_out_t *out, bg_error_t *err);
 
+/* prefer_solves: the system will be solved far more often than factored
+ * (bg_sparse_prefer_solves). */
 bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const int32_t *colptr,
-                                 const int32_t *rowidx, int64_t lease_ms, bg_error_t *err);
+                                 const int32_t *rowidx, int prefer_solves, int64_t lease_ms,
+                                 bg_error_t *err);
 /* *posdef = 0 when the matrix (plus shift·I) is not positive definite:
  * the caller may retry with a larger shift. */
 bg_status bga_client_solve_factor(bga_client_t *c, uint64_t job, const double *values, size_t nnz,

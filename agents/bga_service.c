@@ -491,6 +491,8 @@ static bga_wire_code solve_setup(bga_service_t *svc, const bga_msg_t *m, double 
         bga_msg_copy_i32(m, BGA_SS_COLPTR, colptr);
         bga_msg_copy_i32(m, BGA_SS_ROWIDX, rowidx);
         st = bg_sparse_new_csc(n, colptr, rowidx, &j->sys, &e);
+        if (st == BG_OK && m->field[BGA_SS_PREFER_SOLVES].i)
+            bg_sparse_prefer_solves(j->sys);
     }
     free(colptr);
     free(rowidx);
@@ -574,11 +576,9 @@ static bga_wire_code solve_rhs(job *j, const bga_msg_t *m, bga_msg_t *rep,
     }
     bga_msg_copy_f64(m, BGA_SR_RHS, j->x);
     const double t0 = bg_clock_now();
-    for (size_t r = 0; r < nrhs; r++) {
-        bg_error_t e = BG_ERROR_INIT;
-        if (bg_sparse_solve(j->sys, j->x + r * n, j->x + r * n, &e) != BG_OK)
-            return bga_wire_fail(werr, BGA_WIRE_NUMERIC, -1, "", "solve %zu: %s", r, e.message);
-    }
+    bg_error_t e = BG_ERROR_INIT;
+    if (bg_sparse_solve_many(j->sys, (int)nrhs, j->x, j->x, &e) != BG_OK)
+        return bga_wire_fail(werr, BGA_WIRE_NUMERIC, -1, "", "solve: %s", e.message);
     const double seconds = bg_clock_now() - t0;
     stats->compute_seconds += seconds;
     bga_msg_init(rep, BGA_SOLVE_RESULT, m->header.job, m->header.seq);
@@ -854,10 +854,36 @@ bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int 
         bga_wire_fail(&werr, BGA_WIRE_INTERNAL, -1, "", "%s", e.message);
     }
     svc->stats.errors++;
-    /* The decoder fills the header once frame 0 has the right size and
-     * magic: quote it (job, seq) so the peer can match the error. */
-    const int have_header = m.header.version != 0;
-    return bga_wire_error_reply(have_header ? &m.header : NULL, &werr, reply, err);
+    return bga_service_refuse(frames, nframes, &werr, reply, err);
+}
+
+/* Little-endian field of a raw header (offsets as in bga_wire.h). */
+static uint64_t header_field(const uint8_t *h, size_t offset, size_t bytes)
+{
+    uint64_t v = 0;
+    for (size_t i = bytes; i-- > 0;)
+        v = v << 8 | h[offset + i];
+    return v;
+}
+
+bg_status bga_service_refuse(const bga_frame_t *frames, int nframes, const bga_wire_error_t *werr,
+                             bga_frames_t *reply, bg_error_t *err)
+{
+    /* Read in place rather than decoded: the decoder stops at the first
+     * fault, which may come before the header (an oversized frame) or
+     * concern it (a wrong version), and an over-long message is never
+     * decoded at all; the job and seq are still there. */
+    if (nframes < 1 || !frames || frames[0].size != BGA_WIRE_HEADER_BYTES || !frames[0].data ||
+        memcmp(frames[0].data, "bgwp", 4) != 0)
+        return bga_wire_error_reply(NULL, werr, reply, err);
+    const uint8_t *h = frames[0].data;
+    const bga_header_t to = {.version = (uint16_t)header_field(h, 4, 2),
+                             .type = (uint16_t)header_field(h, 6, 2),
+                             .job = header_field(h, 8, 8),
+                             .seq = header_field(h, 16, 8),
+                             .sender = header_field(h, 24, 8),
+                             .receiver = header_field(h, 32, 8)};
+    return bga_wire_error_reply(&to, werr, reply, err);
 }
 
 const char *bga_service_name(unsigned bit)

@@ -66,6 +66,19 @@ void bga_service_destroy(bga_service_t **svc);
 bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int nframes, double now,
                              bga_frames_t *reply, bg_error_t *err);
 
+/*
+ * The ERROR reply to a request (frames, borrowed) that cannot be served,
+ * carrying werr. Whatever else is wrong with the message, the reply quotes
+ * the request's job, sequence number, type and ids whenever frame 0 holds
+ * a readable header (BGA_WIRE_HEADER_BYTES starting with the magic), so
+ * that the peer matches it to its request at once instead of waiting for
+ * a reply that never comes; otherwise they are 0. Every refusal an agent
+ * sends goes through here. Fills *reply (caller frees with
+ * bga_frames_free); BG_ERR_NOMEM when it cannot be built.
+ */
+bg_status bga_service_refuse(const bga_frame_t *frames, int nframes, const bga_wire_error_t *werr,
+                             bga_frames_t *reply, bg_error_t *err);
+
 /* Frees every job whose lease ran out before `now`; returns how many. */
 int bga_service_expire(bga_service_t *svc, double now);
 

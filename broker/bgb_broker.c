@@ -1,6 +1,7 @@
 #include "bgb_broker.h"
 
 #include <cJSON.h>
+#include <gnutls/gnutls.h>
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -14,6 +15,8 @@
 #include "bgb_store.h"
 
 #define BROKER_PATH_MAX 4096
+/* A certificate chain or a key file larger than this is not a PEM file. */
+#define BROKER_PEM_MAX (1 << 20)
 #define MASK(s) (1u << (s))
 
 struct bgb_broker {
@@ -23,6 +26,7 @@ struct bgb_broker {
     bgb_coord_t *coord;
     bgb_rest_t *rest;
     char *pool_json; /* the fixed pool as a JSON array, for GET /v1/agents */
+    char *tls_cert, *tls_key; /* PEM texts read from the config's files, or NULL */
 };
 
 /* The fixed pool's agents (source "config") as a JSON array. */
@@ -148,6 +152,39 @@ static bg_status recover(bgb_broker_t *b, bg_error_t *err)
     return BG_OK;
 }
 
+/* Plain HTTP beyond loopback would carry every bearer token in clear:
+ * refused unless the operator says --insecure. */
+static bg_status transport_check(const bgb_config_t *c, bg_error_t *err)
+{
+    if (!c->tls_cert != !c->tls_key)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "--tls-cert and --tls-key go together (tls_cert and tls_key)");
+    if (!c->tls_cert && !c->insecure && !bgb_rest_address_is_loopback(c->address))
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "the REST address %s is beyond loopback and plain HTTP would "
+                            "show every bearer token to the network: give --tls-cert FILE "
+                            "--tls-key FILE, or --insecure to serve it in clear anyway",
+                            c->address);
+    return BG_OK;
+}
+
+static bg_status read_pem(const char *path, const char *option, char **text, bg_error_t *err)
+{
+    *text = NULL;
+    if (!path)
+        return BG_OK;
+    size_t length = 0;
+    bg_error_t read_err = BG_ERROR_INIT;
+    if (bg_file_read_all(path, BROKER_PEM_MAX, text, &length, &read_err) != BG_OK)
+        return bg_error_set(err, BG_ERR_INVALID, "%s: %s", option, read_err.message);
+    if (strlen(*text) != length || !strstr(*text, "-----BEGIN ")) {
+        free(*text);
+        *text = NULL;
+        return bg_error_set(err, BG_ERR_INVALID, "%s %s: not a PEM file", option, path);
+    }
+    return BG_OK;
+}
+
 bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_error_t *err)
 {
     *out = NULL;
@@ -161,6 +198,10 @@ bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_er
     }
     bgb_limits_resolve(&b->config.limits, bgb_limits_ram());
     char path[BROKER_PATH_MAX + 32];
+    if ((st = transport_check(&b->config, err)) != BG_OK ||
+        (st = read_pem(b->config.tls_cert, "--tls-cert", &b->tls_cert, err)) != BG_OK ||
+        (st = read_pem(b->config.tls_key, "--tls-key", &b->tls_key, err)) != BG_OK)
+        goto out;
     snprintf(path, sizeof path, "%s/jobs", b->config.state_dir);
     if ((st = bg_file_make_directories_mode(path, 0700, err)) != BG_OK)
         goto out;
@@ -186,6 +227,8 @@ bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_er
     const bgb_rest_config_t rc = {.agents_json = b->pool_json,
                                   .address = b->config.address,
                                   .port = (uint16_t)b->config.port,
+                                  .tls_cert_pem = b->tls_cert,
+                                  .tls_key_pem = b->tls_key,
                                   .limits = &b->config.limits,
                                   .work_dir = path,
                                   .name = b->config.name,
@@ -195,7 +238,13 @@ bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_er
                                   .on_queued = on_queued,
                                   .queued_ctx = b,
                                   .on_cancel = on_cancel};
-    st = bgb_rest_start(&rc, b->store, &b->rest, err);
+    bg_error_t rest_err = BG_ERROR_INIT;
+    st = bgb_rest_start(&rc, b->store, &b->rest, &rest_err);
+    if (st != BG_OK && b->tls_cert)
+        bg_error_set(err, st, "--tls-cert %s, --tls-key %s: %s", b->config.tls_cert,
+                     b->config.tls_key, rest_err.message);
+    else if (st != BG_OK)
+        bg_error_set(err, st, "%s", rest_err.message);
 out:
     if (st != BG_OK)
         bgb_broker_stop(&b);
@@ -206,6 +255,13 @@ out:
 uint16_t bgb_broker_rest_port(const bgb_broker_t *b)
 {
     return bgb_rest_port(b->rest);
+}
+
+int bgb_broker_rest_url(const bgb_broker_t *b, char *buf, size_t size)
+{
+    const int n = snprintf(buf, size, "%s://%s:%u", bgb_rest_tls(b->rest) ? "https" : "http",
+                           b->config.address, (unsigned)bgb_rest_port(b->rest));
+    return n < 0 || (size_t)n >= size ? -1 : 0;
 }
 
 const bgb_limits_t *bgb_broker_limits(const bgb_broker_t *b)
@@ -231,6 +287,11 @@ void bgb_broker_stop(bgb_broker_t **bp)
     bgb_loop_stop(&b->loop);
     bgb_store_destroy(&b->store);
     free(b->pool_json);
+    free(b->tls_cert);
+    if (b->tls_key) {
+        gnutls_memset(b->tls_key, 0, strlen(b->tls_key));
+        free(b->tls_key);
+    }
     bgb_config_release(&b->config);
     free(b);
     *bp = NULL;

@@ -30,7 +30,12 @@
 typedef struct bgb_broker bgb_broker_t;
 
 /* Opens the store, recovers jobs, binds REST and ZeroMQ, starts the
- * threads. config is copied. Caller owns *out (bgb_broker_stop). */
+ * threads. config is copied. Caller owns *out (bgb_broker_stop).
+ *
+ * Transport security comes first: config->tls_cert and tls_key (PEM
+ * files, both or neither; read and checked as a pair) make REST speak
+ * TLS; a REST address beyond loopback without them is BG_ERR_INVALID
+ * naming --tls-cert, unless config->insecure. */
 bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_error_t *err);
 
 /* The limits in force: the configuration's, with the job size caps it
@@ -39,6 +44,9 @@ const bgb_limits_t *bgb_broker_limits(const bgb_broker_t *broker);
 
 /* The REST port and the ROUTER endpoint actually bound. */
 uint16_t bgb_broker_rest_port(const bgb_broker_t *broker);
+/* The REST base URL clients use, "http[s]://ADDRESS:PORT", into buf;
+ * -1 when it does not fit. */
+int bgb_broker_rest_url(const bgb_broker_t *broker, char *buf, size_t size);
 const char *bgb_broker_endpoint(const bgb_broker_t *broker);
 
 /* Stops REST, waits for the coordinators (a running solve finishes

@@ -31,8 +31,11 @@
 struct bgb_client {
     CURL *curl;
     char *url;
+    char *authorization; /* "Authorization: Bearer TOKEN", or NULL */
+    char *cacert;        /* the --cacert file, or NULL */
     bgb_client_config_t config;
     long status;
+    char curl_error[CURL_ERROR_SIZE]; /* libcurl's detail of the last failure */
 };
 
 /* ------------------------------------------------ server-sent events */
@@ -188,7 +191,22 @@ bg_status bgb_client_new(const bgb_client_config_t *config, bgb_client_t **out, 
         c->config.max_file = CLIENT_MAX_FILE;
     c->url = strdup(config->url);
     c->curl = curl_easy_init();
-    if (!c->url || !c->curl) {
+    if (config->token && config->token[0]) {
+        if (strpbrk(config->token, "\r\n") || strlen(config->token) > CLIENT_URL_MAX) {
+            bgb_client_destroy(&c);
+            return bg_error_set(err, BG_ERR_INVALID, "the token is not one line of at most %d "
+                                "bytes", CLIENT_URL_MAX);
+        }
+        const size_t size = strlen(config->token) + 32;
+        if ((c->authorization = malloc(size)) != NULL)
+            snprintf(c->authorization, size, "Authorization: Bearer %s", config->token);
+    }
+    c->config.token = NULL; /* held as the header above */
+    if (config->cacert && config->cacert[0])
+        c->cacert = strdup(config->cacert);
+    c->config.cacert = c->cacert;
+    if (!c->url || !c->curl || (config->token && config->token[0] && !c->authorization) ||
+        (config->cacert && config->cacert[0] && !c->cacert)) {
         bgb_client_destroy(&c);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the client");
     }
@@ -207,6 +225,8 @@ void bgb_client_destroy(bgb_client_t **client)
     if ((*client)->curl)
         curl_easy_cleanup((*client)->curl);
     free((*client)->url);
+    free((*client)->authorization);
+    free((*client)->cacert);
     free(*client);
     *client = NULL;
     /* Pairs bgb_client_new's curl_global_init (libcurl counts them). */
@@ -337,8 +357,14 @@ static bg_status perform(bgb_client_t *c, const char *method, const char *path, 
     curl_easy_setopt(curl, CURLOPT_WRITEFUNCTION, on_body);
     curl_easy_setopt(curl, CURLOPT_WRITEDATA, s);
     curl_easy_setopt(curl, CURLOPT_PROTOCOLS_STR, "http,https");
+    c->curl_error[0] = '\0';
+    curl_easy_setopt(curl, CURLOPT_ERRORBUFFER, c->curl_error);
+    if (c->cacert)
+        curl_easy_setopt(curl, CURLOPT_CAINFO, c->cacert);
     headers = curl_slist_append(headers,
                                 stream ? "Accept: text/event-stream" : "Accept: application/json");
+    if (c->authorization)
+        headers = curl_slist_append(headers, c->authorization);
     if (body) {
         headers = curl_slist_append(headers, "Content-Type: application/json");
         curl_easy_setopt(curl, CURLOPT_POSTFIELDS, body);
@@ -384,8 +410,24 @@ static bg_status perform(bgb_client_t *c, const char *method, const char *path, 
                           c->url, curl_easy_strerror(rc));
         goto out;
     }
+    if (rc == CURLE_PEER_FAILED_VERIFICATION || rc == CURLE_SSL_CACERT_BADFILE) {
+        st = bg_error_set(err, BG_ERR_IO,
+                          "%s: the broker's TLS certificate is not trusted (%s): give the "
+                          "certificate of the CA that signed it, or its own when self-signed, "
+                          "with --cacert FILE",
+                          c->url, c->curl_error[0] ? c->curl_error : curl_easy_strerror(rc));
+        goto out;
+    }
+    if (rc == CURLE_GOT_NOTHING && strncmp(c->url, "http://", 7) == 0) {
+        st = bg_error_set(err, BG_ERR_IO,
+                          "%s %s: the broker closed the connection without an answer (does it "
+                          "serve https? then name it https://)",
+                          method, url);
+        goto out;
+    }
     if (rc != CURLE_OK && !(status >= 400 && rc == CURLE_SEND_ERROR)) {
-        st = bg_error_set(err, BG_ERR_IO, "%s %s: %s", method, url, curl_easy_strerror(rc));
+        st = bg_error_set(err, BG_ERR_IO, "%s %s: %s", method, url,
+                          c->curl_error[0] ? c->curl_error : curl_easy_strerror(rc));
         goto out;
     }
     if (status < 200 || status >= 300)
@@ -501,6 +543,11 @@ bg_status bgb_client_agents(bgb_client_t *c, cJSON **out, bg_error_t *err)
 bg_status bgb_client_market(bgb_client_t *c, cJSON **out, bg_error_t *err)
 {
     return request_json(c, "GET", "/v1/market", NULL, NULL, out, err);
+}
+
+bg_status bgb_client_health(bgb_client_t *c, cJSON **out, bg_error_t *err)
+{
+    return request_json(c, "GET", "/healthz", NULL, NULL, out, err);
 }
 
 bg_status bgb_client_download(bgb_client_t *c, const char *id, const char *name, const char *dir,
@@ -763,6 +810,38 @@ static void line_of(const char *text, size_t offset, int *line, int *column)
     }
 }
 
+/* Replaces member key of object by item (taken over, freed on failure). */
+static bg_status set_member(cJSON *object, const char *key, cJSON *item, bg_error_t *err)
+{
+    cJSON_DeleteItemFromObjectCaseSensitive(object, key);
+    if (!item || !cJSON_AddItemToObject(object, key, item)) {
+        cJSON_Delete(item);
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory");
+    }
+    return BG_OK;
+}
+
+/* The submission's solver settings into the scene's "solver" object. */
+static bg_status set_solver(cJSON *scene, const bgb_client_submit_t *s, bg_error_t *err)
+{
+    if (!s->method && !(s->tolerance > 0.0) && s->max_iterations <= 0)
+        return BG_OK;
+    cJSON *solver = cJSON_GetObjectItemCaseSensitive(scene, "solver");
+    if (!solver && !(solver = cJSON_AddObjectToObject(scene, "solver")))
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory");
+    if (!cJSON_IsObject(solver))
+        return bg_error_set(err, BG_ERR_INVALID, "%s: solver: expected an object",
+                            s->scene_path);
+    bg_status st = BG_OK;
+    if (s->method)
+        st = set_member(solver, "method", cJSON_CreateString(s->method), err);
+    if (st == BG_OK && s->tolerance > 0.0)
+        st = set_member(solver, "tolerance", cJSON_CreateNumber(s->tolerance), err);
+    if (st == BG_OK && s->max_iterations > 0)
+        st = set_member(solver, "max_iterations", cJSON_CreateNumber(s->max_iterations), err);
+    return st;
+}
+
 bg_status bgb_client_pack(const bgb_client_submit_t *submit, char **body, bg_error_t *err)
 {
     *body = NULL;
@@ -805,7 +884,7 @@ bg_status bgb_client_pack(const bgb_client_submit_t *submit, char **body, bg_err
         st = bg_error_set(err, BG_ERR_INVALID, "%s: a scene is a JSON object", submit->scene_path);
         goto out;
     }
-    if ((st = pack_refs(&p, scene, err)) != BG_OK)
+    if ((st = pack_refs(&p, scene, err)) != BG_OK || (st = set_solver(scene, submit, err)) != BG_OK)
         goto out;
     /* The broker sees the scene without its file: keep the name `solve` would give it. */
     if (!cJSON_GetObjectItemCaseSensitive(scene, "name")) {

@@ -7,7 +7,9 @@
  * "<METHOD> <url>: <status> <title>: <detail> (field <field>)" and a status
  * by HTTP code: 404 BG_ERR_NOT_FOUND, 409 BG_ERR_CONFLICT, 413
  * BG_ERR_LIMIT, any other 4xx BG_ERR_INVALID, 5xx BG_ERR_IO. A broker that
- * cannot be reached is BG_ERR_IO naming the URL and how to start one.
+ * cannot be reached is BG_ERR_IO naming the URL and how to start one; an
+ * https broker whose certificate is not trusted (or does not name its
+ * host) is BG_ERR_IO saying so and naming --cacert.
  * bgb_client_http_status tells the HTTP status of the last response.
  *
  * Every response body is capped (config.max_response for JSON documents,
@@ -28,6 +30,10 @@ typedef struct bgb_client bgb_client_t;
 
 typedef struct bgb_client_config {
     const char *url;         /* the broker's base URL, e.g. "http://127.0.0.1:8080" */
+    const char *token;       /* sent as "Authorization: Bearer TOKEN" on every request;
+                                NULL: none (only /healthz and /openapi.json answer then) */
+    const char *cacert;      /* PEM file of the CAs an https broker's certificate must chain
+                                to (e.g. its self-signed certificate); NULL: the system's */
     long connect_timeout_ms; /* 0: 5000 */
     long timeout_ms;         /* a whole request, events streams excepted; 0: 120000 */
     size_t max_response;     /* a JSON response over this is refused; 0: 16 MiB */
@@ -50,6 +56,12 @@ typedef struct bgb_client_submit {
     const char *mechanism;       /* NULL: the broker's default */
     double budget;               /* <= 0: the broker's default */
     const char *idempotency_key; /* NULL or "": none */
+    /* The job's solver settings in place of the scene file's (the broker
+     * solves the scene's solver.method to its tolerance and cap), as
+     * `solve --method/--tolerance/--max-iterations` does locally: */
+    const char *method;          /* solver.method; NULL: the scene's */
+    double tolerance;            /* solver.tolerance; <= 0: the scene's */
+    int max_iterations;          /* solver.max_iterations, one cap; <= 0: the scene's */
 } bgb_client_submit_t;
 
 /*
@@ -61,7 +73,10 @@ typedef struct bgb_client_submit {
  * the scene, else by file name in search_path), uploaded under its plain
  * file name (prefixed "2-", "3-"... when two different files share one)
  * and renamed so in the uploaded scene. A scene without a "name" gets its
- * file's stem, the name `solve` reports (the broker never sees the file). *body is a NUL-terminated string
+ * file's stem, the name `solve` reports (the broker never sees the file).
+ * The solver settings given (method, tolerance, max_iterations) replace
+ * the scene's "solver" members of those names, the others kept; a
+ * "solver" that is not an object is BG_ERR_INVALID. *body is a NUL-terminated string
  * the caller frees. BG_ERR_NOT_FOUND / BG_ERR_PARSE / BG_ERR_INVALID name
  * the scene file and the field.
  */
@@ -87,6 +102,8 @@ bg_status bgb_client_cancel_job(bgb_client_t *client, const char *id, cJSON **ou
 bg_status bgb_client_result(bgb_client_t *client, const char *id, cJSON **out, bg_error_t *err);
 bg_status bgb_client_agents(bgb_client_t *client, cJSON **out, bg_error_t *err);
 bg_status bgb_client_market(bgb_client_t *client, cJSON **out, bg_error_t *err);
+/* GET /healthz (no token needed): the broker's name and state. */
+bg_status bgb_client_health(bgb_client_t *client, cJSON **out, bg_error_t *err);
 
 /*
  * Downloads result file `name` of job `id` into folder dir (which must

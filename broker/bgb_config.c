@@ -42,6 +42,8 @@ void bgb_config_release(bgb_config_t *c)
         return;
     free(c->name);
     free(c->address);
+    free(c->tls_cert);
+    free(c->tls_key);
     free(c->endpoint);
     free(c->state_dir);
     for (int i = 0; i < c->agent_count; i++)
@@ -235,6 +237,9 @@ bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
         goto out;
     static const char *const keys[] = {"name",
                                        "address",
+                                       "tls_cert",
+                                       "tls_key",
+                                       "insecure",
                                        "port",
                                        "endpoint",
                                        "state_dir",
@@ -266,7 +271,15 @@ bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
             st = replace_string(&c->name, item, path, k, err);
         else if (strcmp(k, "address") == 0)
             st = replace_string(&c->address, item, path, k, err);
-        else if (strcmp(k, "endpoint") == 0)
+        else if (strcmp(k, "tls_cert") == 0)
+            st = replace_string(&c->tls_cert, item, path, k, err);
+        else if (strcmp(k, "tls_key") == 0)
+            st = replace_string(&c->tls_key, item, path, k, err);
+        else if (strcmp(k, "insecure") == 0) {
+            if (!cJSON_IsBool(item))
+                st = bg_json_fail(err, BG_ERR_INVALID, path, k, "must be true or false");
+            c->insecure = cJSON_IsTrue(item);
+        } else if (strcmp(k, "endpoint") == 0)
             st = replace_string(&c->endpoint, item, path, k, err);
         else if (strcmp(k, "state_dir") == 0)
             st = replace_string(&c->state_dir, item, path, k, err);
@@ -299,9 +312,12 @@ bg_status bgb_config_copy(bgb_config_t *to, const bgb_config_t *from, bg_error_t
     *to = *from;
     to->name = dup_or_null(from->name);
     to->address = dup_or_null(from->address);
+    to->tls_cert = dup_or_null(from->tls_cert);
+    to->tls_key = dup_or_null(from->tls_key);
     to->endpoint = dup_or_null(from->endpoint);
     to->state_dir = dup_or_null(from->state_dir);
-    int ok = to->name && to->address && to->endpoint && to->state_dir;
+    int ok = to->name && to->address && to->endpoint && to->state_dir &&
+             (!from->tls_cert || to->tls_cert) && (!from->tls_key || to->tls_key);
     for (int i = 0; i < from->agent_count; i++) {
         to->agents[i].endpoint = dup_or_null(from->agents[i].endpoint);
         ok &= to->agents[i].endpoint != NULL;

@@ -29,6 +29,9 @@ typedef struct bgb_config_agent {
 typedef struct bgb_config {
     char *name;           /* "biotgrid" */
     char *address;        /* REST address, "127.0.0.1" */
+    char *tls_cert;       /* PEM certificate chain for REST over TLS; NULL: plain HTTP */
+    char *tls_key;        /* its PEM private key; NULL: plain HTTP (both or neither) */
+    int insecure;         /* 1: serve plain HTTP beyond loopback anyway (tokens in clear) */
     int port;             /* REST port, 8080; 0: ephemeral */
     char *endpoint;       /* ZeroMQ ROUTER endpoint, "tcp://127.0.0.1:5570"; port '*': ephemeral */
     char *state_dir;      /* the store and the jobs' folders, "out/broker" */
@@ -46,7 +49,7 @@ bg_status bgb_config_init(bgb_config_t *config, bg_error_t *err);
 
 /*
  * Reads a JSON object over the defaults: name, address, port, endpoint,
- * state_dir, max_jobs, agent_timeout_ms, the limits (memory_fraction,
+ * tls_cert, tls_key (file paths), insecure (boolean), state_dir, max_jobs, agent_timeout_ms, the limits (memory_fraction,
  * max_vertices, max_elements, max_work, max_body, max_jobs_in_flight,
  * max_stored_bytes, max_connections, max_connections_per_client,
  * idle_timeout, request_timeout: bgb_limits.h), agents [{"endpoint",

@@ -22,7 +22,7 @@
 #include "bga_service.h"
 #include "bgb_jobreport.h"
 #include "bgb_jobscene.h"
-#include "bgb_run.h"
+#include "bg_run.h"
 #include "bgb_watch.h"
 
 #define COORD_PATH_MAX 4096
@@ -240,11 +240,15 @@ static void collect_input(void *ctx, const char *name, size_t size)
 /*
  * The job's scene from the store: its input files written into DIR/input
  * (0700), then parsed against them and planned by the REST API's own
- * loader (bgb_jobscene), then prepared.
+ * loader (bgb_jobscene), then prepared. A job cancelled (or a broker
+ * stopping) while its mesh is built is not prepared: *stopped is set and
+ * BG_OK returned, the scene left unprepared.
  */
-static bg_status load_scene(bgb_coord_t *c, const bgb_job_t *job, const char *dir,
-                            bgb_jobscene_t *js, bg_error_t *err)
+static bg_status load_scene(job_run_t *jr, const bgb_job_t *job, const char *dir,
+                            bgb_jobscene_t *js, int *stopped, bg_error_t *err)
 {
+    bgb_coord_t *c = jr->coord;
+    *stopped = 0;
     char input[COORD_PATH_MAX + 16];
     snprintf(input, sizeof input, "%s/input", dir);
     bg_status st = bg_file_make_directories_mode(input, 0700, err);
@@ -271,7 +275,9 @@ static bg_status load_scene(bgb_coord_t *c, const bgb_job_t *job, const char *di
         st = bgb_jobscene_unpack(input, files, in.count, err);
     if (st == BG_OK)
         st = bgb_jobscene_load(job->scene, job->scene_size, input, &c->config->limits, js, err);
-    if (st == BG_OK)
+    if (st == BG_OK && !still_allocating(jr))
+        *stopped = 1;
+    else if (st == BG_OK)
         st = bg_prepare_scene(js->scene, err);
     for (int i = 0; i < in.count; i++) {
         free(in.names[i]);
@@ -389,16 +395,16 @@ static bg_status solve_job(job_run_t *jr, const bgb_job_t *job, const char *dir,
     bgb_watch_init(&remote_watch, still_running, jr, jr->what, bga_backend_services(remote),
                    jr->used);
     const double *ref = NULL;
-    if ((st = bgb_run_reference(scene, &local_watch.backend, &reference, &ref, err)) != BG_OK)
+    if ((st = bg_run_reference(scene, &local_watch.backend, &reference, &ref, err)) != BG_OK)
         goto out;
-    const bgb_run_options_t ro = {.method = scene->method,
-                                  .tolerance = jr->tolerance,
-                                  .max_iterations = jr->max_iterations,
-                                  .frames_prefix = "",
-                                  .progress = on_progress,
-                                  .progress_ctx = jr,
-                                  .backend = &remote_watch.backend};
-    if ((st = bgb_run_method(scene, &ro, ref, dir, &run, err)) != BG_OK)
+    const bg_run_options_t ro = {.method = scene->method,
+                                 .tolerance = jr->tolerance,
+                                 .max_iterations = jr->max_iterations,
+                                 .frames_prefix = "",
+                                 .progress = on_progress,
+                                 .progress_ctx = jr,
+                                 .backend = &remote_watch.backend};
+    if ((st = bg_run_method(scene, &ro, ref, dir, &run, err)) != BG_OK)
         goto out;
     *converged = run.converged;
     bg_report_agent_t lines[BGB_CONFIG_MAX_AGENTS];
@@ -424,7 +430,7 @@ static bg_status solve_job(job_run_t *jr, const bgb_job_t *job, const char *dir,
         goto out;
     snprintf(path, sizeof path, "%s/error-vs-time.svg", dir);
     if ((st = bg_report_write_plot(path, scene, &run, 1, err)) != BG_OK ||
-        (st = bgb_run_write_results(dir, scene, &run, paths, sizeof paths, err)) != BG_OK)
+        (st = bg_run_write_results(dir, scene, &run, paths, sizeof paths, err)) != BG_OK)
         goto out;
     trace = trace_json(&run);
     if (trace && (st = bgb_store_add_event(c->store, job->id, "trace", trace, err)) != BG_OK)
@@ -546,8 +552,20 @@ static void *coordinator(void *arg)
     char dir[COORD_PATH_MAX];
     snprintf(dir, sizeof dir, "%s/jobs/%s", c->config->state_dir, jr->id);
     bg_status st = bg_file_make_directories_mode(dir, 0700, &err);
+    int unprepared = 0;
     if (st == BG_OK)
-        st = load_scene(c, &job, dir, &js, &err);
+        st = load_scene(jr, &job, dir, &js, &unprepared, &err);
+    if (st == BG_OK && (unprepared || !still_allocating(jr))) {
+        /* Cancelled, or the broker stopping, during the preparation:
+         * nothing is bought. */
+        char json[96];
+        snprintf(json, sizeof json,
+                 "{\"cancelled\":true,\"during\":\"preparation\",\"seconds\":%.6f}",
+                 bg_clock_now() - t0);
+        if (!stopping(c))
+            (void)bgb_store_add_event(c->store, jr->id, "stopped", json, &terr);
+        goto out;
+    }
     if (st != BG_OK) {
         (void)bgb_store_transition(c->store, jr->id, live_or_fail, BGB_JOB_FAILED, err.message,
                                    &terr);

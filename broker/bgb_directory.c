@@ -10,6 +10,10 @@ struct bgb_directory {
     double heartbeat_timeout;
     bgb_dir_agent_t *agents; /* BGB_DIRECTORY_MAX_AGENTS */
     uint32_t next_id;
+    /* Agents dropped (silent too long), oldest first: their contracts stay
+     * in the ledger, so agents.csv still lists them. */
+    bgb_agent_info_t *departed; /* ring of BGB_DIRECTORY_MAX_DEPARTED */
+    size_t departed_head, departed_count;
 };
 
 bg_status bgb_directory_new(int overlay_degree, double heartbeat_timeout,
@@ -17,9 +21,15 @@ bg_status bgb_directory_new(int overlay_degree, double heartbeat_timeout,
 {
     *out = NULL;
     bgb_directory_t *d = calloc(1, sizeof *d);
-    if (d)
+    if (d) {
         d->agents = calloc(BGB_DIRECTORY_MAX_AGENTS, sizeof *d->agents);
-    if (!d || !d->agents) {
+        d->departed = calloc(BGB_DIRECTORY_MAX_DEPARTED, sizeof *d->departed);
+    }
+    if (!d || !d->agents || !d->departed) {
+        if (d) {
+            free(d->agents);
+            free(d->departed);
+        }
         free(d);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the agent directory");
     }
@@ -36,6 +46,7 @@ void bgb_directory_destroy(bgb_directory_t **pd)
     if (!pd || !*pd)
         return;
     free((*pd)->agents);
+    free((*pd)->departed);
     free(*pd);
     *pd = NULL;
 }
@@ -271,6 +282,12 @@ void bgb_directory_expire(bgb_directory_t *d, double now,
         if (a->used && now - a->info.last_heartbeat > d->heartbeat_timeout) {
             if (gone)
                 gone(ctx, a);
+            d->departed[(d->departed_head + d->departed_count) % BGB_DIRECTORY_MAX_DEPARTED] =
+                a->info;
+            if (d->departed_count < BGB_DIRECTORY_MAX_DEPARTED)
+                d->departed_count++;
+            else
+                d->departed_head = (d->departed_head + 1) % BGB_DIRECTORY_MAX_DEPARTED;
             a->used = 0;
         }
     }
@@ -286,4 +303,16 @@ size_t bgb_directory_agents(const bgb_directory_t *d, bgb_agent_info_t *out, siz
             n++;
         }
     return n;
+}
+
+size_t bgb_directory_departed_count(const bgb_directory_t *d)
+{
+    return d->departed_count;
+}
+
+const bgb_agent_info_t *bgb_directory_departed(const bgb_directory_t *d, size_t k)
+{
+    return k < d->departed_count
+               ? &d->departed[(d->departed_head + k) % BGB_DIRECTORY_MAX_DEPARTED]
+               : NULL;
 }

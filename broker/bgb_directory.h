@@ -137,6 +137,13 @@ void bgb_directory_relay(bgb_directory_t *d, const bga_mmsg_t *in);
 void bgb_directory_expire(bgb_directory_t *d, double now,
                           void (*gone)(void *ctx, bgb_dir_agent_t *a), void *ctx);
 
+/* Agents dropped from the directory, kept (oldest first) for agents.csv
+ * since their contracts stay in the ledger: the last this many. */
+#define BGB_DIRECTORY_MAX_DEPARTED 4096
+size_t bgb_directory_departed_count(const bgb_directory_t *d);
+/* The k-th departed agent, oldest first (NULL past the count). */
+const bgb_agent_info_t *bgb_directory_departed(const bgb_directory_t *d, size_t k);
+
 /* Snapshot: writes up to max rows, returns the number of agents. */
 size_t bgb_directory_agents(const bgb_directory_t *d, bgb_agent_info_t *out, size_t max);
 

@@ -187,29 +187,37 @@ bg_status bgb_ledger_write_clearings_csv(const bgb_ledger_t *l, FILE *out, bg_er
     return BG_OK;
 }
 
+/* One agent's rows of agents.csv under one mechanism; nonzero on a write error. */
+static int agent_rows(const bgb_ledger_t *l, const bgb_agent_info_t *a, int mech, FILE *out)
+{
+    int failed = 0;
+    for (int g = 0; g < 3; g++)
+        if (a->services & (1u << g))
+            failed |= fprintf(out, "%s,0,%s,%u,basic,%s,%d,%.9g\n", l->name,
+                              bgb_mechanism_name((bgb_mechanism)mech), a->id, bgb_good_name(g),
+                              a->slots, a->floor[g]) < 0;
+    if (a->resource)
+        for (int g = BGB_GOOD_CORES; g <= BGB_GOOD_MEMORY; g++)
+            failed |= fprintf(out, "%s,0,%s,%u,resource,%s,%.9g,%.9g\n", l->name,
+                              bgb_mechanism_name((bgb_mechanism)mech), a->id, bgb_good_name(g),
+                              g == BGB_GOOD_CORES ? a->cores : a->memory, a->floor[g]) < 0;
+    return failed;
+}
+
 bg_status bgb_ledger_write_agents_csv(const bgb_ledger_t *l, const bgb_directory_t *d, FILE *out,
                                       bg_error_t *err)
 {
     const bgb_dir_agent_t *rows = bgb_directory_rows_const(d);
+    const size_t ndeparted = bgb_directory_departed_count(d);
     int failed = fputs("scenario,replication,mechanism,agent,role,good,capacity,limit\n", out) < 0;
-    for (int mech = 0; mech < BGB_MECHANISMS; mech++)
-        for (int i = 0; i < BGB_DIRECTORY_MAX_AGENTS; i++) {
-            const bgb_dir_agent_t *a = &rows[i];
-            if (!a->used)
-                continue;
-            for (int g = 0; g < 3; g++)
-                if (a->info.services & (1u << g))
-                    failed |= fprintf(out, "%s,0,%s,%u,basic,%s,%d,%.9g\n", l->name,
-                                      bgb_mechanism_name((bgb_mechanism)mech), a->info.id,
-                                      bgb_good_name(g), a->info.slots, a->info.floor[g]) < 0;
-            if (a->info.resource)
-                for (int g = BGB_GOOD_CORES; g <= BGB_GOOD_MEMORY; g++)
-                    failed |= fprintf(out, "%s,0,%s,%u,resource,%s,%.9g,%.9g\n", l->name,
-                                      bgb_mechanism_name((bgb_mechanism)mech), a->info.id,
-                                      bgb_good_name(g),
-                                      g == BGB_GOOD_CORES ? a->info.cores : a->info.memory,
-                                      a->info.floor[g]) < 0;
-        }
+    for (int mech = 0; mech < BGB_MECHANISMS; mech++) {
+        /* The departed first (they registered earlier), then the directory. */
+        for (size_t k = 0; k < ndeparted; k++)
+            failed |= agent_rows(l, bgb_directory_departed(d, k), mech, out);
+        for (int i = 0; i < BGB_DIRECTORY_MAX_AGENTS; i++)
+            if (rows[i].used)
+                failed |= agent_rows(l, &rows[i].info, mech, out);
+    }
     if (failed || fflush(out) != 0)
         return bg_error_set(err, BG_ERR_IO, "cannot write agents.csv");
     return BG_OK;

@@ -985,8 +985,8 @@ static void posted_list(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *q
     if (j->resource) {
         room_ctx rc = {m, j, u};
         bgm_posting_t p[BGM_MSG_CANDIDATES];
-        const size_t n =
-            bgm_posted_query_if(m->posted, u->good, u->limit, has_room, &rc, p, BGM_MSG_CANDIDATES);
+        const size_t n = bgm_posted_query(m->posted, u->good, u->limit, 0, has_room, &rc, p,
+                                          BGM_MSG_CANDIDATES, NULL);
         for (size_t i = 0; i < n; i++) {
             l->cand[l->ncand] = p[i].seller;
             l->cand_speed[l->ncand] = 1.0;

@@ -4,6 +4,7 @@
 #include <cJSON.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <gnutls/gnutls.h>
 #include <math.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
@@ -27,13 +28,14 @@
 #include "bgb_base64.h"
 #include "bgb_jobscene.h"
 #include "bgb_submission.h"
+#include "bgb_tokens.h"
 
-/* The user of every request until requests carry tokens. */
-#define REST_OWNER "local"
 /* Threads serving connections (each request's work, never a wait). */
 #define REST_THREADS 8
 /* Memory MHD may use per connection for headers and buffers. */
 #define REST_CONNECTION_MEMORY (64 * 1024)
+/* GnuTLS priorities: its defaults without TLS 1.0 and 1.1. */
+#define REST_TLS_PRIORITIES "NORMAL:-VERS-ALL:+VERS-TLS1.3:+VERS-TLS1.2"
 #define REST_MAX_LIMIT 500
 #define REST_DEFAULT_LIMIT 50
 /* Server-sent events: how long a stream stays silent before sending a
@@ -47,6 +49,8 @@ struct bgb_rest {
     bgb_rest_config_t config;
     bgb_limits_t limits; /* in force (a copy of the config's, or the defaults) */
     char *address, *work_dir, *name, *agents_json, *market;
+    char *tls_cert, *tls_key; /* the PEM texts, held while the server runs */
+    int tls;
     char *(*view)(void *ctx, int what);
     void *view_ctx;
     uint16_t port;
@@ -58,6 +62,12 @@ struct bgb_rest {
     pthread_t notifier;
     int notifier_started;
 };
+
+/* Who a request comes from: its bearer token's user and scope. */
+typedef struct principal {
+    char user[BGB_USER_MAX + 1];
+    int admin;
+} principal_t;
 
 /* A request's state across MHD's calls: the body as it arrives. */
 typedef struct request {
@@ -504,7 +514,8 @@ static enum MHD_Result get_job(bgb_rest_t *rest, struct MHD_Connection *c, const
     return sent;
 }
 
-static enum MHD_Result list_jobs(bgb_rest_t *rest, struct MHD_Connection *c)
+static enum MHD_Result list_jobs(bgb_rest_t *rest, struct MHD_Connection *c,
+                                 const principal_t *who)
 {
     const char *state_text = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "state");
     const char *limit_text = MHD_lookup_connection_value(c, MHD_GET_ARGUMENT_KIND, "limit");
@@ -542,8 +553,8 @@ static enum MHD_Result list_jobs(bgb_rest_t *rest, struct MHD_Connection *c)
     int count = 0;
     int64_t next = 0;
     bg_error_t err = BG_ERROR_INIT;
-    if (bgb_store_list(rest->store, state, cursor, (int)limit, jobs, &count, &next, &err) !=
-        BG_OK) {
+    if (bgb_store_list_owner(rest->store, who->admin ? NULL : who->user, state, cursor,
+                             (int)limit, jobs, &count, &next, &err) != BG_OK) {
         free(jobs);
         return send_store_problem(rest, c, BG_ERR_IO, &err);
     }
@@ -1024,33 +1035,124 @@ static enum MHD_Result get_csv(bgb_rest_t *rest, struct MHD_Connection *c, int v
     return send_text(rest, c, MHD_HTTP_OK, "text/csv", header, strlen(header), NULL);
 }
 
+/*
+ * The request's bearer token: 0 with *who filled, or 1 with a 401 sent
+ * (WWW-Authenticate: Bearer) when it has none or a bad one. The problem
+ * says the same whatever was wrong with a presented token.
+ */
+static int authenticate(bgb_rest_t *rest, struct MHD_Connection *c, principal_t *who,
+                        enum MHD_Result *sent)
+{
+    const char *header = MHD_lookup_connection_value(c, MHD_HEADER_KIND,
+                                                     MHD_HTTP_HEADER_AUTHORIZATION);
+    static const char bearer[] = "Bearer ";
+    bg_error_t err = BG_ERROR_INIT;
+    bg_status st = BG_ERR_NOT_FOUND;
+    if (header && strncasecmp(header, bearer, sizeof bearer - 1) == 0) {
+        const char *token = header + sizeof bearer - 1;
+        while (*token == ' ')
+            token++;
+        st = bgb_tokens_check(rest->store, token, who->user, &who->admin, &err);
+    }
+    if (st == BG_OK)
+        return 0;
+    if (st == BG_ERR_IO) {
+        *sent = send_store_problem(rest, c, BG_ERR_IO, &err);
+        return 1;
+    }
+    char detail[160];
+    snprintf(detail, sizeof detail, "%s",
+             header ? "the bearer token is not valid"
+                    : "this resource needs a bearer token (Authorization: Bearer TOKEN; "
+                      "`biotgrid token create NAME` makes one)");
+    cJSON *doc = cJSON_CreateObject();
+    cJSON_AddStringToObject(doc, "type", "/problems/unauthorized");
+    cJSON_AddStringToObject(doc, "title", "Unauthorized");
+    cJSON_AddNumberToObject(doc, "status", MHD_HTTP_UNAUTHORIZED);
+    cJSON_AddStringToObject(doc, "detail", detail);
+    char *text = cJSON_PrintUnformatted(doc);
+    cJSON_Delete(doc);
+    struct MHD_Response *r = text ? MHD_create_response_from_buffer(strlen(text), text,
+                                                                    MHD_RESPMEM_MUST_COPY)
+                                  : NULL;
+    free(text);
+    if (!r) {
+        *sent = MHD_NO;
+        return 1;
+    }
+    MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, "application/problem+json");
+    MHD_add_response_header(r, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Bearer realm=\"biotgrid\"");
+    *sent = MHD_queue_response(c, MHD_HTTP_UNAUTHORIZED, r);
+    MHD_destroy_response(r);
+    atomic_fetch_add(&rest->responses[4], 1);
+    return 1;
+}
+
+/* Another user's job is, to this user, no job at all (404, never 403: its
+ * existence is not theirs to learn). 0 when who may see job id. */
+static int not_theirs(bgb_rest_t *rest, struct MHD_Connection *c, const principal_t *who,
+                      const char *id, enum MHD_Result *sent)
+{
+    if (who->admin)
+        return 0;
+    bgb_job_t job = BGB_JOB_INIT;
+    bg_error_t err = BG_ERROR_INIT;
+    const bg_status st = bgb_store_get(rest->store, id, &job, &err);
+    const int theirs = st == BG_OK && strcmp(job.owner, who->user) == 0;
+    bgb_job_release(&job);
+    if (theirs)
+        return 0;
+    *sent = st == BG_ERR_IO ? send_store_problem(rest, c, BG_ERR_IO, &err)
+                            : send_problem(rest, c, MHD_HTTP_NOT_FOUND, "no-such-job",
+                                           "No such job", NULL, "no job '%s'", id);
+    return 1;
+}
+
+static enum MHD_Result admins_only(bgb_rest_t *rest, struct MHD_Connection *c, const char *url)
+{
+    return send_problem(rest, c, MHD_HTTP_FORBIDDEN, "forbidden", "Forbidden", NULL,
+                        "%s is for tokens with the admin scope", url);
+}
+
 static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const char *url,
                              const char *method, const request_t *req)
 {
     const int get = strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0;
     const int post = strcmp(method, "POST") == 0;
+    /* Open to all: the health probe and the API's description. */
     if (strcmp(url, "/healthz") == 0)
         return get ? health(rest, c) : method_not_allowed(rest, c, method, url, "GET");
-    if (strcmp(url, "/metrics") == 0)
-        return get ? metrics(rest, c) : method_not_allowed(rest, c, method, url, "GET");
     if (strcmp(url, "/openapi.json") == 0)
         return get ? send_text(rest, c, MHD_HTTP_OK, "application/json", bgb_rest_openapi(),
                                strlen(bgb_rest_openapi()), NULL)
                    : method_not_allowed(rest, c, method, url, "GET");
-    if (strcmp(url, "/v1/agents") == 0)
-        return get ? get_agents(rest, c) : method_not_allowed(rest, c, method, url, "GET");
-    if (strcmp(url, "/v1/market") == 0)
-        return get ? get_market(rest, c) : method_not_allowed(rest, c, method, url, "GET");
-    const int csv = strcmp(url, "/v1/market/contracts.csv") == 0   ? BGB_REST_VIEW_CONTRACTS
-                    : strcmp(url, "/v1/market/agents.csv") == 0    ? BGB_REST_VIEW_AGENTS_CSV
-                    : strcmp(url, "/v1/market/clearings.csv") == 0 ? BGB_REST_VIEW_CLEARINGS
-                                                                   : -1;
-    if (csv >= 0)
-        return get ? get_csv(rest, c, csv) : method_not_allowed(rest, c, method, url, "GET");
+    principal_t who;
+    enum MHD_Result sent = MHD_NO;
+    if (authenticate(rest, c, &who, &sent))
+        return sent;
+    /* The market, the agents and the server's counters are the operator's. */
+    const int market = strncmp(url, "/v1/market", 10) == 0 && (!url[10] || url[10] == '/');
+    if (strcmp(url, "/metrics") == 0 || strcmp(url, "/v1/agents") == 0 || market) {
+        if (!who.admin)
+            return admins_only(rest, c, url);
+        if (strcmp(url, "/metrics") == 0)
+            return get ? metrics(rest, c) : method_not_allowed(rest, c, method, url, "GET");
+        if (strcmp(url, "/v1/agents") == 0)
+            return get ? get_agents(rest, c) : method_not_allowed(rest, c, method, url, "GET");
+        if (strcmp(url, "/v1/market") == 0)
+            return get ? get_market(rest, c) : method_not_allowed(rest, c, method, url, "GET");
+        const int csv = strcmp(url, "/v1/market/contracts.csv") == 0   ? BGB_REST_VIEW_CONTRACTS
+                        : strcmp(url, "/v1/market/agents.csv") == 0    ? BGB_REST_VIEW_AGENTS_CSV
+                        : strcmp(url, "/v1/market/clearings.csv") == 0 ? BGB_REST_VIEW_CLEARINGS
+                                                                       : -1;
+        if (csv >= 0)
+            return get ? get_csv(rest, c, csv) : method_not_allowed(rest, c, method, url, "GET");
+    }
     if (strcmp(url, "/v1/jobs") == 0) {
         if (post)
-            return submit_job(rest, c, req, REST_OWNER);
-        return get ? list_jobs(rest, c) : method_not_allowed(rest, c, method, url, "GET or POST");
+            return submit_job(rest, c, req, who.user);
+        return get ? list_jobs(rest, c, &who)
+                   : method_not_allowed(rest, c, method, url, "GET or POST");
     }
     const char *prefix = "/v1/jobs/";
     if (strncmp(url, prefix, strlen(prefix)) == 0) {
@@ -1061,11 +1163,13 @@ static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const c
         if (is_job_id(id, n)) {
             memcpy(job_id, id, n);
             job_id[n] = '\0';
+            if (not_theirs(rest, c, &who, job_id, &sent))
+                return sent;
             if (!rest_of[0])
-                return get                                ? get_job(rest, c, job_id)
+                return get                             ? get_job(rest, c, job_id)
                        : strcmp(method, "DELETE") == 0 ? delete_job(rest, c, job_id)
-                                                         : method_not_allowed(rest, c, method, url,
-                                                                              "GET or DELETE");
+                                                       : method_not_allowed(rest, c, method, url,
+                                                                            "GET or DELETE");
             if (strcmp(rest_of, "/cancel") == 0)
                 return post ? cancel_job(rest, c, job_id)
                             : method_not_allowed(rest, c, method, url, "POST");
@@ -1209,6 +1313,27 @@ static enum MHD_Result handle(void *cls, struct MHD_Connection *c, const char *u
     return route(rest, c, url, method, req);
 }
 
+/* Loads the pair as the server will, so that a bad file is a message
+ * saying what is wrong with it rather than a server that does not start. */
+static bg_status check_tls_pair(const char *cert_pem, const char *key_pem, bg_error_t *err)
+{
+    if (!cert_pem || !key_pem)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "TLS needs both a certificate and its private key");
+    gnutls_certificate_credentials_t cred = NULL;
+    if (gnutls_certificate_allocate_credentials(&cred) < 0)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the TLS credentials");
+    const gnutls_datum_t cert = {(unsigned char *)cert_pem, (unsigned)strlen(cert_pem)};
+    const gnutls_datum_t key = {(unsigned char *)key_pem, (unsigned)strlen(key_pem)};
+    const int rc = gnutls_certificate_set_x509_key_mem(cred, &cert, &key, GNUTLS_X509_FMT_PEM);
+    gnutls_certificate_free_credentials(cred);
+    if (rc < 0)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "the TLS certificate and key do not load as a PEM pair: %s",
+                            gnutls_strerror(rc));
+    return BG_OK;
+}
+
 static void completed(void *cls, struct MHD_Connection *c, void **con_cls,
                       enum MHD_RequestTerminationCode code)
 {
@@ -1239,6 +1364,7 @@ bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bg
         bgb_limits_resolve(&rest->limits, bgb_limits_ram());
     }
     rest->config.limits = &rest->limits;
+    rest->config.tls_cert_pem = rest->config.tls_key_pem = NULL; /* held below */
     pthread_mutex_init(&rest->streams_lock, NULL);
     rest->address = strdup(config->address ? config->address : "127.0.0.1");
     rest->work_dir = strdup(config->work_dir ? config->work_dir : "/tmp");
@@ -1273,14 +1399,38 @@ bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bg
      * thread, so clients that send half a request or nothing at all cannot
      * take the server away from the others; event streams suspend while
      * they have nothing to send. */
-    rest->daemon = MHD_start_daemon(
-        MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME, config->port,
-        NULL, NULL, handle, rest, MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&addr,
-        MHD_OPTION_NOTIFY_COMPLETED, completed, rest, MHD_OPTION_THREAD_POOL_SIZE,
-        (unsigned)REST_THREADS, MHD_OPTION_CONNECTION_LIMIT, rest->limits.max_connections,
-        MHD_OPTION_PER_IP_CONNECTION_LIMIT, rest->limits.max_connections_per_client,
-        MHD_OPTION_CONNECTION_TIMEOUT, rest->limits.idle_timeout,
-        MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)REST_CONNECTION_MEMORY, MHD_OPTION_END);
+    unsigned flags = MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_EPOLL | MHD_ALLOW_SUSPEND_RESUME;
+    struct MHD_OptionItem options[16];
+    int n = 0;
+#define REST_OPTION(o, v, p) (options[n++] = (struct MHD_OptionItem){(o), (intptr_t)(v), (p)})
+    REST_OPTION(MHD_OPTION_SOCK_ADDR, 0, &addr);
+    REST_OPTION(MHD_OPTION_NOTIFY_COMPLETED, (intptr_t)completed, rest);
+    REST_OPTION(MHD_OPTION_THREAD_POOL_SIZE, REST_THREADS, NULL);
+    REST_OPTION(MHD_OPTION_CONNECTION_LIMIT, rest->limits.max_connections, NULL);
+    REST_OPTION(MHD_OPTION_PER_IP_CONNECTION_LIMIT, rest->limits.max_connections_per_client, NULL);
+    REST_OPTION(MHD_OPTION_CONNECTION_TIMEOUT, rest->limits.idle_timeout, NULL);
+    REST_OPTION(MHD_OPTION_CONNECTION_MEMORY_LIMIT, REST_CONNECTION_MEMORY, NULL);
+    if (config->tls_cert_pem || config->tls_key_pem) {
+        if ((st = check_tls_pair(config->tls_cert_pem, config->tls_key_pem, err)) != BG_OK)
+            goto out;
+        rest->tls_cert = strdup(config->tls_cert_pem);
+        rest->tls_key = strdup(config->tls_key_pem);
+        if (!rest->tls_cert || !rest->tls_key) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the TLS credentials");
+            goto out;
+        }
+        flags |= MHD_USE_TLS;
+        REST_OPTION(MHD_OPTION_HTTPS_MEM_CERT, 0, rest->tls_cert);
+        REST_OPTION(MHD_OPTION_HTTPS_MEM_KEY, 0, rest->tls_key);
+        REST_OPTION(MHD_OPTION_HTTPS_PRIORITIES, 0, (void *)REST_TLS_PRIORITIES);
+        rest->tls = 1;
+    }
+    REST_OPTION(MHD_OPTION_END, 0, NULL);
+#undef REST_OPTION
+    /* MHD_OPTION_NOTIFY_COMPLETED takes the function in value and its
+     * closure in ptr_value through MHD_OPTION_ARRAY. */
+    rest->daemon = MHD_start_daemon(flags, config->port, NULL, NULL, handle, rest,
+                                    MHD_OPTION_ARRAY, options, MHD_OPTION_END);
     if (!rest->daemon) {
         st = bg_error_set(err, BG_ERR_IO, "cannot listen on %s:%u: %s", rest->address,
                           (unsigned)config->port, strerror(errno));
@@ -1306,6 +1456,19 @@ uint16_t bgb_rest_port(const bgb_rest_t *rest)
     return rest->port;
 }
 
+int bgb_rest_tls(const bgb_rest_t *rest)
+{
+    return rest->tls;
+}
+
+int bgb_rest_address_is_loopback(const char *address)
+{
+    struct in_addr a;
+    if (!address || inet_pton(AF_INET, address, &a) != 1)
+        return 0;
+    return (ntohl(a.s_addr) >> 24) == 127;
+}
+
 void bgb_rest_stop(bgb_rest_t **restp)
 {
     if (!restp || !*restp)
@@ -1324,6 +1487,11 @@ void bgb_rest_stop(bgb_rest_t **restp)
     free(rest->name);
     free(rest->agents_json);
     free(rest->market);
+    free(rest->tls_cert);
+    if (rest->tls_key) {
+        gnutls_memset(rest->tls_key, 0, strlen(rest->tls_key)); /* not optimised away */
+        free(rest->tls_key);
+    }
     free(rest);
     *restp = NULL;
 }

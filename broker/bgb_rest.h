@@ -46,6 +46,12 @@ typedef struct bgb_rest bgb_rest_t;
 typedef struct bgb_rest_config {
     const char *address;     /* IPv4 address to bind; NULL: 127.0.0.1 */
     uint16_t port;           /* 0: an ephemeral port (bgb_rest_port tells which) */
+    /* TLS: a PEM certificate chain and its PEM private key (NUL-terminated
+     * texts, copied by the server's TLS library), both or neither; NULL:
+     * plain HTTP. A pair that does not load, or whose key does not match
+     * the certificate, is BG_ERR_INVALID saying why. TLS 1.2 and 1.3 only. */
+    const char *tls_cert_pem;
+    const char *tls_key_pem;
     /* Every limit (bgb_limits.h), copied; NULL: the defaults, resolved
      * for this machine. */
     const bgb_limits_t *limits;
@@ -86,6 +92,14 @@ bg_status bgb_rest_start(const bgb_rest_config_t *config, bgb_store_t *store, bg
 
 /* The port the server listens on. */
 uint16_t bgb_rest_port(const bgb_rest_t *rest);
+
+/* 1 when the server speaks TLS (the URL's scheme is https). */
+int bgb_rest_tls(const bgb_rest_t *rest);
+
+/* 1 when address is an IPv4 loopback address (127.0.0.0/8), where plain
+ * HTTP carries tokens no further than this machine; 0 otherwise (0.0.0.0
+ * included: it listens on every interface). */
+int bgb_rest_address_is_loopback(const char *address);
 
 /* Stops accepting, waits for the connections in progress, frees; accepts NULL. */
 void bgb_rest_stop(bgb_rest_t **rest);

@@ -59,7 +59,15 @@ static const char SCHEMA[] =
     "  time REAL NOT NULL,"
     "  kind TEXT NOT NULL,"
     "  data TEXT NOT NULL);"
-    "CREATE INDEX IF NOT EXISTS events_by_job ON events(job, seq);";
+    "CREATE INDEX IF NOT EXISTS events_by_job ON events(job, seq);"
+    "CREATE TABLE IF NOT EXISTS tokens("
+    "  id TEXT PRIMARY KEY,"
+    "  user TEXT NOT NULL,"
+    "  admin INTEGER NOT NULL,"
+    "  salt TEXT NOT NULL,"
+    "  hash TEXT NOT NULL,"
+    "  created REAL NOT NULL,"
+    "  revoked INTEGER NOT NULL DEFAULT 0);";
 
 /* Version 1 → 2: jobs get their user (owner), the bytes of their files
  * (for the per-user quota) and the fingerprint of their submission (for
@@ -794,6 +802,13 @@ bg_status bgb_store_get(bgb_store_t *store, const char *id, bgb_job_t *out, bg_e
 bg_status bgb_store_list(bgb_store_t *store, int state, int64_t after, int limit, bgb_job_t *jobs,
                          int *count, int64_t *next, bg_error_t *err)
 {
+    return bgb_store_list_owner(store, NULL, state, after, limit, jobs, count, next, err);
+}
+
+bg_status bgb_store_list_owner(bgb_store_t *store, const char *owner, int state, int64_t after,
+                               int limit, bgb_job_t *jobs, int *count, int64_t *next,
+                               bg_error_t *err)
+{
     *count = 0;
     *next = 0;
     if (limit < 1)
@@ -802,15 +817,23 @@ bg_status bgb_store_list(bgb_store_t *store, int state, int64_t after, int limit
     pthread_mutex_lock(&store->read_lock);
     /* One row more than asked tells whether there is a next page. */
     bg_status st = prepare(store->reader,
-                           state >= 0 ? "SELECT " JOB_COLUMNS " FROM jobs WHERE seq > ? AND "
-                                        "state = ? ORDER BY seq LIMIT ?"
-                                      : "SELECT " JOB_COLUMNS " FROM jobs WHERE seq > ? AND "
-                                        "? < 0 ORDER BY seq LIMIT ?",
+                           owner ? (state >= 0 ? "SELECT " JOB_COLUMNS " FROM jobs WHERE seq > ? "
+                                                 "AND state = ? AND owner = ? ORDER BY seq LIMIT ?"
+                                               : "SELECT " JOB_COLUMNS " FROM jobs WHERE seq > ? "
+                                                 "AND ? < 0 AND owner = ? ORDER BY seq LIMIT ?")
+                                 : (state >= 0 ? "SELECT " JOB_COLUMNS " FROM jobs WHERE seq > ? "
+                                                 "AND state = ? AND ? IS NULL ORDER BY seq LIMIT ?"
+                                               : "SELECT " JOB_COLUMNS " FROM jobs WHERE seq > ? "
+                                                 "AND ? < 0 AND ? IS NULL ORDER BY seq LIMIT ?"),
                            &s, err);
     if (st == BG_OK) {
         sqlite3_bind_int64(s, 1, after);
         sqlite3_bind_int(s, 2, state);
-        sqlite3_bind_int(s, 3, limit + 1);
+        if (owner)
+            sqlite3_bind_text(s, 3, owner, -1, SQLITE_STATIC);
+        else
+            sqlite3_bind_null(s, 3);
+        sqlite3_bind_int(s, 4, limit + 1);
         int rc;
         while (st == BG_OK && (rc = sqlite3_step(s)) == SQLITE_ROW) {
             if (*count == limit) {
@@ -832,6 +855,20 @@ bg_status bgb_store_list(bgb_store_t *store, int state, int64_t after, int limit
         *count = 0;
         *next = 0;
     }
+    return st;
+}
+
+/* Ends a write transaction begun under write_lock: COMMIT when st is
+ * BG_OK, ROLLBACK when it is not or the COMMIT fails (harmless where no
+ * transaction is open), then releases write_lock. Returns the first
+ * failure. */
+static bg_status end_write(bgb_store_t *store, bg_status st, bg_error_t *err)
+{
+    if (st == BG_OK)
+        st = run(store->writer, "COMMIT", err);
+    if (st != BG_OK)
+        run(store->writer, "ROLLBACK", NULL);
+    pthread_mutex_unlock(&store->write_lock);
     return st;
 }
 
@@ -874,16 +911,16 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
     pthread_mutex_lock(&store->write_lock);
     bg_status st = begin_on_job(store, id, &current, err);
     if (st != BG_OK)
-        goto unlock;
+        goto out;
     if (!(from_mask & (1u << current))) {
         st = bg_error_set(err, BG_ERR_CONFLICT, "job %s is %s; it cannot become %s", id,
                           bgb_job_state_name((bgb_job_state)current), bgb_job_state_name(to));
-        goto rollback;
+        goto out;
     }
     const double now = wall_clock();
     if ((st = prepare(db, "UPDATE jobs SET state = ?, updated = ?, reason = ? WHERE id = ?", &s,
                       err)) != BG_OK)
-        goto rollback;
+        goto out;
     sqlite3_bind_int(s, 1, to);
     sqlite3_bind_double(s, 2, now);
     if (reason)
@@ -899,17 +936,9 @@ bg_status bgb_store_transition(bgb_store_t *store, const char *id, unsigned from
         snprintf(json, sizeof json, "{\"state\":\"%s\"}", bgb_job_state_name(to));
         st = insert_event(db, id, now, "state", json, err);
     }
-    if (st == BG_OK) {
-        st = run(db, "COMMIT", err);
-        if (st == BG_OK) {
-            events_committed(store);
-            goto unlock;
-        }
-    }
-rollback:
-    run(db, "ROLLBACK", NULL);
-unlock:
-    pthread_mutex_unlock(&store->write_lock);
+out:
+    if ((st = end_write(store, st, err)) == BG_OK)
+        events_committed(store);
     return st;
 }
 
@@ -1048,14 +1077,14 @@ bg_status bgb_store_put_file(bgb_store_t *store, const char *id, const char *kin
     pthread_mutex_lock(&store->write_lock);
     flush_later(store);
     if ((st = run(db, "BEGIN IMMEDIATE", err)) != BG_OK)
-        goto unlock;
+        goto out;
     if ((st = job_exists(db, id, err)) != BG_OK)
-        goto rollback;
+        goto out;
     /* The job's bytes (its user's quota) count the file once, replaced or new. */
     int64_t old = 0;
     if ((st = prepare(db, "SELECT length(data) FROM files WHERE job = ? AND kind = ? AND name = ?",
                       &s, err)) != BG_OK)
-        goto rollback;
+        goto out;
     sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
     sqlite3_bind_text(s, 2, kind, -1, SQLITE_STATIC);
     sqlite3_bind_text(s, 3, file->name, -1, SQLITE_STATIC);
@@ -1065,19 +1094,14 @@ bg_status bgb_store_put_file(bgb_store_t *store, const char *id, const char *kin
     s = NULL;
     if ((st = insert_file(db, id, kind, file, err)) != BG_OK ||
         (st = prepare(db, "UPDATE jobs SET bytes = bytes + ? WHERE id = ?", &s, err)) != BG_OK)
-        goto rollback;
+        goto out;
     sqlite3_bind_int64(s, 1, (int64_t)file->size - old);
     sqlite3_bind_text(s, 2, id, -1, SQLITE_STATIC);
     if (sqlite3_step(s) != SQLITE_DONE)
         st = sql_fail(db, err, "count the job's bytes");
     finish(s);
-    if (st == BG_OK && (st = run(db, "COMMIT", err)) == BG_OK)
-        goto unlock;
-rollback:
-    run(db, "ROLLBACK", NULL);
-unlock:
-    pthread_mutex_unlock(&store->write_lock);
-    return st;
+out:
+    return end_write(store, st, err);
 }
 
 bg_status bgb_store_usage(bgb_store_t *store, const char *owner, int *in_flight, int64_t *bytes,
@@ -1114,11 +1138,11 @@ bg_status bgb_store_delete(bgb_store_t *store, const char *id, bg_error_t *err)
     pthread_mutex_lock(&store->write_lock);
     bg_status st = begin_on_job(store, id, &state, err);
     if (st != BG_OK)
-        goto unlock;
+        goto out;
     if (bgb_job_state_is_active((bgb_job_state)state)) {
         st = bg_error_set(err, BG_ERR_CONFLICT, "job %s is %s; cancel it before deleting it", id,
                           bgb_job_state_name((bgb_job_state)state));
-        goto rollback;
+        goto out;
     }
     static const char *const deletes[] = {"DELETE FROM files WHERE job = ?",
                                           "DELETE FROM events WHERE job = ?",
@@ -1132,13 +1156,8 @@ bg_status bgb_store_delete(bgb_store_t *store, const char *id, bg_error_t *err)
         finish(s);
         s = NULL;
     }
-    if (st == BG_OK && (st = run(db, "COMMIT", err)) == BG_OK)
-        goto unlock;
-rollback:
-    run(db, "ROLLBACK", NULL);
-unlock:
-    pthread_mutex_unlock(&store->write_lock);
-    return st;
+out:
+    return end_write(store, st, err);
 }
 
 bg_status bgb_store_get_file(bgb_store_t *store, const char *id, const char *kind,
@@ -1232,4 +1251,60 @@ void bgb_store_commit_stats(bgb_store_t *store, int64_t *commits, int64_t *submi
     *commits = store->commits;
     *submits = store->submits;
     pthread_mutex_unlock(&store->write_lock);
+}
+
+bg_status bgb_store_put_token(bgb_store_t *store, const bgb_token_row_t *row, bg_error_t *err)
+{
+    if (!row->id || !row->user || !row->salt || !row->hash ||
+        strlen(row->user) > BGB_STORE_MAX_OWNER)
+        return bg_error_set(err, BG_ERR_INVALID, "token: incomplete or too long a row");
+    sqlite3_stmt *s = NULL;
+    pthread_mutex_lock(&store->write_lock);
+    flush_later(store);
+    bg_status st = prepare(store->writer,
+                           "INSERT INTO tokens(id, user, admin, salt, hash, created) "
+                           "VALUES(?, ?, ?, ?, ?, ?)",
+                           &s, err);
+    if (st == BG_OK) {
+        sqlite3_bind_text(s, 1, row->id, -1, SQLITE_STATIC);
+        sqlite3_bind_text(s, 2, row->user, -1, SQLITE_STATIC);
+        sqlite3_bind_int(s, 3, row->admin != 0);
+        sqlite3_bind_text(s, 4, row->salt, -1, SQLITE_STATIC);
+        sqlite3_bind_text(s, 5, row->hash, -1, SQLITE_STATIC);
+        sqlite3_bind_double(s, 6, wall_clock());
+        if (sqlite3_step(s) != SQLITE_DONE)
+            st = sql_fail(store->writer, err, "store a token");
+    }
+    finish(s);
+    pthread_mutex_unlock(&store->write_lock);
+    return st;
+}
+
+bg_status bgb_store_get_token(bgb_store_t *store, const char *id, bgb_token_record_t *out,
+                              bg_error_t *err)
+{
+    memset(out, 0, sizeof *out);
+    sqlite3_stmt *s = NULL;
+    pthread_mutex_lock(&store->read_lock);
+    bg_status st = prepare(store->reader,
+                           "SELECT user, admin, salt, hash, revoked FROM tokens WHERE id = ?", &s,
+                           err);
+    if (st == BG_OK) {
+        sqlite3_bind_text(s, 1, id, -1, SQLITE_STATIC);
+        const int rc = sqlite3_step(s);
+        if (rc == SQLITE_ROW) {
+            snprintf(out->user, sizeof out->user, "%s", (const char *)sqlite3_column_text(s, 0));
+            out->admin = sqlite3_column_int(s, 1);
+            snprintf(out->salt, sizeof out->salt, "%s", (const char *)sqlite3_column_text(s, 2));
+            snprintf(out->hash, sizeof out->hash, "%s", (const char *)sqlite3_column_text(s, 3));
+            out->revoked = sqlite3_column_int(s, 4);
+        } else if (rc == SQLITE_DONE) {
+            st = bg_error_set(err, BG_ERR_NOT_FOUND, "no token '%s'", id);
+        } else {
+            st = sql_fail(store->reader, err, "read a token");
+        }
+    }
+    finish(s);
+    pthread_mutex_unlock(&store->read_lock);
+    return st;
 }

@@ -158,6 +158,11 @@ bg_status bgb_store_get(bgb_store_t *store, const char *id, bgb_job_t *out, bg_e
 bg_status bgb_store_list(bgb_store_t *store, int state, int64_t after, int limit, bgb_job_t *jobs,
                          int *count, int64_t *next, bg_error_t *err);
 
+/* bgb_store_list of one user's jobs only (owner NULL: every user's). */
+bg_status bgb_store_list_owner(bgb_store_t *store, const char *owner, int state, int64_t after,
+                               int limit, bgb_job_t *jobs, int *count, int64_t *next,
+                               bg_error_t *err);
+
 /*
  * Moves a job to state `to` if it is in one of the states of `from_mask`
  * (bit s = state s), recording reason (may be NULL) and an event. The job
@@ -223,6 +228,30 @@ bg_status bgb_store_usage(bgb_store_t *store, const char *owner, int *in_flight,
 /* Deletes an ended job with its files and events (freeing its user's
  * quota); BG_ERR_CONFLICT while it is active, BG_ERR_NOT_FOUND. */
 bg_status bgb_store_delete(bgb_store_t *store, const char *id, bg_error_t *err);
+
+/* A REST token's row as bgb_tokens makes it: hex id, its user and scope,
+ * hex salt and SHA-256 (borrowed strings). */
+typedef struct bgb_token_row {
+    const char *id, *user;
+    int admin;
+    const char *salt, *hash;
+} bgb_token_row_t;
+
+/* A token's row as read back. */
+typedef struct bgb_token_record {
+    char user[BGB_STORE_MAX_OWNER + 1];
+    int admin, revoked;
+    char salt[33], hash[65];
+} bgb_token_record_t;
+
+/* Stores a token's row (committed on return); BG_ERR_IO (a clashing id among
+ * them). Any thread, any process sharing the file: a broker picks it up at
+ * once. */
+bg_status bgb_store_put_token(bgb_store_t *store, const bgb_token_row_t *row, bg_error_t *err);
+
+/* The token row with this id; BG_ERR_NOT_FOUND if there is none. */
+bg_status bgb_store_get_token(bgb_store_t *store, const char *id, bgb_token_record_t *out,
+                              bg_error_t *err);
 
 /* Jobs per state (counts[BGB_JOB_STATE_COUNT]), for /metrics. */
 bg_status bgb_store_count(bgb_store_t *store, int64_t counts[BGB_JOB_STATE_COUNT],

@@ -203,11 +203,9 @@ int bgb_submission_parse(const char *body, size_t size, size_t max_file, bgb_sub
                     "the request must be a JSON object");
         goto out;
     }
-    if (repeats_key(root, &repeated)) {
-        bgb_problem(problem, 422, "invalid-request", "Invalid request", repeated,
-                    "key '%s' is given twice", repeated);
-        goto out;
-    }
+    /* Unknown keys first: then a repeat is among the first five keys, so
+     * the pairwise check stays short however many keys a body holds (the
+     * other order took minutes of CPU for a 1 MB body of distinct keys). */
     for (const cJSON *m = root->child; m; m = m->next) {
         int known = 0;
         for (int i = 0; i < 4; i++)
@@ -217,6 +215,11 @@ int bgb_submission_parse(const char *body, size_t size, size_t max_file, bgb_sub
                         "unknown key '%s' (expected scene, files, mechanism, budget)", m->string);
             goto out;
         }
+    }
+    if (repeats_key(root, &repeated)) {
+        bgb_problem(problem, 422, "invalid-request", "Invalid request", repeated,
+                    "key '%s' is given twice", repeated);
+        goto out;
     }
     const cJSON *scene = cJSON_GetObjectItemCaseSensitive(root, "scene");
     if (!cJSON_IsObject(scene)) {

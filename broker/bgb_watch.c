@@ -103,9 +103,10 @@ static bg_status watch_solve_factor(void *session, int id, double shift, bg_erro
     WATCH_FORWARD(BGB_WATCH_SOLVE, solve_factor, id, shift);
 }
 
-static bg_status watch_solve(void *session, int id, const double *rhs, double *x, bg_error_t *err)
+static bg_status watch_solve(void *session, int id, int nrhs, const double *rhs, double *x,
+                             bg_error_t *err)
 {
-    WATCH_FORWARD(BGB_WATCH_SOLVE, solve, id, rhs, x);
+    WATCH_FORWARD(BGB_WATCH_SOLVE, solve, id, nrhs, rhs, x);
 }
 
 static void watch_solve_cost(void *session, int id, double *flops, double *nonzeros)

@@ -1,7 +1,7 @@
 # The public meshes the shipped scenes, the tests and the benchmarks read are
 # made by the build from Debian's packages (libcgal-demo's data set, tetgen)
 # into BIOTGRID_MESH_DIR, which the `biotgrid` command searches by default
-# (broker/cmd.h, BG_CMD_MESH_FOLDER) and `cmake --install` installs beside
+# (broker/cli/cmd.h, BG_CMD_MESH_FOLDER) and `cmake --install` installs beside
 # the scenes. The steps are in cmake/make_meshes.cmake.
 option(BIOTGRID_MESHES
        "Make the public meshes from Debian's libcgal-demo and tetgen (the shipped scenes and the tests need them)"

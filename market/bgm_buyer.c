@@ -61,9 +61,9 @@ void bgm_buyer_demand(const bgm_buyer_t *b, int good, double *requested, double 
     *valuation_sum = b->valuation_sum[good];
 }
 
-void bgm_buyer_counts(const bgm_buyer_t *b, double *requests, double *timeouts)
+void bgm_buyer_counts(const bgm_buyer_t *b, bgm_purchase_tally_t *t)
 {
-    bgm_purchase_counts(b->pu, requests, timeouts);
+    bgm_purchase_counts(b->pu, t);
 }
 
 static double next_arrival(bgm_buyer_t *b, double now)

@@ -78,7 +78,7 @@ uint32_t bgm_buyer_jobs(const bgm_buyer_t *b);
 /* Service items of type good requested so far and their valuations
  * per unit summed. */
 void bgm_buyer_demand(const bgm_buyer_t *b, int good, double *requested, double *valuation_sum);
-/* Requests opened and timeouts, for the host's metrics. */
-void bgm_buyer_counts(const bgm_buyer_t *b, double *requests, double *timeouts);
+/* Adds its requests, attempts and timeouts to *t, for the host's metrics. */
+void bgm_buyer_counts(const bgm_buyer_t *b, bgm_purchase_tally_t *t);
 
 #endif

@@ -13,7 +13,7 @@ const char *const bgm_service_names[BGM_SERVICE_TYPES] = {"rotation-fit", "spars
                                                           "integration-step"};
 const char *const bgm_mechanism_names[BGM_MAX_MECHANISMS] = {"central", "catallactic",
                                                              "baseline"};
-static const char *const topology_names[] = {"star", "cluster", "random"};
+static const char *const topology_names[] = {"star", "cluster", "random", "scale-free"};
 const char *const bgm_resource_market_names[2] = {"exchange", "call"};
 
 typedef enum ftype { F_INT, F_LONG, F_NUM, F_STR, F_U64 } ftype;
@@ -381,10 +381,10 @@ static bg_status parse_root(const char *nm, const cJSON *root, bgm_config_t *c, 
                        FIELD_END};
         if ((st = parse_fields(nm, o, "network", f, NULL, err)))
             return st;
-        c->network.topology = name_index(topo, topology_names, 3);
+        c->network.topology = name_index(topo, topology_names, 4);
         if (c->network.topology < 0)
             return bg_json_fail(err, BG_ERR_INVALID, nm, "network.topology",
-                                "must be star, cluster or random");
+                                "must be star, cluster, random or scale-free");
     }
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "agents"))) {
         field_t f[] = {{"complex_per_node", F_NUM, &c->agents.complex_per_node, 0.01, 64, 0, 0},

@@ -40,7 +40,8 @@ typedef enum bgm_resource_market { BGM_RM_EXCHANGE = 0, BGM_RM_CALL = 1 } bgm_re
 typedef enum bgm_topology {
     BGM_TOPO_STAR = 0,
     BGM_TOPO_CLUSTER = 1,
-    BGM_TOPO_RANDOM = 2
+    BGM_TOPO_RANDOM = 2,
+    BGM_TOPO_SCALEFREE = 3
 } bgm_topology;
 
 extern const char *const bgm_service_names[BGM_SERVICE_TYPES];
@@ -92,7 +93,7 @@ typedef struct bgm_config {
         double bandwidth;            /* bytes/s */
         double speed;                /* flops */
         double speed_spread;         /* relative, [0, 1) */
-        int degree;                  /* random graph mean degree */
+        int degree;                  /* random and scale-free graphs' mean degree */
         int message_bytes;           /* simulated size of a message */
     } network;
 

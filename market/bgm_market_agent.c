@@ -53,6 +53,7 @@ struct bgm_market_agent {
     int *assign;
     size_t *slot; /* call-market order → bid record, for the clearing under way */
     bgm_posted_t *dir;
+    size_t next_fit[BGM_ROLE_GOODS]; /* per good: where the directory's next scan starts */
     double combex_exact, combex_greedy;
     bgm_ma_clearing_t clearings[BGM_MA_CLEARINGS_MAX]; /* the last timer call's */
     size_t nclearings, nmatches;
@@ -562,15 +563,27 @@ static int has_room(void *ctx, const bgm_posting_t *p)
     return ma->mb[p->seller - ma->p.first_basic].free_a >= 1.0;
 }
 
-/* First fit over the sellers the directory believes have room, in
- * registration order, up to the candidate cap. */
+/* Next fit over the sellers the directory believes have room, in
+ * registration order from where the previous answer for that good
+ * started, up to the candidate cap. Each answer's first candidate is the
+ * seller after the previous answer's first: buyers asking at about the
+ * same time are spread over the sellers. Plain first fit (every scan from
+ * the first seller) sent them all to the same few: the directory's view of
+ * free room lags by a message, so at 400 nodes the first candidates of
+ * every list were full and buyers spent 43 orders each on refusals
+ * (market/README.md, "Issue 31"). */
 static void on_query(bgm_market_agent_t *ma, const bgm_msg_t *m)
 {
     bgm_posting_t found[BGM_MSG_CANDIDATES];
     int cap = ma->cfg.baseline.candidates < BGM_MSG_CANDIDATES ? ma->cfg.baseline.candidates
                                                                : BGM_MSG_CANDIDATES;
     room_ctx_t rc = {ma, m};
-    size_t n = bgm_posted_query_if(ma->dir, m->good, m->price, has_room, &rc, found, (size_t)cap);
+    size_t *cursor = &ma->next_fit[m->good];
+    size_t first = *cursor;
+    size_t n = bgm_posted_query(ma->dir, m->good, m->price, *cursor, has_room, &rc, found,
+                                (size_t)cap, &first);
+    if (n > 0)
+        *cursor = first + 1;
     bgm_msg_t l = msg(BGM_MT_LIST, ma->p.self, m->from, m->req, m->attempt);
     l.good = m->good;
     l.ncand = (uint16_t)n;
@@ -689,7 +702,8 @@ bg_status bgm_market_agent_on_message(bgm_market_agent_t *ma, const bgm_msg_t *m
         }
         break;
     case BGM_MT_QUERY:
-        if (m->ncand > BGM_MSG_CANDIDATES)
+        /* A service or a bundle of cores and memory: the goods it lists. */
+        if (m->ncand > BGM_MSG_CANDIDATES || m->good < 0 || m->good > BGM_GOOD_CORES_ID)
             return BG_ERR_INVALID;
         on_query(ma, m);
         break;

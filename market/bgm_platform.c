@@ -18,6 +18,97 @@ static void route(FILE *f, const char *src, const char *dst, const char *link)
     fprintf(f, "  <route src=\"%s\" dst=\"%s\"><link_ctn id=\"%s\"/></route>\n", src, dst, link);
 }
 
+/* A link e<n> between hosts i and j (routes go to rt). */
+static void edge(FILE *f, FILE *rt, int *nl, int i, int j, double bw, double lat)
+{
+    char a[32], b[32], l[32];
+    snprintf(l, sizeof l, "e%d", (*nl)++);
+    snprintf(a, sizeof a, "h%d", i);
+    snprintf(b, sizeof b, "h%d", j);
+    link_to(f, l, bw, lat);
+    route(rt, a, b, l);
+}
+
+/* A ring for connectivity plus degree/2 random chords per host. */
+static void random_graph(FILE *f, FILE *rt, const bgm_config_t *c, int nodes, bgm_rng_t *rng)
+{
+    const double bw = c->network.bandwidth, lat = c->network.latency;
+    int extra = c->network.degree / 2;
+    int nl = 0;
+    for (int i = 0; i < nodes && nodes > 1; i++) {
+        if (nodes == 2 && i == 1)
+            break;
+        edge(f, rt, &nl, i, (i + 1) % nodes, bw, lat);
+    }
+    for (int i = 0; i < nodes && nodes > 3; i++) {
+        int chosen[BGM_MAX_CHORDS];
+        int nc = 0;
+        for (int k = 0; k < extra && k < BGM_MAX_CHORDS; k++) {
+            /* Chords go to higher indices only, so a pair is listed once. */
+            int j = (int)bgm_rng_below(rng, (uint32_t)nodes);
+            int dup = 0;
+            for (int q = 0; q < nc; q++)
+                dup |= chosen[q] == j;
+            if (dup || j <= i + 1 || (i == 0 && j == nodes - 1))
+                continue;
+            chosen[nc++] = j;
+            edge(f, rt, &nl, i, j, bw, lat);
+        }
+    }
+}
+
+/*
+ * A scale-free graph by preferential attachment (Barabasi and Albert,
+ * "Emergence of scaling in random networks", Science 286, 1999): the
+ * first m + 1 hosts form a clique, then each host links to m distinct
+ * earlier hosts drawn with probability proportional to their degree
+ * (uniformly from the list of every link's two ends), m = degree / 2 (at
+ * least 1). Mean degree about 2m, a few hubs of high degree and many
+ * hosts of degree m: the shape measured in unstructured peer-to-peer
+ * overlays (Ripeanu, Foster and Iamnitchi, "Mapping the Gnutella
+ * network", IEEE Internet Computing 6(1), 2002).
+ */
+static bg_status scale_free(FILE *f, FILE *rt, const bgm_config_t *c, int nodes, bgm_rng_t *rng)
+{
+    const double bw = c->network.bandwidth, lat = c->network.latency;
+    int m = c->network.degree / 2 > 0 ? c->network.degree / 2 : 1;
+    if (m > BGM_MAX_CHORDS)
+        m = BGM_MAX_CHORDS;
+    const int core = m + 1 < nodes ? m + 1 : nodes;
+    int *ends =
+        malloc(((size_t)core * (size_t)core + 2 * (size_t)m * (size_t)nodes) * sizeof *ends);
+    if (!ends)
+        return BG_ERR_NOMEM;
+    size_t nends = 0;
+    int nl = 0;
+    for (int i = 0; i < core; i++)
+        for (int j = i + 1; j < core; j++) {
+            edge(f, rt, &nl, i, j, bw, lat);
+            ends[nends++] = i;
+            ends[nends++] = j;
+        }
+    for (int i = core; i < nodes; i++) {
+        int chosen[BGM_MAX_CHORDS];
+        int nc = 0;
+        while (nc < m && nc < i) {
+            int j = nends ? ends[bgm_rng_below(rng, (uint32_t)nends)]
+                          : (int)bgm_rng_below(rng, (uint32_t)i);
+            int dup = 0;
+            for (int q = 0; q < nc; q++)
+                dup |= chosen[q] == j;
+            if (!dup)
+                chosen[nc++] = j;
+        }
+        for (int q = 0; q < nc; q++) {
+            edge(f, rt, &nl, chosen[q], i, bw, lat);
+            ends[nends++] = chosen[q];
+            ends[nends++] = i;
+        }
+    }
+    free(ends);
+    return BG_OK;
+}
+
 bg_status bgm_platform_write(FILE *f, const bgm_config_t *c, int nodes, bgm_rng_t *rng,
                              double *speed)
 {
@@ -69,44 +160,21 @@ bg_status bgm_platform_write(FILE *f, const bgm_config_t *c, int nodes, bgm_rng_
         }
         break;
     }
-    default: {
-        /* A ring for connectivity plus degree/2 random chords per host;
-         * the core router joins host 0 so the market reaches everyone. */
-        int extra = c->network.degree / 2;
-        int nl = 0;
-        for (int i = 0; i < nodes && nodes > 1; i++) {
-            int j = (i + 1) % nodes;
-            if (nodes == 2 && i == 1)
-                break;
-            snprintf(l, sizeof l, "e%d", nl++);
-            snprintf(a, sizeof a, "h%d", i);
-            snprintf(b, sizeof b, "h%d", j);
-            link_to(f, l, bw, lat);
-            route(rt, a, b, l);
-        }
-        for (int i = 0; i < nodes && nodes > 3; i++) {
-            int chosen[BGM_MAX_CHORDS];
-            int nc = 0;
-            for (int k = 0; k < extra && k < BGM_MAX_CHORDS; k++) {
-                /* Chords go to higher indices only, so a pair is listed once. */
-                int j = (int)bgm_rng_below(rng, (uint32_t)nodes);
-                int dup = 0;
-                for (int q = 0; q < nc; q++)
-                    dup |= chosen[q] == j;
-                if (dup || j <= i + 1 || (i == 0 && j == nodes - 1))
-                    continue;
-                chosen[nc++] = j;
-                snprintf(l, sizeof l, "e%d", nl++);
-                snprintf(a, sizeof a, "h%d", i);
-                snprintf(b, sizeof b, "h%d", j);
-                link_to(f, l, bw, lat);
-                route(rt, a, b, l);
-            }
-        }
-        link_to(f, "l0", bw * BGM_CORE_BW_FACTOR, lat);
-        route(rt, "h0", "core", "l0");
+    case BGM_TOPO_RANDOM:
+        random_graph(f, rt, c, nodes, rng);
+        break;
+    default:
+        st = scale_free(f, rt, c, nodes, rng);
         break;
     }
+    if (st) {
+        fclose(rt);
+        goto out;
+    }
+    if (c->network.topology == BGM_TOPO_RANDOM || c->network.topology == BGM_TOPO_SCALEFREE) {
+        /* The core router joins host 0 so the market reaches everyone. */
+        link_to(f, "l0", bw * BGM_CORE_BW_FACTOR, lat);
+        route(rt, "h0", "core", "l0");
     }
     link_to(f, "lmarket", bw * BGM_MARKET_BW_FACTOR, lat);
     route(rt, "market", "core", "lmarket");

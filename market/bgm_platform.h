@@ -1,10 +1,10 @@
 /*
  * bgm_platform — generated SimGrid platforms (star, cluster of racks,
- * random graph) as platform XML, with per-host speeds drawn from the
- * experiment's seed. Hosts are "h0".."h{nodes-1}" plus "market" for the
- * auctioneer/directory; routing is Dijkstra over hosts, routers and links,
- * so one generator serves the three topologies. Pure except for writing
- * the file it is given.
+ * random graph, scale-free graph) as platform XML, with per-host speeds
+ * drawn from the experiment's seed. Hosts are "h0".."h{nodes-1}" plus
+ * "market" for the auctioneer/directory; routing is Dijkstra over hosts,
+ * routers and links, so one generator serves the four topologies. Pure
+ * except for writing the file it is given.
  */
 #ifndef BGM_PLATFORM_H
 #define BGM_PLATFORM_H
@@ -16,6 +16,11 @@
 #include "bgm_rng.h"
 
 #define BGM_RACK_SIZE 16
+/* The stream a replication's platform is drawn from (bgm_rng_derive's
+ * last argument, with the seed, scenario and replication): every
+ * mechanism of a replication runs on the same hosts, and a tool that
+ * rebuilds a run's platform draws the same one. */
+#define BGM_PLATFORM_STREAM 0xfffffff1ULL
 
 /*
  * Writes the platform for `nodes` hosts to f; speed (caller-allocated,

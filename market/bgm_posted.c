@@ -52,26 +52,18 @@ void bgm_posted_withdraw(bgm_posted_t *d, uint32_t seller)
 }
 
 size_t bgm_posted_query(const bgm_posted_t *d, int good, double limit, size_t start,
-                        bgm_posting_t *out, size_t max_out)
+                        int (*has_room)(void *ctx, const bgm_posting_t *p), void *ctx,
+                        bgm_posting_t *out, size_t max_out, size_t *first)
 {
     size_t k = 0;
     for (size_t j = 0; j < d->n && k < max_out; j++) {
-        const bgm_posting_t *p = &d->p[(start + j) % d->n];
-        if (p->good == good && p->price <= limit)
-            out[k++] = *p;
-    }
-    return k;
-}
-
-size_t bgm_posted_query_if(const bgm_posted_t *d, int good, double limit,
-                           int (*has_room)(void *ctx, const bgm_posting_t *p), void *ctx,
-                           bgm_posting_t *out, size_t max_out)
-{
-    size_t k = 0;
-    for (size_t j = 0; j < d->n && k < max_out; j++) {
-        const bgm_posting_t *p = &d->p[j];
-        if (p->good == good && p->price <= limit && has_room(ctx, p))
-            out[k++] = *p;
+        const size_t at = (start + j) % d->n;
+        const bgm_posting_t *p = &d->p[at];
+        if (p->good != good || p->price > limit || (has_room && !has_room(ctx, p)))
+            continue;
+        if (k == 0 && first)
+            *first = at;
+        out[k++] = *p;
     }
     return k;
 }

@@ -4,8 +4,9 @@
  *
  * Sellers register (good, price) once; a query for a good returns the
  * sellers whose posted price is within the buyer's limit, in registration
- * order (first fit, not best price), up to a cap. The buyer then orders
- * from them one after the other until one has capacity. Pure.
+ * order from a position the caller chooses (first fit from there, not
+ * best price), up to a cap. The buyer then orders from them one after the
+ * other until one has capacity. Pure.
  */
 #ifndef BGM_POSTED_H
 #define BGM_POSTED_H
@@ -30,17 +31,18 @@ bg_status bgm_posted_post(bgm_posted_t *dir, uint32_t seller, int good, double p
 /* Removes every posting of a seller (it left the grid). */
 void bgm_posted_withdraw(bgm_posted_t *dir, uint32_t seller);
 /*
- * First fit: writes up to max_out postings for `good` with price <= limit,
- * starting the scan at position `start` (wrapping around) so that load can
- * be spread if the caller wants; start = 0 is the classic first fit.
+ * First fit from a position: writes up to max_out postings for `good`
+ * with price <= limit and, when has_room is given, has_room(ctx, posting)
+ * true (the caller's view of free capacity), scanning the postings in
+ * registration order from position `start` (taken modulo their number)
+ * and wrapping around. start = 0 is the classic first fit; a caller that
+ * passes the position after the previous answer's first posting gets
+ * next fit, which spreads simultaneous buyers over the sellers instead of
+ * sending them all to the first ones. *first (when not NULL) receives the
+ * position of the first posting written (unchanged when none is).
  */
 size_t bgm_posted_query(const bgm_posted_t *dir, int good, double limit, size_t start,
-                        bgm_posting_t *out, size_t max_out);
-
-/* First fit restricted to postings for which has_room(ctx, posting) is
- * true (the directory's view of free capacity). */
-size_t bgm_posted_query_if(const bgm_posted_t *dir, int good, double limit,
-                           int (*has_room)(void *ctx, const bgm_posting_t *p), void *ctx,
-                           bgm_posting_t *out, size_t max_out);
+                        int (*has_room)(void *ctx, const bgm_posting_t *p), void *ctx,
+                        bgm_posting_t *out, size_t max_out, size_t *first);
 
 #endif

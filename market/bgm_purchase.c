@@ -5,8 +5,8 @@
 #include <string.h>
 
 #include "bgm_catallactic.h"
+#include "bgm_flood.h"
 
-#define PU_SEEN_RING 16
 #define PU_NEGO_NONE UINT32_MAX
 /* Goods a QUERY names for a bundle (the directory lists resource sellers). */
 #define PU_GOOD_CORES BGM_GOOD_CORES_ID
@@ -24,15 +24,65 @@ typedef struct nego_state {
     proposal_t prop[BGM_PU_MAX_PROPOSALS];
     int nprop, next_prop;
     bgm_nego_t buyer_nego;
+    /* Round-trip samples: when the message now awaiting an answer (QUERY,
+     * ORDER, OFFER, a bundle's ACCEPT) was sent (< 0: none awaited), and
+     * when the last round's calls for proposals went out, for which
+     * attempt. */
+    double sent_at, cfp_at;
+    uint32_t cfp_attempt;
     uint32_t next_free;
 } nego_state_t;
 
 typedef struct req {
     bgm_purchase_req_t r;
-    uint32_t nego;  /* bargaining state (PU_NEGO_NONE: none) */
-    uint32_t quiet; /* catallactic rounds no seller answered */
-    uint32_t calls; /* catallactic: calls for proposals the round sent */
+    uint32_t nego;   /* bargaining state (PU_NEGO_NONE: none) */
+    uint32_t quiet;  /* catallactic rounds no seller answered */
+    uint32_t calls;  /* catallactic: calls for proposals the round sent */
+    uint32_t rounds; /* acquisitions started: the retry backoff doubles with each */
 } req_t;
+
+/*
+ * A round-trip estimator (RFC 6298, "Computing TCP's Retransmission
+ * Timer"): the smoothed round trip and its mean deviation from samples
+ * (gains 1/8 and 1/4), and a timeout of srtt + 4 rttvar, never below the
+ * configured one, doubled for each timeout since the last sample (capped).
+ * A phase timer is then as long as the owner's round trips really are, on
+ * a cluster or across a wide-area network, where the configured constant
+ * fitted one network only (market/README.md, "Issue 30").
+ */
+typedef struct rtt {
+    double srtt, rttvar;
+    uint32_t samples, backoff;
+} rtt_t;
+
+#define PU_RTO_MAX_DOUBLINGS 4
+
+static void rtt_sample(rtt_t *e, double r)
+{
+    if (!(r >= 0.0))
+        return;
+    if (e->samples == 0) {
+        e->srtt = r;
+        e->rttvar = r / 2.0;
+    } else {
+        e->rttvar = 0.75 * e->rttvar + 0.25 * fabs(e->srtt - r);
+        e->srtt = 0.875 * e->srtt + 0.125 * r;
+    }
+    e->samples++;
+    e->backoff = 0;
+}
+
+static double rtt_timeout(const rtt_t *e, double floor)
+{
+    const double est = e->samples ? e->srtt + 4.0 * e->rttvar : 0.0;
+    return (est > floor ? est : floor) * (double)(1u << e->backoff);
+}
+
+static void rtt_backoff(rtt_t *e)
+{
+    if (e->backoff < PU_RTO_MAX_DOUBLINGS)
+        e->backoff++;
+}
 
 struct bgm_purchase {
     const bgm_config_t *cfg; /* its owner's */
@@ -40,15 +90,16 @@ struct bgm_purchase {
     uint32_t nbr[BGM_PU_MAX_NEIGHBOURS];
     uint8_t same[BGM_PU_MAX_NEIGHBOURS];
     bgm_trader_t tr;
-    uint64_t seen[PU_SEEN_RING];
-    int seen_pos;
+    bgm_flood_seen_t seen; /* calls for proposals seen */
     req_t *reqs; /* in increasing id order */
     size_t nreq, req_cap;
     nego_state_t *negos; /* pool; a free list threads the unused ones */
     uint32_t nnego, nego_cap, nego_free;
     bgm_purchase_part_t *parts;
     size_t nparts, parts_cap;
-    double requests, timeouts;
+    bgm_purchase_tally_t tally;
+    rtt_t reply;              /* a seller's (or the directory's) answer to a message */
+    rtt_t discovery;          /* a proposal after a round's calls */
     int fixed;                /* bgm_purchase_fix_strategy: no outcome is learnt */
     bgm_emitter_t em;         /* during a call: its outbox and first failure */
     bgm_purchase_event_t *ev; /* during a call */
@@ -275,10 +326,19 @@ void bgm_purchase_drop_parts(bgm_purchase_t *pu, uint32_t id)
     pu->nparts = keep;
 }
 
-void bgm_purchase_counts(const bgm_purchase_t *pu, double *requests, double *timeouts)
+void bgm_purchase_counts(const bgm_purchase_t *pu, bgm_purchase_tally_t *t)
 {
-    *requests = pu->requests;
-    *timeouts = pu->timeouts;
+    t->requests += pu->tally.requests;
+    t->attempts += pu->tally.attempts;
+    t->timeouts += pu->tally.timeouts;
+    for (int k = 0; k < BGM_PU_TO_KINDS; k++)
+        t->timeout[k] += pu->tally.timeout[k];
+}
+
+static void timed_out(bgm_purchase_t *pu, int kind)
+{
+    pu->tally.timeouts += 1.0;
+    pu->tally.timeout[kind] += 1.0;
 }
 
 /* ------------------------------------------------------------ acquisition */
@@ -294,11 +354,22 @@ static void final_fail(bgm_purchase_t *pu, req_t *q)
     event(pu, BGM_PU_EV_FAILED, q->r.id);
 }
 
-/* One attempt failed: retry after a backoff while the deadline allows. */
+/* One attempt failed: retry after a backoff while the deadline allows.
+ * The backoff doubles with each round the request has started (capped):
+ * a request retried at a fixed period kept flooding its calls or queries
+ * until its deadline, 11 rounds a request on the random platform, where
+ * doubling lets it try a bounded number of times (bgm_budget) and spreads
+ * the retries of many requests out in time. */
 static void attempt_failed(bgm_purchase_t *pu, req_t *q, double now)
 {
-    double backoff = pu->p.mechanism == BGM_MECH_BASELINE ? pu->cfg->baseline.retry_backoff
-                                                          : pu->cfg->catallactic.retry_backoff;
+    const uint32_t doublings =
+        q->rounds > 0 ? (q->rounds - 1 < BGM_PU_RETRY_MAX_DOUBLINGS ? q->rounds - 1
+                                                                    : BGM_PU_RETRY_MAX_DOUBLINGS)
+                      : 0;
+    const double backoff =
+        (pu->p.mechanism == BGM_MECH_BASELINE ? pu->cfg->baseline.retry_backoff
+                                              : pu->cfg->catallactic.retry_backoff) *
+        (double)(1u << doublings);
     learn(pu, 0, 0.0);
     q->r.attempt++;
     if (now + backoff >= q->r.deadline) {
@@ -322,21 +393,40 @@ static void arm(bgm_purchase_t *pu, req_t *q, double at)
                       (uint64_t)q->r.id | ((uint64_t)q->r.tseq << 32));
 }
 
-/* Sends a call to every neighbour but `except` and the call's originator;
- * how many it sent. */
+/* The request has just sent a message that one agent answers (a QUERY to
+ * the directory: floor `floor`; an ORDER, OFFER or a bundle's ACCEPT to a
+ * seller: the configured reply timeout): the phase timer allows the
+ * owner's estimated round trip for it. */
+static void await_answer(bgm_purchase_t *pu, req_t *q, double now, double floor)
+{
+    ng(pu, q)->sent_at = now;
+    arm(pu, q, now + rtt_timeout(&pu->reply, floor));
+}
+
+static void await_reply(bgm_purchase_t *pu, req_t *q, double now)
+{
+    await_answer(pu, q, now, pu->cfg->catallactic.reply_timeout);
+}
+
+/* The awaited answer came: one round-trip sample (Karn's rule: only an
+ * answer to the message awaited now, once). Central's answers come from
+ * a clearing, not a round trip, and are not sampled. */
+static void answered(bgm_purchase_t *pu, req_t *q, double now)
+{
+    if (q->nego == PU_NEGO_NONE)
+        return;
+    nego_state_t *g = ng(pu, q);
+    if (g->sent_at >= 0.0)
+        rtt_sample(&pu->reply, now - g->sent_at);
+    g->sent_at = -1.0;
+}
+
+/* Sends a call to its neighbours but `except` and the call's originator,
+ * within the overlay's fan-out (bgm_flood); how many it sent. */
 static uint32_t cfp_send(bgm_purchase_t *pu, const bgm_msg_t *proto, uint32_t except)
 {
-    uint32_t n = 0;
-    for (int i = 0; i < pu->p.degree; i++) {
-        if (pu->nbr[i] == except || pu->nbr[i] == proto->origin)
-            continue;
-        bgm_msg_t m = *proto;
-        m.from = pu->p.self;
-        m.to = pu->nbr[i];
-        bgm_emitter_send(&pu->em, &m);
-        n++;
-    }
-    return n;
+    return bgm_flood_pass(&pu->em, proto, pu->nbr, pu->p.degree, except,
+                          pu->cfg->agents.overlay_degree);
 }
 
 static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
@@ -347,6 +437,8 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
         final_fail(pu, q);
         return;
     }
+    pu->tally.attempts += 1.0;
+    q->rounds++;
     if (pu->p.mechanism != BGM_MECH_CENTRAL) {
         if (!nego_take(pu, q)) {
             bgm_emitter_fail(&pu->em, BG_ERR_NOMEM);
@@ -354,6 +446,7 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
         }
         nego_state_t *g = ng(pu, q);
         g->nprop = g->next_prop = 0;
+        g->sent_at = -1.0;
     }
     switch (pu->p.mechanism) {
     case BGM_MECH_CENTRAL: {
@@ -379,9 +472,17 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
         m.c = r->flops;
         q->r.state = BGM_PU_DISCOVER;
         q->calls = cfp_send(pu, &m, UINT32_MAX);
+        nego_state_t *g = ng(pu, q);
+        g->cfp_at = now;
+        g->cfp_attempt = r->attempt;
+        /* The window lasts as long as proposals have been taking to come
+         * back after a round's calls (never less than the configured one),
+         * widened after quiet rounds where the host asks for it. */
         const uint32_t doublings =
             q->quiet < (uint32_t)pu->p.widen_quiet ? q->quiet : (uint32_t)pu->p.widen_quiet;
-        arm(pu, q, now + pu->cfg->catallactic.discovery_timeout * (double)(1u << doublings));
+        arm(pu, q,
+            now + rtt_timeout(&pu->discovery, pu->cfg->catallactic.discovery_timeout) *
+                      (double)(1u << doublings));
         break;
     }
     default: {
@@ -392,7 +493,7 @@ static void start_acquire(bgm_purchase_t *pu, req_t *q, double now, int up)
         m.b = r->memory;
         q->r.state = BGM_PU_WAIT;
         bgm_emitter_send(&pu->em, &m);
-        arm(pu, q, now + 4.0 * pu->cfg->catallactic.reply_timeout);
+        await_answer(pu, q, now, 4.0 * pu->cfg->catallactic.reply_timeout);
         break;
     }
     }
@@ -430,7 +531,7 @@ bg_status bgm_purchase_open(bgm_purchase_t *pu, const bgm_purchase_req_t *it, do
     q->r.deadline = it->deadline;
     q->r.deal = it->deal;
     q->r.state = BGM_PU_IDLE;
-    pu->requests += 1.0;
+    pu->tally.requests += 1.0;
     bgm_emitter_timer(&pu->em, q->r.deadline, BGM_PU_TIMER_DEADLINE, q->r.id);
     start_acquire(pu, q, now, up);
     return finish(pu);
@@ -489,7 +590,7 @@ static void begin_nego(bgm_purchase_t *pu, req_t *q, double now)
         q->r.seller = p->seller;
         q->r.state = BGM_PU_NEGOTIATE;
         bgm_emitter_send(&pu->em, &o);
-        arm(pu, q, now + pu->cfg->catallactic.reply_timeout);
+        await_reply(pu, q, now);
         return;
     }
     attempt_failed(pu, q, now);
@@ -515,7 +616,7 @@ static void end_discovery(bgm_purchase_t *pu, req_t *q, double now)
 {
     nego_state_t *g = ng(pu, q);
     if (g->nprop == 0) {
-        pu->timeouts += 1.0; /* nobody answered the call for proposals */
+        timed_out(pu, BGM_PU_TO_DISCOVERY); /* nobody answered the call for proposals */
         q->quiet++;
     }
     qsort(g->prop, (size_t)g->nprop, sizeof g->prop[0], cmp_prop);
@@ -527,6 +628,7 @@ static void on_offer(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double no
 {
     if (m->attempt != q->r.attempt || q->r.state != BGM_PU_NEGOTIATE || m->from != q->r.seller)
         return;
+    answered(pu, q, now);
     double reply = 0.0;
     bgm_nego_action act = bgm_nego_respond(&ng(pu, q)->buyer_nego, m->price, &pu->tr.rng, &reply);
     if (act == BGM_NEGO_ACCEPT) {
@@ -540,16 +642,18 @@ static void on_offer(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double no
          * soon as it reads the acceptance and starts buying resources, so
          * the buyer must not walk away on a phase timeout any more: it
          * waits for the seller's answer, and the deadline covers the rest. */
-        if (is_bundle(q))
-            arm(pu, q, now + pu->cfg->catallactic.reply_timeout);
-        else
+        if (is_bundle(q)) {
+            await_reply(pu, q, now);
+        } else {
             q->r.tseq++;
+            ng(pu, q)->sent_at = now; /* its answer is still a round trip */
+        }
     } else if (act == BGM_NEGO_COUNTER) {
         bgm_msg_t o = msg(BGM_MT_OFFER, pu->p.self, m->from, m->req, m->attempt);
         o.price = reply;
         request_fields(q, &o);
         bgm_emitter_send(&pu->em, &o);
-        arm(pu, q, now + pu->cfg->catallactic.reply_timeout);
+        await_reply(pu, q, now);
     } else {
         bgm_msg_t x = msg(BGM_MT_REJECT, pu->p.self, m->from, m->req, m->attempt);
         bgm_emitter_send(&pu->em, &x);
@@ -557,11 +661,13 @@ static void on_offer(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double no
     }
 }
 
-static void on_committed(req_t *q, const bgm_msg_t *m)
+static void on_committed(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double now)
 {
     if (m->attempt != q->r.attempt)
         return;
     int s = q->r.state;
+    if (s == BGM_PU_NEGOTIATE || s == BGM_PU_COMMITTED)
+        answered(pu, q, now);
     if (s == BGM_PU_NEGOTIATE || s == BGM_PU_WAIT || s == BGM_PU_COMMITTED) {
         q->r.state = BGM_PU_COMMITTED;
         q->r.price = m->price;
@@ -621,6 +727,9 @@ static void on_rconfirm(bgm_purchase_t *pu, req_t *q, const bgm_msg_t *m, double
         event(pu, BGM_PU_EV_RENTED, q->r.id);
         return;
     }
+    if (m->attempt == q->r.attempt && m->from == q->r.seller &&
+        (q->r.state == BGM_PU_NEGOTIATE || q->r.state == BGM_PU_COMMITTED))
+        answered(pu, q, now); /* a rent answers an ORDER or an ACCEPT at once */
     req_end(pu, q, BGM_PU_DONE);
     q->r.seller = m->from;
     q->r.price = m->price;
@@ -638,6 +747,10 @@ bg_status bgm_purchase_on_message(bgm_purchase_t *pu, const bgm_msg_t *m, double
         return finish(pu);
     switch (m->type) {
     case BGM_MT_PROPOSE:
+        /* Every proposal to a round's calls is a sample of how long
+         * proposals take, a late one (after the window) too. */
+        if (q->nego != PU_NEGO_NONE && m->attempt == ng(pu, q)->cfp_attempt)
+            rtt_sample(&pu->discovery, now - ng(pu, q)->cfp_at);
         if (m->attempt == q->r.attempt && q->r.state == BGM_PU_DISCOVER) {
             nego_state_t *g = ng(pu, q);
             if (g->nprop < BGM_PU_MAX_PROPOSALS)
@@ -648,6 +761,7 @@ bg_status bgm_purchase_on_message(bgm_purchase_t *pu, const bgm_msg_t *m, double
         break;
     case BGM_MT_LIST:
         if (m->attempt == q->r.attempt && q->r.state == BGM_PU_WAIT) {
+            answered(pu, q, now);
             nego_state_t *g = ng(pu, q);
             g->nprop = m->ncand;
             for (int i = 0; i < m->ncand; i++)
@@ -660,12 +774,14 @@ bg_status bgm_purchase_on_message(bgm_purchase_t *pu, const bgm_msg_t *m, double
         on_offer(pu, q, m, now);
         break;
     case BGM_MT_ACCEPT:
-        on_committed(q, m);
+        on_committed(pu, q, m, now);
         break;
     case BGM_MT_REJECT:
         if (m->attempt == q->r.attempt && m->from == q->r.seller &&
-            (q->r.state == BGM_PU_NEGOTIATE || q->r.state == BGM_PU_COMMITTED))
+            (q->r.state == BGM_PU_NEGOTIATE || q->r.state == BGM_PU_COMMITTED)) {
+            answered(pu, q, now);
             next_proposal(pu, q, now);
+        }
         break;
     case BGM_MT_CANCEL:
         if (m->attempt == q->r.attempt && q->r.state == BGM_PU_COMMITTED)
@@ -700,12 +816,14 @@ bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, doub
         } else if (q->r.state == BGM_PU_DISCOVER) {
             end_discovery(pu, q, now);
         } else if (q->r.state == BGM_PU_NEGOTIATE || q->r.state == BGM_PU_COMMITTED) {
-            pu->timeouts += 1.0;
+            timed_out(pu, BGM_PU_TO_REPLY);
+            rtt_backoff(&pu->reply);
             q->r.state = BGM_PU_NEGOTIATE;
             q->r.attempt++; /* late answers from that seller are now stale */
             next_proposal(pu, q, now);
         } else if (q->r.state == BGM_PU_WAIT) {
-            pu->timeouts += 1.0;
+            timed_out(pu, BGM_PU_TO_DIRECTORY);
+            rtt_backoff(&pu->reply);
             attempt_failed(pu, q, now);
         }
         break;
@@ -720,7 +838,7 @@ bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, doub
                               (uint64_t)q->r.id | (1ULL << 63));
             break;
         }
-        pu->timeouts += 1.0;
+        timed_out(pu, BGM_PU_TO_DEADLINE);
         q->r.attempt++;
         final_fail(pu, q);
         break;
@@ -761,13 +879,7 @@ bg_status bgm_purchase_on_timer(bgm_purchase_t *pu, int kind, uint64_t arg, doub
 
 int bgm_purchase_cfp_seen(bgm_purchase_t *pu, const bgm_msg_t *m)
 {
-    uint64_t key = ((uint64_t)m->req << 20) ^ m->attempt ^ ((uint64_t)m->origin << 44);
-    for (int i = 0; i < PU_SEEN_RING; i++)
-        if (pu->seen[i] == key)
-            return 1;
-    pu->seen[pu->seen_pos] = key;
-    pu->seen_pos = (pu->seen_pos + 1) % PU_SEEN_RING;
-    return 0;
+    return bgm_flood_seen(&pu->seen, bgm_flood_key(m));
 }
 
 bg_status bgm_purchase_cfp_forward(bgm_purchase_t *pu, const bgm_msg_t *m, bgm_outbox_t *out)

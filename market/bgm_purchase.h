@@ -18,14 +18,21 @@
  *
  * Acquisition by mechanism: central, one BID (a service) or RBID (a
  * bundle) and the auctioneer's answer; catallactic, a hop-limited CFP
- * over the overlay, the proposals gathered for discovery_timeout, then
+ * over the overlay (at most overlay_degree calls from each agent,
+ * bgm_flood), the proposals gathered for a discovery window, then
  * bargaining with them cheapest first; baseline, a QUERY to the
  * directory, then an ORDER at the posted price to the first candidate
- * within the limit. A failed attempt is retried after the mechanism's
- * backoff while the deadline allows; at the deadline (or when the
- * owner's host is down as it starts) the request fails for good. A
- * request committed to a seller gets BGM_PU_COMMIT_GRACE past its
- * deadline for the seller's delivery.
+ * within the limit. Its timers follow what it measures, as TCP's do
+ * (RFC 6298): a phase waits the owner's smoothed round trip plus four
+ * mean deviations (doubled after each timeout until the next answer),
+ * a discovery window the same of the delays of proposals, never less
+ * than the configured reply_timeout (4x for the directory) and
+ * discovery_timeout. A failed attempt is retried after the mechanism's
+ * backoff, doubling with each round (BGM_PU_RETRY_MAX_DOUBLINGS), while
+ * the deadline allows; at the deadline (or when the owner's host is down
+ * as it starts) the request fails for good. A request committed to a
+ * seller gets BGM_PU_COMMIT_GRACE past its deadline for the seller's
+ * delivery.
  *
  * Request numbers are the host's: the owner opens each request under a
  * number it is given, in increasing order (the simulator numbers every
@@ -52,7 +59,11 @@
 #define BGM_PU_TIMER_LEARN 8    /* a learning meeting */
 
 #define BGM_PU_MAX_NEIGHBOURS 64
+/* Proposals a round of discovery keeps, and so bargains with at most. */
 #define BGM_PU_MAX_PROPOSALS 8
+/* A failed round is retried after retry_backoff x 2^(rounds so far - 1),
+ * the doubling capped at this many times. */
+#define BGM_PU_RETRY_MAX_DOUBLINGS 5
 /* A request's good when it buys a resource bundle. */
 #define BGM_PU_BUNDLE (-1)
 /* How long past its deadline a request committed to a seller waits. */
@@ -216,9 +227,26 @@ const bgm_purchase_part_t *bgm_purchase_part(const bgm_purchase_t *pu, size_t i)
 /* Forgets the parts of bundle `id` (its delivery was answered or is over). */
 void bgm_purchase_drop_parts(bgm_purchase_t *pu, uint32_t id);
 
-/* Counters for the host's metrics: requests opened, phase and deadline
- * timeouts (a call nobody answered, a seller that went quiet, a
- * deadline reached). */
-void bgm_purchase_counts(const bgm_purchase_t *pu, double *requests, double *timeouts);
+/* Which timeout fired: a round of calls for proposals nobody answered,
+ * a seller quiet after an offer, order or acceptance, the directory
+ * quiet after a query, a request's deadline. */
+enum {
+    BGM_PU_TO_DISCOVERY,
+    BGM_PU_TO_REPLY,
+    BGM_PU_TO_DIRECTORY,
+    BGM_PU_TO_DEADLINE,
+    BGM_PU_TO_KINDS
+};
+
+/* Counters for the host's metrics. */
+typedef struct bgm_purchase_tally {
+    double requests;                 /* opened */
+    double attempts;                 /* acquisitions started (first ones and retries) */
+    double timeouts;                 /* every kind */
+    double timeout[BGM_PU_TO_KINDS]; /* by kind */
+} bgm_purchase_tally_t;
+
+/* Adds its counters to *t (so that a host sums its machines'). */
+void bgm_purchase_counts(const bgm_purchase_t *pu, bgm_purchase_tally_t *t);
 
 #endif

@@ -5,10 +5,10 @@
 #include <string.h>
 
 #include "bgm_catallactic.h"
+#include "bgm_flood.h"
 #include "bgm_session.h"
 
 #define RS_SESSIONS 32
-#define RS_SEEN_RING 16
 #define RS_MAX_HOLDS 4096
 /* Quantities of a part travel in a timer argument as whole MiB. */
 #define RS_MIB 1024.0
@@ -30,8 +30,7 @@ struct bgm_resource {
     double fitness, markup, memory; /* remembered price over mean cost rate */
     bgm_rng_t rng;
     bgm_genes_t genes;
-    uint64_t seen[RS_SEEN_RING];
-    int seen_pos;
+    bgm_flood_seen_t seen; /* calls for proposals seen */
     bgm_sessions_t *sess; /* its side of every bargain */
     hold_t *holds;
     size_t nholds, holds_cap;
@@ -292,40 +291,17 @@ static void refuse_award(bgm_resource_t *rs, const bgm_msg_t *m, double cores, d
 
 /* ---------------------------------------------------------- bargaining */
 
-static int seen_before(bgm_resource_t *rs, uint64_t key)
-{
-    for (int i = 0; i < RS_SEEN_RING; i++)
-        if (rs->seen[i] == key)
-            return 1;
-    rs->seen[rs->seen_pos] = key;
-    rs->seen_pos = (rs->seen_pos + 1) % RS_SEEN_RING;
-    return 0;
-}
-
 static double opening(const bgm_resource_t *rs, double cores, double mem)
 {
     return bgm_nego_opening(BGM_SIDE_SELLER, cost_rate(rs, cores, mem),
                             rs->memory * mean_rate(rs, cores, mem), rs->markup);
 }
 
-static void forward(bgm_resource_t *rs, const bgm_msg_t *proto, uint32_t except)
-{
-    for (int i = 0; i < rs->p.degree; i++) {
-        if (rs->nbr[i] == except || rs->nbr[i] == proto->origin)
-            continue;
-        bgm_msg_t m = *proto;
-        m.from = rs->p.self;
-        m.to = rs->nbr[i];
-        bgm_emitter_send(&rs->em, &m);
-    }
-}
-
 /* A call for proposals: propose once per (request, attempt, origin) if it
  * has room for the bundle, and pass the call on while hops remain. */
 static void on_cfp(bgm_resource_t *rs, const bgm_msg_t *m)
 {
-    uint64_t key = ((uint64_t)m->req << 20) ^ m->attempt ^ ((uint64_t)m->origin << 44);
-    if (seen_before(rs, key))
+    if (bgm_flood_seen(&rs->seen, bgm_flood_key(m)))
         return;
     int phase;
     const uint32_t group = bundle_group(rs, m, &phase);
@@ -339,7 +315,7 @@ static void on_cfp(bgm_resource_t *rs, const bgm_msg_t *m)
     if (m->hops > 1) {
         bgm_msg_t f = *m;
         f.hops--;
-        forward(rs, &f, m->from);
+        bgm_flood_pass(&rs->em, &f, rs->nbr, rs->p.degree, m->from, rs->cfg.agents.overlay_degree);
     }
 }
 

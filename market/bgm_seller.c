@@ -165,9 +165,9 @@ static void remember(bgm_seller_t *s, int slot, double price)
             bgm_memory_update(s->tr->memory[slot], price, s->tr->genes.weight_memory);
 }
 
-void bgm_seller_counts(const bgm_seller_t *s, double *requests, double *timeouts)
+void bgm_seller_counts(const bgm_seller_t *s, bgm_purchase_tally_t *t)
 {
-    bgm_purchase_counts(s->pu, requests, timeouts);
+    bgm_purchase_counts(s->pu, t);
 }
 
 /* Baseline: it tells the directory its free slots whenever they change,

@@ -120,7 +120,7 @@ double bgm_seller_asking(const bgm_seller_t *s, int good);
  * remembers no service price, so it opens every bargain at
  * reservation · (1 + markup). It still learns what resources cost. */
 void bgm_seller_fix_strategy(bgm_seller_t *s);
-/* Bundle requests opened and timeouts, for the host's metrics. */
-void bgm_seller_counts(const bgm_seller_t *s, double *requests, double *timeouts);
+/* Adds its bundle requests, attempts and timeouts to *t, for the host's metrics. */
+void bgm_seller_counts(const bgm_seller_t *s, bgm_purchase_tally_t *t);
 
 #endif

@@ -27,7 +27,6 @@
 #define BGM_MAX_RUNS 100000
 /* Blocks at least this large are mapped on their own (see run_child). */
 #define BGM_MMAP_THRESHOLD (128 * 1024)
-#define BGM_PLATFORM_STREAM 0xfffffff1ULL
 #define BGM_COPY_CHUNK 65536
 
 typedef bgm_sim_options_t sim_opts_t;

@@ -36,6 +36,8 @@
  * after the receiver has handled the message. */
 typedef struct envelope {
     bgm_msg_t msg;
+    double sent; /* simulated time it was sent, for a trace */
+    long bytes;  /* its simulated size, for a trace */
     sg_comm_t comm;
     uint32_t next_free;
     int delivered;
@@ -76,6 +78,7 @@ typedef struct driver {
     uint32_t env_free; /* head of the free list */
     pending_t sent_by_controller;
     bgm_world_t *w;
+    const bgm_sim_trace_t *trace; /* NULL: none */
     node_t *nodes;
     uint32_t nnodes; /* world nodes + market */
     double horizon;
@@ -223,6 +226,8 @@ static void flush(driver_t *d, pending_t *sent)
         }
         envelope_t *e = env_at(d, id);
         e->msg = o.msg[i];
+        e->sent = simgrid_get_clock();
+        e->bytes = o.bytes[i];
         e->delivered = 0;
         d->messages++;
         e->comm = sg_mailbox_put_async(node_of(d, e->msg.to)->mailbox, e, o.bytes[i]);
@@ -272,7 +277,10 @@ static void receiver(int argc, char **argv)
     sg_mailbox_set_receiver(sg_mailbox_get_name(n->mailbox));
     for (;;) {
         envelope_t *e = sg_mailbox_get(n->mailbox);
-        bg_status st = bgm_world_on_message(d->w, &e->msg, simgrid_get_clock());
+        const double now = simgrid_get_clock();
+        bg_status st = bgm_world_on_message(d->w, &e->msg, now);
+        if (d->trace)
+            d->trace->delivered(d->trace->ctx, &e->msg, e->bytes, e->sent, now);
         e->delivered = 1; /* its sender may now reap the communication */
         if (st && !d->status)
             d->status = st;
@@ -382,10 +390,17 @@ bg_status bgm_simdriver_user_speeds(uint32_t nodes, double *speed, bg_error_t *e
 bg_status bgm_simdriver_run(bgm_world_t *w, int user_platform, bgm_sim_stats_t *stats,
                             bg_error_t *err)
 {
+    return bgm_simdriver_run_traced(w, user_platform, NULL, stats, err);
+}
+
+bg_status bgm_simdriver_run_traced(bgm_world_t *w, int user_platform, const bgm_sim_trace_t *trace,
+                                   bgm_sim_stats_t *stats, bg_error_t *err)
+{
     bg_status st = BG_OK;
     driver_t d;
     memset(&d, 0, sizeof d);
     d.w = w;
+    d.trace = trace;
     d.env_free = BGM_ENV_NONE;
     d.horizon = bgm_world_horizon(w);
     g_driver = &d;

@@ -52,4 +52,18 @@ bg_status bgm_simdriver_user_speeds(uint32_t nodes, double *speed, bg_error_t *e
 bg_status bgm_simdriver_run(bgm_world_t *w, int user_platform, bgm_sim_stats_t *stats,
                             bg_error_t *err);
 
+/* An observer of every message the run delivers, for tracing tools
+ * (market_trace): called in the receiving actor just after the world has
+ * handled the message, with its simulated size and the simulated times
+ * it was sent and received. It must not call the world or the driver; it may call
+ * SimGrid's read-only functions (routes, links). */
+typedef struct bgm_sim_trace {
+    void *ctx;
+    void (*delivered)(void *ctx, const bgm_msg_t *m, long bytes, double sent, double received);
+} bgm_sim_trace_t;
+
+/* bgm_simdriver_run with a trace (NULL: none); the run is the same. */
+bg_status bgm_simdriver_run_traced(bgm_world_t *w, int user_platform, const bgm_sim_trace_t *trace,
+                                   bgm_sim_stats_t *stats, bg_error_t *err);
+
 #endif

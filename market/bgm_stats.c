@@ -1,6 +1,8 @@
 #include "bgm_stats.h"
 
 #include <math.h>
+#include <stdlib.h>
+#include <string.h>
 
 /* t_{0.975, df} for df = 1..30; beyond that the normal 1.96 is within 2 %. */
 static const double t975[30] = {12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306,
@@ -41,4 +43,37 @@ bgm_summary_t bgm_summarize(const double *v, size_t count, size_t stride)
     s.lo = s.mean - half;
     s.hi = s.mean + half;
     return s;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+void bgm_sort(double *v, size_t n)
+{
+    qsort(v, n, sizeof *v, cmp_double);
+}
+
+double bgm_quantile_sorted(const double *s, size_t n, double q)
+{
+    if (n == 0)
+        return NAN;
+    size_t k = (size_t)ceil(q * (double)n);
+    return s[k == 0 ? 0 : k - 1];
+}
+
+double bgm_quantile(const double *v, size_t n, double q)
+{
+    if (n == 0)
+        return NAN;
+    double *s = malloc(n * sizeof *s);
+    if (!s)
+        return NAN;
+    memcpy(s, v, n * sizeof *s);
+    bgm_sort(s, n);
+    const double r = bgm_quantile_sorted(s, n, q);
+    free(s);
+    return r;
 }

@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bgm_budget.h"
 #include "bgm_buyer.h"
 #include "bgm_market_agent.h"
 #include "bgm_optimum.h"
@@ -12,6 +13,7 @@
 #include "bgm_resource.h"
 #include "bgm_rng.h"
 #include "bgm_seller.h"
+#include "bgm_stats.h"
 #include "bgm_strategy.h"
 
 const char *const bgm_metric_names[BGM_M_COUNT] = {
@@ -22,7 +24,8 @@ const char *const bgm_metric_names[BGM_M_COUNT] = {
     "utilization",          "job_completion_time",  "job_completion_rate",
     "resource_allocation_rate", "requests",         "contracts",
     "messages",             "bytes",                "combex_exact",
-    "combex_greedy",        "timeouts"};
+    "combex_greedy",        "timeouts",             "timeouts_per_request",
+    "messages_per_request", "message_bound"};
 const char *const bgm_good_names[5] = {"rotation-fit", "sparse-solve", "integration-step", "cores",
                                        "memory"};
 const char *const bgm_role_names[4] = {"market", "complex", "basic", "resource"};
@@ -855,28 +858,6 @@ bg_status bgm_world_start(bgm_world_t *w, const bgm_sink_t *sink, double now)
 
 /* ---------------------------------------------------------------- metrics */
 
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-/* Quantile by the nearest-rank method on a sorted copy; NaN when empty. */
-static double quantile(const double *v, size_t n, double q)
-{
-    if (n == 0)
-        return NAN;
-    double *s = malloc(n * sizeof *s);
-    if (!s)
-        return NAN;
-    memcpy(s, v, n * sizeof *s);
-    qsort(s, n, sizeof *s, cmp_double);
-    size_t k = (size_t)ceil(q * (double)n);
-    double r = s[k == 0 ? 0 : k - 1];
-    free(s);
-    return r;
-}
-
 /*
  * Offline optimum of the same demand and supply (bgm_optimum): every
  * service request of the run with its delivery window, every basic agent
@@ -1022,6 +1003,17 @@ out:
     return result;
 }
 
+void bgm_world_tally(const bgm_world_t *w, bgm_purchase_tally_t *service,
+                     bgm_purchase_tally_t *resource)
+{
+    memset(service, 0, sizeof *service);
+    memset(resource, 0, sizeof *resource);
+    for (uint32_t k = 0; k < w->ncomplex; k++)
+        bgm_buyer_counts(w->bm[k], service);
+    for (uint32_t k = 0; k < w->nbasic; k++)
+        bgm_seller_counts(w->sm[k], resource);
+}
+
 bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
 {
     for (int i = 0; i < BGM_M_COUNT; i++)
@@ -1034,17 +1026,10 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
             psq += w->log[i].price * w->log[i].price;
         }
     }
-    double service_requests = 0.0, resource_requests = 0.0, timeouts = 0.0, n, t;
-    for (uint32_t k = 0; k < w->ncomplex; k++) {
-        bgm_buyer_counts(w->bm[k], &n, &t);
-        service_requests += n;
-        timeouts += t;
-    }
-    for (uint32_t k = 0; k < w->nbasic; k++) {
-        bgm_seller_counts(w->sm[k], &n, &t);
-        resource_requests += n;
-        timeouts += t;
-    }
+    bgm_purchase_tally_t svc_tally, res_tally;
+    bgm_world_tally(w, &svc_tally, &res_tally);
+    const double service_requests = svc_tally.requests, resource_requests = res_tally.requests;
+    const double timeouts = svc_tally.timeouts + res_tally.timeouts;
     m[BGM_M_REQUESTS] = service_requests;
     m[BGM_M_CONTRACTS] = svc;
     m[BGM_M_MESSAGES] = w->msgs;
@@ -1055,11 +1040,22 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
         m[BGM_M_ALLOCATION_RATE] = svc / service_requests;
     if (resource_requests > 0)
         m[BGM_M_RESOURCE_ALLOCATION_RATE] = w->bundles / resource_requests;
-    m[BGM_M_ACCESS_TIME_MEDIAN] = quantile(w->acc_s, w->nacc_s, 0.5);
-    m[BGM_M_ACCESS_TIME_P99] = quantile(w->acc_s, w->nacc_s, 0.99);
-    m[BGM_M_RESOURCE_ACCESS_TIME_MEDIAN] = quantile(w->acc_r, w->nacc_r, 0.5);
-    m[BGM_M_RESOURCE_ACCESS_TIME_P99] = quantile(w->acc_r, w->nacc_r, 0.99);
+    m[BGM_M_ACCESS_TIME_MEDIAN] = bgm_quantile(w->acc_s, w->nacc_s, 0.5);
+    m[BGM_M_ACCESS_TIME_P99] = bgm_quantile(w->acc_s, w->nacc_s, 0.99);
+    m[BGM_M_RESOURCE_ACCESS_TIME_MEDIAN] = bgm_quantile(w->acc_r, w->nacc_r, 0.5);
+    m[BGM_M_RESOURCE_ACCESS_TIME_P99] = bgm_quantile(w->acc_r, w->nacc_r, 0.99);
+    if (service_requests > 0) {
+        m[BGM_M_TIMEOUTS_PER_REQUEST] = timeouts / service_requests;
+        m[BGM_M_MESSAGES_PER_REQUEST] = w->msgs / service_requests;
+    }
+    /* The bound the mechanism's parameters put on this run's messages
+     * (bgm_budget), per allocation like the measured figure. */
+    const bgm_budget_t budget =
+        bgm_budget_of(&w->cfg, w->p.mechanism, w->horizon, (double)w->nresource);
+    const double bound =
+        bgm_budget_messages(&budget, service_requests, resource_requests, (double)w->nagents);
     if (svc > 0) {
+        m[BGM_M_MESSAGE_BOUND] = bound / svc;
         m[BGM_M_MESSAGES_PER_ALLOCATION] = w->msgs / svc;
         m[BGM_M_BYTES_PER_ALLOCATION] = w->bytes / svc;
         m[BGM_M_PRICE_MEAN] = psum / svc;

@@ -33,6 +33,7 @@
 
 #include "bg_error.h"
 #include "bgm_config.h"
+#include "bgm_purchase.h"
 #include "bgm_role.h"
 
 typedef enum bgm_role {
@@ -77,6 +78,9 @@ typedef enum bgm_metric {
     BGM_M_COMBEX_EXACT,
     BGM_M_COMBEX_GREEDY,
     BGM_M_TIMEOUTS,
+    BGM_M_TIMEOUTS_PER_REQUEST,
+    BGM_M_MESSAGES_PER_REQUEST,
+    BGM_M_MESSAGE_BOUND,
     BGM_M_COUNT
 } bgm_metric;
 
@@ -111,6 +115,12 @@ bg_status bgm_world_start(bgm_world_t *w, const bgm_sink_t *sink, double now);
 bg_status bgm_world_on_message(bgm_world_t *w, const bgm_msg_t *msg, double now);
 /* Fires one timer. */
 bg_status bgm_world_on_timer(bgm_world_t *w, uint32_t agent, int kind, uint64_t arg, double now);
+
+/* The buying machines' counters summed: the jobs' agents' service
+ * requests and the basic sellers' bundle requests (attempts, timeouts by
+ * kind). */
+void bgm_world_tally(const bgm_world_t *w, bgm_purchase_tally_t *service,
+                     bgm_purchase_tally_t *resource);
 
 /* Computes the metrics after the run (NaN = null). */
 bg_status bgm_world_metrics(bgm_world_t *w, double metrics[BGM_M_COUNT]);

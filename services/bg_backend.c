@@ -72,10 +72,10 @@ static bg_status local_solve_factor(void *session, int id, double shift, bg_erro
     return bg_sparse_factorize(((local_session *)session)->sys[id], shift, err);
 }
 
-static bg_status local_solve(void *session, int id, const double *rhs, double *x,
+static bg_status local_solve(void *session, int id, int nrhs, const double *rhs, double *x,
                              bg_error_t *err)
 {
-    return bg_sparse_solve(((local_session *)session)->sys[id], rhs, x, err);
+    return bg_sparse_solve_many(((local_session *)session)->sys[id], nrhs, rhs, x, err);
 }
 
 static void local_solve_cost(void *session, int id, double *flops, double *nonzeros)

@@ -70,7 +70,10 @@ typedef struct bg_backend_ops {
     /* sys is borrowed for the session's life (its pattern and its values). */
     bg_status (*solve_open)(void *session, int id, bg_sparse_t *sys, bg_error_t *err);
     bg_status (*solve_factor)(void *session, int id, double shift, bg_error_t *err);
-    bg_status (*solve)(void *session, int id, const double *rhs, double *x, bg_error_t *err);
+    /* nrhs right-hand sides of system id at once (column-major, 1 to
+     * BG_SPARSE_MAX_RHS): one pass over the factor and one round trip. */
+    bg_status (*solve)(void *session, int id, int nrhs, const double *rhs, double *x,
+                       bg_error_t *err);
     /* The cost model of system id's factor (bg_sparse_factor_flops and
      * _nonzeros of whoever factors it; 0 before the first factor): the
      * solver's refactoring rule must see the same figures either way. */

@@ -4,24 +4,129 @@
 #include <stdlib.h>
 #include <string.h>
 
+/*
+ * The elements are processed in an order of their own: sorted along a
+ * Morton (Z-order) curve through their rest centroids, so that elements
+ * handled one after another are neighbours in space and share vertices.
+ * Meshes from a tetrahedralizer number their vertices without regard to
+ * the elements (the bunny's tets span 4,163 of its 7,248 vertex numbers
+ * on average, consecutive tets jump by 2,036): in mesh order every
+ * element reads and writes four scattered vertex records and Hessian
+ * columns; in curve order they are mostly still in cache from the
+ * element before. Results are those of the same sums in another order.
+ *
+ * Per-element data is stored at the element's position p in that order,
+ * in blocks of ELASTIC_BLOCK elements, each block in structure-of-arrays
+ * form: entry i of position p at (p / B)·width·B + i·B + p % B (soa
+ * below). The 3D kernel loads a whole block's D_m⁻¹ or rotations with one
+ * aligned vector load per entry; scalar code reads a position through
+ * elastic_dminv / quat_load. Arrays are padded to whole blocks (the
+ * padding positions repeat the block's first element's vertices).
+ */
+#define ELASTIC_BLOCK 8
+
 struct bg_elastic {
     const bg_mesh_t *mesh;
     int n;              /* spatial dimension */
     int m;              /* local dofs per element: (n+1)*n */
     double mu, lambda;
-    double *dminv;      /* ne*n*n: D_m⁻¹, row-major */
-    double *volume;     /* ne */
-    double *quat;       /* ne*4 (3D): warm-start rotations */
-    double *psi;        /* ne: energy density of the last eval */
+    int32_t *order;     /* ne: position → element (mesh numbering) */
+    int32_t *slot;      /* ne: element → position */
+    int32_t *nodes;     /* padded positions × (n+1): each position's vertices */
+    double *dminv;      /* blocks × n·n: D_m⁻¹, row-major per element (soa) */
+    double *volume;     /* padded positions, zeros in the padding */
+    double *quat;       /* blocks × 4 (3D): warm-start rotations (soa) */
+    double *psi;        /* ne, mesh numbering: energy density of the last eval */
     double total_volume;
     double barrier;     /* 2D: weight of the area barrier (0: none) */
     bg_rotfit_stats_t stats;
 };
 
+/* Position of entry i (of width per element) of element e, block-SoA. */
+static inline size_t soa(size_t e, int i, int width)
+{
+    return (e / ELASTIC_BLOCK) * (size_t)width * ELASTIC_BLOCK + (size_t)i * ELASTIC_BLOCK +
+           e % ELASTIC_BLOCK;
+}
+
+static inline void elastic_dminv(const bg_elastic_t *md, size_t e, double *restrict Di)
+{
+    const int nn = md->n * md->n;
+    for (int i = 0; i < nn; i++)
+        Di[i] = md->dminv[soa(e, i, nn)];
+}
+
+static inline void quat_load(const bg_elastic_t *md, size_t e, double q[4])
+{
+    for (int i = 0; i < 4; i++)
+        q[i] = md->quat[soa(e, i, 4)];
+}
+
+static inline void quat_store(bg_elastic_t *md, size_t e, const double q[4])
+{
+    for (int i = 0; i < 4; i++)
+        md->quat[soa(e, i, 4)] = q[i];
+}
+
 /* A pair sum σi + σj of the stretch below this (relative to tr Y) makes
  * W = (tr Y·I − Y)⁻¹ unbounded: R is not differentiable there, and the
  * Hessian uses this floor instead of dividing by zero. */
 #define ELASTIC_PAIR_SUM_FLOOR 1e-10
+
+/* Spreads the low 21 bits of x to every third bit (Morton interleave). */
+static uint64_t spread3(uint64_t x)
+{
+    x &= 0x1fffff;
+    x = (x | x << 32) & 0x1f00000000ffffULL;
+    x = (x | x << 16) & 0x1f0000ff0000ffULL;
+    x = (x | x << 8) & 0x100f00f00f00f00fULL;
+    x = (x | x << 4) & 0x10c30c30c30c30c3ULL;
+    x = (x | x << 2) & 0x1249249249249249ULL;
+    return x;
+}
+
+typedef struct order_key {
+    uint64_t key;
+    int32_t element;
+} order_key;
+
+static int compare_keys(const void *a, const void *b)
+{
+    const order_key *x = a, *y = b;
+    if (x->key != y->key)
+        return x->key < y->key ? -1 : 1;
+    return (x->element > y->element) - (x->element < y->element);
+}
+
+/* md->order: the elements sorted along the Morton curve through their
+ * centroids at mesh->x (ties by element number: deterministic). */
+static bg_status elastic_order(bg_elastic_t *md)
+{
+    const bg_mesh_t *mesh = md->mesh;
+    const int k = mesh->nodes_per_element, d = mesh->dim;
+    order_key *keys = malloc((size_t)mesh->ne * sizeof *keys + 1);
+    if (!keys)
+        return BG_ERR_NOMEM;
+    double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+    bg_mesh_bounds(mesh, lo, hi);
+    for (int32_t e = 0; e < mesh->ne; e++) {
+        uint64_t key = 0;
+        for (int c = 0; c < d && c < 3; c++) {
+            double centre = 0.0;
+            for (int i = 0; i < k; i++)
+                centre += mesh->x[(size_t)mesh->elements[(size_t)e * k + i] * d + c] / k;
+            const double span = hi[c] - lo[c];
+            const double t = span > 0.0 ? (centre - lo[c]) / span : 0.0;
+            key |= spread3((uint64_t)(fmin(fmax(t, 0.0), 1.0) * 2097151.0)) << c;
+        }
+        keys[e] = (order_key){key, e};
+    }
+    qsort(keys, (size_t)mesh->ne, sizeof *keys, compare_keys);
+    for (int32_t p = 0; p < mesh->ne; p++)
+        md->order[p] = keys[p].element;
+    free(keys);
+    return BG_OK;
+}
 
 /* The model over mesh's connectivity with n-dimensional unknowns; rest
  * edge matrices from rest_edges (ne·n·n, row-major, column j = edge j) or,
@@ -41,17 +146,35 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
     md->mu = mu;
     md->lambda = lambda;
     const size_t ne = (size_t)mesh->ne, n = (size_t)md->n;
-    md->dminv = malloc(ne * n * n * sizeof *md->dminv + 1);
-    md->volume = malloc(ne * sizeof *md->volume + 1);
-    md->quat = calloc(ne * 4 + 1, sizeof *md->quat);
+    const size_t padded = (ne + ELASTIC_BLOCK - 1) / ELASTIC_BLOCK * ELASTIC_BLOCK;
+    /* Padding positions: D_m⁻¹ = I and no volume, so the kernel computes
+     * finite nothing there. */
+    md->order = malloc(ne * sizeof *md->order + 1);
+    md->slot = malloc(ne * sizeof *md->slot + 1);
+    md->nodes = malloc(padded * (n + 1) * sizeof *md->nodes + 1);
+    md->dminv = calloc(padded * n * n + 1, sizeof *md->dminv);
+    md->volume = calloc(padded + 1, sizeof *md->volume);
+    md->quat = calloc(padded * 4 + 1, sizeof *md->quat);
     md->psi = calloc(ne + 1, sizeof *md->psi);
-    if (!md->dminv || !md->volume || !md->quat || !md->psi) {
+    if (!md->order || !md->slot || !md->nodes || !md->dminv || !md->volume || !md->quat || !md->psi ||
+        elastic_order(md) != BG_OK) {
         bg_elastic_destroy(&md);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the elastic model");
     }
-    for (size_t e = 0; e < ne; e++) {
+    for (size_t p = 0; p < ne; p++)
+        md->slot[md->order[p]] = (int32_t)p;
+    for (size_t p = 0; p < padded; p++) {
+        const size_t e = (size_t)md->order[p < ne ? p : p - p % ELASTIC_BLOCK];
+        memcpy(md->nodes + p * (n + 1), mesh->elements + e * (n + 1),
+               (n + 1) * sizeof *md->nodes);
+    }
+    for (size_t p = ne; p < padded; p++)
+        for (size_t a = 0; a < n; a++)
+            md->dminv[soa(p, (int)(a * n + a), (int)(n * n))] = 1.0;
+    for (size_t p = 0; p < ne; p++) {
+        const size_t e = (size_t)md->order[p];
         const int32_t *el = mesh->elements + e * (n + 1);
-        double D[9];
+        double D[9], Di[9];
         if (rest_edges)
             memcpy(D, rest_edges + e * n * n, n * n * sizeof *D);
         else
@@ -59,7 +182,6 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
                 for (size_t a = 0; a < n; a++)
                     D[a * n + j] =
                         mesh->x[(size_t)el[j + 1] * n + a] - mesh->x[(size_t)el[0] * n + a];
-        double *Di = md->dminv + e * n * n;
         double det;
         if (n == 2) {
             det = D[0] * D[3] - D[1] * D[2];
@@ -67,7 +189,7 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
             Di[1] = -D[1] / det;
             Di[2] = -D[2] / det;
             Di[3] = D[0] / det;
-            md->volume[e] = 0.5 * fabs(det);
+            md->volume[p] = 0.5 * fabs(det);
         } else {
             const double c0 = D[4] * D[8] - D[5] * D[7], c1 = D[5] * D[6] - D[3] * D[8],
                          c2 = D[3] * D[7] - D[4] * D[6];
@@ -81,8 +203,10 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
             Di[6] = c2 / det;
             Di[7] = (D[1] * D[6] - D[0] * D[7]) / det;
             Di[8] = (D[0] * D[4] - D[1] * D[3]) / det;
-            md->volume[e] = fabs(det) / 6.0;
+            md->volume[p] = fabs(det) / 6.0;
         }
+        for (size_t i = 0; i < n * n; i++)
+            md->dminv[soa(p, (int)i, (int)(n * n))] = Di[i];
         if (!(det > 0.0) || !isfinite(det)) {
             bg_elastic_destroy(&md);
             return bg_error_set(err, BG_ERR_INVALID,
@@ -90,7 +214,7 @@ static bg_status elastic_init(const bg_mesh_t *mesh, int dim, const double *rest
                                 "first)",
                                 e + 1);
         }
-        md->total_volume += md->volume[e];
+        md->total_volume += md->volume[p];
     }
     *out = md;
     return BG_OK;
@@ -124,6 +248,9 @@ void bg_elastic_destroy(bg_elastic_t **model)
     if (!model || !*model)
         return;
     bg_elastic_t *md = *model;
+    free(md->order);
+    free(md->slot);
+    free(md->nodes);
     free(md->dminv);
     free(md->volume);
     free(md->quat);
@@ -149,7 +276,7 @@ const bg_mesh_t *bg_elastic_mesh(const bg_elastic_t *model)
 
 double bg_elastic_volume(const bg_elastic_t *model, int32_t e)
 {
-    return model->volume[e];
+    return model->volume[model->slot[e]];
 }
 
 double bg_elastic_total_volume(const bg_elastic_t *model)
@@ -174,7 +301,8 @@ void bg_elastic_reset_stats(bg_elastic_t *model)
 
 void bg_elastic_forget_rotations(bg_elastic_t *model)
 {
-    memset(model->quat, 0, (size_t)model->mesh->ne * 4 * sizeof *model->quat);
+    const size_t blocks = ((size_t)model->mesh->ne + ELASTIC_BLOCK - 1) / ELASTIC_BLOCK;
+    memset(model->quat, 0, blocks * ELASTIC_BLOCK * 4 * sizeof *model->quat);
 }
 
 /*
@@ -205,6 +333,19 @@ static int pd3_shifted(const double M[9], double theta)
  * A = c M⁻¹ directly; otherwise an eigen-decomposition floors s_k and, when
  * projecting, clamps negative t_k to zero.
  */
+/* The twist block's weight along an eigenvector of M whose eigenvalue is
+ * the pair sum s: a = (t − 2μ)/2 with t = 2μ + 2c/s the twist eigenvalue,
+ * s floored, t clamped at 0 when projecting. */
+static inline double twist_weight(double mu, double c, double s, double floor_, int project)
+{
+    if (s < floor_)
+        s = floor_;
+    double t = 2.0 * mu + 2.0 * c / s;
+    if (project && t < 0.0)
+        t = 0.0;
+    return 0.5 * (t - 2.0 * mu);
+}
+
 static void twist_block3(double mu, double lambda, const double S[9], double trY, int project,
                          double A[9])
 {
@@ -232,15 +373,8 @@ static void twist_block3(double mu, double lambda, const double S[9], double trY
     double y[3], V[9];
     bg_sym3_eigen(Ysym, y, V);
     double a[3];
-    for (int k = 0; k < 3; k++) {
-        double sk = trY - y[k];
-        if (sk < floor_)
-            sk = floor_;
-        double t = 2.0 * mu + 2.0 * c / sk;
-        if (project && t < 0.0)
-            t = 0.0;
-        a[k] = 0.5 * (t - 2.0 * mu);
-    }
+    for (int k = 0; k < 3; k++)
+        a[k] = twist_weight(mu, c, trY - y[k], floor_, project);
     for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++)
             A[3 * i + j] = V[3 * i] * a[0] * V[3 * j] + V[3 * i + 1] * a[1] * V[3 * j + 1] +
@@ -455,25 +589,32 @@ static void deformation_gradient(int n, const int32_t *restrict el, const double
 
 
 /*
- * The 3D fast path works on blocks of elements in structure-of-arrays form,
- * so that the compiler vectorises across elements (one lane per element)
- * and target_clones picks AVX-512, AVX2+FMA or baseline code at run time
- * from one portable binary. Each block runs a fixed number of
- * warm-started Newton steps on SO(3) without branches; a lane that has no
- * warm start, a Newton matrix that is not positive definite, det F ≤ ε or
- * a skew residual above tolerance afterwards is redone by the scalar
- * bg_rotfit3 (polar iteration or SVD), so results equal the scalar path.
+ * The 3D fast path works on blocks of ELASTIC_BLOCK elements in
+ * structure-of-arrays form, so that the compiler vectorises across
+ * elements (one lane per element) and target_clones picks AVX-512,
+ * AVX2+FMA or baseline code at run time from one portable binary; nothing
+ * is compiled for the build machine alone. Per block: the edge vectors are
+ * gathered lane by lane (the only scattered reads), then F = D D_m⁻¹, the
+ * rotation fit, P, ψ and the nodal forces V P D_m⁻ᵀ run vectorised, and
+ * the forces are added into the gradient lane by lane (lanes may share a
+ * vertex). The fit takes warm-started Newton steps on SO(3) until every
+ * lane's skew residual is at rounding level (a lane already there is
+ * left alone: repeated evaluations at the same positions return the same
+ * rotations) or ELASTIC_BLOCK_STEPS steps are spent; a lane without a warm
+ * start, with det F ≤ ε, a Newton matrix that is not positive definite or
+ * a residual still above tolerance is redone by the scalar bg_rotfit3
+ * (polar iteration or SVD) from its stored rotation.
  */
-#define ELASTIC_BLOCK 8
 #define ELASTIC_BLOCK_STEPS 3
 
 typedef struct block3 {
     double F[9][ELASTIC_BLOCK];
     double q[4][ELASTIC_BLOCK];
-    double R[9][ELASTIC_BLOCK];
     double P[9][ELASTIC_BLOCK];
+    double f[9][ELASTIC_BLOCK]; /* forces on nodes 1..3, entry 3j + a */
     double psi[ELASTIC_BLOCK];
-    double ok[ELASTIC_BLOCK]; /* 1.0: the lane's result is final */
+    double ok[ELASTIC_BLOCK];   /* 1.0: the lane's rotation is final */
+    int moved;                  /* some lane's rotation changed (it must be stored) */
 } block3_t;
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_ADDRESS__)
@@ -482,71 +623,115 @@ typedef struct block3 {
 #define ELASTIC_CLONES
 #endif
 
-
-/* Lane b's F and q, its current rotation R = R(q) and S = Rᵀ F. */
-static inline void lane_rotation(const block3_t *restrict blk, int b, double F[9], double q[4],
-                                 double R[9], double S[9])
+/* F = D D_m⁻¹ for the block, D the edge vectors gathered from the
+ * positions (el: the block's element records, 4 vertices per lane;
+ * gathers where the target has them) and Di the block's D_m⁻¹ (soa,
+ * 9 × B). */
+ELASTIC_CLONES
+static void block3_gradient(block3_t *restrict blk, const int32_t *restrict el,
+                            const double *restrict q, const double *restrict Di)
 {
-    for (int i = 0; i < 9; i++)
-        F[i] = blk->F[i][b];
-    for (int i = 0; i < 4; i++)
-        q[i] = blk->q[i][b];
-    bg_quat_rotation(q, R);
-    bg_mul_tn3(R, F, S);
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < ELASTIC_BLOCK; b++) {
+            const double x0 = q[3 * (size_t)el[4 * b] + a];
+            const double d0 = q[3 * (size_t)el[4 * b + 1] + a] - x0,
+                         d1 = q[3 * (size_t)el[4 * b + 2] + a] - x0,
+                         d2 = q[3 * (size_t)el[4 * b + 3] + a] - x0;
+            for (int c = 0; c < 3; c++)
+                blk->F[3 * a + c][b] = d0 * Di[c * ELASTIC_BLOCK + b] +
+                                       d1 * Di[(3 + c) * ELASTIC_BLOCK + b] +
+                                       d2 * Di[(6 + c) * ELASTIC_BLOCK + b];
+        }
 }
 
+/* The fit, P and ψ of every lane (see above). */
 ELASTIC_CLONES
 static void block3_fit(block3_t *restrict blk, double mu, double lambda)
 {
-    double ok[ELASTIC_BLOCK], tol2[ELASTIC_BLOCK];
+    double ok[ELASTIC_BLOCK], tol2[ELASTIC_BLOCK], settled[ELASTIC_BLOCK];
+    double R[9][ELASTIC_BLOCK], S[9][ELASTIC_BLOCK];
+    double f2[ELASTIC_BLOCK] = {0};
+    for (int i = 0; i < 9; i++)
+        for (int b = 0; b < ELASTIC_BLOCK; b++)
+            f2[b] += blk->F[i][b] * blk->F[i][b];
     for (int b = 0; b < ELASTIC_BLOCK; b++) {
-        double f2 = 0.0;
-        for (int i = 0; i < 9; i++)
-            f2 += blk->F[i][b] * blk->F[i][b];
-        tol2[b] = BG_ROTFIT_SKEW_TOL * BG_ROTFIT_SKEW_TOL * f2;
+        tol2[b] = BG_ROTFIT_SKEW_TOL * BG_ROTFIT_SKEW_TOL * f2[b];
         const double det = blk->F[0][b] * (blk->F[4][b] * blk->F[8][b] - blk->F[5][b] * blk->F[7][b]) -
                            blk->F[1][b] * (blk->F[3][b] * blk->F[8][b] - blk->F[5][b] * blk->F[6][b]) +
                            blk->F[2][b] * (blk->F[3][b] * blk->F[7][b] - blk->F[4][b] * blk->F[6][b]);
-        const double scale = f2 / 3.0;
+        /* det F > ε s^{3/2}, s = ‖F‖²/3, as bg_rotfit3 asks, without the root */
+        const double scale = f2[b] / 3.0;
         const double qn = blk->q[0][b] * blk->q[0][b] + blk->q[1][b] * blk->q[1][b] +
                           blk->q[2][b] * blk->q[2][b] + blk->q[3][b] * blk->q[3][b];
-        ok[b] = (det > BG_ROTFIT_DET_EPS * scale * sqrt(scale) && qn > 0.5) ? 1.0 : 0.0;
+        ok[b] = (det > 0.0 &&
+                 det * det > BG_ROTFIT_DET_EPS * BG_ROTFIT_DET_EPS * scale * scale * scale &&
+                 qn > 0.5)
+                    ? 1.0
+                    : 0.0;
     }
-    for (int step = 0; step < ELASTIC_BLOCK_STEPS; step++) {
-        double settled[ELASTIC_BLOCK];
+    blk->moved = 0;
+    for (int step = 0;; step++) {
+        double done[ELASTIC_BLOCK];
         for (int b = 0; b < ELASTIC_BLOCK; b++) {
-            double F[9], q[4], R[9], S[9];
-            lane_rotation(blk, b, F, q, R, S);
-            settled[b] = bg_rotfit_skew2(S) <= tol2[b] ? 1.0 : 0.0;
-            /* A settled lane's step is zero to rounding. */
-            ok[b] = bg_rotfit_step(S, q) ? ok[b] : 0.0;
+            double q[4], Rb[9], F[9], Sb[9];
             for (int i = 0; i < 4; i++)
-                blk->q[i][b] = q[i];
+                q[i] = blk->q[i][b];
+            for (int i = 0; i < 9; i++)
+                F[i] = blk->F[i][b];
+            bg_quat_rotation(q, Rb);
+            bg_mul_tn3(Rb, F, Sb);
+            for (int i = 0; i < 9; i++) {
+                R[i][b] = Rb[i];
+                S[i][b] = Sb[i];
+            }
+            settled[b] = bg_rotfit_skew2(Sb) <= tol2[b] ? 1.0 : 0.0;
+            done[b] = settled[b] != 0.0 || ok[b] == 0.0 ? 1.0 : 0.0;
         }
-        /* Every lane was settled (or is going to the scalar path) before
-         * this step: further steps cannot change anything. */
-        double all = 1.0;
+        int all = 1;
         for (int b = 0; b < ELASTIC_BLOCK; b++)
-            all = fmin(all, fmax(settled[b], 1.0 - ok[b]));
-        if (all == 1.0)
+            all &= done[b] != 0.0;
+        if (all || step == ELASTIC_BLOCK_STEPS)
             break;
+        blk->moved = 1;
+        for (int b = 0; b < ELASTIC_BLOCK; b++) {
+            double q[4], Sb[9];
+            for (int i = 0; i < 4; i++)
+                q[i] = blk->q[i][b];
+            for (int i = 0; i < 9; i++)
+                Sb[i] = S[i][b];
+            const int pd = bg_rotfit_step(Sb, q);
+            ok[b] = pd || settled[b] != 0.0 ? ok[b] : 0.0;
+            /* a settled lane keeps its rotation (its step is rounding) */
+            for (int i = 0; i < 4; i++)
+                blk->q[i][b] = settled[b] != 0.0 ? blk->q[i][b] : q[i];
+        }
     }
     for (int b = 0; b < ELASTIC_BLOCK; b++) {
-        double F[9], q[4], R[9], S[9], dev = 0.0;
-        lane_rotation(blk, b, F, q, R, S);
+        double dev = 0.0;
         for (int i = 0; i < 9; i++) {
-            const double d = F[i] - R[i];
+            const double d = blk->F[i][b] - R[i][b];
             dev += d * d;
         }
-        ok[b] = bg_rotfit_skew2(S) <= tol2[b] ? ok[b] : 0.0;
-        const double vol = S[0] + S[4] + S[8] - 3.0;
-        for (int i = 0; i < 9; i++) {
-            blk->R[i][b] = R[i];
-            blk->P[i][b] = 2.0 * mu * (blk->F[i][b] - R[i]) + lambda * vol * R[i];
-        }
+        const double vol = S[0][b] + S[4][b] + S[8][b] - 3.0;
+        for (int i = 0; i < 9; i++)
+            blk->P[i][b] = 2.0 * mu * (blk->F[i][b] - R[i][b]) + lambda * vol * R[i][b];
         blk->psi[b] = mu * dev + 0.5 * lambda * vol * vol;
-        blk->ok[b] = ok[b];
+        blk->ok[b] = settled[b] != 0.0 ? ok[b] : 0.0;
     }
+}
+
+/* Forces on nodes 1..3 of every lane: f_j = V P (row j of D_m⁻¹)ᵀ. */
+ELASTIC_CLONES
+static void block3_forces(block3_t *restrict blk, const double *restrict Di,
+                          const double *restrict V)
+{
+    for (int j = 0; j < 3; j++)
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < ELASTIC_BLOCK; b++)
+                blk->f[3 * j + a][b] = (blk->P[3 * a][b] * Di[3 * j * ELASTIC_BLOCK + b] +
+                                        blk->P[3 * a + 1][b] * Di[(3 * j + 1) * ELASTIC_BLOCK + b] +
+                                        blk->P[3 * a + 2][b] * Di[(3 * j + 2) * ELASTIC_BLOCK + b]) *
+                                       V[b];
 }
 
 /* V P D_m⁻ᵀ into the element's nodes (node 0 gets minus the sum). */
@@ -574,46 +759,62 @@ static double eval3(bg_elastic_t *md, const double *restrict q, double *restrict
     block3_t blk;
     for (int32_t e0 = 0; e0 < mesh->ne; e0 += ELASTIC_BLOCK) {
         const int count = mesh->ne - e0 < ELASTIC_BLOCK ? (int)(mesh->ne - e0) : ELASTIC_BLOCK;
-        for (int b = 0; b < ELASTIC_BLOCK; b++) {
-            if (b >= count) { /* padding lanes: identity, never read back */
-                for (int i = 0; i < 9; i++)
-                    blk.F[i][b] = i % 4 == 0 ? 1.0 : 0.0;
-                blk.q[0][b] = 1.0, blk.q[1][b] = blk.q[2][b] = blk.q[3][b] = 0.0;
+        const size_t block = (size_t)e0 / ELASTIC_BLOCK;
+        const double *Di = md->dminv + block * 9 * ELASTIC_BLOCK;
+        double *quat = md->quat + block * 4 * ELASTIC_BLOCK;
+        const int32_t *el = md->nodes + (size_t)e0 * 4;
+        memcpy(blk.q, quat, sizeof blk.q);
+        block3_gradient(&blk, el, q, Di);
+        block3_fit(&blk, md->mu, md->lambda);
+        int warm = 0;
+        for (int b = 0; b < count; b++) {
+            if (blk.ok[b] != 0.0) {
+                warm++;
                 continue;
             }
-            const size_t e = (size_t)(e0 + b);
-            double F[9];
-            deformation_gradient(3, mesh->elements + e * 4, q, md->dminv + e * 9, F);
+            /* the scalar path, from the lane's stored warm start */
+            double F[9], R[9], P[9], qs[4];
+            int path;
             for (int i = 0; i < 9; i++)
-                blk.F[i][b] = F[i];
+                F[i] = blk.F[i][b];
             for (int i = 0; i < 4; i++)
-                blk.q[i][b] = md->quat[4 * e + i];
+                qs[i] = quat[i * ELASTIC_BLOCK + b];
+            blk.psi[b] = material_point(3, md->mu, md->lambda, F, qs, R, P, NULL, 0, &path);
+            for (int i = 0; i < 4; i++)
+                blk.q[i][b] = qs[i];
+            for (int i = 0; i < 9; i++)
+                blk.P[i][b] = P[i];
+            bg_rotfit_stats_count(&md->stats, (bg_rotfit_path)path);
         }
-        block3_fit(&blk, md->mu, md->lambda);
+        md->stats.calls += warm;
+        md->stats.warm += warm;
+        /* Settled blocks (later iterations near a solution, repeated
+         * evaluations) leave their rotations' cache lines clean: 64 bytes
+         * per element not written back. */
+        if (blk.moved || warm < count)
+            for (int i = 0; i < 4; i++)
+                for (int b = 0; b < count; b++)
+                    quat[i * ELASTIC_BLOCK + b] = blk.q[i][b];
         for (int b = 0; b < count; b++) {
-            const size_t e = (size_t)(e0 + b);
-            double P[9], psi;
-            if (blk.ok[b] != 0.0) {
-                for (int i = 0; i < 4; i++)
-                    md->quat[4 * e + i] = blk.q[i][b];
-                for (int i = 0; i < 9; i++)
-                    P[i] = blk.P[i][b];
-                psi = blk.psi[b];
-                bg_rotfit_stats_count(&md->stats, BG_ROTFIT_WARM);
-            } else {
-                double F[9], R[9];
-                int path;
-                for (int i = 0; i < 9; i++)
-                    F[i] = blk.F[i][b];
-                psi = material_point(3, md->mu, md->lambda, F, md->quat + 4 * e, R, P, NULL, 0,
-                                     &path);
-                bg_rotfit_stats_count(&md->stats, (bg_rotfit_path)path);
+            md->psi[md->order[e0 + b]] = blk.psi[b];
+            energy += md->volume[e0 + b] * blk.psi[b];
+        }
+        if (!grad)
+            continue;
+        block3_forces(&blk, Di, md->volume + e0);
+        for (int b = 0; b < count; b++) {
+            const int32_t *nodes = el + 4 * b;
+            double f0[3] = {0, 0, 0};
+            for (int j = 0; j < 3; j++) {
+                double *gj = grad + (size_t)nodes[j + 1] * 3;
+                for (int a = 0; a < 3; a++) {
+                    gj[a] += blk.f[3 * j + a][b];
+                    f0[a] += blk.f[3 * j + a][b];
+                }
             }
-            md->psi[e] = psi;
-            energy += md->volume[e] * psi;
-            if (grad)
-                scatter_force(3, mesh->elements + e * 4, md->dminv + e * 9, md->volume[e], P,
-                              grad);
+            double *g0 = grad + (size_t)nodes[0] * 3;
+            for (int a = 0; a < 3; a++)
+                g0[a] -= f0[a];
         }
     }
     return energy;
@@ -629,10 +830,10 @@ double bg_elastic_eval(bg_elastic_t *md, const double *restrict q, double *restr
         return eval3(md, q, grad);
     double energy = 0.0;
     double zero_quat[4];
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        const int32_t *el = mesh->elements + (size_t)e * k;
-        const double *Di = md->dminv + (size_t)e * n * n;
-        double F[9], R[9], P[9];
+    for (int32_t p = 0; p < mesh->ne; p++) {
+        const int32_t *el = md->nodes + (size_t)p * k;
+        double Di[9], F[9], R[9], P[9];
+        elastic_dminv(md, (size_t)p, Di);
         deformation_gradient(n, el, q, Di, F);
         int path;
         double psi = material_point(n, md->mu, md->lambda, F, zero_quat, R,
@@ -640,10 +841,10 @@ double bg_elastic_eval(bg_elastic_t *md, const double *restrict q, double *restr
         if (md->barrier > 0.0)
             psi += barrier_point(md->barrier, F, grad ? P : NULL, NULL, 0);
         bg_rotfit_stats_count(&md->stats, (bg_rotfit_path)path);
-        md->psi[e] = psi;
-        energy += md->volume[e] * psi;
+        md->psi[md->order[p]] = psi;
+        energy += md->volume[p] * psi;
         if (grad)
-            scatter_force(n, el, Di, md->volume[e], P, grad);
+            scatter_force(n, el, Di, md->volume[p], P, grad);
     }
     return energy;
 }
@@ -667,53 +868,282 @@ static void barycentric_gradients(int n, const double *Di, double g[4][3])
  * twist columns are R[e_k]× g_i = r_k × h_i (r_k the k-th column of R; a
  * rotation preserves cross products). Then
  *   K[(i,c),(j,d)] = V (2μ δ_cd g_i·g_j + Σ_kl BG_(i,c)k A_kl BG_(j,d)l + λ h_ic h_jd).
+ *
+ * Like the evaluation, the assembly runs on blocks of ELASTIC_BLOCK
+ * elements across vector lanes: F, the rotations, the twist blocks and the
+ * 78 packed entries of every K_e, then the entries are added into the
+ * pattern lane by lane. The rotations are the ones the last evaluation
+ * fitted at these positions (the contract: assemble after bg_elastic_eval
+ * at the same q); a lane whose stored rotation is not settled at q, or
+ * whose element is inverted or flat (the SVD's rotation), is fitted again
+ * by the scalar bg_rotfit3 from it, which returns exactly the settled
+ * rotation in the other case, so the matrix is the same either way. The
+ * twist block's closed form covers every lane whose shifted M is safely
+ * positive definite; the others take the scalar eigen-decomposition.
  */
+#define ELASTIC_TRI3 BG_ELASTIC_TRI_SIZE(12)
+
+typedef struct hess3 {
+    double R[9][ELASTIC_BLOCK];
+    double S[9][ELASTIC_BLOCK];
+    double A[9][ELASTIC_BLOCK];
+    double ok[ELASTIC_BLOCK];
+    double K[ELASTIC_TRI3][ELASTIC_BLOCK]; /* V·scale·(packed upper triangle of K_e) */
+} hess3_t;
+
+/* The block's rotations from its stored quaternions (blk->q) and S = Rᵀ F;
+ * ok when the rotation is settled at F and det F > ε (see above). */
+ELASTIC_CLONES
+static void block3_rotations(const block3_t *restrict blk, hess3_t *restrict h)
+{
+    for (int b = 0; b < ELASTIC_BLOCK; b++) {
+        double q[4], R[9], F[9], S[9], f2 = 0.0;
+        for (int i = 0; i < 4; i++)
+            q[i] = blk->q[i][b];
+        for (int i = 0; i < 9; i++) {
+            F[i] = blk->F[i][b];
+            f2 += F[i] * F[i];
+        }
+        bg_quat_rotation(q, R);
+        bg_mul_tn3(R, F, S);
+        const double det = F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) +
+                           F[2] * (F[3] * F[7] - F[4] * F[6]);
+        const double scale = f2 / 3.0;
+        const int safe = det > 0.0 &&
+                         det * det > BG_ROTFIT_DET_EPS * BG_ROTFIT_DET_EPS * scale * scale * scale;
+        const int settled = bg_rotfit_skew2(S) <= BG_ROTFIT_SKEW_TOL * BG_ROTFIT_SKEW_TOL * f2;
+        h->ok[b] = safe && settled ? 1.0 : 0.0;
+        for (int i = 0; i < 9; i++) {
+            h->R[i][b] = R[i];
+            h->S[i][b] = S[i];
+        }
+    }
+}
+
+/* twist_block3's closed form across the lanes; ok cleared where it does
+ * not apply (the lane takes the scalar twist_block3). */
+ELASTIC_CLONES
+static void block3_twist(hess3_t *restrict h, double mu, double lambda, int project)
+{
+    for (int b = 0; b < ELASTIC_BLOCK; b++) {
+        const double trY = h->S[0][b] + h->S[4][b] + h->S[8][b];
+        double M[9];
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                M[3 * i + j] = (i == j ? trY : 0.0) - 0.5 * (h->S[3 * i + j][b] + h->S[3 * j + i][b]);
+        const double c = lambda * (trY - 3.0) - 2.0 * mu;
+        const double floor_ = ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY));
+        const double theta = project && c < 0.0 ? fmax(floor_, -c / mu) : floor_;
+        const int pd = pd3_shifted(M, theta);
+        const double c00 = M[4] * M[8] - M[5] * M[7], c01 = M[2] * M[7] - M[1] * M[8],
+                     c02 = M[1] * M[5] - M[2] * M[4], c11 = M[0] * M[8] - M[2] * M[6],
+                     c12 = M[2] * M[3] - M[0] * M[5], c22 = M[0] * M[4] - M[1] * M[3];
+        const double det = M[0] * c00 + M[1] * c01 + M[2] * c02;
+        const double f = c / (pd ? det : 1.0);
+        h->A[0][b] = f * c00, h->A[1][b] = f * c01, h->A[2][b] = f * c02;
+        h->A[3][b] = f * c01, h->A[4][b] = f * c11, h->A[5][b] = f * c12;
+        h->A[6][b] = f * c02, h->A[7][b] = f * c12, h->A[8][b] = f * c22;
+        h->ok[b] = pd ? h->ok[b] : 0.0;
+    }
+}
+
+/*
+ * twist_block3's other branch, for the lanes block3_twist left (ok = 0):
+ * the eigenvectors of sym(S) by the cyclic Jacobi method of
+ * bg_sym3_eigen, the pair sums floored and, when projecting, the twist
+ * eigenvalues clamped, A = V diag(a) Vᵀ. The lanes run the scalar
+ * routine's sweeps in step with the same arithmetic; a lane that has
+ * converged (or whose pivot is zero) takes the identity rotation (c = 1,
+ * s = 0) while the others go on. In the projected Hessian of a bent or
+ * compressed body this is most elements (any pair sum σi + σj below
+ * −c/μ ≈ 2 sends a lane here), so it runs vectorised.
+ */
+/* One Jacobi rotation in the (p, q) plane on every live lane (the
+ * others rotate by the identity); inline, so that p and q are constants
+ * and the lane loop vectorises. */
+static inline __attribute__((always_inline)) void
+jacobi_lanes(double (*restrict a)[ELASTIC_BLOCK], double (*restrict Q)[ELASTIC_BLOCK],
+             const double *restrict live, int p, int q)
+{
+    for (int b = 0; b < ELASTIC_BLOCK; b++) {
+        const double apq = a[3 * p + q][b];
+        const int active = live[b] != 0.0 && apq != 0.0;
+        const double theta = (a[3 * q + q][b] - a[3 * p + p][b]) / (2.0 * (active ? apq : 1.0));
+        const double t = copysign(1.0, theta) / (fabs(theta) + sqrt(theta * theta + 1.0));
+        const double c0 = 1.0 / sqrt(t * t + 1.0);
+        const double c = active ? c0 : 1.0, s = active ? t * c0 : 0.0;
+        for (int i = 0; i < 3; i++) {
+            const double aip = a[3 * i + p][b], aiq = a[3 * i + q][b];
+            a[3 * i + p][b] = c * aip - s * aiq;
+            a[3 * i + q][b] = s * aip + c * aiq;
+        }
+        for (int j = 0; j < 3; j++) {
+            const double apj = a[3 * p + j][b], aqj = a[3 * q + j][b];
+            a[3 * p + j][b] = c * apj - s * aqj;
+            a[3 * q + j][b] = s * apj + c * aqj;
+        }
+        for (int i = 0; i < 3; i++) {
+            const double qip = Q[3 * i + p][b], qiq = Q[3 * i + q][b];
+            Q[3 * i + p][b] = c * qip - s * qiq;
+            Q[3 * i + q][b] = s * qip + c * qiq;
+        }
+    }
+}
+
+ELASTIC_CLONES
+static void block3_twist_eigen(hess3_t *restrict h, double mu, double lambda, int project)
+{
+    enum { B = ELASTIC_BLOCK };
+    double a[9][B], Q[9][B], live[B];
+    for (int b = 0; b < B; b++) {
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) {
+                a[3 * i + j][b] = 0.5 * (h->S[3 * i + j][b] + h->S[3 * j + i][b]);
+                Q[3 * i + j][b] = i == j ? 1.0 : 0.0;
+            }
+        live[b] = h->ok[b] == 0.0 ? 1.0 : 0.0;
+    }
+    for (int sweep = 0; sweep < BG_ROTFIT_JACOBI_SWEEPS; sweep++) {
+        int any = 0;
+        for (int b = 0; b < B; b++) {
+            const double off = a[1][b] * a[1][b] + a[2][b] * a[2][b] + a[5][b] * a[5][b];
+            const double diag = a[0][b] * a[0][b] + a[4][b] * a[4][b] + a[8][b] * a[8][b];
+            live[b] = live[b] != 0.0 && !(off <= 1e-32 * diag || off == 0.0) ? 1.0 : 0.0;
+        }
+        for (int b = 0; b < B; b++)
+            any |= live[b] != 0.0;
+        if (!any)
+            break;
+        jacobi_lanes(a, Q, live, 0, 1);
+        jacobi_lanes(a, Q, live, 0, 2);
+        jacobi_lanes(a, Q, live, 1, 2);
+    }
+    for (int b = 0; b < B; b++) {
+        const double trY = h->S[0][b] + h->S[4][b] + h->S[8][b];
+        const double c = lambda * (trY - 3.0) - 2.0 * mu;
+        const double floor_ = ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY));
+        double w[3];
+        for (int k = 0; k < 3; k++)
+            w[k] = twist_weight(mu, c, trY - a[4 * k][b], floor_, project);
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) {
+                const double v = Q[3 * i][b] * w[0] * Q[3 * j][b] +
+                                 Q[3 * i + 1][b] * w[1] * Q[3 * j + 1][b] +
+                                 Q[3 * i + 2][b] * w[2] * Q[3 * j + 2][b];
+                h->A[3 * i + j][b] = h->ok[b] == 0.0 ? v : h->A[3 * i + j][b];
+            }
+    }
+}
+
+/* A block's lanes as one vector: GCC's and clang's vector extension
+ * (each target_clones clone maps it to its own registers). Used where the
+ * vectoriser gives up on the lane loops (78 entries of twelve small
+ * products each). Loads and stores through memcpy: no alignment assumed. */
+typedef double lanes_t __attribute__((vector_size(ELASTIC_BLOCK * sizeof(double))));
+/* (a macro, not a function: a vector passed by value would change the ABI
+ * between the clones and the baseline) */
+#define LANES_LOAD(v, p) memcpy(&(v), (p), sizeof(lanes_t))
+
+/* The 78 packed entries of every lane's K_e, times V·scale (V: the
+ * block's volumes, Di its D_m⁻¹), from R and A; the same products in the
+ * same order as one element at a time. */
+ELASTIC_CLONES
+static void block3_stiffness(hess3_t *restrict h, const double *restrict Di,
+                             const double *restrict V, double scale, double mu, double lambda)
+{
+    const lanes_t zero = {0.0};
+    lanes_t g[4][3], R[9], A[9], hv[12], BG[12][3], BA[12][3], w;
+    for (int i = 0; i < 9; i++) {
+        LANES_LOAD(R[i], h->R[i]);
+        LANES_LOAD(A[i], h->A[i]);
+    }
+    for (int c = 0; c < 3; c++) {
+        g[0][c] = zero;
+        for (int j = 0; j < 3; j++) {
+            LANES_LOAD(g[j + 1][c], Di + (3 * j + c) * ELASTIC_BLOCK);
+            g[0][c] -= g[j + 1][c];
+        }
+    }
+    for (int i = 0; i < 4; i++) {
+        for (int c = 0; c < 3; c++)
+            hv[3 * i + c] = R[3 * c] * g[i][0] + R[3 * c + 1] * g[i][1] + R[3 * c + 2] * g[i][2];
+        for (int k = 0; k < 3; k++) {
+            const lanes_t r0 = R[k], r1 = R[3 + k], r2 = R[6 + k];
+            BG[3 * i + 0][k] = r1 * hv[3 * i + 2] - r2 * hv[3 * i + 1];
+            BG[3 * i + 1][k] = r2 * hv[3 * i] - r0 * hv[3 * i + 2];
+            BG[3 * i + 2][k] = r0 * hv[3 * i + 1] - r1 * hv[3 * i];
+        }
+    }
+    for (int a = 0; a < 12; a++)
+        for (int l = 0; l < 3; l++)
+            BA[a][l] = BG[a][0] * A[l] + BG[a][1] * A[3 + l] + BG[a][2] * A[6 + l];
+    LANES_LOAD(w, V);
+    w *= scale;
+    const double two_mu = 2.0 * mu;
+    int t = 0;
+    for (int a = 0; a < 12; a++)
+        for (int bb = a; bb < 12; bb++, t++) {
+            lanes_t v = BA[a][0] * BG[bb][0] + BA[a][1] * BG[bb][1] + BA[a][2] * BG[bb][2] +
+                        lambda * hv[a] * hv[bb];
+            if (a % 3 == bb % 3) {
+                const int i = a / 3, j = bb / 3;
+                v += two_mu * (g[i][0] * g[j][0] + g[i][1] * g[j][1] + g[i][2] * g[j][2]);
+            }
+            v = w * v;
+            memcpy(h->K[t], &v, sizeof v);
+        }
+}
+
 static void assemble3(const bg_elastic_t *md, const double *q, int project, double scale,
                       const int32_t *restrict scatter, double *restrict values)
 {
-    const int m = 12, T = BG_ELASTIC_TRI_SIZE(12);
     const bg_mesh_t *mesh = md->mesh;
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        const int32_t *el = mesh->elements + (size_t)e * 4;
-        const double *Di = md->dminv + (size_t)e * 9;
-        double F[9], R[9], S[9], A[9], g[4][3], quat[4];
-        memcpy(quat, md->quat + 4 * (size_t)e, sizeof quat);
-        deformation_gradient(3, el, q, Di, F);
-        bg_rotfit3(F, quat, R);
-        bg_mul_tn3(R, F, S);
-        twist_block3(md->mu, md->lambda, S, S[0] + S[4] + S[8], project, A);
-        barycentric_gradients(3, Di, g);
-        double h[12], BG[12][3], BA[12][3];
-        for (int i = 0; i < 4; i++) {
-            double *hi = h + 3 * i;
-            for (int c = 0; c < 3; c++)
-                hi[c] = R[3 * c] * g[i][0] + R[3 * c + 1] * g[i][1] + R[3 * c + 2] * g[i][2];
-            for (int k = 0; k < 3; k++) {
-                const double r0 = R[k], r1 = R[3 + k], r2 = R[6 + k];
-                BG[3 * i + 0][k] = r1 * hi[2] - r2 * hi[1];
-                BG[3 * i + 1][k] = r2 * hi[0] - r0 * hi[2];
-                BG[3 * i + 2][k] = r0 * hi[1] - r1 * hi[0];
+    block3_t blk;
+    hess3_t h;
+    for (int32_t e0 = 0; e0 < mesh->ne; e0 += ELASTIC_BLOCK) {
+        const int count = mesh->ne - e0 < ELASTIC_BLOCK ? (int)(mesh->ne - e0) : ELASTIC_BLOCK;
+        const size_t block = (size_t)e0 / ELASTIC_BLOCK;
+        const double *Di = md->dminv + block * 9 * ELASTIC_BLOCK;
+        const double *quat = md->quat + block * 4 * ELASTIC_BLOCK;
+        memcpy(blk.q, quat, sizeof blk.q);
+        block3_gradient(&blk, md->nodes + (size_t)e0 * 4, q, Di);
+        block3_rotations(&blk, &h);
+        for (int b = 0; b < count; b++) {
+            if (h.ok[b] != 0.0)
+                continue;
+            double F[9], R[9], S[9], qs[4];
+            for (int i = 0; i < 9; i++)
+                F[i] = blk.F[i][b];
+            for (int i = 0; i < 4; i++)
+                qs[i] = blk.q[i][b];
+            bg_rotfit3(F, qs, R);
+            bg_mul_tn3(R, F, S);
+            for (int i = 0; i < 9; i++) {
+                h.R[i][b] = R[i];
+                h.S[i][b] = S[i];
             }
+            h.ok[b] = 1.0;
         }
-        for (int a = 0; a < m; a++)
-            for (int l = 0; l < 3; l++)
-                BA[a][l] = BG[a][0] * A[l] + BG[a][1] * A[3 + l] + BG[a][2] * A[6 + l];
-        const double w = scale * md->volume[e];
-        const double two_mu = 2.0 * md->mu, lambda = md->lambda;
-        const int32_t *sc = scatter + (size_t)e * T;
-        for (int a = 0; a < m; a++) {
-            const int i = a / 3, c = a % 3;
-            for (int b = a; b < m; b++) {
-                const int32_t pos = sc[BG_ELASTIC_TRI_INDEX(m, a, b)];
-                if (pos < 0)
-                    continue;
-                const int j = b / 3;
-                double v = BA[a][0] * BG[b][0] + BA[a][1] * BG[b][1] + BA[a][2] * BG[b][2] +
-                           lambda * h[a] * h[b];
-                if (c == b % 3)
-                    v += two_mu * (g[i][0] * g[j][0] + g[i][1] * g[j][1] + g[i][2] * g[j][2]);
-                values[pos] += w * v;
-            }
+        block3_twist(&h, md->mu, md->lambda, project);
+        int rest = 0;
+        for (int b = 0; b < count; b++)
+            rest |= h.ok[b] == 0.0;
+        if (rest)
+            block3_twist_eigen(&h, md->mu, md->lambda, project);
+        /* The next block's scatter rows: elements in curve order sit at
+         * scattered rows of the map (mesh order), so ask for them early. */
+        for (int b = 0; b < ELASTIC_BLOCK && e0 + ELASTIC_BLOCK + b < mesh->ne; b++) {
+            const char *row = (const char *)(scatter + (size_t)md->order[e0 + ELASTIC_BLOCK + b] *
+                                                           ELASTIC_TRI3);
+            for (size_t off = 0; off < ELASTIC_TRI3 * sizeof *scatter; off += 64)
+                __builtin_prefetch(row + off);
+        }
+        block3_stiffness(&h, Di, md->volume + e0, scale, md->mu, md->lambda);
+        for (int b = 0; b < count; b++) {
+            const int32_t *sc = scatter + (size_t)md->order[e0 + b] * ELASTIC_TRI3;
+            for (int t = 0; t < ELASTIC_TRI3; t++)
+                if (sc[t] >= 0)
+                    values[sc[t]] += h.K[t][b];
         }
     }
 }
@@ -728,13 +1158,11 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
         assemble3(md, q, project, scale, scatter, values);
         return;
     }
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        const int32_t *el = mesh->elements + (size_t)e * k;
-        const double *Di = md->dminv + (size_t)e * nn;
-        double F[9], R[9], H[81], g[4][3];
-        double quat[4];
-        if (n == 3)
-            memcpy(quat, md->quat + 4 * (size_t)e, sizeof quat);
+    for (int32_t p = 0; p < mesh->ne; p++) {
+        const int32_t *el = md->nodes + (size_t)p * k;
+        double Di[9], F[9], R[9], H[81], g[4][3];
+        double quat[4] = {0, 0, 0, 0}; /* 2D: unused */
+        elastic_dminv(md, (size_t)p, Di);
         deformation_gradient(n, el, q, Di, F);
         int path;
         material_point(n, md->mu, md->lambda, F, quat, R, NULL, H, project, &path);
@@ -752,8 +1180,8 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
                         s += H[r * nn + d * n + ep] * g[j][ep];
                     HB[r][j * n + d] = s;
                 }
-        const double w = scale * md->volume[e];
-        const int32_t *sc = scatter + (size_t)e * T;
+        const double w = scale * md->volume[p];
+        const int32_t *sc = scatter + (size_t)md->order[p] * T;
         for (int a = 0; a < m; a++) {
             const int i = a / n, c = a % n;
             for (int bcol = a; bcol < m; bcol++) {
@@ -784,12 +1212,12 @@ void bg_elastic_force_magnitude(const bg_elastic_t *md, const double *q, double 
 {
     const int n = md->n, k = n + 1, nn = n * n;
     const bg_mesh_t *mesh = md->mesh;
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        const int32_t *el = mesh->elements + (size_t)e * k;
-        const double *Di = md->dminv + (size_t)e * nn;
-        double F[9], R[9], P[9], quat[4] = {0, 0, 0, 0}, g[4][3];
+    for (int32_t p = 0; p < mesh->ne; p++) {
+        const int32_t *el = md->nodes + (size_t)p * k;
+        double Di[9], F[9], R[9], P[9], quat[4] = {0, 0, 0, 0}, g[4][3];
+        elastic_dminv(md, (size_t)p, Di);
         if (n == 3)
-            memcpy(quat, md->quat + 4 * (size_t)e, sizeof quat);
+            quat_load(md, (size_t)p, quat);
         deformation_gradient(n, el, q, Di, F);
         int path;
         material_point(n, md->mu, md->lambda, F, quat, R, NULL, NULL, 0, &path);
@@ -815,7 +1243,7 @@ void bg_elastic_force_magnitude(const bg_elastic_t *md, const double *q, double 
                 P[i] += fabs(Pb[i]);
         }
         barycentric_gradients(n, Di, g);
-        const double w = scale * md->volume[e];
+        const double w = scale * md->volume[p];
         for (int i = 0; i < k; i++)
             for (int a = 0; a < n; a++) {
                 double s = 0.0;
@@ -832,16 +1260,17 @@ void bg_elastic_apply_laplacian(const bg_elastic_t *md, const double *restrict u
     const int n = md->n, k = n + 1;
     const bg_mesh_t *mesh = md->mesh;
     memset(out, 0, (size_t)mesh->nv * n * sizeof *out);
-    for (int32_t e = 0; e < mesh->ne; e++) {
-        const int32_t *el = mesh->elements + (size_t)e * k;
-        double g[4][3];
-        barycentric_gradients(n, md->dminv + (size_t)e * n * n, g);
+    for (int32_t p = 0; p < mesh->ne; p++) {
+        const int32_t *el = md->nodes + (size_t)p * k;
+        double Di[9], g[4][3];
+        elastic_dminv(md, (size_t)p, Di);
+        barycentric_gradients(n, Di, g);
         for (int i = 0; i < k; i++)
             for (int j = 0; j < k; j++) {
                 double s = 0.0;
                 for (int b = 0; b < n; b++)
                     s += g[i][b] * g[j][b];
-                s *= md->volume[e];
+                s *= md->volume[p];
                 for (int c = 0; c < n; c++)
                     out[(size_t)el[i] * n + c] += s * u[(size_t)el[j] * n + c];
             }
@@ -852,11 +1281,12 @@ void bg_elastic_assemble_scalar_laplacian(const bg_elastic_t *md, double scale,
                                           const int32_t *restrict scatter, double *restrict values)
 {
     const int n = md->n, k = n + 1, T = BG_ELASTIC_TRI_SIZE(k);
-    for (int32_t e = 0; e < md->mesh->ne; e++) {
-        double g[4][3];
-        barycentric_gradients(n, md->dminv + (size_t)e * n * n, g);
-        const double w = scale * md->volume[e];
-        const int32_t *sc = scatter + (size_t)e * T;
+    for (int32_t p = 0; p < md->mesh->ne; p++) {
+        double Di[9], g[4][3];
+        elastic_dminv(md, (size_t)p, Di);
+        barycentric_gradients(n, Di, g);
+        const double w = scale * md->volume[p];
+        const int32_t *sc = scatter + (size_t)md->order[p] * T;
         for (int i = 0; i < k; i++)
             for (int j = i; j < k; j++) {
                 const int32_t pos = sc[BG_ELASTIC_TRI_INDEX(k, i, j)];

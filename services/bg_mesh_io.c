@@ -1369,30 +1369,45 @@ static bg_status gmsh_nodes2(gmsh_t *g)
     return gmsh_section_end(g, "$EndNodes");
 }
 
+/*
+ * A Gmsh 4.1 header: four integers on one record (a section's
+ * "numEntityBlocks numX minTag maxTag", a block's "entityDim entityTag
+ * third numInBlock"), into v[0..3]. label names the four in messages;
+ * where names the header ("the $Nodes header", "node block 3").
+ */
+static bg_status gmsh4_header(scan_t *s, const char *const label[4], const char *where,
+                              int64_t v[4])
+{
+    bg_status st = sc_int(s, 1, &v[0], "%s %s %s %s in %s", label[0], label[1], label[2],
+                          label[3], where);
+    for (int k = 1; k < 4 && st == BG_OK; k++)
+        st = sc_int(s, 0, &v[k], "%s after %s in %s", label[k], label[k - 1], where);
+    return st == BG_OK ? sc_end_record(s, "%s", where) : st;
+}
+
 static bg_status gmsh_nodes4(gmsh_t *g)
 {
     scan_t *s = &g->s;
-    int64_t blocks = 0, n = 0, min_tag = 0, max_tag = 0, filled = 0;
+    static const char *const section[4] = {"numEntityBlocks", "numNodes", "minNodeTag",
+                                           "maxNodeTag"};
+    static const char *const block[4] = {"entityDim", "entityTag", "parametric",
+                                         "numNodesInBlock"};
+    int64_t head[4] = {0}, filled = 0;
     bg_status st;
-    if ((st = sc_int(s, 1, &blocks, "numEntityBlocks numNodes minNodeTag maxNodeTag")) != BG_OK ||
-        (st = sc_int(s, 0, &n, "numNodes after numEntityBlocks")) != BG_OK ||
-        (st = sc_int(s, 0, &min_tag, "minNodeTag after numNodes")) != BG_OK ||
-        (st = sc_int(s, 0, &max_tag, "maxNodeTag after minNodeTag")) != BG_OK ||
-        (st = sc_end_record(s, "the $Nodes header")) != BG_OK ||
-        (st = sc_count(s, blocks, INT32_LIMIT, 4, "node blocks")) != BG_OK ||
+    if ((st = gmsh4_header(s, section, "the $Nodes header", head)) != BG_OK)
+        return st;
+    const int64_t blocks = head[0], n = head[1];
+    if ((st = sc_count(s, blocks, INT32_LIMIT, 4, "node blocks")) != BG_OK ||
         (st = sc_count(s, n, BG_MESH_MAX_VERTICES, GMSH_NODE_FIELDS, "nodes")) != BG_OK ||
         (st = gmsh_alloc_nodes(g, n)) != BG_OK)
         return st;
     for (int64_t b = 0; b < blocks; b++) {
-        int64_t edim = 0, etag = 0, parametric = 0, count = 0;
-        if ((st = sc_int(s, 1, &edim, "entityDim entityTag parametric numNodesInBlock")) != BG_OK ||
-            (st = sc_int(s, 0, &etag, "entityTag in node block %lld", (long long)b + 1)) != BG_OK ||
-            (st = sc_int(s, 0, &parametric, "parametric in node block %lld", (long long)b + 1)) !=
-                BG_OK ||
-            (st = sc_int(s, 0, &count, "numNodesInBlock in node block %lld", (long long)b + 1)) !=
-                BG_OK ||
-            (st = sc_end_record(s, "the header of node block %lld", (long long)b + 1)) != BG_OK)
+        char where[48];
+        snprintf(where, sizeof where, "node block %lld", (long long)b + 1);
+        int64_t bh[4] = {0};
+        if ((st = gmsh4_header(s, block, where, bh)) != BG_OK)
             return st;
+        const int64_t edim = bh[0], parametric = bh[2], count = bh[3];
         if (edim < 0 || edim > GMSH_MAX_ENTITY_DIM || (parametric != 0 && parametric != 1))
             return sc_fail(s, BG_ERR_PARSE,
                            "node block %lld: entity dimension %lld or parametric "
@@ -1570,29 +1585,26 @@ static bg_status gmsh_elements2(gmsh_t *g)
 static bg_status gmsh_elements4(gmsh_t *g)
 {
     scan_t *s = &g->s;
-    int64_t blocks = 0, n = 0, min_tag = 0, max_tag = 0, filled = 0;
+    static const char *const section[4] = {"numEntityBlocks", "numElements", "minElementTag",
+                                           "maxElementTag"};
+    static const char *const block[4] = {"entityDim", "entityTag", "elementType",
+                                         "numElementsInBlock"};
+    int64_t head[4] = {0}, filled = 0;
     bg_status st;
-    if ((st = sc_int(s, 1, &blocks, "numEntityBlocks numElements minTag maxTag")) != BG_OK ||
-        (st = sc_int(s, 0, &n, "numElements after numEntityBlocks")) != BG_OK ||
-        (st = sc_int(s, 0, &min_tag, "minElementTag after numElements")) != BG_OK ||
-        (st = sc_int(s, 0, &max_tag, "maxElementTag after minElementTag")) != BG_OK ||
-        (st = sc_end_record(s, "the $Elements header")) != BG_OK ||
-        (st = sc_count(s, blocks, INT32_LIMIT, 4, "element blocks")) != BG_OK ||
+    if ((st = gmsh4_header(s, section, "the $Elements header", head)) != BG_OK)
+        return st;
+    const int64_t blocks = head[0], n = head[1];
+    if ((st = sc_count(s, blocks, INT32_LIMIT, 4, "element blocks")) != BG_OK ||
         (st = sc_count(s, n, BG_MESH_MAX_ELEMENTS, GMSH4_ELEMENT_FIELDS, "elements")) != BG_OK)
         return st;
     for (int64_t b = 0; b < blocks; b++) {
-        int64_t edim = 0, etag = 0, type = 0, count = 0;
+        char where[48];
+        snprintf(where, sizeof where, "element block %lld", (long long)b + 1);
+        int64_t bh[4] = {0};
         int corners = 0, nodes = 0;
-        if ((st = sc_int(s, 1, &edim, "entityDim entityTag elementType numElementsInBlock")) !=
-                BG_OK ||
-            (st = sc_int(s, 0, &etag, "entityTag in element block %lld", (long long)b + 1)) !=
-                BG_OK ||
-            (st = sc_int(s, 0, &type, "elementType in element block %lld", (long long)b + 1)) !=
-                BG_OK ||
-            (st = sc_int(s, 0, &count, "numElementsInBlock in element block %lld",
-                         (long long)b + 1)) != BG_OK ||
-            (st = sc_end_record(s, "the header of element block %lld", (long long)b + 1)) != BG_OK)
+        if ((st = gmsh4_header(s, block, where, bh)) != BG_OK)
             return st;
+        const int64_t edim = bh[0], etag = bh[1], type = bh[2], count = bh[3];
         if (count < 0 || count > n - filled)
             return sc_fail(s, BG_ERR_PARSE,
                            "element block %lld holds %lld elements; only %lld of the %lld "

@@ -19,11 +19,12 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
     plan->service_count = 0;
     plan->left_out_count = 0;
     const int planar = scene->mesh->dim == 2;
-    int newton = 0, local_global = 0;
+    int newton = 0, local_global = 0, quasi_newton = 0;
     const int dynamic = scene->task == BG_TASK_DYNAMIC;
     for (int i = 0; i < method_count; i++) {
         newton |= methods[i] == BG_METHOD_NEWTON || bg_method_is_dynamic(methods[i]);
         local_global |= methods[i] == BG_METHOD_LOCAL_GLOBAL;
+        quasi_newton |= methods[i] == BG_METHOD_QUASI_NEWTON;
     }
     if (scene->task == BG_TASK_SURFACE_EDIT)
         add(plan->services, &plan->service_count, "rotation-fit",
@@ -34,14 +35,17 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
         planar ? "closed-form 2D rotation per triangle"
                : "polar decomposition per tetrahedron (Newton on SO(3), warm-started), "
                  "rotation-variant SVD where det F <= eps");
-    char detail[256];
+    char detail[384];
     /* Series (time steps, morph frames) keep the factored Newton matrix
      * and take L-BFGS steps on it (bg_dynamics, bg_morph). */
     const int series = dynamic || scene->task == BG_TASK_MORPH;
     int continues = 0;
     for (int i = 0; i < method_count; i++)
         continues |= bg_static_continues(scene, methods[i]);
-    snprintf(detail, sizeof detail, "%s%s%s",
+    /* Local/global and quasi-newton share one matrix, the Laplacian: its
+     * solve is local/global's step and quasi-newton's initial Hessian. */
+    const int laplacian = local_global || quasi_newton;
+    snprintf(detail, sizeof detail, "%s%s%s%s",
              !newton  ? ""
              : series ? "CHOLMOD: one symbolic analysis; the Newton matrix factored when it goes "
                         "stale, L-BFGS steps on it in between"
@@ -51,17 +55,25 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
                             "solution)"
                           : "CHOLMOD: one symbolic analysis, a numeric factorization per Newton "
                             "iteration (exact Hessian first near the solution)",
-             newton && local_global ? "; " : "",
-             !local_global ? ""
+             newton && laplacian ? "; " : "",
+             !laplacian ? ""
              : scene->task == BG_TASK_MORPH
-                 ? "CHOLMOD: the Laplacian factored once per frame, solves per iteration"
-                 : "CHOLMOD: the Laplacian factored once, solves per iteration");
+                 ? "CHOLMOD: the Laplacian factored once per frame, one block solve of the "
+                   "coordinates per iteration"
+                 : "CHOLMOD: the Laplacian factored once, one block solve of the coordinates per "
+                   "iteration",
+             !quasi_newton ? ""
+             : local_global ? " (local/global's step; quasi-newton's L-BFGS initial Hessian)"
+                            : " (the L-BFGS initial Hessian)");
     add(plan->services, &plan->service_count, "sparse-solve", detail);
     if (continues) {
         snprintf(detail, sizeof detail,
-                 "Newton, lambda = %g mu > 100 mu (nearly incompressible): stages of growing "
+                 "%s, lambda = %g mu > 100 mu (nearly incompressible): stages of growing "
                  "lambda from 10 mu, doubling, each warm-started from the last; iterations and "
                  "times total the stages",
+                 newton && quasi_newton ? "Newton and quasi-newton"
+                 : newton               ? "Newton"
+                                        : "quasi-newton",
                  scene->material.lambda / scene->material.mu);
         add(plan->services, &plan->service_count, "continuation", detail);
     }

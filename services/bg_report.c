@@ -1,10 +1,13 @@
 #include "bg_report.h"
 
 #include <cjson/cJSON.h>
+#include <limits.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "bg_json.h"
 #include "bg_svg.h"
 
 static cJSON *number_or_null(double x)
@@ -315,4 +318,281 @@ void bg_report_print_table(FILE *out, const bg_solve_result_t *runs, int run_cou
             if (j % stride == 0 || j == n - 1)
                 print_row(out, bg_method_name(r->method), &r->trace[j]);
     }
+}
+
+/* ------------------------------------------------- reading a report back */
+
+/* A number the report may write as null (a non-finite value: NAN). A
+ * missing key is an error when required, else fallback. */
+static bg_status read_real(const cJSON *obj, const char *key, int required, double fallback,
+                           const char *name, const char *parent, double *out, bg_error_t *err)
+{
+    char field[BG_JSON_PATH_MAX];
+    bg_json_path_key(field, parent, key);
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(obj, key);
+    if (!item) {
+        *out = fallback;
+        return required ? bg_json_fail(err, BG_ERR_INVALID, name, field, "missing") : BG_OK;
+    }
+    if (cJSON_IsNull(item)) {
+        *out = NAN;
+        return BG_OK;
+    }
+    return bg_json_number(item, name, field, out, err);
+}
+
+/* A count in [lo, INT_MAX]; missing: an error when required, else fallback. */
+static bg_status read_int(const cJSON *obj, const char *key, int required, int lo, int fallback,
+                          const char *name, const char *parent, int *out, bg_error_t *err)
+{
+    char field[BG_JSON_PATH_MAX];
+    bg_json_path_key(field, parent, key);
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(obj, key);
+    *out = fallback;
+    if (!item)
+        return required ? bg_json_fail(err, BG_ERR_INVALID, name, field, "missing") : BG_OK;
+    int64_t v = 0;
+    const bg_status st = bg_json_integer(item, name, field, lo, INT_MAX, &v, err);
+    if (st == BG_OK)
+        *out = (int)v;
+    return st;
+}
+
+/* true or false; missing: an error when required, else 0. */
+static bg_status read_flag(const cJSON *obj, const char *key, int required, const char *name,
+                           const char *parent, int *out, bg_error_t *err)
+{
+    char field[BG_JSON_PATH_MAX];
+    bg_json_path_key(field, parent, key);
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(obj, key);
+    *out = 0;
+    if (!item)
+        return required ? bg_json_fail(err, BG_ERR_INVALID, name, field, "missing") : BG_OK;
+    return bg_json_bool(item, name, field, out, err);
+}
+
+/* The array under key (NULL when absent and not required), its path in field. */
+static bg_status read_array(const cJSON *obj, const char *key, int required, const char *name,
+                            const char *parent, char *field, const cJSON **out, bg_error_t *err)
+{
+    bg_json_path_key(field, parent, key);
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(obj, key);
+    *out = NULL;
+    if (!item)
+        return required ? bg_json_fail(err, BG_ERR_INVALID, name, field, "missing") : BG_OK;
+    if (!cJSON_IsArray(item))
+        return bg_json_fail(err, BG_ERR_INVALID, name, field, "expected an array, got %s",
+                            bg_json_type_name(item));
+    *out = item;
+    return BG_OK;
+}
+
+/* A member of a result read from its key: a number (null: NAN), a count
+ * or a flag, at offset in the struct; required, or fallback when absent. */
+typedef enum field_kind { FIELD_REAL, FIELD_COUNT, FIELD_FLAG } field_kind;
+typedef struct field {
+    const char *key;
+    field_kind kind;
+    int required;
+    double fallback;
+    size_t offset;
+} field_t;
+
+#define REAL(T, key, member, required, fallback)                                                  \
+    {key, FIELD_REAL, required, fallback, offsetof(T, member)}
+#define COUNT(T, key, member, required) {key, FIELD_COUNT, required, 0, offsetof(T, member)}
+#define FLAG(T, key, member, required) {key, FIELD_FLAG, required, 0, offsetof(T, member)}
+
+static const field_t TRACE_FIELDS[] = {
+    REAL(bg_trace_point_t, "seconds", seconds, 1, 0.0),
+    COUNT(bg_trace_point_t, "iteration", iteration, 1),
+    COUNT(bg_trace_point_t, "stage", stage, 0),
+    REAL(bg_trace_point_t, "energy", energy, 0, NAN),
+    REAL(bg_trace_point_t, "gradient_norm", gradient_norm, 0, NAN),
+    REAL(bg_trace_point_t, "relative_gradient", relative_gradient, 1, NAN),
+    REAL(bg_trace_point_t, "error", error, 0, NAN),
+};
+static const field_t STEP_FIELDS[] = {
+    REAL(bg_step_record_t, "time", time, 1, 0.0),
+    REAL(bg_step_record_t, "kinetic", kinetic, 0, NAN),
+    REAL(bg_step_record_t, "potential", potential, 0, NAN),
+    REAL(bg_step_record_t, "total_energy", total_energy, 0, NAN),
+    COUNT(bg_step_record_t, "iterations", iterations, 0),
+    FLAG(bg_step_record_t, "limited", limited, 0),
+    REAL(bg_step_record_t, "seconds", seconds, 0, 0.0),
+};
+static const field_t FRAME_FIELDS[] = {
+    REAL(bg_step_record_t, "t", time, 1, 0.0),
+    REAL(bg_step_record_t, "energy", total_energy, 0, NAN),
+    COUNT(bg_step_record_t, "iterations", iterations, 0),
+    REAL(bg_step_record_t, "seconds", seconds, 0, 0.0),
+};
+static const field_t RUN_FIELDS[] = {
+    FLAG(bg_solve_result_t, "converged", converged, 1),
+    COUNT(bg_solve_result_t, "iterations", iterations, 1),
+    REAL(bg_solve_result_t, "wall_seconds", wall_seconds, 1, 0.0),
+    REAL(bg_solve_result_t, "energy", energy, 0, NAN),
+    REAL(bg_solve_result_t, "gradient_norm", gradient_norm, 0, NAN),
+    REAL(bg_solve_result_t, "relative_gradient", relative_gradient, 1, NAN),
+    REAL(bg_solve_result_t, "force_scale", force_scale, 0, NAN),
+    REAL(bg_solve_result_t, "gradient_roundoff", gradient_roundoff, 0, NAN),
+    FLAG(bg_solve_result_t, "roundoff_floor", roundoff_floor, 0),
+    COUNT(bg_solve_result_t, "continuation_stages", continuation_stages, 0),
+    COUNT(bg_solve_result_t, "limited_steps", limited_steps, 0),
+};
+#define FIELDS(table) table, sizeof table / sizeof table[0]
+
+/* The fields of object o (its path: at) into the struct at base. */
+static bg_status read_fields(const cJSON *o, const field_t *fields, size_t count, void *base,
+                             const char *name, const char *at, bg_error_t *err)
+{
+    bg_status st = bg_json_expect_object(o, name, at, err);
+    for (size_t i = 0; i < count && st == BG_OK; i++) {
+        const field_t *f = &fields[i];
+        void *member = (char *)base + f->offset;
+        if (f->kind == FIELD_REAL)
+            st = read_real(o, f->key, f->required, f->fallback, name, at, member, err);
+        else if (f->kind == FIELD_COUNT)
+            st = read_int(o, f->key, f->required, 0, 0, name, at, member, err);
+        else
+            st = read_flag(o, f->key, f->required, name, at, member, err);
+    }
+    return st;
+}
+
+/* One trace point (variant unused: the item readers share a signature). */
+static bg_status read_point(const cJSON *o, int variant, const char *name, const char *at,
+                            void *point, bg_error_t *err)
+{
+    (void)variant;
+    return read_fields(o, FIELDS(TRACE_FIELDS), point, name, at, err);
+}
+
+/* A dynamic run's step or (morph) a morph's frame; a step's momenta too. */
+static bg_status read_step(const cJSON *o, int morph, const char *name, const char *at,
+                           void *step, bg_error_t *err)
+{
+    bg_step_record_t *s = step;
+    bg_status st = morph ? read_fields(o, FIELDS(FRAME_FIELDS), s, name, at, err)
+                         : read_fields(o, FIELDS(STEP_FIELDS), s, name, at, err);
+    static const char *const momenta[2] = {"linear_momentum", "angular_momentum"};
+    for (int k = 0; k < 2 && st == BG_OK && !morph; k++) {
+        char field[BG_JSON_PATH_MAX];
+        bg_json_path_key(field, at, momenta[k]);
+        const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, momenta[k]);
+        if (v)
+            st = bg_json_vector(v, name, field, 3, k ? s->angular_momentum : s->linear_momentum,
+                                err);
+    }
+    return st;
+}
+
+typedef bg_status (*item_fn)(const cJSON *o, int variant, const char *name, const char *at,
+                             void *item, bg_error_t *err);
+
+/* The array under key of o, each element read by fn into a fresh array of
+ * size-byte items (*items, caller frees even on failure; *count those
+ * read). Absent and not required: nothing, *items NULL. */
+static bg_status read_list(const cJSON *o, const char *key, int required, const char *name,
+                           const char *at, size_t size, item_fn fn, int variant, void **items,
+                           int *count, bg_error_t *err)
+{
+    char field[BG_JSON_PATH_MAX];
+    const cJSON *list = NULL;
+    bg_status st = read_array(o, key, required, name, at, field, &list, err);
+    if (st != BG_OK || !list)
+        return st;
+    const int n = cJSON_GetArraySize(list);
+    if (!(*items = calloc((size_t)n + 1, size)))
+        return bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory for %s", name, field);
+    const cJSON *item = list->child;
+    for (int k = 0; st == BG_OK && k < n; k++, item = item->next) {
+        char path[BG_JSON_PATH_MAX];
+        bg_json_path_index(path, field, k);
+        st = fn(item, variant, name, path, (char *)*items + (size_t)k * size, err);
+        *count = k + 1;
+    }
+    return st;
+}
+
+/* One element of "runs" into r; its stop reason into reason. */
+static bg_status read_run(const cJSON *o, const char *name, const char *at, bg_solve_result_t *r,
+                          char *reason, bg_error_t *err)
+{
+    char field[BG_JSON_PATH_MAX];
+    const char *text = NULL;
+    bg_status st = bg_json_expect_object(o, name, at, err);
+    if (st == BG_OK) {
+        bg_json_path_key(field, at, "method");
+        const cJSON *m = cJSON_GetObjectItemCaseSensitive(o, "method");
+        st = m ? bg_json_string(m, name, field, &text, err)
+               : bg_json_fail(err, BG_ERR_INVALID, name, field, "missing");
+        bg_error_t merr = BG_ERROR_INIT;
+        if (st == BG_OK && bg_method_parse(text, &r->method, &merr) != BG_OK)
+            st = bg_json_fail(err, BG_ERR_INVALID, name, field, "%s", merr.message);
+    }
+    if (st == BG_OK) {
+        bg_json_path_key(field, at, "stop_reason");
+        const cJSON *why = cJSON_GetObjectItemCaseSensitive(o, "stop_reason");
+        st = why ? bg_json_string(why, name, field, &text, err)
+                 : bg_json_fail(err, BG_ERR_INVALID, name, field, "missing");
+        if (st == BG_OK && strlen(text) >= BG_REPORT_REASON_MAX)
+            st = bg_json_fail(err, BG_ERR_LIMIT, name, field, "longer than %d bytes",
+                              BG_REPORT_REASON_MAX - 1);
+        if (st == BG_OK) {
+            strcpy(reason, text);
+            r->stop_reason = reason;
+        }
+    }
+    if (st == BG_OK)
+        st = read_fields(o, FIELDS(RUN_FIELDS), r, name, at, err);
+    double inverted = -1.0;
+    if (st == BG_OK)
+        st = read_real(o, "inverted_elements", 0, -1.0, name, at, &inverted, err);
+    r->inverted_elements = isfinite(inverted) ? (int64_t)inverted : -1;
+    if (st == BG_OK)
+        st = read_list(o, "trace", 1, name, at, sizeof *r->trace, read_point, 0,
+                       (void **)&r->trace, &r->trace_count, err);
+    const int morph = cJSON_GetObjectItemCaseSensitive(o, "frames") != NULL;
+    if (st == BG_OK)
+        st = read_list(o, morph ? "frames" : "steps", 0, name, at, sizeof *r->steps, read_step,
+                       morph, (void **)&r->steps, &r->step_count, err);
+    return st;
+}
+
+bg_status bg_report_parse_runs(const char *text, size_t length, const char *name,
+                               bg_report_runs_t *out, bg_error_t *err)
+{
+    memset(out, 0, sizeof *out);
+    cJSON *root = NULL;
+    const cJSON *runs = NULL;
+    char field[BG_JSON_PATH_MAX];
+    bg_status st = bg_json_parse(text, length, name, &root, err);
+    if (st == BG_OK)
+        st = bg_json_expect_object(root, name, "", err);
+    if (st == BG_OK)
+        st = read_array(root, "runs", 1, name, "", field, &runs, err);
+    const int count = runs ? cJSON_GetArraySize(runs) : 0;
+    if (st == BG_OK && count > BG_REPORT_MAX_RUNS)
+        st = bg_json_fail(err, BG_ERR_LIMIT, name, "runs", "%d runs, at most %d are read", count,
+                          BG_REPORT_MAX_RUNS);
+    const cJSON *item = runs ? runs->child : NULL;
+    for (int i = 0; st == BG_OK && i < count; i++, item = item->next) {
+        bg_json_path_index(field, "runs", i);
+        out->count = i + 1; /* so a failure releases what this run holds */
+        st = read_run(item, name, field, &out->run[i], out->reason[i], err);
+    }
+    cJSON_Delete(root);
+    if (st != BG_OK)
+        bg_report_runs_release(out);
+    return st;
+}
+
+void bg_report_runs_release(bg_report_runs_t *runs)
+{
+    if (!runs)
+        return;
+    for (int i = 0; i < runs->count; i++)
+        bg_solve_result_release(&runs->run[i]);
+    memset(runs, 0, sizeof *runs);
 }

@@ -67,4 +67,49 @@ bg_status bg_report_write_plot(const char *path, const bg_scene_t *scene,
  * spaced, always with the first and the last iteration). */
 void bg_report_print_table(FILE *out, const bg_solve_result_t *runs, int run_count, int max_rows);
 
+/* ------------------------------------------------- reading a report back */
+
+/* A report read back holds at most this many runs (solve compares at most
+ * 4 methods), and a stop reason of at most this many bytes. */
+#define BG_REPORT_MAX_RUNS 8
+#define BG_REPORT_REASON_MAX 128
+
+/*
+ * The runs of a report.json read back into the results they were written
+ * from, so a job solved elsewhere (a broker's) is shown and compared as a
+ * local one: per run method, converged, stop_reason, iterations,
+ * wall_seconds, energy, gradient_norm, relative_gradient, force_scale,
+ * gradient_roundoff, roundoff_floor, continuation_stages,
+ * inverted_elements (null: −1), limited_steps, the trace (every point's
+ * seconds, iteration, stage, energy, gradient_norm, relative_gradient,
+ * error) and a dynamic run's steps or a morph's frames (into steps: time
+ * or t, the energies, momenta, iterations, limited, seconds). A null (how
+ * the report writes a non-finite value) reads as NAN. What the report does
+ * not carry stays zero: positions, energy densities, time split, set-up,
+ * rotation-fit counts, the map's quality.
+ */
+typedef struct bg_report_runs {
+    bg_solve_result_t run[BG_REPORT_MAX_RUNS]; /* run[i].stop_reason points at reason[i] */
+    char reason[BG_REPORT_MAX_RUNS][BG_REPORT_REASON_MAX];
+    int count;
+} bg_report_runs_t;
+
+#define BG_REPORT_RUNS_INIT {0}
+
+/*
+ * Parses report.json's text[0, length) (name: the file, for messages) into
+ * *out (the caller's, empty; bg_report_runs_release). Fails with "<name>:
+ * runs[i].field: ..." on malformed JSON, a missing "runs" or a run without
+ * method, converged, stop_reason, iterations, wall_seconds,
+ * relative_gradient or trace, a value of the wrong type, an unknown
+ * method, or more than BG_REPORT_MAX_RUNS runs (BG_ERR_LIMIT); *out is
+ * then empty. Unknown keys are ignored (reports grow sections: agents,
+ * market). A pure function: no file, no print.
+ */
+bg_status bg_report_parse_runs(const char *text, size_t length, const char *name,
+                               bg_report_runs_t *out, bg_error_t *err);
+
+/* Frees what bg_report_parse_runs allocated; accepts an empty value. */
+void bg_report_runs_release(bg_report_runs_t *runs);
+
 #endif

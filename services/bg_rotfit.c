@@ -6,7 +6,6 @@
 #define ROTFIT_WARM_MAX_STEPS 8
 #define ROTFIT_POLAR_TOL 1e-10
 #define ROTFIT_POLAR_MAX_STEPS 40
-#define ROTFIT_JACOBI_MAX_SWEEPS 30
 
 static double det3(const double A[9])
 {
@@ -191,7 +190,7 @@ void bg_svd3(const double F[9], double U[9], double sigma[3], double V[9])
     memcpy(A, F, sizeof A);
     static const double identity[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(V, identity, sizeof identity);
-    for (int sweep = 0; sweep < ROTFIT_JACOBI_MAX_SWEEPS; sweep++) {
+    for (int sweep = 0; sweep < BG_ROTFIT_JACOBI_SWEEPS; sweep++) {
         int rotated = jacobi_columns(A, V, 0, 1);
         rotated |= jacobi_columns(A, V, 0, 2);
         rotated |= jacobi_columns(A, V, 1, 2);
@@ -266,7 +265,7 @@ void bg_sym3_eigen(const double A_in[9], double w[3], double Q[9])
     memcpy(A, A_in, sizeof A);
     static const double identity[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(Q, identity, sizeof identity);
-    for (int sweep = 0; sweep < ROTFIT_JACOBI_MAX_SWEEPS; sweep++) {
+    for (int sweep = 0; sweep < BG_ROTFIT_JACOBI_SWEEPS; sweep++) {
         double off = A[1] * A[1] + A[2] * A[2] + A[5] * A[5];
         double diag = A[0] * A[0] + A[4] * A[4] + A[8] * A[8];
         if (off <= 1e-32 * diag || off == 0.0)

@@ -65,9 +65,11 @@ int bg_rotfit2(const double F[4], double R[4]);
 void bg_svd3(const double F[9], double U[9], double sigma[3], double V[9]);
 
 /*
- * Eigen-decomposition of a symmetric 3×3 A (cyclic Jacobi): A = Q diag(w) Qᵀ,
- * eigenvectors in the columns of Q.
+ * Eigen-decomposition of a symmetric 3×3 A (cyclic Jacobi, at most
+ * BG_ROTFIT_JACOBI_SWEEPS sweeps): A = Q diag(w) Qᵀ, eigenvectors in the
+ * columns of Q.
  */
+#define BG_ROTFIT_JACOBI_SWEEPS 30
 void bg_sym3_eigen(const double A[9], double w[3], double Q[9]);
 
 /* Unit quaternion (w, x, y, z) ↔ rotation matrix. */

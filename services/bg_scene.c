@@ -1266,6 +1266,9 @@ static bg_status parse_handles(parser_t *p, const cJSON *item)
         return fail(p, BG_ERR_INVALID, "handles", "expected an array, got %s",
                     json_type_name(item));
     int count = item ? cJSON_GetArraySize(item) : 0;
+    if (count > BG_SCENE_MAX_HANDLES)
+        return fail(p, BG_ERR_LIMIT, "handles", "%d handles, over the limit of %d", count,
+                    BG_SCENE_MAX_HANDLES);
     bg_status st = BG_OK;
     p->owner = malloc((n + 1) * sizeof *p->owner);
     p->flag = calloc((size_t)s->mesh->nv + 1, 1);
@@ -1737,7 +1740,8 @@ static bg_status parse_solver(parser_t *p, const cJSON *item)
         if (bg_method_is_dynamic(s->method) != dynamic)
             return fail(p, BG_ERR_INVALID, "solver.method", "'%s' does not fit a %s task (use %s)",
                         name, dynamic ? "dynamic" : "static",
-                        dynamic ? "variational or backward-euler" : "newton or local-global");
+                        dynamic ? "variational or backward-euler"
+                                : "newton, local-global or quasi-newton");
     }
     if (member(item, "continuation")) {
         int on = 1;
@@ -1757,8 +1761,8 @@ static bg_status parse_solver(parser_t *p, const cJSON *item)
     if (cJSON_IsObject(cap)) {
         /* One cap per method: Newton and local/global iterations differ in
          * cost by orders of magnitude, so one number cannot fit both. */
-        static const char *const methods[] = {"newton", "local-global", "variational",
-                                              "backward-euler", NULL};
+        static const char *const methods[] = {"newton",         "local-global", "variational",
+                                              "backward-euler", "quasi-newton", NULL};
         st = check_keys(p, cap, "solver.max_iterations", methods);
         for (const cJSON *m = cap->child; st == BG_OK && m; m = m->next) {
             char field[FIELD_MAX];
@@ -2122,22 +2126,22 @@ const char *bg_method_name(bg_method method)
         return "variational";
     case BG_METHOD_BACKWARD_EULER:
         return "backward-euler";
+    case BG_METHOD_QUASI_NEWTON:
+        return "quasi-newton";
     }
     return "unknown";
 }
 
 bg_status bg_method_parse(const char *name, bg_method *out, bg_error_t *err)
 {
-    static const bg_method methods[] = {BG_METHOD_NEWTON, BG_METHOD_LOCAL_GLOBAL,
-                                        BG_METHOD_VARIATIONAL, BG_METHOD_BACKWARD_EULER};
-    for (size_t i = 0; i < sizeof methods / sizeof methods[0]; i++)
-        if (name && strcmp(name, bg_method_name(methods[i])) == 0) {
-            *out = methods[i];
+    for (int i = 0; i < BG_METHOD_COUNT; i++)
+        if (name && strcmp(name, bg_method_name((bg_method)i)) == 0) {
+            *out = (bg_method)i;
             return BG_OK;
         }
     return bg_error_set(err, BG_ERR_INVALID,
-                        "unknown method '%s' (expected newton, local-global, variational or "
-                        "backward-euler)",
+                        "unknown method '%s' (expected newton, local-global, quasi-newton, "
+                        "variational or backward-euler)",
                         name ? name : "(null)");
 }
 

@@ -23,20 +23,25 @@
 
 /* Scene files larger than this are refused. */
 #define BG_SCENE_MAX_BYTES ((size_t)16 << 20)
+/* Handles a scene may have: each one's selection scans every vertex, so
+ * without a cap a 16 MB scene of tiny handles costs handles × vertices
+ * (minutes on a million vertices). */
+#define BG_SCENE_MAX_HANDLES 1024
 
 typedef enum bg_method {
     BG_METHOD_NEWTON = 0,         /* static */
     BG_METHOD_LOCAL_GLOBAL = 1,   /* static */
     BG_METHOD_VARIATIONAL = 2,    /* dynamic: the variational implicit midpoint rule */
     BG_METHOD_BACKWARD_EULER = 3, /* dynamic: the dissipative baseline */
+    BG_METHOD_QUASI_NEWTON = 4,   /* static: L-BFGS on local/global's prefactored Laplacian */
 } bg_method;
 
-#define BG_METHOD_COUNT 4
+#define BG_METHOD_COUNT 5
 
 /* Whether a method integrates in time (variational, backward-euler). */
 int bg_method_is_dynamic(bg_method method);
 
-/* "newton", "local-global", "variational", "backward-euler". */
+/* "newton", "local-global", "variational", "backward-euler", "quasi-newton". */
 const char *bg_method_name(bg_method method);
 /* Parses a method name; BG_ERR_INVALID naming the accepted names otherwise. */
 bg_status bg_method_parse(const char *name, bg_method *out, bg_error_t *err);
@@ -144,8 +149,9 @@ typedef struct bg_scene {
     int prepared;               /* bg_prepare_scene has run: the scene is ready to solve */
     bg_method method;           /* solver.method, default newton */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
-    int continuation_off;       /* solver.continuation false: Newton solves a nearly
-                                   incompressible scene in one solve (bg_static_continues) */
+    int continuation_off;       /* solver.continuation false: Newton and quasi-newton solve a
+                                   nearly incompressible scene in one solve
+                                   (bg_static_continues) */
     int max_iterations;         /* solver.max_iterations (or its entry for `method`),
                                    default 200 */
     int method_max_iterations[BG_METHOD_COUNT]; /* solver.max_iterations given per method

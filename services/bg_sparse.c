@@ -16,6 +16,7 @@ struct bg_sparse {
     cholmod_factor *L;
     cholmod_dense *B, *X, *Y, *E;
     int analyzed;
+    int prefer_solves;                    /* bg_sparse_prefer_solves */
     double factor_flops, factor_nonzeros; /* from the analysis */
     bg_sparse_timing_t timing;
 };
@@ -312,6 +313,22 @@ void bg_sparse_zero(bg_sparse_t *sys)
     memset(sys->A->x, 0, sys->nnz * sizeof(double));
 }
 
+void bg_sparse_prefer_solves(bg_sparse_t *sys)
+{
+    sys->prefer_solves = 1;
+    sys->common.supernodal_switch = BG_SPARSE_SOLVES_SWITCH;
+}
+
+int bg_sparse_prefers_solves(const bg_sparse_t *sys)
+{
+    return sys->prefer_solves;
+}
+
+int bg_sparse_supernodal(const bg_sparse_t *sys)
+{
+    return sys->L ? sys->L->is_super != 0 : -1;
+}
+
 void bg_sparse_add_diagonal(bg_sparse_t *sys, const double *d)
 {
     /* Rows are sorted and the lower triangle starts at the diagonal. */
@@ -354,18 +371,38 @@ bg_status bg_sparse_factorize(bg_sparse_t *sys, double shift, bg_error_t *err)
 
 bg_status bg_sparse_solve(bg_sparse_t *sys, const double *rhs, double *x, bg_error_t *err)
 {
+    return bg_sparse_solve_many(sys, 1, rhs, x, err);
+}
+
+bg_status bg_sparse_solve_many(bg_sparse_t *sys, int nrhs, const double *rhs, double *x,
+                               bg_error_t *err)
+{
     if (!sys->L)
         return bg_error_set(err, BG_ERR_INVALID, "bg_sparse_solve before a factorization");
+    if (nrhs < 1 || nrhs > BG_SPARSE_MAX_RHS)
+        return bg_error_set(err, BG_ERR_INVALID, "%d right-hand sides (1 to %d)", nrhs,
+                            BG_SPARSE_MAX_RHS);
+    const size_t n = (size_t)sys->nfree, count = n * (size_t)nrhs;
+    /* B keeps its widest allocation; a narrower call only reshapes it
+     * (cholmod_solve2 reshapes X, Y and E the same way). */
+    if (!sys->B || sys->B->nzmax < count) {
+        cholmod_free_dense(&sys->B, &sys->common);
+        sys->B = cholmod_zeros(n, (size_t)nrhs, CHOLMOD_REAL, &sys->common);
+        if (!sys->B)
+            return bg_error_set(err, BG_ERR_NOMEM, "out of memory for %d right-hand sides",
+                                nrhs);
+    }
+    sys->B->ncol = (size_t)nrhs;
     const double t0 = bg_clock_now();
-    memcpy(sys->B->x, rhs, (size_t)sys->nfree * sizeof(double));
+    memcpy(sys->B->x, rhs, count * sizeof(double));
     int ok = cholmod_solve2(CHOLMOD_A, sys->L, sys->B, NULL, &sys->X, NULL, &sys->Y, &sys->E,
                             &sys->common);
     sys->timing.solve_seconds += bg_clock_now() - t0;
-    sys->timing.solves++;
+    sys->timing.solves += nrhs;
     if (!ok)
         return bg_error_set(err, BG_ERR_NUMERIC, "CHOLMOD solve failed (status %d)",
                             sys->common.status);
-    memcpy(x, sys->X->x, (size_t)sys->nfree * sizeof(double));
+    memcpy(x, sys->X->x, count * sizeof(double));
     return BG_OK;
 }
 

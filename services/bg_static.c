@@ -31,8 +31,16 @@
  * iterations, whichever comes first. Waiting for a full step and for the
  * gradient to halve, as this solver once did, left stiff solves on the
  * projected matrix for tens of iterations at a time (twisted bar,
- * λ/μ = 10⁵: 115 iterations and a false round-off stop). */
-#define STATIC_EXACT_HESSIAN_BELOW 1e-1
+ * λ/μ = 10⁵: 115 iterations and a false round-off stop). That is the
+ * threshold for nearly incompressible bodies (λ > 100 μ); on the others
+ * the projected matrix converges well until later, and the exact one's
+ * steps taken earlier are poor: bunny-edit (λ = 10 μ) from 1e-1 on took
+ * a step cut to 1/64 (six evaluations) and five more whose gradient
+ * barely fell, 11 iterations; from 3e-2 on, 9 iterations and 40 % fewer
+ * evaluations. The stiff bar's counts went up with the lower threshold
+ * (twisted λ/μ = 10⁴ and 10⁵: 24 → 26 and 47 → 48), hence two. */
+#define STATIC_EXACT_HESSIAN_BELOW 3e-2
+#define STATIC_EXACT_HESSIAN_BELOW_STIFF 1e-1
 #define STATIC_EXACT_RETRY_FACTOR 0.5
 #define STATIC_EXACT_RETRY_AFTER 4
 /* A step that changes the energy by no more than round-off and the
@@ -70,6 +78,15 @@
  * iterations (rotation fit, gradient, two triangular solves) on the
  * bunny, so patience pays. Tuned on bunny-drop (tests/bench/bench_apps). */
 #define STATIC_QN_PAIRS 20
+/* The quasi-newton method (Liu, Bouaziz and Kavan 2017): L-BFGS with
+ * local/global's prefactored Laplacian as the initial Hessian keeps this
+ * many curvature pairs. An iteration costs a rotation fit, one block solve
+ * and four passes over the free coordinates per pair. Iterations to 1e-8
+ * with 3, 5, 8, 12, 20, 30 pairs: bunny-edit 189, 153, 140, 139, 117, 120;
+ * inverted-bunny 1321, 626, 429, 529, 492, 334; bar-twist 60, 51, 50, 50,
+ * 45, 45; the stiff bar 5,630 to 6,063 for 5 to 30. Beyond 8 the pairs
+ * cost more passes than they save iterations. */
+#define STATIC_LBFGS_PAIRS 8
 /* Chord steps (Shamanskii's variant of Newton's method): after a full
  * Newton step is accepted, up to this many (bg_solve_options_t.chord_steps)
  * further steps −A⁻¹∇W with the matrix A already factored, each kept only
@@ -84,6 +101,18 @@
  * iterations without, 18 with). Not taken with an inertia term or factor
  * reuse, whose own L-BFGS steps already exploit the factor. */
 #define STATIC_CHORD_STEPS 8
+/* Chord steps are tried only after a full step whose energy decrease was
+ * at least this fraction of the quadratic model's, ½∇Wᵀd (the factored
+ * matrix predicts the landscape well enough for it to serve again). A
+ * chord step that fails costs a solve and an evaluation for nothing. On
+ * bunny-edit, where the exact Hessian's steps decrease the energy by 34 to
+ * 84 % of the prediction for five iterations, every chord step tried
+ * there failed; chord steps succeeded after steps at 102 % and 112 %.
+ * On the stiff bar every Newton step does better than predicted (102 to
+ * 180 %), so its chord steps, and its counts (8, 21, 24, 52, 47, 88
+ * iterations), are unchanged. bunny-edit: 5 evaluations and 5 solves
+ * fewer in its 11 iterations. */
+#define STATIC_CHORD_MODEL_AGREEMENT 0.9
 #define STATIC_REFACTOR_PATIENCE 5
 /* The deterministic cost model behind the ski-rental refactoring rule, in
  * units of one flop of a triangular solve (memory bound): a supernodal
@@ -149,10 +178,12 @@ struct bg_solver {
     int factor_ready;
     double factor_c;
     double qn_cost;         /* modelled cost of the quasi-Newton iterations on this factor */
-    int qn_count, qn_head;
+    int qn_count, qn_head, qn_pairs; /* pairs held, oldest slot, capacity */
     double *qn_s, *qn_y, *qn_rho, *qn_alpha, *qn_grad; /* pairs, 1/yᵀs, scratch, ∇ (free) */
     bg_method method;
     double last_magnitude; /* |elastic| + |gravity work| + inertia of the last evaluation */
+    int fitted_elsewhere;  /* the last evaluation was at a rejected chord step, not the
+                              iterate: the model's energy density is not the iterate's */
     double rotfit_seconds; /* evaluations not yet reported (bg_solver_minimize, _report) */
     int mass_ready;        /* mass holds the lumped masses */
     double vector_seconds; /* vector work of the iterations, not yet reported */
@@ -303,16 +334,21 @@ static bg_status lg_factor(problem_t *p, bg_error_t *err)
     int64_t after = 0;
     for (int c = 0; c < 3; c++)
         after += p->lg[c] ? bg_sparse_timing(p->lg[c]).factorizations : 0;
-    bg_setup_add(&p->setup, "local/global: the Laplacian assembled and factored", 1,
-                 after - before, bg_clock_now() - t0);
+    bg_setup_add(&p->setup,
+                 p->method == BG_METHOD_QUASI_NEWTON
+                     ? "quasi-newton: the Laplacian (its initial Hessian) assembled and factored"
+                     : "local/global: the Laplacian assembled and factored",
+                 1, after - before, bg_clock_now() - t0);
     return st;
 }
 
 static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
 {
     const int32_t nv = p->mesh->nv;
-    p->lg_rhs = malloc(((size_t)nv + 1) * sizeof *p->lg_rhs);
-    p->lg_x = malloc(((size_t)nv + 1) * sizeof *p->lg_x);
+    /* Room for every coordinate of one system side by side: the
+     * coordinates that share a Laplacian are solved as one block. */
+    p->lg_rhs = malloc((3 * (size_t)nv + 1) * sizeof *p->lg_rhs);
+    p->lg_x = malloc((3 * (size_t)nv + 1) * sizeof *p->lg_x);
     if (!p->lg_rhs || !p->lg_x)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for local/global");
     const double scale = 2.0 * scene->material.mu + scene->material.lambda;
@@ -333,8 +369,10 @@ static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
         if (p->lg_system[c] != c)
             continue; /* same free vertices as an earlier coordinate: same matrix */
         bg_status st = bg_sparse_new(p->mesh, 1, p->lg_index[c], count, &p->lg[c], err);
-        if (st == BG_OK)
+        if (st == BG_OK) {
+            bg_sparse_prefer_solves(p->lg[c]); /* factored once, solved every iteration */
             st = p->backend->ops->solve_open(p->session, 1 + c, p->lg[c], err);
+        }
         if (st != BG_OK)
             return st;
     }
@@ -346,6 +384,7 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
                               const bg_backend_t *backend, bg_error_t *err)
 {
     memset(p, 0, sizeof *p);
+    p->method = method;
     p->backend = backend ? backend : bg_backend_local();
     p->scene = scene;
     p->mesh = scene->mesh;
@@ -439,9 +478,10 @@ static bg_status problem_setup(problem_t *p, const bg_scene_t *scene, bg_method 
 {
     const double t0 = bg_clock_now();
     const bg_status st = problem_init(p, scene, method, backend, err);
-    bg_setup_add(&p->setup, method == BG_METHOD_NEWTON
-                                ? "solver set-up: elastic model, Hessian pattern and scatter map"
-                                : "solver set-up: elastic model, Laplacian patterns",
+    bg_setup_add(&p->setup,
+                 method == BG_METHOD_NEWTON
+                     ? "solver set-up: elastic model, Hessian pattern and scatter map"
+                     : "solver set-up: elastic model, Laplacian patterns",
                  1, 0, bg_clock_now() - t0 - p->setup.seconds);
     return st;
 }
@@ -472,6 +512,7 @@ static double fit_eval(problem_t *p, int id, const double *q, double *grad)
 static double potential(problem_t *p, const double *q, double *grad)
 {
     const double t0 = bg_clock_now();
+    p->fitted_elsewhere = 0;
     double elastic = fit_eval(p, 0, q, grad);
     if (p->target_model) {
         const double b = p->blend, e1 = fit_eval(p, 1, q, p->grad_target);
@@ -613,50 +654,75 @@ static bg_status push_trace(bg_solve_result_t *r, int *cap, const bg_trace_point
     return BG_OK;
 }
 
-/* Local/global direction: each coordinate's block solved with its own
- * prefactored Laplacian; *slope as for solve_direction. */
-static bg_status lg_direction(problem_t *p, double *slope, bg_error_t *err)
+/*
+ * out = (c L)⁻¹ r on the free coordinates (r and out: nfree values, may
+ * not alias): local/global's fixed matrix, block diagonal with one scalar
+ * Laplacian per coordinate. The coordinates that share a Laplacian (the
+ * same free vertices: usually all three) go to it as one block of
+ * right-hand sides, so the factor is streamed from memory once per
+ * iteration instead of once per coordinate, and an agent is asked once.
+ */
+static bg_status lg_solve(problem_t *p, const double *restrict r, double *restrict out,
+                          bg_error_t *err)
 {
     const int32_t nv = p->mesh->nv;
-    double s = 0.0;
-    for (int c = 0; c < p->n; c++) {
-        bg_sparse_t *sys = p->lg[p->lg_system[c]];
-        if (!sys)
+    for (int s = 0; s < p->n; s++) {
+        if (!p->lg[s])
             continue;
-        const int32_t *idx = p->lg_index[c];
+        const size_t size = (size_t)bg_sparse_size(p->lg[s]);
+        int cols[3], ncols = 0;
+        for (int c = 0; c < p->n; c++)
+            if (p->lg_system[c] == s)
+                cols[ncols++] = c;
         double tv = bg_clock_now();
-        for (int32_t v = 0; v < nv; v++)
-            if (idx[v] >= 0)
-                p->lg_rhs[idx[v]] = p->rhs[p->free_index[(size_t)v * p->n + c]];
+        for (int k = 0; k < ncols; k++) {
+            const int c = cols[k];
+            const int32_t *idx = p->lg_index[c];
+            double *col = p->lg_rhs + (size_t)k * size;
+            for (int32_t v = 0; v < nv; v++)
+                if (idx[v] >= 0)
+                    col[idx[v]] = r[p->free_index[(size_t)v * p->n + c]];
+        }
         p->vector_seconds += bg_clock_now() - tv;
-        bg_status st =
-            p->backend->ops->solve(p->session, 1 + p->lg_system[c], p->lg_rhs, p->lg_x, err);
+        bg_status st = p->backend->ops->solve(p->session, 1 + s, ncols, p->lg_rhs, p->lg_x, err);
         if (st != BG_OK)
             return st;
         tv = bg_clock_now();
-        for (int32_t v = 0; v < nv; v++)
-            if (idx[v] >= 0) {
-                const int32_t f = p->free_index[(size_t)v * p->n + c];
-                p->step[f] = p->lg_x[idx[v]];
-                s -= p->rhs[f] * p->step[f];
-            }
+        for (int k = 0; k < ncols; k++) {
+            const int c = cols[k];
+            const int32_t *idx = p->lg_index[c];
+            const double *col = p->lg_x + (size_t)k * size;
+            for (int32_t v = 0; v < nv; v++)
+                if (idx[v] >= 0)
+                    out[p->free_index[(size_t)v * p->n + c]] = col[idx[v]];
+        }
         p->vector_seconds += bg_clock_now() - tv;
     }
-    *slope = isfinite(s) ? s : NAN;
     return BG_OK;
 }
 
-/* d = A⁻¹ rhs with the current factorization; *slope = ∇Wᵀd (= −rhsᵀd),
- * NaN if d is not finite. */
+/* out = H₀⁻¹ r (free coordinates): the factored Newton matrix when the
+ * solver has one (Newton's factor reuse), else local/global's Laplacian
+ * (local/global, and quasi-Newton's initial Hessian). */
+static bg_status apply_h0(problem_t *p, const double *r, double *out, bg_error_t *err)
+{
+    return p->sys ? p->backend->ops->solve(p->session, 0, 1, r, out, err)
+                  : lg_solve(p, r, out, err);
+}
+
+/* d = H₀⁻¹ rhs into p->step with the current factorization; *slope = ∇Wᵀd
+ * (= −rhsᵀd), NaN if d is not finite. */
 static bg_status solve_direction(problem_t *p, double *slope, bg_error_t *err)
 {
-    bg_status st = p->backend->ops->solve(p->session, 0, p->rhs, p->step, err);
+    bg_status st = apply_h0(p, p->rhs, p->step, err);
     if (st != BG_OK)
         return st;
+    const double tv = bg_clock_now();
     double s = 0.0;
     for (int32_t i = 0; i < p->nfree; i++)
         s -= p->rhs[i] * p->step[i];
     *slope = isfinite(s) ? s : NAN;
+    p->vector_seconds += bg_clock_now() - tv;
     return BG_OK;
 }
 
@@ -751,8 +817,15 @@ static void swap_arrays(double **a, double **b)
  * when W falls by the Armijo fraction of its slope; the first that does
  * not, one that inverts an element when keep_orientation, or a gradient
  * at or below g_stop, ends them. On return q_trial,
- * grad_trial, *W and *g describe the last kept point (the model's
- * rotations are those of that point); *taken counts the kept steps.
+ * grad_trial, *W and *g describe the last kept point; *taken counts the
+ * kept steps. A rejected step leaves the model's rotations at the point
+ * it tried (fitted_elsewhere): they serve only as warm starts, since the
+ * next Hessian is assembled after refitting them at the iterate
+ * (bg_elastic_assemble_hessian takes settled rotations as they are and
+ * refits the others, an agent evaluates first), so evaluating the kept
+ * point again, as this once did, cost an evaluation per iteration for
+ * nothing; minimize evaluates once at the end if the result's energy
+ * density needs it.
  */
 static bg_status chord_steps(problem_t *p, int most, double g_stop, int keep_orientation,
                              double *W, double *g, int *taken, bg_error_t *err)
@@ -783,8 +856,7 @@ static bg_status chord_steps(problem_t *p, int most, double g_stop, int keep_ori
         if (p->failed != BG_OK)
             return BG_OK;
         if (!(W_c <= *W + STATIC_ARMIJO * slope)) {
-            /* back to the kept point's rotations (and energy density) */
-            potential(p, p->q_trial, p->chord_grad);
+            p->fitted_elsewhere = 1;
             return BG_OK;
         }
         swap_arrays(&p->q_trial, &p->chord_q);
@@ -798,15 +870,20 @@ static bg_status chord_steps(problem_t *p, int most, double g_stop, int keep_ori
     return BG_OK;
 }
 
+/* The L-BFGS history: STATIC_QN_PAIRS pairs for Newton's factor reuse,
+ * STATIC_LBFGS_PAIRS for the quasi-newton method; allocated once per
+ * solver. */
 static bg_status qn_alloc(problem_t *p, bg_error_t *err)
 {
     if (p->qn_s)
         return BG_OK;
     const size_t nf = (size_t)p->nfree;
-    p->qn_s = malloc(STATIC_QN_PAIRS * nf * sizeof *p->qn_s + 1);
-    p->qn_y = malloc(STATIC_QN_PAIRS * nf * sizeof *p->qn_y + 1);
-    p->qn_rho = malloc(STATIC_QN_PAIRS * sizeof *p->qn_rho);
-    p->qn_alpha = malloc(STATIC_QN_PAIRS * sizeof *p->qn_alpha);
+    const size_t m = p->method == BG_METHOD_QUASI_NEWTON ? STATIC_LBFGS_PAIRS : STATIC_QN_PAIRS;
+    p->qn_pairs = (int)m;
+    p->qn_s = malloc(m * nf * sizeof *p->qn_s + 1);
+    p->qn_y = malloc(m * nf * sizeof *p->qn_y + 1);
+    p->qn_rho = malloc(m * sizeof *p->qn_rho);
+    p->qn_alpha = malloc(m * sizeof *p->qn_alpha);
     p->qn_grad = malloc(nf * sizeof *p->qn_grad + 1);
     if (!p->qn_s || !p->qn_y || !p->qn_rho || !p->qn_alpha || !p->qn_grad)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory for the quasi-Newton history");
@@ -832,7 +909,7 @@ static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
     double tv = bg_clock_now();
     double *r = p->rhs;
     for (int k = p->qn_count - 1; k >= 0; k--) {
-        const int slot = (p->qn_head + k) % STATIC_QN_PAIRS;
+        const int slot = (p->qn_head + k) % p->qn_pairs;
         const double *sk = p->qn_s + (size_t)slot * nf, *yk = p->qn_y + (size_t)slot * nf;
         double a = 0.0;
         for (size_t i = 0; i < nf; i++)
@@ -843,13 +920,13 @@ static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
             r[i] -= a * yk[i];
     }
     p->vector_seconds += bg_clock_now() - tv;
-    bg_status st = p->backend->ops->solve(p->session, 0, r, p->step, err);
+    bg_status st = apply_h0(p, r, p->step, err);
     if (st != BG_OK)
         return st;
     tv = bg_clock_now();
     double *d = p->step;
     for (int k = 0; k < p->qn_count; k++) {
-        const int slot = (p->qn_head + k) % STATIC_QN_PAIRS;
+        const int slot = (p->qn_head + k) % p->qn_pairs;
         const double *sk = p->qn_s + (size_t)slot * nf, *yk = p->qn_y + (size_t)slot * nf;
         double b = 0.0;
         for (size_t i = 0; i < nf; i++)
@@ -872,7 +949,7 @@ static bg_status qn_direction(problem_t *p, double *slope, bg_error_t *err)
 static void qn_push(problem_t *p, double alpha, const double *grad_new)
 {
     const size_t nf = (size_t)p->nfree;
-    const int slot = (p->qn_head + p->qn_count) % STATIC_QN_PAIRS;
+    const int slot = (p->qn_head + p->qn_count) % p->qn_pairs;
     double *sk = p->qn_s + (size_t)slot * nf, *yk = p->qn_y + (size_t)slot * nf;
     double ys = 0.0, yy = 0.0;
     for (size_t i = 0; i < p->ndof; i++) {
@@ -888,10 +965,10 @@ static void qn_push(problem_t *p, double alpha, const double *grad_new)
     if (!(ys > DBL_EPSILON * yy) || !isfinite(ys))
         return;
     p->qn_rho[slot] = 1.0 / ys;
-    if (p->qn_count < STATIC_QN_PAIRS)
+    if (p->qn_count < p->qn_pairs)
         p->qn_count++;
     else
-        p->qn_head = (p->qn_head + 1) % STATIC_QN_PAIRS;
+        p->qn_head = (p->qn_head + 1) % p->qn_pairs;
 }
 
 bg_status bg_solver_new(const bg_scene_t *scene, bg_method method, bg_solver_t **out,
@@ -904,7 +981,8 @@ bg_status bg_solver_new_on(const bg_scene_t *scene, bg_method method, const bg_b
                            bg_solver_t **out, bg_error_t *err)
 {
     *out = NULL;
-    if (method != BG_METHOD_NEWTON && method != BG_METHOD_LOCAL_GLOBAL)
+    if (method != BG_METHOD_NEWTON && method != BG_METHOD_LOCAL_GLOBAL &&
+        method != BG_METHOD_QUASI_NEWTON)
         return bg_error_set(err, BG_ERR_INVALID, "%s is not a static solver method",
                             bg_method_name(method));
     problem_t *p = malloc(sizeof *p);
@@ -967,7 +1045,7 @@ bg_status bg_solver_set_blend(bg_solver_t *p, const double *target, double blend
      * still right when the blend does not change. */
     const double previous = p->blend;
     p->blend = blend;
-    return p->method == BG_METHOD_LOCAL_GLOBAL && blend != previous ? lg_factor(p, err) : BG_OK;
+    return !p->sys && blend != previous ? lg_factor(p, err) : BG_OK;
 }
 
 const double *bg_solver_energy_density(const bg_solver_t *solver)
@@ -1117,10 +1195,11 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         opt->progress(opt->progress_ctx, solver->method, &pt);
 
     const int reuse = opt->reuse_factor && solver->method == BG_METHOD_NEWTON;
-    if (reuse && (st = qn_alloc(p, err)) != BG_OK)
+    const int lbfgs = solver->method == BG_METHOD_QUASI_NEWTON;
+    if ((reuse || lbfgs) && (st = qn_alloc(p, err)) != BG_OK)
         goto out;
     /* From here on qn_push keeps qn_grad equal to the current free gradient. */
-    if (reuse)
+    if (reuse || lbfgs)
         gather_free(p, p->grad, p->qn_grad);
     int refactor = !p->factor_ready || p->factor_c != (p->inertia ? p->inertia->c : 0.0);
     p->qn_count = p->qn_head = 0;
@@ -1129,6 +1208,10 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     res->stop_reason = "iteration limit";
     int it = 0;
     double exact_failed_at = INFINITY; /* gradient norm when the exact Hessian last failed */
+    const double exact_below =
+        p->scene->material.lambda > STATIC_CONTINUATION_ABOVE * p->scene->material.mu
+            ? STATIC_EXACT_HESSIAN_BELOW_STIFF
+            : STATIC_EXACT_HESSIAN_BELOW;
     int exact_failed_it = 0;
     for (;;) {
         const double rel = g0 > 0.0 ? gnorm / g0 : 0.0;
@@ -1141,6 +1224,7 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         if (it >= opt->max_iterations)
             break;
         it++;
+    direction:;
         double tv = bg_clock_now();
         for (size_t i = 0; i < ndof; i++)
             if (p->free_index[i] >= 0)
@@ -1148,7 +1232,17 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         p->vector_seconds += bg_clock_now() - tv;
         double slope = NAN;
         int quasi = 0;
-        if (reuse) {
+        if (lbfgs && p->qn_count > 0) {
+            /* Without pairs (the first iteration, or after a reset) the
+             * direction is local/global's, below. */
+            quasi = 1;
+            if ((st = qn_direction(p, &slope, err)) != BG_OK)
+                goto out;
+            if (!(slope < 0.0)) { /* the history lost descent: start it again */
+                p->qn_count = p->qn_head = 0;
+                goto direction;
+            }
+        } else if (reuse) {
             if (!refactor) {
                 quasi = 1;
                 if ((st = qn_direction(p, &slope, err)) != BG_OK)
@@ -1168,7 +1262,7 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
              * always positive definite: try it from the first iteration. */
             const int try_exact =
                 p->inertia ||
-                (rel < STATIC_EXACT_HESSIAN_BELOW &&
+                (rel < exact_below &&
                  (gnorm < STATIC_EXACT_RETRY_FACTOR * exact_failed_at ||
                   it - exact_failed_it > STATIC_EXACT_RETRY_AFTER));
             st = newton_direction(p, try_exact, res, &slope, err);
@@ -1179,7 +1273,7 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
             refactor = 0;
             p->qn_cost = 0.0;
         } else {
-            st = lg_direction(p, &slope, err);
+            st = solve_direction(p, &slope, err);
         }
         if (st != BG_OK)
             goto out;
@@ -1225,6 +1319,11 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
             /* The last evaluation was at a rejected trial: restore the
              * rotations of the current iterate. */
             W = potential(p, p->q, p->grad);
+            if (quasi && lbfgs) { /* the history, not round-off, may be at fault: the same
+                                     iteration again from local/global's direction */
+                p->qn_count = p->qn_head = 0;
+                goto direction;
+            }
             if (quasi) { /* the quasi-Newton model, not round-off, may be at fault */
                 refactor = 1;
                 continue;
@@ -1236,7 +1335,8 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
             break;
         }
         if (alpha == 1.0 && !quasi && !reuse && !p->inertia &&
-            solver->method == BG_METHOD_NEWTON) {
+            solver->method == BG_METHOD_NEWTON &&
+            W_trial - W <= STATIC_CHORD_MODEL_AGREEMENT * 0.5 * slope) {
             const double g_stop =
                 fmax(fmax(opt->tolerance * g0, opt->absolute_tolerance),
                      opt->no_force_floor ? 0.0 : p->force_floor);
@@ -1254,9 +1354,11 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
          * round-off (checked below, at the accepted point). A gradient
          * that rises once while the energy is flat is no stop: local/global's
          * is not monotone. */
-        const int stagnated =
-            !quasi && fabs(W_trial - W) <= energy_noise(p, W) && g_trial > STATIC_NO_PROGRESS * gnorm;
+        const int stagnated = (!quasi || lbfgs) && fabs(W_trial - W) <= energy_noise(p, W) &&
+                              g_trial > STATIC_NO_PROGRESS * gnorm;
         tv = bg_clock_now();
+        if (lbfgs)
+            qn_push(p, alpha, p->grad_trial);
         if (reuse) {
             qn_push(p, alpha, p->grad_trial);
             if (!quasi || g_trial < g_best) {
@@ -1336,10 +1438,13 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         goto out;
     }
     memcpy(res->q, p->q, ndof * sizeof *res->q);
-    /* A remote backend fitted the rotations on the agents: the energy
-     * density of the result comes from one evaluation here. */
+    /* A remote backend fitted the rotations on the agents, and a rejected
+     * chord step leaves them elsewhere: the energy density of the result
+     * comes from one evaluation here. */
     if (p->backend != bg_backend_local())
         bg_elastic_eval(p->model, p->q, p->mag);
+    else if (p->fitted_elsewhere)
+        potential(p, p->q, p->mag);
     memcpy(res->energy_density, bg_elastic_energy_density(p->model),
            (size_t)scene->mesh->ne * sizeof *res->energy_density);
     res->wall_seconds = bg_clock_now() - t_start;
@@ -1366,8 +1471,8 @@ static bg_status solve_once(const bg_scene_t *scene, const bg_solve_options_t *o
 
 int bg_static_continues(const bg_scene_t *scene, bg_method method)
 {
-    return method == BG_METHOD_NEWTON && scene->task == BG_TASK_STATIC && !scene->rest_edges &&
-           !scene->continuation_off &&
+    return (method == BG_METHOD_NEWTON || method == BG_METHOD_QUASI_NEWTON) &&
+           scene->task == BG_TASK_STATIC && !scene->rest_edges && !scene->continuation_off &&
            scene->material.lambda > STATIC_CONTINUATION_ABOVE * scene->material.mu;
 }
 

@@ -18,7 +18,17 @@
  *                 on L⁻¹ b(R)); for λ > 0 the same fixed matrix serves as a
  *                 preconditioner under the same line search. Linear
  *                 convergence.
- * Both stop when ‖∇W‖/s ≤ tolerance (free coordinates; s the start's free
+ *   quasi-newton  L-BFGS whose initial Hessian is local/global's factored
+ *                 matrix (Liu, Bouaziz and Kavan, "Quasi-Newton Methods
+ *                 for Real-Time Simulation of Hyperelastic Materials",
+ *                 2017): the same one factorization and, per iteration,
+ *                 one rotation fit, one block solve of the coordinates and
+ *                 the two-loop recursion over the last few curvature
+ *                 pairs, under the same line search. Linear convergence,
+ *                 at a far better rate than local/global's (bunny-edit
+ *                 to 1e-8: 140 iterations; local/global is at 7e-8 after
+ *                 2,000).
+ * All three stop when ‖∇W‖/s ≤ tolerance (free coordinates; s the start's free
  * gradient, at least the reactions at the handles and the load), at the
  * iteration cap, or when the gradient is at its own round-off (estimated
  * from the magnitudes of the element forces that sum to it) and no step
@@ -74,8 +84,9 @@ typedef struct bg_solve_options {
                                  chord steps after each full Newton step (0: the default, 8;
                                  negative: none, plain Newton, e.g. to read its quadratic
                                  convergence from the trace) */
-    int continuation;         /* bg_static_solve, newton from the scene's own start
-                                 (start NULL, no inertia, no factor reuse) with λ > 100 μ:
+    int continuation;         /* bg_static_solve, newton or quasi-newton from the scene's
+                                 own start (start NULL, no inertia, no factor reuse) with
+                                 λ > 100 μ:
                                  0 solves in stages of growing λ (bg_static_solve); negative:
                                  one solve at the scene's λ (plain) */
     int keep_orientation;     /* reject steps that invert an element (from a start
@@ -201,8 +212,11 @@ typedef struct bg_solve_result {
 /* Whether bg_static_solve solves scene with method in stages of growing λ
  * (continuation, below) when the caller leaves options->continuation at 0
  * and starts from the scene's own guess without inertia or factor reuse:
- * Newton on a static volume scene with λ > 100 μ whose solver.continuation
- * is not false. The plan (bg_plan) says so from the same test. */
+ * Newton or quasi-newton on a static volume scene with λ > 100 μ whose
+ * solver.continuation is not false. The plan (bg_plan) says so from the
+ * same test. Quasi-newton continues for the same reason as Newton: from
+ * the interpolated start of the stiff bar it descends into another local
+ * minimum (energy 0.15733 against 0.15445) unless the stages lead it. */
 int bg_static_continues(const bg_scene_t *scene, bg_method method);
 
 /*
@@ -212,7 +226,8 @@ int bg_static_continues(const bg_scene_t *scene, bg_method method);
  * scene with nothing free).
  *
  * Continuation in λ (options->continuation): a nearly incompressible body
- * (λ > 100 μ) solved with Newton from the scene's own starting guess is
+ * (λ > 100 μ) solved with Newton or quasi-newton from the scene's own
+ * starting guess is
  * first solved at λ = 10 μ, then at λ doubled each stage, each stage
  * warm-started from the last and stopped at relative gradient 10⁻¹ (or
  * the caller's tolerance if looser), the last at the scene's λ to the

@@ -84,6 +84,7 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
         st = bg_sparse_new(mesh, 1, index[c], count, &sys[c], err);
         if (st != BG_OK)
             goto out;
+        bg_sparse_prefer_solves(sys[c]); /* factored once, solved every iteration */
         bg_sparse_zero(sys[c]);
         double *values = bg_sparse_values(sys[c]);
         const double *weight = bg_surface_cells_weights(cells);
@@ -168,7 +169,7 @@ bg_status bg_surface_arap_solve(const bg_scene_t *scene, const bg_solve_options_
                 if (index[c][v] >= 0)
                     rhs[index[c][v]] = grad[3 * (size_t)v + c];
             res->vector_seconds += bg_clock_now() - tv;
-            st = ops->solve(session, system_of[c], rhs, x, err);
+            st = ops->solve(session, system_of[c], 1, rhs, x, err);
             if (st != BG_OK)
                 goto out;
             tv = bg_clock_now();

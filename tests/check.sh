@@ -15,6 +15,9 @@ jobs=$(nproc)
 # One OpenBLAS thread: the suite runs tests in parallel, and threaded BLAS
 # inside parallel tests only adds contention.
 export OPENBLAS_NUM_THREADS=1
+# Likewise CHOLMOD's OpenMP, whose factorizations open teams of a fixed
+# four threads that only OMP_THREAD_LIMIT caps (not OMP_NUM_THREADS).
+export OMP_THREAD_LIMIT=1
 cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo -DBIOTGRID_WERROR=ON
 cmake --build build -j "$jobs"
 ctest --test-dir build --output-on-failure -j "$jobs"

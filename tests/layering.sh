@@ -80,9 +80,11 @@ check "$ROOT"
 count=$(wc -l < "$work/edges")
 if [ "${2:-}" = "--self" ]; then
     # Each injection must be caught: the two circles the engine once had,
-    # and an include that looks up a layer.
+    # includes that look up a layer (a library reaching for the command's
+    # cmd.h among them) or sideways.
     for inject in "services/bg_scene.c bg_prepare.h" "services/bg_backend.c bg_surface_arap.h" \
-                  "services/bg_mesh.c bga_backend.h" "market/bgm_seller.c bg_static.h"; do
+                  "services/bg_mesh.c bga_backend.h" "market/bgm_seller.c bg_static.h" \
+                  "broker/bgb_store.c cmd.h"; do
         set -- $inject
         copy=$work/tree
         rm -rf "$copy"
@@ -94,6 +96,6 @@ if [ "${2:-}" = "--self" ]; then
             exit 1
         fi
     done
-    echo "layering: the check fails on each of 4 injected includes"
+    echo "layering: the check fails on each of 5 injected includes"
 fi
 echo "layering: ok ($count includes, no circle, every folder looks down)"

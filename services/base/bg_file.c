@@ -59,6 +59,17 @@ bg_status bg_file_make_directories_mode(const char *path, unsigned mode, bg_erro
     return BG_OK;
 }
 
+int bg_file_join(char *buf, size_t size, const char *dir, const char *name)
+{
+    const size_t a = strlen(dir), b = strlen(name);
+    if (a + 1 + b + 1 > size)
+        return -1;
+    memcpy(buf, dir, a);
+    buf[a] = '/';
+    memcpy(buf + a + 1, name, b + 1);
+    return 0;
+}
+
 bg_status bg_file_read_all(const char *path, size_t max_bytes, char **text, size_t *length,
                            bg_error_t *err)
 {

@@ -32,6 +32,14 @@ bg_status bg_file_write_all(const char *path, const void *data, size_t size, uns
                             bg_error_t *err);
 
 /*
+ * dir + "/" + name into buf (size bytes, NUL included): the one way every
+ * library and the command build a path inside a folder. Returns 0, or −1
+ * when it does not fit (buf is then left unterminated garbage: callers
+ * report "name too long" and do not use it).
+ */
+int bg_file_join(char *buf, size_t size, const char *dir, const char *name);
+
+/*
  * Reads a whole file into a NUL-terminated buffer of at most max_bytes.
  * Caller frees *text. Messages name the path and the OS error; a file
  * over the cap is BG_ERR_LIMIT, an unreadable one BG_ERR_IO.

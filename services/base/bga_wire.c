@@ -121,7 +121,8 @@ static const field_spec rr_fields[] = {F64ANY("energy"),           I64F("fits", 
 static const array_spec rr_arrays[] = {F64FREE("gradient", 0), F64FREE("hessian", 0)};
 
 static const field_spec ss_fields[] = {I64F("n", 1, INT32_MAX - 1), I64F("nnz", 1, INT32_MAX),
-                                       I64F("lease_ms", 0, LEASE_MAX_MS)};
+                                       I64F("lease_ms", 0, LEASE_MAX_MS),
+                                       I64F("prefer_solves", 0, 1)};
 static const array_spec ss_arrays[] = {
     {"colptr", BGA_ELEM_I32, 0, 1, BGA_SS_N, -1, -1, 1, 0, 0, BGA_SS_NNZ, 1},
     {"rowidx", BGA_ELEM_I32, 0, 1, BGA_SS_NNZ, -1, -1, 0, 0, 0, BGA_SS_N, 0}};

@@ -13,7 +13,7 @@
  * A binary header rather than JSON: fixed size, no parser, every field
  * checked by position. sender/receiver name role or agent ids for the
  * market roles (0 when a socket identifies the peer); flags and reserved
- * must be zero in version 1.
+ * must be zero.
  *
  * Each message type has a schema (static table in bga_wire.c): fields with
  * a kind and an allowed range, arrays with an element kind, a length rule
@@ -37,7 +37,10 @@
 
 #include "bg_error.h"
 
-#define BGA_WIRE_VERSION 1
+/* 2: solve-setup carries prefer_solves (a field added to a type's layout,
+ * so a peer of version 1 would misread it; added types alone keep the
+ * version). */
+#define BGA_WIRE_VERSION 2
 #define BGA_WIRE_HEADER_BYTES 48
 #define BGA_WIRE_MAX_FIELDS 20
 #define BGA_WIRE_MAX_ARRAYS 8
@@ -224,7 +227,8 @@ enum { /* ROTFIT_RESULT */
        BGA_RR_NFIELDS
 };
 enum { /* ROTFIT_RESULT arrays */ BGA_RR_GRADIENT, BGA_RR_HESSIAN, BGA_RR_NARRAYS };
-enum { /* SOLVE_SETUP */ BGA_SS_N, BGA_SS_NNZ, BGA_SS_LEASE_MS, BGA_SS_NFIELDS };
+enum { /* SOLVE_SETUP */ BGA_SS_N, BGA_SS_NNZ, BGA_SS_LEASE_MS, BGA_SS_PREFER_SOLVES,
+       BGA_SS_NFIELDS };
 enum { /* SOLVE_SETUP arrays */ BGA_SS_COLPTR, BGA_SS_ROWIDX, BGA_SS_NARRAYS };
 enum { /* SOLVE_FACTOR */ BGA_SF_SHIFT, BGA_SF_NFIELDS };
 enum { /* SOLVE_FACTOR arrays */ BGA_SF_VALUES, BGA_SF_NARRAYS };

@@ -86,7 +86,7 @@ static void expect_no_job(bga_client_t *c, uint64_t job, const char *what)
     bga_rotfit_out_t out = {0, g, NULL, 3, 0, {0, 0, 0, 0}, 0};
     bg_error_t err = BG_ERROR_INIT;
     const bg_status st = bga_client_rotfit(c, job, q, 3, BGA_WANT_GRADIENT, &out, &err);
-    CHECK(st == BG_ERR_INVALID && strstr(err.message, "no such job"),
+    CHECK(st == BG_ERR_NOT_FOUND && strstr(err.message, "no such job"),
           "%s: job %llu should be gone: %s", what, (unsigned long long)job,
           st == BG_OK ? "it answered" : err.message);
 }
@@ -273,7 +273,7 @@ static int run_compute(const char *dir)
     for (size_t i = 0; i < 3 * (size_t)n; i++)
         rhs[i] = cos(0.11 * (double)i) - 0.5;
     const uint64_t job = 2000;
-    bg_status st = bga_client_solve_setup(c, job, n, bg_sparse_colptr(sys), bg_sparse_rowidx(sys),
+    bg_status st = bga_client_solve_setup(c, job, n, bg_sparse_colptr(sys), bg_sparse_rowidx(sys), 0,
                                           60000, &err);
     CHECK(st == BG_OK, "solve set-up: %s", err.message);
     for (int round = 0; round < 2 && st == BG_OK; round++) {
@@ -298,7 +298,7 @@ static int run_compute(const char *dir)
     CHECK(bga_client_release(c, job, &err) == BG_OK, "solve release: %s", err.message);
     /* After the release the factor is gone: the agent says so. */
     st = bga_client_solve(c, job, rhs, n, 1, x, &err);
-    CHECK(st == BG_ERR_INVALID && strstr(err.message, "no such job") &&
+    CHECK(st == BG_ERR_NOT_FOUND && strstr(err.message, "no such job") &&
               strstr(err.message, r.endpoint) && strstr(err.message, "sparse-solve"),
           "solve after release: %s", err.message);
     printf("sparse-solve (%s): n = %d, nnz = %zu, matches in-process CHOLMOD\n", r.endpoint, (int)n,
@@ -333,8 +333,11 @@ static int run_compute(const char *dir)
 }
 
 /* Sends raw frames, expects an ERROR with `code` whose text has needle. */
+/* The refusal of a raw request: its code, a message containing needle,
+ * and the sequence number it quotes (seq: the request's, 0 where its
+ * header cannot be read), so a client matches it at once. */
 static void expect_refusal(bga_client_t *c, const bga_frame_t *f, int n, bga_wire_code code,
-                           const char *needle, const char *what)
+                           uint64_t seq, const char *needle, const char *what)
 {
     bga_reply_t rep;
     bg_error_t err = BG_ERROR_INIT;
@@ -350,7 +353,10 @@ static void expect_refusal(bga_client_t *c, const bga_frame_t *f, int n, bga_wir
               strstr(text, needle),
           "%s: got %s code %lld '%s'", what, bga_type_name(rep.msg.header.type),
           rep.msg.header.type == BGA_ERROR ? (long long)rep.msg.field[BGA_ERR_CODE].i : -1LL, text);
-    printf("%-22s -> %s: %s\n", what, bga_wire_code_name(code), text);
+    CHECK(rep.msg.header.seq == seq, "%s: the refusal quotes seq %llu, the request's is %llu",
+          what, (unsigned long long)rep.msg.header.seq, (unsigned long long)seq);
+    printf("%-22s -> %s (seq %llu): %s\n", what, bga_wire_code_name(code),
+           (unsigned long long)rep.msg.header.seq, text);
     bga_reply_close(&rep);
 }
 
@@ -372,27 +378,31 @@ static int run_malformed(const char *dir)
     uint8_t hdr[48], arr[48];
 
     bga_frame_t t1[1] = {{v[0].data, 20}};
-    expect_refusal(c, t1, 1, BGA_WIRE_TRUNCATED, "header frame has 20 bytes", "truncated header");
+    expect_refusal(c, t1, 1, BGA_WIRE_TRUNCATED, 0, "header frame has 20 bytes",
+                   "truncated header");
     memcpy(hdr, v[0].data, 48);
     hdr[6] = 0x99;
     bga_frame_t t2[3] = {{hdr, 48}, v[1], v[2]};
-    expect_refusal(c, t2, 3, BGA_WIRE_UNKNOWN_TYPE, "unknown message type 0x0199", "unknown type");
+    expect_refusal(c, t2, 3, BGA_WIRE_UNKNOWN_TYPE, 5, "unknown message type 0x0199",
+                   "unknown type");
     memcpy(hdr, v[0].data, 48);
     hdr[4] = 9;
     t2[0].data = hdr;
-    expect_refusal(c, t2, 3, BGA_WIRE_WRONG_VERSION, "protocol version 9", "wrong version");
+    expect_refusal(c, t2, 3, BGA_WIRE_WRONG_VERSION, 5, "protocol version 9", "wrong version");
+    hdr[4] = 0;
+    expect_refusal(c, t2, 3, BGA_WIRE_WRONG_VERSION, 5, "protocol version 0", "version 0");
     memcpy(arr, v[2].data, 48);
     const double nan = NAN;
     memcpy(arr + 16, &nan, 8);
     bga_frame_t t3[3] = {v[0], v[1], {arr, 48}};
-    expect_refusal(c, t3, 3, BGA_WIRE_NOT_FINITE, "positions[2] is nan", "NaN position");
+    expect_refusal(c, t3, 3, BGA_WIRE_NOT_FINITE, 5, "positions[2] is nan", "NaN position");
     bga_frame_t t4[12];
     for (int i = 0; i < 12; i++)
         t4[i] = v[i % 3];
-    expect_refusal(c, t4, 12, BGA_WIRE_FRAME_COUNT, "12 frames", "12 frames");
-    expect_refusal(c, v, 3, BGA_WIRE_NO_JOB, "no state for job 77", "call without set-up");
+    expect_refusal(c, t4, 12, BGA_WIRE_FRAME_COUNT, 5, "12 frames", "12 frames");
+    expect_refusal(c, v, 3, BGA_WIRE_NO_JOB, 5, "no state for job 77", "call without set-up");
     bga_frame_t t5[1] = {{NULL, 0}};
-    expect_refusal(c, t5, 1, BGA_WIRE_TRUNCATED, "header frame has 0 bytes", "empty frame");
+    expect_refusal(c, t5, 1, BGA_WIRE_TRUNCATED, 0, "header frame has 0 bytes", "empty frame");
     bga_frames_free(&fr);
 
     /* Still serving. */

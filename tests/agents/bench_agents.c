@@ -145,7 +145,7 @@ int main(int argc, char **argv)
 
     int failures = 0;
     bga_client_t *solver = open_agent(dir, "solve", "sparse-solve");
-    if (bga_client_solve_setup(solver, 9000, n, bg_sparse_colptr(sys), bg_sparse_rowidx(sys), 0,
+    if (bga_client_solve_setup(solver, 9000, n, bg_sparse_colptr(sys), bg_sparse_rowidx(sys), 0, 0,
                                &err) != BG_OK)
         die(&err);
     char ep[2][256];

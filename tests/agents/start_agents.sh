@@ -4,7 +4,8 @@
 # runs under a wrapper subshell that writes its exit status to RUNDIR/NAME.rc
 # when it ends; the agent writes "ENDPOINT PID" to RUNDIR/NAME.ready once
 # bound. Waits (10 s at most) until every agent is ready; on failure stops
-# the ones that started and exits 1.
+# the ones that started and exits 1. $BG_AGENT_OPTIONS (split on blanks)
+# is passed to every agent, e.g. "--broker tcp://127.0.0.1:9".
 set -u
 bin=$1
 dir=$2
@@ -15,8 +16,10 @@ for spec in "$@"; do
   name=${spec%%:*}
   services=${spec#*:}
   # Detached from the test's output pipes, or CTest would wait for them.
+  # shellcheck disable=SC2086 # the options are words
   ( "$bin" agent --listen 'tcp://127.0.0.1:*' --services "$services" --slots 4 \
-      --name "$name" --ready-file "$dir/$name.ready" >"$dir/$name.log" 2>&1 </dev/null
+      --name "$name" --ready-file "$dir/$name.ready" ${BG_AGENT_OPTIONS:-} \
+      >"$dir/$name.log" 2>&1 </dev/null
     echo $? >"$dir/$name.rc" ) >/dev/null 2>&1 </dev/null &
 done
 i=0

@@ -33,8 +33,9 @@
 #include "bg_elastic.h"
 #include "bg_mesh.h"
 
-/* The throughput this kernel is meant to reach (tets per second, one core). */
-#define TARGET_ELEMENTS_PER_SECOND 20.0e6
+/* The throughput this kernel is meant to reach (tets per second, one core,
+ * warm: issue 29). */
+#define TARGET_ELEMENTS_PER_SECOND 35.0e6
 /* libigl's scalar polar SVD inside arap_solve, DESIGN.md §1.10: a quoted
  * peer figure, not something this program measures. */
 #define LIBIGL_ELEMENTS_PER_SECOND 1.63e6
@@ -218,7 +219,7 @@ static double percent(int64_t part, int64_t whole)
 static void print_table_head(void)
 {
     printf("%-5s %-9s %-10s %9s %10s %9s %8s %9s %7s %7s %7s\n", "mesh", "variant", "mode",
-           "elements", "median_ms", "M_elem/s", "vs_20M", "vs_libigl", "svd%", "warm%",
+           "elements", "median_ms", "M_elem/s", "vs_35M", "vs_libigl", "svd%", "warm%",
            "polar%");
 }
 
@@ -361,7 +362,7 @@ int main(int argc, char **argv)
            mesh3->nv);
     printf("2d: rectangle %dx%d cells, %d triangles, %d vertices\n", rect[0], rect[1], mesh2->ne,
            mesh2->nv);
-    printf("median of %d single evaluations per row; vs_20M = throughput / 20 M elem/s target;\n"
+    printf("median of %d single evaluations per row; vs_35M = throughput / 35 M elem/s target;\n"
            "vs_libigl = throughput / 1.63 M elem/s, libigl's arap_solve rotation fitting as\n"
            "QUOTED in DESIGN.md 1.10 (a peer figure, NOT measured by this program; it covers\n"
            "the polar SVD alone, while each row here is F + R + P + gradient scatter).\n\n",

@@ -23,21 +23,26 @@ t1=$(now)
 "$bin" grid up "$here/../../configs/grids/local.json" --state "$state" --broker-port 0 \
   --broker-endpoint 'tcp://127.0.0.1:*' >/dev/null || exit 1
 url=$(jq -r .broker.url "$state/grid.json")
+token=$(head -1 "$state/token")
 base64 -w0 "$mesh" >"$work/mesh.b64"
 jq -n --slurpfile s "$scene" --rawfile b "$work/mesh.b64" --arg n "$name" \
   '{scene: ($s[0] | .mesh = $n), files: [{name: $n, base64: $b}], mechanism: "posted", budget: 100}' \
   >"$work/submit.json"
 t2=$(now)
-id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
+id=$(curl -sf -H "Authorization: Bearer $token" -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
   "$url/v1/jobs" | jq -r .id)
 st=none
-while :; do
-  st=$(curl -sf "$url/v1/jobs/$id" | jq -r .state)
+i=0
+while [ $i -lt 12000 ]; do  # 10 minutes at most; a refused request ends it
+  st=$(curl -sf -H "Authorization: Bearer $token" "$url/v1/jobs/$id" | jq -er .state) ||
+    { st="unreachable"; break; }
   case $st in succeeded|failed|cancelled) break ;; esac
   sleep 0.05
+  i=$((i + 1))
 done
 t3=$(now)
-curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report.json"
+curl -sf -H "Authorization: Bearer $token" "$url/v1/jobs/$id/result/report.json" \
+  >"$work/report.json"
 "$bin" grid down --state "$state" >/dev/null
 echo "load after: $(uptime)"
 echo "state: $st"

@@ -50,6 +50,7 @@
 #include "bgb_base64.h"
 #include "bgb_rest.h"
 #include "bgb_store.h"
+#include "bgb_tokens.h"
 
 #define HANDLES "\"material\":{\"mu\":1,\"lambda\":1},\"handles\":[{\"select\":{\"box\":"      \
                 "{\"min\":[0,0,0],\"max\":[0,1,1]}}},{\"select\":{\"box\":{\"min\":[2,0,0],"   \
@@ -87,7 +88,7 @@ static double thread_cpu(void)
 }
 
 typedef struct client {
-    const char *url, *body;
+    const char *url, *body, *auth;
     int jobs;
     int accepted;
     int failed;
@@ -111,6 +112,7 @@ static void *run_client(void *arg)
         return NULL;
     }
     struct curl_slist *headers = curl_slist_append(NULL, "Content-Type: application/json");
+    headers = curl_slist_append(headers, c->auth);
     curl_easy_setopt(curl, CURLOPT_URL, c->url);
     curl_easy_setopt(curl, CURLOPT_HTTPHEADER, headers);
     curl_easy_setopt(curl, CURLOPT_POSTFIELDS, c->body);
@@ -167,14 +169,18 @@ static int rest_run(run_t *r, const char *path, const char *dir, const char *bod
     const bgb_rest_config_t config = {.work_dir = dir, .limits = &limits};
     if (bgb_rest_start(&config, store, &rest, err) != BG_OK)
         goto out;
-    char url[128];
+    char url[128], token[BGB_TOKEN_SIZE], auth[BGB_TOKEN_SIZE + 32];
     snprintf(url, sizeof url, "http://127.0.0.1:%u/v1/jobs", (unsigned)bgb_rest_port(rest));
+    if (bgb_tokens_create(store, "bench", 0, token, err) != BG_OK)
+        goto out;
+    snprintf(auth, sizeof auth, "Authorization: Bearer %s", token);
     if (r->instrument)
         CALLGRIND_START_INSTRUMENTATION;
     double sys0 = 0.0, sys1 = 0.0;
     const double t0 = now(), cpu0 = process_cpu(&sys0);
     for (; started < clients; started++) {
         cs[started].url = url;
+        cs[started].auth = auth;
         cs[started].body = body;
         cs[started].jobs = jobs / clients;
         if (pthread_create(&threads[started], NULL, run_client, &cs[started]) != 0)

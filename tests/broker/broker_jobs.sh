@@ -43,16 +43,16 @@ for scene in "$@"; do
   n=$((n + 1))
   jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "posted", budget: 100}' \
     >"$work/submit$n.json"
-  code=$(curl -s -o "$work/job$n.json" -w '%{http_code}' -X POST \
+  code=$(bcurl -s -o "$work/job$n.json" -w '%{http_code}' -X POST \
     -H 'Content-Type: application/json' --data-binary @"$work/submit$n.json" "$url/v1/jobs")
   [ "$code" = 202 ]; check $? "$scene: submit answers 202 (got $code)"
   id=$(jq -r .id "$work/job$n.json")
   state=$(wait_job "$url" "$id" 300)
   [ "$state" = succeeded ]; check $? "$scene: job $id succeeded (got $state)"
-  curl -sf "$url/v1/jobs/$id" >"$work/detail$n.json"
+  bcurl -sf "$url/v1/jobs/$id" >"$work/detail$n.json"
   jq -e '.trace | length > 1' "$work/detail$n.json" >/dev/null
   check $? "$scene: the job resource holds the run's trace ($(jq '.trace | length' "$work/detail$n.json") points)"
-  curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report$n.json"
+  bcurl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report$n.json"
   jq -e --slurpfile r "$work/report$n.json" '(.trace | length) == ($r[0].runs[0].trace | length)' \
     "$work/detail$n.json" >/dev/null
   check $? "$scene: the job's trace has the report's points"
@@ -75,14 +75,14 @@ for scene in "$@"; do
       "$work/report$n.json" >/dev/null
     check $? "$scene: the static job's plan has no integration-step"
   fi
-  curl -sf "$url/v1/jobs/$id/result" >"$work/files$n.json"
+  bcurl -sf "$url/v1/jobs/$id/result" >"$work/files$n.json"
   if jq -e '.runs[0].method == "variational" or .runs[0].method == "backward-euler"' \
      "$work/report$n.json" >/dev/null; then
     jq -e '[.files[].name | select(endswith(".pvd"))] | length == 1' "$work/files$n.json" >/dev/null
     check $? "$scene: the dynamic job stored its .pvd"
     frames=$(jq '[.files[].name | select(test("-[0-9]{6}[.]vtu$"))] | length' "$work/files$n.json")
     [ "$frames" -gt 1 ]; check $? "$scene: the dynamic job stored $frames frames"
-    curl -sf "$url/v1/jobs/$id/result/$(jq -r '[.files[].name | select(endswith(".pvd"))][0]' \
+    bcurl -sf "$url/v1/jobs/$id/result/$(jq -r '[.files[].name | select(endswith(".pvd"))][0]' \
       "$work/files$n.json")" | grep -q 'file="[a-z-]*-[0-9]*[.]vtu"'
     check $? "$scene: the .pvd names frames stored beside it"
   fi
@@ -90,12 +90,12 @@ for scene in "$@"; do
     jq -e --arg f "$f" '[.files[].name] | index($f) != null' "$work/files$n.json" >/dev/null
     check $? "$scene: result has $f"
   done
-  curl -sf "$url/v1/jobs/$id/events" --max-time 10 >"$work/events$n.txt"
+  bcurl -sf "$url/v1/jobs/$id/events" --max-time 10 >"$work/events$n.txt"
   grep -q '"no agent is registered on the market' "$work/events$n.txt"
   check $? "$scene: the allocation event says no agent is registered on the market"
   grep -q '^event: trace' "$work/events$n.txt" || grep -q '"points"' "$work/events$n.txt"
   check $? "$scene: the trace is an event"
-  code=$(curl -s -o /dev/null -w '%{http_code}' -X POST "$url/v1/jobs/$id/cancel")
+  code=$(bcurl -s -o /dev/null -w '%{http_code}' -X POST "$url/v1/jobs/$id/cancel")
   [ "$code" = 409 ]; check $? "$scene: cancelling an ended job is 409 (got $code)"
 done
 # A scene with its mesh uploaded: the coordinator unpacks it for the solve.
@@ -112,20 +112,20 @@ base64 -w0 "$mesh" >"$work/upload/mesh.b64"
 jq -n --slurpfile s "$work/upload/scene.json" --rawfile b "$work/upload/mesh.b64" --arg n "$mname" \
   '{scene: $s[0], files: [{name: $n, base64: $b}], mechanism: "central", budget: 5}' \
   >"$work/upload/submit.json"
-id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/upload/submit.json" \
+id=$(bcurl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/upload/submit.json" \
   "$url/v1/jobs" | jq -r .id)
 state=$(wait_job "$url" "$id" 120)
 [ "$state" = succeeded ]; check $? "uploaded mesh: job $id succeeded (got $state)"
-curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/upload/report.json"
+bcurl -sf "$url/v1/jobs/$id/result/report.json" >"$work/upload/report.json"
 "$bin" solve "$work/upload/scene.json" --quiet --out "$work/upload/local" >/dev/null 2>&1
 jq -n --slurpfile a "$work/upload/report.json" --slurpfile b "$work/upload/local/report.json" \
   '($a[0].runs[0].energy - $b[0].runs[0].energy) | fabs <= 1e-10 * ($b[0].runs[0].energy | fabs)' \
   | grep -q true
 check $? "uploaded mesh: energy equals solve's (1e-10 relative)"
 
-n=$(curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "config")] | length')
+n=$(bcurl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "config")] | length')
 [ "$n" = 4 ]; check $? "GET /v1/agents lists the broker's 4 agents (got $n)"
-code=$(curl -s -o /dev/null -w '%{http_code}' "$url/v1/jobs/j0000000000000000")
+code=$(bcurl -s -o /dev/null -w '%{http_code}' "$url/v1/jobs/j0000000000000000")
 [ "$code" = 404 ]; check $? "an unknown job is 404 (got $code)"
 
 cleanup

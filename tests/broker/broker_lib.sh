@@ -7,12 +7,17 @@
 #   same_energy REPORT REFERENCE       whether two report.json files' first runs have the same
 #                                      energy (1e-10 relative to the reference's)
 #   check STATUS MESSAGE               "ok: MESSAGE", or "FAIL: MESSAGE" and fail=1
+#   bcurl ARGS...                      curl with the test's bearer token ($BIOTGRID_TOKEN, which
+#                                      start_broker and grid_up_market export): every /v1 path
+#                                      needs one
 #   grid_up_market BIN CONFIG STATE    `grid up` on ephemeral loopback ports; sets url and
 #                                      nagents; waits until every agent's service seller and the
 #                                      host's one resource seller are alive on the market, the
 #                                      other agents standing by (checks each step)
 #   market_sellers URL KIND            alive market sellers: KIND service, resource or idle
 #                                      (service sellers with every slot free)
+#   broker_test_begin WORK             WORK emptied, fail=0, INT/TERM stop broker b, exit 1
+#   broker_config WORK NAME [JSON]     WORK/broker.json: ephemeral loopback ports, WORK/state
 #   grid_test_begin BIN WORK           a grid test's start: WORK emptied, state=WORK/grid,
 #                                      fail=0, INT/TERM stop the grid and exit 1
 #   grid_test_end SCRIPTS              `grid down` (to WORK/down.txt) and no process of the
@@ -25,6 +30,27 @@ bcurl() {
 
 check() {
   if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
+}
+
+bcurl() {
+  curl -H "Authorization: Bearer ${BIOTGRID_TOKEN:-}" "$@"
+}
+
+# An admin token for the broker whose state folder is $2, exported as
+# BIOTGRID_TOKEN for bcurl and the biotgrid client commands.
+export_token() {
+  BIOTGRID_TOKEN=$("$1" token create tests --admin --state-dir "$2" 2>/dev/null)
+  export BIOTGRID_TOKEN
+  [ -n "$BIOTGRID_TOKEN" ]
+}
+
+# The admin token `grid up` wrote to the state folder $1, exported as
+# BIOTGRID_TOKEN; checked to exist and be readable by its owner only.
+grid_token() {
+  BIOTGRID_TOKEN=$(head -1 "$1/token" 2>/dev/null)
+  export BIOTGRID_TOKEN
+  [ -n "$BIOTGRID_TOKEN" ] && [ "$(stat -c %a "$1/token")" = 600 ]
+  check $? "grid up wrote an admin token only its owner may read"
 }
 
 start_broker() {
@@ -43,6 +69,8 @@ start_broker() {
     cat "$_dir/$_name.log" >&2
     return 1
   fi
+  export_token "$_bin" "$(jq -r '.state_dir // "out/broker"' "$_config")" ||
+    { echo "start_broker: no token for $_name" >&2; return 1; }
 }
 
 stop_broker() {
@@ -65,7 +93,7 @@ stop_broker() {
 }
 
 submit_job() {
-  curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$2" "$1/v1/jobs" | jq -r .id
+  bcurl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$2" "$1/v1/jobs" | jq -r .id
 }
 
 same_energy() {
@@ -76,9 +104,14 @@ same_energy() {
 
 wait_job() {
   _url=$1 _id=$2 _limit=$3
-  _i=0
+  _i=0 _bad=0
   while [ $_i -lt $((_limit * 10)) ]; do
-    _state=$(curl -sf "$_url/v1/jobs/$_id" | jq -r .state)
+    if _state=$(bcurl -sf --max-time 10 "$_url/v1/jobs/$_id" | jq -er .state); then
+      _bad=0
+    else
+      _bad=$((_bad + 1))
+      [ $_bad -lt 3 ] || { echo "unreachable"; return 0; }
+    fi
     case $_state in
       succeeded|failed|cancelled) echo "$_state"; return 0 ;;
     esac
@@ -94,7 +127,7 @@ market_sellers() {
   resource) _sel='(.services | length) == 0 and .slots == 0' ;;
   idle) _sel='(.services | length) > 0 and .free_slots == .slots' ;;
   esac
-  curl -sf "$1/v1/agents" | jq "[.agents[] | select(.source == \"market\" and .alive and $_sel)] | length"
+  bcurl -sf "$1/v1/agents" | jq "[.agents[] | select(.source == \"market\" and .alive and $_sel)] | length"
 }
 
 grid_up_market() {
@@ -104,6 +137,7 @@ grid_up_market() {
   check $? "grid up"
   url=$(jq -r '.broker.url // empty' "$_state/grid.json" 2>/dev/null)
   [ -n "$url" ]; check $? "the state file records the broker ($url)"
+  grid_token "$_state"
   nagents=$(jq '.agents | length' "$_config")
   # Each agent daemon is a service seller in the directory; the host's
   # cores and memory have one resource seller (no services, no slots), the
@@ -119,6 +153,26 @@ grid_up_market() {
   done
   [ "${_live:-0}" -eq "$nagents" ] && [ "${_res:-0}" -eq 1 ] && [ "$_by" -eq $((nagents - 1)) ]
   check $? "all $nagents agents registered on the market, one selling the host's resources (got $_live, $_res; $_by stand by)"
+}
+
+# broker_test_begin WORK: WORK emptied, fail=0, INT/TERM stop the broker
+# named b (start_broker WORK b) and exit 1.
+broker_test_begin() {
+  _bt_work=$1
+  rm -rf "$_bt_work"
+  mkdir -p "$_bt_work"
+  fail=0
+  trap 'stop_broker "$_bt_work" b; exit 1' INT TERM
+}
+
+# broker_config WORK NAME [JSON]: WORK/broker.json for a broker named NAME
+# on ephemeral loopback ports with its state in WORK/state, JSON's keys
+# (an object) added.
+broker_config() {
+  _bc_extra=${3:-}
+  [ -n "$_bc_extra" ] || _bc_extra='{}'
+  jq -n --arg n "$2" --arg d "$1/state" --argjson x "$_bc_extra" \
+    '{name: $n, port: 0, endpoint: "tcp://127.0.0.1:*", state_dir: $d} + $x' >"$1/broker.json"
 }
 
 grid_test_begin() {

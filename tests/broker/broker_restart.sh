@@ -10,36 +10,31 @@ set -u
 bin=$1 work=$2 scene=$3
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
-mkdir -p "$work"
-fail=0
-trap 'stop_broker "$work" b; exit 1' INT TERM
-cat >"$work/broker.json" <<JSON
-{"name": "restart", "port": 0, "endpoint": "tcp://127.0.0.1:*", "state_dir": "$work/state"}
-JSON
+broker_test_begin "$work"
+broker_config "$work" restart
 jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "central", budget: 1000}' >"$work/submit.json"
 start_broker "$bin" "$work" b "$work/broker.json" || exit 1
 url=$(cut -d' ' -f1 "$work/b.ready")
 : >"$work/ids"
 for i in 1 2 3 4 5; do
-  curl -sf -X POST -H 'Content-Type: application/json' -H "Idempotency-Key: key-$i" \
+  bcurl -sf -X POST -H 'Content-Type: application/json' -H "Idempotency-Key: key-$i" \
     --data-binary @"$work/submit.json" "$url/v1/jobs" | jq -r .id >>"$work/ids"
 done
 [ "$(sort -u "$work/ids" | grep -c '^j')" = 5 ]; check $? "five jobs accepted"
 sleep 0.5
-state=$(curl -sf "$url/v1/jobs/$(head -1 "$work/ids")" | jq -r .state)
+state=$(bcurl -sf "$url/v1/jobs/$(head -1 "$work/ids")" | jq -r .state)
 [ "$state" = allocating ]; check $? "without a market a job waits in allocating (got $state)"
-curl -sf --max-time 2 "$url/v1/jobs/$(head -1 "$work/ids")/events" >"$work/events.txt"
+bcurl -sf --max-time 2 "$url/v1/jobs/$(head -1 "$work/ids")/events" >"$work/events.txt"
 grep -q 'no agent is registered on the market' "$work/events.txt"
 check $? "its allocation event says no agent is registered on the market"
 
-listed() { curl -sf "$url/v1/jobs?limit=100" | jq -r '.jobs[].id' | sort; }
+listed() { bcurl -sf "$url/v1/jobs?limit=100" | jq -r '.jobs[].id' | sort; }
 stop_broker "$work" b; check $? "the broker stops on SIGTERM with status 0"
 start_broker "$bin" "$work" b "$work/broker.json" || exit 1
 url=$(cut -d' ' -f1 "$work/b.ready")
 listed >"$work/after1"
 sort "$work/ids" | cmp -s - "$work/after1"; check $? "after a restart every accepted job is listed"
-id=$(curl -sf -X POST -H 'Content-Type: application/json' -H "Idempotency-Key: key-3" \
+id=$(bcurl -sf -X POST -H 'Content-Type: application/json' -H "Idempotency-Key: key-3" \
   --data-binary @"$work/submit.json" "$url/v1/jobs" | jq -r .id)
 [ "$id" = "$(sed -n 3p "$work/ids")" ]; check $? "an idempotent resubmit after the restart returns the same job"
 
@@ -53,7 +48,7 @@ listed >"$work/after2"
 sort "$work/ids" | cmp -s - "$work/after2"; check $? "after SIGKILL and a restart every accepted job is listed"
 sleep 0.5
 # Each waiting job holds one of the broker's max_jobs (default 4) places.
-states=$(curl -sf "$url/v1/jobs?limit=100" | jq -r '[.jobs[].state] | sort | join(",")')
+states=$(bcurl -sf "$url/v1/jobs?limit=100" | jq -r '[.jobs[].state] | sort | join(",")')
 [ "$states" = allocating,allocating,allocating,allocating,queued ]
 check $? "the jobs are picked up again, 4 at a time (states: $states)"
 
@@ -67,7 +62,7 @@ mkdir -p "$work/agents"
     --broker "$endpoint" --ready-file "$work/agents/a1.ready" >"$work/agents/a1.log" 2>&1 </dev/null
   echo $? >"$work/agents/a1.rc" ) >/dev/null 2>&1 </dev/null &
 trap 'sh "$here/../agents/stop_agents.sh" "$work/agents" >/dev/null 2>&1; stop_broker "$work" b; exit 1' INT TERM
-prices() { curl -sf "$url/v1/agents" | jq -c '[.agents[] | select(.source == "market" and (.services | length) > 0) | .prices["rotation-fit"], .prices["sparse-solve"]]'; }
+prices() { bcurl -sf "$url/v1/agents" | jq -c '[.agents[] | select(.source == "market" and (.services | length) > 0) | .prices["rotation-fit"], .prices["sparse-solve"]]'; }
 i=0
 while [ "$(prices)" = "[]" ] && [ $i -lt 100 ]; do sleep 0.05; i=$((i + 1)); done
 before=$(prices)

@@ -27,7 +27,7 @@ idle() { market_sellers "$url" idle; }
 progressing() {
   _i=0 _st=none
   while [ $_i -lt $(($2 * 10)) ]; do
-    _st=$(curl -sf "$url/v1/jobs/$1" | jq -r 'if .state == "running" and .progress != null
+    _st=$(bcurl -sf "$url/v1/jobs/$1" | jq -r 'if .state == "running" and .progress != null
                                               then "progressing" else .state end')
     case $_st in progressing|succeeded|failed|cancelled) break ;; esac
     sleep 0.1
@@ -38,7 +38,7 @@ progressing() {
 
 jq -n --slurpfile s "$long" '{scene: ($s[0] | .task.steps = 100000), mechanism: "central", budget: 100}' \
   >"$work/long.json"
-id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/long.json" \
+id=$(bcurl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/long.json" \
   "$url/v1/jobs" | jq -r .id)
 [ -n "$id" ]; check $? "the long job is accepted ($id)"
 st=$(progressing "$id" 120)
@@ -46,11 +46,11 @@ st=$(progressing "$id" 120)
 busy=$((nagents - $(idle)))
 [ "$busy" -ge 2 ]; check $? "it holds slots on $busy agents"
 
-id_b=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/long.json" \
+id_b=$(bcurl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/long.json" \
   "$url/v1/jobs" | jq -r .id)
 i=0 said=null
 while [ $i -lt 300 ]; do
-  said=$(curl -sf "$url/v1/jobs/$id_b" | jq -c '[.state, .allocation.retry, .allocation.reason]')
+  said=$(bcurl -sf "$url/v1/jobs/$id_b" | jq -c '[.state, .allocation.retry, .allocation.reason]')
   case $said in '["allocating",'[0-9]*) break ;; esac
   sleep 0.1
   i=$((i + 1))
@@ -61,18 +61,18 @@ check $? "a second long job waits while the first holds the cores it needs, and 
 # where a loop without pauses asks thousands of times.
 sleep 4
 
-code=$(curl -s -o "$work/cancel.json" -w '%{http_code}' -X POST "$url/v1/jobs/$id/cancel")
+code=$(bcurl -s -o "$work/cancel.json" -w '%{http_code}' -X POST "$url/v1/jobs/$id/cancel")
 case $code in 200|202) r=0 ;; *) r=1 ;; esac
 check $r "POST /v1/jobs/{id}/cancel answers $code"
 jq -e '.state == "cancelled"' "$work/cancel.json" >/dev/null; check $? "the answer shows the job cancelled"
 st=$(progressing "$id_b" 60)
 [ "$st" = progressing ]; check $? "the waiting job runs once the first is cancelled (got $st)"
-curl -sf "$url/v1/jobs/$id_b/events" --max-time 2 >"$work/events_b.txt" 2>/dev/null
+bcurl -sf "$url/v1/jobs/$id_b/events" --max-time 2 >"$work/events_b.txt" 2>/dev/null
 retries=$(grep -c '"retry":' "$work/events_b.txt")
 [ "$retries" -ge 2 ] && [ "$retries" -le 12 ]
 check $? "it asked again $retries times in the 4 s it waited, with backoff (2 to 12)"
 t0=$(now)
-code=$(curl -s -o /dev/null -w '%{http_code}' -X POST "$url/v1/jobs/$id_b/cancel")
+code=$(bcurl -s -o /dev/null -w '%{http_code}' -X POST "$url/v1/jobs/$id_b/cancel")
 case $code in 200|202) r=0 ;; *) r=1 ;; esac
 check $r "the second long job is cancelled too ($code)"
 i=0
@@ -83,19 +83,19 @@ while [ $i -lt 200 ]; do
 done
 freed=$(awk -v a="$t0" -v b="$(now)" 'BEGIN { printf "%.2f", b - a }')
 [ "$(idle)" -eq "$nagents" ]; check $? "every agent's slots are free again ${freed} s after the cancel"
-curl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events.txt"
+bcurl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events.txt"
 grep -q '^event: stopped' "$work/events.txt"; check $? "the job's events record that its solve stopped"
 ! grep -q '^event: solved' "$work/events.txt"; check $? "and no solved event"
-p1=$(curl -sf "$url/v1/jobs/$id" | jq -c '[.state, .progress.iteration]')
+p1=$(bcurl -sf "$url/v1/jobs/$id" | jq -c '[.state, .progress.iteration]')
 sleep 1
-p2=$(curl -sf "$url/v1/jobs/$id" | jq -c '[.state, .progress.iteration]')
+p2=$(bcurl -sf "$url/v1/jobs/$id" | jq -c '[.state, .progress.iteration]')
 [ "$p1" = "$p2" ] && echo "$p1" | grep -q '^\["cancelled",'
 check $? "the job stays cancelled and its progress no longer moves ($p1, then $p2)"
-code=$(curl -s -o /dev/null -w '%{http_code}' "$url/v1/jobs/$id/result/report.json")
+code=$(bcurl -s -o /dev/null -w '%{http_code}' "$url/v1/jobs/$id/result/report.json")
 [ "$code" != 200 ]; check $? "the cancelled job has no report.json (HTTP $code)"
 
 jq -n --slurpfile s "$short" '{scene: $s[0], mechanism: "posted", budget: 100}' >"$work/short.json"
-id2=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/short.json" \
+id2=$(bcurl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/short.json" \
   "$url/v1/jobs" | jq -r .id)
 st=$(wait_job "$url" "$id2" 300)
 [ "$st" = succeeded ]; check $? "a job after the cancel runs on the same agents (got $st)"

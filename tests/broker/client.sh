@@ -38,7 +38,11 @@ start_host() {
     i=0
     while [ $i -lt 100 ]; do
         port=$(sed -n 's/^port \([0-9][0-9]*\)$/\1/p' "$tmp/$name.out")
-        [ -n "$port" ] && return 0
+        if [ -n "$port" ]; then
+            BIOTGRID_TOKEN=$(sed -n 's/^token //p' "$tmp/$name.out")
+            export BIOTGRID_TOKEN
+            return 0
+        fi
         kill -0 "$pid" 2>/dev/null || break
         sleep 0.05
         i=$((i + 1))
@@ -111,7 +115,7 @@ check 2 "mesh-path\\.json: mesh: data-kept-elsewhere/two-tets\\.mesh not found" 
 
 # --wait follows the events to the end: plain lines when not on a terminal.
 scene "$tmp/ok.json" ok-1
-check 0 "job j[0-9a-f]{16}: progress 50%" "$bin" submit "$tmp/ok.json" --wait $b
+check 0 "job j[0-9a-f]{16}: running 40% \\(iteration 12\\)" "$bin" submit "$tmp/ok.json" --wait $b
 printf '%s\n' "$out" | grep -Eq "^job j[0-9a-f]{16}: succeeded$" ||
     fail "submit --wait: no 'succeeded' line: $out"
 printf '%s\n' "$out" | grep -Eq "^job j[0-9a-f]{16}: running$" ||
@@ -129,11 +133,11 @@ check 0 '"state"' "$bin" submit "$tmp/ok.json" --out "$tmp/res/wj" --json $b
 # On a terminal (a pseudo-terminal from script(1), util-linux) --wait draws a
 # progress bar fed by the events instead of the lines.
 if command -v script >/dev/null 2>&1; then
-    check 0 "j[0-9a-f]{16} \\[#{15}\\.{15}\\]  50% running" \
+    check 0 "j[0-9a-f]{16} \\[#{12}\\.{18}\\]  40% running, iteration 12" \
         script -qec "'$bin' submit '$tmp/ok.json' --wait $b" /dev/null
     printf '%s\n' "$out" | grep -Eq "\\[#{30}\\] 100% succeeded" ||
         fail "submit --wait on a terminal: no full bar: $out"
-    printf '%s\n' "$out" | grep -q "progress 50%" &&
+    printf '%s\n' "$out" | grep -q "running 40%" &&
         fail "submit --wait on a terminal printed plain lines: $out"
 else
     fail "script(1) is needed for the terminal test"

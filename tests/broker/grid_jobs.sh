@@ -14,24 +14,18 @@ grid_test_begin "$bin" "$work"
   --broker-endpoint 'tcp://127.0.0.1:*' >"$work/up.txt" 2>&1
 check $? "grid up"
 cat "$work/up.txt"
+grid_token "$state"
 url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
 [ -n "$url" ]; check $? "the state file records the broker ($url)"
 "$bin" grid status --state "$state" >"$work/status.txt" 2>&1
 grep -q "^broker .* up, REST $url" "$work/status.txt"; check $? "grid status shows the broker up"
 
 jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "posted", budget: 100}' >"$work/submit.json"
-id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
+id=$(bcurl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
   "$url/v1/jobs" | jq -r .id)
-i=0
-st=none
-while [ $i -lt 3000 ]; do
-  st=$(curl -sf "$url/v1/jobs/$id" | jq -r .state)
-  case $st in succeeded|failed|cancelled) break ;; esac
-  sleep 0.1
-  i=$((i + 1))
-done
+st=$(wait_job "$url" "$id" 300)
 [ "$st" = succeeded ]; check $? "the job on the grid succeeded (got $st)"
-curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report.json"
+bcurl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report.json"
 "$bin" solve "$scene" --quiet --out "$work/local" >/dev/null 2>&1
 jq -n --slurpfile a "$work/report.json" --slurpfile b "$work/local/report.json" \
   '($a[0].runs[0].energy - $b[0].runs[0].energy) | fabs <= 1e-10 * ($b[0].runs[0].energy | fabs)' \
@@ -41,5 +35,5 @@ used=$(jq '[.agents[] | select(.calls > 0)] | length' "$work/report.json")
 [ "$used" -ge 2 ]; check $? "the job ran on $used of the grid's agents"
 
 grid_test_end "$scripts"
-grep -q "the broker stopped$" "$work/down.txt"; check $? "grid down stopped the broker by SIGTERM"
+grep -q "^broker  *stopped (pid [0-9]*, SIGTERM)$" "$work/down.txt"; check $? "grid down stopped the broker by SIGTERM"
 exit $fail

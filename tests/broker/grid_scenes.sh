@@ -110,7 +110,7 @@ jq '.host = {cores: 4, memory: 16}' "$config" >"$work/grid-config.json"
 grid_up_market "$bin" "$work/grid-config.json" "$state"
 # Free sparse-solve slots on the market (each job buys one).
 free_solve() {
-  curl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0 and
+  bcurl -sf "$url/v1/agents" | jq '[.agents[] | select(.source == "market" and .alive and (.services | length) > 0 and
     (.services | index("sparse-solve")))] | map(.free_slots) | add // 0'
 }
 slots=$(free_solve)
@@ -135,7 +135,7 @@ reap() {
   still=""
   for entry in $inflight; do
     id=${entry##*=}
-    st=$(curl -sf "$url/v1/jobs/$id" | jq -r .state)
+    st=$(bcurl -sf "$url/v1/jobs/$id" | jq -r .state)
     case $st in
       succeeded|failed|cancelled)
         echo "${entry%%=*} $st $(since "$(cat "$work/jobs/$id.t0")") s" >>"$work/jobs/ended.txt"
@@ -189,11 +189,11 @@ while read -r name mech id; do
   st=$(cat "$work/jobs/$id.state" 2>/dev/null || echo unknown)
   [ "$st" = succeeded ]; check $? "$name/$mech: the job succeeded (got $st)"
   if [ "$st" != succeeded ]; then
-    curl -sf "$url/v1/jobs/$id" | jq -c '{state, reason}' >&2
+    bcurl -sf "$url/v1/jobs/$id" | jq -c '{state, reason}' >&2
     continue
   fi
   rep="$work/jobs/$id.json"
-  curl -sf "$url/v1/jobs/$id/result/report.json" >"$rep"
+  bcurl -sf "$url/v1/jobs/$id/result/report.json" >"$rep"
   loc="$work/local/$name/report.json"
   jq -n --slurpfile a "$rep" --slurpfile b "$loc" '
     $a[0].runs[0] as $x | $b[0].runs[0] as $y |
@@ -211,9 +211,9 @@ while read -r name mech id; do
          (($c[-1].money - $m.spent) | fabs) <= 1e-9 * $m.spent and $m.spent > 0' "$rep" >/dev/null
   check $? "$name/$mech: the money curve rises monotonically to the money spent ($(jq .market.spent "$rep"))"
   svg="$work/jobs/$id.svg"
-  curl -sf "$url/v1/jobs/$id/result" | jq -e '[.. | strings] | index("error-vs-time-and-money.svg")' \
+  bcurl -sf "$url/v1/jobs/$id/result" | jq -e '[.. | strings] | index("error-vs-time-and-money.svg")' \
     >/dev/null &&
-    curl -sf "$url/v1/jobs/$id/result/error-vs-time-and-money.svg" >"$svg" &&
+    bcurl -sf "$url/v1/jobs/$id/result/error-vs-time-and-money.svg" >"$svg" &&
     head -c 5 "$svg" | grep -q '^<svg ' && tail -1 "$svg" | grep -q '^</svg>$' &&
     [ "$(grep -c '<svg ' "$svg")" -eq 3 ] && [ "$(grep -c '</svg>' "$svg")" -eq 3 ] &&
     grep -q '>wall time (s)</text>' "$svg" &&

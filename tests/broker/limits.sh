@@ -15,14 +15,8 @@ set -u
 bin=$1 slow=$2 work=$3
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
-mkdir -p "$work"
-fail=0
-trap 'stop_broker "$work" b; exit 1' INT TERM
-cat >"$work/broker.json" <<EOF
-{"name": "limits", "port": 0, "endpoint": "tcp://127.0.0.1:*", "state_dir": "$work/state",
- "max_jobs_in_flight": 2, "max_stored_bytes": 3000}
-EOF
+broker_test_begin "$work"
+broker_config "$work" limits '{"max_jobs_in_flight": 2, "max_stored_bytes": 3000}'
 start_broker "$bin" "$work" b "$work/broker.json" || exit 1
 url=$(cut -d' ' -f1 "$work/b.ready")
 pid=$(cut -d' ' -f3 "$work/b.ready")
@@ -36,7 +30,7 @@ check $? "and the limits its configuration set"
 post() { # post BODY [HEADER...]: the status into $work/status, the body into $work/out
   _body=$1
   shift
-  curl -s -o "$work/out" -w '%{http_code}' -X POST -H 'Content-Type: application/json' "$@" \
+  bcurl -s -o "$work/out" -w '%{http_code}' -X POST -H 'Content-Type: application/json' "$@" \
     --data-binary "$_body" "$url/v1/jobs" >"$work/status"
 }
 now() { date +%s.%N; }
@@ -57,7 +51,7 @@ peak=$(awk '/^VmHWM:/ { print $2 }' "/proc/$pid/status")
 [ "${peak:-999999}" -lt 204800 ]
 check $? "the broker's peak memory stays below 200 MB (${peak:-?} kB)"
 
-curl -s -o "$work/out" -w '%{http_code}' -X POST -H 'Content-Type: text/plain' \
+bcurl -s -o "$work/out" -w '%{http_code}' -X POST -H 'Content-Type: text/plain' \
   --data-binary '{"scene": {}}' "$url/v1/jobs" >"$work/status"
 [ "$(cat "$work/status")" = 415 ] && grep -q '"field":"Content-Type"' "$work/out"
 check $? "a text/plain body is refused with 415 naming Content-Type"
@@ -79,16 +73,16 @@ id2=$(jq -r .id "$work/out")
 post "$small"
 [ "$(cat "$work/status")" = 429 ] && grep -q 'too-many-jobs' "$work/out"
 check $? "a third job in flight is refused with 429 (max_jobs_in_flight 2)"
-curl -s -X POST "$url/v1/jobs/$id2/cancel" >/dev/null
+bcurl -s -X POST "$url/v1/jobs/$id2/cancel" >/dev/null
 upload=$(head -c 2000 /dev/zero | base64 -w0)
 post "{\"scene\": {\"mesh\": {\"generate\": \"box\", \"cells\": [2, 1, 1], \"size\": [2, 1, 1]}, \"material\": {\"mu\": 1, \"lambda\": 1}, \"handles\": [{\"select\": {\"box\": {\"min\": [0, 0, 0], \"max\": [0, 1, 1]}}}]}, \"files\": [{\"name\": \"pad.txt\", \"base64\": \"$upload\"}]}"
 [ "$(cat "$work/status")" = 202 ]; check $? "a job uploading 2,000 bytes is accepted (quota 3,000)"
 id3=$(jq -r .id "$work/out")
-curl -s -X POST "$url/v1/jobs/$id3/cancel" >/dev/null
+bcurl -s -X POST "$url/v1/jobs/$id3/cancel" >/dev/null
 post "{\"scene\": {\"mesh\": {\"generate\": \"box\", \"cells\": [2, 1, 1], \"size\": [2, 1, 1]}, \"material\": {\"mu\": 1, \"lambda\": 1}, \"handles\": [{\"select\": {\"box\": {\"min\": [0, 0, 0], \"max\": [0, 1, 1]}}}]}, \"files\": [{\"name\": \"pad.txt\", \"base64\": \"$upload\"}]}"
 [ "$(cat "$work/status")" = 413 ] && grep -q 'storage-quota' "$work/out"
 check $? "another 2,000 bytes over the 3,000-byte quota are refused with 413"
-code=$(curl -s -o /dev/null -w '%{http_code}' -X DELETE "$url/v1/jobs/$id3")
+code=$(bcurl -s -o /dev/null -w '%{http_code}' -X DELETE "$url/v1/jobs/$id3")
 [ "$code" = 204 ]; check $? "an ended job is deleted (204)"
 post "{\"scene\": {\"mesh\": {\"generate\": \"box\", \"cells\": [2, 1, 1], \"size\": [2, 1, 1]}, \"material\": {\"mu\": 1, \"lambda\": 1}, \"handles\": [{\"select\": {\"box\": {\"min\": [0, 0, 0], \"max\": [0, 1, 1]}}}]}, \"files\": [{\"name\": \"pad.txt\", \"base64\": \"$upload\"}]}"
 [ "$(cat "$work/status")" = 202 ]; check $? "and its bytes are free again"

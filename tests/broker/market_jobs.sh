@@ -36,8 +36,8 @@ for mech in central catallactic posted; do
   id=$(submit_job "$url" "$work/submit-$mech.json")
   st=$(wait_job "$url" "$id" 300)
   [ "$st" = succeeded ]; check $? "$mech: the job succeeded (got $st)"
-  [ "$st" = succeeded ] || curl -sf "$url/v1/jobs/$id" >&2
-  curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report-$mech.json"
+  [ "$st" = succeeded ] || bcurl -sf "$url/v1/jobs/$id" >&2
+  bcurl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report-$mech.json"
   same_energy "$work/report-$mech.json" "$work/local/report.json"
   check $? "$mech: its energy equals biotgrid solve's (1e-10 relative)"
   jq -e '[.market.contracts[].service] as $s | ($s | index("rotation-fit")) != null and
@@ -47,7 +47,7 @@ for mech in central catallactic posted; do
   jq -e --arg m "$mech" '.market.market == "live" and .market.mechanism == $m and
          .market.spent > 0 and .market.spent <= .market.budget' "$work/report-$mech.json" >/dev/null
   check $? "$mech: the report's market section (live, mechanism, 0 < spent <= budget)"
-  curl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-$mech.txt"
+  bcurl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-$mech.txt"
   contracts "$work/events-$mech.txt" >"$work/contracts-$mech.txt"
   n=$(wc -l <"$work/contracts-$mech.txt")
   [ "$n" -gt 0 ] && grep -q '"service":"rotation-fit"' "$work/contracts-$mech.txt" &&
@@ -59,7 +59,7 @@ for mech in central catallactic posted; do
   cores=$(grep -c '"service":"cores"' "$work/contracts-$mech.txt")
   [ "$svc" -gt 0 ] && [ "$cores" -eq "$svc" ]
   check $? "$mech: the job's contracts include one layer-1 cores row per service seller ($cores, $svc)"
-  curl -sf "$url/v1/jobs/$id" | jq -e --argjson n "$n" '(.contracts | length) == $n and
+  bcurl -sf "$url/v1/jobs/$id" | jq -e --argjson n "$n" '(.contracts | length) == $n and
       all(.contracts[]; (.agent | type) == "string" and .price >= .seller_limit and
           .price <= .buyer_limit)' >/dev/null
   check $? "$mech: GET /v1/jobs/{id} lists its $n contracts, each price within both limits"
@@ -68,23 +68,23 @@ done
 
 jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "posted", budget: 0.001}' \
   >"$work/submit-poor.json"
-id=$(curl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit-poor.json" \
+id=$(bcurl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit-poor.json" \
   "$url/v1/jobs" | jq -r .id)
 st=$(wait_job "$url" "$id" 60)
-reason=$(curl -sf "$url/v1/jobs/$id" | jq -r .reason)
+reason=$(bcurl -sf "$url/v1/jobs/$id" | jq -r .reason)
 [ "$st" = failed ]; check $? "a budget of 0.001 fails the job (got $st)"
 case $reason in *budget*) r=0 ;; *) r=1 ;; esac
 check $r "its reason names the budget ($reason)"
-curl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-poor.txt"
+bcurl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-poor.txt"
 [ "$(contracts "$work/events-poor.txt" | wc -l)" -eq 0 ]; check $? "the poor job made no contract"
 
 jq -n --slurpfile s "$dynamic" '{scene: $s[0], mechanism: "central", budget: 100}' \
   >"$work/submit-dynamic.json"
-id=$(curl -sf -X POST -H 'Content-Type: application/json' \
+id=$(bcurl -sf -X POST -H 'Content-Type: application/json' \
   --data-binary @"$work/submit-dynamic.json" "$url/v1/jobs" | jq -r .id)
 st=$(wait_job "$url" "$id" 300)
 [ "$st" = succeeded ]; check $? "the dynamic scene's job succeeded (got $st)"
-curl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-dynamic.txt"
+bcurl -sf --max-time 10 "$url/v1/jobs/$id/events" >"$work/events-dynamic.txt"
 contracts "$work/events-dynamic.txt" >"$work/contracts-dynamic.txt"
 grep -q '"service":"integration-step"' "$work/contracts-dynamic.txt"
 check $? "the dynamic scene's job bought integration-step"
@@ -95,7 +95,7 @@ total=$((total + $(wc -l <"$work/contracts-dynamic.txt")))
 # is closed (10 s at most), so it is final.
 i=0
 while [ $i -lt 100 ]; do
-  curl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
+  bcurl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
   awk -F, 'NR > 1 && $8 - $7 > 1e8 { open++ } END { exit open > 0 }' "$work/contracts.csv" && break
   sleep 0.1
   i=$((i + 1))
@@ -109,9 +109,9 @@ rows=$(($(wc -l <"$work/contracts.csv") - 1))
 awk -F, 'NR > 1 { if (!($13 <= $14 + 1e-12 && $13 >= $15 - 1e-12)) bad++ }
          END { exit bad > 0 }' "$work/contracts.csv"
 check $? "every contract's price lies within the buyer's and the seller's limits"
-curl -sf "$url/v1/market" | jq -e '.market == "live" and (.prices | length) > 0' >/dev/null
+bcurl -sf "$url/v1/market" | jq -e '.market == "live" and (.prices | length) > 0' >/dev/null
 check $? "/v1/market reports the live market's recent prices"
-curl -sf "$url/v1/market/agents.csv" >"$work/agents.csv"
+bcurl -sf "$url/v1/market/agents.csv" >"$work/agents.csv"
 [ "$(($(wc -l <"$work/agents.csv") - 1))" -ge "$nagents" ]; check $? "agents.csv lists the agents"
 # Layer 1: every service row's seller bought cores for the same request
 # (buyer = that seller's id, seller a resource seller listed in agents.csv).
@@ -133,10 +133,10 @@ check $r "the service rows' buyer is the job's id"
 check $? "the simulator's audit passes on the live log ($(cat "$work/audit.txt"))"
 
 # The answers with real market data in them, against the served document.
-curl -sf "$url/openapi.json" >"$work/openapi.json"
+bcurl -sf "$url/openapi.json" >"$work/openapi.json"
 check $? "GET /openapi.json"
 conforms() { # TEMPLATE PATH
-  got=$(curl -s -o "$work/answer.json" -w '%{http_code} %{content_type}' "$url$2")
+  got=$(bcurl -s -o "$work/answer.json" -w '%{http_code} %{content_type}' "$url$2")
   code=${got%% *}
   "$oas" "$work/openapi.json" "$1" GET "$code" "${got#* }" <"$work/answer.json" 2>"$work/oas.txt"
   check $? "GET $2 ($code) conforms to the OpenAPI document $(cat "$work/oas.txt")"

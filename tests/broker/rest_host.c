@@ -11,9 +11,15 @@
  * decides by the scene's "name":
  *   "hold..."  the job stays queued (to be cancelled);
  *   "fail..."  the job fails with the reason "the test host fails jobs named fail*";
- *   otherwise  queued -> running, a progress event {"fraction": 0.5}, result files
- *              report.json ({"job", "scene", "inputs": [{"name", "size"}]}) and a copy
- *              of each uploaded file named "input-<name>", then succeeded.
+ *   otherwise  queued -> running with the events a live broker's job has: an
+ *              allocation and a contract (rotation-fit from agent rotfit-1 at 2.5,
+ *              spent 2.5, central), or for "free..." an allocation that bought
+ *              nothing; a progress event {"fraction": 0.4, "iteration": 12} (for
+ *              "dyn...", as the broker says it: {"fraction": 0.25, "unit": "step",
+ *              "step": 5, "of": 20, "iteration": 5}); result
+ *              files report.json ({"job", "scene", "inputs": [{"name", "size"}]})
+ *              and a copy of each uploaded file named "input-<name>"; a "solved"
+ *              event, then succeeded.
  * It is a test double for the coordinator, not a solver.
  */
 #include <cJSON.h>
@@ -29,6 +35,7 @@
 
 #include "bgb_rest.h"
 #include "bgb_store.h"
+#include "bgb_tokens.h"
 
 #define HOST_BATCH 64
 #define HOST_POLL_NS 50000000L
@@ -55,8 +62,24 @@ static void complete(host_t *h, const bgb_job_t *job, const char *name)
 {
     bg_error_t err = BG_ERROR_INIT;
     const unsigned queued = 1u << BGB_JOB_QUEUED, running = 1u << BGB_JOB_RUNNING;
-    if (bgb_store_transition(h->store, job->id, queued, BGB_JOB_RUNNING, NULL, &err) != BG_OK ||
-        bgb_store_add_event(h->store, job->id, "progress", "{\"fraction\":0.5}", &err) != BG_OK)
+    const int free_job = strncmp(name, "free", 4) == 0, dynamic = strncmp(name, "dyn", 3) == 0;
+    const char *allocation =
+        free_job ? "{\"market\":null,\"contracts\":[],\"spent\":0,\"message\":\"no agent is "
+                   "registered on the market: the job runs on the broker's configured agents, "
+                   "without contracts\"}"
+                 : "{\"market\":\"live\",\"mechanism\":\"central\",\"contracts\":1,"
+                   "\"spent\":2.5,\"latency_seconds\":0.05}";
+    const char *progress = dynamic ? "{\"method\":\"variational\",\"fraction\":0.25,\"unit\":"
+                                     "\"step\",\"step\":5,\"of\":20,\"iteration\":5}"
+                                   : "{\"method\":\"newton\",\"fraction\":0.4,\"iteration\":12}";
+    if ((!free_job &&
+         bgb_store_add_event(h->store, job->id, "contract",
+                             "{\"service\":\"rotation-fit\",\"agent_id\":3,\"agent\":\"rotfit-1\","
+                             "\"mechanism\":\"central\",\"quantity\":1,\"price\":2.5}",
+                             &err) != BG_OK) ||
+        bgb_store_add_event(h->store, job->id, "allocation", allocation, &err) != BG_OK ||
+        bgb_store_transition(h->store, job->id, queued, BGB_JOB_RUNNING, NULL, &err) != BG_OK ||
+        bgb_store_add_event(h->store, job->id, "progress", progress, &err) != BG_OK)
         goto out;
     cJSON *report = cJSON_CreateObject();
     inputs_t in = {cJSON_AddArrayToObject(report, "inputs")};
@@ -88,7 +111,8 @@ static void complete(host_t *h, const bgb_job_t *job, const char *name)
     const bgb_file_t f = {"report.json", (const uint8_t *)text, strlen(text)};
     const bg_status st = bgb_store_put_file(h->store, job->id, "result", &f, &err);
     free(text);
-    if (st == BG_OK)
+    if (st == BG_OK &&
+        bgb_store_add_event(h->store, job->id, "solved", "{\"converged\":true}", &err) == BG_OK)
         bgb_store_transition(h->store, job->id, running, BGB_JOB_SUCCEEDED, NULL, &err);
 out:
     if (err.status != BG_OK)
@@ -166,7 +190,12 @@ int main(int argc, char **argv)
     }
     started = 1;
     alarm(lifetime);
-    printf("port %u\n", (unsigned)bgb_rest_port(rest));
+    char token[BGB_TOKEN_SIZE];
+    if (bgb_tokens_create(h.store, "tests", 1, token, &err) != BG_OK) {
+        fprintf(stderr, "rest_host: %s\n", err.message);
+        goto out;
+    }
+    printf("token %s\nport %u\n", token, (unsigned)bgb_rest_port(rest));
     fflush(stdout);
     int sig = 0;
     sigwait(&stop, &sig);

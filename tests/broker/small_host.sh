@@ -22,11 +22,11 @@ jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "posted", budget: 100}' 
 id=$(submit_job "$url" "$work/submit.json")
 st=$(wait_job "$url" "$id" 300)
 [ "$st" = succeeded ]; check $? "the job on a 1-core, 4 GiB host succeeded (got $st)"
-[ "$st" = succeeded ] || curl -sf "$url/v1/jobs/$id" >&2
-curl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report.json"
+[ "$st" = succeeded ] || bcurl -sf "$url/v1/jobs/$id" >&2
+bcurl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report.json"
 same_energy "$work/report.json" "$work/local/report.json"
 check $? "its energy equals biotgrid solve's (1e-10 relative)"
-curl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
+bcurl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
 # SERVICE,RESOURCE,USE per resource row (what it holds while its service
 # runs), the service its request serves.
 awk -F, 'NR > 1 && $4 == "service" { svc[$5] = $11 }

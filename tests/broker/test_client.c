@@ -26,6 +26,7 @@
 #include "bgb_client.h"
 #include "bgb_rest.h"
 #include "bgb_store.h"
+#include "bgb_tokens.h"
 
 /* ------------------------------------------------------------ events */
 
@@ -287,6 +288,67 @@ static void test_pack_files(void **state)
     cJSON_Delete(root);
 }
 
+/* The solver settings of a submission replace the scene's members of
+ * those names and keep the others; a scene without "solver" gets one, and
+ * one whose "solver" is not an object is refused naming the field. */
+static void test_pack_solver(void **state)
+{
+    folder_t *f = *state;
+    write_file(f, "s/with.json",
+               "{\"name\": \"w\", \"mesh\": {\"generate\": \"box\"}, \"solver\": {\"method\": "
+               "\"newton\", \"tolerance\": 1e-8, \"max_iterations\": {\"newton\": 200}, "
+               "\"continuation\": false}}");
+    write_file(f, "s/without.json", "{\"name\": \"o\", \"mesh\": {\"generate\": \"box\"}}");
+    write_file(f, "s/bad.json", "{\"name\": \"b\", \"solver\": [1]}");
+    char path[128];
+    snprintf(path, sizeof path, "%s/s/with.json", f->dir);
+    bgb_client_submit_t submit = {.scene_path = path, .method = "local-global",
+                                  .tolerance = 1e-6, .max_iterations = 50};
+    char *body = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_OK);
+    cJSON *root = cJSON_Parse(body);
+    free(body);
+    const cJSON *solver = cJSON_GetObjectItemCaseSensitive(
+        cJSON_GetObjectItemCaseSensitive(root, "scene"), "solver");
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(solver, "method")->valuestring,
+                        "local-global");
+    assert_true(cJSON_GetObjectItemCaseSensitive(solver, "tolerance")->valuedouble == 1e-6);
+    assert_int_equal(cJSON_GetObjectItemCaseSensitive(solver, "max_iterations")->valueint, 50);
+    assert_true(cJSON_IsFalse(cJSON_GetObjectItemCaseSensitive(solver, "continuation")));
+    assert_int_equal(cJSON_GetArraySize(solver), 4);
+    cJSON_Delete(root);
+
+    /* Only the method: the scene's tolerance and caps stay. */
+    submit = (bgb_client_submit_t){.scene_path = path, .method = "newton"};
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_OK);
+    root = cJSON_Parse(body);
+    free(body);
+    solver = cJSON_GetObjectItemCaseSensitive(cJSON_GetObjectItemCaseSensitive(root, "scene"),
+                                              "solver");
+    assert_true(cJSON_GetObjectItemCaseSensitive(solver, "tolerance")->valuedouble == 1e-8);
+    assert_true(cJSON_IsObject(cJSON_GetObjectItemCaseSensitive(solver, "max_iterations")));
+    cJSON_Delete(root);
+
+    snprintf(path, sizeof path, "%s/s/without.json", f->dir);
+    submit = (bgb_client_submit_t){.scene_path = path, .max_iterations = 7};
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_OK);
+    root = cJSON_Parse(body);
+    free(body);
+    solver = cJSON_GetObjectItemCaseSensitive(cJSON_GetObjectItemCaseSensitive(root, "scene"),
+                                              "solver");
+    assert_int_equal(cJSON_GetArraySize(solver), 1);
+    assert_int_equal(cJSON_GetObjectItemCaseSensitive(solver, "max_iterations")->valueint, 7);
+    cJSON_Delete(root);
+
+    snprintf(path, sizeof path, "%s/s/bad.json", f->dir);
+    submit = (bgb_client_submit_t){.scene_path = path, .tolerance = 1e-6};
+    body = NULL;
+    assert_int_equal(bgb_client_pack(&submit, &body, &err), BG_ERR_INVALID);
+    assert_null(body);
+    assert_non_null(strstr(err.message, "bad.json: solver: expected an object"));
+}
+
 static void test_pack_errors(void **state)
 {
     folder_t *f = *state;
@@ -415,6 +477,7 @@ typedef struct served {
     bgb_store_t *store;
     bgb_rest_t *rest;
     char url[64];
+    char token[BGB_TOKEN_SIZE]; /* an admin's */
 } served_t;
 
 static int setup_server(void **state)
@@ -429,6 +492,7 @@ static int setup_server(void **state)
     const bgb_rest_config_t config = {.work_dir = s->folder.dir};
     assert_int_equal(bgb_rest_start(&config, s->store, &s->rest, &err), BG_OK);
     snprintf(s->url, sizeof s->url, "http://127.0.0.1:%u", (unsigned)bgb_rest_port(s->rest));
+    assert_int_equal(bgb_tokens_create(s->store, "tester", 1, s->token, &err), BG_OK);
     *state = s;
     return 0;
 }
@@ -469,8 +533,8 @@ static void test_caps_and_statuses(void **state)
     served_t *s = *state;
     bgb_client_t *client = NULL, *small = NULL;
     bg_error_t err = BG_ERROR_INIT;
-    const bgb_client_config_t config = {.url = s->url};
-    const bgb_client_config_t tiny = {.url = s->url, .max_response = 64};
+    const bgb_client_config_t config = {.url = s->url, .token = s->token};
+    const bgb_client_config_t tiny = {.url = s->url, .token = s->token, .max_response = 64};
     assert_int_equal(bgb_client_new(&config, &client, &err), BG_OK);
     assert_int_equal(bgb_client_new(&tiny, &small, &err), BG_OK);
     char id[32];
@@ -530,7 +594,7 @@ static void test_events_stream(void **state)
     served_t *s = *state;
     bgb_client_t *client = NULL;
     bg_error_t err = BG_ERROR_INIT;
-    const bgb_client_config_t config = {.url = s->url};
+    const bgb_client_config_t config = {.url = s->url, .token = s->token};
     assert_int_equal(bgb_client_new(&config, &client, &err), BG_OK);
     char id[32];
     submit_box(s, client, id);
@@ -563,6 +627,7 @@ int main(void)
         cmocka_unit_test(test_sse_caps),
         cmocka_unit_test(test_sse_stop),
         cmocka_unit_test_setup_teardown(test_pack_files, setup_folder, teardown_folder),
+        cmocka_unit_test_setup_teardown(test_pack_solver, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_pack_errors, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_lookup_kinds, setup_folder, teardown_folder),
         cmocka_unit_test_setup_teardown(test_download_names, setup_folder, teardown_folder),

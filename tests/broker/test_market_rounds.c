@@ -20,6 +20,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include <cmocka.h>
@@ -586,6 +587,20 @@ static void one_resource_seller_per_host(void **state)
     deliver_from(m, 'c', &hb, later - 0.1);
     (void)bgb_market_tick(m, later);
     assert_int_equal(resource_sellers(m), 1);
+    /* Dropped from the directory, 'a' stays in agents.csv: its contracts
+     * stay in the log, and the audit needs the seller of each. */
+    char *csv = NULL;
+    size_t csv_size = 0;
+    FILE *out = open_memstream(&csv, &csv_size);
+    bg_error_t err = BG_ERROR_INIT;
+    assert_non_null(out);
+    assert_int_equal(bgb_ledger_write_agents_csv(bgb_market_ledger(m), bgb_market_directory(m), out, &err), BG_OK);
+    fclose(out);
+    char row[64];
+    snprintf(row, sizeof row, ",central,%u,resource,cores,", first);
+    if (!strstr(csv, row))
+        fail_msg("agents.csv lacks the dropped seller %u:\n%s", first, csv);
+    free(csv);
     const uint32_t next = register_resource(m, &f, 'b', "127.0.0.1", 1e-3, 4, later + 0.1)->agent;
     assert_true(next > 0 && next != first && next != other);
     assert_int_equal(resource_sellers(m), 2);

@@ -31,6 +31,8 @@
 #include "bgb_base64.h"
 #include "bgb_rest.h"
 #include "bgb_store.h"
+#include "bgb_tokens.h"
+#include "bgb_submission.h"
 #include "oas_check.h"
 
 #define MAX_BODY (256 * 1024)
@@ -45,6 +47,7 @@ typedef struct fixture {
     bgb_rest_t *rest;
     char base[64];
     cJSON *openapi;
+    char auth[BGB_TOKEN_SIZE + 32]; /* "Authorization: Bearer <an admin's token>" */
 } fixture_t;
 
 typedef struct response {
@@ -80,8 +83,10 @@ static size_t on_header(char *data, size_t size, size_t n, void *ctx)
 }
 
 /* One request; header may be NULL ("Name: value" otherwise). */
-static response_t request(const fixture_t *f, const char *method, const char *path,
-                          const char *body, const char *header)
+/* A request with the Authorization header auth (NULL: none) and one more
+ * header (NULL: none). */
+static response_t request_as(const fixture_t *f, const char *auth, const char *method,
+                             const char *path, const char *body, const char *header)
 {
     response_t r = {0};
     CURL *curl = curl_easy_init();
@@ -89,6 +94,8 @@ static response_t request(const fixture_t *f, const char *method, const char *pa
     char url[512];
     snprintf(url, sizeof url, "%s%s", f->base, path);
     struct curl_slist *headers = curl_slist_append(NULL, "Content-Type: application/json");
+    if (auth)
+        headers = curl_slist_append(headers, auth);
     if (header)
         headers = curl_slist_append(headers, header);
     curl_easy_setopt(curl, CURLOPT_URL, url);
@@ -112,6 +119,13 @@ static response_t request(const fixture_t *f, const char *method, const char *pa
     if (!r.body)
         r.body = calloc(1, 1);
     return r;
+}
+
+/* A request as the fixture's admin. */
+static response_t request(const fixture_t *f, const char *method, const char *path,
+                          const char *body, const char *header)
+{
+    return request_as(f, f->auth, method, path, body, header);
 }
 
 /* Follows a local "$ref": "#/a/b/c" in the OpenAPI document. */
@@ -194,6 +208,9 @@ static void start_capped(fixture_t *f, int64_t max_vertices, int64_t max_element
     if (bgb_rest_start(&config, f->store, &f->rest, &err) != BG_OK)
         fail_msg("%s", err.message);
     assert_true(bgb_rest_port(f->rest) > 0);
+    char token[BGB_TOKEN_SIZE];
+    assert_int_equal(bgb_tokens_create(f->store, "tester", 1, token, &err), BG_OK);
+    snprintf(f->auth, sizeof f->auth, "Authorization: Bearer %s", token);
     snprintf(f->base, sizeof f->base, "http://127.0.0.1:%u", (unsigned)bgb_rest_port(f->rest));
 }
 
@@ -1018,7 +1035,7 @@ static void test_dropped_event_stream(void **state)
             dup2(null, STDOUT_FILENO);
             dup2(null, STDERR_FILENO);
         }
-        execlp("curl", "curl", "-sN", "--max-time", "60", url, (char *)NULL);
+        execlp("curl", "curl", "-sN", "--max-time", "60", "-H", f->auth, url, (char *)NULL);
         _exit(127);
     }
     const int opened = metric_becomes(f, "biotgrid_event_streams_open", 1, 30.0);
@@ -1094,12 +1111,129 @@ static void test_conflicting_lengths(void **state)
         fail_msg("Content-Length with Transfer-Encoding: %s", line);
     /* The same request with one length is served (a 422: the scene is
      * empty), so the 400s above are about the lengths. */
-    raw_status(f,
-               "POST /v1/jobs HTTP/1.1\r\nHost: t\r\nContent-Type: application/json\r\n"
-               "Content-Length: 2\r\nConnection: close\r\n\r\n{}",
-               line, sizeof line);
+    char request[512];
+    snprintf(request, sizeof request,
+             "POST /v1/jobs HTTP/1.1\r\nHost: t\r\nContent-Type: application/json\r\n%s\r\n"
+             "Content-Length: 2\r\nConnection: close\r\n\r\n{}",
+             f->auth);
+    raw_status(f, request, line, sizeof line);
     if (strncmp(line, "HTTP/1.1 422", 12) != 0)
         fail_msg("one Content-Length: %s", line);
+}
+
+/* Bearer tokens: every /v1 path and /metrics need one (401 problem
+ * otherwise, the same for a missing, malformed or wrong token), /healthz and
+ * /openapi.json do not; a user sees and touches only their own jobs
+ * (another's is 404, as if it did not exist); only the admin scope reads
+ * the agents, the market and the counters, and sees every job. */
+static void test_tokens_and_owners(void **state)
+{
+    fixture_t *f = *state;
+    bg_error_t err = BG_ERROR_INIT;
+    char ada_token[BGB_TOKEN_SIZE], bob_token[BGB_TOKEN_SIZE];
+    assert_int_equal(bgb_tokens_create(f->store, "ada", 0, ada_token, &err), BG_OK);
+    assert_int_equal(bgb_tokens_create(f->store, "bob", 0, bob_token, &err), BG_OK);
+    char ada[BGB_TOKEN_SIZE + 32], bob[BGB_TOKEN_SIZE + 32], wrong[BGB_TOKEN_SIZE + 32];
+    snprintf(ada, sizeof ada, "Authorization: Bearer %s", ada_token);
+    snprintf(bob, sizeof bob, "Authorization: Bearer %s", bob_token);
+    /* ada's id with another secret (its first character changed): the
+     * right row, the wrong hash. */
+    snprintf(wrong, sizeof wrong, "Authorization: Bearer %s", ada_token);
+    char *secret = strrchr(wrong, '_') + 1;
+    *secret = *secret == 'A' ? 'B' : 'A';
+    const char *const bad[] = {NULL, "Authorization: Bearer nonsense", wrong,
+                               "Authorization: Basic dGVzdDp0ZXN0"};
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        response_t r = request_as(f, bad[i], "GET", "/v1/jobs", NULL, NULL);
+        if (r.status != 401 || !strstr(r.body, "/problems/unauthorized"))
+            fail_msg("credentials %zu: %ld %s", i, r.status, r.body);
+        assert_string_equal(r.type, "application/problem+json");
+        release(&r);
+    }
+    response_t r = request_as(f, NULL, "GET", "/healthz", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    release(&r);
+    r = request_as(f, NULL, "GET", "/openapi.json", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    release(&r);
+
+    char *body = submission(SMALL_BOX, NULL);
+    r = request_as(f, ada, "POST", "/v1/jobs", body, NULL);
+    free(body);
+    assert_int_equal(r.status, 202);
+    char *id = field_of(&r, "id");
+    release(&r);
+    char path[128], missing[128];
+    snprintf(missing, sizeof missing, "/v1/jobs/j0123456789abcdef");
+    const char *const suffixes[] = {"", "/events", "/result", "/cancel", ""};
+    const char *const methods[] = {"GET", "GET", "GET", "POST", "DELETE"};
+    for (int k = 0; k < 5; k++) {
+        snprintf(path, sizeof path, "/v1/jobs/%s%s", id, suffixes[k]);
+        r = request_as(f, bob, methods[k], path, NULL, NULL);
+        if (r.status != 404 || !strstr(r.body, "no-such-job"))
+            fail_msg("bob %s %s: %ld %s", methods[k], path, r.status, r.body);
+        release(&r);
+    }
+    /* ada's job and a job that does not exist look the same to bob. */
+    response_t none = request_as(f, bob, "GET", missing, NULL, NULL);
+    assert_int_equal(none.status, 404);
+    release(&none);
+    snprintf(path, sizeof path, "/v1/jobs/%s", id);
+    r = request_as(f, ada, "GET", path, NULL, NULL);
+    assert_int_equal(r.status, 200);
+    release(&r);
+    r = request_as(f, bob, "GET", "/v1/jobs", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    assert_null(strstr(r.body, id));
+    release(&r);
+    r = request_as(f, ada, "GET", "/v1/jobs", NULL, NULL);
+    assert_non_null(strstr(r.body, id));
+    release(&r);
+    r = request(f, "GET", "/v1/jobs", NULL, NULL); /* the admin sees every user's */
+    assert_non_null(strstr(r.body, id));
+    release(&r);
+    const char *const operator_paths[] = {"/v1/agents", "/v1/market", "/v1/market/contracts.csv",
+                                          "/metrics"};
+    for (size_t i = 0; i < 4; i++) {
+        r = request_as(f, ada, "GET", operator_paths[i], NULL, NULL);
+        if (r.status != 403)
+            fail_msg("ada GET %s: %ld", operator_paths[i], r.status);
+        release(&r);
+        r = request(f, "GET", operator_paths[i], NULL, NULL);
+        if (r.status != 200)
+            fail_msg("admin GET %s: %ld", operator_paths[i], r.status);
+        release(&r);
+    }
+    free(id);
+}
+
+/* A body of many distinct keys is refused in linear time: the repeated-key
+ * check compared every pair of keys before the unknown ones were looked
+ * at, so 50,000 keys (600 KB) took some 10 s of CPU and the 64 MB a
+ * body may have, days (found while writing tests/fuzz/fuzz_submission,
+ * whose inputs of a few KB are too small to show it). */
+static void test_many_keys_linear(void **state)
+{
+    (void)state;
+    const int keys = 50000;
+    char *body = malloc((size_t)keys * 16 + 16);
+    assert_non_null(body);
+    size_t n = 0;
+    body[n++] = '{';
+    for (int i = 0; i < keys; i++)
+        n += (size_t)sprintf(body + n, "%s\"k%d\":0", i ? "," : "", i);
+    body[n++] = '}';
+    bgb_submission_t s;
+    bgb_problem_t problem;
+    const clock_t start = clock();
+    assert_int_equal(bgb_submission_parse(body, n, 1024, &s, &problem), 0);
+    const double seconds = (double)(clock() - start) / CLOCKS_PER_SEC;
+    assert_int_equal(problem.status, 422);
+    assert_string_equal(problem.field, "k0");
+    assert_non_null(strstr(problem.detail, "unknown key 'k0'"));
+    if (seconds > 1.0)
+        fail_msg("%d keys took %.2f s of CPU", keys, seconds);
+    free(body);
 }
 
 int main(void)
@@ -1120,6 +1254,8 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_filter_with_pagination, setup, teardown),
         cmocka_unit_test_setup_teardown(test_caps_and_keys, setup, teardown),
         cmocka_unit_test_setup_teardown(test_conflicting_lengths, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_tokens_and_owners, setup, teardown),
+        cmocka_unit_test(test_many_keys_linear),
     };
     const int failed = cmocka_run_group_tests(tests, NULL, NULL);
     curl_global_cleanup();

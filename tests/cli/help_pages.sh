@@ -1,7 +1,8 @@
 #!/bin/sh
 # help_pages.sh BIOTGRID MANPAGE: `biotgrid help C` prints exactly what
-# `biotgrid C --help` prints for every command, each exits 0, and the
-# generated manual page carries each command's usage line.
+# `biotgrid C --help` prints for every command, each exits 0, the generated
+# manual page carries each command's usage line, and every verb of a
+# command with verbs (`grid up --help`, `mesh info --help`) shows its page.
 set -u
 bin=$1 man=$2
 status=0
@@ -26,4 +27,22 @@ for c in $commands; do
     fi
     echo "$c: help page ok"
 done
+# Every verb of a command with verbs takes --help too: exit 0, the command's
+# page (its usage line first), nothing on stderr.
+errors=$(mktemp) || exit 1
+for cv in "grid up" "grid status" "grid down" "mesh info" "mesh convert" "mesh simplify" "token create"; do
+    set -- $cv
+    page=$("$bin" "$1" "$2" --help 2>"$errors")
+    rc=$?
+    if [ $rc -ne 0 ] || [ -s "$errors" ]; then
+        echo "help_pages.sh: '$cv --help' exited $rc: $(cat "$errors")" >&2
+        status=1
+    elif [ "$page" != "$("$bin" "$1" --help)" ]; then
+        echo "help_pages.sh: '$cv --help' is not the page of '$1 --help'" >&2
+        status=1
+    else
+        echo "$cv: help page ok"
+    fi
+done
+rm -f "$errors"
 exit $status

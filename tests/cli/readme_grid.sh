@@ -26,8 +26,9 @@ export BIOTGRID_GRID_DIR
         # this script and leave the grid running).
         echo "FAIL: submit did not finish within 200 s; the broker's view:"
         url=$(jq -r '.broker.url // empty' "$state/grid.json" 2>/dev/null)
-        curl -s "$url/v1/jobs" | jq -c '.jobs[] | {id, state}' 2>/dev/null
-        curl -s "$url/v1/agents" | jq -c '.agents[] | {name, alive, free_slots}' 2>/dev/null
+        auth="Authorization: Bearer $(head -1 "$state/token" 2>/dev/null)"
+        curl -s -H "$auth" "$url/v1/jobs" | jq -c '.jobs[] | {id, state}' 2>/dev/null
+        curl -s -H "$auth" "$url/v1/agents" | jq -c '.agents[] | {name, alive, free_slots}' 2>/dev/null
         tail -n 40 "$state/broker.log" 2>/dev/null
       fi
       "$bin" grid down --state "$state" >"$work/down.txt" 2>&1 && [ $s -eq 0 ]; }
@@ -36,11 +37,17 @@ cat "$work/up.txt" "$work/submit.txt" "$work/down.txt" 2>/dev/null
 [ $rc -eq 0 ] || fail "the README's first command exited $rc"
 grep -Eq "^job j[0-9a-f]{16}: succeeded" "$work/submit.txt" || fail "no 'succeeded' line"
 grep -q "report\\.json (" "$work/submit.txt" || fail "the result's files were not listed"
-grep -q "^  contract: rotation-fit from " "$work/submit.txt" || fail "no rotation-fit contract shown"
-grep -q "^  contract: sparse-solve from " "$work/submit.txt" || fail "no sparse-solve contract shown"
-grep -q "^  contract: integration-step" "$work/submit.txt" && fail "a static job bought an integration step"
-grep -Eq "^  spent [0-9.e+]+ of budget 1000 \\(central\\)" "$work/submit.txt" ||
+grep -Eq "^job j[0-9a-f]{16}: contract: rotation-fit from agent rotfit-[12], price " "$work/submit.txt" ||
+    fail "no rotation-fit contract shown"
+grep -Eq "^job j[0-9a-f]{16}: contract: sparse-solve from agent solve-1, price " "$work/submit.txt" ||
+    fail "no sparse-solve contract shown"
+grep -q "contract: integration-step" "$work/submit.txt" && fail "a static job bought an integration step"
+grep -Eq "^job j[0-9a-f]{16}: resource contract: [0-9.]+ cores? from agent [a-z0-9-]+, price [0-9.e+-]+ per core-second$" \
+    "$work/submit.txt" || fail "the cores bought for the job's services are not shown as such"
+grep -Eq "^  spent [0-9.e+]+ of budget 1000 \\(central, 3 contracts\\)" "$work/submit.txt" ||
     fail "the money spent against the budget is not shown"
+[ "$(grep -c "succeeded" "$work/submit.txt")" -eq 1 ] || fail "'succeeded' is not printed once"
+grep -q '[{}]' "$work/submit.txt" && fail "raw JSON in submit's plain lines"
 [ "$(jq -r '.runs[0].converged' "$work/first-job/report.json" 2>/dev/null)" = true ] ||
     fail "report.json has no converged run"
 [ "$(jq -r '.market.mechanism' "$work/first-job/report.json" 2>/dev/null)" != null ] ||

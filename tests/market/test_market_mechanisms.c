@@ -19,6 +19,7 @@
 #include <string.h>
 
 #include "bg_json.h"
+#include "bgm_budget.h"
 #include "bgm_callmarket.h"
 #include "bgm_catallactic.h"
 #include "bgm_combex.h"
@@ -901,13 +902,22 @@ static void test_posted_first_fit(void **state)
     assert_int_equal(bgm_posted_post(d, 7, 1, 1.0), BG_OK);
     assert_int_equal(bgm_posted_post(d, 8, 0, 2.0), BG_OK);
     bgm_posting_t out[4];
-    size_t n = bgm_posted_query(d, 0, 2.5, 0, out, 4);
+    size_t first = 99;
+    size_t n = bgm_posted_query(d, 0, 2.5, 0, NULL, NULL, out, 4, &first);
     /* Registration order, not price order; the 3.0 posting is over limit. */
     assert_int_equal(n, 2);
     assert_int_equal(out[0].seller, 6);
     assert_int_equal(out[1].seller, 8);
+    assert_int_equal(first, 1);
+    /* Next fit: from the position after the first answer's first posting,
+     * wrapping around. */
+    n = bgm_posted_query(d, 0, 2.5, first + 1, NULL, NULL, out, 4, &first);
+    assert_int_equal(n, 2);
+    assert_int_equal(out[0].seller, 8);
+    assert_int_equal(out[1].seller, 6);
+    assert_int_equal(first, 3);
     bgm_posted_withdraw(d, 6);
-    n = bgm_posted_query(d, 0, 2.5, 0, out, 4);
+    n = bgm_posted_query(d, 0, 2.5, 0, NULL, NULL, out, 4, NULL);
     assert_int_equal(n, 1);
     bgm_posted_destroy(&d);
     assert_null(d);
@@ -1625,6 +1635,106 @@ static void test_timeouts_fire(void **state)
     }
 }
 
+/* ------------------------------------------------------ message budget */
+
+/* The rounds a request can start, from the definition: round k + 1 only
+ * if the backoffs before it, b 2^min(i, 5) for i < k, sum to less than
+ * the deadline. */
+static double attempts_by_definition(double deadline, double backoff)
+{
+    double sum = 0.0, rounds = 1.0;
+    for (int i = 0;; i++) {
+        sum += backoff *
+               (double)(1 << (i < BGM_PU_RETRY_MAX_DOUBLINGS ? i : BGM_PU_RETRY_MAX_DOUBLINGS));
+        if (sum >= deadline)
+            return rounds;
+        rounds += 1.0;
+    }
+}
+
+/* The world's messages against the bound bgm_budget puts on them: its
+ * service requests' rounds, its deals (bundle requests) and its agents'
+ * own traffic; the summary's message_bound is that bound per allocation. */
+static void check_budget(bgm_world_t *w, const bgm_config_t *cfg, int mech, int nodes,
+                         double density)
+{
+    double m[BGM_M_COUNT];
+    assert_int_equal(bgm_world_metrics(w, m), BG_OK);
+    bgm_purchase_tally_t svc, res;
+    bgm_world_tally(w, &svc, &res);
+    const bgm_budget_t b =
+        bgm_budget_of(cfg, mech, bgm_world_horizon(w), (double)lround(nodes * density));
+    const double bound =
+        bgm_budget_messages(&b, svc.requests, res.requests, (double)bgm_world_agent_count(w));
+    assert_true(svc.requests > 0 && m[BGM_M_MESSAGES] > 0);
+    if (m[BGM_M_MESSAGES] > bound)
+        fail_msg("%s: %.0f messages over the bound %.0f", bgm_mechanism_names[mech],
+                 m[BGM_M_MESSAGES], bound);
+    /* No request starts more rounds than the bound allows. */
+    assert_true(svc.attempts <= svc.requests * b.attempts);
+    assert_true(res.attempts <= res.requests * b.attempts);
+    if (m[BGM_M_CONTRACTS] > 0) {
+        assert_float_equal(m[BGM_M_MESSAGE_BOUND], bound / m[BGM_M_CONTRACTS],
+                           1e-9 * m[BGM_M_MESSAGE_BOUND]);
+        assert_true(m[BGM_M_MESSAGES_PER_ALLOCATION] <= m[BGM_M_MESSAGE_BOUND]);
+    }
+    assert_float_equal(m[BGM_M_TIMEOUTS_PER_REQUEST], m[BGM_M_TIMEOUTS] / svc.requests, 1e-12);
+}
+
+/* Every mechanism stays within its message budget: static and under
+ * churn, with messages lost on dark links, with round trips far longer
+ * than the configured timeouts (0.6 s one way against 0.5 s timers: late
+ * answers, deals made after their buyer moved on) and with central's
+ * per-type call markets (bundles in parts). */
+static void test_message_budget(void **state)
+{
+    (void)state;
+    assert_true(bgm_budget_calls(6, 2) == 36.0);
+    assert_true(bgm_budget_calls(6, 1) == 6.0);
+    assert_true(bgm_budget_calls(3, 3) == 21.0);
+    assert_true(bgm_budget_calls(1, 4) == 1.0);
+    assert_true(isinf(bgm_budget_attempts(30.0, 0.0)));
+    const double cases[][2] = {{30, 2}, {30, 100}, {1, 1}, {2, 1}, {1000, 1}, {64.5, 0.5}};
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
+        assert_true(bgm_budget_attempts(cases[i][0], cases[i][1]) ==
+                    attempts_by_definition(cases[i][0], cases[i][1]));
+    assert_true(bgm_budget_attempts(30.0, 2.0) == 4.0);
+
+    const char *const configs[] = {
+        run_config,
+        "{\"name\":\"static\",\"seed\":7,\"replications\":1,\"duration\":120,\"drain\":40,"
+        "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[12],\"density\":[1]},"
+        "\"demand\":{\"interarrival_mean\":10,\"deadline\":30}}",
+        "{\"name\":\"dark\",\"seed\":5,\"replications\":1,\"duration\":60,\"drain\":40,"
+        "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[6],\"density\":[1],"
+        "\"dynamics\":[\"dark\"]},\"dynamics\":{\"dark\":{\"link_failure_rate\":0.05,"
+        "\"link_repair_mean\":5}},\"demand\":{\"interarrival_mean\":10,\"deadline\":10}}",
+        "{\"name\":\"call\",\"seed\":3,\"replications\":1,\"duration\":90,\"drain\":40,"
+        "\"mechanisms\":[\"central\"],\"factors\":{\"nodes\":[8],\"density\":[1]},"
+        "\"central\":{\"resource_market\":\"call\"}}"};
+    for (size_t k = 0; k < sizeof configs / sizeof configs[0]; k++) {
+        bgm_config_t cfg = load_cfg(configs[k]);
+        int nodes;
+        double density;
+        const bgm_dynamics_t *dy;
+        bgm_config_scenario(&cfg, 0, &nodes, &density, &dy);
+        for (int mech = 0; mech < 3; mech++) {
+            if (k == 3 && mech != BGM_MECH_CENTRAL)
+                continue; /* the call markets are central's */
+            for (int slow = 0; slow < 2; slow++) {
+                bgm_world_params_t p = {&cfg, 0, mech, 0, nodes, density, dy, NULL};
+                bg_error_t err = BG_ERROR_INIT;
+                bgm_world_t *w = bgm_world_new(&p, &err);
+                if (!w)
+                    fail_msg("%s", err.message);
+                assert_int_equal(bgm_evq_run_world(w, slow ? 0.6 : 0.01, 1.25e8, NULL), BG_OK);
+                check_budget(w, &cfg, mech, nodes, density);
+                bgm_world_destroy(&w);
+            }
+        }
+    }
+}
+
 static void test_world_deterministic(void **state)
 {
     (void)state;
@@ -1673,6 +1783,7 @@ int main(void)
         cmocka_unit_test(test_price_convergence_shock),
         cmocka_unit_test(test_scarcity_prices_inprocess),
         cmocka_unit_test(test_timeouts_fire),
+        cmocka_unit_test(test_message_budget),
         cmocka_unit_test(test_world_deterministic),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -17,12 +17,13 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bgm_budget.h"
 #include "bgm_buyer.h"
 #include "bgm_config.h"
 #include "bgm_market_agent.h"
 #include "bgm_outbox.h"
-#include "bgm_resource.h"
 #include "bgm_purchase.h"
+#include "bgm_resource.h"
 #include "bgm_rng.h"
 #include "bgm_role.h"
 #include "bgm_seller.h"
@@ -325,6 +326,47 @@ static void test_directory_first_fit(void **state)
     assert_int_equal(l->cand[0], FIRST_RES);
     assert_true(fabs(l->cand_price[0] - 1.25 * (0.1 * 2.0 + 0.02 * 3.0)) < EPS);
     assert_true(fabs(l->cand_speed[0] - 2e9) < EPS);
+    bgm_outbox_destroy(&ob);
+    bgm_market_agent_destroy(&ma);
+}
+
+/* Next fit: each answer for a good starts at the seller after the
+ * previous answer's first, wrapping around, so that buyers asking at
+ * about the same time are sent to different sellers first. Plain first
+ * fit gave every one of them the same list, whose head the directory's
+ * lagging view of free room showed as free while it was full (issue 31:
+ * 43 refused orders a request at 400 nodes). */
+static void test_directory_next_fit(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("baseline", 0.5);
+    bgm_market_agent_t *ma = agent(&cfg, BGM_MECH_BASELINE);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    for (uint32_t k = 0; k < NBASIC; k++)
+        ask(ma, ob, FIRST_BASIC + k, BGM_GOOD_ROTFIT, 1.0, 2.0);
+    ask(ma, ob, FIRST_BASIC, BGM_GOOD_SOLVE, 1.0, 2.0);
+    for (uint32_t i = 0; i < 2 * NBASIC; i++) {
+        bgm_outbox_clear(ob);
+        bgm_msg_t q = mk(BGM_MT_QUERY, 1 + i % 4, 100 + i);
+        q.good = BGM_GOOD_ROTFIT;
+        q.price = 2.0;
+        deliver(ma, &q, ob);
+        const bgm_msg_t *l = &bgm_outbox_item(ob, 0)->msg;
+        assert_int_equal(l->ncand, NBASIC); /* every seller, the cap being 3 */
+        for (uint32_t c = 0; c < NBASIC; c++)
+            assert_int_equal(l->cand[c], FIRST_BASIC + (i + c) % NBASIC);
+    }
+    /* Each good has its own position: the first query for another good
+     * starts from the first seller. */
+    bgm_outbox_clear(ob);
+    bgm_msg_t q = mk(BGM_MT_QUERY, 1, 200);
+    q.good = BGM_GOOD_SOLVE;
+    q.price = 2.0;
+    deliver(ma, &q, ob);
+    assert_int_equal(bgm_outbox_item(ob, 0)->msg.cand[0], FIRST_BASIC);
+    /* A query naming no good the directory lists is refused. */
+    q.good = BGM_GOOD_MEMORY_ID;
+    assert_int_equal(bgm_market_agent_on_message(ma, &q, 0.5, ob), BG_ERR_INVALID);
     bgm_outbox_destroy(&ob);
     bgm_market_agent_destroy(&ma);
 }
@@ -1183,9 +1225,9 @@ static void test_seller_match_rents_and_delivers(void **state)
     assert_non_null(only_msg(ob, BGM_MT_FREE));
     assert_int_equal(bgm_seller_used(s), 0);
     assert_true(bgm_seller_bundle(s, 101)->state == BGM_PU_FAILED);
-    double requests, timeouts;
-    bgm_seller_counts(s, &requests, &timeouts);
-    assert_true(requests == 2.0 && timeouts == 0.0);
+    bgm_purchase_tally_t tally = {0};
+    bgm_seller_counts(s, &tally);
+    assert_true(tally.requests == 2.0 && tally.timeouts == 0.0);
     bgm_outbox_destroy(&ob);
     bgm_seller_destroy(&s);
 }
@@ -1286,10 +1328,12 @@ static int pop_timer(pending_t *pend, bgm_out_item_t *out)
 
 /* Catallactic, nobody proposing: a job arrives; each of its items calls
  * for proposals over the overlay, waits discovery_timeout, counts a
- * timeout and retries after retry_backoff, and gives up for good once a
- * retry could not end its discovery before the deadline. Counted from the
- * definition: attempts start at t0 + k (discovery + backoff) while
- * t0 + k (discovery + backoff) + discovery + backoff < t0 + deadline. */
+ * timeout and retries after a backoff that doubles with each round
+ * (retry_backoff, then twice, four times it...), and gives up for good
+ * once a retry could not start before the deadline. Counted from the
+ * definition: round k + 1 starts at s(k) + discovery + backoff(k) while
+ * that is before t0 + deadline; the rounds are as many as bgm_budget says
+ * a request can start at most, or fewer. */
 static void test_buyer_retries_then_fails_at_deadline(void **state)
 {
     (void)state;
@@ -1311,11 +1355,20 @@ static void test_buyer_retries_then_fails_at_deadline(void **state)
     assert_non_null(r);
     assert_true(r->good == BGM_GOOD_ROTFIT && r->created == t0);
     assert_true(r->deadline == t0 + cfg.demand.deadline);
-    const double step = cfg.catallactic.discovery_timeout + cfg.catallactic.retry_backoff;
-    int expected = 0;
-    while (t0 + expected * step + step < t0 + cfg.demand.deadline)
+    int expected = 1;
+    double last_start = t0;
+    for (;;) {
+        const int doublings =
+            expected - 1 < BGM_PU_RETRY_MAX_DOUBLINGS ? expected - 1 : BGM_PU_RETRY_MAX_DOUBLINGS;
+        const double next_start = last_start + cfg.catallactic.discovery_timeout +
+                                  cfg.catallactic.retry_backoff * (double)(1 << doublings);
+        if (next_start >= t0 + cfg.demand.deadline)
+            break;
+        last_start = next_start;
         expected++;
-    expected++; /* the last attempt, whose retry would not fit */
+    }
+    assert_true(expected >= 3 && expected <= bgm_budget_attempts(cfg.demand.deadline,
+                                                                 cfg.catallactic.retry_backoff));
     int calls = 0;
     double last_call = -1.0, failed_at = -1.0;
     for (;;) {
@@ -1345,7 +1398,7 @@ static void test_buyer_retries_then_fails_at_deadline(void **state)
             failed_at = t.at;
     }
     assert_int_equal(calls, 2 * expected); /* two neighbours a call */
-    assert_true(fabs(last_call - (t0 + (expected - 1) * step)) < 1e-9);
+    assert_true(fabs(last_call - last_start) < 1e-9);
     assert_true(failed_at > last_call && failed_at <= t0 + cfg.demand.deadline);
     assert_int_equal(next, 100 + items); /* retries open no request */
     /* A late proposal changes nothing. */
@@ -1355,12 +1408,222 @@ static void test_buyer_retries_then_fails_at_deadline(void **state)
     p.price = 0.1;
     assert_int_equal(bgm_buyer_on_message(b, &p, failed_at + 1.0, 1, ob), BG_OK);
     assert_int_equal(bgm_outbox_count(ob), 0);
-    double requests, timeouts;
-    bgm_buyer_counts(b, &requests, &timeouts);
-    assert_true(requests == (double)items);
-    assert_true(timeouts >= (double)expected);
+    bgm_purchase_tally_t tally = {0};
+    bgm_buyer_counts(b, &tally);
+    assert_true(tally.requests == (double)items);
+    assert_true(tally.timeouts >= (double)expected);
     bgm_outbox_destroy(&ob);
     bgm_buyer_destroy(&b);
+}
+
+/* ----------------------------------------------------- the buying half */
+
+enum { PU_SELF = 3, PU_MARKET = 0 };
+
+/* A purchase with `degree` overlay neighbours numbered 20, 21, ... */
+static bgm_purchase_t *purchase(const bgm_config_t *cfg, int mechanism, int degree)
+{
+    static uint32_t nbr[BGM_PU_MAX_NEIGHBOURS];
+    static uint8_t same[BGM_PU_MAX_NEIGHBOURS];
+    for (int i = 0; i < degree; i++)
+        nbr[i] = 20 + (uint32_t)i;
+    bgm_purchase_params_t p;
+    memset(&p, 0, sizeof p);
+    p.cfg = cfg;
+    p.mechanism = mechanism;
+    p.self = PU_SELF;
+    p.market = PU_MARKET;
+    p.horizon = 1000.0;
+    bgm_rng_derive(&p.trader.rng, 7, 0, 0, 5);
+    bgm_genes_random(&p.trader.genes, &p.trader.rng);
+    p.neighbours = nbr;
+    p.same_role = same;
+    p.degree = degree;
+    bgm_purchase_t *pu = bgm_purchase_new(&p);
+    assert_non_null(pu);
+    return pu;
+}
+
+/* Opens service request `id` (rotation-fit, 2 units at up to 5 per unit,
+ * deadline 30 s later) at time now. */
+static void open_item(bgm_purchase_t *pu, uint32_t id, double now, bgm_outbox_t *ob)
+{
+    bgm_purchase_req_t it = {0};
+    it.id = id;
+    it.good = BGM_GOOD_ROTFIT;
+    it.work = 2.0;
+    it.limit = 5.0;
+    it.created = now;
+    it.deadline = now + 30.0;
+    bgm_purchase_event_t ev;
+    assert_int_equal(bgm_purchase_open(pu, &it, now, 1, ob, &ev), BG_OK);
+}
+
+/* The phase timer the last call armed: when it fires, and its argument. */
+static double phase_timer(const bgm_outbox_t *ob, uint64_t *arg)
+{
+    const bgm_out_item_t *t = only_timer(ob, BGM_PU_TIMER_REQ);
+    assert_non_null(t);
+    *arg = t->arg;
+    return t->at;
+}
+
+static bgm_msg_t to_buyer(int type, uint32_t from, uint32_t req, uint32_t attempt)
+{
+    bgm_msg_t m = mk(type, from, req);
+    m.to = PU_SELF;
+    m.attempt = attempt;
+    return m;
+}
+
+/* Baseline: its timers follow the round trips it measures (RFC 6298).
+ * Before any, a query waits 4 reply_timeout and an order reply_timeout;
+ * the first sample R gives srtt = R, rttvar = R / 2 and timers of
+ * srtt + 4 rttvar = 3 R; each timeout doubles the timer until the next
+ * sample, which updates srtt (gain 1/8) and rttvar (gain 1/4 of the
+ * deviation). With the configured 0.5 s an order crossing a wide-area
+ * network (0.52 s round trips on the random platform) timed out before its
+ * answer came, every time. */
+static void test_purchase_timers_follow_round_trips(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("baseline", 0.5);
+    bgm_purchase_t *pu = purchase(&cfg, BGM_MECH_BASELINE, 0);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    bgm_purchase_event_t ev;
+    uint64_t arg;
+    open_item(pu, 1, 10.0, ob);
+    assert_non_null(only_msg(ob, BGM_MT_QUERY));
+    assert_true(fabs(phase_timer(ob, &arg) - (10.0 + 4.0 * cfg.catallactic.reply_timeout)) < EPS);
+    /* The directory answers 1.2 s later with two candidates. */
+    bgm_outbox_clear(ob);
+    bgm_msg_t l = to_buyer(BGM_MT_LIST, PU_MARKET, 1, 0);
+    l.ncand = 2;
+    l.cand[0] = 30;
+    l.cand[1] = 31;
+    l.cand_price[0] = l.cand_price[1] = 1.0;
+    assert_int_equal(bgm_purchase_on_message(pu, &l, 11.2, ob, &ev), BG_OK);
+    const bgm_msg_t *o = only_msg(ob, BGM_MT_ORDER);
+    assert_true(o && o->to == 30);
+    assert_true(fabs(phase_timer(ob, &arg) - (11.2 + 3.0 * 1.2)) < 1e-9);
+    /* Seller 30 stays quiet: the next order, to 31, waits twice as long. */
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_purchase_on_timer(pu, BGM_PU_TIMER_REQ, arg, 14.8, 1, ob, &ev), BG_OK);
+    o = only_msg(ob, BGM_MT_ORDER);
+    assert_true(o && o->to == 31);
+    const uint32_t attempt = o->attempt;
+    assert_true(fabs(phase_timer(ob, &arg) - (14.8 + 2.0 * 3.0 * 1.2)) < 1e-9);
+    /* 31 accepts 0.4 s later: srtt 1.1, rttvar 0.65, no doubling. */
+    bgm_outbox_clear(ob);
+    bgm_msg_t a = to_buyer(BGM_MT_ACCEPT, 31, 1, attempt);
+    a.price = 1.0;
+    assert_int_equal(bgm_purchase_on_message(pu, &a, 15.2, ob, &ev), BG_OK);
+    assert_int_equal(bgm_purchase_get(pu, 1)->state, BGM_PU_COMMITTED);
+    bgm_outbox_clear(ob);
+    open_item(pu, 2, 20.0, ob);
+    assert_true(fabs(phase_timer(ob, &arg) - (20.0 + 1.1 + 4.0 * 0.65)) < 1e-9);
+    bgm_purchase_tally_t tally = {0};
+    bgm_purchase_counts(pu, &tally);
+    assert_true(tally.timeout[BGM_PU_TO_REPLY] == 1.0 && tally.timeouts == 1.0);
+    bgm_outbox_destroy(&ob);
+    bgm_purchase_destroy(&pu);
+}
+
+/* Catallactic: a round's discovery window lasts as long as proposals have
+ * been taking to come back (the same estimator over proposal delays, a
+ * late proposal counted too), never less than discovery_timeout; a failed
+ * round is retried after retry_backoff, then twice, four times that. The
+ * fixed 0.5 s window closed before proposals crossing the random platform
+ * (0.6-1.2 s) came back, and the request retried every 2 s until its
+ * deadline: 11 rounds of calls a request. */
+static void test_purchase_discovery_window_and_backoff(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("catallactic", 0.5);
+    bgm_purchase_t *pu = purchase(&cfg, BGM_MECH_CATALLACTIC, 2);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    bgm_purchase_event_t ev;
+    uint64_t arg;
+    open_item(pu, 1, 10.0, ob);
+    assert_int_equal(count_msgs(ob, BGM_MT_CFP), 2);
+    assert_true(fabs(phase_timer(ob, &arg) - (10.0 + cfg.catallactic.discovery_timeout)) < EPS);
+    /* Nobody answers in the window: a quiet round, retried 2 s later. */
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_purchase_on_timer(pu, BGM_PU_TIMER_REQ, arg, 10.5, 1, ob, &ev), BG_OK);
+    const bgm_out_item_t *r = only_timer(ob, BGM_PU_TIMER_RETRY);
+    assert_true(r && fabs(r->at - (10.5 + cfg.catallactic.retry_backoff)) < EPS);
+    const bgm_out_item_t retry = *r;
+    /* The round's proposal comes 0.9 s after its calls, too late. */
+    bgm_outbox_clear(ob);
+    bgm_msg_t pr = to_buyer(BGM_MT_PROPOSE, 21, 1, 0);
+    pr.price = 1.0;
+    assert_int_equal(bgm_purchase_on_message(pu, &pr, 10.9, ob, &ev), BG_OK);
+    assert_int_equal(bgm_outbox_count(ob), 0);
+    /* The next round waits 0.9 + 4 x 0.45 = 2.7 s for proposals. */
+    assert_int_equal(bgm_purchase_on_timer(pu, BGM_PU_TIMER_RETRY, retry.arg, retry.at, 1, ob, &ev),
+                     BG_OK);
+    assert_int_equal(count_msgs(ob, BGM_MT_CFP), 2);
+    assert_true(fabs(phase_timer(ob, &arg) - (retry.at + 2.7)) < 1e-9);
+    /* Quiet again: the second retry waits twice the backoff. */
+    bgm_outbox_clear(ob);
+    assert_int_equal(bgm_purchase_on_timer(pu, BGM_PU_TIMER_REQ, arg, retry.at + 2.7, 1, ob, &ev),
+                     BG_OK);
+    r = only_timer(ob, BGM_PU_TIMER_RETRY);
+    assert_true(r && fabs(r->at - (retry.at + 2.7 + 2.0 * cfg.catallactic.retry_backoff)) < 1e-9);
+    bgm_purchase_tally_t tally = {0};
+    bgm_purchase_counts(pu, &tally);
+    assert_true(tally.timeout[BGM_PU_TO_DISCOVERY] == 2.0 && tally.attempts == 2.0);
+    bgm_outbox_destroy(&ob);
+    bgm_purchase_destroy(&pu);
+}
+
+/* A call for proposals goes to at most overlay_degree neighbours from its
+ * originator and to at most overlay_degree - 1 more from each agent that
+ * passes it on (never back to where it came from or to its originator),
+ * whatever degree the random overlay gave them: a round costs at most
+ * D + D (D - 1) + ... calls over its hops (bgm_budget). */
+static void test_calls_fan_out_within_the_overlay_degree(void **state)
+{
+    (void)state;
+    bgm_config_t cfg = config("catallactic", 0.5);
+    const int D = cfg.agents.overlay_degree, degree = 10;
+    assert_true(D < degree - 1);
+    bgm_purchase_t *pu = purchase(&cfg, BGM_MECH_CATALLACTIC, degree);
+    bgm_outbox_t *ob = bgm_outbox_new(64);
+    open_item(pu, 1, 10.0, ob);
+    assert_int_equal(count_msgs(ob, BGM_MT_CFP), (size_t)D);
+    /* A call from neighbour 20, originated by agent 25 (a neighbour too). */
+    bgm_outbox_clear(ob);
+    bgm_msg_t c = to_buyer(BGM_MT_CFP, 20, 7, 0);
+    c.origin = 25;
+    c.hops = 2;
+    c.good = BGM_GOOD_ROTFIT;
+    assert_false(bgm_purchase_cfp_seen(pu, &c));
+    assert_true(bgm_purchase_cfp_seen(pu, &c));
+    assert_int_equal(bgm_purchase_cfp_forward(pu, &c, ob), BG_OK);
+    assert_int_equal(count_msgs(ob, BGM_MT_CFP), (size_t)(D - 1));
+    for (size_t i = 0; i < bgm_outbox_count(ob); i++) {
+        const bgm_msg_t *m = &bgm_outbox_item(ob, i)->msg;
+        assert_true(m->to != 20 && m->to != 25 && m->from == PU_SELF && m->hops == 1);
+    }
+    bgm_outbox_clear(ob);
+    c.hops = 1; /* no hop left: not passed on */
+    assert_int_equal(bgm_purchase_cfp_forward(pu, &c, ob), BG_OK);
+    assert_int_equal(bgm_outbox_count(ob), 0);
+    /* A resource seller with as many neighbours passes it on the same way. */
+    uint32_t nbr[10];
+    uint8_t same[10] = {0};
+    for (int i = 0; i < degree; i++)
+        nbr[i] = 20 + (uint32_t)i;
+    bgm_resource_t *rs = seller(&cfg, BGM_MECH_CATALLACTIC, nbr, same, degree);
+    bgm_msg_t rc = bundle_msg(BGM_MT_CFP, 20, 9, 1.0, 1.0, 1e9, 0.0, 10.0, 100.0);
+    rc.origin = 25;
+    rc.hops = 2;
+    assert_int_equal(bgm_resource_on_message(rs, &rc, 10.0, 1, ob), BG_OK);
+    assert_int_equal(count_msgs(ob, BGM_MT_CFP), (size_t)(D - 1));
+    bgm_resource_destroy(&rs);
+    bgm_outbox_destroy(&ob);
+    bgm_purchase_destroy(&pu);
 }
 
 /* Central: a job's items are bid for at their valuation, work and
@@ -1422,6 +1685,10 @@ int main(void)
         cmocka_unit_test(test_auctioneer_clears_to_kdouble_price),
         cmocka_unit_test(test_auctioneer_exchange_rent),
         cmocka_unit_test(test_directory_first_fit),
+        cmocka_unit_test(test_directory_next_fit),
+        cmocka_unit_test(test_purchase_timers_follow_round_trips),
+        cmocka_unit_test(test_purchase_discovery_window_and_backoff),
+        cmocka_unit_test(test_calls_fan_out_within_the_overlay_degree),
         cmocka_unit_test(test_auctioneer_exclusions_and_groups),
         cmocka_unit_test(test_auctioneer_refuses_bad_input),
         cmocka_unit_test(test_outbox_order_and_cap),

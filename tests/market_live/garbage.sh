@@ -30,7 +30,7 @@ BPID=$(cut -d' ' -f3 "$WORK/broker.ready")
 check $? "the broker answered every malformed message and still registers agents"
 kill -0 "$BPID" 2>/dev/null
 check $? "the broker is still running"
-curl -sf "$URL/healthz" >/dev/null
+bcurl -sf "$URL/healthz" >/dev/null
 check $? "the broker still answers /healthz"
 stop_broker "$WORK" broker
 check $? "the broker stopped cleanly (exit 0)"

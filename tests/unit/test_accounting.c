@@ -1,6 +1,6 @@
 /*
  * The report accounts for all the work (issue 9): on each scene kind
- * (static with Newton and local/global, dynamic, morph, parameterize,
+ * (static with Newton, local/global and quasi-newton, dynamic, morph, parameterize,
  * surface-edit) the set-up steps and the per-iteration parts add up to the
  * wall time, the set-up lists what ran with its factorization counts, and
  * the plan leaves out only what really is not built.
@@ -100,8 +100,10 @@ static void static_scene(void **state)
     off_cpu_start();
     bg_scene_t *s = test_load_scene(SCENES "bar-twist.json");
     assert_int_equal(s->prep_count, 1); /* the harmonic starting guess */
-    for (int m = 0; m < 2; m++) {
-        const bg_method method = m ? BG_METHOD_LOCAL_GLOBAL : BG_METHOD_NEWTON;
+    static const bg_method methods[] = {BG_METHOD_NEWTON, BG_METHOD_LOCAL_GLOBAL,
+                                        BG_METHOD_QUASI_NEWTON};
+    for (int m = 0; m < 3; m++) {
+        const bg_method method = methods[m];
         const bg_solve_options_t o = {
             .method = method, .tolerance = m ? 1e-4 : 1e-8, .max_iterations = 500};
         bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
@@ -122,7 +124,8 @@ static void static_scene(void **state)
         } else {
             /* both ends clamped: every coordinate has the same free
              * vertices, one Laplacian, factored once, in the set-up */
-            const bg_setup_step_t *lap = step(&r, "local/global");
+            const bg_setup_step_t *lap =
+                step(&r, method == BG_METHOD_LOCAL_GLOBAL ? "local/global" : "quasi-newton");
             assert_non_null(lap);
             assert_int_equal(lap->factorizations, 1);
             assert_int_equal(r.factorizations, 0);
@@ -167,17 +170,22 @@ static void morph_scene(void **state)
     (void)state;
     off_cpu_start();
     bg_scene_t *s = test_load_scene(SCENES "bar-morph.json");
-    for (int m = 0; m < 2; m++) {
-        const bg_morph_options_t o = {.method = m ? BG_METHOD_LOCAL_GLOBAL : BG_METHOD_NEWTON,
+    static const bg_method methods[] = {BG_METHOD_NEWTON, BG_METHOD_LOCAL_GLOBAL,
+                                        BG_METHOD_QUASI_NEWTON};
+    for (int m = 0; m < 3; m++) {
+        const bg_morph_options_t o = {.method = methods[m],
                                       .tolerance = m ? 1e-3 : 1e-4,
                                       .max_iterations = 50};
         bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
         bg_error_t err = BG_ERROR_INIT;
         assert_int_equal(bg_morph_solve(s, &o, &r, &err), BG_OK);
-        assert_time_adds_up(m ? "morph, local/global" : "morph, newton", &r);
+        char what[64];
+        snprintf(what, sizeof what, "morph, %s", bg_method_name(methods[m]));
+        assert_time_adds_up(what, &r);
         if (m) {
             /* the blended Laplacian is factored once per frame */
-            const bg_setup_step_t *lap = step(&r, "local/global");
+            const bg_setup_step_t *lap =
+                step(&r, methods[m] == BG_METHOD_LOCAL_GLOBAL ? "local/global" : "quasi-newton");
             assert_non_null(lap);
             assert_int_equal(lap->count, s->morph_frames);
             assert_true(lap->factorizations >= s->morph_frames);

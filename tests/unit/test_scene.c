@@ -669,6 +669,42 @@ static void test_work_cap(void **state)
     }
 }
 
+/* A scene of many small handles is refused before any is selected: each
+ * selection scans every vertex, so 20,000 one-vertex handles (670 KB) on
+ * a box of a million vertices took 14 s of CPU, and a 16 MB scene some
+ * minutes. BG_SCENE_MAX_HANDLES handles are still served. */
+static void test_handle_cap(void **state)
+{
+    (void)state;
+    for (int extra = 0; extra <= 1; extra++) {
+        const int handles = BG_SCENE_MAX_HANDLES + extra;
+        char *text = malloc((size_t)handles * 48 + 256);
+        assert_non_null(text);
+        size_t n = (size_t)sprintf(text, "{\"mesh\": {\"generate\": \"box\", \"cells\": "
+                                         "[10, 10, 10], \"size\": [1, 1, 1]}, \"material\": "
+                                         "{\"mu\": 1, \"lambda\": 1}, \"handles\": [");
+        for (int i = 0; i < handles; i++)
+            n += (size_t)sprintf(text + n, "%s{\"select\": {\"vertices\": [%d]}}", i ? ", " : "",
+                                 i);
+        n += (size_t)sprintf(text + n, "]}");
+        bg_scene_t *s = NULL;
+        bg_error_t err = BG_ERROR_INIT;
+        const bg_status st = bg_scene_parse_with(text, n, "handles.json", NULL, &s, &err);
+        if (extra == 0) {
+            if (st != BG_OK)
+                fail_msg("%d handles: %s", handles, err.message);
+            assert_int_equal(s->handle_count, handles);
+        } else {
+            assert_int_equal(st, BG_ERR_LIMIT);
+            assert_null(s);
+            if (!strstr(err.message, "handles.json: handles: 1025 handles, over the limit of 1024"))
+                fail_msg("%s", err.message);
+        }
+        bg_scene_destroy(&s);
+        free(text);
+    }
+}
+
 /* A positions file with one line per mesh vertex (a twisted copy of the
  * bar) serves a handle (its selected rows) and a reference (all rows). */
 static void test_whole_mesh_positions_file(void **state)
@@ -891,7 +927,12 @@ static void test_method_names(void **state)
     assert_string_equal(bg_method_name(BG_METHOD_NEWTON), "newton");
     bg_error_t err = BG_ERROR_INIT;
     assert_int_equal(bg_method_parse("Newton", &m, &err), BG_ERR_INVALID);
-    assert_non_null(strstr(err.message, "newton, local-global, variational or backward-euler"));
+    assert_non_null(
+        strstr(err.message, "newton, local-global, quasi-newton, variational or backward-euler"));
+    assert_int_equal(bg_method_parse("quasi-newton", &m, NULL), BG_OK);
+    assert_int_equal(m, BG_METHOD_QUASI_NEWTON);
+    assert_string_equal(bg_method_name(m), "quasi-newton");
+    assert_false(bg_method_is_dynamic(m));
     assert_int_equal(bg_method_parse("backward-euler", &m, NULL), BG_OK);
     assert_int_equal(m, BG_METHOD_BACKWARD_EULER);
     assert_true(bg_method_is_dynamic(m));
@@ -918,6 +959,7 @@ int main(void)
         cmocka_unit_test(test_whole_mesh_positions_file),
         cmocka_unit_test(test_morph_twist_target),
         cmocka_unit_test(test_work_cap),
+        cmocka_unit_test(test_handle_cap),
         cmocka_unit_test(test_bad_scenes),
         cmocka_unit_test(test_missing_mesh_names_resolved_path),
         cmocka_unit_test(test_surface_mesh_rejected),

@@ -1,0 +1,232 @@
+#!/bin/sh
+# bench_table.sh — the solver-speed table (issue 29) in one command: every
+# figure measured on a build before the change and on one after it, the
+# runs alternated (before, after, after, before, ... : drift of the
+# machine's load hits both alike), and the Markdown table printed with
+# each cell's median over the rounds, the rounds' spread below it, and the
+# machine's load (uptime) before, between and after the runs.
+#
+#   sh tests/bench/bench_table.sh [--before BUILD] [--after BUILD] [--rounds N]
+#                                 [--out DIR] [--smoke]
+#
+# BUILD is a build folder of this project (its bin/biotgrid and
+# tests/bench/bench_rotfit, bench_solve are used); --after defaults to
+# ./build, --before to nothing (then the table has one column). A before
+# build of a commit without the quasi-newton method leaves that method's
+# cells empty. The scenes are this checkout's (configs/scenes,
+# tests/bench/scenes). Run it with the machine otherwise idle if you can;
+# Every run has one core: OPENBLAS_NUM_THREADS=1, OMP_NUM_THREADS=1 and
+# OMP_THREAD_LIMIT=1. The last is the one that counts for CHOLMOD: its
+# supernodal factorization opens OpenMP teams of a fixed four threads
+# (a num_threads clause, which OMP_NUM_THREADS does not cap) whose waiting
+# cost 30-65 % more CPU time (user + system) in two Newton solves of bunny-edit
+# on this 2-core machine.
+#
+# What each row measures:
+#   slab, bunny    biotgrid solve --compare (every static method) to
+#                  relative gradient 1e-6 on tests/bench/scenes/bending-slab.json
+#                  (28,800 tets) and configs/scenes/bunny-edit.json: the wall
+#                  time at which each method first reaches 1e-4 and 1e-6
+#                  (report.json's trace, set-up included)
+#   newton/cholmod bench_solve's Newton iteration on bunny-edit over CHOLMOD's
+#                  factorization + solve alone on the same matrix, in wall time and
+#                  (bench_solve from this branch on) in the thread's CPU time,
+#                  which another process's load does not inflate
+#   bar-twist      bench_solve: Newton to 1e-8 over local/global to 1e-4
+#   rotation fit   bench_rotfit: warm F + R + P, 552,960-tet box (M tets/s)
+#   local/global   ms per iteration (trace, set-up excluded): bunny-edit
+#                  from the slab/bunny run, tests/bench/scenes/box-196608.json
+#                  from a 20-iteration run
+# --smoke: one round, tiny sizes (bench_* --smoke, bar-twist for the
+# scenes): checks that every figure is produced and parsed, not speed.
+# Exit status: 0, or 1 when a run failed or a figure is missing.
+set -u
+here=$(cd "$(dirname "$0")" && pwd)
+src=$(cd "$here/../.." && pwd)
+before="" after="$src/build" rounds=2 out="" smoke=0
+while [ $# -gt 0 ]; do
+    case $1 in
+        --before) before=$2; shift 2 ;;
+        --after) after=$2; shift 2 ;;
+        --rounds) rounds=$2; shift 2 ;;
+        --out) out=$2; shift 2 ;;
+        --smoke) smoke=1; rounds=1; shift ;;
+        *) echo "usage: bench_table.sh [--before BUILD] [--after BUILD] [--rounds N] [--out DIR] [--smoke]" >&2
+           exit 2 ;;
+    esac
+done
+[ -n "$out" ] || out=$(mktemp -d "${TMPDIR:-/tmp}/bench-table.XXXXXX")
+mkdir -p "$out" || exit 1
+export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 OMP_THREAD_LIMIT=1
+command -v jq >/dev/null || { echo "bench_table.sh: needs jq" >&2; exit 1; }
+# The command: bin/biotgrid in this tree, broker/biotgrid in builds of
+# commits before it moved.
+cmd() { if [ -x "$1/bin/biotgrid" ]; then echo "$1/bin/biotgrid"; else echo "$1/broker/biotgrid"; fi; }
+for b in $before $after; do
+    [ -x "$(cmd "$b")" ] || { echo "bench_table.sh: $b/bin/biotgrid missing (build it first)" >&2; exit 1; }
+    for f in tests/bench/bench_rotfit tests/bench/bench_solve; do
+        [ -x "$b/$f" ] || { echo "bench_table.sh: $b/$f missing (build it first)" >&2; exit 1; }
+    done
+done
+
+slab=$src/tests/bench/scenes/bending-slab.json
+bunny=$src/configs/scenes/bunny-edit.json
+box=$src/tests/bench/scenes/box-196608.json
+tol=1e-6 boxits=20 sflag=""
+if [ $smoke -eq 1 ]; then
+    slab=$src/configs/scenes/bar-twist.json bunny=$src/configs/scenes/plate-bend.json
+    box=$src/configs/scenes/bar-twist.json boxits=5 sflag=--smoke
+fi
+failed=0
+loads=""
+note_load() { loads="$loads
+- $1: $(uptime | sed 's/^ *//')"; }
+
+# The scene $1 as build $2 reads it: a build without the quasi-newton
+# method refuses its per-method cap, so it gets a copy without it (in $3;
+# meshes named by bare file names are found in the build's own folder).
+scene_for() {
+    if "$(cmd "$2")" solve --help | grep -q quasi-newton; then
+        echo "$1"
+    else
+        jq 'if (.solver.max_iterations | type) == "object"
+            then del(.solver.max_iterations["quasi-newton"]) else . end' "$1" \
+            > "$3/$(basename "$1")" && echo "$3/$(basename "$1")"
+    fi
+}
+
+# One pass of every measurement on build $1 into folder $2.
+measure() {
+    b=$1 d=$2
+    mkdir -p "$d"
+    methods=newton,local-global
+    "$(cmd "$b")" solve --help | grep -q quasi-newton && methods=$methods,quasi-newton
+    "$b/tests/bench/bench_rotfit" $sflag > "$d/rotfit.txt" 2>&1 || failed=1
+    "$b/tests/bench/bench_solve" $sflag > "$d/solve.txt" 2>&1 || failed=1
+    for s in slab bunny; do
+        eval scene=\$$s
+        "$(cmd "$b")" solve "$(scene_for "$scene" "$b" "$d")" --compare $methods \
+            --tolerance $tol --quiet --out "$d/$s" > "$d/$s.txt" 2>&1
+        [ $? -le 1 ] || failed=1
+    done
+    "$(cmd "$b")" solve "$(scene_for "$box" "$b" "$d")" --method local-global \
+        --tolerance 1e-12 --max-iterations $boxits --quiet --out "$d/box" > "$d/box.txt" 2>&1
+    [ $? -le 1 ] || failed=1
+}
+
+# Round r: before then after on odd rounds, after then before on even ones.
+note_load "start"
+r=1
+while [ $r -le "$rounds" ]; do
+    if [ $((r % 2)) -eq 1 ]; then order="before after"; else order="after before"; fi
+    for side in $order; do
+        eval b=\$$side
+        [ -n "$b" ] || continue
+        measure "$b" "$out/$side-$r"
+        note_load "after round $r, $side"
+    done
+    r=$((r + 1))
+done
+
+# --- figures of one run folder ---------------------------------------------
+figure() { sed -n "s/^figure $2=\([^ ]*\) .*/\1/p" "$1" | head -1; }
+# seconds at which method $3 of report $1 first reaches relative gradient $2
+reach() {
+    jq -r --arg m "$3" --argjson t "$2" \
+        '[.runs[] | select(.method == $m) | .trace[] | select(.relative_gradient <= $t)
+          | .seconds][0] // empty' "$1" 2>/dev/null
+}
+# ms per iteration of method $2 in report $1 (trace: set-up excluded)
+per_it() {
+    jq -r --arg m "$2" '[.runs[] | select(.method == $m)][0] // empty
+        | if .iterations > 0 then (.trace[-1].seconds - .trace[0].seconds) / .iterations * 1000
+          else empty end' "$1" 2>/dev/null
+}
+value() { # key side round
+    d=$out/$2-$3
+    case $1 in
+        rotfit) v=$(figure "$d/rotfit.txt" rotfit.3d.smooth.warm.throughput)
+                [ -n "$v" ] && v=$(awk -v x="$v" 'BEGIN { printf "%.1f", x / 1e6 }') ;;
+        ratio) v=$(figure "$d/solve.txt" solve.bunny-edit.newton_over_cholmod)
+               [ $smoke -eq 1 ] && v=$(figure "$d/solve.txt" solve.box-864.newton_over_cholmod) ;;
+        ratio_cpu) v=$(figure "$d/solve.txt" solve.bunny-edit.newton_over_cholmod_cpu) ;;
+        bartwist) v=$(figure "$d/solve.txt" accuracy.bar-twist.newton_over_local_global) ;;
+        lg_bunny) v=$(per_it "$d/bunny/report.json" local-global) ;;
+        lg_box) v=$(per_it "$d/box/report.json" local-global) ;;
+        *) set -- $(echo "$1" | tr : ' ') "$2" "$3"
+           v=$(reach "$d/$1/report.json" "$3" "$2") ;;
+    esac
+    echo "$v"
+}
+# median of the numbers on stdin ("" when none)
+median() { sort -g | awk '{ v[NR] = $1 } END { if (NR == 0) exit;
+    if (NR % 2) print v[(NR + 1) / 2]; else print (v[NR / 2] + v[NR / 2 + 1]) / 2 }'; }
+cell() { # key side [format]
+    [ -n "$(eval echo \$$2)" ] || { echo "-"; return; }
+    vals="" r=1
+    while [ $r -le "$rounds" ]; do
+        v=$(value "$1" "$2" $r)
+        [ -n "$v" ] && vals="$vals $v"
+        r=$((r + 1))
+    done
+    m=$(for v in $vals; do echo "$v"; done | median)
+    [ -n "$m" ] || { echo "-"; return; }
+    printf "${3:-%.3g}" "$m"
+}
+raw() { # key side: every round's value
+    [ -n "$(eval echo \$$2)" ] || { echo "-"; return; }
+    r=1 vals=""
+    while [ $r -le "$rounds" ]; do
+        v=$(value "$1" "$2" $r)
+        vals="$vals${vals:+, }${v:--}"
+        r=$((r + 1))
+    done
+    echo "$vals"
+}
+reached() { # scene side: "newton a / b s, local-global c / d s, quasi-newton e / f s"
+    line=""
+    for m in newton local-global quasi-newton; do
+        a=$(cell "$1:$m:1e-4" "$2" "%.2f") z=$(cell "$1:$m:$tol" "$2" "%.2f")
+        [ "$a" = "-" ] && [ "$z" = "-" ] && continue
+        line="$line${line:+, }$m $a / $z s"
+    done
+    echo "${line:--}"
+}
+
+echo
+echo "| measure | before | after | target |"
+echo "|---|---|---|---|"
+echo "| time to relative gradient 1e-4 / $tol, $(basename "$slab" .json) | $(reached slab before) | $(reached slab after) | a method <= half the best at 1e-4 and <= the best at $tol |"
+echo "| same, $(basename "$bunny" .json) | $(reached bunny before) | $(reached bunny after) | same |"
+echo "| Newton iteration / CHOLMOD factor + solve alone (bench_solve), bunny | $(cell ratio before "%.2fx") | $(cell ratio after "%.2fx") | <= 1.1x |"
+echo "| the same in this thread's CPU time, iterations 2-5 (a bench_solve of this branch on) | $(cell ratio_cpu before "%.2fx") | $(cell ratio_cpu after "%.2fx") | <= 1.1x |"
+echo "| bar-twist, Newton to 1e-8 against local/global to 1e-4 | $(cell bartwist before "%.2fx") | $(cell bartwist after "%.2fx") | < 1 |"
+echo "| rotation fit, bench_rotfit warm (M tets/s) | $(cell rotfit before "%.1f") | $(cell rotfit after "%.1f") | >= 35 |"
+echo "| local/global iteration, $(basename "$bunny" .json) / $(basename "$box" .json) (ms) | $(cell lg_bunny before "%.2f") / $(cell lg_box before "%.1f") | $(cell lg_bunny after "%.2f") / $(cell lg_box after "%.1f") | about half of before |"
+echo
+echo "Medians over $rounds round(s), runs alternated (odd rounds before then after, even rounds"
+echo "after then before); one thread (OPENBLAS_NUM_THREADS, OMP_NUM_THREADS, OMP_THREAD_LIMIT = 1)."
+echo "Every round's value:"
+echo
+for key in rotfit ratio ratio_cpu bartwist lg_bunny lg_box; do
+    echo "- $key: before [$(raw $key before)], after [$(raw $key after)]"
+done
+for s in slab bunny; do
+    for m in newton local-global quasi-newton; do
+        for t in 1e-4 $tol; do
+            echo "- $s $m to $t (s): before [$(raw "$s:$m:$t" before)], after [$(raw "$s:$m:$t" after)]"
+        done
+    done
+done
+echo
+echo "Load (uptime):$loads"
+echo "Runs' outputs: $out"
+
+# Every figure present on the after side (the smoke test's check).
+missing=0
+for key in rotfit ratio bartwist lg_bunny lg_box slab:newton:1e-4 slab:local-global:1e-4 \
+           bunny:newton:1e-4; do
+    [ -n "$(value $key after 1)" ] || { echo "bench_table.sh: no figure '$key' (after, round 1)" >&2
+                                        missing=1; }
+done
+[ $failed -eq 0 ] && [ $missing -eq 0 ]
