@@ -312,7 +312,6 @@ size_t bgb_directory_departed_count(const bgb_directory_t *d)
 
 const bgb_agent_info_t *bgb_directory_departed(const bgb_directory_t *d, size_t k)
 {
-    return k < d->departed_count
-               ? &d->departed[(d->departed_head + k) % BGB_DIRECTORY_MAX_DEPARTED]
-               : NULL;
+    return k < d->departed_count ? &d->departed[(d->departed_head + k) % BGB_DIRECTORY_MAX_DEPARTED]
+                                 : NULL;
 }

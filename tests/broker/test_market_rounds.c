@@ -694,6 +694,104 @@ static void subjobs_share_the_jobs_cores(void **state)
     bgb_market_destroy(&m);
 }
 
+/* Central: every waiting job that fits on the sellers' free slots enters
+ * the book before the clearing (not one job a clearing): three one-unit
+ * jobs against three free slots are all ordered at the first clearing. */
+static void central_admits_every_fitting_job(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.0, 2), b = seller(m, &f, 'b', 1.1, 1);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 1};
+    bg_error_t err = BG_ERROR_INIT;
+    fake_t done[3];
+    memset(done, 0, sizeof done);
+    for (uint64_t j = 1; j <= 3; j++)
+        assert_int_equal(bgb_market_buy(m, j, BGB_MECH_CENTRAL, 1000, &need, 1, 0.1, on_done,
+                                        &done[j - 1], &err),
+                         BG_OK);
+    double t = 0.1;
+    for (int i = 0;
+         i < 8 && count_to(&f, BGA_MM_ORDER, a, 0) + count_to(&f, BGA_MM_ORDER, b, 0) == 0; i++)
+        (void)bgb_market_tick(m, t += mc.period);
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, a, 0), 2);
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, b, 0), 1);
+    int jobs = 0;
+    for (int i = 0; i < f.nsent; i++)
+        if (f.sent[i].type == BGA_MM_ORDER)
+            jobs |= 1 << (int)f.sent[i].job;
+    assert_int_equal(jobs, 2 | 4 | 8);
+    bgb_market_destroy(&m);
+}
+
+/* A rotation-fit seller of daemon `who` on `host`, 2 slots, asking 1; its id. */
+static uint32_t seller_on(bgb_market_t *m, fake_t *f, uint8_t who, const char *host)
+{
+    bga_mmsg_t reg;
+    bga_mmsg_init(&reg, BGA_MM_REGISTER);
+    snprintf(reg.name, sizeof reg.name, "s%c", who);
+    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://%s:%d", host, 9000 + who);
+    reg.services = 1u << BGB_GOOD_ROTFIT;
+    reg.slots = reg.free_slots = 2;
+    reg.floor[BGB_GOOD_ROTFIT] = 1.0 / 1.2;
+    reg.prices[BGB_GOOD_ROTFIT] = 1.0;
+    reg.margin = 0.2;
+    const int mark = f->nsent;
+    deliver_from(m, who, &reg, 0.0);
+    const bga_mmsg_t *r = last_of(f, BGA_MM_REGISTERED, mark);
+    assert_non_null(r);
+    return r->agent;
+}
+
+/* The cores ORDER to `to` since `from`, NULL when none. */
+static const bga_mmsg_t *cores_order(const fake_t *f, uint32_t to, int from)
+{
+    for (int i = f->nsent - 1; i >= from; i--)
+        if (f->sent[i].type == BGA_MM_ORDER && f->sent[i].agent == to &&
+            f->sent[i].good == BGB_GOOD_CORES)
+            return &f->sent[i];
+    return NULL;
+}
+
+/* Central resources clear per host: two basic sellers on two hosts each
+ * ask for cores in the same period; both sub-jobs are ordered from their
+ * own host's seller at the same clearing. In one book for every host the
+ * higher bid (host 2's) met the cheaper ask (host 1's seller) and the
+ * lower bid the dearer ask: both fills crossed hosts and were dropped. */
+static void central_resources_cleared_per_host(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller_on(m, &f, 'a', "127.0.0.1"), x = seller_on(m, &f, 'x', "127.0.0.2");
+    const uint32_t ra = register_resource(m, &f, 'a', "127.0.0.1", 1e-3, 8, 0.0)->agent;
+    const uint32_t rx = register_resource(m, &f, 'x', "127.0.0.2", 2e-3, 8, 0.0)->agent;
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 2};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_market_buy(m, 1, BGB_MECH_CENTRAL, 1000, &need, 1, 0.1, on_done, &f, &err),
+                     BG_OK);
+    double t = 0.1;
+    for (int i = 0; i < 8 && !(last_to(&f, BGA_MM_ORDER, a, 0) && last_to(&f, BGA_MM_ORDER, x, 0));
+         i++)
+        (void)bgb_market_tick(m, t += mc.period);
+    assert_non_null(last_to(&f, BGA_MM_ORDER, a, 0));
+    assert_non_null(last_to(&f, BGA_MM_ORDER, x, 0));
+    const int mark = f.nsent;
+    rbuy(m, 'a', a, 1, BGB_GOOD_ROTFIT, 1, 1, 1.0, t + 0.01);
+    rbuy(m, 'x', x, 1, BGB_GOOD_ROTFIT, 1, 1, 2.0, t + 0.01);
+    for (int i = 0; i < 8 && !cores_order(&f, ra, mark) && !cores_order(&f, rx, mark); i++)
+        (void)bgb_market_tick(m, t += mc.period);
+    const bga_mmsg_t *oa = cores_order(&f, ra, mark), *ox = cores_order(&f, rx, mark);
+    assert_non_null(oa);
+    assert_non_null(ox);
+    assert_true(oa->job != ox->job && oa->parent == 1 && ox->parent == 1);
+    assert_true(oa->price >= 1e-3 && ox->price >= 2e-3);
+    bgb_market_destroy(&m);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {cmocka_unit_test(stale_proposal_is_not_counted),
@@ -704,6 +802,8 @@ int main(void)
                                        cmocka_unit_test(posted_subjob),
                                        cmocka_unit_test(catallactic_subjob_bargains_when_heard),
                                        cmocka_unit_test(one_resource_seller_per_host),
-                                       cmocka_unit_test(subjobs_share_the_jobs_cores)};
+                                       cmocka_unit_test(subjobs_share_the_jobs_cores),
+                                       cmocka_unit_test(central_admits_every_fitting_job),
+                                       cmocka_unit_test(central_resources_cleared_per_host)};
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
