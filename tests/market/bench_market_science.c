@@ -155,7 +155,9 @@ static cJSON *load_summary(const char *dir)
     char path[PATH_LEN], *text = NULL;
     size_t len = 0;
     bg_error_t err = BG_ERROR_INIT;
-    snprintf(path, sizeof path, "%s/summary.json", dir);
+    const int n = snprintf(path, sizeof path, "%s/summary.json", dir);
+    if (n < 0 || (size_t)n >= sizeof path)
+        return NULL;
     if (bg_file_read_all(path, MAX_TEXT, &text, &len, &err))
         return NULL;
     cJSON *s = cJSON_Parse(text);
