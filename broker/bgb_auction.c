@@ -16,6 +16,8 @@
 /* What one call may emit: a clearing matches at most every bid placed
  * (two messages each) plus its timer. */
 #define OUTBOX_CAP (4u * BGB_AUCTION_MAX_BUYERS * 64u + 16u)
+_Static_assert(BGB_AUCTION_MAX_CLEARINGS == BGM_MA_CLEARINGS_MAX,
+               "the machine records the clearings a tick names");
 _Static_assert(BGB_AUCTION_MAX_EXCLUDE <= BGM_MSG_CANDIDATES &&
                    BGB_AUCTION_MAX_LIST == BGM_MSG_CANDIDATES,
                "exclusions and lists travel in a message's candidates");
@@ -28,6 +30,7 @@ struct bgb_auction {
                           * match callbacks deliver messages into out */
     double next_clear;
     unsigned goods[BGB_AUCTION_MAX_SELLERS]; /* what each seller was last said to sell */
+    bgb_auction_clearing_t clearings[BGB_AUCTION_MAX_CLEARINGS]; /* the tick under way's */
 };
 
 static void config_for(bgm_config_t *cfg, double k, double period)
@@ -180,6 +183,49 @@ void bgb_auction_forget_buyer(bgb_auction_t *a, uint32_t buyer)
     bgm_market_agent_forget_bids(a->central, FIRST_BUYER + buyer);
 }
 
+static bgb_auction_bound_t bound_of(const bgm_bound_t *b)
+{
+    bgb_auction_bound_t o = {b->is_bid, b->excluded, 0, 0, -1, b->price};
+    if (b->is_bid) {
+        o.buyer = b->owner - FIRST_BUYER;
+        o.req = (uint32_t)b->ref;
+    } else {
+        o.slot = (int)(b->owner - FIRST_SELLER);
+    }
+    return o;
+}
+
+/* The machine's record of the tick's clearings, in the caller's terms;
+ * returns how many. */
+static size_t map_clearings(bgb_auction_t *a)
+{
+    size_t n = 0;
+    const bgm_ma_clearing_t *c = bgm_market_agent_clearings(a->central, &n);
+    for (size_t i = 0; i < n; i++)
+        a->clearings[i] = (bgb_auction_clearing_t){.index = (int)i,
+                                                   .good = c[i].good,
+                                                   .volume = c[i].res.volume,
+                                                   .rationed = c[i].res.rationed,
+                                                   .k = a->cfg.central.k,
+                                                   .price = c[i].res.price,
+                                                   .low = c[i].res.low,
+                                                   .high = c[i].res.high,
+                                                   .low_by = bound_of(&c[i].res.low_by),
+                                                   .high_by = bound_of(&c[i].res.high_by)};
+    return n;
+}
+
+/* The clearing that made the `nth` match of the tick (NULL: not recorded). */
+static const bgb_auction_clearing_t *clearing_of(const bgb_auction_t *a, size_t n, size_t nth)
+{
+    size_t count = 0;
+    const bgm_ma_clearing_t *c = bgm_market_agent_clearings(a->central, &count);
+    for (size_t i = 0; i < n && i < count; i++)
+        if (nth >= c[i].first && nth < c[i].first + c[i].count)
+            return &a->clearings[i];
+    return NULL;
+}
+
 bg_status bgb_auction_tick(bgb_auction_t *a, double now, bgb_auction_match_fn match, void *ctx,
                            double *next, bg_error_t *err)
 {
@@ -190,6 +236,8 @@ bg_status bgb_auction_tick(bgb_auction_t *a, double now, bgb_auction_match_fn ma
         /* The machine schedules its next clearing; a late tick does not
          * make clearings pile up. */
         a->next_clear = now + a->cfg.central.period;
+        const size_t nclearings = map_clearings(a);
+        size_t nth = 0; /* MATCH messages seen */
         for (size_t i = 0; i < bgm_outbox_count(a->clear); i++) {
             const bgm_out_item_t *it = bgm_outbox_item(a->clear, i);
             if (it->is_timer) {
@@ -197,9 +245,11 @@ bg_status bgb_auction_tick(bgb_auction_t *a, double now, bgb_auction_match_fn ma
                 continue;
             }
             const bgm_msg_t *m = &it->msg;
+            if (m->type != BGM_MT_MATCH)
+                continue;
+            const bgb_auction_clearing_t *clearing = clearing_of(a, nclearings, nth++);
             /* The MATCH names everything; the buyer's ACCEPT repeats it. */
-            if (m->type != BGM_MT_MATCH || m->to < FIRST_SELLER || m->to >= FIRST_BUYER ||
-                m->origin < FIRST_BUYER)
+            if (m->to < FIRST_SELLER || m->to >= FIRST_BUYER || m->origin < FIRST_BUYER)
                 continue;
             bgb_auction_match_t x = {.buyer = m->origin - FIRST_BUYER,
                                      .req = m->req,
@@ -207,7 +257,8 @@ bg_status bgb_auction_tick(bgb_auction_t *a, double now, bgb_auction_match_fn ma
                                      .good = m->good,
                                      .slot = (int)(m->to - FIRST_SELLER),
                                      .price = m->price,
-                                     .ask = m->b};
+                                     .ask = m->b,
+                                     .clearing = clearing};
             match(ctx, &x);
         }
         if (st != BG_OK)

@@ -34,16 +34,39 @@
 #define BGB_AUCTION_MAX_EXCLUDE 8
 #define BGB_AUCTION_MAX_LIST 8 /* candidates a query returns at most */
 #define BGB_AUCTION_SERVICES 3
+#define BGB_AUCTION_MAX_CLEARINGS 64 /* clearings a tick names at most */
 
 typedef struct bgb_auction bgb_auction_t;
 
+/* The order that set one end of a clearing's price interval: a bid
+ * (buyer, req) or a seller's ask (slot), matched or the first left out. */
+typedef struct bgb_auction_bound {
+    int is_bid, excluded;
+    uint32_t buyer, req; /* a bid's */
+    int slot;            /* an ask's seller; -1 for a bid */
+    double price;        /* its limit: the bound */
+} bgb_auction_bound_t;
+
+/* A service clearing that traded (the rule: market/bgm_callmarket.h):
+ * the price is low + k (high − low) when rationed (a buyer left out would
+ * have paid the marginal ask), else low, the marginal ask. `index`
+ * numbers the clearings of one tick from 0. */
+typedef struct bgb_auction_clearing {
+    int index, good, volume, rationed;
+    double k, price, low, high;
+    bgb_auction_bound_t low_by, high_by;
+} bgb_auction_clearing_t;
+
 /* A match of the central market: bid (buyer, req, attempt) gets one unit
- * from seller `slot` at `price`, the seller having asked `ask`. The
- * machine counts the slot as taken until the next seller() call. */
+ * from seller `slot` at `price`, the seller having asked `ask`, in
+ * `clearing` (borrowed for the callback; NULL beyond the
+ * BGB_AUCTION_MAX_CLEARINGS a tick names). The machine counts the slot as taken
+ * until the next seller() call. */
 typedef struct bgb_auction_match {
     uint32_t buyer, req, attempt;
     int good, slot;
     double price, ask;
+    const bgb_auction_clearing_t *clearing;
 } bgb_auction_match_t;
 
 typedef void (*bgb_auction_match_fn)(void *ctx, const bgb_auction_match_t *m);

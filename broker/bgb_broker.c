@@ -92,6 +92,9 @@ static void on_contract(void *ctx, const char *label, const bgb_contract_t *row)
     cJSON_AddNumberToObject(o, "price", row->price);
     cJSON_AddNumberToObject(o, "buyer_limit", row->buyer_limit);
     cJSON_AddNumberToObject(o, "seller_limit", row->seller_limit);
+    cJSON_AddNumberToObject(o, "use", row->use);
+    if (row->clearing)
+        cJSON_AddNumberToObject(o, "clearing", (double)row->clearing);
     cJSON_AddNumberToObject(o, "time", row->time);
     char *json = cJSON_PrintUnformatted(o);
     cJSON_Delete(o);
@@ -108,6 +111,14 @@ static void on_queued(void *ctx)
     bgb_broker_t *b = ctx;
     if (b->coord)
         bgb_coord_notify(b->coord);
+}
+
+/* A job is being cancelled (REST thread): its contracts are settled first. */
+static void on_cancel(void *ctx, const char *id)
+{
+    bgb_broker_t *b = ctx;
+    if (b->loop)
+        bgb_loop_settle(b->loop, id);
 }
 
 /* Jobs a previous broker process left half done (see the header). */
@@ -280,7 +291,8 @@ bg_status bgb_broker_start(const bgb_config_t *config, bgb_broker_t **out, bg_er
                                   .view = rest_view,
                                   .view_ctx = b,
                                   .on_queued = on_queued,
-                                  .queued_ctx = b};
+                                  .queued_ctx = b,
+                                  .on_cancel = on_cancel};
     bg_error_t rest_err = BG_ERROR_INIT;
     st = bgb_rest_start(&rc, b->store, &b->rest, &rest_err);
     if (st != BG_OK && b->tls_cert)

@@ -496,6 +496,8 @@ static int buy_services(job_run_t *jr, bgb_loop_buyer_t *buyer, const bgb_job_t 
         if (!p->reason[0])
             return 1;
         const char *transient = buy_failure_transient(p->reason);
+        if (!job_in_state(c, jr->id, BGB_JOB_ALLOCATING))
+            return 0; /* cancelled meanwhile: the loop gave the purchase up */
         if (!transient || bg_clock_now() + backoff > give_up || !still_allocating(jr))
             break;
         /* The job's events say that it waits and why. */
@@ -614,6 +616,11 @@ static void *coordinator(void *arg)
     jr->allocation_latency = bg_clock_now() - t0;
     int converged = 0, stopped = 0;
     st = solve_job(jr, &job, dir, &js, &alloc, &converged, &stopped, &err);
+    /* The job's contracts end here, before its end is announced: a client
+     * that reads the market's log when it sees succeeded or failed finds
+     * them settled (rows closed at their real end, resources paid to it). */
+    if (buyer && alloc.bought)
+        bgb_loop_release(buyer, alloc.bought->job);
     if (stopped) {
         /* Cancelled while running: no result is stored, the contracts are
          * released below. */

@@ -24,6 +24,8 @@
 #define CMD_RELEASED "RELEASED"
 #define CMD_FORGET "FORGET"
 #define CMD_VIEW "VIEW"
+#define CMD_SETTLE "SETTLE"
+#define CMD_SETTLED "SETTLED"
 #define CMD_STOP "STOP"
 #define CMD_MAX 16
 /* A buyer's wait between two calls of keep_going, and an answer's at most. */
@@ -48,7 +50,7 @@ typedef struct held {
 
 struct bgb_loop {
     bgb_loop_config_t config;
-    char market_name[BGB_MARKET_NAME_MAX];
+    char market_name[BGB_DIRECTORY_NAME_MAX];
     void *zmq;
     void *agents; /* ROUTER, tcp: the agents; the loop thread's alone */
     void *pipe;   /* ROUTER, inproc: buyers, views, stop; the loop thread's alone */
@@ -105,7 +107,7 @@ static void on_bought(void *ctx, const bgb_outcome_t *o)
 
 /* ------------------------------------------------------------- views */
 
-static char *csv_text(const bgb_market_t *m, int contracts)
+static char *csv_text(const bgb_market_t *m, int what)
 {
     char *buf = NULL;
     size_t len = 0;
@@ -113,8 +115,12 @@ static char *csv_text(const bgb_market_t *m, int contracts)
     if (!f)
         return NULL;
     bg_error_t err = BG_ERROR_INIT;
-    const bg_status st = contracts ? bgb_market_write_contracts_csv(m, f, &err)
-                                   : bgb_market_write_agents_csv(m, f, &err);
+    const bgb_ledger_t *ledger = bgb_market_ledger(m);
+    const bg_status st =
+        what == BGB_REST_VIEW_CONTRACTS ? bgb_ledger_write_contracts_csv(ledger, f, &err)
+        : what == BGB_REST_VIEW_CLEARINGS
+            ? bgb_ledger_write_clearings_csv(ledger, f, &err)
+            : bgb_ledger_write_agents_csv(ledger, bgb_market_directory(m), f, &err);
     fclose(f);
     if (st != BG_OK) {
         free(buf);
@@ -134,9 +140,10 @@ static void add_services(cJSON *a, unsigned services)
 /* The directory as a JSON array (GET /v1/agents' market rows). */
 static char *agents_json(bgb_loop_t *l)
 {
-    size_t n = bgb_market_agents(l->market, l->live, BGB_MARKET_MAX_AGENTS);
-    if (n > BGB_MARKET_MAX_AGENTS)
-        n = BGB_MARKET_MAX_AGENTS;
+    size_t n =
+        bgb_directory_agents(bgb_market_directory(l->market), l->live, BGB_DIRECTORY_MAX_AGENTS);
+    if (n > BGB_DIRECTORY_MAX_AGENTS)
+        n = BGB_DIRECTORY_MAX_AGENTS;
     cJSON *arr = cJSON_CreateArray();
     for (size_t i = 0; arr && i < n; i++) {
         const bgb_agent_info_t *a = &l->live[i];
@@ -175,7 +182,8 @@ static char *market_json(const bgb_market_t *m)
     for (int mech = BGB_MECH_CENTRAL; mech <= BGB_MECH_POSTED; mech++)
         for (int g = BGB_GOOD_ROTFIT; g <= BGB_GOOD_INTEG; g++) {
             double mean = 0;
-            const int n = bgb_market_recent_price(m, g, (bgb_mechanism)mech, 20, &mean);
+            const int n =
+                bgb_ledger_recent_price(bgb_market_ledger(m), g, (bgb_mechanism)mech, 20, &mean);
             if (n == 0)
                 continue;
             cJSON *e = cJSON_CreateObject();
@@ -198,9 +206,9 @@ static char *render_view(bgb_loop_t *l, int what)
     case BGB_REST_VIEW_MARKET:
         return market_json(l->market);
     case BGB_REST_VIEW_CONTRACTS:
-        return csv_text(l->market, 1);
     case BGB_REST_VIEW_AGENTS_CSV:
-        return csv_text(l->market, 0);
+    case BGB_REST_VIEW_CLEARINGS:
+        return csv_text(l->market, what);
     default:
         return NULL;
     }
@@ -214,10 +222,11 @@ static char *render_view(bgb_loop_t *l, int what)
  * each. */
 static int rotfit_sellers(bgb_loop_t *l)
 {
-    size_t n = bgb_market_agents(l->market, l->live, BGB_MARKET_MAX_AGENTS);
+    size_t n =
+        bgb_directory_agents(bgb_market_directory(l->market), l->live, BGB_DIRECTORY_MAX_AGENTS);
     int count = 0, agents = 0, hosts = 0;
     double cores = 0;
-    for (size_t i = 0; i < n && i < BGB_MARKET_MAX_AGENTS; i++) {
+    for (size_t i = 0; i < n && i < BGB_DIRECTORY_MAX_AGENTS; i++) {
         const bgb_agent_info_t *a = &l->live[i];
         agents += a->alive != 0;
         count += a->alive && (a->services & BGA_SERVICE_ROTFIT);
@@ -236,9 +245,10 @@ static int rotfit_sellers(bgb_loop_t *l)
 /* Publishes the number of live agents; wakes whoever waits for the first. */
 static void count_alive(bgb_loop_t *l)
 {
-    size_t n = bgb_market_agents(l->market, l->live, BGB_MARKET_MAX_AGENTS);
+    size_t n =
+        bgb_directory_agents(bgb_market_directory(l->market), l->live, BGB_DIRECTORY_MAX_AGENTS);
     int alive = 0;
-    for (size_t i = 0; i < n && i < BGB_MARKET_MAX_AGENTS; i++)
+    for (size_t i = 0; i < n && i < BGB_DIRECTORY_MAX_AGENTS; i++)
         alive += l->live[i].alive != 0;
     pthread_mutex_lock(&l->lock);
     if (alive != l->alive)
@@ -341,6 +351,23 @@ static void forget(bgb_loop_t *l, const uint8_t *identity, size_t identity_len, 
     }
 }
 
+/* A job being cancelled: its bought purchase is settled, one still
+ * buying abandoned (bgb_loop_settle). */
+static void settle(bgb_loop_t *l, const char *label, double now)
+{
+    for (held_t *h = l->held; h; h = h->next) {
+        if (strcmp(h->p.label, label) != 0 || (h->done && h->p.reason[0]))
+            continue;
+        if (h->done) {
+            bgb_market_settle(l->market, h->p.job, now);
+        } else {
+            bgb_market_release(l->market, h->p.job, now);
+            snprintf(h->p.reason, sizeof h->p.reason, "cancelled");
+            h->done = h->orphan = 1; /* answer_done frees it */
+        }
+    }
+}
+
 /* One command from the pipe; returns 1 on STOP. */
 static int on_command(bgb_loop_t *l, double now)
 {
@@ -399,6 +426,10 @@ static int on_command(bgb_loop_t *l, double now)
             char *text = render_view(l, what);
             reply(l, id, idlen, CMD_VIEW, text ? text : "", text ? strlen(text) + 1 : 1);
             free(text);
+        } else if (strcmp(cmd, CMD_SETTLE) == 0 && size > 0 && size <= BGB_LEDGER_LABEL_MAX &&
+                   ((const char *)data)[size - 1] == '\0') {
+            settle(l, data, now);
+            reply(l, id, idlen, CMD_SETTLED, NULL, 0);
         } else if (strcmp(cmd, CMD_STOP) == 0) {
             reply(l, id, idlen, CMD_STOP, NULL, 0);
             stop = 1;
@@ -596,7 +627,7 @@ bg_status bgb_loop_start(const bgb_loop_config_t *config, bgb_loop_t **out, bg_e
          * has none admits every client that knows the broker's key. */
         const bga_zap_config_t zc = {
             .folder = config->authorized_agents, .log = config->log, .log_ctx = config->log_ctx};
-        char label[BGB_MARKET_ENDPOINT_MAX + 32];
+        char label[BGB_DIRECTORY_ENDPOINT_MAX + 32];
         snprintf(label, sizeof label, "agents' endpoint %s", config->endpoint);
         bg_error_t zerr = BG_ERROR_INIT;
         if (!config->authorized_agents) {
@@ -631,7 +662,7 @@ bg_status bgb_loop_start(const bgb_loop_config_t *config, bgb_loop_t **out, bg_e
                           zmq_strerror(zmq_errno()));
         goto out;
     }
-    if (!(l->live = calloc(BGB_MARKET_MAX_AGENTS, sizeof *l->live))) {
+    if (!(l->live = calloc(BGB_DIRECTORY_MAX_AGENTS, sizeof *l->live))) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the agents' directory");
         goto out;
     }
@@ -777,6 +808,21 @@ char *bgb_loop_view(bgb_loop_t *l, int what)
     if (s)
         zmq_close(s);
     return data;
+}
+
+void bgb_loop_settle(bgb_loop_t *l, const char *label)
+{
+    char text[BGB_LEDGER_LABEL_MAX];
+    snprintf(text, sizeof text, "%s", label);
+    void *s = pipe_socket(l);
+    char cmd[CMD_MAX];
+    void *data = NULL;
+    size_t size = 0;
+    if (s && send_command(s, CMD_SETTLE, text, strlen(text) + 1) == 0)
+        (void)receive_answer(s, ANSWER_TIMEOUT_MS, cmd, &data, &size);
+    free(data);
+    if (s)
+        zmq_close(s);
 }
 
 int bgb_loop_live_agents(bgb_loop_t *l, double wait_seconds)

@@ -94,7 +94,7 @@ int bgb_loop_live_agents(bgb_loop_t *loop, double wait_seconds);
 /* One job's purchase: what to buy, then what was bought. */
 typedef struct bgb_loop_purchase {
     /* in */
-    char label[BGB_MARKET_LABEL_MAX]; /* the store's job id, for the contract log */
+    char label[BGB_LEDGER_LABEL_MAX]; /* the store's job id, for the contract log */
     bgb_mechanism mechanism;
     double budget;
     int integ; /* the plan needs an integration step */
@@ -128,5 +128,15 @@ bg_status bgb_loop_buy(bgb_loop_buyer_t *buyer, bgb_loop_purchase_t *p,
 
 /* The job ended: its sellers are released (answered once done). */
 void bgb_loop_release(bgb_loop_buyer_t *buyer, uint64_t job);
+
+/*
+ * From any thread, before a job is marked cancelled: the purchase
+ * labelled `label` (the store's job id) is settled (bgb_market_settle:
+ * its contract rows end now) and its sellers are left to the buyer's
+ * release; a purchase still buying is abandoned (nothing bought stays,
+ * its buyer is not answered and gives up at its next look at the job).
+ * Returns when done, or after a few seconds if the loop does not answer.
+ */
+void bgb_loop_settle(bgb_loop_t *loop, const char *label);
 
 #endif

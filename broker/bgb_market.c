@@ -1,5 +1,6 @@
 #include "bgb_market.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -36,18 +37,10 @@
 /* The purchase's discovery window doubles after at most this many quiet rounds. */
 #define PU_WIDEN 3
 
-typedef struct agent {
-    int used;
-    bgb_agent_info_t info;
-    uint8_t identity[BGB_MARKET_IDENTITY_MAX];
-    size_t idlen;
-    int pending; /* service orders in flight */
-    double pend_res[2]; /* resource seller: cores, GiB ordered, not answered */
-    uint32_t nb[BGA_MMSG_MAX_NEIGHBOURS]; /* overlay neighbours (symmetric links) */
-    int nnb;
-} agent_t;
-
 typedef struct bidref bidref_t;
+typedef struct admit admit_t;
+static admit_t *admit_new(void);
+static void admit_free(admit_t *a);
 
 typedef enum unit_state { U_OPEN = 0, U_ORDERED = 1, U_DONE = 2 } unit_state;
 
@@ -55,7 +48,7 @@ typedef struct unit {
     int need, good;
     double quantity, limit; /* limit: per unit of work */
     unit_state state;
-    uint32_t agent;         /* ordered from / bought from */
+    uint32_t agent; /* ordered from / bought from */
     double price, seller_floor, deadline;
     double term; /* resource units: the lease (quantity × term × price is the money) */
     uint32_t tried[MAX_TRIED];
@@ -63,9 +56,12 @@ typedef struct unit {
     /* The purchase request's attempt when it was ordered or bid, and
      * (central services) its bid's number at the market agent. */
     uint32_t req, attempt;
-    int in_book; /* central: its bid is in the book (services: the auctioneer's) */
-    double heard; /* resource units: the seller's last price per unit-second */
+    int in_book;    /* central: its bid is in the book (services: the auctioneer's) */
+    double heard;   /* resource units: the seller's last price per unit-second */
     uint32_t drawn; /* catallactic: the round its job's buyer last drew a strategy for */
+    uint64_t clearing; /* central: the ledger's clearing that priced its order (0: none) */
+    int proposals; /* catallactic: proposals its request heard in round `round` */
+    uint32_t round;
 } unit_t;
 
 typedef struct ptimer {
@@ -90,7 +86,7 @@ struct job {
     uint32_t touched[MAX_UNITS]; /* agents that may hold a slot for it */
     int ntouched;
     int finished; /* outcome delivered; kept until release */
-    int admitted; /* central: its service units may bid (see admit_one) */
+    int admitted; /* central: its service units may bid (see admit_fitting) */
     /* The job's buyer: the simulator's purchase machine, one request per
      * unit (request id = unit index + 1), its timers, and the answers the
      * host has for it next. A resource sub-job's machine reads a copy of
@@ -104,7 +100,7 @@ struct job {
     int ninbox;
     bgb_done_fn done;
     void *ctx;
-    char label[BGB_MARKET_LABEL_MAX];
+    char label[BGB_LEDGER_LABEL_MAX];
     /* A resource sub-job: cores and memory a basic agent buys for its unit
      * of service good `sgood` of job `parent`, for `term` seconds, from
      * sellers on `host`. */
@@ -113,63 +109,30 @@ struct job {
     uint32_t buyer;
     int sgood;
     double term, bought_at;
-    char host[BGB_MARKET_ENDPOINT_MAX];
+    char host[BGB_DIRECTORY_ENDPOINT_MAX];
 };
 
 struct bgb_market {
     bgb_market_config_t c;
-    char name[BGB_MARKET_NAME_MAX];
-    bgb_market_io_t io;
-    agent_t *agents; /* BGB_MARKET_MAX_AGENTS */
-    uint32_t next_id;
-    job_t *jobs;     /* MAX_JOBS */
-    bgm_posted_t *posted;  /* layer 1: the resource sellers' postings */
-    bgm_callmarket_t *cm;  /* layer 1: the resource call markets */
+    bgb_directory_t *dir;   /* the agents: who sells what, how to reach them */
+    bgb_ledger_t *ledger;   /* the contracts made */
+    job_t *jobs;            /* MAX_JOBS */
+    bgm_posted_t *posted;   /* layer 1: the resource sellers' postings */
+    bgm_callmarket_t *cm;   /* layer 1: the resource call markets */
     bgb_auction_t *auction; /* services: the market agent machine (auctioneer, directory) */
     uint32_t next_req;      /* service bids and queries, numbered for the market agent */
     double next_auction;    /* when the auctioneer clears next */
     double next_clear;
-    bgb_contract_t *log; /* ring of c.max_contracts */
-    size_t log_head, log_count;
-    /* Agents dropped from the directory (dead or gone), newest last: their
-     * contracts stay in the log, so agents.csv still lists them. */
-    bgb_agent_info_t *departed; /* ring of MARKET_MAX_DEPARTED */
-    size_t departed_head, departed_count;
-    bgb_contract_fn on_contract;
-    void *on_contract_ctx;
-    struct bidref *refs; /* central: the book's bids, MAX_JOBS * MAX_UNITS */
+    struct bidref *refs;   /* central: the book's bids, MAX_JOBS * MAX_UNITS */
+    struct bidref *run;    /* central: one host's bids, as many */
+    admit_t *admit;        /* central: admission's placement (admit_fitting) */
+    bgm_fill_t *fills;     /* central: a host's clearing, 2 * MAX_JOBS * MAX_UNITS + 2 */
     uint64_t next_sub;     /* resource sub-job ids */
     uint64_t next_request; /* service items logged */
     bgm_config_t pcfg;     /* what the purchase machines read (borrowed by each) */
     bgm_outbox_t *ob;      /* a purchase call's outbox, emptied after each */
     double memory[3];      /* catallactic: remembered price per service good */
 };
-
-/* Departed agents kept for agents.csv: one row each for this many agent
- * deaths, far more than a contract log of a grid's size sees. */
-#define MARKET_MAX_DEPARTED 4096
-
-static const char *const mech_names[] = {"central", "catallactic", "posted"};
-static const char *const good_names[] = {"rotation-fit", "sparse-solve", "integration-step",
-                                         "cores", "memory"};
-
-const char *bgb_mechanism_name(bgb_mechanism m)
-{
-    return (int)m >= 0 && m <= BGB_MECH_POSTED ? mech_names[m] : "unknown";
-}
-
-int bgb_mechanism_parse(const char *name)
-{
-    for (int i = 0; i < 3; i++)
-        if (name && strcmp(name, mech_names[i]) == 0)
-            return i;
-    return -1;
-}
-
-const char *bgb_good_name(int good)
-{
-    return good >= 0 && good < BGB_GOODS ? good_names[good] : "unknown";
-}
 
 void bgb_market_config_default(bgb_market_config_t *c)
 {
@@ -209,18 +172,22 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     if (!m)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market");
     m->c = *c;
-    snprintf(m->name, sizeof m->name, "%s", c->name ? c->name : "broker");
-    m->c.name = m->name;
-    m->io = *io;
-    m->next_id = 1;
+    m->c.name = NULL; /* the ledger keeps the name */
     m->next_sub = SUB_JOB_BASE;
-    m->agents = calloc(BGB_MARKET_MAX_AGENTS, sizeof *m->agents);
+    bg_status st = bgb_directory_new(c->overlay_degree, c->heartbeat_timeout, io, &m->dir, err);
+    if (st == BG_OK)
+        st = bgb_ledger_new(c->name, c->max_contracts, &m->ledger, err);
+    if (st != BG_OK) {
+        bgb_market_destroy(&m);
+        return st;
+    }
     m->jobs = calloc(MAX_JOBS, sizeof *m->jobs);
-    m->log = calloc(c->max_contracts, sizeof *m->log);
-    m->departed = calloc(MARKET_MAX_DEPARTED, sizeof *m->departed);
-    m->posted = bgm_posted_new(BGB_MARKET_MAX_AGENTS * BGB_GOODS);
+    m->posted = bgm_posted_new(BGB_DIRECTORY_MAX_AGENTS * BGB_GOODS);
     m->cm = bgm_callmarket_new(MAX_JOBS * MAX_UNITS);
     m->refs = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->refs);
+    m->run = calloc((size_t)MAX_JOBS * MAX_UNITS, sizeof *m->run);
+    m->admit = admit_new();
+    m->fills = calloc(2 * (size_t)MAX_JOBS * MAX_UNITS + 2, sizeof *m->fills);
     /* The purchase machines' timing, from the live market's: a round of
      * discovery an eighth of the reply timeout (doubling when quiet), a
      * failed catallactic round or refused central bid tried again at once
@@ -234,8 +201,8 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
     m->pcfg.baseline.retry_backoff = c->period;
     m->ob = bgm_outbox_new(16 * MAX_UNITS);
     bg_error_t aerr = BG_ERROR_INIT;
-    if (bgb_auction_new(c->k, c->period, 0.0, &m->auction, &aerr) != BG_OK || !m->refs || !m->ob ||
-        !m->agents || !m->jobs || !m->log || !m->departed || !m->posted || !m->cm) {
+    if (bgb_auction_new(c->k, c->period, 0.0, &m->auction, &aerr) != BG_OK || !m->refs || !m->run ||
+        !m->admit || !m->fills || !m->ob || !m->jobs || !m->posted || !m->cm) {
         bgb_market_destroy(&m);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market");
     }
@@ -272,11 +239,13 @@ void bgb_market_destroy(bgb_market_t **pm)
         if (m->jobs[i].used)
             forget_job(&m->jobs[i]);
     bgm_outbox_destroy(&m->ob);
-    free(m->agents);
-    free(m->departed);
+    bgb_directory_destroy(&m->dir);
+    bgb_ledger_destroy(&m->ledger);
     free(m->jobs);
-    free(m->log);
     free(m->refs);
+    free(m->run);
+    admit_free(m->admit);
+    free(m->fills);
     bgm_posted_destroy(&m->posted);
     bgm_callmarket_destroy(&m->cm);
     bgb_auction_destroy(&m->auction);
@@ -286,62 +255,20 @@ void bgb_market_destroy(bgb_market_t **pm)
 
 void bgb_market_on_contract(bgb_market_t *m, bgb_contract_fn fn, void *ctx)
 {
-    m->on_contract = fn;
-    m->on_contract_ctx = ctx;
+    bgb_ledger_on_contract(m->ledger, fn, ctx);
 }
 
-/* ------------------------------------------------------------ directory */
-
-static agent_t *agent_by_id(bgb_market_t *m, uint32_t id)
+const bgb_directory_t *bgb_market_directory(const bgb_market_t *m)
 {
-    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
-        if (m->agents[i].used && m->agents[i].info.id == id)
-            return &m->agents[i];
-    return NULL;
+    return m->dir;
 }
 
-/* Whether the agent's messages come from the socket with this routing
- * identity. */
-static int same_identity(const agent_t *a, const uint8_t *idn, size_t len)
+const bgb_ledger_t *bgb_market_ledger(const bgb_market_t *m)
 {
-    return a->idlen == len && memcmp(a->identity, idn, len) == 0;
+    return m->ledger;
 }
 
-/* A daemon's two roles share its socket (identity); `resource` tells them apart. */
-static agent_t *agent_by_identity(bgb_market_t *m, const uint8_t *idn, size_t len, int resource)
-{
-    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
-        if (m->agents[i].used && m->agents[i].info.resource == resource &&
-            same_identity(&m->agents[i], idn, len))
-            return &m->agents[i];
-    return NULL;
-}
-
-/* Every message to an agent names the role it is for. */
-static bg_status send_to(bgb_market_t *m, const agent_t *a, const bga_mmsg_t *msg_in,
-                         bg_error_t *err)
-{
-    bga_mmsg_t copy = *msg_in;
-    const bga_mmsg_t *msg = &copy;
-    copy.resource = a->info.resource;
-    bga_frames_t f;
-    bg_status st = bga_mmsg_encode(msg, &f, err);
-    if (st != BG_OK)
-        return st;
-    bga_frame_t v[BGA_WIRE_MAX_FRAMES];
-    bga_frames_view(&f, v);
-    st = m->io.send(m->io.ctx, a->identity, a->idlen, v, f.count);
-    bga_frames_free(&f);
-    if (st != BG_OK)
-        bg_error_set(err, st, "market: cannot send %s to agent %u", bga_mmsg_type_name(msg->type),
-                     a->info.id);
-    return st;
-}
-
-static int slot_of(const bgb_market_t *m, const agent_t *a)
-{
-    return (int)(a - m->agents);
-}
+/* ------------------------------------------------------------ sellers */
 
 /* A job is its record's index at the market agent. */
 static uint32_t buyer_of(const bgb_market_t *m, const job_t *j)
@@ -352,7 +279,7 @@ static uint32_t buyer_of(const bgb_market_t *m, const job_t *j)
 /* What the market agent and the resource postings know of a seller: its
  * asking prices and its free room net of the orders in flight to it.
  * Said again whenever either changes (a heartbeat, an order, an answer). */
-static void announce(bgb_market_t *m, const agent_t *a)
+static void announce(bgb_market_t *m, const bgb_dir_agent_t *a)
 {
     if (a->info.resource) {
         bgm_posted_withdraw(m->posted, a->info.id);
@@ -361,167 +288,19 @@ static void announce(bgb_market_t *m, const agent_t *a)
         return;
     }
     const double free_slots = a->info.alive ? (double)(a->info.free_slots - a->pending) : 0.0;
-    bgb_auction_seller(m->auction, slot_of(m, a), a->info.services & 7u, a->info.price,
-                       free_slots, NULL);
+    bgb_auction_seller(m->auction, bgb_directory_slot_of(m->dir, a), a->info.services & 7u,
+                       a->info.price, free_slots, NULL);
 }
 
-static void copy_status(agent_t *a, const bga_mmsg_t *in, double now)
+/* An agent the directory drops (silent too long) sells nothing more. */
+static void withdraw(void *ctx, bgb_dir_agent_t *a)
 {
-    a->info.slots = in->slots;
-    a->info.free_slots = in->free_slots;
-    for (int g = 0; g < BGB_GOODS; g++) {
-        a->info.floor[g] = in->floor[g];
-        a->info.price[g] = in->prices[g];
-    }
-    a->info.margin = in->margin;
-    a->info.load_slope = in->load_slope;
-    a->info.cores = in->cores;
-    a->info.memory = in->memory;
-    a->info.free_cores = in->free_cores;
-    a->info.free_memory = in->free_memory;
-    a->info.last_heartbeat = now;
-    a->info.alive = 1;
-}
-
-static bg_status send_registered(bgb_market_t *m, agent_t *a, bg_error_t *err)
-{
-    bga_mmsg_t r;
-    bga_mmsg_init(&r, BGA_MM_REGISTERED);
-    r.agent = a->info.id;
-    int n = 0;
-    for (int i = 0; i < a->nnb; i++) {
-        const agent_t *b = agent_by_id(m, a->nb[i]);
-        if (b)
-            a->nb[n++] = a->nb[i];
-    }
-    a->nnb = n;
-    r.nneighbours = n;
-    memcpy(r.neighbours, a->nb, (size_t)n * sizeof *a->nb);
-    return send_to(m, a, &r, err);
-}
-
-/* The host part of a tcp://HOST:PORT endpoint is compared whole. */
-static size_t host_len(const char *ep)
-{
-    const char *h = strstr(ep, "://");
-    const char *start = h ? h + 3 : ep;
-    const char *colon = strrchr(start, ':');
-    return (size_t)((colon ? colon : start + strlen(start)) - ep);
-}
-
-/* Whether two endpoints name the same host. */
-static int same_host(const char *a, const char *b)
-{
-    const size_t n = host_len(a);
-    return host_len(b) == n && strncmp(a, b, n) == 0;
-}
-
-/* The live resource seller of another daemon that already sells the cores
- * and memory of `endpoint`'s host, if any: a host has one resource seller,
- * since every daemon on it would otherwise sell all of the host's cores. */
-static const agent_t *host_seller(const bgb_market_t *m, const uint8_t *idn, size_t len,
-                                  const char *endpoint)
-{
-    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++) {
-        const agent_t *b = &m->agents[i];
-        if (b->used && b->info.resource && b->info.alive && !same_identity(b, idn, len) &&
-            same_host(b->info.endpoint, endpoint))
-            return b;
-    }
-    return NULL;
-}
-
-/* A resource role refused because its host has a seller: REGISTERED with
- * no id and the reason. It asks again at every heartbeat, so it takes the
- * host over once the first seller is dropped. */
-static bg_status send_standby(bgb_market_t *m, const uint8_t *idn, size_t len, const char *endpoint,
-                              const agent_t *first, bg_error_t *err)
-{
-    agent_t tmp = {0};
-    memcpy(tmp.identity, idn, len);
-    tmp.idlen = len;
-    tmp.info.resource = 1;
-    bga_mmsg_t r;
-    bga_mmsg_init(&r, BGA_MM_REGISTERED);
-    const char *scheme = strstr(endpoint, "://");
-    const char *host = scheme ? scheme + 3 : endpoint;
-    const size_t n = host_len(endpoint) - (size_t)(host - endpoint);
-    snprintf(r.reason, sizeof r.reason, "host %.*s: agent %u (%.40s) sells its cores and memory",
-             (int)(n < 80 ? n : 80), host, first->info.id, first->info.name);
-    return send_to(m, &tmp, &r, err);
-}
-
-static bg_status on_register(bgb_market_t *m, const uint8_t *idn, size_t len,
-                             const bga_mmsg_t *in, double now, bg_error_t *err)
-{
-    agent_t *a = agent_by_identity(m, idn, len, in->resource);
-    if (!a && in->resource) {
-        const agent_t *first = host_seller(m, idn, len, in->endpoint);
-        if (first)
-            return send_standby(m, idn, len, in->endpoint, first, err);
-    }
-    if (!a) {
-        for (int i = 0; i < BGB_MARKET_MAX_AGENTS && !a; i++)
-            if (!m->agents[i].used)
-                a = &m->agents[i];
-        if (!a)
-            return BG_OK; /* directory full: the agent keeps retrying */
-        memset(a, 0, sizeof *a);
-        a->used = 1;
-        a->info.id = m->next_id++;
-        a->info.resource = in->resource;
-        memcpy(a->identity, idn, len);
-        a->idlen = len;
-    }
-    snprintf(a->info.name, sizeof a->info.name, "%s", in->name);
-    snprintf(a->info.endpoint, sizeof a->info.endpoint, "%s", in->endpoint);
-    a->info.services = in->services;
-    copy_status(a, in, now);
-    announce(m, a);
-    /* Overlay: links to the most recently registered other agents of the
-     * same role (service sellers and resource sellers form one overlay
-     * each: a call for proposals travels among those that sell its good),
-     * made symmetric (each of them gets this one too, while it has room),
-     * so that an agent registered early is reachable from later ones. */
-    if (a->nnb == 0)
-        for (int i = BGB_MARKET_MAX_AGENTS - 1; i >= 0 && a->nnb < m->c.overlay_degree; i--) {
-            agent_t *b = &m->agents[i];
-            if (!b->used || b == a || b->info.resource != a->info.resource)
-                continue;
-            a->nb[a->nnb++] = b->info.id;
-            if (b->nnb < BGA_MMSG_MAX_NEIGHBOURS) {
-                b->nb[b->nnb++] = a->info.id;
-                send_registered(m, b, NULL);
-            }
-        }
-    return send_registered(m, a, err);
-}
-
-static void drop_agent(bgb_market_t *m, agent_t *a)
-{
-    m->departed[(m->departed_head + m->departed_count) % MARKET_MAX_DEPARTED] = a->info;
-    if (m->departed_count < MARKET_MAX_DEPARTED)
-        m->departed_count++;
-    else
-        m->departed_head = (m->departed_head + 1) % MARKET_MAX_DEPARTED;
+    bgb_market_t *m = ctx;
     bgm_posted_withdraw(m->posted, a->info.id);
-    bgb_auction_forget_seller(m->auction, slot_of(m, a));
-    a->used = 0;
+    bgb_auction_forget_seller(m->auction, bgb_directory_slot_of(m->dir, a));
 }
 
-/* ------------------------------------------------------------ contracts */
-
-static void log_contract(bgb_market_t *m, const bgb_contract_t *row)
-{
-    const size_t cap = m->c.max_contracts;
-    m->log[(m->log_head + m->log_count) % cap] = *row;
-    if (m->log_count < cap)
-        m->log_count++;
-    else
-        m->log_head = (m->log_head + 1) % cap;
-    if (m->on_contract)
-        m->on_contract(m->on_contract_ctx, row);
-}
+/* ------------------------------------------------------------ jobs */
 
 static job_t *job_by_id(bgb_market_t *m, uint64_t id)
 {
@@ -540,26 +319,26 @@ static void touch(job_t *j, uint32_t agent)
         j->touched[j->ntouched++] = agent;
 }
 
-static void release_on(bgb_market_t *m, agent_t *a, uint64_t job)
+static void release_on(bgb_market_t *m, bgb_dir_agent_t *a, uint64_t job)
 {
     bga_mmsg_t r;
     bga_mmsg_init(&r, BGA_MM_RELEASE);
     r.job = job;
     r.agent = a->info.id;
-    send_to(m, a, &r, NULL);
+    bgb_directory_send(m->dir, a, &r, NULL);
 }
 
 static void send_release(bgb_market_t *m, job_t *j)
 {
     for (int i = 0; i < j->ntouched; i++) {
-        agent_t *a = agent_by_id(m, j->touched[i]);
+        bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, j->touched[i]);
         if (a)
             release_on(m, a, j->id);
     }
     j->ntouched = 0;
 }
 
-static void unpend(bgb_market_t *m, agent_t *a, const unit_t *u)
+static void unpend(bgb_market_t *m, bgb_dir_agent_t *a, const unit_t *u)
 {
     if (!a)
         return;
@@ -579,7 +358,7 @@ static void abandon_units(bgb_market_t *m, job_t *j)
 {
     for (int i = 0; i < j->nunits; i++)
         if (j->unit[i].state == U_ORDERED) {
-            unpend(m, agent_by_id(m, j->unit[i].agent), &j->unit[i]);
+            unpend(m, bgb_directory_by_id(m->dir, j->unit[i].agent), &j->unit[i]);
             j->unit[i].state = U_OPEN;
         }
 }
@@ -630,7 +409,7 @@ static void drop_subjobs(bgb_market_t *m, uint64_t parent, uint32_t buyer, int s
         /* What its sellers get back counts as free before their next
          * heartbeat says so, so the next job sees it. */
         for (int k = 0; k < s->nunits; k++) {
-            agent_t *a = agent_by_id(m, s->unit[k].agent);
+            bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, s->unit[k].agent);
             if (!a || s->unit[k].state != U_DONE)
                 continue;
             const int mem = s->unit[k].good == BGB_GOOD_MEMORY;
@@ -654,8 +433,7 @@ static void drop_subjobs(bgb_market_t *m, uint64_t parent, uint32_t buyer, int s
     }
 }
 
-static const job_t *bought_subjob(const bgb_market_t *m, uint64_t parent, uint32_t buyer,
-                                  int sgood)
+static const job_t *bought_subjob(const bgb_market_t *m, uint64_t parent, uint32_t buyer, int sgood)
 {
     for (int i = 0; i < MAX_JOBS; i++) {
         const job_t *s = &m->jobs[i];
@@ -666,8 +444,55 @@ static const job_t *bought_subjob(const bgb_market_t *m, uint64_t parent, uint32
     return NULL;
 }
 
+/*
+ * The cores job `parent` pays for in cores unit `cu` of one of its
+ * sub-jobs, at that unit's seller: what the unit's phase (its service) adds to the
+ * widest phase the job holds there, with the job's bought sub-jobs taken
+ * in the order they were bought (then by number). A job's phases run one
+ * after another and its host's seller counts its cores as its widest
+ * phase's (room_for, bgm_resource share_phases), so that is what it can
+ * occupy, and the sum over its units is that widest phase, paid once:
+ * rotation fit 1 + 1 and sparse solve 2 on a host pay for 2 cores, not 4.
+ * The unit keeps its phase's cores (the row's `use`).
+ */
+static double cores_paid(const bgb_market_t *m, uint64_t parent, const unit_t *cu)
+{
+    const job_t *subs[MAX_UNITS];
+    int n = 0;
+    for (int i = 0; i < MAX_JOBS && n < MAX_UNITS; i++) {
+        const job_t *s = &m->jobs[i];
+        if (s->used && s->resource && s->finished && s->parent == parent && s->sgood >= 0 &&
+            s->sgood < 3)
+            subs[n++] = s;
+    }
+    double phase[3] = {0, 0, 0}, most = 0;
+    for (int done = 0; done < n; done++) {
+        int next = done; /* the earliest bought of those left */
+        for (int i = done + 1; i < n; i++)
+            if (subs[i]->bought_at < subs[next]->bought_at ||
+                (subs[i]->bought_at == subs[next]->bought_at && subs[i]->id < subs[next]->id))
+                next = i;
+        const job_t *s = subs[next];
+        subs[next] = subs[done];
+        subs[done] = s;
+        for (int k = 0; k < s->nunits; k++) {
+            const unit_t *u = &s->unit[k];
+            if (u->good != BGB_GOOD_CORES || u->agent != cu->agent || u->state != U_DONE)
+                continue;
+            phase[s->sgood] += u->quantity;
+            const double added = phase[s->sgood] > most ? phase[s->sgood] - most : 0.0;
+            most += added;
+            if (u == cu)
+                return added;
+        }
+    }
+    return cu->quantity; /* not found among the bought: counted whole */
+}
+
 /* The resource rows of a service item: one per unit of its sub-job,
- * priced per unit-second, for the lease from when they were bought. */
+ * priced per unit-second, for the lease from when they were bought. A
+ * cores row pays for what its phase adds to the job's widest phase on
+ * the host (cores_paid) and says, as `use`, what the phase holds. */
 static void log_resources(bgb_market_t *m, const job_t *j, const unit_t *su, uint64_t request,
                           double now)
 {
@@ -676,16 +501,27 @@ static void log_resources(bgb_market_t *m, const job_t *j, const unit_t *su, uin
         return;
     for (int i = 0; i < s->nunits; i++) {
         const unit_t *u = &s->unit[i];
-        const agent_t *a = agent_by_id(m, u->agent);
-        bgb_contract_t row = {.job = j->id, .request = request, .time = now,
-                              .start = s->bought_at, .end = s->bought_at + s->term,
-                              .buyer = s->buyer, .seller = u->agent, .mechanism = j->mech,
-                              .layer = 1, .good = u->good, .quantity = u->quantity,
-                              .price = u->price, .buyer_limit = u->limit,
-                              .seller_limit = u->seller_floor};
+        const bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, u->agent);
+        const double paid = u->good == BGB_GOOD_CORES ? cores_paid(m, j->id, u) : u->quantity;
+        bgb_contract_t row = {.job = j->id,
+                              .request = request,
+                              .time = now,
+                              .start = s->bought_at,
+                              .end = s->bought_at + s->term,
+                              .buyer = s->buyer,
+                              .seller = u->agent,
+                              .mechanism = j->mech,
+                              .layer = 1,
+                              .good = u->good,
+                              .quantity = paid,
+                              .price = u->price,
+                              .buyer_limit = u->limit,
+                              .seller_limit = u->seller_floor,
+                              .use = u->quantity,
+                              .clearing = u->clearing};
         if (a)
             snprintf(row.seller_name, sizeof row.seller_name, "%s", a->info.name);
-        log_contract(m, &row);
+        bgb_ledger_add(m->ledger, &row);
     }
 }
 
@@ -698,7 +534,7 @@ static void log_resources(bgb_market_t *m, const job_t *j, const unit_t *su, uin
  * facing its one service seller would ratchet both prices up job by job. */
 static void subjob_done(bgb_market_t *m, job_t *j, const char *reason, double now)
 {
-    agent_t *b = agent_by_id(m, j->buyer);
+    bgb_dir_agent_t *b = bgb_directory_by_id(m->dir, j->buyer);
     bga_mmsg_t r;
     bga_mmsg_init(&r, reason ? BGA_MM_RFAIL : BGA_MM_RBOUGHT);
     r.job = j->parent;
@@ -711,7 +547,7 @@ static void subjob_done(bgb_market_t *m, job_t *j, const char *reason, double no
         j->bought_at = now;
         for (int i = 0; i < j->nunits; i++) {
             const unit_t *u = &j->unit[i];
-            const agent_t *seller = agent_by_id(m, u->agent);
+            const bgb_dir_agent_t *seller = bgb_directory_by_id(m->dir, u->agent);
             r.prices[u->good] =
                 seller && seller->info.price[u->good] > 0 ? seller->info.price[u->good] : u->price;
             r.price += u->quantity * u->term * u->price;
@@ -722,7 +558,7 @@ static void subjob_done(bgb_market_t *m, job_t *j, const char *reason, double no
         }
     }
     if (b)
-        send_to(m, b, &r, NULL);
+        bgb_directory_send(m->dir, b, &r, NULL);
 }
 
 /* Delivers the outcome once. On success every unit becomes a contract row
@@ -751,7 +587,7 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
     if (!reason) {
         for (int i = 0; i < j->nunits; i++) {
             const unit_t *u = &j->unit[i];
-            const agent_t *a = agent_by_id(m, u->agent);
+            const bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, u->agent);
             bgb_award_t *w = &aw[o.nawards++];
             memset(w, 0, sizeof *w);
             w->good = u->good;
@@ -763,14 +599,25 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
             w->quantity = u->quantity;
             w->price = u->price;
             o.spent += u->quantity * u->price;
-            bgb_contract_t row = {.job = j->id, .request = ++m->next_request, .time = now,
-                                  .start = now, .end = INFINITY, .buyer = j->id,
-                                  .seller = u->agent, .mechanism = j->mech, .layer = 0,
-                                  .good = u->good, .quantity = u->quantity, .price = u->price,
-                                  .buyer_limit = u->limit, .seller_limit = u->seller_floor};
+            bgb_contract_t row = {.job = j->id,
+                                  .request = ++m->next_request,
+                                  .time = now,
+                                  .start = now,
+                                  .end = INFINITY,
+                                  .buyer = j->id,
+                                  .seller = u->agent,
+                                  .mechanism = j->mech,
+                                  .layer = 0,
+                                  .good = u->good,
+                                  .quantity = u->quantity,
+                                  .price = u->price,
+                                  .buyer_limit = u->limit,
+                                  .seller_limit = u->seller_floor,
+                                  .use = u->quantity,
+                                  .clearing = u->clearing};
             snprintf(row.buyer_label, sizeof row.buyer_label, "%s", j->label);
             snprintf(row.seller_name, sizeof row.seller_name, "%s", w->name);
-            log_contract(m, &row);
+            bgb_ledger_add(m->ledger, &row);
             log_resources(m, j, u, row.request, now);
         }
     } else {
@@ -783,14 +630,19 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
         forget_job(j);
 }
 
-/* Service contracts are open-ended until the job is released, resource
- * rows end with their lease: release ends both now. */
-static void close_contracts(bgb_market_t *m, uint64_t job, double now)
+/* The slots a released job held count as free before their sellers'
+ * next heartbeats say so (a heartbeat comes every half second), so the
+ * next job is let into the book and matched at once. A seller that holds
+ * no slot for it any more is corrected by its heartbeat. */
+static void free_slots_of(bgb_market_t *m, const job_t *j)
 {
-    for (size_t i = 0; i < m->log_count; i++) {
-        bgb_contract_t *r = &m->log[(m->log_head + i) % m->c.max_contracts];
-        if (r->job == job && r->end > now)
-            r->end = now;
+    for (int i = 0; i < j->nunits; i++) {
+        bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, j->unit[i].agent);
+        if (j->unit[i].state != U_DONE || !a || a->info.resource)
+            continue;
+        if (a->info.free_slots < a->info.slots)
+            a->info.free_slots++;
+        announce(m, a);
     }
 }
 
@@ -799,12 +651,19 @@ void bgb_market_release(bgb_market_t *m, uint64_t job, double now)
     job_t *j = job_by_id(m, job);
     if (!j)
         return;
-    close_contracts(m, job, now);
+    bgb_ledger_close(m->ledger, job, now);
+    free_slots_of(m, j);
     drop_subjobs(m, job, 0, -1);
     abandon_units(m, j);
     send_release(m, j);
     bgb_auction_forget_buyer(m->auction, buyer_of(m, j));
     forget_job(j);
+}
+
+void bgb_market_settle(bgb_market_t *m, uint64_t job, double now)
+{
+    if (job_by_id(m, job))
+        bgb_ledger_close(m->ledger, job, now);
 }
 
 void bgb_market_label(bgb_market_t *m, uint64_t job, const char *label)
@@ -816,7 +675,7 @@ void bgb_market_label(bgb_market_t *m, uint64_t job, const char *label)
 
 /* ------------------------------------------------------------ buying */
 
-static int alive_seller(const agent_t *a, int good)
+static int alive_seller(const bgb_dir_agent_t *a, int good)
 {
     if (!a->used || !a->info.alive)
         return 0;
@@ -829,9 +688,9 @@ static int alive_seller(const agent_t *a, int good)
 
 /* A sub-job buys only from resource sellers on its basic agent's host:
  * those are the cores it can compute on. */
-static int on_host(const job_t *j, const agent_t *a)
+static int on_host(const job_t *j, const bgb_dir_agent_t *a)
 {
-    return !j->resource || same_host(j->host, a->info.endpoint);
+    return !j->resource || bgb_directory_same_host(j->host, a->info.endpoint);
 }
 
 static int tried(const unit_t *u, uint32_t agent)
@@ -869,7 +728,8 @@ static int need_has(const job_t *j, const unit_t *u, uint32_t agent)
  * have or are buying: its free cores exclude the job's bought widest
  * phase, its pending orders include the job's own.
  */
-static int room_for(const bgb_market_t *m, const job_t *j, const agent_t *a, const unit_t *u)
+static int room_for(const bgb_market_t *m, const job_t *j, const bgb_dir_agent_t *a,
+                    const unit_t *u)
 {
     if (u->good == BGB_GOOD_MEMORY)
         return a->info.free_memory - a->pend_res[1] >= u->quantity - 1e-9;
@@ -897,8 +757,8 @@ static void tag_subjob(const job_t *j, bga_mmsg_t *o)
     }
 }
 
-static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, agent_t *a, int type,
-                            double price)
+static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, bgb_dir_agent_t *a,
+                            int type, double price)
 {
     bga_mmsg_t o;
     bga_mmsg_init(&o, type);
@@ -909,10 +769,10 @@ static bg_status send_price(bgb_market_t *m, const job_t *j, const unit_t *u, ag
     o.term = j->resource ? j->term : 0;
     o.price = price;
     tag_subjob(j, &o);
-    return send_to(m, a, &o, NULL);
+    return bgb_directory_send(m->dir, a, &o, NULL);
 }
 
-static void pend(bgb_market_t *m, agent_t *a, const unit_t *u)
+static void pend(bgb_market_t *m, bgb_dir_agent_t *a, const unit_t *u)
 {
     if (u->good >= BGB_GOOD_CORES) {
         a->pend_res[u->good - BGB_GOOD_CORES] += u->quantity;
@@ -922,7 +782,8 @@ static void pend(bgb_market_t *m, agent_t *a, const unit_t *u)
     }
 }
 
-static bg_status order(bgb_market_t *m, job_t *j, unit_t *u, agent_t *a, double price, double now)
+static bg_status order(bgb_market_t *m, job_t *j, unit_t *u, bgb_dir_agent_t *a, double price,
+                       double now)
 {
     u->state = U_ORDERED;
     u->agent = a->info.id;
@@ -942,7 +803,7 @@ typedef struct room_ctx {
 static int has_room(void *ctx, const bgm_posting_t *p)
 {
     room_ctx *r = ctx;
-    agent_t *a = agent_by_id(r->m, p->seller);
+    bgb_dir_agent_t *a = bgb_directory_by_id(r->m->dir, p->seller);
     return a && a->info.alive && room_for(r->m, r->j, a, r->u) && on_host(r->j, a) &&
            !tried(r->u, p->seller) && !need_has(r->j, r->u, p->seller);
 }
@@ -964,16 +825,30 @@ static int exclusions(bgb_market_t *m, const job_t *j, const unit_t *u, int *out
     for (int i = u->ntried - 1; i >= 0; i--)
         ids[n++] = u->tried[i];
     for (int i = 0; i < n && k < BGB_AUCTION_MAX_EXCLUDE; i++) {
-        agent_t *a = agent_by_id(m, ids[i]);
+        bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, ids[i]);
         if (!a)
             continue;
         int dup = 0;
         for (int q = 0; q < k; q++)
-            dup |= out[q] == slot_of(m, a);
+            dup |= out[q] == bgb_directory_slot_of(m->dir, a);
         if (!dup)
-            out[k++] = slot_of(m, a);
+            out[k++] = bgb_directory_slot_of(m->dir, a);
     }
     return k;
+}
+
+/* The live service sellers of unit u's good with a free slot net of the
+ * orders in flight to them, that do not serve its need already; those
+ * marked in `only` alone when it is not NULL (slots). */
+static int sellers_with_room(const bgb_market_t *m, const job_t *j, const unit_t *u,
+                             const uint8_t *only)
+{
+    int n = 0;
+    const bgb_dir_agent_t *rows = bgb_directory_rows_const(m->dir);
+    for (int i = 0; i < BGB_DIRECTORY_MAX_AGENTS; i++)
+        n += (!only || only[i]) && alive_seller(&rows[i], u->good) &&
+             rows[i].info.free_slots - rows[i].pending > 0 && !need_has(j, u, rows[i].info.id);
+    return n;
 }
 
 /* Whether the host lets unit u of job j have seller a now: what the
@@ -986,10 +861,10 @@ static int exclusions(bgb_market_t *m, const job_t *j, const unit_t *u, int *out
  * busy one does not propose). A catallactic resource unit does skip its
  * host's seller while the room it needs is taken by other sub-jobs
  * bargaining for it or holding it: it would only wait for the refusal. */
-static int may_have(const bgb_market_t *m, const job_t *j, const unit_t *u, const agent_t *a)
+static int may_have(const bgb_market_t *m, const job_t *j, const unit_t *u,
+                    const bgb_dir_agent_t *a)
 {
-    if (!a || !a->used || !alive_seller(a, u->good) || !on_host(j, a) ||
-        need_has(j, u, a->info.id))
+    if (!a || !a->used || !alive_seller(a, u->good) || !on_host(j, a) || need_has(j, u, a->info.id))
         return 0;
     if (j->mech == BGB_MECH_CATALLACTIC)
         return !j->resource || room_for(m, j, a, u);
@@ -1001,6 +876,7 @@ static void unit_lost(bgb_market_t *m, job_t *j, unit_t *u);
 typedef struct match_ctx {
     bgb_market_t *m;
     double now;
+    uint64_t logged[BGB_AUCTION_MAX_CLEARINGS]; /* the tick's clearings' ledger ids (0: not yet) */
 } match_ctx;
 
 /* ------------------------------------------------------ a job's purchase */
@@ -1063,7 +939,7 @@ static void let_go(bgb_market_t *m, job_t *j, unit_t *u)
 {
     if (u->state != U_ORDERED)
         return;
-    unpend(m, agent_by_id(m, u->agent), u);
+    unpend(m, bgb_directory_by_id(m->dir, u->agent), u);
     unit_lost(m, j, u);
 }
 
@@ -1124,7 +1000,7 @@ static void posted_list(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *q
     const int n = bgb_auction_query(m->auction, buyer_of(m, j), ++m->next_req, u->good, qm->price,
                                     excl, ne, slots, prices, BGB_AUCTION_MAX_LIST, now, NULL);
     for (int i = 0; i < n && l->ncand < BGM_MSG_CANDIDATES; i++) {
-        const agent_t *a = &m->agents[slots[i]];
+        const bgb_dir_agent_t *a = &bgb_directory_rows_const(m->dir)[slots[i]];
         if (!may_have(m, j, u, a))
             continue;
         l->cand[l->ncand] = a->info.id;
@@ -1139,7 +1015,7 @@ static void to_seller(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *o, 
 {
     if (u->state == U_ORDERED && u->agent != o->to)
         let_go(m, j, u);
-    agent_t *a = agent_by_id(m, o->to);
+    bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, o->to);
     if (u->state != U_ORDERED) {
         if (!may_have(m, j, u, a)) {
             answer(j, BGM_MT_REJECT, o->to, o->req, o->attempt, 0);
@@ -1157,19 +1033,43 @@ static void to_seller(bgb_market_t *m, job_t *j, unit_t *u, const bgm_msg_t *o, 
         send_price(m, j, u, a, o->type == BGM_MT_ORDER ? BGA_MM_ORDER : BGA_MM_OFFER, u->price);
 }
 
-/* Entry points of a catallactic job's calls for proposals: a few live
- * sellers of its layer (a sub-job: its host's resource sellers, the only
- * ones it may buy from), from an offset that spreads jobs over the
- * directory; the overlay carries the calls on. */
+/* Entry points of a catallactic job's calls for proposals: for each good
+ * its units buy, a live seller of that good (so every good's sellers hear
+ * a call, wherever the overlay would or would not carry it within its
+ * hops: a job's calls reached no sparse-solve seller when its entry
+ * agents, the same for every job, all sold rotation fit and none of
+ * their neighbours sold sparse solve, and every job timed out), then
+ * other live sellers of its layer up to the overlay degree; each from an
+ * offset that spreads jobs over the directory (a job number's high bits
+ * too: the broker's are multiples of 2^32). A sub-job's: its host's
+ * resource seller, the only one it may buy from. The overlay carries the
+ * calls on. */
 static int entry_agents(const bgb_market_t *m, const job_t *j, uint32_t *ids)
 {
+    const bgb_dir_agent_t *rows = bgb_directory_rows_const(m->dir);
+    const int offset = (int)((j->id ^ (j->id >> 32)) % BGB_DIRECTORY_MAX_AGENTS);
     int n = 0;
-    for (int k = 0; k < BGB_MARKET_MAX_AGENTS && n < m->c.overlay_degree; k++) {
-        const agent_t *a =
-            &m->agents[(k + (int)(j->id % BGB_MARKET_MAX_AGENTS)) % BGB_MARKET_MAX_AGENTS];
-        if (a->used && a->info.alive && a->info.resource == j->resource && on_host(j, a))
-            ids[n++] = a->info.id;
-    }
+    for (int pass = 0; pass < 2; pass++)
+        for (int i = 0; i < (pass ? 1 : j->nunits); i++) {
+            const int good = j->unit[i].good;
+            int seen = 0;
+            for (int k = 0; k < i && !pass; k++)
+                seen |= j->unit[k].good == good;
+            for (int k = 0; k < BGB_DIRECTORY_MAX_AGENTS && !seen; k++) {
+                const bgb_dir_agent_t *a = &rows[(k + offset) % BGB_DIRECTORY_MAX_AGENTS];
+                int have = 0;
+                for (int q = 0; q < n; q++)
+                    have |= ids[q] == a->info.id;
+                if (n >= (pass ? m->c.overlay_degree : BGA_MMSG_MAX_NEIGHBOURS))
+                    break;
+                if (!have && a->used && a->info.alive && a->info.resource == j->resource &&
+                    on_host(j, a) && (pass || alive_seller(a, good))) {
+                    ids[n++] = a->info.id;
+                    if (!pass)
+                        break;
+                }
+            }
+        }
     return n;
 }
 
@@ -1180,7 +1080,7 @@ static void route_out(bgb_market_t *m, job_t *j, const bgm_msg_t *x, double now)
     if (x->req < 1 || x->req > (uint32_t)j->nunits)
         return;
     unit_t *u = &j->unit[x->req - 1];
-    agent_t *a = agent_by_id(m, x->to);
+    bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, x->to);
     switch (x->type) {
     case BGM_MT_BID:
         central_bid(m, j, u, x, now);
@@ -1216,7 +1116,7 @@ static void route_out(bgb_market_t *m, job_t *j, const bgm_msg_t *x, double now)
             c.quantity = u->quantity;
             c.term = j->resource ? j->term : 0;
             tag_subjob(j, &c);
-            send_to(m, a, &c, NULL);
+            bgb_directory_send(m->dir, a, &c, NULL);
         }
         break;
     case BGM_MT_ORDER:
@@ -1425,27 +1325,239 @@ static int start_purchase(bgb_market_t *m, job_t *j, const double *ref)
     return 1;
 }
 
-/* Before each clearing one more central job is let into the book, the
- * one waiting longest: its bids all enter together. A seller's slots are
- * shared by the goods it sells and the auctioneer clears good by good, so
- * jobs let in all at once could fill a seller with one good of each, none
- * of them able to buy the rest, and hold that until they time out, again
- * at every retry (broker.restart found it: four jobs, one agent). Let in
- * one a period, each job is bought whole, or refused at once where the
- * jobs before it hold what it needs, and asks again. */
-static void admit_one(bgb_market_t *m, double now)
+/*
+ * Central admission. A seller's slots are shared by the goods it sells and
+ * the auctioneer clears good by good, so jobs let in all at once could
+ * fill a seller with one good of each, none of them able to buy the rest,
+ * and hold that until they time out, again at every retry (broker.restart
+ * found it: four jobs, one agent). The book took one job a clearing
+ * (about 5 jobs/s). Now, before each clearing, the waiting jobs are let in
+ * in the order they came for as long as the open units of every job in the
+ * book can be placed at once on the sellers' free slots (net of orders in
+ * flight): a unit on a live seller of its good that its need has not
+ * tried or taken, a need's units on distinct sellers. That is a flow
+ * problem (needs to sellers, unit edges, sellers' free slots as
+ * capacities), solved by augmenting paths; the first job that does not fit
+ * waits with those after it, so a large job is not passed over for ever.
+ */
+#define ADMIT_NEEDS 256 /* (job, need) pairs placed at once, at most */
+#define ADMIT_WORDS (BGB_DIRECTORY_MAX_AGENTS / 64)
+
+struct admit {
+    const job_t *job[ADMIT_NEEDS];
+    int need[ADMIT_NEEDS], good[ADMIT_NEEDS];
+    int n;
+    uint64_t flow[ADMIT_NEEDS][ADMIT_WORDS]; /* bit r of row l: need l has a unit on seller r */
+    int used[BGB_DIRECTORY_MAX_AGENTS], room[BGB_DIRECTORY_MAX_AGENTS];
+    uint8_t seen[BGB_DIRECTORY_MAX_AGENTS];
+};
+
+static admit_t *admit_new(void)
 {
-    job_t *first = NULL;
-    for (int i = 0; i < MAX_JOBS; i++) {
-        job_t *j = &m->jobs[i];
-        if (j->used && !j->finished && !j->resource && j->mech == BGB_MECH_CENTRAL &&
-            !j->admitted && (!first || j->started < first->started))
-            first = j;
+    return malloc(sizeof(admit_t));
+}
+
+static void admit_free(admit_t *a)
+{
+    free(a);
+}
+
+static int has_flow(const admit_t *a, int l, int r)
+{
+    return (int)((a->flow[l][r / 64] >> (r % 64)) & 1u);
+}
+
+static void set_flow(admit_t *a, int l, int r, int on)
+{
+    if (on)
+        a->flow[l][r / 64] |= (uint64_t)1 << (r % 64);
+    else
+        a->flow[l][r / 64] &= ~((uint64_t)1 << (r % 64));
+}
+
+/* Whether a unit of need l may go to the seller in slot r: it sells the
+ * good, and no unit of the need has tried it or is ordered from it. */
+static int admit_edge(const bgb_market_t *m, const admit_t *a, int l, int r)
+{
+    const bgb_dir_agent_t *s = &bgb_directory_rows_const(m->dir)[r];
+    if (a->room[r] <= 0 || !alive_seller(s, a->good[l]))
+        return 0;
+    const job_t *j = a->job[l];
+    for (int i = 0; i < j->nunits; i++) {
+        const unit_t *u = &j->unit[i];
+        if (u->need == a->need[l] &&
+            (tried(u, s->info.id) || (u->state != U_OPEN && u->agent == s->info.id)))
+            return 0;
     }
-    if (first) {
+    return 1;
+}
+
+/* One more unit of need l, on a seller with a free slot, moving units
+ * already placed to other sellers where that makes room (an augmenting
+ * path); 0 when there is none. */
+static int admit_augment(const bgb_market_t *m, admit_t *a, int l)
+{
+    for (int r = 0; r < BGB_DIRECTORY_MAX_AGENTS; r++) {
+        if (a->seen[r] || has_flow(a, l, r) || !admit_edge(m, a, l, r))
+            continue;
+        a->seen[r] = 1;
+        if (a->used[r] < a->room[r]) {
+            set_flow(a, l, r, 1);
+            a->used[r]++;
+            return 1;
+        }
+        for (int k = 0; k < a->n; k++)
+            if (k != l && has_flow(a, k, r) && admit_augment(m, a, k)) {
+                /* k found another seller (one more unit there); it
+                 * leaves r, where l takes its place. */
+                set_flow(a, k, r, 0);
+                set_flow(a, l, r, 1);
+                return 1;
+            }
+    }
+    return 0;
+}
+
+/* Places job j's open service units; 0 when they do not all fit (the
+ * placement is then partial, and the caller stops). */
+static int admit_place(const bgb_market_t *m, admit_t *a, const job_t *j)
+{
+    for (int i = 0; i < j->nunits; i++) {
+        const unit_t *u = &j->unit[i];
+        if (u->state != U_OPEN)
+            continue;
+        int l = 0;
+        while (l < a->n && !(a->job[l] == j && a->need[l] == u->need))
+            l++;
+        if (l == a->n) {
+            if (a->n == ADMIT_NEEDS)
+                return 0;
+            a->job[l] = j;
+            a->need[l] = u->need;
+            a->good[l] = u->good;
+            memset(a->flow[l], 0, sizeof a->flow[l]);
+            a->n++;
+        }
+        memset(a->seen, 0, sizeof a->seen);
+        if (!admit_augment(m, a, l))
+            return 0;
+    }
+    return 1;
+}
+
+static void admit_fitting(bgb_market_t *m, double now)
+{
+    admit_t *a = m->admit;
+    a->n = 0;
+    const bgb_dir_agent_t *rows = bgb_directory_rows_const(m->dir);
+    for (int r = 0; r < BGB_DIRECTORY_MAX_AGENTS; r++) {
+        const bgb_dir_agent_t *s = &rows[r];
+        a->used[r] = 0;
+        a->room[r] = s->used && s->info.alive && !s->info.resource
+                         ? s->info.free_slots - s->pending
+                         : 0;
+    }
+    /* The jobs already in the book keep their place. */
+    for (int i = 0; i < MAX_JOBS; i++) {
+        const job_t *j = &m->jobs[i];
+        if (j->used && !j->finished && !j->resource && j->mech == BGB_MECH_CENTRAL &&
+            j->admitted && !admit_place(m, a, j))
+            return;
+    }
+    for (;;) {
+        job_t *first = NULL;
+        for (int i = 0; i < MAX_JOBS; i++) {
+            job_t *j = &m->jobs[i];
+            if (j->used && !j->finished && !j->resource && j->mech == BGB_MECH_CENTRAL &&
+                !j->admitted && (!first || j->started < first->started ||
+                                 (j->started == first->started && j->id < first->id)))
+                first = j;
+        }
+        if (!first || !admit_place(m, a, first))
+            return;
         first->admitted = 1;
         open_requests(m, first, now);
     }
+}
+
+/* ------------------------------------------------------ clearing records */
+
+/* A job's name in the log: its label (a sub-job's: its job's), else its
+ * number. */
+static void job_name(const bgb_market_t *m, const job_t *j, char *buf, size_t size)
+{
+    const job_t *named = j->resource ? job_by_id((bgb_market_t *)m, j->parent) : j;
+    if (named && named->label[0])
+        snprintf(buf, size, "%s", named->label);
+    else
+        snprintf(buf, size, "%llu", (unsigned long long)(named ? named->id : j->parent));
+}
+
+/* Logs a clearing that traded with the bounds its orders set; returns
+ * its ledger id. */
+static uint64_t log_clearing(bgb_market_t *m, double now, int layer, int good,
+                             const bgm_clearing_t *res, double k,
+                             const bgb_clearing_bound_t bounds[2])
+{
+    bgb_clearing_t c = {.time = now,
+                        .layer = layer,
+                        .good = good,
+                        .volume = res->volume,
+                        .rationed = res->rationed,
+                        .k = k,
+                        .price = res->price,
+                        .low = res->low,
+                        .high = res->high,
+                        .low_by = bounds[0],
+                        .high_by = bounds[1]};
+    return bgb_ledger_add_clearing(m->ledger, &c);
+}
+
+/* Logs a service clearing of this tick once; returns its ledger id. */
+static uint64_t log_service_clearing(bgb_market_t *m, match_ctx *mc,
+                                     const bgb_auction_clearing_t *x)
+{
+    if (x->index < 0 || x->index >= BGB_AUCTION_MAX_CLEARINGS)
+        return 0;
+    if (mc->logged[x->index])
+        return mc->logged[x->index];
+    const bgm_clearing_t res = {.volume = x->volume,
+                                .price = x->price,
+                                .low = x->low,
+                                .high = x->high,
+                                .rationed = x->rationed};
+    const bgb_auction_bound_t *in[2] = {&x->low_by, &x->high_by};
+    bgb_clearing_bound_t out[2];
+    for (int e = 0; e < 2; e++) {
+        out[e] = (bgb_clearing_bound_t){
+            .is_bid = in[e]->is_bid, .excluded = in[e]->excluded, .price = in[e]->price};
+        if (in[e]->is_bid && in[e]->buyer < MAX_JOBS)
+            job_name(m, &m->jobs[in[e]->buyer], out[e].job, sizeof out[e].job);
+        else if (!in[e]->is_bid && in[e]->slot >= 0 && in[e]->slot < BGB_DIRECTORY_MAX_AGENTS)
+            out[e].agent = bgb_directory_rows(m->dir)[in[e]->slot].info.id;
+    }
+    return mc->logged[x->index] = log_clearing(m, mc->now, 0, x->good, &res, x->k, out);
+}
+
+/* Logs a resource clearing (good g) of a host's call market; its bids
+ * name the sub-jobs' units (refs), its asks the sellers. */
+static uint64_t log_resource_clearing(bgb_market_t *m, int g, const bgm_clearing_t *res,
+                                      const bidref_t *refs, double now)
+{
+    const bgm_bound_t *in[2] = {&res->low_by, &res->high_by};
+    bgb_clearing_bound_t out[2];
+    for (int e = 0; e < 2; e++) {
+        out[e] = (bgb_clearing_bound_t){
+            .is_bid = in[e]->is_bid, .excluded = in[e]->excluded, .price = in[e]->price};
+        if (in[e]->is_bid) {
+            const job_t *sj = refs[in[e]->ref].j;
+            job_name(m, sj, out[e].job, sizeof out[e].job);
+            out[e].agent = sj->buyer;
+        } else {
+            out[e].agent = in[e]->owner;
+        }
+    }
+    return log_clearing(m, now, 1, g, res, m->c.k, out);
 }
 
 /* The auctioneer matched a unit's bid: the purchase hears the market
@@ -1457,10 +1569,10 @@ static void on_match(void *ctx, const bgb_auction_match_t *x)
 {
     match_ctx *mc = ctx;
     bgb_market_t *m = mc->m;
-    if (x->buyer >= MAX_JOBS || x->slot < 0 || x->slot >= BGB_MARKET_MAX_AGENTS)
+    if (x->buyer >= MAX_JOBS || x->slot < 0 || x->slot >= BGB_DIRECTORY_MAX_AGENTS)
         return;
     job_t *j = &m->jobs[x->buyer];
-    agent_t *a = &m->agents[x->slot];
+    bgb_dir_agent_t *a = &bgb_directory_rows(m->dir)[x->slot];
     unit_t *u = NULL;
     for (int i = 0; j->used && !j->finished && i < j->nunits && !u; i++)
         if (j->unit[i].in_book && j->unit[i].req == x->req && j->unit[i].attempt == x->attempt)
@@ -1475,6 +1587,7 @@ static void on_match(void *ctx, const bgb_auction_match_t *x)
     answer(j, BGM_MT_ACCEPT, PU_MARKET, id, x->attempt, x->price);
     if (may_have(m, j, u, a)) {
         order(m, j, u, a, x->price, mc->now);
+        u->clearing = x->clearing ? log_service_clearing(m, mc, x->clearing) : 0;
     } else {
         answer(j, BGM_MT_CANCEL, a->info.id, id, x->attempt, 0);
         if (a->used)
@@ -1484,7 +1597,8 @@ static void on_match(void *ctx, const bgb_auction_match_t *x)
 
 /* How many of the first nb bids on its host seller a has room for, each
  * taken alone. */
-static int bids_with_room(const bgb_market_t *m, const agent_t *a, const bidref_t *refs, size_t nb)
+static int bids_with_room(const bgb_market_t *m, const bgb_dir_agent_t *a, const bidref_t *refs,
+                          size_t nb)
 {
     int n = 0;
     for (size_t i = 0; i < nb; i++)
@@ -1492,62 +1606,76 @@ static int bids_with_room(const bgb_market_t *m, const agent_t *a, const bidref_
     return n;
 }
 
-/* Central resources (layer 1): one call market per resource, bids = open
- * units at their limit, asks = each live seller's room, in bids it could
- * take one at a time (a host has one seller, and a job's sub-jobs share its
- * cores, so a count of cores would not say what it can serve), at its
- * asking price. A fill the unit cannot use (a seller it tried, another
- * host's, room taken by the fills before it) stays open for the next call. */
+/* One host's call market for resource good g: its sub-jobs' open units
+ * (run, n of them) bid at their limits; its seller asks, at its asking
+ * price, as many units as bids it has room for, each taken alone (a job's
+ * sub-jobs share its cores, so a count of cores would not say what it can
+ * serve). A fill the unit cannot use (a seller it tried, room taken by
+ * the fills before it) stays open for the next call. */
+static void clear_host(bgb_market_t *m, int g, bgb_dir_agent_t *seller, bidref_t *run, size_t n,
+                       double now)
+{
+    bgm_callmarket_reset(m->cm);
+    for (size_t i = 0; i < n; i++) {
+        bgm_order_t o = {
+            .ref = i, .owner = buyer_of(m, run[i].j), .quantity = 1, .price = run[i].u->limit};
+        bgm_callmarket_bid(m->cm, &o);
+    }
+    const int room = bids_with_room(m, seller, run, n);
+    if (room == 0)
+        return;
+    bgm_order_t o = {.ref = (uint64_t)bgb_directory_slot_of(m->dir, seller),
+                     .owner = seller->info.id,
+                     .quantity = room,
+                     .price = seller->info.price[g]};
+    bgm_callmarket_ask(m->cm, &o);
+    bgm_clearing_t res;
+    if (bgm_callmarket_clear(m->cm, m->c.k, &res, m->fills, 2 * n + 2) != BG_OK || res.volume == 0)
+        return;
+    const uint64_t clearing = log_resource_clearing(m, g, &res, run, now);
+    const bgm_order_t *bids = bgm_callmarket_bids(m->cm);
+    for (size_t f = 0; f < res.fill_count; f++) {
+        bidref_t *r = &run[bids[m->fills[f].bid].ref];
+        if (need_has(r->j, r->u, seller->info.id) || tried(r->u, seller->info.id) ||
+            !room_for(m, r->j, seller, r->u))
+            continue;
+        order(m, r->j, r->u, seller, res.price, now);
+        r->u->clearing = clearing;
+    }
+}
+
+/* Central resources (layer 1): a call market per resource good and host,
+ * each cleared on its own (clear_host): a sub-job buys only on its basic
+ * agent's host, so its bid meets that host's seller and no other, and
+ * every fill is one it can take. (A book of every host's bids and sellers
+ * paired bids with other hosts' sellers, and those fills were dropped
+ * until a later clearing happened to pair them right.) */
 static void central_clear(bgb_market_t *m, double now)
 {
-    bidref_t *refs = m->refs;
+    bidref_t *refs = m->refs, *run = m->run;
     for (int g = BGB_GOOD_CORES; g < BGB_GOODS; g++) {
-        bgm_callmarket_reset(m->cm);
         size_t nb = 0;
         for (int ji = 0; ji < MAX_JOBS; ji++) {
             job_t *j = &m->jobs[ji];
-            if (!j->used || j->finished || j->mech != BGB_MECH_CENTRAL)
+            if (!j->used || j->finished || j->mech != BGB_MECH_CENTRAL || !j->resource)
                 continue;
             for (int i = 0; i < j->nunits; i++) {
                 unit_t *u = &j->unit[i];
-                if (u->state != U_OPEN || u->good != g || !u->in_book)
-                    continue;
-                refs[nb] = (bidref_t){j, u};
-                bgm_order_t o = {.ref = nb, .owner = (uint32_t)ji, .quantity = 1, .price = u->limit};
-                if (bgm_callmarket_bid(m->cm, &o) == BG_OK)
-                    nb++;
+                if (u->state == U_OPEN && u->good == g && u->in_book)
+                    refs[nb++] = (bidref_t){j, u};
             }
         }
-        if (nb == 0)
-            continue;
-        for (int ai = 0; ai < BGB_MARKET_MAX_AGENTS; ai++) {
-            agent_t *a = &m->agents[ai];
-            const int room = alive_seller(a, g) ? bids_with_room(m, a, refs, nb) : 0;
-            if (room == 0)
+        for (int ai = 0; ai < BGB_DIRECTORY_MAX_AGENTS && nb > 0; ai++) {
+            bgb_dir_agent_t *a = &bgb_directory_rows(m->dir)[ai];
+            if (!alive_seller(a, g))
                 continue;
-            bgm_order_t o = {.ref = (uint64_t)ai,
-                             .owner = a->info.id,
-                             .quantity = room,
-                             .price = a->info.price[g]};
-            bgm_callmarket_ask(m->cm, &o);
+            size_t n = 0;
+            for (size_t i = 0; i < nb; i++)
+                if (on_host(refs[i].j, a))
+                    run[n++] = refs[i];
+            if (n > 0)
+                clear_host(m, g, a, run, n, now);
         }
-        const size_t nbids = bgm_callmarket_bid_count(m->cm), nasks = bgm_callmarket_ask_count(m->cm);
-        if (nasks == 0)
-            continue;
-        bgm_fill_t *fills = malloc((nbids + nasks) * sizeof *fills);
-        bgm_clearing_t res;
-        if (fills && bgm_callmarket_clear(m->cm, m->c.k, &res, fills, nbids + nasks) == BG_OK) {
-            const bgm_order_t *bids = bgm_callmarket_bids(m->cm), *asks = bgm_callmarket_asks(m->cm);
-            for (size_t f = 0; f < res.fill_count; f++) {
-                bidref_t *r = &refs[bids[fills[f].bid].ref];
-                agent_t *a = &m->agents[asks[fills[f].ask].ref];
-                if (need_has(r->j, r->u, a->info.id) || tried(r->u, a->info.id) ||
-                    !on_host(r->j, a) || !room_for(m, r->j, a, r->u))
-                    continue;
-                order(m, r->j, r->u, a, res.price, now);
-            }
-        }
-        free(fills);
     }
 }
 
@@ -1567,8 +1695,8 @@ static void check_done(bgb_market_t *m, job_t *j, double now)
  * wait for a price or room that may not come. */
 static int unbuyable(bgb_market_t *m, const job_t *j, const unit_t *u)
 {
-    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++) {
-        const agent_t *a = &m->agents[i];
+    for (int i = 0; i < BGB_DIRECTORY_MAX_AGENTS; i++) {
+        const bgb_dir_agent_t *a = &bgb_directory_rows_const(m->dir)[i];
         if (alive_seller(a, u->good) && on_host(j, a) && !tried(u, a->info.id) &&
             !need_has(j, u, a->info.id) &&
             (!j->resource || (room_for(m, j, a, u) &&
@@ -1610,6 +1738,18 @@ static void step_job(bgb_market_t *m, job_t *j, double now)
     deliver_answers(m, j, now);
     if (j->finished)
         return;
+    /* A catallactic job with a unit that no seller has a slot for gives
+     * up now ("no seller") rather than at its deadline: meanwhile it would
+     * hold the slots its other units bought, and jobs that each hold part
+     * of what they need wait for one another until they time out (16 jobs
+     * at once on 8 agents bought 0.6 a second). Its buyer asks again
+     * later, as a central or posted one does. */
+    if (j->mech == BGB_MECH_CATALLACTIC && !j->resource)
+        for (int i = 0; i < j->nunits; i++)
+            if (j->unit[i].state == U_OPEN && sellers_with_room(m, j, &j->unit[i], NULL) == 0) {
+                finish(m, j, "no seller", now);
+                return;
+            }
     if (j->mech != BGB_MECH_CATALLACTIC)
         for (int i = 0; i < j->nunits; i++)
             if (j->unit[i].state == U_OPEN && unbuyable(m, j, &j->unit[i])) {
@@ -1624,8 +1764,7 @@ static void step_job(bgb_market_t *m, job_t *j, double now)
 
 /* A free job record for `job` (resource sub-jobs: term > 0, the lease). */
 static bg_status start_job(bgb_market_t *m, job_t **out, uint64_t job, bgb_mechanism mechanism,
-                           double budget, double term, double now, double timeout,
-                           bg_error_t *err)
+                           double budget, double term, double now, double timeout, bg_error_t *err)
 {
     job_t *j = NULL;
     for (int i = 0; i < MAX_JOBS && !j; i++)
@@ -1655,9 +1794,9 @@ static void begin(bgb_market_t *m, job_t *j, const bgb_need_t *needs, int nneeds
     int count[BGB_GOODS] = {0};
     for (int g = 0; g < BGB_GOODS; g++)
         ref[g] = INFINITY;
-    for (int ai = 0; ai < BGB_MARKET_MAX_AGENTS; ai++)
+    for (int ai = 0; ai < BGB_DIRECTORY_MAX_AGENTS; ai++)
         for (int g = 0; g < BGB_GOODS; g++) {
-            const agent_t *a = &m->agents[ai];
+            const bgb_dir_agent_t *a = &bgb_directory_rows_const(m->dir)[ai];
             if (alive_seller(a, g) && on_host(j, a)) {
                 count[g]++;
                 if (a->info.price[g] < ref[g])
@@ -1690,7 +1829,7 @@ static void begin(bgb_market_t *m, job_t *j, const bgb_need_t *needs, int nneeds
         finish(m, j, "market: out of memory", now);
         return;
     }
-    /* Central services bid when the job is let into the book (admit_one). */
+    /* Central services bid when the job is let into the book (admit_fitting). */
     if (j->resource || j->mech != BGB_MECH_CENTRAL)
         open_requests(m, j, now);
     if (!j->finished)
@@ -1760,7 +1899,7 @@ static int still_serves(const job_t *j, uint32_t agent)
 /* A basic agent that agreed to a service unit asks for its resources: a
  * sub-job on the unit's mechanism, among its host's resource sellers, for
  * at most the money it names. The unit waits for it. */
-static void on_rbuy(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
+static void on_rbuy(bgb_market_t *m, bgb_dir_agent_t *a, const bga_mmsg_t *in, double now)
 {
     job_t *j = job_by_id(m, in->job);
     unit_t *u = ordered_unit(j, a->info.id, in->good);
@@ -1777,7 +1916,7 @@ static void on_rbuy(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double no
         needs[n++] = (bgb_need_t){BGB_GOOD_MEMORY, in->memory, 1};
     if (!u || j->resource || n == 0 || !(in->term > 0)) {
         snprintf(r.reason, sizeof r.reason, "%s", !u ? "no such order" : "nothing to buy");
-        send_to(m, a, &r, NULL);
+        bgb_directory_send(m->dir, a, &r, NULL);
         return;
     }
     drop_subjobs(m, j->id, a->info.id, in->good); /* an earlier try of the same unit */
@@ -1786,7 +1925,7 @@ static void on_rbuy(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double no
     if (start_job(m, &s, m->next_sub++, j->mech, in->price, in->term, now, timeout, NULL) !=
         BG_OK) {
         snprintf(r.reason, sizeof r.reason, "market full");
-        send_to(m, a, &r, NULL);
+        bgb_directory_send(m->dir, a, &r, NULL);
         return;
     }
     s->resource = 1;
@@ -1817,7 +1956,7 @@ static void refused(bgb_market_t *m, job_t *j, unit_t *u, double now)
     step_job(m, j, now);
 }
 
-static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
+static void on_answer(bgb_market_t *m, bgb_dir_agent_t *a, const bga_mmsg_t *in, double now)
 {
     job_t *j = job_by_id(m, in->job);
     unit_t *u = ordered_unit(j, a->info.id, in->good);
@@ -1862,13 +2001,64 @@ static void on_answer(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double 
     }
 }
 
+/* The service sellers that could answer unit u's call for proposals now:
+ * those its calls reach (its job's entry agents and, while hops are left,
+ * their overlay neighbours, as the agents pass calls on: bgm_purchase
+ * cfp_forward), alive, selling its good, with a free slot net of the
+ * orders in flight to them, and not serving its need already (those do
+ * not propose). INT_MAX when there is none: the round runs its window. */
+static int could_propose(bgb_market_t *m, const job_t *j, const unit_t *u)
+{
+    uint32_t frontier[BGB_DIRECTORY_MAX_AGENTS];
+    uint8_t reached[BGB_DIRECTORY_MAX_AGENTS] = {0};
+    int n = entry_agents(m, j, frontier), first = 0, count = 0;
+    for (int i = 0; i < n; i++) {
+        bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, frontier[i]);
+        reached[a ? bgb_directory_slot_of(m->dir, a) : 0] = a != NULL;
+    }
+    for (int hop = 1; hop < m->c.hops; hop++) {
+        const int last = n;
+        for (int i = first; i < last; i++) {
+            const bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, frontier[i]);
+            for (int k = 0; a && k < a->nnb; k++) {
+                bgb_dir_agent_t *b = bgb_directory_by_id(m->dir, a->nb[k]);
+                if (b && b->info.alive && !reached[bgb_directory_slot_of(m->dir, b)]) {
+                    reached[bgb_directory_slot_of(m->dir, b)] = 1;
+                    frontier[n++] = b->info.id;
+                }
+            }
+        }
+        first = last;
+    }
+    count = sellers_with_room(m, j, u, reached);
+    return count > 0 ? count : INT_MAX;
+}
+
+/* Unit u's round of discovery ends now rather than at its window's end:
+ * every seller that could propose has (could_propose). Its purchase's
+ * discovery timer is brought forward and run, so the machine bargains
+ * with the proposals it holds exactly as it would at the window's end;
+ * the window stays the wait for sellers that are slow or unknown. */
+static void close_discovery(bgb_market_t *m, job_t *j, const unit_t *u, double now)
+{
+    const bgm_purchase_req_t *q = request_of(j, u);
+    if (!q || q->state != BGM_PU_DISCOVER)
+        return;
+    const uint32_t id = (uint32_t)(u - j->unit) + 1;
+    for (int i = 0; i < j->ntimers; i++)
+        if (j->timers[i].kind == BGM_PU_TIMER_REQ && (uint32_t)j->timers[i].arg == id &&
+            j->timers[i].at > now)
+            j->timers[i].at = now;
+    run_timers(m, j, now);
+}
+
 /* A seller's bargaining message: a proposal goes to every request of its
  * good discovering in the round it answers (the seller answers one call
  * per good and round: two units of a need hear the same sellers); a
  * counter-offer or walking away goes to the request bargaining with that
  * seller, in the request's attempt. A sub-job hears only its host's
  * resource sellers, at their bundle's rate and speed 1. */
-static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, double now)
+static void on_bargain_msg(bgb_market_t *m, bgb_dir_agent_t *a, const bga_mmsg_t *in, double now)
 {
     job_t *j = job_by_id(m, in->job);
     if (!j || j->finished || j->mech != BGB_MECH_CATALLACTIC || !j->pu)
@@ -1887,7 +2077,13 @@ static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, do
             p.good = (int16_t)q->good;
             p.price = machine_price(j, u, in->price);
             p.a = 1.0;
+            if (u->round != q->attempt)
+                u->proposals = 0;
+            u->round = q->attempt;
+            u->proposals++;
             tell(m, j, &p, now);
+            if (!j->resource && j->pu && u->proposals >= could_propose(m, j, u))
+                close_discovery(m, j, u, now);
         }
         return;
     }
@@ -1908,44 +2104,38 @@ static void on_bargain_msg(bgb_market_t *m, agent_t *a, const bga_mmsg_t *in, do
     }
 }
 
-static bg_status reply_error(bgb_market_t *m, const uint8_t *idn, size_t len, const char *why,
-                             bg_error_t *err)
-{
-    bga_mmsg_t e;
-    bga_mmsg_init(&e, BGA_MM_ERROR);
-    snprintf(e.reason, sizeof e.reason, "%.*s", (int)sizeof e.reason - 1, why);
-    agent_t tmp = {0};
-    memcpy(tmp.identity, idn, len);
-    tmp.idlen = len;
-    return send_to(m, &tmp, &e, err);
-}
-
 bg_status bgb_market_refuse(bgb_market_t *m, const uint8_t *identity, size_t identity_len,
                             const char *why, bg_error_t *err)
 {
-    if (identity_len == 0 || identity_len > BGB_MARKET_IDENTITY_MAX)
+    if (identity_len == 0 || identity_len > BGB_DIRECTORY_IDENTITY_MAX)
         return BG_OK;
-    return reply_error(m, identity, identity_len, why, err);
+    return bgb_directory_reply_error(m->dir, identity, identity_len, why, err);
 }
 
 bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t identity_len,
-                               const bga_frame_t *frames, int nframes, double now,
-                               bg_error_t *err)
+                               const bga_frame_t *frames, int nframes, double now, bg_error_t *err)
 {
-    if (identity_len == 0 || identity_len > BGB_MARKET_IDENTITY_MAX)
+    if (identity_len == 0 || identity_len > BGB_DIRECTORY_IDENTITY_MAX)
         return BG_OK;
     bga_mmsg_t in;
     bg_error_t derr = BG_ERROR_INIT;
     if (bga_mmsg_decode(frames, nframes, &in, &derr) != BG_OK)
-        return reply_error(m, identity, identity_len, derr.message, err);
-    if (in.type == BGA_MM_REGISTER)
-        return on_register(m, identity, identity_len, &in, now, err);
-    agent_t *a = agent_by_identity(m, identity, identity_len, in.resource);
+        return bgb_directory_reply_error(m->dir, identity, identity_len, derr.message, err);
+    if (in.type == BGA_MM_REGISTER) {
+        bgb_dir_agent_t *a = NULL;
+        const bg_status st =
+            bgb_directory_register(m->dir, identity, identity_len, &in, now, &a, err);
+        if (a)
+            announce(m, a);
+        return st;
+    }
+    bgb_dir_agent_t *a = bgb_directory_by_identity(m->dir, identity, identity_len, in.resource);
     if (!a)
-        return reply_error(m, identity, identity_len, "unknown agent: register first", err);
+        return bgb_directory_reply_error(m->dir, identity, identity_len,
+                                         "unknown agent: register first", err);
     switch (in.type) {
     case BGA_MM_HEARTBEAT:
-        copy_status(a, &in, now);
+        bgb_directory_heartbeat(a, &in, now);
         announce(m, a);
         break;
     case BGA_MM_CONFIRM:
@@ -1961,17 +2151,9 @@ bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t 
         if (!a->info.resource)
             on_rbuy(m, a, &in, now);
         break;
-    case BGA_MM_RELAY: {
-        agent_t *t = agent_by_id(m, in.target);
-        if (t && t->info.alive) {
-            bga_mmsg_t c = in;
-            c.type = BGA_MM_CFP;
-            c.agent = t->info.id;
-            c.target = 0;
-            send_to(m, t, &c, NULL);
-        }
+    case BGA_MM_RELAY:
+        bgb_directory_relay(m->dir, &in);
         break;
-    }
     default:
         break;
     }
@@ -1980,12 +2162,10 @@ bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t 
 
 double bgb_market_tick(bgb_market_t *m, double now)
 {
-    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
-        if (m->agents[i].used && now - m->agents[i].info.last_heartbeat > m->c.heartbeat_timeout)
-            drop_agent(m, &m->agents[i]);
-    match_ctx mc = {m, now};
+    bgb_directory_expire(m->dir, now, withdraw, m);
+    match_ctx mc = {.m = m, .now = now};
     if (now >= m->next_auction)
-        admit_one(m, now);
+        admit_fitting(m, now);
     bgb_auction_tick(m->auction, now, on_match, &mc, &m->next_auction, NULL);
     for (int i = 0; i < MAX_JOBS; i++)
         if (m->jobs[i].used)
@@ -2014,112 +2194,4 @@ double bgb_market_tick(bgb_market_t *m, double now)
     }
     const double beat = now + m->c.heartbeat_timeout / 4;
     return beat < next ? beat : next;
-}
-
-/* ------------------------------------------------------------ snapshots */
-
-size_t bgb_market_agents(const bgb_market_t *m, bgb_agent_info_t *out, size_t max)
-{
-    size_t n = 0;
-    for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
-        if (m->agents[i].used) {
-            if (n < max)
-                out[n] = m->agents[i].info;
-            n++;
-        }
-    return n;
-}
-
-int bgb_market_recent_price(const bgb_market_t *m, int good, bgb_mechanism mech, int window,
-                            double *mean)
-{
-    int n = 0;
-    double sum = 0;
-    for (size_t i = m->log_count; i-- > 0 && n < window;) {
-        const bgb_contract_t *r = &m->log[(m->log_head + i) % m->c.max_contracts];
-        if (r->good == good && r->mechanism == (int)mech) {
-            sum += r->price;
-            n++;
-        }
-    }
-    if (n)
-        *mean = sum / n;
-    return n;
-}
-
-void bgb_market_contracts(const bgb_market_t *m, bgb_contract_fn fn, void *ctx)
-{
-    for (size_t i = 0; i < m->log_count; i++)
-        fn(ctx, &m->log[(m->log_head + i) % m->c.max_contracts]);
-}
-
-typedef struct csv_ctx {
-    const bgb_market_t *m;
-    FILE *out;
-    int failed;
-} csv_ctx;
-
-static void write_row(void *ctx, const bgb_contract_t *r)
-{
-    csv_ctx *c = ctx;
-    /* An open contract (job still running) ends "now" for the audit: it
-     * is written with end = start + 1e9 rather than inf. */
-    const double end = isinf(r->end) ? r->start + 1e9 : r->end;
-    char buyer[BGB_MARKET_LABEL_MAX];
-    if (r->buyer_label[0])
-        snprintf(buyer, sizeof buyer, "%s", r->buyer_label);
-    else
-        snprintf(buyer, sizeof buyer, "%llu", (unsigned long long)r->buyer);
-    if (fprintf(c->out, "%s,0,%s,%s,%llu,%.9g,%.9g,%.9g,%s,%u,%s,%.9g,%.9g,%.9g,%.9g\n",
-                c->m->name, bgb_mechanism_name((bgb_mechanism)r->mechanism),
-                r->layer ? "resource" : "service", (unsigned long long)r->request, r->time,
-                r->start, end, buyer, r->seller, bgb_good_name(r->good), r->quantity, r->price,
-                r->buyer_limit, r->seller_limit) < 0)
-        c->failed = 1;
-}
-
-bg_status bgb_market_write_contracts_csv(const bgb_market_t *m, FILE *out, bg_error_t *err)
-{
-    csv_ctx c = {m, out, 0};
-    if (fputs("scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,good,"
-              "quantity,price,buyer_limit,seller_limit\n",
-              out) < 0)
-        c.failed = 1;
-    bgb_market_contracts(m, write_row, &c);
-    if (c.failed || fflush(out) != 0)
-        return bg_error_set(err, BG_ERR_IO, "cannot write contracts.csv");
-    return BG_OK;
-}
-
-/* One agent's rows of agents.csv under one mechanism; nonzero on a write error. */
-static int agent_rows(const bgb_market_t *m, const bgb_agent_info_t *a, int mech, FILE *out)
-{
-    int failed = 0;
-    for (int g = 0; g < 3; g++)
-        if (a->services & (1u << g))
-            failed |= fprintf(out, "%s,0,%s,%u,basic,%s,%d,%.9g\n", m->name, mech_names[mech],
-                              a->id, good_names[g], a->slots, a->floor[g]) < 0;
-    if (a->resource)
-        for (int g = BGB_GOOD_CORES; g <= BGB_GOOD_MEMORY; g++)
-            failed |= fprintf(out, "%s,0,%s,%u,resource,%s,%.9g,%.9g\n", m->name,
-                              mech_names[mech], a->id, good_names[g],
-                              g == BGB_GOOD_CORES ? a->cores : a->memory, a->floor[g]) < 0;
-    return failed;
-}
-
-bg_status bgb_market_write_agents_csv(const bgb_market_t *m, FILE *out, bg_error_t *err)
-{
-    int failed = fputs("scenario,replication,mechanism,agent,role,good,capacity,limit\n", out) < 0;
-    for (int mech = 0; mech < 3; mech++) {
-        /* The departed first (they registered earlier), then the directory. */
-        for (size_t k = 0; k < m->departed_count; k++)
-            failed |= agent_rows(m, &m->departed[(m->departed_head + k) % MARKET_MAX_DEPARTED],
-                                 mech, out);
-        for (int i = 0; i < BGB_MARKET_MAX_AGENTS; i++)
-            if (m->agents[i].used)
-                failed |= agent_rows(m, &m->agents[i].info, mech, out);
-    }
-    if (failed || fflush(out) != 0)
-        return bg_error_set(err, BG_ERR_IO, "cannot write agents.csv");
-    return BG_OK;
 }

@@ -1,5 +1,12 @@
 /*
- * bgb_market — the broker's live market and agent directory.
+ * bgb_market — the broker's live market: the purchases of jobs and of
+ * their sellers' resources.
+ *
+ * It stands on two modules of its own: bgb_directory (the agents on the
+ * market: registration, one resource seller per host, heartbeats and
+ * liveness, the overlay, snapshots) and bgb_ledger (the contract log, its
+ * recent prices and CSV exports, rows closed at release); this module
+ * routes the agents' messages between them and the purchases.
  *
  * Hosts the market agent (the central call markets, cleared every
  * `period` seconds, and the posted-price directory) and one buyer per job,
@@ -21,11 +28,7 @@
  *
  * Layer 1 (resources): an agent daemon hosts a resource seller too (a
  * second directory entry on the same socket, `resource` set in its
- * messages), one per host: the first daemon of a host (the host part of
- * its endpoint) to register one sells the host's cores and memory, and a
- * later one is answered REGISTERED without an id and with the reason; it
- * stands by and asks again at its heartbeats, so it takes over once the
- * first is dropped. A basic-service seller that agrees to a service unit
+ * messages), one per host (bgb_directory says how). A basic-service seller that agrees to a service unit
  * sends RBUY (cores, memory, lease, its money limit); the market buys them
  * for it as a sub-job from its host's resource seller, on the same
  * mechanism as the job (posted postings, a central call market per
@@ -74,55 +77,26 @@
 
 #include "bg_error.h"
 #include "bga_wire.h"
+#include "bgb_directory.h"
+#include "bgb_goods.h"
+#include "bgb_ledger.h"
 
-#define BGB_MARKET_NAME_MAX 64
-#define BGB_MARKET_ENDPOINT_MAX 256
 #define BGB_MARKET_MAX_NEEDS 16
-#define BGB_MARKET_MAX_AGENTS 1024
-#define BGB_MARKET_IDENTITY_MAX 255
-#define BGB_MARKET_LABEL_MAX 32
 
-/* Goods, numbered as the simulator's (bgm_role.h BGM_GOOD_*). */
-typedef enum bgb_good {
-    BGB_GOOD_ROTFIT = 0,
-    BGB_GOOD_SOLVE = 1,
-    BGB_GOOD_INTEG = 2,
-    BGB_GOOD_CORES = 3,
-    BGB_GOOD_MEMORY = 4,
-    BGB_GOODS = 5
-} bgb_good;
-
-typedef enum bgb_mechanism {
-    BGB_MECH_CENTRAL = 0,
-    BGB_MECH_CATALLACTIC = 1,
-    BGB_MECH_POSTED = 2
-} bgb_mechanism;
-
-/* "central", "catallactic", "posted"; parse returns -1 on an unknown name. */
-const char *bgb_mechanism_name(bgb_mechanism m);
-int bgb_mechanism_parse(const char *name);
-/* "rotation-fit", "sparse-solve", "integration-step", "cores", "memory". */
-const char *bgb_good_name(int good);
-
-/* How the broker reaches an agent: send frames to the ROUTER peer whose
- * routing identity is `identity` (as received with its messages). */
-typedef struct bgb_market_io {
-    void *ctx;
-    bg_status (*send)(void *ctx, const uint8_t *identity, size_t identity_len,
-                      const bga_frame_t *frames, int nframes);
-} bgb_market_io_t;
+/* How the broker reaches an agent (bgb_directory_io_t). */
+typedef bgb_directory_io_t bgb_market_io_t;
 
 typedef struct bgb_market_config {
-    const char *name;          /* the broker's name: `scenario` in the CSVs */
-    double period;             /* central: clearing period, s (> 0) */
-    double k;                  /* central: k-pricing parameter in [0, 1] */
-    double heartbeat_timeout;  /* an agent silent this long is dropped, s */
-    double reply_timeout;      /* a seller's answer to an order, s */
-    double buy_timeout;        /* a job not fully bought by then fails "timeout" */
-    int overlay_degree;        /* neighbours given to each agent (≥ 1) */
-    int hops;                  /* catallactic CFP hop limit (≥ 1) */
-    int max_rounds;            /* catallactic bargaining rounds */
-    size_t max_contracts;      /* contract log cap (rows kept; older dropped) */
+    const char *name;         /* the broker's name: `scenario` in the CSVs */
+    double period;            /* central: clearing period, s (> 0) */
+    double k;                 /* central: k-pricing parameter in [0, 1] */
+    double heartbeat_timeout; /* an agent silent this long is dropped, s */
+    double reply_timeout;     /* a seller's answer to an order, s */
+    double buy_timeout;       /* a job not fully bought by then fails "timeout" */
+    int overlay_degree;       /* neighbours given to each agent (≥ 1) */
+    int hops;                 /* catallactic CFP hop limit (≥ 1) */
+    int max_rounds;           /* catallactic bargaining rounds */
+    size_t max_contracts;     /* contract log cap (rows kept; older dropped) */
 } bgb_market_config_t;
 
 /* Defaults: period 0.2 s, k 0.5, heartbeat timeout 3 s, reply timeout 2 s,
@@ -139,11 +113,11 @@ typedef struct bgb_need {
 /* One bought service: what the coordinator needs to drive the agent. */
 typedef struct bgb_award {
     int good;
-    uint32_t agent;                          /* directory id */
-    char name[BGB_MARKET_NAME_MAX];          /* agent's name */
-    char endpoint[BGB_MARKET_ENDPOINT_MAX];  /* agent's compute endpoint */
-    double quantity;                         /* work this agent sells */
-    double price;                            /* per unit of work */
+    uint32_t agent;                            /* directory id */
+    char name[BGB_DIRECTORY_NAME_MAX];         /* agent's name */
+    char endpoint[BGB_DIRECTORY_ENDPOINT_MAX]; /* agent's compute endpoint */
+    double quantity;                           /* work this agent sells */
+    double price;                              /* per unit of work */
 } bgb_award_t;
 
 /*
@@ -157,55 +131,11 @@ typedef struct bgb_outcome {
     const char *reason;
     const bgb_award_t *awards;
     int nawards;
-    double spent;             /* Σ quantity × price */
-    double latency;           /* seconds from bgb_market_buy to the outcome */
+    double spent;   /* Σ quantity × price */
+    double latency; /* seconds from bgb_market_buy to the outcome */
 } bgb_outcome_t;
 
 typedef void (*bgb_done_fn)(void *ctx, const bgb_outcome_t *outcome);
-
-/*
- * A contract row, with the simulator's contracts.csv columns. `request` is,
- * as in the simulator, the service item a row serves: a number per service
- * contract, shared by the resource rows bought for it. The service row's
- * buyer is the job (its label, the broker's store id, when set with
- * bgb_market_label); a resource row's buyer is the basic-service agent
- * that bought it. A service row is priced per unit of work; a resource row
- * (cores, memory) per unit per second, over [start, end]: the lease,
- * ended early when the job is released.
- */
-typedef struct bgb_contract {
-    uint64_t job;       /* the market job id the row belongs to (both layers) */
-    uint64_t request;   /* the service item (see above) */
-    double time, start, end;
-    uint64_t buyer;     /* service: the job id; resource: the basic agent's directory id */
-    char buyer_label[BGB_MARKET_LABEL_MAX]; /* service: the job's label ("" if none) */
-    uint32_t seller;    /* the agent's directory id */
-    char seller_name[BGB_MARKET_NAME_MAX];
-    int mechanism;
-    int layer;          /* 0 service, 1 resource */
-    int good;
-    double quantity, price, buyer_limit, seller_limit;
-} bgb_contract_t;
-
-typedef void (*bgb_contract_fn)(void *ctx, const bgb_contract_t *row);
-
-/* A directory row (GET /v1/agents). */
-typedef struct bgb_agent_info {
-    uint32_t id;
-    char name[BGB_MARKET_NAME_MAX];
-    char endpoint[BGB_MARKET_ENDPOINT_MAX];
-    unsigned services;       /* BGA_SERVICE_* bits; resource sellers: 0 */
-    int resource;            /* a resource seller (cores, memory): the daemon's second entry */
-    int slots, free_slots;
-    double free_cores, free_memory; /* resource seller: not sold */
-    long refusals;           /* orders it refused (no slot, no resources, price) */
-    double floor[BGB_GOODS]; /* price policy: floor per unit */
-    double margin, load_slope;
-    double price[BGB_GOODS]; /* its current asking price per unit (0: not sold) */
-    double cores, memory;
-    double last_heartbeat;   /* monotonic seconds */
-    int alive;
-} bgb_agent_info_t;
 
 typedef struct bgb_market bgb_market_t;
 
@@ -217,6 +147,12 @@ void bgb_market_destroy(bgb_market_t **m);
 
 /* Persist every contract as it is made (NULL: none). */
 void bgb_market_on_contract(bgb_market_t *m, bgb_contract_fn fn, void *ctx);
+
+/* The market's directory and contract log, for snapshots and exports
+ * (bgb_directory_agents, bgb_ledger_*): borrowed while the market lives,
+ * read on the market's thread only. */
+const bgb_directory_t *bgb_market_directory(const bgb_market_t *m);
+const bgb_ledger_t *bgb_market_ledger(const bgb_market_t *m);
 
 /* Answers the sender of a message its host could not take whole (more
  * frames than the wire allows, so it was not kept) with an ERROR naming
@@ -230,8 +166,7 @@ bg_status bgb_market_refuse(bgb_market_t *m, const uint8_t *identity, size_t ide
  * failed send (err says which).
  */
 bg_status bgb_market_on_frames(bgb_market_t *m, const uint8_t *identity, size_t identity_len,
-                               const bga_frame_t *frames, int nframes, double now,
-                               bg_error_t *err);
+                               const bga_frame_t *frames, int nframes, double now, bg_error_t *err);
 
 /* Runs what is due at `now` (clearing, timeouts, liveness) and returns the
  * next time it wants to be called. */
@@ -249,30 +184,20 @@ bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism,
                          const bgb_need_t *needs, int nneeds, double now, bgb_done_fn done,
                          void *ctx, bg_error_t *err);
 
-/* The job ended: its sellers free their slots (RELEASE to each), and the
- * resources its sellers bought are released too. */
+/* The job ended: its contract rows end now (bgb_ledger_close), its sellers
+ * free their slots (RELEASE to each), and the resources its sellers bought
+ * are released too. */
 void bgb_market_release(bgb_market_t *m, uint64_t job, double now);
 
+/* The job's account is settled now, its sellers not yet released: its
+ * rows end now (bgb_ledger_close; a release later moves no end), so the
+ * log says what it owes before the job's end is announced, while its
+ * coordinator, which releases it, may still be stopping its agents (a
+ * cancel). Unknown job: no effect. */
+void bgb_market_settle(bgb_market_t *m, uint64_t job, double now);
+
 /* Names a buying or bought job in the contract log (the broker's store id,
- * copied, truncated to BGB_MARKET_LABEL_MAX − 1). Unknown job: no effect. */
+ * copied, truncated to BGB_LEDGER_LABEL_MAX − 1). Unknown job: no effect. */
 void bgb_market_label(bgb_market_t *m, uint64_t job, const char *label);
-
-/* Directory snapshot: writes up to max rows, returns the number of agents. */
-size_t bgb_market_agents(const bgb_market_t *m, bgb_agent_info_t *out, size_t max);
-
-/* Mean price of the last `window` contracts of a good under a mechanism;
- * returns the number averaged (0: *mean untouched). */
-int bgb_market_recent_price(const bgb_market_t *m, int good, bgb_mechanism mech, int window,
-                            double *mean);
-
-/* Visits every contract row in order (oldest first). */
-void bgb_market_contracts(const bgb_market_t *m, bgb_contract_fn fn, void *ctx);
-
-/* contracts.csv / agents.csv with the simulator's columns (scenario = the
- * broker's name, replication 0): both layers' rows; a basic agent's
- * capacity is its slots, a resource seller's its cores and GiB with its
- * floor per unit-second as limit. BG_ERR_IO on a write failure. */
-bg_status bgb_market_write_contracts_csv(const bgb_market_t *m, FILE *out, bg_error_t *err);
-bg_status bgb_market_write_agents_csv(const bgb_market_t *m, FILE *out, bg_error_t *err);
 
 #endif

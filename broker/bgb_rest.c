@@ -580,6 +580,8 @@ static enum MHD_Result cancel_job(bgb_rest_t *rest, struct MHD_Connection *c, co
     const unsigned active = (1u << BGB_JOB_QUEUED) | (1u << BGB_JOB_ALLOCATING) |
                             (1u << BGB_JOB_RUNNING);
     bg_error_t err = BG_ERROR_INIT;
+    if (rest->config.on_cancel)
+        rest->config.on_cancel(rest->config.queued_ctx, id);
     const bg_status st = bgb_store_transition(rest->store, id, active, BGB_JOB_CANCELLED,
                                               "cancelled by the client", &err);
     return st == BG_OK ? get_job(rest, c, id) : send_store_problem(rest, c, st, &err);
@@ -1011,10 +1013,11 @@ static enum MHD_Result get_market(bgb_rest_t *rest, struct MHD_Connection *c)
     return send_json(rest, c, MHD_HTTP_OK, o, "application/json", NULL);
 }
 
-/* The CSVs with the simulator's headers; without a market no row exists. */
-static enum MHD_Result get_csv(bgb_rest_t *rest, struct MHD_Connection *c, int contracts)
+/* The market's CSVs (the simulator's headers for contracts and agents);
+ * without a market no row exists. */
+static enum MHD_Result get_csv(bgb_rest_t *rest, struct MHD_Connection *c, int view)
 {
-    char *live = view_text(rest, contracts ? BGB_REST_VIEW_CONTRACTS : BGB_REST_VIEW_AGENTS_CSV);
+    char *live = view_text(rest, view);
     if (live) {
         const enum MHD_Result r =
             send_text(rest, c, MHD_HTTP_OK, "text/csv", live, strlen(live), NULL);
@@ -1022,9 +1025,13 @@ static enum MHD_Result get_csv(bgb_rest_t *rest, struct MHD_Connection *c, int c
         return r;
     }
     const char *header =
-        contracts ? "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,"
-                    "good,quantity,price,buyer_limit,seller_limit\n"
-                  : "scenario,replication,mechanism,agent,role,good,capacity,limit\n";
+        view == BGB_REST_VIEW_CONTRACTS
+            ? "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,"
+              "good,quantity,price,buyer_limit,seller_limit,use,clearing\n"
+        : view == BGB_REST_VIEW_CLEARINGS
+            ? "clearing,time,layer,good,volume,k,rule,price,low,low_order,low_owner,high,"
+              "high_order,high_owner\n"
+            : "scenario,replication,mechanism,agent,role,good,capacity,limit\n";
     return send_text(rest, c, MHD_HTTP_OK, "text/csv", header, strlen(header), NULL);
 }
 
@@ -1134,10 +1141,12 @@ static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const c
             return get ? get_agents(rest, c) : method_not_allowed(rest, c, method, url, "GET");
         if (strcmp(url, "/v1/market") == 0)
             return get ? get_market(rest, c) : method_not_allowed(rest, c, method, url, "GET");
-        if (strcmp(url, "/v1/market/contracts.csv") == 0 ||
-            strcmp(url, "/v1/market/agents.csv") == 0)
-            return get ? get_csv(rest, c, strcmp(url, "/v1/market/contracts.csv") == 0)
-                       : method_not_allowed(rest, c, method, url, "GET");
+        const int csv = strcmp(url, "/v1/market/contracts.csv") == 0   ? BGB_REST_VIEW_CONTRACTS
+                        : strcmp(url, "/v1/market/agents.csv") == 0    ? BGB_REST_VIEW_AGENTS_CSV
+                        : strcmp(url, "/v1/market/clearings.csv") == 0 ? BGB_REST_VIEW_CLEARINGS
+                                                                       : -1;
+        if (csv >= 0)
+            return get ? get_csv(rest, c, csv) : method_not_allowed(rest, c, method, url, "GET");
     }
     if (strcmp(url, "/v1/jobs") == 0) {
         if (post)

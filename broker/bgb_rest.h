@@ -17,7 +17,9 @@
  *   GET  /v1/market               recent prices per good and mechanism
  *   GET  /v1/market/contracts.csv the contract log, agents.csv the agent table, with the
  *                                 simulator's columns (scenario = the broker's name,
- *                                 replication 0)
+ *                                 replication 0; contracts.csv adds use and clearing)
+ *   GET  /v1/market/clearings.csv the central clearings and the orders that set their
+ *                                 prices
  *   GET  /healthz, /metrics (Prometheus text), /openapi.json
  *
  * A submitted scene is validated exactly as `biotgrid validate` does —
@@ -68,14 +70,19 @@ typedef struct bgb_rest_config {
      * broker's dispatcher looks at the queue; NULL: none. */
     void (*on_queued)(void *queued_ctx);
     void *queued_ctx;
+    /* Called (from a server thread) before job `id` is marked cancelled,
+     * so that its market account is settled before the `cancelled` event
+     * (bgb_loop_settle); with queued_ctx; NULL: none. */
+    void (*on_cancel)(void *queued_ctx, const char *id);
 } bgb_rest_config_t;
 
 /* What a view is asked for. */
 enum {
-    BGB_REST_VIEW_AGENTS = 0,    /* JSON array of agents */
-    BGB_REST_VIEW_MARKET = 1,    /* JSON object: "market" and "prices" */
-    BGB_REST_VIEW_CONTRACTS = 2, /* contracts.csv */
-    BGB_REST_VIEW_AGENTS_CSV = 3 /* agents.csv */
+    BGB_REST_VIEW_AGENTS = 0,     /* JSON array of agents */
+    BGB_REST_VIEW_MARKET = 1,     /* JSON object: "market" and "prices" */
+    BGB_REST_VIEW_CONTRACTS = 2,  /* contracts.csv */
+    BGB_REST_VIEW_AGENTS_CSV = 3, /* agents.csv */
+    BGB_REST_VIEW_CLEARINGS = 4   /* clearings.csv */
 };
 
 

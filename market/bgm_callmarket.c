@@ -85,6 +85,11 @@ static int cmp_ask(const void *pa, const void *pb)
     return (a->ref > b->ref) - (a->ref < b->ref);
 }
 
+static bgm_bound_t bound(const bgm_order_t *o, int is_bid, int excluded)
+{
+    return (bgm_bound_t){is_bid, excluded, o->owner, o->ref, o->price};
+}
+
 bg_status bgm_callmarket_clear(bgm_callmarket_t *cm, double k, bgm_clearing_t *res,
                                bgm_fill_t *fills, size_t max_fills)
 {
@@ -96,6 +101,8 @@ bg_status bgm_callmarket_clear(bgm_callmarket_t *cm, double k, bgm_clearing_t *r
     res->bid_excluded = -INFINITY;
     res->ask_excluded = INFINITY;
     res->low = res->high = 0.0;
+    res->low_by = res->high_by = (bgm_bound_t){0};
+    res->rationed = 0;
     res->fill_count = 0;
     if (!(k >= 0.0 && k <= 1.0))
         return BG_ERR_INVALID;
@@ -140,9 +147,21 @@ bg_status bgm_callmarket_clear(bgm_callmarket_t *cm, double k, bgm_clearing_t *r
     if (ia < cm->nask)
         res->ask_excluded = ka[ia].price;
     if (res->volume > 0) {
-        res->low = fmax(res->ask_limit, res->bid_excluded);
-        res->high = fmin(res->bid_limit, res->ask_excluded);
-        res->price = res->low + k * (res->high - res->low);
+        const bgm_fill_t *last = &fills[res->fill_count - 1];
+        const bgm_bound_t bm = bound(&cm->bids[last->bid], 1, 0);
+        const bgm_bound_t am = bound(&cm->asks[last->ask], 0, 0);
+        res->low_by = am;
+        res->high_by = bm;
+        if (ib < cm->nbid && res->bid_excluded > res->ask_limit)
+            res->low_by = bound(&cm->bids[kb[ib].index], 1, 1);
+        if (ia < cm->nask && res->ask_excluded < res->bid_limit)
+            res->high_by = bound(&cm->asks[ka[ia].index], 0, 1);
+        res->low = res->low_by.price;
+        res->high = res->high_by.price;
+        /* A buyer left out who would pay the marginal ask: buyers
+         * compete, and k places the price (see the header). */
+        res->rationed = ib < cm->nbid && res->bid_excluded >= res->ask_limit;
+        res->price = res->rationed ? res->low + k * (res->high - res->low) : res->low;
     }
 out:
     free(kb);

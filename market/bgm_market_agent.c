@@ -55,6 +55,8 @@ struct bgm_market_agent {
     bgm_posted_t *dir;
     size_t next_fit[BGM_ROLE_GOODS]; /* per good: where the directory's next scan starts */
     double combex_exact, combex_greedy;
+    bgm_ma_clearing_t clearings[BGM_MA_CLEARINGS_MAX]; /* the last timer call's */
+    size_t nclearings, nmatches;
     bgm_emitter_t em; /* the call under way's outbox and first failure */
 };
 
@@ -119,6 +121,12 @@ void bgm_market_agent_counts(const bgm_market_agent_t *ma, double *exact, double
     *greedy = ma->combex_greedy;
 }
 
+const bgm_ma_clearing_t *bgm_market_agent_clearings(const bgm_market_agent_t *ma, size_t *n)
+{
+    *n = ma->nclearings;
+    return ma->clearings;
+}
+
 void bgm_market_agent_books(const bgm_market_agent_t *ma, size_t *bids, size_t *rbids)
 {
     *bids = ma->nbid;
@@ -154,6 +162,7 @@ static void group_matched(bgm_market_agent_t *ma, const ma_bid_t *r, uint32_t se
  * and so is the buyer (ACCEPT at the price). */
 static void match(bgm_market_agent_t *ma, ma_bid_t *r, ma_seller_t *s, double price, double ask)
 {
+    ma->nmatches++;
     s->free_a -= 1.0;
     r->matched = 1;
     if (r->group)
@@ -185,6 +194,13 @@ static int place_asks(bgm_market_agent_t *ma, int t, const ma_bid_t *only)
             return -1;
     }
     return 0;
+}
+
+/* Records a clearing of good t that made the matches from `first` on. */
+static void record(bgm_market_agent_t *ma, int t, const bgm_clearing_t *res, size_t first)
+{
+    if (ma->nmatches > first && ma->nclearings < BGM_MA_CLEARINGS_MAX)
+        ma->clearings[ma->nclearings++] = (bgm_ma_clearing_t){t, *res, first, ma->nmatches - first};
 }
 
 /* One k-double call market per service type over the bids still open and
@@ -221,6 +237,7 @@ static void clear_services(bgm_market_agent_t *ma, double now)
             return;
         }
         const bgm_order_t *asks = bgm_callmarket_asks(ma->cm);
+        const size_t first = ma->nmatches;
         size_t nskipped = 0; /* bid records, in the clearing's order, in assign[] */
         for (size_t f = 0; f < res.fill_count; f++) {
             /* Fills index the book in insertion order (clearing does not
@@ -232,6 +249,7 @@ static void clear_services(bgm_market_agent_t *ma, double now)
             else
                 match(ma, r, s, res.price, asks[ma->fills[f].ask].price);
         }
+        record(ma, t, &res, first);
         for (size_t i = 0; i < nskipped; i++) {
             ma_bid_t *r = &ma->bids[ma->assign[i]];
             bgm_callmarket_reset(ma->cm);
@@ -243,7 +261,9 @@ static void clear_services(bgm_market_agent_t *ma, double now)
             }
             if (res.fill_count == 1) {
                 const bgm_order_t *a = &bgm_callmarket_asks(ma->cm)[ma->fills[0].ask];
+                const size_t alone = ma->nmatches;
                 match(ma, r, &ma->mb[a->ref], res.price, a->price);
+                record(ma, t, &res, alone);
             }
         }
     }
@@ -702,6 +722,7 @@ bg_status bgm_market_agent_on_timer(bgm_market_agent_t *ma, int kind, uint64_t a
     if (kind != BGM_MA_TIMER_CLEAR)
         return BG_ERR_INVALID;
     bgm_emitter_begin(&ma->em, out);
+    ma->nclearings = ma->nmatches = 0;
     clear_services(ma, now);
     if (ma->cfg.central.resource_market == BGM_RM_CALL)
         clear_calls(ma, now);

@@ -43,12 +43,27 @@
 #include <stdint.h>
 
 #include "bg_error.h"
+#include "bgm_callmarket.h"
 #include "bgm_config.h"
 #include "bgm_outbox.h"
 #include "bgm_role.h"
 
 /* Its timer: the clearing period (the same number as the world's). */
 #define BGM_MA_TIMER_CLEAR 2
+/* Service clearings a timer call records at most (bgm_market_agent_clearings). */
+#define BGM_MA_CLEARINGS_MAX 64
+
+/* One service clearing that traded, as the last timer call made it: the
+ * uniform clearing of good `good`'s book, or a bid's clearing alone
+ * against the sellers it allows. `res` names the orders that set its
+ * bounds (a bid: owner = its buyer, ref = its request; an ask: owner =
+ * its seller). Its matches are the MATCH messages the call emitted from
+ * the `first`-th (counting MATCHes only, from 0), `count` of them. */
+typedef struct bgm_ma_clearing {
+    int good;
+    bgm_clearing_t res;
+    size_t first, count;
+} bgm_ma_clearing_t;
 
 typedef struct bgm_market_agent_params {
     const bgm_config_t *cfg; /* copied: central, baseline, resources, network.speed */
@@ -84,6 +99,11 @@ void bgm_market_agent_forget_bids(bgm_market_agent_t *ma, uint32_t buyer);
 /* How the resource layer's winners were determined so far: exact
  * programs and greedy fallbacks of the combinatorial exchange. */
 void bgm_market_agent_counts(const bgm_market_agent_t *ma, double *exact, double *greedy);
+/* The service clearings of its last timer call that traded, in the
+ * order they were made (at most BGM_MA_CLEARINGS_MAX: a host explains a
+ * match's price from its clearing; the price itself is in the MATCH).
+ * Borrowed until the next call; *n gets their number. */
+const bgm_ma_clearing_t *bgm_market_agent_clearings(const bgm_market_agent_t *ma, size_t *n);
 /* Bids in its books (service, resource), for tests. */
 void bgm_market_agent_books(const bgm_market_agent_t *ma, size_t *bids, size_t *rbids);
 

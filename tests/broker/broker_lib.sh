@@ -22,6 +22,12 @@
 #                                      fail=0, INT/TERM stop the grid and exit 1
 #   grid_test_end SCRIPTS              `grid down` (to WORK/down.txt) and no process of the
 #                                      grid left (SCRIPTS/no_agents_left.sh), both checked
+#   bcurl ARGS...                      the REST API: curl -sf with what every call needs
+#                                      (one place to add a header, e.g. a token)
+bcurl() {
+  curl -sf "$@"
+}
+
 check() {
   if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
 }

@@ -55,11 +55,15 @@ check $? "the jobs are picked up again, 4 at a time (states: $states)"
 # The waiting jobs are bought and run once an agent registers: none of
 # them was given up while the market was empty. The agent sells 4 cores
 # (a rotation fit holds 1, a sparse solve 2), enough for one job at a time
-# whatever the test machine has.
+# whatever the test machine has. No load slope: its asks do not rise with
+# the slots in use, so the prices read when it registers (jobs are bought
+# at once, and on a loaded machine the first read can come after a busy
+# heartbeat) are the idle ones the end is compared with.
 endpoint=$(cut -d' ' -f2 "$work/b.ready")
 mkdir -p "$work/agents"
 ( "$bin" agent --listen 'tcp://127.0.0.1:*' --services rotfit,solve --slots 4 --cores 4 --name a1 \
-    --broker "$endpoint" --ready-file "$work/agents/a1.ready" >"$work/agents/a1.log" 2>&1 </dev/null
+    --load-slope 0 --broker "$endpoint" --ready-file "$work/agents/a1.ready" \
+    >"$work/agents/a1.log" 2>&1 </dev/null
   echo $? >"$work/agents/a1.rc" ) >/dev/null 2>&1 </dev/null &
 trap 'sh "$here/../agents/stop_agents.sh" "$work/agents" >/dev/null 2>&1; stop_broker "$work" b; exit 1' INT TERM
 prices() { bcurl -sf "$url/v1/agents" | jq -c '[.agents[] | select(.source == "market" and (.services | length) > 0) | .prices["rotation-fit"], .prices["sparse-solve"]]'; }

@@ -4,8 +4,9 @@
 # a value out of range, a wrong type or an unknown key is refused with exit
 # 2 naming the field, before anything listens; so is a grid config's
 # broker.market, by `grid up`, before any process starts. The k of the
-# central clearing takes effect: k = 1 prices a service at its buyer's
-# limit where no unmatched ask bounds the price, k = 0 below it.
+# central clearing reaches it: clearings.csv records it, and each central
+# service row's price is its clearing's, explained there by the orders
+# that set it (a lone job: nobody left out, so the seller's ask).
 set -u
 bin=$1 scripts=$2 work=$3 config=$4 scene=$5
 here=$(cd "$(dirname "$0")" && pwd)
@@ -45,32 +46,43 @@ check $? "grid up with broker.market.reply_timeout -1: exit 2 naming it, nothing
 sh "$scripts/no_agents_left.sh" "$work/bad-state"
 check $? "no process of the refused grid is left"
 
-# The clearing price: k = 1 puts it at the top of the clearing interval,
-# k = 0 at the bottom. In this grid every service agent has one slot and
+# The clearing price. In this grid every service agent has one slot and
 # every service good as many sellers as the job has units of it, so every
-# ask is matched and none caps the interval: at k = 1 each service row is
-# priced at its buyer's limit, at k = 0 below it (at the ask). (A seller
-# with a slot left over would cap it at its own ask whatever k is, as it
-# does in the simulator.) Layer 1 is not checked here: the host's one
-# resource seller is priced by the same clearing.
+# ask is matched and neither an unsold slot nor a bid left out bounds the
+# interval: the old k-pricing put the price at the buyer's limit at k = 1
+# and between it and the ask at k = 0.5. Now nobody is left out, so each
+# service row is priced at the sellers' ask whatever k is, and its
+# clearing (clearings.csv) says so: rule "ask", price = low, set by a
+# matched seller's ask, high by the job's own bid; k is recorded as
+# configured. Layer 1 is not checked here: the host's one
+# resource seller is priced by the same rule.
 for k in 1 0; do
   jq --argjson k "$k" '.broker.market = {"k": $k, "period": 0.1} | .agents |= map(.slots = 1)' \
     "$config" >"$work/k$k-grid.json"
   grid_up_market "$bin" "$work/k$k-grid.json" "$state"
   jq -n --slurpfile s "$scene" '{scene: $s[0], mechanism: "central", budget: 100}' >"$work/submit.json"
-  id=$(bcurl -sf -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
+  id=$(bcurl -X POST -H 'Content-Type: application/json' --data-binary @"$work/submit.json" \
     "$url/v1/jobs" | jq -r .id)
   st=$(wait_job "$url" "$id" 300)
   [ "$st" = succeeded ]; check $? "central job at k = $k succeeded (got $st)"
-  # Rows are logged when the job's purchase completes, before it runs.
-  bcurl -sf "$url/v1/market/contracts.csv" >"$work/contracts-k$k.csv"
+  bcurl "$url/v1/market/contracts.csv" >"$work/contracts-k$k.csv"
+  bcurl "$url/v1/market/clearings.csv" >"$work/clearings-k$k.csv"
   rows=$(awk -F, 'NR > 1 && $3 == "central" && $4 == "service"' "$work/contracts-k$k.csv" | wc -l)
-  off=$(awk -F, -v k="$k" 'NR > 1 && $3 == "central" && $4 == "service" {
-          at_limit = $13 >= $14 * (1 - 1e-9)
-          if ((k == 1) != at_limit || $13 < $15 * (1 - 1e-12)) n++ } END { print n + 0 }' \
-        "$work/contracts-k$k.csv")
+  # Each central service row joined with its clearing (contracts.csv's
+  # last column): the same price, the ask rule, k as configured, lo set
+  # by a seller's matched ask, hi by the job's bid.
+  off=$(awk -F, -v k="$k" 'FNR == 1 { next }
+          FILENAME ~ /clearings/ { c[$1] = $0; next }
+          $3 == "central" && $4 == "service" {
+            if (!($17 in c)) { n++; next }
+            split(c[$17], x, ",")
+            p = $13; d = p - x[8]; if (d < 0) d = -d
+            if (d > 1e-9 * p || x[7] != "ask" || x[6] + 0 != k || x[9] != x[8] ||
+                x[10] != "matched ask" || x[11] !~ /^agent:[0-9]+$/ ||
+                x[13] != "matched bid" || x[14] != "job:" $9) n++
+          } END { print n + 0 }' "$work/clearings-k$k.csv" "$work/contracts-k$k.csv")
   [ "$rows" -ge 3 ] && [ "$off" -eq 0 ]
-  check $? "k = $k: each of the $rows central service rows is priced $( [ "$k" = 1 ] && echo at || echo below) its buyer's limit and at least its seller's ($off are not)"
+  check $? "k = $k: each of the $rows central service rows is priced by its clearing at its seller's ask, k recorded ($off are not)"
   "$bin" grid down --state "$state" >"$work/down-k$k.txt" 2>&1
   check $? "grid down (k = $k)"
 done

@@ -27,9 +27,10 @@ bcurl -sf "$url/v1/jobs/$id/result/report.json" >"$work/report.json"
 same_energy "$work/report.json" "$work/local/report.json"
 check $? "its energy equals biotgrid solve's (1e-10 relative)"
 bcurl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
-# SERVICE,RESOURCE,QUANTITY per resource row, the service its request serves.
+# SERVICE,RESOURCE,USE per resource row (what it holds while its service
+# runs), the service its request serves.
 awk -F, 'NR > 1 && $4 == "service" { svc[$5] = $11 }
-         NR > 1 && $4 == "resource" { row[++n] = $5 "," $11 "," $12 }
+         NR > 1 && $4 == "resource" { row[++n] = $5 "," $11 "," $16 }
          END { for (i = 1; i <= n; i++) { split(row[i], r, ","); print svc[r[1]] "," r[2] "," r[3] } }' \
   "$work/contracts.csv" | sort >"$work/resources.txt"
 cat "$work/resources.txt"

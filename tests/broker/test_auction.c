@@ -75,25 +75,25 @@ static void test_matches_map_back(void **state)
     seen_t s = {.a = a};
     clear(a, &s, 1.0);
     /* Rotation fit clears first: bid 10 against ask 1 (slot 7), nothing
-     * else in the book: [lo, hi] = [1, 10], price 5.5. Slot 7's one slot
-     * is gone, so the solve bid 12 meets slot 3's ask 4: [4, 12], 8. The
-     * first match's callback announcing a seller does not lose the
-     * second. */
+     * else in the book: [lo, hi] = [1, 10], and with no buyer left out the
+     * price is the ask, 1. Slot 7's one slot is gone, so the solve bid 12
+     * meets slot 3's ask 4: 4. The first match's callback announcing a
+     * seller does not lose the second. */
     assert_int_equal(s.n, 2);
     assert_int_equal(s.m[0].buyer, 5);
     assert_int_equal(s.m[0].req, 41);
     assert_int_equal(s.m[0].attempt, 1);
     assert_int_equal(s.m[0].good, ROTFIT);
     assert_int_equal(s.m[0].slot, 7);
-    assert_true(fabs(s.m[0].price - 5.5) < EPS && fabs(s.m[0].ask - 1.0) < EPS);
+    assert_true(fabs(s.m[0].price - 1.0) < EPS && fabs(s.m[0].ask - 1.0) < EPS);
     assert_int_equal(s.m[1].req, 42);
     assert_int_equal(s.m[1].attempt, 2);
     assert_int_equal(s.m[1].slot, 3);
-    assert_true(fabs(s.m[1].price - 8.0) < EPS && fabs(s.m[1].ask - 4.0) < EPS);
+    assert_true(fabs(s.m[1].price - 4.0) < EPS && fabs(s.m[1].ask - 4.0) < EPS);
 
     /* Exclusions: both sellers free again; buyer 6's solve excludes slot
      * 7, the cheaper ask it is paired with first, so it is cleared alone
-     * against slot 3's ask: [4, 12], 8. */
+     * against slot 3's ask: [4, 12], nobody left out, 4. */
     announce(a, 7, 1.0);
     announce(a, 3, 1.0);
     const int not7[1] = {7};
@@ -102,7 +102,7 @@ static void test_matches_map_back(void **state)
     clear(a, &s, 2.0);
     assert_int_equal(s.n, 1);
     assert_int_equal(s.m[0].slot, 3);
-    assert_true(fabs(s.m[0].price - 8.0) < EPS);
+    assert_true(fabs(s.m[0].price - 4.0) < EPS);
 
     /* A need group split over two: only slot 7 sells rotation fit, one
      * slot: one bid is matched, at [max(1, 10), 10] = 10 (the other bid

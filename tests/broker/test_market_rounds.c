@@ -5,7 +5,8 @@
  *   it answers. A late one from an earlier round leaves the round
  *   unanswered, so the next round's window widens, and the buyer never
  *   bargains on it; a proposal for the current round is taken up with an
- *   OFFER below it;
+ *   OFFER below it, at once when every seller its calls reach that could
+ *   propose has, else when the window closes;
  * - a need split over two sellers goes to two distinct agents under each
  *   mechanism, and a seller's no moves the unit on to another seller;
  * - a sub-job orders its cores and memory at the posted rates (unit
@@ -132,15 +133,13 @@ static void stale_proposal_is_not_counted(void **state)
     assert_int_equal(cfp->attempt, 1);
     assert_false(f.done);
 
-    /* The round heard nothing: its window is twice as long. An answer to
-     * it (attempt 1) is bargained on once the window closes. */
+    /* An answer to the new round (attempt 1), from the only seller that
+     * could propose, is bargained on at once (quiet_round_widens_window
+     * has the window itself). */
     const double round1 = 1.0 + mc.reply_timeout / 8 + 0.01;
     p.attempt = 1;
-    deliver(m, &p, round1 + 0.1);
     const int mark2 = f.nsent;
-    (void)bgb_market_tick(m, round1 + mc.reply_timeout / 8 + 0.01);
-    assert_null(last_of(&f, BGA_MM_OFFER, mark2)); /* the wider window is still open */
-    (void)bgb_market_tick(m, round1 + 2 * mc.reply_timeout / 8 + 0.01);
+    deliver(m, &p, round1 + 0.1);
     const bga_mmsg_t *offer = last_of(&f, BGA_MM_OFFER, mark2);
     assert_non_null(offer);
     assert_int_equal(offer->agent, id);
@@ -297,8 +296,57 @@ static void posted_split_need_and_refusal(void **state)
     bgb_market_destroy(&m);
 }
 
+/* A proposal for round `attempt` of unit `job`'s rotation fit from
+ * agent `who` (id `id`). */
+static void propose_in(bgb_market_t *m, uint8_t who, uint32_t id, int attempt, double price,
+                       double now)
+{
+    bga_mmsg_t p;
+    bga_mmsg_init(&p, BGA_MM_PROPOSE);
+    p.job = 1;
+    p.agent = id;
+    p.good = BGB_GOOD_ROTFIT;
+    p.quantity = 5;
+    p.price = price;
+    p.attempt = attempt;
+    deliver_from(m, who, &p, now);
+}
+
+/* A round nobody answered doubles the next one's window: two sellers
+ * could propose, one does, and the buyer waits out the doubled window
+ * for the other before it bargains. */
+static void quiet_round_widens_window(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.2, 2);
+    (void)seller(m, &f, 'b', 1.3, 2);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 1};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(
+        bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
+    const double w = mc.reply_timeout / 8, round1 = 0.1 + w + 0.01;
+    int mark = f.nsent;
+    (void)bgb_market_tick(m, round1);
+    const bga_mmsg_t *cfp = last_of(&f, BGA_MM_CFP, mark);
+    assert_non_null(cfp);
+    assert_int_equal(cfp->attempt, 1);
+    mark = f.nsent;
+    propose_in(m, 'a', a, 1, 1.2, round1 + 0.05);
+    (void)bgb_market_tick(m, round1 + w + 0.01);
+    assert_null(last_of(&f, BGA_MM_OFFER, mark)); /* b could still propose: the window is open */
+    (void)bgb_market_tick(m, round1 + 2 * w + 0.01);
+    const bga_mmsg_t *offer = last_of(&f, BGA_MM_OFFER, mark);
+    assert_non_null(offer);
+    assert_int_equal(offer->agent, a);
+    bgb_market_destroy(&m);
+}
+
 /* Catallactic: both units of the need hear both sellers' proposals; once
- * the window closes they bargain with different sellers (the cheapest
+ * both have proposed (every seller that could), at once rather than at
+ * the window's end, they bargain with different sellers (the cheapest
  * first), each opening below the proposal; the deliveries buy the job. */
 static void catallactic_split_need(void **state)
 {
@@ -312,10 +360,11 @@ static void catallactic_split_need(void **state)
     assert_int_equal(
         bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
     assert_true(count_to(&f, BGA_MM_CFP, a, 0) >= 1 && count_to(&f, BGA_MM_CFP, b, 0) >= 1);
-    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.2, 0.15);
-    answer_as(m, 'b', b, BGA_MM_PROPOSE, 1.3, 0.15);
     const int mark = f.nsent;
-    (void)bgb_market_tick(m, 0.1 + mc.reply_timeout / 8 + 0.01);
+    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.2, 0.15);
+    assert_int_equal(count_to(&f, BGA_MM_OFFER, a, mark) + count_to(&f, BGA_MM_OFFER, b, mark), 0);
+    answer_as(m, 'b', b, BGA_MM_PROPOSE, 1.3, 0.15);
+    assert_true(0.15 < 0.1 + mc.reply_timeout / 8); /* well before the window's end */
     assert_int_equal(count_to(&f, BGA_MM_OFFER, a, mark), 1);
     assert_int_equal(count_to(&f, BGA_MM_OFFER, b, mark), 1);
     const double pa = last_to(&f, BGA_MM_OFFER, a, mark)->price,
@@ -362,7 +411,6 @@ static void central_refusal_bids_again(void **state)
     assert_true(awarded(&f, b) && !awarded(&f, a));
     bgb_market_destroy(&m);
 }
-
 
 /* ------------------------------------------- resource sub-jobs (layer 1) */
 
@@ -495,7 +543,7 @@ static void catallactic_subjob_bargains_when_heard(void **state)
 static int resource_sellers(const bgb_market_t *m)
 {
     bgb_agent_info_t info[16];
-    const size_t n = bgb_market_agents(m, info, 16);
+    const size_t n = bgb_directory_agents(bgb_market_directory(m), info, 16);
     int k = 0;
     for (size_t i = 0; i < n && i < 16; i++)
         k += info[i].resource;
@@ -546,7 +594,7 @@ static void one_resource_seller_per_host(void **state)
     FILE *out = open_memstream(&csv, &csv_size);
     bg_error_t err = BG_ERROR_INIT;
     assert_non_null(out);
-    assert_int_equal(bgb_market_write_agents_csv(m, out, &err), BG_OK);
+    assert_int_equal(bgb_ledger_write_agents_csv(bgb_market_ledger(m), bgb_market_directory(m), out, &err), BG_OK);
     fclose(out);
     char row[64];
     snprintf(row, sizeof row, ",central,%u,resource,cores,", first);
@@ -646,15 +694,116 @@ static void subjobs_share_the_jobs_cores(void **state)
     bgb_market_destroy(&m);
 }
 
+/* Central: every waiting job that fits on the sellers' free slots enters
+ * the book before the clearing (not one job a clearing): three one-unit
+ * jobs against three free slots are all ordered at the first clearing. */
+static void central_admits_every_fitting_job(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.0, 2), b = seller(m, &f, 'b', 1.1, 1);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 1};
+    bg_error_t err = BG_ERROR_INIT;
+    fake_t done[3];
+    memset(done, 0, sizeof done);
+    for (uint64_t j = 1; j <= 3; j++)
+        assert_int_equal(bgb_market_buy(m, j, BGB_MECH_CENTRAL, 1000, &need, 1, 0.1, on_done,
+                                        &done[j - 1], &err),
+                         BG_OK);
+    double t = 0.1;
+    for (int i = 0;
+         i < 8 && count_to(&f, BGA_MM_ORDER, a, 0) + count_to(&f, BGA_MM_ORDER, b, 0) == 0; i++)
+        (void)bgb_market_tick(m, t += mc.period);
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, a, 0), 2);
+    assert_int_equal(count_to(&f, BGA_MM_ORDER, b, 0), 1);
+    int jobs = 0;
+    for (int i = 0; i < f.nsent; i++)
+        if (f.sent[i].type == BGA_MM_ORDER)
+            jobs |= 1 << (int)f.sent[i].job;
+    assert_int_equal(jobs, 2 | 4 | 8);
+    bgb_market_destroy(&m);
+}
+
+/* A rotation-fit seller of daemon `who` on `host`, 2 slots, asking 1; its id. */
+static uint32_t seller_on(bgb_market_t *m, fake_t *f, uint8_t who, const char *host)
+{
+    bga_mmsg_t reg;
+    bga_mmsg_init(&reg, BGA_MM_REGISTER);
+    snprintf(reg.name, sizeof reg.name, "s%c", who);
+    snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://%s:%d", host, 9000 + who);
+    reg.services = 1u << BGB_GOOD_ROTFIT;
+    reg.slots = reg.free_slots = 2;
+    reg.floor[BGB_GOOD_ROTFIT] = 1.0 / 1.2;
+    reg.prices[BGB_GOOD_ROTFIT] = 1.0;
+    reg.margin = 0.2;
+    const int mark = f->nsent;
+    deliver_from(m, who, &reg, 0.0);
+    const bga_mmsg_t *r = last_of(f, BGA_MM_REGISTERED, mark);
+    assert_non_null(r);
+    return r->agent;
+}
+
+/* The cores ORDER to `to` since `from`, NULL when none. */
+static const bga_mmsg_t *cores_order(const fake_t *f, uint32_t to, int from)
+{
+    for (int i = f->nsent - 1; i >= from; i--)
+        if (f->sent[i].type == BGA_MM_ORDER && f->sent[i].agent == to &&
+            f->sent[i].good == BGB_GOOD_CORES)
+            return &f->sent[i];
+    return NULL;
+}
+
+/* Central resources clear per host: two basic sellers on two hosts each
+ * ask for cores in the same period; both sub-jobs are ordered from their
+ * own host's seller at the same clearing. In one book for every host the
+ * higher bid (host 2's) met the cheaper ask (host 1's seller) and the
+ * lower bid the dearer ask: both fills crossed hosts and were dropped. */
+static void central_resources_cleared_per_host(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller_on(m, &f, 'a', "127.0.0.1"), x = seller_on(m, &f, 'x', "127.0.0.2");
+    const uint32_t ra = register_resource(m, &f, 'a', "127.0.0.1", 1e-3, 8, 0.0)->agent;
+    const uint32_t rx = register_resource(m, &f, 'x', "127.0.0.2", 2e-3, 8, 0.0)->agent;
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 2};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(bgb_market_buy(m, 1, BGB_MECH_CENTRAL, 1000, &need, 1, 0.1, on_done, &f, &err),
+                     BG_OK);
+    double t = 0.1;
+    for (int i = 0; i < 8 && !(last_to(&f, BGA_MM_ORDER, a, 0) && last_to(&f, BGA_MM_ORDER, x, 0));
+         i++)
+        (void)bgb_market_tick(m, t += mc.period);
+    assert_non_null(last_to(&f, BGA_MM_ORDER, a, 0));
+    assert_non_null(last_to(&f, BGA_MM_ORDER, x, 0));
+    const int mark = f.nsent;
+    rbuy(m, 'a', a, 1, BGB_GOOD_ROTFIT, 1, 1, 1.0, t + 0.01);
+    rbuy(m, 'x', x, 1, BGB_GOOD_ROTFIT, 1, 1, 2.0, t + 0.01);
+    for (int i = 0; i < 8 && !cores_order(&f, ra, mark) && !cores_order(&f, rx, mark); i++)
+        (void)bgb_market_tick(m, t += mc.period);
+    const bga_mmsg_t *oa = cores_order(&f, ra, mark), *ox = cores_order(&f, rx, mark);
+    assert_non_null(oa);
+    assert_non_null(ox);
+    assert_true(oa->job != ox->job && oa->parent == 1 && ox->parent == 1);
+    assert_true(oa->price >= 1e-3 && ox->price >= 2e-3);
+    bgb_market_destroy(&m);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {cmocka_unit_test(stale_proposal_is_not_counted),
                                        cmocka_unit_test(posted_split_need_and_refusal),
                                        cmocka_unit_test(catallactic_split_need),
+                                       cmocka_unit_test(quiet_round_widens_window),
                                        cmocka_unit_test(central_refusal_bids_again),
                                        cmocka_unit_test(posted_subjob),
                                        cmocka_unit_test(catallactic_subjob_bargains_when_heard),
                                        cmocka_unit_test(one_resource_seller_per_host),
-                                       cmocka_unit_test(subjobs_share_the_jobs_cores)};
+                                       cmocka_unit_test(subjobs_share_the_jobs_cores),
+                                       cmocka_unit_test(central_admits_every_fitting_job),
+                                       cmocka_unit_test(central_resources_cleared_per_host)};
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -367,7 +367,14 @@ static void test_market_endpoints(void **state)
     assert_int_equal(r.status, 200);
     conforms(f, "/v1/market/contracts.csv", "GET", &r);
     assert_string_equal(r.body, "scenario,replication,mechanism,layer,request,time,start,end,"
-                                "buyer,seller,good,quantity,price,buyer_limit,seller_limit\n");
+                                "buyer,seller,good,quantity,price,buyer_limit,seller_limit,use,"
+                                "clearing\n");
+    release(&r);
+    r = request(f, "GET", "/v1/market/clearings.csv", NULL, NULL);
+    assert_int_equal(r.status, 200);
+    conforms(f, "/v1/market/clearings.csv", "GET", &r);
+    assert_string_equal(r.body, "clearing,time,layer,good,volume,k,rule,price,low,low_order,"
+                                "low_owner,high,high_order,high_owner\n");
     release(&r);
     r = request(f, "GET", "/v1/market/agents.csv", NULL, NULL);
     assert_int_equal(r.status, 200);

@@ -12,7 +12,11 @@
 #   audit-live:  --live counts a job's cores at a seller as its widest
 #                service's: a 2-core host selling one job a core for each
 #                of two rotation-fit agents and two for its sparse solve
-#                passes; the same rows split over two jobs fail.
+#                passes; the same rows split over two jobs fail. With
+#                --paid-ratio 0.05 the one job paying for each phase's cores
+#                (4 core-units for 2 it can hold) fails; paying for its
+#                widest phase once (the live columns use and clearing: the
+#                sparse solve's row holds 2 and pays 0) passes.
 #   wire:        smoke.json and a shortened shock.json (one replication, the
 #                shock kept) under --engine inprocess and --engine wire: every
 #                output file equal byte for byte (cmp), and the audit (AUDIT)
@@ -185,6 +189,25 @@ CSV
     rows j1 > "$WORK/live/one/contracts.csv"
     rows j2 > "$WORK/live/two/contracts.csv"
     "$AUDIT" --live "$WORK/live/one" || { echo "FAIL: one job's phases sharing two cores failed the live audit"; exit 1; }
+    set +e
+    "$AUDIT" --live --paid-ratio 0.05 "$WORK/live/one" > "$WORK/live/one.out" 2>&1; rc=$?
+    set -e
+    [ "$rc" -eq 1 ] && grep -q "pay for 2.0000 cores units per unit they can hold" "$WORK/live/one.out" ||
+        { echo "FAIL: a job paying for every phase's cores passed --paid-ratio"; cat "$WORK/live/one.out"; exit 1; }
+    mkdir -p "$WORK/live/once"
+    sed 's/,posted,/,central,/' "$WORK/live/one/agents.csv" > "$WORK/live/once/agents.csv"
+    {
+        echo "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,good,quantity,price,buyer_limit,seller_limit,use,clearing"
+        for r in 1 2 3; do
+            echo "g,0,central,service,$r,0,0,10,j1,$r,$( [ "$r" -eq 3 ] && echo sparse-solve || echo rotation-fit),1,1.2,2,1,1,$r"
+            paid=1 use=1; [ "$r" -eq 3 ] && paid=0 use=2
+            echo "g,0,central,resource,$r,0,0,10,$r,9,cores,$paid,1e-05,2e-05,1e-05,$use,"
+            echo "g,0,central,resource,$r,0,0,10,$r,9,memory,$use,2e-06,4e-06,2e-06,$use,"
+        done
+    } > "$WORK/live/once/contracts.csv"
+    "$AUDIT" --live --paid-ratio 0.05 "$WORK/live/once" > "$WORK/live/once.out" 2>&1 &&
+        grep -q "paid/holdable 1.0000 (cores 20/20" "$WORK/live/once.out" ||
+        { echo "FAIL: a job paying for its widest phase once failed --paid-ratio"; cat "$WORK/live/once.out"; exit 1; }
     set +e
     "$AUDIT" --live "$WORK/live/two" > "$WORK/live/two.out" 2>&1; rc=$?
     set -e

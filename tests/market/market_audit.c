@@ -28,6 +28,17 @@
  * jobs holding cores of a seller, the sum of each job's most cores held
  * for one service (the service row of the resource row's request names
  * the job, its buyer, and the service, its good).
+ *
+ * A live log has two more columns after the simulator's: `use`, what a
+ * row's service holds while it runs (a cores row's `quantity` is what it
+ * pays: what its phase adds to the job's widest phase on that host), and
+ * `clearing`. Capacity counts `use` (without the column, `quantity`).
+ * market_audit --live --paid-ratio TOL DIR also checks that jobs pay for
+ * what they can hold: over the resource rows, the unit-seconds paid
+ * (quantity × duration) against those a job can hold at once (per job and
+ * seller: cores, its widest service's `use` at each moment; memory, the
+ * sum), per good and in all, each within 1 ± TOL. The ratio is printed
+ * with every live audit.
  */
 #include <math.h>
 #include <stdio.h>
@@ -52,7 +63,7 @@ typedef struct contract {
      * a resource row's are its service row's (link_services). */
     char job[NAME_MAX_LEN], service[NAME_MAX_LEN];
     int layer, memory;
-    double start, end, quantity, price, blim, slim;
+    double start, end, quantity, price, blim, slim, use;
     long buyer, seller, request;
 } contract_t;
 
@@ -252,11 +263,95 @@ static int fail(const char *what)
     return 1;
 }
 
+static int cmp_holding(const void *a, const void *b)
+{
+    const contract_t *x = *(const contract_t *const *)a, *y = *(const contract_t *const *)b;
+    int k = strcmp(x->skey, y->skey);
+    return k ? k : strcmp(x->job, y->job);
+}
+
+/* Unit-seconds one job can hold of one seller's cores (rows of one
+ * (run, seller, good, job), n of them): at each moment the most any of its
+ * services holds (`use`), integrated over time. */
+static double widest_held(const contract_t *const *rows, size_t n)
+{
+    ev_t *ev = malloc((2 * n + 1) * sizeof *ev);
+    if (!ev)
+        return NAN;
+    for (size_t i = 0; i < n; i++) {
+        ev[2 * i] = (ev_t){rows[i]->start, rows[i]->use, rows[i]};
+        ev[2 * i + 1] = (ev_t){rows[i]->end, -rows[i]->use, rows[i]};
+    }
+    qsort(ev, 2 * n, sizeof *ev, cmp_ev);
+    const char *service[8];
+    double held[8] = {0}, total = 0, t = ev[0].t;
+    int nservices = 0;
+    for (size_t e = 0; e < 2 * n; e++) {
+        double most = 0;
+        for (int q = 0; q < nservices; q++)
+            most = held[q] > most ? held[q] : most;
+        total += most * (ev[e].t - t);
+        t = ev[e].t;
+        int p = 0;
+        while (p < nservices && strcmp(service[p], ev[e].row->service) != 0)
+            p++;
+        if (p == nservices) {
+            if (p == 8)
+                p = 7; /* more services than the grid has: lumped, never undercounted */
+            else
+                service[nservices++] = ev[e].row->service;
+        }
+        held[p] += ev[e].d;
+    }
+    free(ev);
+    return total;
+}
+
+/*
+ * Resource unit-seconds paid against those the jobs can hold at once,
+ * per good (0 cores, 1 memory): paid[g] and holdable[g]. Rows are
+ * grouped by run, seller, good and job (after link_services).
+ */
+static int paid_and_holdable(const contract_t *c, size_t n, double paid[2], double holdable[2])
+{
+    const contract_t **by = malloc((n ? n : 1) * sizeof *by);
+    if (!by)
+        return -1;
+    size_t m = 0;
+    paid[0] = paid[1] = holdable[0] = holdable[1] = 0;
+    for (size_t i = 0; i < n; i++)
+        if (c[i].layer == 1) {
+            by[m++] = &c[i];
+            paid[c[i].memory] += c[i].quantity * (c[i].end - c[i].start);
+        }
+    qsort(by, m, sizeof *by, cmp_holding);
+    for (size_t i = 0; i < m;) {
+        size_t j = i;
+        while (j < m && cmp_holding(&by[i], &by[j]) == 0)
+            j++;
+        if (by[i]->memory)
+            for (size_t k = i; k < j; k++)
+                holdable[1] += by[k]->use * (by[k]->end - by[k]->start);
+        else
+            holdable[0] += widest_held(by + i, j - i);
+        i = j;
+    }
+    free(by);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
-    const int live = argc == 3 && strcmp(argv[1], "--live") == 0;
+    const int live = (argc == 3 || argc == 5) && strcmp(argv[1], "--live") == 0;
+    double tolerance = -1; /* --paid-ratio: none */
+    if (live && argc == 5) {
+        char *end = NULL;
+        tolerance = strcmp(argv[2], "--paid-ratio") == 0 ? strtod(argv[3], &end) : -1;
+        if (!end || *end || !(tolerance >= 0))
+            return fail("usage: market_audit [--live [--paid-ratio TOL]] DIR");
+    }
     if (argc != 2 && !live)
-        return fail("usage: market_audit [--live] DIR");
+        return fail("usage: market_audit [--live [--paid-ratio TOL]] DIR");
     const char *dir = argv[argc - 1];
     char path[4096], line[LINE_MAX_LEN], *f[FIELDS_MAX], msg[512];
     size_t n = 0, alloc = 1024, ncap = 0, capalloc = 1024;
@@ -268,12 +363,19 @@ int main(int argc, char **argv)
     FILE *fp = fopen(path, "r");
     if (!fp || !fgets(line, sizeof line, fp))
         return fail("cannot read contracts.csv");
-    if (strcmp(line, "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,"
-                     "good,quantity,price,buyer_limit,seller_limit\n") != 0)
+    const char *header = "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,"
+                         "good,quantity,price,buyer_limit,seller_limit";
+    const size_t hlen = strlen(header);
+    /* A live log may add its own two columns after the simulator's. */
+    const int extra = strcmp(line + hlen, ",use,clearing\n") == 0;
+    if (strncmp(line, header, hlen) != 0 || (!extra && strcmp(line + hlen, "\n") != 0))
         return fail("contracts.csv header differs from the documented one");
+    const int nfields = extra ? 17 : 15;
     while (fgets(line, sizeof line, fp)) {
-        if (split(line, f) != 15)
-            return fail("contracts.csv: row without 15 fields");
+        if (split(line, f) != nfields)
+            return fail(extra ? "contracts.csv: row without 17 fields"
+                              : "contracts.csv: row without 15 fields");
+        const double use = extra ? atof(f[15]) : atof(f[11]);
         request_last(f);
         if (n == alloc)
             c = realloc(c, (alloc *= 2) * sizeof *c);
@@ -300,6 +402,7 @@ int main(int argc, char **argv)
         x->price = atof(f[11]);
         x->blim = atof(f[12]);
         x->slim = atof(f[13]);
+        x->use = use;
         if (x->price < x->slim * (1 - REL_TOL) || x->price > x->blim * (1 + REL_TOL)) {
             snprintf(msg, sizeof msg, "price %g outside [%g, %g] (%s)", x->price, x->slim,
                      x->blim, x->skey);
@@ -339,7 +442,8 @@ int main(int argc, char **argv)
     for (size_t i = 0; i < n;) {
         size_t j = i, k = 0;
         while (j < n && strcmp(c[j].skey, c[i].skey) == 0) {
-            double q = c[j].layer == 0 ? 1.0 : c[j].quantity;
+            /* Live cores count what a service holds (by phase, below). */
+            double q = c[j].layer == 0 ? 1.0 : live && !c[j].memory ? c[j].use : c[j].quantity;
             ev[k++] = (ev_t){c[j].start, q, &c[j]};
             ev[k++] = (ev_t){c[j].end, -q, &c[j]};
             j++;
@@ -412,6 +516,21 @@ int main(int argc, char **argv)
     }
 
     if (live) {
+        double bought[2], holdable[2];
+        if (paid_and_holdable(c, n, bought, holdable) != 0)
+            return fail("out of memory");
+        const double all = (bought[0] + bought[1]) / (holdable[0] + holdable[1]);
+        const double ratio[3] = {bought[0] / holdable[0], bought[1] / holdable[1], all};
+        printf("market_audit: resources paid/holdable %.4f (cores %.6g/%.6g, memory %.6g/%.6g "
+               "unit-seconds)\n",
+               all, bought[0], holdable[0], bought[1], holdable[1]);
+        for (int g = 0; g < 3 && tolerance >= 0; g++)
+            if (!(fabs(ratio[g] - 1.0) <= tolerance) && (g == 2 || holdable[g] > 0)) {
+                snprintf(msg, sizeof msg,
+                         "jobs pay for %.4f %s units per unit they can hold (1 ± %g allowed)",
+                         ratio[g], g == 0 ? "cores" : g == 1 ? "memory" : "resource", tolerance);
+                return fail(msg);
+            }
         printf("market_audit: %zu live contracts, %zu capacities: invariants 1-3, 6, 7 hold\n", n,
                ncap);
         free(c);

@@ -137,16 +137,31 @@ static void two_trades(bgm_callmarket_t *cm)
     add_ask(cm, 12, 1, 2.0);
 }
 
-/* Scarcity moves the price: the same two trades clear higher when more
- * buyers are left out (excess demand) and lower when more sellers are
- * (excess supply); the old marginal-pair rule priced all three alike. */
+/* A random book: 1 to `most` bids and asks of 1-3 units each, limits
+ * uniform in [0, 10); their numbers into *nb and *na. */
+static void random_book(bgm_callmarket_t *cm, bgm_rng_t *rng, uint32_t most, int *nb, int *na)
+{
+    bgm_callmarket_reset(cm);
+    *nb = 1 + (int)bgm_rng_below(rng, most);
+    *na = 1 + (int)bgm_rng_below(rng, most);
+    for (int i = 0; i < *nb; i++)
+        add_bid(cm, (uint64_t)i, 1 + (int)bgm_rng_below(rng, 3), 10.0 * bgm_rng_uniform(rng));
+    for (int i = 0; i < *na; i++)
+        add_ask(cm, (uint64_t)(100 + i), 1 + (int)bgm_rng_below(rng, 3),
+                10.0 * bgm_rng_uniform(rng));
+}
+
+/* Scarcity moves the price: the same two trades clear higher when buyers
+ * who would pay the sellers' asks are left out (excess demand), and at the
+ * marginal ask when none is, however many sellers are left out; the old
+ * marginal-pair rule priced all three alike. */
 static void test_callmarket_scarcity(void **state)
 {
     (void)state;
     bgm_callmarket_t *cm = bgm_callmarket_new(16);
     two_trades(cm);
     const double balanced = clear_price(cm, 0.5);
-    assert_float_equal(balanced, 2.0 + 0.5 * (9.0 - 2.0), EPS);
+    assert_float_equal(balanced, 2.0, EPS);
     add_bid(cm, 3, 1, 8.0);
     add_bid(cm, 4, 1, 7.5);
     const double demand = clear_price(cm, 0.5);
@@ -155,8 +170,12 @@ static void test_callmarket_scarcity(void **state)
     add_ask(cm, 13, 1, 3.0);
     add_ask(cm, 14, 1, 4.0);
     const double supply = clear_price(cm, 0.5);
-    assert_float_equal(supply, 2.0 + 0.5 * (3.0 - 2.0), EPS);
-    assert_true(demand > balanced && balanced > supply);
+    assert_float_equal(supply, 2.0, EPS);
+    assert_true(demand > balanced && balanced >= supply);
+    /* A bid left out below the sellers' asks competes with nobody. */
+    two_trades(cm);
+    add_bid(cm, 3, 1, 1.5);
+    assert_float_equal(clear_price(cm, 0.5), 2.0, EPS);
     /* A seller with spare units prices at its own ask. */
     bgm_callmarket_reset(cm);
     add_bid(cm, 1, 2, 10.0);
@@ -170,13 +189,8 @@ static void test_callmarket_scarcity(void **state)
     bgm_rng_seed(&rng, 77);
     bgm_fill_t fills[64];
     for (int trial = 0; trial < 200; trial++) {
-        bgm_callmarket_reset(cm);
-        int nb = 1 + (int)bgm_rng_below(&rng, 8), na = 1 + (int)bgm_rng_below(&rng, 8);
-        for (int i = 0; i < nb; i++)
-            add_bid(cm, (uint64_t)i, 1 + (int)bgm_rng_below(&rng, 3), 10.0 * bgm_rng_uniform(&rng));
-        for (int i = 0; i < na; i++)
-            add_ask(cm, (uint64_t)(100 + i), 1 + (int)bgm_rng_below(&rng, 3),
-                    10.0 * bgm_rng_uniform(&rng));
+        int nb, na;
+        random_book(cm, &rng, 8, &nb, &na);
         const double k = bgm_rng_uniform(&rng);
         bgm_clearing_t res;
         assert_int_equal(bgm_callmarket_clear(cm, k, &res, fills, 64), BG_OK);
@@ -198,6 +212,112 @@ static void test_callmarket_scarcity(void **state)
             if (sold[i] < bgm_callmarket_asks(cm)[i].quantity)
                 assert_true(bgm_callmarket_asks(cm)[i].price >= res.price - EPS);
     }
+    bgm_callmarket_destroy(&cm);
+}
+
+/* Clears cm at k into *res (fills discarded); returns the price, or NAN
+ * when nothing trades. */
+static double clear_into(bgm_callmarket_t *cm, double k, bgm_clearing_t *res)
+{
+    bgm_fill_t fills[64];
+    assert_int_equal(bgm_callmarket_clear(cm, k, res, fills, 64), BG_OK);
+    return res->volume > 0 ? res->price : NAN;
+}
+
+/* Issue 28's book, by hand: a lone job's sparse-solve bid, its limit a
+ * share of a budget of 1,000 (371.88), against the one seller of the good
+ * (ask 1.68 at half load). With one free slot nothing is left out on
+ * either side; k-pricing put the price at the midpoint, 186.78, where the
+ * same seller with a slot to spare priced at its ask: 111 times more for
+ * the same job. Now both price at the ask, whatever the buyer's limit and
+ * k, and the clearing names the orders that set its bounds. */
+static void test_callmarket_lone_bid(void **state)
+{
+    (void)state;
+    bgm_callmarket_t *cm = bgm_callmarket_new(16);
+    bgm_clearing_t res;
+    const double ks[3] = {0.0, 0.5, 1.0};
+    for (int spare = 0; spare <= 1; spare++)
+        for (int i = 0; i < 3; i++) {
+            bgm_callmarket_reset(cm);
+            add_bid(cm, 7, 1, 371.88);
+            add_ask(cm, 40, 1 + spare, 1.68);
+            assert_float_equal(clear_into(cm, ks[i], &res), 1.68, EPS);
+            assert_int_equal(res.volume, 1);
+            assert_false(res.rationed);
+            /* lo is the seller's ask; hi the job's own limit, or the
+             * seller's unsold slot. */
+            assert_false(res.low_by.is_bid);
+            assert_false(res.low_by.excluded);
+            assert_int_equal(res.low_by.ref, 40);
+            assert_float_equal(res.low, 1.68, EPS);
+            assert_int_equal(res.high_by.is_bid, !spare);
+            assert_int_equal(res.high_by.excluded, spare);
+            assert_float_equal(res.high, spare ? 1.68 : 371.88, EPS);
+        }
+    /* The buyer's limit does not move the price it pays. */
+    bgm_callmarket_reset(cm);
+    add_bid(cm, 7, 1, 2.0);
+    add_ask(cm, 40, 1, 1.68);
+    assert_float_equal(clear_into(cm, 0.5, &res), 1.68, EPS);
+    /* Two equal jobs for one slot: the one left out bids what the other
+     * pays (rationed, lo set by the excluded bid). */
+    bgm_callmarket_reset(cm);
+    add_bid(cm, 7, 1, 371.88);
+    add_bid(cm, 8, 1, 371.88);
+    add_ask(cm, 40, 1, 1.68);
+    assert_float_equal(clear_into(cm, 0.5, &res), 371.88, EPS);
+    assert_true(res.rationed);
+    assert_true(res.low_by.is_bid && res.low_by.excluded);
+    assert_int_equal(res.low_by.ref, 8);
+    /* Rationed, with a spread: k places the price between the bid left
+     * out and the seller left out. */
+    bgm_callmarket_reset(cm);
+    add_bid(cm, 7, 1, 10.0);
+    add_bid(cm, 8, 1, 4.0);
+    add_ask(cm, 40, 1, 1.0);
+    add_ask(cm, 41, 1, 6.0);
+    assert_float_equal(clear_into(cm, 0.25, &res), 4.0 + 0.25 * (6.0 - 4.0), EPS);
+    assert_true(res.rationed);
+    assert_int_equal(res.low_by.ref, 8);
+    assert_true(!res.high_by.is_bid && res.high_by.excluded);
+    assert_int_equal(res.high_by.ref, 41);
+    bgm_callmarket_destroy(&cm);
+}
+
+/* Random books: one more bid never lowers the price, one more ask never
+ * raises it. The textbook rule had this too; the guard is that pricing an
+ * unrationed book at its marginal ask keeps it (lone_bid shows what it
+ * changes). */
+static void test_callmarket_monotone(void **state)
+{
+    (void)state;
+    bgm_callmarket_t *cm = bgm_callmarket_new(32);
+    bgm_rng_t rng;
+    bgm_rng_seed(&rng, 2028);
+    int compared = 0;
+    for (int trial = 0; trial < 2000; trial++) {
+        int nb, na;
+        random_book(cm, &rng, 6, &nb, &na);
+        const double k = bgm_rng_uniform(&rng);
+        bgm_clearing_t res;
+        const double before = clear_into(cm, k, &res);
+        const int more_demand = bgm_rng_below(&rng, 2) == 0;
+        const double p = 10.0 * bgm_rng_uniform(&rng);
+        if (more_demand)
+            add_bid(cm, 50, 1 + (int)bgm_rng_below(&rng, 3), p);
+        else
+            add_ask(cm, 150, 1 + (int)bgm_rng_below(&rng, 3), p);
+        const double after = clear_into(cm, k, &res);
+        if (isnan(before) || isnan(after))
+            continue;
+        compared++;
+        if (more_demand)
+            assert_true(after >= before - EPS);
+        else
+            assert_true(after <= before + EPS);
+    }
+    assert_true(compared > 500);
     bgm_callmarket_destroy(&cm);
 }
 
@@ -1639,6 +1759,8 @@ int main(void)
         cmocka_unit_test(test_callmarket_uniform_price),
         cmocka_unit_test(test_callmarket_multi_unit),
         cmocka_unit_test(test_callmarket_scarcity),
+        cmocka_unit_test(test_callmarket_lone_bid),
+        cmocka_unit_test(test_callmarket_monotone),
         cmocka_unit_test(test_callmarket_cap),
         cmocka_unit_test(test_callmarket_reset),
         cmocka_unit_test(test_combex_known_optimum),

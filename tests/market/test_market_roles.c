@@ -121,7 +121,9 @@ static double kdouble(double *b, int nb, double *a, int na, double k, int *volum
     double bm = b[v - 1], am = a[v - 1];
     double bx = v < nb ? b[v] : -INFINITY, ax = v < na ? a[v] : INFINITY;
     double lo = fmax(am, bx), hi = fmin(bm, ax);
-    return lo + k * (hi - lo);
+    /* k places the price only where a buyer left out would pay the
+     * marginal ask (bgm_callmarket.h). */
+    return bx >= am ? lo + k * (hi - lo) : lo;
 }
 
 /* A central market agent clears a service book to the k-double price:
@@ -143,7 +145,7 @@ static void test_auctioneer_clears_to_kdouble_price(void **state)
     assert_true(fabs(bgm_outbox_item(ob, 0)->at - cfg.central.period) < EPS);
     bgm_outbox_clear(ob);
 
-    double asks[] = {3.0, 7.0, 9.0}, bids[] = {10.0, 6.0, 8.0, 4.5};
+    double asks[] = {3.0, 7.0, 9.0}, bids[] = {10.0, 7.5, 8.0, 4.5};
     for (int i = 0; i < 3; i++)
         ask(ma, ob, FIRST_BASIC + (uint32_t)i, BGM_GOOD_SOLVE, asks[i], 1.0);
     ask(ma, ob, FIRST_BASIC, BGM_GOOD_ROTFIT, 1.0, 1.0); /* another good: no part of this book */
@@ -160,7 +162,9 @@ static void test_auctioneer_clears_to_kdouble_price(void **state)
     int volume = 0;
     double p = kdouble(sb, 4, sa, 3, k, &volume);
     assert_int_equal(volume, 2);
-    assert_true(fabs(p - (7.0 + k * (8.0 - 7.0))) < EPS); /* [max(7, 6), min(8, 9)] */
+    /* The bid of 7.5 is left out above the marginal ask 7: k places the
+     * price in [max(7, 7.5), min(8, 9)]. */
+    assert_true(fabs(p - (7.5 + k * (8.0 - 7.5))) < EPS);
 
     assert_int_equal(bgm_market_agent_on_timer(ma, BGM_MA_TIMER_CLEAR, 0, 1.0, ob), BG_OK);
     int matches = 0, accepts = 0, timers = 0;

@@ -22,14 +22,9 @@
  *       the directory to lose the agent selling the host (the script kills
  *       it) and a standby daemon of the host to take its place, and buys
  *       from the survivors.
- *   live_host bench DIR NAGENTS ROUNDS   prints allocation latency per
- *       mechanism (submit → all services bought), median, p90 and max; an
- *       allocation that fails for want of a free seller or by timeout is
- *       asked again with backoff, as the broker's coordinator does, its
- *       latency counted from the first ask, and the count is printed.
- * Exits 0 when every check holds, 1 with the first failure otherwise.
+ * (The latency benchmark that lived here is bench_alloc.) Exits 0 when
+ * every check holds, 1 with the first failure otherwise.
  */
-#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -40,10 +35,7 @@
 #include "bga_transport.h"
 #include "bga_wire.h"
 #include "bgb_market.h"
-
-/* s: how long the bench asks again after a transient failure (the
- * broker asks for 120 s; the test's timeout leaves this half). */
-#define BENCH_PATIENCE 60.0
+#include "live_net.h"
 
 #define FAIL(...)                                                                                  \
     do {                                                                                           \
@@ -52,50 +44,7 @@
         exit(1);                                                                                   \
     } while (0)
 
-typedef struct host {
-    void *ctx, *router;
-    bgb_market_t *market;
-} host_t;
-
-static bg_status host_send(void *ctx, const uint8_t *idn, size_t len, const bga_frame_t *frames,
-                           int nframes)
-{
-    host_t *h = ctx;
-    if (zmq_send(h->router, idn, len, ZMQ_SNDMORE) < 0)
-        return BG_ERR_IO;
-    for (int i = 0; i < nframes; i++)
-        if (zmq_send(h->router, frames[i].data, frames[i].size, i + 1 < nframes ? ZMQ_SNDMORE : 0) <
-            0)
-            return BG_ERR_IO;
-    return BG_OK;
-}
-
-/* Runs the loop for at most `seconds`, or until *flag becomes non-zero. */
-static void pump(host_t *h, double seconds, const int *flag)
-{
-    const double end = bg_clock_now() + seconds;
-    while ((!flag || !*flag) && bg_clock_now() < end) {
-        double next = bgb_market_tick(h->market, bg_clock_now());
-        long ms = (long)ceil((next - bg_clock_now()) * 1000);
-        if (ms < 1)
-            ms = 1;
-        if (ms > 50)
-            ms = 50;
-        zmq_pollitem_t it = {h->router, 0, ZMQ_POLLIN, 0};
-        if (zmq_poll(&it, 1, ms) <= 0)
-            continue;
-        bga_received_t r;
-        if (bga_recv(h->router, 1, &r, NULL) != BG_OK)
-            continue;
-        bga_frame_t v[BGA_WIRE_MAX_FRAMES + 1];
-        bga_received_view(&r, v);
-        bg_error_t err = BG_ERROR_INIT;
-        if (bgb_market_on_frames(h->market, zmq_msg_data(&r.route), zmq_msg_size(&r.route), v,
-                                 r.count, bg_clock_now(), &err) != BG_OK)
-            FAIL("on_frames: %s", err.message);
-        bga_received_close(&r);
-    }
-}
+typedef live_net_t host_t;
 
 typedef struct outcome {
     int done;
@@ -125,7 +74,7 @@ static void buy(host_t *h, uint64_t job, bgb_mechanism mech, double budget, outc
     if (bgb_market_buy(h->market, job, mech, budget, plan, 2, bg_clock_now(), on_done, o, &err) !=
         BG_OK)
         FAIL("buy job %llu: %s", (unsigned long long)job, err.message);
-    pump(h, 20.0, &o->done);
+    live_net_pump(h, 20.0, &o->done);
     if (!o->done)
         FAIL("job %llu under %s: no outcome in 20 s", (unsigned long long)job,
              bgb_mechanism_name(mech));
@@ -141,7 +90,7 @@ static void count_cb(void *ctx, const bgb_contract_t *r)
 static size_t contracts(host_t *h)
 {
     count_contracts_cb_n = 0;
-    bgb_market_contracts(h->market, count_cb, NULL);
+    bgb_ledger_each(bgb_market_ledger(h->market), count_cb, NULL);
     return count_contracts_cb_n;
 }
 
@@ -149,7 +98,7 @@ static size_t contracts(host_t *h)
 static void count_roles(host_t *h, size_t out[2])
 {
     bgb_agent_info_t info[64];
-    const size_t n = bgb_market_agents(h->market, info, 64);
+    const size_t n = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     out[0] = out[1] = 0;
     for (size_t i = 0; i < n && i < 64; i++)
         out[info[i].resource != 0]++;
@@ -159,27 +108,11 @@ static void count_roles(host_t *h, size_t out[2])
 static uint32_t resource_seller(host_t *h)
 {
     bgb_agent_info_t info[64];
-    const size_t n = bgb_market_agents(h->market, info, 64);
+    const size_t n = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     for (size_t i = 0; i < n && i < 64; i++)
         if (info[i].resource)
             return info[i].id;
     return 0;
-}
-
-/* n basic sellers and their host's one resource seller (all agents run
- * on loopback: one host). */
-static void wait_agents(host_t *h, size_t n)
-{
-    const double end = bg_clock_now() + 30;
-    size_t roles[2] = {0, 0};
-    while (bg_clock_now() < end) {
-        pump(h, 0.1, NULL);
-        count_roles(h, roles);
-        if (roles[0] == n && roles[1] == 1)
-            return;
-    }
-    FAIL("%zu agents did not register with one resource seller within 30 s (%zu, %zu)", n, roles[0],
-         roles[1]);
 }
 
 static const bgb_agent_info_t *find_agent(const bgb_agent_info_t *info, size_t n, uint32_t id)
@@ -202,7 +135,7 @@ static void check_awards(host_t *h, const outcome_t *o, double budget, const cha
     int rot = 0, solve = 0;
     double spent = 0;
     bgb_agent_info_t info[64];
-    const size_t na = bgb_market_agents(h->market, info, 64);
+    const size_t na = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     for (int i = 0; i < o->nawards; i++) {
         const bgb_award_t *a = &o->awards[i];
         rot += a->good == BGB_GOOD_ROTFIT;
@@ -268,7 +201,8 @@ static void check_refusal(void *ctx, const char *endpoint, uint64_t job)
         FAIL("refusal probe: the agent did not refuse job %llu with NO_JOB",
              (unsigned long long)job);
     char text[256] = {0}, want[64];
-    const size_t n = rep.array[BGA_ERR_MESSAGE].count < 255 ? rep.array[BGA_ERR_MESSAGE].count : 255;
+    const size_t n =
+        rep.array[BGA_ERR_MESSAGE].count < 255 ? rep.array[BGA_ERR_MESSAGE].count : 255;
     memcpy(text, rep.array[BGA_ERR_MESSAGE].data, n);
     snprintf(want, sizeof want, "job %llu", (unsigned long long)job);
     if (!strstr(text, want))
@@ -298,15 +232,17 @@ static const double unit_cores[3] = {1.0, 2.0, 1.0}, unit_memory[3] = {1.0, 4.0,
 /* Every awarded seller of job `job` bought its unit's resources: the
  * service row's request has a cores row and a memory row, bought by that
  * seller from a resource seller, each price within both limits, the
- * resources held from before the service started, and costing the seller
- * over their lease no more than the service earns. */
+ * resources held (`use`) from before the service started, and costing the
+ * seller over their lease no more than the service earns. The job pays
+ * for its cores once, at its widest phase: the cores rows' quantities add
+ * up to 2 (rotation fit 1 + 1, sparse solve 2, one after another). */
 static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char *mech)
 {
     static rows_t rows;
     rows.n = 0;
-    bgb_market_contracts(h->market, collect, &rows);
+    bgb_ledger_each(bgb_market_ledger(h->market), collect, &rows);
     bgb_agent_info_t info[64];
-    const size_t na = bgb_market_agents(h->market, info, 64);
+    const size_t na = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     for (int i = 0; i < o->nawards; i++) {
         const bgb_award_t *a = &o->awards[i];
         const bgb_contract_t *svc = NULL;
@@ -319,7 +255,7 @@ static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char
             }
         if (!svc)
             FAIL("%s: no service row for award %d (agent %u)", mech, i, a->agent);
-        double cores = 0, memory = 0, spent = 0;
+        double cores = 0, memory = 0, spent = 0, paid = 0;
         for (int k = 0; k < rows.n; k++) {
             const bgb_contract_t *r = &rows.r[k];
             if (r->layer != 1 || r->request != svc->request)
@@ -334,12 +270,17 @@ static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char
                 FAIL("%s: resource price %g outside [%g, %g]", mech, r->price, r->seller_limit,
                      r->buyer_limit);
             if (r->start > svc->start || !(r->end > r->start))
-                FAIL("%s: resource row [%g, %g] does not start by the service's %g", mech,
-                     r->start, r->end, svc->start);
-            if (r->good == BGB_GOOD_CORES)
-                cores += r->quantity;
-            else if (r->good == BGB_GOOD_MEMORY)
-                memory += r->quantity;
+                FAIL("%s: resource row [%g, %g] does not start by the service's %g", mech, r->start,
+                     r->end, svc->start);
+            if (r->good == BGB_GOOD_CORES) {
+                cores += r->use;
+                paid += r->quantity;
+            } else if (r->good == BGB_GOOD_MEMORY) {
+                memory += r->use;
+                if (r->quantity != r->use)
+                    FAIL("%s: a memory row pays for %g GiB and holds %g", mech, r->quantity,
+                         r->use);
+            }
             else
                 FAIL("%s: a resource row sells %s", mech, bgb_good_name(r->good));
             spent += r->price * r->quantity * (r->end - r->start);
@@ -350,15 +291,23 @@ static void check_layer1(host_t *h, uint64_t job, const outcome_t *o, const char
                  a->agent, cores, memory, bgb_good_name(a->good), unit_cores[a->good],
                  unit_memory[a->good]);
         if (!(spent > 0) || spent > svc->price * svc->quantity)
-            FAIL("%s: agent %u pays %g for resources, its service earns %g", mech, a->agent,
-                 spent, svc->price * svc->quantity);
+            FAIL("%s: agent %u pays %g for resources, its service earns %g", mech, a->agent, spent,
+                 svc->price * svc->quantity);
+        if (paid > cores + 1e-12)
+            FAIL("%s: agent %u pays for %g cores, holds %g", mech, a->agent, paid, cores);
     }
+    double paid = 0;
+    for (int k = 0; k < rows.n; k++)
+        if (rows.r[k].job == job && rows.r[k].layer == 1 && rows.r[k].good == BGB_GOOD_CORES)
+            paid += rows.r[k].quantity;
+    if (fabs(paid - 2.0) > 1e-12)
+        FAIL("%s: the job pays for %g cores, its widest phase holds 2", mech, paid);
 }
 
 static long refusals(host_t *h)
 {
     bgb_agent_info_t info[64];
-    const size_t n = bgb_market_agents(h->market, info, 64);
+    const size_t n = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     long sum = 0;
     for (size_t i = 0; i < n && i < 64; i++)
         sum += info[i].refusals;
@@ -376,9 +325,9 @@ static void check_no_cores(host_t *h, uint64_t job)
     outcome_t a, b;
     buy(h, job, BGB_MECH_POSTED, 1e5, &a);
     check_awards(h, &a, 1e5, "posted, first of two");
-    pump(h, 0.7, NULL); /* heartbeats: the directory sees the cores sold */
+    live_net_pump(h, 0.7, NULL); /* heartbeats: the directory sees the cores sold */
     bgb_agent_info_t info[64];
-    const size_t na = bgb_market_agents(h->market, info, 64);
+    const size_t na = bgb_directory_agents(bgb_market_directory(h->market), info, 64);
     double free_cores = 0;
     for (size_t i = 0; i < na && i < 64; i++) {
         if (info[i].resource)
@@ -397,10 +346,10 @@ static void check_no_cores(host_t *h, uint64_t job)
         FAIL("the job that found no cores left contracts");
     if (refusals(h) <= refused)
         FAIL("no seller refused a service order for want of cores");
-    printf("no free cores: the second job failed (%s) after %ld refusals, no contract\n",
-           b.reason, refusals(h) - refused);
+    printf("no free cores: the second job failed (%s) after %ld refusals, no contract\n", b.reason,
+           refusals(h) - refused);
     bgb_market_release(h->market, job, bg_clock_now());
-    pump(h, 0.7, NULL);
+    live_net_pump(h, 0.7, NULL);
     buy(h, job + 2, BGB_MECH_POSTED, 1e5, &b);
     check_awards(h, &b, 1e5, "posted, after the release");
     check_layer1(h, job + 2, &b, "posted, after the release");
@@ -413,115 +362,32 @@ static void write_csvs(host_t *h, const char *dir)
     bg_error_t err = BG_ERROR_INIT;
     snprintf(path, sizeof path, "%s/contracts.csv", dir);
     FILE *f = fopen(path, "w");
-    if (!f || bgb_market_write_contracts_csv(h->market, f, &err) != BG_OK)
+    if (!f || bgb_ledger_write_contracts_csv(bgb_market_ledger(h->market), f, &err) != BG_OK)
         FAIL("cannot write %s", path);
     fclose(f);
     snprintf(path, sizeof path, "%s/agents.csv", dir);
     f = fopen(path, "w");
-    if (!f || bgb_market_write_agents_csv(h->market, f, &err) != BG_OK)
+    if (!f || bgb_ledger_write_agents_csv(bgb_market_ledger(h->market),
+                                          bgb_market_directory(h->market), f, &err) != BG_OK)
         FAIL("cannot write %s", path);
     fclose(f);
-}
-
-static int cmp_double(const void *a, const void *b)
-{
-    const double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
 }
 
 int main(int argc, char **argv)
 {
-    if (argc < 4 || (strcmp(argv[1], "bench") == 0 && argc < 5))
-        FAIL("usage: live_host test|bench DIR NAGENTS [ROUNDS]");
+    if (argc < 4 || strcmp(argv[1], "test") != 0)
+        FAIL("usage: live_host test DIR NAGENTS");
     const char *dir = argv[2];
     const size_t nagents = (size_t)atoi(argv[3]);
-    host_t h = {0};
-    h.ctx = zmq_ctx_new();
-    h.router = zmq_socket(h.ctx, ZMQ_ROUTER);
-    const int linger = 0;
-    zmq_setsockopt(h.router, ZMQ_LINGER, &linger, sizeof linger);
-    if (zmq_bind(h.router, "tcp://127.0.0.1:*") != 0)
-        FAIL("bind: %s", zmq_strerror(errno));
-    char ep[256];
-    size_t len = sizeof ep;
-    zmq_getsockopt(h.router, ZMQ_LAST_ENDPOINT, ep, &len);
-    bgb_market_config_t mc;
-    bgb_market_config_default(&mc);
-    mc.name = "live-test";
-    mc.heartbeat_timeout = 3.0;
-    mc.period = 0.05;
-    bgb_market_io_t io = {&h, host_send};
-    bg_error_t err = BG_ERROR_INIT;
-    if (bgb_market_new(&mc, &io, &h.market, &err) != BG_OK)
-        FAIL("market: %s", err.message);
+    host_t h;
+    live_net_open(&h, dir, "live-test", 0.05);
+    live_net_wait(&h, nagents);
     char path[4096];
-    snprintf(path, sizeof path, "%s/endpoint", dir);
-    FILE *f = fopen(path, "w");
-    if (!f)
-        FAIL("cannot write %s", path);
-    fprintf(f, "%s\n", ep);
-    fclose(f);
-    wait_agents(&h, nagents);
-    pump(&h, 0.6, NULL); /* every agent has heartbeaten its prices */
+    FILE *f = NULL;
 
     const bgb_mechanism mechs[] = {BGB_MECH_POSTED, BGB_MECH_CENTRAL, BGB_MECH_CATALLACTIC};
     const int nmech = 3;
-    if (strcmp(argv[1], "bench") == 0) {
-        const int rounds = atoi(argv[4]);
-        double *lat = calloc((size_t)rounds, sizeof *lat);
-        uint64_t job = 1;
-        printf("allocation latency, %zu agents on loopback, plan rotation-fit x2 + sparse-solve, "
-               "%d rounds\n",
-               nagents, rounds);
-        for (int mi = 0; mi < nmech; mi++) {
-            int retried = 0;
-            for (int r = 0; r < rounds; r++) {
-                /* As the broker's coordinator does: a transient failure
-                 * (every able seller busy, a buy past its timeout on a
-                 * loaded host) is asked again after a backoff, for up to
-                 * BENCH_PATIENCE; the latency runs from the first ask. */
-                const double first = bg_clock_now();
-                double backoff = 0.1, last = first;
-                outcome_t o;
-                for (;;) {
-                    last = bg_clock_now();
-                    buy(&h, job, mechs[mi], 1e6, &o);
-                    const int transient =
-                        strstr(o.reason, "no seller") != NULL || strcmp(o.reason, "timeout") == 0;
-                    if (!o.reason[0] || !transient ||
-                        bg_clock_now() + backoff > first + BENCH_PATIENCE)
-                        break;
-                    fprintf(stderr, "bench: %s job %llu: %s after %.3f s, asked again\n",
-                            bgb_mechanism_name(mechs[mi]), (unsigned long long)job, o.reason,
-                            bg_clock_now() - last);
-                    bgb_market_release(h.market, job++, bg_clock_now());
-                    retried++;
-                    pump(&h, backoff, NULL);
-                    backoff = backoff * 2 < 2.0 ? backoff * 2 : 2.0;
-                }
-                if (o.reason[0])
-                    FAIL("bench: %s failed: %s", bgb_mechanism_name(mechs[mi]), o.reason);
-                lat[r] = (last - first) + o.latency;
-                bgb_market_release(h.market, job++, bg_clock_now());
-                pump(&h, 0.01, NULL);
-            }
-            /* The mean of each half in submission order: whether later
-             * jobs allocate faster or slower than early ones (the sellers'
-             * prices and the price the buyers last paid carry over). */
-            double half[2] = {0, 0};
-            for (int r = 0; r < rounds; r++)
-                half[2 * r >= rounds] += lat[r];
-            const int early = (rounds + 1) / 2, late = rounds - early;
-            qsort(lat, (size_t)rounds, sizeof *lat, cmp_double);
-            printf("%-12s median %8.3f ms  p90 %8.3f ms  max %8.3f ms  mean %8.3f ms (first half "
-                   "%.3f, second %.3f)  (%d asked again)\n",
-                   bgb_mechanism_name(mechs[mi]), lat[rounds / 2] * 1e3,
-                   lat[(rounds * 9) / 10] * 1e3, lat[rounds - 1] * 1e3,
-                   (half[0] + half[1]) / rounds * 1e3, early ? half[0] / early * 1e3 : 0.0,
-                   late ? half[1] / late * 1e3 : 0.0, retried);
-        }
-        free(lat);
-    } else {
+    {
         uint64_t job = 100;
         for (int mi = 0; mi < nmech; mi++) {
             const double budget = 1e5;
@@ -547,10 +413,10 @@ int main(int argc, char **argv)
                 FAIL("%s: a failed job left contracts", bgb_mechanism_name(mechs[mi]));
             job++;
         }
-        pump(&h, 0.7, NULL);
+        live_net_pump(&h, 0.7, NULL);
         check_no_cores(&h, job);
         job += 3;
-        pump(&h, 0.3, NULL);
+        live_net_pump(&h, 0.3, NULL);
         write_csvs(&h, dir);
         /* Phase 2: the script kills the daemon selling the host; the
          * directory drops it and the standby daemon takes the host over. */
@@ -563,7 +429,7 @@ int main(int argc, char **argv)
         size_t roles[2] = {nagents, 1};
         uint32_t next = first;
         while (bg_clock_now() < end && (roles[0] == nagents || roles[1] != 1 || next == first)) {
-            pump(&h, 0.1, NULL);
+            live_net_pump(&h, 0.1, NULL);
             count_roles(&h, roles);
             next = resource_seller(&h);
         }
@@ -572,7 +438,7 @@ int main(int argc, char **argv)
             FAIL("the killed agent was not dropped or not replaced (%zu basic, %zu resource "
                  "entries listed, seller %u, was %u)",
                  roles[0], roles[1], next, first);
-        pump(&h, 0.6, NULL); /* its heartbeat gives its prices */
+        live_net_pump(&h, 0.6, NULL); /* its heartbeat gives its prices */
         /* The survivors still sell, with the new seller's cores. */
         outcome_t o;
         buy(&h, job, BGB_MECH_POSTED, 1e5, &o);
@@ -582,8 +448,6 @@ int main(int argc, char **argv)
                "%zu agents left and still selling\n",
                first, next, n);
     }
-    bgb_market_destroy(&h.market);
-    zmq_close(h.router);
-    zmq_ctx_term(h.ctx);
+    live_net_close(&h);
     return 0;
 }
