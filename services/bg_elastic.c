@@ -62,12 +62,6 @@ static inline void quat_load(const bg_elastic_t *md, size_t e, double q[4])
         q[i] = md->quat[soa(e, i, 4)];
 }
 
-static inline void quat_store(bg_elastic_t *md, size_t e, const double q[4])
-{
-    for (int i = 0; i < 4; i++)
-        md->quat[soa(e, i, 4)] = q[i];
-}
-
 /* A pair sum σi + σj of the stretch below this (relative to tr Y) makes
  * W = (tr Y·I − Y)⁻¹ unbounded: R is not differentiable there, and the
  * Hessian uses this floor instead of dividing by zero. */
