@@ -73,7 +73,7 @@ round() {
     awk '{ printf "  %-5s %7.2f s (solve %.2f s, agents'\'' transit %.3f s) %s\n", $1, $2, $4, $3, $5 }'
 }
 
-echo "machine: $(nproc) cores, $(uname -m)"
+echo "machine: $(getconf _NPROCESSORS_ONLN) cores, $(uname -m)"
 echo "load before: $(uptime)"
 for k in $(seq 1 "$rounds"); do
   if [ $((k % 2)) -eq 1 ]; then
