@@ -21,6 +21,11 @@ struct bga_client {
     uint16_t pending_type;
     unsigned pending_want;
     double pending_sent;
+    uint64_t pending_job;
+    /* Liveness (bga_client_set_liveness) and what the last wait saw. */
+    int ping_ms, lost_ms;
+    bga_client_failure_t failure;
+    int64_t late; /* replies to abandoned requests, discarded */
 };
 
 bg_status bga_client_new(const char *endpoint, const char *service, int timeout_ms,
@@ -39,6 +44,8 @@ bg_status bga_client_new_curve(const char *endpoint, const char *service, int ti
     snprintf(c->endpoint, sizeof c->endpoint, "%s", endpoint);
     snprintf(c->service, sizeof c->service, "%s", service ? service : "agent");
     c->timeout_ms = timeout_ms > 0 ? timeout_ms : 10000;
+    c->ping_ms = BGA_CLIENT_PING_MS;
+    c->lost_ms = BGA_CLIENT_LOST_MS;
     bg_status st = BG_OK;
     c->ctx = zmq_ctx_new();
     c->socket = c->ctx ? zmq_socket(c->ctx, ZMQ_DEALER) : NULL;
@@ -101,31 +108,104 @@ void bga_reply_close(bga_reply_t *rep)
     bga_received_close(&rep->frames);
 }
 
-/* Waits until `deadline` for a reply to `seq` (any reply when raw). */
+void bga_client_set_liveness(bga_client_t *c, int ping_ms, int lost_ms)
+{
+    c->ping_ms = ping_ms > 0 && lost_ms > 0 ? ping_ms : 0;
+    c->lost_ms = ping_ms > 0 && lost_ms > 0 ? lost_ms : 0;
+}
+
+bga_client_failure_t bga_client_failure(const bga_client_t *c)
+{
+    return c->failure;
+}
+
+int64_t bga_client_late_answers(const bga_client_t *c)
+{
+    return c->late;
+}
+
+/* A ping for the request in flight (its job's lease is renewed too); sent
+ * without blocking: a ping that cannot leave now is skipped. */
+static void ping(bga_client_t *c)
+{
+    bga_msg_t m;
+    bga_frames_t frames;
+    bg_error_t ignored = BG_ERROR_INIT;
+    bga_msg_init(&m, BGA_HEARTBEAT, c->pending_job, ++c->seq);
+    if (bga_wire_encode(&m, &frames, &ignored) != BG_OK)
+        return;
+    for (int i = 0; i < frames.count; i++)
+        if (zmq_send(c->socket, frames.data[i], frames.size[i],
+                     ZMQ_DONTWAIT | (i + 1 < frames.count ? ZMQ_SNDMORE : 0)) < 0)
+            break;
+    bga_frames_free(&frames);
+}
+
+static bg_status silent(bga_client_t *c, bga_client_failure_t why, bg_status st)
+{
+    c->failure = why;
+    return st;
+}
+
+/*
+ * Waits for the reply to `seq` (any reply when raw) until the request's
+ * timeout from t_sent. While it waits it pings the agent every ping_ms and
+ * gives up once the agent has been silent for lost_ms (silence is counted
+ * from the start of this wait: a pool collects its agents one after
+ * another). Any message from the agent is a sign of life; a reply to an
+ * abandoned request is discarded and counted, a pong dropped.
+ */
 static bg_status await_reply(bga_client_t *c, uint64_t seq, int raw, uint16_t type, double t_sent,
                              bga_reply_t *rep, bg_error_t *err)
 {
     const double deadline = t_sent + c->timeout_ms / 1000.0;
+    const int pinging = !raw && c->lost_ms > 0;
+    const double ping_s = c->ping_ms / 1000.0, lost_s = c->lost_ms / 1000.0;
+    double heard = bg_clock_now(), next_ping = heard + ping_s;
+    c->failure = BGA_CLIENT_FINE;
     for (;;) {
-        const double left = deadline - bg_clock_now();
+        const double now = bg_clock_now();
+        if (pinging && now - heard >= lost_s)
+            return silent(c, BGA_CLIENT_LOST,
+                          bg_error_set(err, BG_ERR_IO,
+                                       "agent %s (%s): lost: no answer to heartbeats for %d ms "
+                                       "while waiting for the reply to %s",
+                                       c->endpoint, c->service, c->lost_ms, bga_type_name(type)));
+        if (now >= deadline)
+            return silent(c, BGA_CLIENT_TIMED_OUT,
+                          bg_error_set(err, BG_ERR_IO, "agent %s (%s): no reply to %s within %d ms",
+                                       c->endpoint, c->service, bga_type_name(type),
+                                       c->timeout_ms));
+        if (pinging && now >= next_ping) {
+            ping(c);
+            next_ping = now + ping_s;
+        }
+        double until = deadline;
+        if (pinging) {
+            until = next_ping < until ? next_ping : until;
+            until = heard + lost_s < until ? heard + lost_s : until;
+        }
         zmq_pollitem_t item = {c->socket, 0, ZMQ_POLLIN, 0};
+        const double left = until - now;
         const int rc = left > 0.0 ? zmq_poll(&item, 1, (long)(left * 1000.0) + 1) : 0;
         if (rc < 0 && errno == EINTR)
             continue;
         if (rc < 0)
-            return bg_error_set(err, BG_ERR_IO, "agent %s (%s): poll failed: %s", c->endpoint,
-                                c->service, zmq_strerror(errno));
+            return silent(c, BGA_CLIENT_BROKEN,
+                          bg_error_set(err, BG_ERR_IO, "agent %s (%s): poll failed: %s",
+                                       c->endpoint, c->service, zmq_strerror(errno)));
         if (rc == 0)
-            return bg_error_set(err, BG_ERR_IO, "agent %s (%s): no reply to %s within %d ms",
-                                c->endpoint, c->service, bga_type_name(type), c->timeout_ms);
+            continue;
         bg_error_t rerr = BG_ERROR_INIT;
         bg_status st = bga_recv(c->socket, 0, &rep->frames, &rerr);
         if (st == BG_ERR_UNSUPPORTED)
             continue;
         if (st != BG_OK)
-            return bg_error_set(err, st, "agent %s (%s): %s", c->endpoint, c->service,
-                                rerr.message);
+            return silent(c, BGA_CLIENT_BROKEN,
+                          bg_error_set(err, st, "agent %s (%s): %s", c->endpoint, c->service,
+                                       rerr.message));
         const double t_got = bg_clock_now();
+        heard = t_got;
         bga_frame_t views[BGA_WIRE_MAX_FRAMES + 1];
         bga_received_view(&rep->frames, views);
         bga_wire_error_t werr;
@@ -151,8 +231,34 @@ static bg_status await_reply(bga_client_t *c, uint64_t seq, int raw, uint16_t ty
             c->traffic.wait_seconds += t_got - t_sent;
             return BG_OK;
         }
-        bga_received_close(&rep->frames); /* a late reply to an abandoned request */
+        /* A pong, or a late reply to an abandoned request. */
+        if (rep->msg.header.type != BGA_HEARTBEAT)
+            c->late++;
+        bga_received_close(&rep->frames);
     }
+}
+
+int64_t bga_client_drain(bga_client_t *c)
+{
+    const int64_t before = c->late;
+    for (;;) {
+        zmq_pollitem_t item = {c->socket, 0, ZMQ_POLLIN, 0};
+        if (zmq_poll(&item, 1, 0) <= 0 || !(item.revents & ZMQ_POLLIN))
+            break;
+        bga_received_t r;
+        bg_error_t ignored = BG_ERROR_INIT;
+        if (bga_recv(c->socket, 0, &r, &ignored) != BG_OK)
+            break;
+        bga_frame_t views[BGA_WIRE_MAX_FRAMES + 1];
+        bga_received_view(&r, views);
+        bga_msg_t m;
+        bga_wire_error_t werr;
+        if (r.total == r.count && bga_wire_decode(views, r.count, NULL, &m, &werr) == BGA_WIRE_OK &&
+            m.header.type != BGA_HEARTBEAT)
+            c->late++;
+        bga_received_close(&r);
+    }
+    return c->late - before;
 }
 
 bg_status bga_client_post(bga_client_t *c, bga_msg_t *req, bg_error_t *err)
@@ -174,11 +280,13 @@ bg_status bga_client_post(bga_client_t *c, bga_msg_t *req, bg_error_t *err)
     c->traffic.bytes_sent += (int64_t)bga_frames_bytes(&frames);
     bg_status st = bga_send(c->socket, NULL, &frames, &eerr);
     bga_frames_free(&frames);
+    c->failure = st == BG_OK ? BGA_CLIENT_FINE : BGA_CLIENT_BROKEN;
     if (st != BG_OK)
         return bg_error_set(err, st, "agent %s (%s): %s", c->endpoint, c->service, eerr.message);
     c->pending = 1;
     c->pending_seq = req->header.seq;
     c->pending_type = req->header.type;
+    c->pending_job = req->header.job;
     c->pending_sent = t1;
     return BG_OK;
 }

@@ -15,6 +15,16 @@
  * internal failure BG_ERR_IO, oversize BG_ERR_LIMIT, a type or version it
  * does not serve BG_ERR_UNSUPPORTED, any other malformed request
  * BG_ERR_INVALID. The client owns its ZeroMQ context and DEALER socket.
+ *
+ * Liveness: while it waits for a reply the client pings the agent (a
+ * HEARTBEAT naming the request's job, which renews that job's lease there)
+ * every ping_ms, and an agent silent for lost_ms is lost: the wait ends
+ * with BG_ERR_IO ("agent ... (service): lost: no answer to heartbeats for
+ * N ms ..."). An agent computes off its socket loop (bga_agent) and answers
+ * pings at once, so only a dead, hung or cut-off agent goes silent; a long
+ * computation does not. The request's own timeout still bounds the wait.
+ * bga_client_failure says why the last failed wait got no answer, so a
+ * caller can replace a lost agent and retry.
  */
 #ifndef BGA_CLIENT_H
 #define BGA_CLIENT_H
@@ -30,6 +40,18 @@
 #include "bga_wire.h"
 
 typedef struct bga_client bga_client_t;
+
+/* Liveness defaults: a ping every 200 ms, lost after 2 s of silence. */
+#define BGA_CLIENT_PING_MS 200
+#define BGA_CLIENT_LOST_MS 2000
+
+/* Why the last post or wait got no answer. */
+typedef enum bga_client_failure {
+    BGA_CLIENT_FINE = 0,      /* it got one (perhaps a refusal), or nothing failed */
+    BGA_CLIENT_TIMED_OUT = 1, /* no reply within the request's timeout */
+    BGA_CLIENT_LOST = 2,      /* the agent went silent: no answer to pings for lost_ms */
+    BGA_CLIENT_BROKEN = 3     /* the socket failed (send, poll or receive) */
+} bga_client_failure_t;
 
 /* What one request/reply exchange cost, accumulated per client. */
 typedef struct bga_traffic {
@@ -64,6 +86,21 @@ bg_status bga_client_new_curve(const char *endpoint, const char *service, int ti
 void bga_client_destroy(bga_client_t **client);
 const char *bga_client_endpoint(const bga_client_t *client);
 bga_traffic_t bga_client_traffic(const bga_client_t *client);
+
+/* Pings every ping_ms while a reply is awaited and gives the agent up
+ * after lost_ms of silence; 0 for either: no pings, the request's timeout
+ * alone. Raw requests never ping. */
+void bga_client_set_liveness(bga_client_t *client, int ping_ms, int lost_ms);
+bga_client_failure_t bga_client_failure(const bga_client_t *client);
+/* Replies to abandoned requests that came in and were discarded (a reply
+ * after its timeout, or after its agent was given up), so far. */
+int64_t bga_client_late_answers(const bga_client_t *client);
+/* Reads, without waiting, whatever has come in and is no reply anyone
+ * waits for (nothing may be in flight), and discards it; returns how many
+ * of those were late replies (pongs are not counted). A coordinator keeps
+ * the client of an agent it gave up for a while and drains it, to count
+ * the late answers it discards. */
+int64_t bga_client_drain(bga_client_t *client);
 
 /*
  * Sends req (its seq is assigned here) and waits for the matching reply.

@@ -34,6 +34,11 @@ struct bga_market {
     double heard;                       /* when the broker last wrote (or the connection began) */
     bga_bseller_t *bs; /* the basic-service seller role */
     bga_rseller_t *rs; /* the resource seller role (NULL: none) */
+    /* Their configurations, to start them afresh under a new broker. */
+    bga_bseller_config_t bc;
+    bga_rseller_config_t rc;
+    uint64_t epoch; /* the broker's, from REGISTERED (0: none yet) */
+    int epoch_changes;
     /* The process's compute thread pools (OpenBLAS, OpenMP: CHOLMOD's
      * factorization and the BLAS under it), if linked, and their sizes at
      * start: a job's cap never raises them. */
@@ -149,11 +154,8 @@ static void find_thread_pools(bga_market_t *m)
     }
 }
 
-int bga_market_admit(bga_market_t *m, uint64_t job)
+void bga_market_limit_threads(const bga_market_t *m, double cores)
 {
-    if (!bga_market_holds(m, job))
-        return 0;
-    const double cores = bga_market_cores(m, job);
     if (cores >= 1) {
         const int n = cores < 4096 ? (int)cores : 4096;
         if (m->blas_set && m->blas_max > 0)
@@ -161,6 +163,13 @@ int bga_market_admit(bga_market_t *m, uint64_t job)
         if (m->omp_set && m->omp_max > 0)
             m->omp_set(n < m->omp_max ? n : m->omp_max);
     }
+}
+
+int bga_market_admit(bga_market_t *m, uint64_t job)
+{
+    if (!bga_market_holds(m, job))
+        return 0;
+    bga_market_limit_threads(m, bga_market_cores(m, job));
     return 1;
 }
 
@@ -299,6 +308,7 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
     }
     for (int k = 0; k < 2; k++)
         bc.rate[k] = c->res_floor[k] * (1 + c->res_margin);
+    m->bc = bc;
     if ((st = bga_bseller_new(&bc, &m->bs, err)) != BG_OK)
         goto fail;
     if (c->cores > 0) {
@@ -309,6 +319,7 @@ bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, doubl
                                          .load_slope = c->res_load_slope,
                                          .lease = c->lease,
                                          .seed = seed ^ 0x9e3779b97f4a7c15ull};
+        m->rc = rc;
         if ((st = bga_rseller_new(&rc, &m->rs, err)) != BG_OK)
             goto fail;
     }
@@ -384,9 +395,58 @@ bg_status bga_market_tick(bga_market_t *m, double now, bg_error_t *err)
     return st;
 }
 
+uint64_t bga_market_epoch(const bga_market_t *m)
+{
+    return m->epoch;
+}
+
+int bga_market_epoch_changes(const bga_market_t *m)
+{
+    return m->epoch_changes;
+}
+
+/* A REGISTERED from another broker epoch: the previous broker died, and
+ * whatever was sold to it (contracts, bargains, resources bought or held,
+ * their leases) is dropped at once by starting both role machines afresh;
+ * then the caller drops the jobs' compute state (on_new_epoch). The role
+ * ids are the new broker's, as its REGISTERED replies arrive. */
+static bg_status new_epoch(bga_market_t *m, uint64_t epoch, double now, bg_error_t *err)
+{
+    const uint64_t previous = m->epoch;
+    m->epoch = epoch;
+    if (previous == 0)
+        return BG_OK;
+    bga_bseller_t *bs = NULL;
+    bga_rseller_t *rs = NULL;
+    bg_status st = bga_bseller_new(&m->bc, &bs, err);
+    if (st == BG_OK && m->rs)
+        st = bga_rseller_new(&m->rc, &rs, err);
+    if (st != BG_OK) {
+        bga_bseller_destroy(&bs);
+        return st;
+    }
+    bga_bseller_destroy(&m->bs);
+    bga_rseller_destroy(&m->rs);
+    m->bs = bs;
+    m->rs = rs;
+    /* Ids the dead broker gave mean nothing to the new one: a role whose
+     * REGISTERED is not this one registers again at its next beat. */
+    memset(m->role, 0, sizeof m->role);
+    m->next_beat = now;
+    m->epoch_changes++;
+    if (m->c.on_new_epoch)
+        m->c.on_new_epoch(m->c.epoch_ctx, previous, epoch);
+    return BG_OK;
+}
+
 static bg_status handle(bga_market_t *m, const bga_mmsg_t *in, double now, bg_error_t *err)
 {
     const int role = in->resource ? ROLE_RESOURCE : ROLE_BASIC;
+    if (in->type == BGA_MM_REGISTERED && in->epoch != 0 && in->epoch != m->epoch) {
+        bg_status st = new_epoch(m, in->epoch, now, err);
+        if (st != BG_OK)
+            return st;
+    }
     if (in->type == BGA_MM_REGISTERED && role == ROLE_RESOURCE) {
         /* No id: another daemon sells this host; the next beat asks again. */
         const int standby = in->agent == 0;

@@ -96,6 +96,13 @@ typedef struct bga_market_config {
     const bga_curve_keypair_t *curve;
     const char *broker_key;
     bga_zap_t *zap;
+    /* Told when a REGISTERED brings another broker epoch than the one this
+     * seller sold under (the broker died and a new one runs): by then the
+     * seller has dropped every contract, bargain, resource holding and
+     * lease of the previous broker; the callee drops the jobs' compute
+     * state. Called from the agent's loop. NULL: not told. */
+    void (*on_new_epoch)(void *ctx, uint64_t previous, uint64_t epoch);
+    void *epoch_ctx;
 } bga_market_config_t;
 
 /* Defaults: floors 1.0, margin 0.2, load slope 0.5, heartbeat 0.5 s;
@@ -112,6 +119,11 @@ void bga_market_config_default(bga_market_config_t *c);
 bg_status bga_market_new(void *zmq_ctx, const bga_market_config_t *config, double now,
                          bga_market_t **out, bg_error_t *err);
 void bga_market_destroy(bga_market_t **m);
+
+/* The broker epoch it sells under (0 before the first REGISTERED), and
+ * how many times a new one made it drop the previous broker's deals. */
+uint64_t bga_market_epoch(const bga_market_t *m);
+int bga_market_epoch_changes(const bga_market_t *m);
 
 /* The DEALER socket, for the caller's zmq_poll. */
 void *bga_market_socket(const bga_market_t *m);
@@ -139,9 +151,15 @@ double bga_market_cores(const bga_market_t *m, uint64_t job);
  * threads — OpenBLAS's and OpenMP's pools (CHOLMOD's factorization and the
  * BLAS under it), where linked — at the cores bought for the job, never
  * above their sizes when the market was created (OPENBLAS_NUM_THREADS,
- * OMP_NUM_THREADS). The daemon computes one call at a time, so the cap
- * is that job's. */
+ * OMP_NUM_THREADS). The daemon computes one call at a time (its worker
+ * thread), so the cap is that job's. */
 int bga_market_admit(bga_market_t *m, uint64_t job);
+/* The cap bga_market_admit applies, alone: the compute thread pools at
+ * `cores` (below 1: left as they are). It reads only what bga_market_new
+ * fixed, so unlike the rest of this module it may be called from another
+ * thread than the agent's loop: the daemon's worker calls it before each
+ * computation with the cores the loop found for the call's job. */
+void bga_market_limit_threads(const bga_market_t *m, double cores);
 /* Directory ids once registered (0 before): the basic seller's and the
  * resource seller's. */
 uint32_t bga_market_id(const bga_market_t *m);

@@ -54,6 +54,12 @@ static bg_status check(const bga_mmsg_t *m, bg_error_t *err)
     if (m->parent > ((uint64_t)1 << 53))
         return bg_error_set(err, BG_ERR_INVALID, "market message: parent %llu is over 2^53",
                             (unsigned long long)m->parent);
+    if (m->epoch > ((uint64_t)1 << 53) || (m->epoch != 0 && m->type != BGA_MM_REGISTERED) ||
+        (m->type == BGA_MM_REGISTERED && m->job != 0))
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "market message: epoch %llu (only in registered, at most 2^53, "
+                            "with no job)",
+                            (unsigned long long)m->epoch);
     if (m->hops < 0 || m->hops > 16)
         return bg_error_set(err, BG_ERR_INVALID, "market message: hops %d out of [0, 16]", m->hops);
     if (m->nneighbours < 0 || m->nneighbours > BGA_MMSG_MAX_NEIGHBOURS)
@@ -99,7 +105,8 @@ bg_status bga_mmsg_encode(const bga_mmsg_t *m, bga_frames_t *out, bg_error_t *er
     }
     const double capacity[4] = {m->cores, m->memory, m->free_cores, m->free_memory};
     bga_msg_t w;
-    bga_msg_init(&w, (uint16_t)(BGA_LIVE_FIRST - 1 + m->type), m->job, 0);
+    bga_msg_init(&w, (uint16_t)(BGA_LIVE_FIRST - 1 + m->type),
+                 m->type == BGA_MM_REGISTERED ? m->epoch : m->job, 0);
     const int64_t ints[] = {m->agent, m->target,     m->origin, m->services, m->resource,
                             m->slots, m->free_slots, m->good,   m->hops,     m->attempt};
     for (int f = BGA_LM_AGENT; f <= BGA_LM_ATTEMPT; f++)
@@ -170,6 +177,10 @@ bg_status bga_mmsg_decode(const bga_frame_t *frames, int nframes, bga_mmsg_t *m,
                             w.array[BGA_LM_NEIGHBOURS].count, BGA_MMSG_MAX_NEIGHBOURS);
     m->type = w.header.type - BGA_LIVE_FIRST + 1;
     m->job = w.header.job;
+    if (m->type == BGA_MM_REGISTERED) {
+        m->epoch = m->job;
+        m->job = 0;
+    }
     m->agent = (uint32_t)w.field[BGA_LM_AGENT].i;
     m->target = (uint32_t)w.field[BGA_LM_TARGET].i;
     m->origin = (uint32_t)w.field[BGA_LM_ORIGIN].i;

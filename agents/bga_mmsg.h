@@ -61,6 +61,10 @@ typedef enum bga_mmsg_type {
 typedef struct bga_mmsg {
     int type;
     uint64_t job;
+    /* REGISTERED: the broker's epoch, drawn at random when it starts (1 ..
+     * 2^53), carried in the header's job (REGISTERED names no job): an
+     * agent that hears a new one knows the broker it sold to died. */
+    uint64_t epoch;
     uint32_t agent;   /* the agent's directory id (0 before registration) */
     uint32_t target;  /* RELAY: the neighbour to deliver to */
     uint32_t origin;  /* CFP: the agent that first got it (0: the broker) */

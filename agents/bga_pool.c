@@ -7,17 +7,26 @@
 
 typedef struct part {
     bga_client_t *client;
+    uint64_t job;   /* the partition's job id on its agent */
+    int32_t r0, r1; /* its element range (a surface: its vertex range) */
     int32_t nv, ne, nval;
     int32_t *local_to_global; /* nv */
     int32_t *to_global;       /* nval: global value position of each local value */
     double *q, *grad, *hess;
+    /* The current call: answered (its results in grad, hess and energy),
+     * or failed with status st. */
+    int answered;
+    bg_status st;
+    bg_error_t e;
+    double energy;
 } part;
 
 struct bga_rotfit_pool {
-    int n, dim, has_hessian;
+    int n, dim, has_hessian, surface;
     size_t ndof;
-    uint64_t job;
     part *parts;
+    unsigned want; /* the current call's */
+    int ping_ms, lost_ms;
     double gather_seconds;
 };
 
@@ -28,6 +37,9 @@ static void part_free(part *p)
     free(p->q);
     free(p->grad);
     free(p->hess);
+    p->local_to_global = p->to_global = NULL;
+    p->q = p->grad = p->hess = NULL;
+    p->nv = p->ne = p->nval = 0;
 }
 
 /* Elements [e0, e1) of mesh as a partition: local vertices in order of
@@ -178,7 +190,7 @@ static bg_status setup_surface_part(const bga_pool_config_t *cfg, int32_t v0, in
     }
     const bga_surface_part_t sp = {p->nv, p->ne, mesh->nv, nowned, tris,
                                    p->local_to_global, rest, owned, cfg->lease_ms};
-    st = bga_client_surface_setup(p->client, cfg->job, &sp, err);
+    st = bga_client_surface_setup(p->client, p->job, &sp, err);
 out:
     free(g2l);
     free(tris);
@@ -187,8 +199,36 @@ out:
     return st;
 }
 
+/* Part i's partition set up on its client (the pool's agent i): its
+ * element range (or a surface's vertex range) cut from cfg's mesh. */
+static bg_status setup_part(const bga_pool_config_t *cfg, part *p, bg_error_t *err)
+{
+    if (cfg->surface)
+        return setup_surface_part(cfg, p->r0, p->r1, p, err);
+    int32_t *elements = NULL, *scatter = NULL;
+    double *rest = NULL;
+    bga_partition_t bp;
+    bg_status st = make_part(cfg, p->r0, p->r1, p, &bp, &elements, &scatter, &rest, err);
+    if (st == BG_OK)
+        st = bga_client_rotfit_setup(p->client, p->job, &bp, err);
+    free(elements);
+    free(scatter);
+    free(rest);
+    return st;
+}
+
 bg_status bga_rotfit_pool_new(const bga_pool_config_t *cfg, bga_rotfit_pool_t **out,
                               bg_error_t *err)
+{
+    const bg_status st =
+        bga_rotfit_pool_new_live(cfg, BGA_CLIENT_PING_MS, BGA_CLIENT_LOST_MS, out, err);
+    if (st != BG_OK)
+        bga_rotfit_pool_destroy(out);
+    return st;
+}
+
+bg_status bga_rotfit_pool_new_live(const bga_pool_config_t *cfg, int ping_ms, int lost_ms,
+                                   bga_rotfit_pool_t **out, bg_error_t *err)
 {
     *out = NULL;
     if (cfg->nagents < 1 || cfg->nagents > cfg->mesh->ne ||
@@ -202,42 +242,71 @@ bg_status bga_rotfit_pool_new(const bga_pool_config_t *cfg, bga_rotfit_pool_t **
                             cfg->nagents);
     }
     pool->n = cfg->nagents;
+    pool->ping_ms = ping_ms;
+    pool->lost_ms = lost_ms;
     pool->dim = cfg->mesh->dim;
     pool->ndof = (size_t)cfg->mesh->nv * (size_t)cfg->mesh->dim;
-    pool->job = cfg->job;
+    pool->surface = cfg->surface;
     pool->has_hessian = cfg->scatter != NULL && !cfg->surface;
+    const int32_t count = cfg->surface ? cfg->mesh->nv : cfg->mesh->ne;
     bg_status st = BG_OK;
-    for (int i = 0; i < pool->n && st == BG_OK && cfg->surface; i++) {
+    for (int i = 0; i < pool->n; i++) {
         part *p = &pool->parts[i];
-        const int32_t v0 = (int32_t)((int64_t)cfg->mesh->nv * i / pool->n);
-        const int32_t v1 = (int32_t)((int64_t)cfg->mesh->nv * (i + 1) / pool->n);
-        st = bga_client_new_curve(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms, cfg->curve,
-                                  &p->client, err);
-        if (st == BG_OK)
-            st = setup_surface_part(cfg, v0, v1, p, err);
+        p->job = cfg->jobs ? cfg->jobs[i] : cfg->job;
+        p->r0 = (int32_t)((int64_t)count * i / pool->n);
+        p->r1 = (int32_t)((int64_t)count * (i + 1) / pool->n);
     }
-    for (int i = 0; i < pool->n && st == BG_OK && !cfg->surface; i++) {
+    /* Every part is set up even after one failed, so that each has its
+     * own status (a set-up its agent never answered is a lost part). */
+    for (int i = 0; i < pool->n; i++) {
         part *p = &pool->parts[i];
-        const int32_t e0 = (int32_t)((int64_t)cfg->mesh->ne * i / pool->n);
-        const int32_t e1 = (int32_t)((int64_t)cfg->mesh->ne * (i + 1) / pool->n);
-        int32_t *elements = NULL, *scatter = NULL;
-        double *rest = NULL;
-        bga_partition_t bp;
-        st = bga_client_new_curve(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms, cfg->curve,
-                                  &p->client, err);
-        if (st == BG_OK)
-            st = make_part(cfg, e0, e1, p, &bp, &elements, &scatter, &rest, err);
-        if (st == BG_OK)
-            st = bga_client_rotfit_setup(p->client, cfg->job, &bp, err);
-        free(elements);
-        free(scatter);
-        free(rest);
-    }
-    if (st != BG_OK) {
-        bga_rotfit_pool_destroy(&pool);
-        return st;
+        bg_error_t e = BG_ERROR_INIT;
+        p->st = bga_client_new_curve(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms,
+                                     cfg->curve, &p->client, &e);
+        if (p->st == BG_OK) {
+            bga_client_set_liveness(p->client, ping_ms, lost_ms);
+            p->st = setup_part(cfg, p, &e);
+        }
+        if (p->st != BG_OK) {
+            p->e = e;
+            if (st == BG_OK)
+                st = bg_error_set(err, p->st, "%s", e.message);
+        }
     }
     *out = pool;
+    return st;
+}
+
+bg_status bga_rotfit_pool_replace(bga_rotfit_pool_t *pool, int i, const bga_pool_config_t *cfg,
+                                  const char *endpoint, uint64_t job, bga_client_t **given_up,
+                                  bg_error_t *err)
+{
+    *given_up = NULL;
+    if (i < 0 || i >= pool->n)
+        return bg_error_set(err, BG_ERR_INVALID, "no partition %d in a pool of %d", i, pool->n);
+    part *p = &pool->parts[i];
+    bga_client_t *c = NULL;
+    bg_status st = bga_client_new_curve(endpoint, "rotation-fit", cfg->timeout_ms, cfg->curve, &c, err);
+    if (st != BG_OK)
+        return st;
+    bga_client_set_liveness(c, pool->ping_ms, pool->lost_ms);
+    *given_up = p->client;
+    p->client = c;
+    p->job = job;
+    p->answered = 0;
+    part_free(p);
+    bg_error_t e = BG_ERROR_INIT;
+    st = setup_part(cfg, p, &e);
+    p->st = st;
+    p->e = e;
+    return st == BG_OK ? BG_OK : bg_error_set(err, st, "%s", e.message);
+}
+
+bg_status bga_rotfit_pool_failure(const bga_rotfit_pool_t *pool, bg_error_t *err)
+{
+    for (int i = 0; i < pool->n; i++)
+        if (pool->parts[i].st != BG_OK)
+            return bg_error_set(err, pool->parts[i].st, "%s", pool->parts[i].e.message);
     return BG_OK;
 }
 
@@ -253,7 +322,7 @@ static void pool_free(bga_rotfit_pool_t **ppool, int release)
     for (int i = 0; i < pool->n && release && posted; i++) {
         part *p = &pool->parts[i];
         bga_msg_t m;
-        bga_msg_init(&m, BGA_RELEASE, pool->job, 0);
+        bga_msg_init(&m, BGA_RELEASE, p->job, 0);
         bg_error_t ignored = BG_ERROR_INIT;
         posted[i] = p->client && p->local_to_global && bga_client_post(p->client, &m, &ignored) == BG_OK;
     }
@@ -282,6 +351,85 @@ void bga_rotfit_pool_abandon(bga_rotfit_pool_t **pool)
     pool_free(pool, 0);
 }
 
+/* Posts the current call to every part without an answer, then collects
+ * each (every started request is collected, even after a failure, so no
+ * client is left with a request in flight). The first failure goes to
+ * err; each part keeps its own status. */
+static bg_status run_parts(bga_rotfit_pool_t *pool, bg_error_t *err)
+{
+    bg_status st = BG_OK;
+    const int dim = pool->dim;
+    for (int i = 0; i < pool->n; i++) {
+        part *p = &pool->parts[i];
+        if (p->answered)
+            continue;
+        bg_error_t e = BG_ERROR_INIT;
+        p->st = bga_client_rotfit_start(p->client, p->job, p->q, (size_t)p->nv * dim, pool->want,
+                                        &e);
+        if (p->st != BG_OK) {
+            p->e = e;
+            if (st == BG_OK)
+                st = bg_error_set(err, p->st, "%s", e.message);
+        }
+    }
+    for (int i = 0; i < pool->n; i++) {
+        part *p = &pool->parts[i];
+        if (p->answered || p->st != BG_OK)
+            continue;
+        bga_rotfit_out_t out = {
+            0, p->grad, p->hess, (size_t)p->nv * dim, (size_t)p->nval, {0, 0, 0, 0}, 0};
+        bg_error_t e = BG_ERROR_INIT;
+        p->st = bga_client_rotfit_finish(p->client, &out, &e);
+        if (p->st != BG_OK) {
+            p->e = e;
+            if (st == BG_OK)
+                st = bg_error_set(err, p->st, "%s", e.message);
+            continue;
+        }
+        p->answered = 1;
+        p->energy = out.energy;
+    }
+    return st;
+}
+
+/* The parts' results summed in partition order (so they do not depend on
+ * which agent answered first, or was replaced). */
+static void combine(bga_rotfit_pool_t *pool, double *energy, double *grad, double *values)
+{
+    const double t0 = bg_clock_now();
+    const int dim = pool->dim;
+    double total = 0.0;
+    if (grad)
+        memset(grad, 0, pool->ndof * sizeof *grad); /* vertices in no element stay 0 */
+    for (int i = 0; i < pool->n; i++) {
+        const part *p = &pool->parts[i];
+        total += p->energy;
+        if (grad)
+            for (int32_t v = 0; v < p->nv; v++)
+                for (int c = 0; c < dim; c++)
+                    grad[(size_t)p->local_to_global[v] * dim + c] += p->grad[(size_t)v * dim + c];
+        if (values)
+            for (int32_t l = 0; l < p->nval; l++)
+                values[p->to_global[l]] += p->hess[l];
+    }
+    *energy = total;
+    pool->gather_seconds += bg_clock_now() - t0;
+}
+
+/* The positions of q each part without an answer needs. */
+static void scatter_q(bga_rotfit_pool_t *pool, const double *q)
+{
+    const int dim = pool->dim;
+    for (int i = 0; i < pool->n; i++) {
+        part *p = &pool->parts[i];
+        if (p->answered)
+            continue;
+        for (int32_t v = 0; v < p->nv; v++)
+            memcpy(p->q + (size_t)v * dim, q + (size_t)p->local_to_global[v] * dim,
+                   (size_t)dim * sizeof *q);
+    }
+}
+
 bg_status bga_rotfit_pool_eval(bga_rotfit_pool_t *pool, const double *q, double *energy,
                                double *grad, double *values, int project, bg_error_t *err)
 {
@@ -289,55 +437,41 @@ bg_status bga_rotfit_pool_eval(bga_rotfit_pool_t *pool, const double *q, double 
         return bg_error_set(err, BG_ERR_INVALID,
                             "this rotation-fit pool has no Hessian "
                             "scatter map");
-    const int dim = pool->dim;
-    const unsigned want = (grad ? BGA_WANT_GRADIENT : 0u) |
-                          (values ? BGA_WANT_HESSIAN | (project ? BGA_WANT_PROJECTED : 0u) : 0u);
-    bg_status st = BG_OK;
-    int started = 0;
-    for (; started < pool->n && st == BG_OK; started++) {
-        part *p = &pool->parts[started];
-        for (int32_t v = 0; v < p->nv; v++)
-            memcpy(p->q + (size_t)v * dim, q + (size_t)p->local_to_global[v] * dim,
-                   (size_t)dim * sizeof *q);
-        st = bga_client_rotfit_start(p->client, pool->job, p->q, (size_t)p->nv * dim, want, err);
-    }
-    if (st != BG_OK)
-        started--;
-    double total = 0.0;
-    if (grad && st == BG_OK)
-        memset(grad, 0, pool->ndof * sizeof *grad); /* vertices in no element stay 0 */
-    for (int i = 0; i < started; i++) {
-        part *p = &pool->parts[i];
-        bga_rotfit_out_t out = {
-            0, p->grad, p->hess, (size_t)p->nv * dim, (size_t)p->nval, {0, 0, 0, 0}, 0};
-        /* Every started request is collected, even after a failure, so
-         * no client is left with a request in flight. */
-        bg_error_t e = BG_ERROR_INIT;
-        const bg_status s = bga_client_rotfit_finish(p->client, &out, &e);
-        if (s != BG_OK) {
-            if (st == BG_OK) {
-                st = s;
-                bg_error_set(err, s, "%s", e.message);
-            }
-            continue;
-        }
-        if (st != BG_OK)
-            continue;
-        const double t0 = bg_clock_now();
-        total += out.energy;
-        if (grad) {
-            for (int32_t v = 0; v < p->nv; v++)
-                for (int c = 0; c < dim; c++)
-                    grad[(size_t)p->local_to_global[v] * dim + c] += p->grad[(size_t)v * dim + c];
-        }
-        if (values)
-            for (int32_t l = 0; l < p->nval; l++)
-                values[p->to_global[l]] += p->hess[l];
-        pool->gather_seconds += bg_clock_now() - t0;
-    }
+    pool->want = (grad ? BGA_WANT_GRADIENT : 0u) |
+                 (values ? BGA_WANT_HESSIAN | (project ? BGA_WANT_PROJECTED : 0u) : 0u);
+    for (int i = 0; i < pool->n; i++)
+        pool->parts[i].answered = 0;
+    scatter_q(pool, q);
+    bg_status st = run_parts(pool, err);
     if (st == BG_OK)
-        *energy = total;
+        combine(pool, energy, grad, values);
     return st;
+}
+
+bg_status bga_rotfit_pool_resume(bga_rotfit_pool_t *pool, const double *q, double *energy,
+                                 double *grad, double *values, bg_error_t *err)
+{
+    scatter_q(pool, q);
+    bg_status st = run_parts(pool, err);
+    if (st == BG_OK)
+        combine(pool, energy, grad, values);
+    return st;
+}
+
+int bga_rotfit_pool_lost_part(const bga_rotfit_pool_t *pool)
+{
+    for (int i = 0; i < pool->n; i++) {
+        const part *p = &pool->parts[i];
+        if (p->st == BG_ERR_NOT_FOUND ||
+            (p->st != BG_OK && p->client && bga_client_failure(p->client) != BGA_CLIENT_FINE))
+            return i;
+    }
+    return -1;
+}
+
+const char *bga_rotfit_pool_endpoint(const bga_rotfit_pool_t *pool, int agent)
+{
+    return bga_client_endpoint(pool->parts[agent].client);
 }
 
 int bga_rotfit_pool_size(const bga_rotfit_pool_t *pool)

@@ -14,6 +14,12 @@
  *
  * The pool owns one client per agent and, per agent, the partition's job
  * (released by bga_rotfit_pool_destroy).
+ *
+ * A lost agent: each part keeps its results of the current call, so when
+ * one agent fails a call without answering (bga_rotfit_pool_lost_part),
+ * its partition can be set up on another agent (bga_rotfit_pool_replace)
+ * and the call finished there (bga_rotfit_pool_resume): the other parts
+ * are not asked again, and the sums are still taken in partition order.
  */
 #ifndef BGA_POOL_H
 #define BGA_POOL_H
@@ -35,7 +41,7 @@ typedef struct bga_pool_config {
     size_t nval;                  /* entries of the caller's value array */
     const char *const *endpoints; /* nagents rotation-fit agents */
     int nagents;
-    uint64_t job; /* job id used on every agent */
+    uint64_t job; /* job id used on every agent, unless jobs is given */
     int timeout_ms;
     int64_t lease_ms;
     const double *rest_edges; /* ne*dim*dim rest edge matrices, or NULL; read during _new */
@@ -44,11 +50,25 @@ typedef struct bga_pool_config {
                     them); material, scatter and rest_edges unused, no Hessian */
     const bga_curve_peers_t *curve; /* CURVE keys to reach the agents (bga_client_new_curve);
                                        NULL: plaintext. Borrowed, outlives the pool */
+    const uint64_t *jobs; /* nagents job ids, one per agent, or NULL: job on all (read
+                             during _new) */
 } bga_pool_config_t;
 
-/* Connects, partitions and sets up every agent. Caller owns *out. */
+/* Connects, partitions and sets up every agent, its clients pinging as
+ * bga_client_new sets them (bga_client_set_liveness's defaults). Caller
+ * owns *out. */
 bg_status bga_rotfit_pool_new(const bga_pool_config_t *config, bga_rotfit_pool_t **out,
                               bg_error_t *err);
+/* The same with the clients' liveness given (bga_client_set_liveness),
+ * and on a failed set-up the pool is kept: *out is the pool whenever it
+ * could be made (each part set up or failed on its own, so a lost part can
+ * be replaced: bga_rotfit_pool_lost_part), NULL only when it could not;
+ * the caller destroys it either way. */
+bg_status bga_rotfit_pool_new_live(const bga_pool_config_t *config, int ping_ms, int lost_ms,
+                                   bga_rotfit_pool_t **out, bg_error_t *err);
+/* The first part's failure of the last set-up or call (its status and
+ * message into err), or BG_OK when every part is set up and answered. */
+bg_status bga_rotfit_pool_failure(const bga_rotfit_pool_t *pool, bg_error_t *err);
 void bga_rotfit_pool_destroy(bga_rotfit_pool_t **pool);
 /* Destroys without releasing the jobs (an agent failed: its lease frees
  * them, and no release request waits for a dead agent). */
@@ -62,6 +82,33 @@ void bga_rotfit_pool_abandon(bga_rotfit_pool_t **pool);
  */
 bg_status bga_rotfit_pool_eval(bga_rotfit_pool_t *pool, const double *q, double *energy,
                                double *grad, double *values, int project, bg_error_t *err);
+
+/*
+ * After a failed eval: the first partition whose agent failed the call
+ * without answering it (lost, timed out, a broken socket) or answered that
+ * it holds no state for the job (restarted, lease expired), or −1 when no
+ * agent failed that way (a refusal is the call's own failure).
+ */
+int bga_rotfit_pool_lost_part(const bga_rotfit_pool_t *pool);
+/*
+ * Sets partition i up again on the agent at endpoint, under job id `job`:
+ * cfg must be the configuration the pool was made with (its mesh, scatter
+ * and rest data again, read during the call; its endpoints and jobs are
+ * not used). The old client goes to *given_up (caller owns it: it may
+ * still receive that agent's late answers), NULL when none was replaced.
+ */
+bg_status bga_rotfit_pool_replace(bga_rotfit_pool_t *pool, int i, const bga_pool_config_t *cfg,
+                                  const char *endpoint, uint64_t job, bga_client_t **given_up,
+                                  bg_error_t *err);
+/*
+ * Finishes the last eval (same q, which is read again, and what it asked
+ * for) on the parts that have no answer to it yet, then combines all of
+ * them as bga_rotfit_pool_eval would have.
+ */
+bg_status bga_rotfit_pool_resume(bga_rotfit_pool_t *pool, const double *q, double *energy,
+                                 double *grad, double *values, bg_error_t *err);
+/* Agent i's endpoint now. */
+const char *bga_rotfit_pool_endpoint(const bga_rotfit_pool_t *pool, int agent);
 
 int bga_rotfit_pool_size(const bga_rotfit_pool_t *pool);
 /* Agent i's traffic, and its partition's element count. */

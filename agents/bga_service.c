@@ -149,6 +149,18 @@ int bga_service_expire(bga_service_t *svc, double now)
     return n;
 }
 
+int bga_service_drop_all(bga_service_t *svc)
+{
+    int n = 0;
+    for (int i = 0; i < svc->config.slots; i++)
+        if (svc->jobs[i].id != 0) {
+            free_job(&svc->jobs[i]);
+            n++;
+        }
+    svc->stats.dropped += n;
+    return n;
+}
+
 unsigned bga_service_parse_list(const char *list, bg_error_t *err)
 {
     unsigned bits = 0;
@@ -752,10 +764,9 @@ static bga_wire_code integ_accept(job *j, const bga_msg_t *m, bga_msg_t *rep,
     return BGA_WIRE_OK;
 }
 
-static void reply_heartbeat(const bga_service_t *svc, const bga_msg_t *m, bga_msg_t *rep)
+static void reply_heartbeat(const bga_service_t *svc, int jobs, const bga_msg_t *m, bga_msg_t *rep)
 {
     bga_msg_init(rep, BGA_HEARTBEAT, m->header.job, m->header.seq);
-    const int jobs = bga_service_jobs(svc);
     rep->field[BGA_HB_SLOTS].i = svc->config.slots;
     rep->field[BGA_HB_FREE].i = svc->config.slots - jobs;
     rep->field[BGA_HB_SERVICES].i = svc->config.services;
@@ -775,7 +786,7 @@ static bga_wire_code dispatch(bga_service_t *svc, const bga_msg_t *m, double now
         job *j = m->header.job ? find_job(svc, m->header.job) : NULL;
         if (j)
             renew(j, now, 0);
-        reply_heartbeat(svc, m, rep);
+        reply_heartbeat(svc, bga_service_jobs(svc), m, rep);
         return BGA_WIRE_OK;
     }
     case BGA_ROTFIT_SETUP:
@@ -855,6 +866,27 @@ bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int 
     }
     svc->stats.errors++;
     return bga_service_refuse(frames, nframes, &werr, reply, err);
+}
+
+bg_status bga_service_heartbeat(const bga_service_t *svc, int jobs, const bga_frame_t *frames,
+                                int nframes, bga_frames_t *reply, uint64_t *named, bg_error_t *err)
+{
+    memset(reply, 0, sizeof *reply);
+    bga_msg_t m, rep;
+    bga_wire_error_t werr;
+    if (bga_wire_decode(frames, nframes, &svc->config.limits, &m, &werr) != BGA_WIRE_OK ||
+        m.header.type != BGA_HEARTBEAT)
+        return bg_error_set(err, BG_ERR_INVALID, "not a well-formed heartbeat");
+    *named = m.header.job;
+    reply_heartbeat(svc, jobs, &m, &rep);
+    return bga_wire_encode(&rep, reply, err);
+}
+
+void bga_service_touch(bga_service_t *svc, uint64_t id, double now)
+{
+    job *j = id ? find_job(svc, id) : NULL;
+    if (j)
+        renew(j, now, 0);
 }
 
 /* Little-endian field of a raw header (offsets as in bga_wire.h). */

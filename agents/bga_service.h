@@ -51,6 +51,7 @@ typedef struct bga_service_config {
 
 typedef struct bga_service_stats {
     int64_t requests, errors, expired, released;
+    int64_t dropped; /* freed by bga_service_drop_all (a new broker epoch) */
     double compute_seconds;
 } bga_service_stats_t;
 
@@ -79,8 +80,31 @@ bg_status bga_service_handle(bga_service_t *svc, const bga_frame_t *frames, int 
 bg_status bga_service_refuse(const bga_frame_t *frames, int nframes, const bga_wire_error_t *werr,
                              bga_frames_t *reply, bg_error_t *err);
 
+/*
+ * The answer to a HEARTBEAT (frames borrowed), as bga_service_handle gives
+ * it, for an agent holding `jobs` jobs, into *reply (caller frees with
+ * bga_frames_free), and the job the ping names (0: none) into *job. It
+ * reads only what bga_service_new fixed (name, slots, services, caps), so
+ * a thread that does not own svc may call it while another runs
+ * bga_service_handle: the agent's socket loop answers pings this way
+ * while its worker computes, and hands the lease renewal to the worker
+ * (bga_service_touch). BG_ERR_INVALID, and no reply, for anything but a
+ * well-formed HEARTBEAT (bga_service_handle answers those);
+ * BG_ERR_NOMEM when the reply cannot be built.
+ */
+bg_status bga_service_heartbeat(const bga_service_t *svc, int jobs, const bga_frame_t *frames,
+                                int nframes, bga_frames_t *reply, uint64_t *job, bg_error_t *err);
+
+/* Renews the lease of job `job` (if held) at `now`: what a heartbeat
+ * naming it does in bga_service_handle. */
+void bga_service_touch(bga_service_t *svc, uint64_t job, double now);
+
 /* Frees every job whose lease ran out before `now`; returns how many. */
 int bga_service_expire(bga_service_t *svc, double now);
+
+/* Frees every job held, whatever its lease: the broker they were bought
+ * from died (its successor's epoch was heard). Returns how many. */
+int bga_service_drop_all(bga_service_t *svc);
 
 /* Jobs held now. */
 int bga_service_jobs(const bga_service_t *svc);

@@ -139,9 +139,18 @@ static bg_status recover(bgb_broker_t *b, bg_error_t *err)
                                                 "the broker restarted before the job's services "
                                                 "were bought: queued again",
                                                 err)
-                         : bgb_store_transition(
-                               b->store, jobs[i].id, MASK(BGB_JOB_RUNNING), BGB_JOB_FAILED,
-                               "the broker restarted while the job was running", err);
+                         : bgb_store_transition(b->store, jobs[i].id, MASK(BGB_JOB_RUNNING),
+                                                BGB_JOB_QUEUED,
+                                                "the broker restarted while the job was running: "
+                                                "queued again, it runs again from its start",
+                                                err);
+                /* The agents drop what they held for it as soon as they
+                 * hear this broker's epoch, so it runs once, afresh. */
+                if (st == BG_OK && state == BGB_JOB_RUNNING)
+                    st = bgb_store_add_event(b->store, jobs[i].id, "restarted",
+                                             "{\"reason\":\"the broker restarted while the job "
+                                             "was running\",\"from\":\"running\"}",
+                                             err);
             }
             for (int i = 0; i < count; i++)
                 bgb_job_release(&jobs[i]);
@@ -344,9 +353,13 @@ void bgb_broker_stop(bgb_broker_t **bp)
     bgb_broker_t *b = bp ? *bp : NULL;
     if (!b)
         return;
-    /* No new jobs, then no new coordinators (a running solve finishes
-     * first), then the market, then the store (its writer commits what
-     * is queued). */
+    /* No new jobs (REST answers 503, and goes on serving the rest), no
+     * new coordinators, running jobs finish within the stop grace (or are
+     * queued again); then the event streams get their last events and
+     * REST stops; then the market, then the store (its writer commits
+     * what is queued). */
+    bgb_rest_drain(b->rest);
+    bgb_coord_drain(b->coord, b->config.stop_grace_ms / 1000.0);
     bgb_rest_stop(&b->rest);
     bgb_coord_stop(&b->coord);
     bgb_loop_stop(&b->loop);

@@ -12,9 +12,11 @@
  * loop's contract rows reach the store through its writer thread.
  *
  * Restart: at start, jobs left in allocating are put back in queued
- * (nothing was bought for them), jobs left running are failed with the
- * reason "the broker restarted while the job was running" (their agents'
- * state is gone); queued jobs are picked up again.
+ * (nothing was bought for them), and so are jobs left running, with a
+ * "restarted" event: they run again from their start, once, as the
+ * agents drop the dead broker's contracts and job state the moment they
+ * hear this broker's epoch (bgb_market_epoch, sent in REGISTERED); queued
+ * jobs are picked up again.
  */
 #ifndef BGB_BROKER_H
 #define BGB_BROKER_H

@@ -928,6 +928,8 @@ bg_status bgb_client_pack(const bgb_client_submit_t *submit, char **body, bg_err
         cJSON_AddStringToObject(root, "mechanism", submit->mechanism);
     if (submit->budget > 0.0)
         cJSON_AddNumberToObject(root, "budget", submit->budget);
+    if (submit->deadline > 0.0)
+        cJSON_AddNumberToObject(root, "deadline", submit->deadline);
     *body = cJSON_PrintUnformatted(root);
     if (!*body)
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the request");

@@ -55,6 +55,7 @@ typedef struct bgb_client_submit {
     const char *search_path;     /* ':'-separated mesh folders, as `solve --mesh-path` */
     const char *mechanism;       /* NULL: the broker's default */
     double budget;               /* <= 0: the broker's default */
+    double deadline;             /* seconds after submission; <= 0: none */
     const char *idempotency_key; /* NULL or "": none */
     /* The job's solver settings in place of the scene file's (the broker
      * solves the scene's solver.method to its tolerance and cap), as
@@ -66,7 +67,7 @@ typedef struct bgb_client_submit {
 
 /*
  * Packs a submission as the API expects: {"scene": {...}, "files":
- * [{"name", "base64"}], "mechanism", "budget"}. Every file the scene names
+ * [{"name", "base64"}], "mechanism", "budget", "deadline"}. Every file the scene names
  * (mesh, mesh.file — with a TetGen .node its .ele and the other way round
  * —, handles[i].select.file, handles[i].positions, initial.positions,
  * reference.positions, task.target) is found as `solve` finds it (beside

@@ -28,6 +28,9 @@ bg_status bgb_config_init(bgb_config_t *c, bg_error_t *err)
     c->max_jobs = 4;
     bgb_limits_default(&c->limits);
     c->agent_timeout_ms = 10000;
+    c->agent_liveness_ms = 2000;
+    c->agent_recovery = 1;
+    c->stop_grace_ms = 30000;
     bgb_market_config_default(&c->market);
     if (!c->name || !c->address || !c->endpoint || !c->state_dir) {
         bgb_config_release(c);
@@ -249,6 +252,9 @@ bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
                                        "state_dir",
                                        "max_jobs",
                                        "agent_timeout_ms",
+                                       "agent_liveness_ms",
+                                       "agent_recovery",
+                                       "stop_grace_ms",
                                        "agents",
                                        "market",
                                        "memory_fraction",
@@ -304,6 +310,14 @@ bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
         } else if (strcmp(k, "agent_timeout_ms") == 0) {
             st = bg_json_integer(item, path, k, 1, 3600000, &v, err);
             c->agent_timeout_ms = (int)v;
+        } else if (strcmp(k, "agent_liveness_ms") == 0) {
+            st = bg_json_integer(item, path, k, 100, 600000, &v, err);
+            c->agent_liveness_ms = (int)v;
+        } else if (strcmp(k, "agent_recovery") == 0) {
+            st = bg_json_bool(item, path, k, &c->agent_recovery, err);
+        } else if (strcmp(k, "stop_grace_ms") == 0) {
+            st = bg_json_integer(item, path, k, 0, 3600000, &v, err);
+            c->stop_grace_ms = (int)v;
         } else {
             st = read_limit(item, path, k, &c->limits, err);
         }

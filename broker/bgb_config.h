@@ -42,6 +42,12 @@ typedef struct bgb_config {
                              resolved for the machine (bgb_limits_resolve) */
     int max_jobs;         /* coordinators running at once, 4 */
     int agent_timeout_ms; /* per agent request, 10000 */
+    int agent_liveness_ms; /* an agent silent this long while a job waits on it is lost (it is
+                              pinged every fifth of that), 2000 */
+    int agent_recovery;    /* 1: a lost agent's service is bought again and the job resumes
+                              (the coordinator keeps checkpoints); 0: the loss fails the job */
+    int stop_grace_ms;     /* at SIGTERM, how long running jobs may take to end before they
+                              stop and are queued again, 30000 */
     bgb_config_agent_t agents[BGB_CONFIG_MAX_AGENTS];
     int agent_count;
     bgb_market_config_t market; /* the live market's (bgb_market_config_default); name unused */
@@ -57,7 +63,9 @@ bg_status bgb_config_init(bgb_config_t *config, bg_error_t *err);
 /*
  * Reads a JSON object over the defaults: name, address, port, endpoint,
  * tls_cert, tls_key (file paths), insecure (boolean), curve_key (a file),
- * authorized_agents (a folder), state_dir, max_jobs, agent_timeout_ms, the limits (memory_fraction,
+ * authorized_agents (a folder), state_dir, max_jobs, agent_timeout_ms,
+ * agent_liveness_ms (100 .. 600000), agent_recovery (true/false),
+ * stop_grace_ms (0 .. 3600000), the limits (memory_fraction,
  * max_vertices, max_elements, max_work, max_body, max_jobs_in_flight,
  * max_stored_bytes, max_connections, max_connections_per_client,
  * idle_timeout, request_timeout: bgb_limits.h), agents [{"endpoint",

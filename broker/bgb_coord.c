@@ -33,6 +33,8 @@
 #define COORD_MAX_RESULT_FILE ((size_t)1 << 30)
 /* Queued jobs taken per look at the queue. */
 #define COORD_DISPATCH_BATCH 8
+/* Agents a job may lose (and replace) in all. */
+#define COORD_MAX_FAULTS 16
 #define MASK(s) (1u << (s))
 
 struct bgb_coord {
@@ -46,6 +48,7 @@ struct bgb_coord {
     pthread_cond_t idle; /* bgb_coord_stop's: a coordinator ended */
     int notified;        /* under lock: look at the queue */
     int stopping;        /* under lock */
+    int halting;         /* under lock: the stop grace ran out */
     int running;         /* under lock: coordinators alive */
 };
 
@@ -61,6 +64,8 @@ typedef struct job_run {
     double allocation_latency; /* seconds from allocating to running */
     double used[BGB_WATCH_SERVICES];
     bgb_usage_t usage;
+    double fraction;    /* the job's progress at its last trace point, [0, 1] */
+    double run_started; /* when its solve began (monotonic) */
 } job_run_t;
 
 static int stopping(bgb_coord_t *c)
@@ -82,10 +87,20 @@ static int job_in_state(bgb_coord_t *c, const char *id, bgb_job_state state)
     return !left;
 }
 
+/* The broker's stop grace ran out: running jobs stop at their next
+ * basic-service call and are queued again. */
+static int halting(bgb_coord_t *c)
+{
+    pthread_mutex_lock(&c->lock);
+    const int h = c->halting;
+    pthread_mutex_unlock(&c->lock);
+    return h;
+}
+
 static int still_running(void *ctx)
 {
     job_run_t *jr = ctx;
-    return job_in_state(jr->coord, jr->id, BGB_JOB_RUNNING);
+    return !halting(jr->coord) && job_in_state(jr->coord, jr->id, BGB_JOB_RUNNING);
 }
 
 static int still_allocating(void *ctx)
@@ -133,13 +148,17 @@ static void on_progress(void *ctx, bg_method method, const bg_trace_point_t *p)
 {
     job_run_t *jr = ctx;
     bgb_usage_record(&jr->usage, p->seconds, jr->used);
+    const char *unit = "iteration";
+    int total = 0;
+    const double fraction = fraction_done(jr, p, &unit, &total);
+    /* What a lost agent is paid for: the work the job kept (a minimisation's
+     * accuracy can fall back at a new stage; the work done cannot). */
+    if (fraction > jr->fraction)
+        jr->fraction = fraction;
     const double now = bg_clock_now();
     if (now - jr->last_progress < COORD_PROGRESS_SECONDS)
         return;
     jr->last_progress = now;
-    const char *unit = "iteration";
-    int total = 0;
-    const double fraction = fraction_done(jr, p, &unit, &total);
     char json[640];
     char error[32] = "null";
     if (isfinite(p->error))
@@ -286,6 +305,280 @@ static bg_status load_scene(job_run_t *jr, const bgb_job_t *job, const char *dir
     return st;
 }
 
+/* -------------------------------------------------------------- faults */
+
+static const char *buy_failure_transient(const char *reason);
+static void pause_seconds(double seconds);
+
+static double wall_clock(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* The monotonic time by which the job must have its services: its
+ * deadline (seconds after its submission) when it has one, else
+ * `patience` seconds from now. */
+static double give_up_at(const bgb_job_t *job, double patience)
+{
+    const double now = bg_clock_now();
+    return job->deadline > 0 ? now + (job->created + job->deadline - wall_clock())
+                             : now + patience;
+}
+
+/* src into dst[0 .. cap), cut and terminated (the two are fields of one
+ * record, never the same one). */
+static void copy_text(char *dst, size_t cap, const char *src)
+{
+    const size_t n = strnlen(src, cap - 1);
+    memcpy(dst, src, n);
+    dst[n] = '\0';
+}
+
+/* A job event from a cJSON object (taken: deleted here). */
+static void add_event(job_run_t *jr, const char *kind, cJSON *o)
+{
+    char *json = o ? cJSON_PrintUnformatted(o) : NULL;
+    cJSON_Delete(o);
+    if (!json)
+        return;
+    bg_error_t err = BG_ERROR_INIT;
+    (void)bgb_store_add_event(jr->coord->store, jr->id, kind, json, &err);
+    free(json);
+}
+
+/* Every contract a job has held: its purchase's, then each replacement's. */
+#define COORD_MAX_CONTRACTS (BGB_LOOP_MAX_AWARDS + COORD_MAX_FAULTS)
+
+/*
+ * What a job's coordinator needs to replace an agent it lost (the
+ * backend's recovery context): the buyer it bought with, its contracts
+ * (with the market job each belongs to, the progress at which it began to
+ * serve, and a lost one's settlement), which contract serves each of the
+ * backend's places, the agents lost so far (left out of re-purchases)
+ * and the faults for the events and the report. One thread.
+ */
+typedef struct coord_recovery {
+    job_run_t *jr;
+    const bgb_job_t *job;
+    bgb_loop_buyer_t *buyer;
+    bgb_mechanism mechanism;
+    bgb_award_t awards[COORD_MAX_CONTRACTS];
+    uint64_t market_job[COORD_MAX_CONTRACTS];
+    double from[COORD_MAX_CONTRACTS];
+    int settled[COORD_MAX_CONTRACTS];
+    double paid[COORD_MAX_CONTRACTS];
+    int ncontracts;
+    int place_contract[BGA_BACKEND_MAX_AGENTS]; /* −1: none */
+    double need[BGA_BACKEND_MAX_AGENTS];        /* the place's whole need: its first quantity */
+    uint32_t lost[BGB_LOOP_MAX_EXCLUDE];
+    int nlost;
+    bgb_fault_t faults[COORD_MAX_FAULTS];
+    int nfaults;
+} coord_recovery_t;
+
+/* Money the job has committed: every contract at its price, a lost one at
+ * what it was settled for. */
+static double committed(const coord_recovery_t *r)
+{
+    double sum = 0.0;
+    for (int i = 0; i < r->ncontracts; i++)
+        sum += r->settled[i] ? r->paid[i] : r->awards[i].quantity * r->awards[i].price;
+    return sum;
+}
+
+static bgb_fault_t *fault_of(coord_recovery_t *r, const char *endpoint)
+{
+    for (int i = r->nfaults - 1; i >= 0; i--)
+        if (strcmp(r->faults[i].lost_endpoint, endpoint) == 0)
+            return &r->faults[i];
+    return NULL;
+}
+
+/* The lost contract c is settled for the work the job kept since it
+ * began: a contract sells its quantity for the rest of the job from the
+ * progress `from` at which it began, so it delivered the share (now −
+ * from) / (1 − from) of it. Records the fault. */
+static bgb_fault_t *settle_lost(coord_recovery_t *r, const bga_backend_loss_t *loss, int c)
+{
+    job_run_t *jr = r->jr;
+    bgb_fault_t *f = &r->faults[r->nfaults++];
+    memset(f, 0, sizeof *f);
+    const bgb_award_t *a = &r->awards[c];
+    const double fraction = jr->fraction < 0 ? 0 : jr->fraction > 1 ? 1 : jr->fraction;
+    snprintf(f->service, sizeof f->service, "%s", loss->service);
+    copy_text(f->lost, sizeof f->lost, a->name);
+    snprintf(f->lost_endpoint, sizeof f->lost_endpoint, "%s", loss->endpoint);
+    snprintf(f->why, sizeof f->why, "%s", loss->why);
+    f->seconds = bg_clock_now() - jr->run_started;
+    f->fraction = fraction;
+    const double rest = 1.0 - r->from[c];
+    double delivered = rest > 0 ? a->quantity * (fraction - r->from[c]) / rest : a->quantity;
+    delivered = delivered < 0 ? 0 : delivered > a->quantity ? a->quantity : delivered;
+    const double paid = bgb_loop_settle_lost(r->buyer, r->market_job[c], a->agent, a->good,
+                                             delivered);
+    r->settled[c] = 1;
+    r->paid[c] = paid >= 0 ? paid : a->quantity * a->price; /* unsettled: the whole price */
+    f->settled_quantity = paid >= 0 ? delivered : a->quantity;
+    f->settled_paid = r->paid[c];
+    if (r->nlost < BGB_LOOP_MAX_EXCLUDE)
+        r->lost[r->nlost++] = a->agent;
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "service", f->service);
+    cJSON_AddStringToObject(o, "agent", f->lost);
+    cJSON_AddStringToObject(o, "endpoint", f->lost_endpoint);
+    cJSON_AddStringToObject(o, "reason", f->why);
+    cJSON_AddNumberToObject(o, "fraction", f->fraction);
+    cJSON_AddNumberToObject(o, "seconds", f->seconds);
+    cJSON_AddNumberToObject(o, "time", wall_clock());
+    cJSON *s = cJSON_AddObjectToObject(o, "settled");
+    cJSON_AddNumberToObject(s, "quantity", f->settled_quantity);
+    cJSON_AddNumberToObject(s, "of", a->quantity);
+    cJSON_AddNumberToObject(s, "price", a->price);
+    cJSON_AddNumberToObject(s, "paid", f->settled_paid);
+    add_event(jr, "agent_lost", o);
+    return f;
+}
+
+/*
+ * The backend lost the agent in place loss->agent: its contract is
+ * settled pro rata, the service is bought again under the job's mechanism
+ * with what is left of the budget, from any seller but the agents the job
+ * lost: a whole contract of the place's need (a contract is a lease of its
+ * seller's cores and memory whatever part of the job is left, and a seller
+ * prices it so), asking again with backoff while the market answers
+ * "no seller" or "timeout" until the job's deadline; the replacement's
+ * endpoint and the job id its contract covers go back to the backend.
+ */
+static bg_status coord_replace(void *ctx, const bga_backend_loss_t *loss, char *endpoint,
+                               size_t cap, uint64_t *job_base, bg_error_t *err)
+{
+    coord_recovery_t *r = ctx;
+    job_run_t *jr = r->jr;
+    const double noticed = bg_clock_now();
+    const int c = loss->agent >= 0 && loss->agent < BGA_BACKEND_MAX_AGENTS
+                      ? r->place_contract[loss->agent]
+                      : -1;
+    if (c < 0 || r->nfaults == COORD_MAX_FAULTS || r->ncontracts == COORD_MAX_CONTRACTS)
+        return bg_error_set(err, BG_ERR_LIMIT, "%s; the job cannot replace it (%d agents lost)",
+                            loss->why, r->nfaults);
+    bgb_fault_t *f = settle_lost(r, loss, c);
+    const bgb_award_t *lost = &r->awards[c];
+    const double quantity = r->need[loss->agent];
+    const double give_up = give_up_at(r->job, BGB_COORD_BUY_PATIENCE);
+    double backoff = 0.1;
+    bgb_loop_purchase_t p;
+    bg_error_t berr = BG_ERROR_INIT;
+    for (;; f->retries++) {
+        memset(&p, 0, sizeof p);
+        snprintf(p.label, sizeof p.label, "%s", jr->id);
+        p.mechanism = r->mechanism;
+        p.budget = r->job->budget - committed(r);
+        p.replace = 1;
+        p.good = lost->good;
+        p.quantity = quantity;
+        memcpy(p.exclude, r->lost, (size_t)r->nlost * sizeof *r->lost);
+        p.nexclude = r->nlost;
+        if (!(p.budget > 0)) {
+            snprintf(p.reason, sizeof p.reason, "budget");
+            break;
+        }
+        if (bgb_loop_buy(r->buyer, &p, still_running, jr, &berr) != BG_OK)
+            return bg_error_set(err, BG_ERR_CONFLICT, "%s; the job stopped while its %s was "
+                                "bought again", loss->why, loss->service);
+        if (!p.reason[0] && p.nawards == 1)
+            break;
+        const char *transient = buy_failure_transient(p.reason);
+        if (!transient || bg_clock_now() + backoff > give_up || !still_running(jr))
+            break;
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "service", loss->service);
+        cJSON_AddNumberToObject(o, "retry", f->retries + 1);
+        cJSON_AddStringToObject(o, "reason", transient);
+        cJSON_AddNumberToObject(o, "wait_seconds", backoff);
+        add_event(jr, "rebuy", o);
+        pause_seconds(backoff);
+        backoff = backoff * 2.0 > 2.0 ? 2.0 : backoff * 2.0;
+    }
+    if (p.reason[0] || p.nawards != 1) {
+        const char *why = p.reason[0] ? p.reason : "no award";
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "service", loss->service);
+        cJSON_AddStringToObject(o, "reason", why);
+        cJSON_AddBoolToObject(o, "failed", 1);
+        add_event(jr, "rebuy", o);
+        return bg_error_set(err, BG_ERR_NOT_FOUND,
+                            "agent %s (%s) was lost and no seller could be found %s: %s",
+                            lost->name[0] ? lost->name : loss->endpoint, loss->service,
+                            r->job->deadline > 0 ? "before the job's deadline"
+                                                 : "within the broker's patience",
+                            why);
+    }
+    const int n = r->ncontracts++;
+    r->awards[n] = p.awards[0];
+    r->market_job[n] = p.job;
+    r->from[n] = f->fraction;
+    r->place_contract[loss->agent] = n;
+    const bgb_award_t *a = &r->awards[n];
+    copy_text(f->agent, sizeof f->agent, a->name);
+    copy_text(f->endpoint, sizeof f->endpoint, a->endpoint);
+    f->price = a->price;
+    f->quantity = a->quantity;
+    f->bought_after = bg_clock_now() - noticed;
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "service", loss->service);
+    cJSON_AddStringToObject(o, "lost", f->lost);
+    cJSON_AddStringToObject(o, "agent", a->name);
+    cJSON_AddStringToObject(o, "endpoint", a->endpoint);
+    cJSON_AddStringToObject(o, "mechanism", bgb_mechanism_name(r->mechanism));
+    cJSON_AddNumberToObject(o, "quantity", a->quantity);
+    cJSON_AddNumberToObject(o, "price", a->price);
+    cJSON_AddNumberToObject(o, "cost", a->quantity * a->price);
+    cJSON_AddNumberToObject(o, "spent", committed(r));
+    cJSON_AddNumberToObject(o, "budget", r->job->budget);
+    cJSON_AddNumberToObject(o, "retries", f->retries);
+    cJSON_AddNumberToObject(o, "seconds", f->bought_after);
+    cJSON_AddNumberToObject(o, "time", wall_clock());
+    add_event(jr, "rebought", o);
+    if (strlen(a->endpoint) >= cap)
+        return bg_error_set(err, BG_ERR_LIMIT, "the replacement's endpoint is too long");
+    snprintf(endpoint, cap, "%s", a->endpoint);
+    *job_base = p.job;
+    return BG_OK;
+}
+
+static void coord_resumed(void *ctx, const bga_backend_loss_t *loss, const char *endpoint,
+                          double seconds)
+{
+    coord_recovery_t *r = ctx;
+    bgb_fault_t *f = fault_of(r, loss->endpoint);
+    if (f)
+        f->resumed_after = seconds;
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "service", loss->service);
+    cJSON_AddStringToObject(o, "lost", f ? f->lost : loss->endpoint);
+    cJSON_AddStringToObject(o, "agent", f ? f->agent : endpoint);
+    cJSON_AddStringToObject(o, "endpoint", endpoint);
+    cJSON_AddNumberToObject(o, "seconds", seconds);
+    cJSON_AddNumberToObject(o, "time", wall_clock());
+    add_event(r->jr, "resumed", o);
+}
+
+static void coord_late(void *ctx, const char *endpoint, int64_t count)
+{
+    coord_recovery_t *r = ctx;
+    bgb_fault_t *f = fault_of(r, endpoint);
+    if (f)
+        f->late_answers += count;
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "agent", f ? f->lost : "");
+    cJSON_AddStringToObject(o, "endpoint", endpoint);
+    cJSON_AddNumberToObject(o, "count", (double)count);
+    cJSON_AddStringToObject(o, "outcome", "discarded");
+    add_event(r->jr, "late_answer", o);
+}
+
 /* ------------------------------------------------------------- solving */
 
 /* The agents a job computes on: the awards it bought, or the fixed pool. */
@@ -293,6 +586,7 @@ typedef struct job_alloc {
     const bgb_config_agent_t *agents;
     int count;
     const bgb_loop_purchase_t *bought; /* NULL: the fixed pool, nothing bought */
+    bgb_loop_buyer_t *buyer;           /* what bought it (buys a lost agent's service again) */
 } job_alloc_t;
 
 /* The agents for the report, with what each did. role[i]: -1 not used, -2
@@ -315,6 +609,7 @@ static int agent_lines(const job_alloc_t *alloc, const int *role, const bga_back
             (void)bga_backend_integ_usage(backend, &u);
         else
             u = bga_backend_usage(backend, role[i] == -2 ? nrotfit : role[i]);
+        r->endpoint = u.endpoint; /* a replaced agent's place: the agent that finished it */
         r->service = u.service;
         r->calls = u.traffic.requests;
         r->contacted = r->calls > 0;
@@ -338,6 +633,7 @@ static bg_status solve_job(job_run_t *jr, const bgb_job_t *job, const char *dir,
     bgb_coord_t *c = jr->coord;
     const bg_scene_t *scene = js->scene;
     bga_backend_t *remote = NULL;
+    coord_recovery_t *rec = NULL;
     bg_solve_result_t run = BG_SOLVE_RESULT_INIT, reference = BG_SOLVE_RESULT_INIT;
     char *trace = NULL;
     double *money = NULL;
@@ -391,6 +687,38 @@ static bg_status solve_job(job_run_t *jr, const bgb_job_t *job, const char *dir,
             role[i] = -3;
             break;
         }
+    bga_backend_set_liveness(remote, c->config->agent_liveness_ms / 5,
+                             c->config->agent_liveness_ms);
+    /* A bought job replaces a lost agent (the fixed pool has no market to
+     * buy from): each of the backend's places knows its contract. */
+    if (alloc->bought && alloc->buyer && c->config->agent_recovery) {
+        if (!(rec = calloc(1, sizeof *rec))) {
+            st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the job's recovery");
+            goto out;
+        }
+        *rec = (coord_recovery_t){.jr = jr, .job = job, .buyer = alloc->buyer,
+                                  .mechanism = alloc->bought->mechanism};
+        for (int p = 0; p < BGA_BACKEND_MAX_AGENTS; p++)
+            rec->place_contract[p] = -1;
+        for (int i = 0; i < alloc->bought->nawards && i < BGB_LOOP_MAX_AWARDS; i++) {
+            rec->awards[i] = alloc->bought->awards[i];
+            rec->market_job[i] = alloc->bought->job;
+            rec->ncontracts++;
+        }
+        for (int i = 0; i < alloc->count && i < rec->ncontracts; i++) {
+            const int place = role[i] >= 0 ? role[i]
+                              : role[i] == -2 ? nrotfit
+                              : role[i] == -3 ? nrotfit + 1
+                                              : -1;
+            if (place < 0)
+                continue;
+            rec->place_contract[place] = i;
+            rec->need[place] = rec->awards[i].quantity;
+        }
+        const bga_backend_recovery_t recovery = {coord_replace, coord_resumed, coord_late, rec};
+        bga_backend_set_recovery(remote, &recovery);
+    }
+    jr->run_started = bg_clock_now();
     /* The reference (in process, as `solve` computes it) and the run both
      * stop between service calls once the job is cancelled. */
     bgb_watch_init(&remote_watch, still_running, jr, jr->what, bga_backend_services(remote),
@@ -408,6 +736,7 @@ static bg_status solve_job(job_run_t *jr, const bgb_job_t *job, const char *dir,
     if ((st = bg_run_method(scene, &ro, ref, dir, &run, err)) != BG_OK)
         goto out;
     *converged = run.converged;
+    (void)bga_backend_late_answers(remote); /* what has come in is in the report */
     bg_report_agent_t lines[BGB_CONFIG_MAX_AGENTS];
     const int nlines = agent_lines(alloc, role, remote, lines);
     char paths[2 * COORD_PATH_MAX + 64];
@@ -415,16 +744,31 @@ static bg_status solve_job(job_run_t *jr, const bgb_job_t *job, const char *dir,
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the money curve");
         goto out;
     }
+    /* The contracts as they stand: with a replacement, every one the job
+     * held, a lost one at the work it was settled for. */
     const bgb_loop_purchase_t *bought = alloc->bought;
-    bgb_jobreport_money(&jr->usage, &run, bought ? bought->awards : NULL,
-                        bought ? bought->nawards : 0, money);
+    bgb_award_t held[COORD_MAX_CONTRACTS];
+    int nheld = bought ? bought->nawards : -1;
+    double spent = bought ? bought->spent : 0.0;
+    if (rec) {
+        nheld = rec->ncontracts;
+        for (int i = 0; i < nheld; i++) {
+            held[i] = rec->awards[i];
+            if (rec->settled[i] && held[i].price > 0)
+                held[i].quantity = rec->paid[i] / held[i].price;
+        }
+        spent = committed(rec);
+    }
+    const bgb_award_t *awards = rec ? held : bought ? bought->awards : NULL;
+    bgb_jobreport_money(&jr->usage, &run, awards, nheld > 0 ? nheld : 0, money);
     snprintf(path, sizeof path, "%s/report.json", dir);
     if ((st = bg_report_write_agents(path, scene, &js->plan, &run, 1, lines, nlines, err)) !=
             BG_OK ||
-        (st = bgb_jobreport_add_market(
-             path, job->mechanism, job->budget, bought ? bought->awards : NULL,
-             bought ? bought->nawards : -1, bought ? bought->spent : 0.0, jr->allocation_latency,
-             money, run.trace_count, err)) != BG_OK)
+        (st = bgb_jobreport_add_market(path, job->mechanism, job->budget, awards, nheld, spent,
+                                       jr->allocation_latency, money, run.trace_count, err)) !=
+            BG_OK ||
+        (st = bgb_jobreport_add_faults(path, rec ? rec->faults : NULL, rec ? rec->nfaults : 0,
+                                       err)) != BG_OK)
         goto out;
     snprintf(path, sizeof path, "%s/error-vs-time-and-money.svg", dir);
     if ((st = bgb_jobreport_money_plot(path, scene, &run, money, err)) != BG_OK)
@@ -443,7 +787,8 @@ out:
     free(trace);
     bg_solve_result_release(&run);
     bg_solve_result_release(&reference);
-    bga_backend_destroy(&remote);
+    bga_backend_destroy(&remote); /* its last read of late answers may still tell rec */
+    free(rec);
     return st;
 }
 
@@ -472,7 +817,8 @@ static void pause_seconds(double seconds)
 
 /*
  * Buys the job's services, asking again with backoff while the market's
- * answer is transient. Returns 1 with *p bought, 0 when the job must end
+ * answer is transient (until the job's deadline, or for
+ * BGB_COORD_BUY_PATIENCE without one). Returns 1 with *p bought, 0 when the job must end
  * here (failed, cancelled, or the broker stopping: the caller looks at
  * *failed_reason, set only for a failure to record).
  */
@@ -482,7 +828,7 @@ static int buy_services(job_run_t *jr, bgb_loop_buyer_t *buyer, const bgb_job_t 
 {
     bgb_coord_t *c = jr->coord;
     const int mech = bgb_mechanism_parse(job->mechanism);
-    const double give_up = bg_clock_now() + BGB_COORD_BUY_PATIENCE;
+    const double give_up = give_up_at(job, BGB_COORD_BUY_PATIENCE);
     double backoff = 0.1;
     bg_error_t err = BG_ERROR_INIT;
     for (int retries = 0;; retries++) {
@@ -529,7 +875,7 @@ static void *coordinator(void *arg)
     bgb_loop_buyer_t *buyer = NULL;
     bgb_loop_purchase_t purchase;
     bgb_config_agent_t bought[BGB_LOOP_MAX_AWARDS];
-    job_alloc_t alloc = {c->config->agents, c->config->agent_count, NULL};
+    job_alloc_t alloc = {c->config->agents, c->config->agent_count, NULL, NULL};
     const double t0 = bg_clock_now();
     const unsigned live_or_fail = MASK(BGB_JOB_ALLOCATING) | MASK(BGB_JOB_RUNNING);
     if (bgb_store_get(c->store, jr->id, &job, &err) != BG_OK)
@@ -601,7 +947,7 @@ static void *coordinator(void *arg)
                                  : aw->good == BGB_GOOD_SOLVE ? BGA_SERVICE_SOLVE
                                                               : BGA_SERVICE_INTEG;
         }
-        alloc = (job_alloc_t){bought, purchase.nawards, &purchase};
+        alloc = (job_alloc_t){bought, purchase.nawards, &purchase, buyer};
         char json[256];
         snprintf(json, sizeof json,
                  "{\"market\":\"live\",\"mechanism\":\"%s\",\"contracts\":%d,\"spent\":%.17g,"
@@ -619,9 +965,24 @@ static void *coordinator(void *arg)
     /* The job's contracts end here, before its end is announced: a client
      * that reads the market's log when it sees succeeded or failed finds
      * them settled (rows closed at their real end, resources paid to it). */
-    if (buyer && alloc.bought)
+    const int halted = stopped && halting(c) && job_in_state(c, jr->id, BGB_JOB_RUNNING);
+    if (buyer && alloc.bought && !halted)
         bgb_loop_release(buyer, alloc.bought->job);
-    if (stopped) {
+    if (halted) {
+        /* The broker stops and its grace ran out: no result is stored, the
+         * job is queued again for the next broker process, which runs it
+         * from its start; its stopped event is written first, while the
+         * event streams are still open (the stopping loop may take a while
+         * to answer the release, at out below). */
+        char json[128];
+        snprintf(json, sizeof json, "{\"cancelled\":false,\"broker_stopping\":true,\"seconds\":%.6f}",
+                 bg_clock_now() - t0);
+        (void)bgb_store_add_event(c->store, jr->id, "stopped", json, &terr);
+        (void)bgb_store_transition(c->store, jr->id, MASK(BGB_JOB_RUNNING), BGB_JOB_QUEUED,
+                                   "the broker stopped before the job ended (its stop grace ran "
+                                   "out): queued again",
+                                   &terr);
+    } else if (stopped) {
         /* Cancelled while running: no result is stored, the contracts are
          * released below. */
         char json[96];
@@ -752,6 +1113,39 @@ void bgb_coord_notify(bgb_coord_t *c)
     pthread_mutex_lock(&c->lock);
     c->notified = 1;
     pthread_cond_signal(&c->work);
+    pthread_mutex_unlock(&c->lock);
+}
+
+void bgb_coord_drain(bgb_coord_t *c, double grace)
+{
+    if (!c)
+        return;
+    pthread_mutex_lock(&c->lock);
+    c->stopping = 1;
+    pthread_cond_signal(&c->work);
+    pthread_mutex_unlock(&c->lock);
+    if (c->dispatcher_started)
+        pthread_join(c->dispatcher, NULL);
+    c->dispatcher_started = 0;
+    struct timespec until;
+    clock_gettime(CLOCK_REALTIME, &until);
+    const double whole = floor(grace);
+    until.tv_sec += (time_t)whole;
+    until.tv_nsec += (long)((grace - whole) * 1e9);
+    if (until.tv_nsec >= 1000000000L) {
+        until.tv_sec++;
+        until.tv_nsec -= 1000000000L;
+    }
+    pthread_mutex_lock(&c->lock);
+    int rc = 0;
+    while (c->running > 0 && rc != ETIMEDOUT)
+        rc = pthread_cond_timedwait(&c->idle, &c->lock, &until);
+    /* Past the grace the rest stop at their next basic-service call
+     * (each bounded by the agent timeout) and record it, before the
+     * event streams are closed. */
+    c->halting = c->running > 0;
+    while (c->running > 0)
+        pthread_cond_wait(&c->idle, &c->lock);
     pthread_mutex_unlock(&c->lock);
 }
 

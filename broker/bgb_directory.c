@@ -10,6 +10,7 @@ struct bgb_directory {
     double heartbeat_timeout;
     bgb_dir_agent_t *agents; /* BGB_DIRECTORY_MAX_AGENTS */
     uint32_t next_id;
+    uint64_t epoch; /* sent in every REGISTERED (bgb_directory_set_epoch) */
     /* Agents dropped (silent too long), oldest first: their contracts stay
      * in the ledger, so agents.csv still lists them. */
     bgb_agent_info_t *departed; /* ring of BGB_DIRECTORY_MAX_DEPARTED */
@@ -64,6 +65,11 @@ const bgb_dir_agent_t *bgb_directory_rows_const(const bgb_directory_t *d)
 int bgb_directory_slot_of(const bgb_directory_t *d, const bgb_dir_agent_t *a)
 {
     return (int)(a - d->agents);
+}
+
+void bgb_directory_set_epoch(bgb_directory_t *d, uint64_t epoch)
+{
+    d->epoch = epoch;
 }
 
 bgb_dir_agent_t *bgb_directory_by_id(bgb_directory_t *d, uint32_t id)
@@ -156,6 +162,7 @@ static bg_status send_registered(bgb_directory_t *d, bgb_dir_agent_t *a, bg_erro
     bga_mmsg_t r;
     bga_mmsg_init(&r, BGA_MM_REGISTERED);
     r.agent = a->info.id;
+    r.epoch = d->epoch;
     int n = 0;
     for (int i = 0; i < a->nnb; i++) {
         const bgb_dir_agent_t *b = bgb_directory_by_id(d, a->nb[i]);
@@ -206,6 +213,7 @@ static bg_status send_standby(bgb_directory_t *d, const uint8_t *idn, size_t len
 {
     bga_mmsg_t r;
     bga_mmsg_init(&r, BGA_MM_REGISTERED);
+    r.epoch = d->epoch;
     const char *scheme = strstr(endpoint, "://");
     const char *host = scheme ? scheme + 3 : endpoint;
     const size_t n = host_len(endpoint) - (size_t)(host - endpoint);

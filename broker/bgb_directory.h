@@ -90,6 +90,10 @@ bg_status bgb_directory_new(int overlay_degree, double heartbeat_timeout,
                             const bgb_directory_io_t *io, bgb_directory_t **out, bg_error_t *err);
 void bgb_directory_destroy(bgb_directory_t **d);
 
+/* The broker's epoch, sent in every REGISTERED from now on (an agent that
+ * hears a new one drops what it held for the previous broker). */
+void bgb_directory_set_epoch(bgb_directory_t *d, uint64_t epoch);
+
 /* The BGB_DIRECTORY_MAX_AGENTS rows, in registration-slot order (unused
  * ones have used == 0); borrowed while the directory lives. */
 bgb_dir_agent_t *bgb_directory_rows(bgb_directory_t *d);

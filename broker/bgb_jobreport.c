@@ -168,6 +168,49 @@ out:
     return st;
 }
 
+bg_status bgb_jobreport_add_faults(const char *path, const bgb_fault_t *faults, int nfaults,
+                                   bg_error_t *err)
+{
+    cJSON *root = NULL;
+    bg_status st = bg_json_load(path, BGB_JOBREPORT_MAX_REPORT, &root, err);
+    if (st != BG_OK)
+        return st;
+    cJSON *list = cJSON_AddArrayToObject(root, "faults");
+    for (int i = 0; list && i < nfaults; i++) {
+        const bgb_fault_t *f = &faults[i];
+        cJSON *e = cJSON_CreateObject();
+        cJSON_AddStringToObject(e, "service", f->service);
+        cJSON_AddStringToObject(e, "lost", f->lost);
+        cJSON_AddStringToObject(e, "lost_endpoint", f->lost_endpoint);
+        cJSON_AddStringToObject(e, "why", f->why);
+        cJSON_AddNumberToObject(e, "seconds", f->seconds);
+        cJSON_AddNumberToObject(e, "fraction", f->fraction);
+        cJSON_AddNumberToObject(e, "settled_quantity", f->settled_quantity);
+        cJSON_AddNumberToObject(e, "settled_paid", f->settled_paid);
+        if (f->agent[0]) {
+            cJSON *r = cJSON_AddObjectToObject(e, "replacement");
+            cJSON_AddStringToObject(r, "agent", f->agent);
+            cJSON_AddStringToObject(r, "endpoint", f->endpoint);
+            cJSON_AddNumberToObject(r, "price", f->price);
+            cJSON_AddNumberToObject(r, "quantity", f->quantity);
+            cJSON_AddNumberToObject(r, "cost", f->price * f->quantity);
+        } else {
+            cJSON_AddNullToObject(e, "replacement");
+        }
+        cJSON_AddNumberToObject(e, "retries", f->retries);
+        cJSON_AddNumberToObject(e, "bought_after_seconds", f->bought_after);
+        cJSON_AddNumberToObject(e, "resumed_after_seconds", f->resumed_after);
+        cJSON_AddNumberToObject(e, "late_answers", (double)f->late_answers);
+        cJSON_AddItemToArray(list, e);
+    }
+    char *text = cJSON_Print(root);
+    st = text ? bg_file_write_all(path, text, strlen(text), 0600, err)
+              : bg_error_set(err, BG_ERR_NOMEM, "%s: out of memory", path);
+    free(text);
+    cJSON_Delete(root);
+    return st;
+}
+
 /*
  * DIR/error-vs-time-and-money.svg: two panels side by side, the run's
  * error against run time and against money (bgb_jobreport_money), each drawn by

@@ -4,7 +4,8 @@
  * trace (contracts pro-rated by the service time their service had worked,
  * counted by the job's watch, bgb_watch), the "market" section of
  * report.json (mechanism, contracts, money against budget, allocation
- * latency, error against money) and error-vs-time-and-money.svg.
+ * latency, error against money) and error-vs-time-and-money.svg, and
+ * the agents the job lost and what replaced them (the "faults" section).
  */
 #ifndef BGB_JOBREPORT_H
 #define BGB_JOBREPORT_H
@@ -56,6 +57,28 @@ void bgb_jobreport_money(const bgb_usage_t *usage, const bg_solve_result_t *run,
 bg_status bgb_jobreport_add_market(const char *path, const char *mechanism, double budget,
                                    const bgb_award_t *awards, int nawards, double spent,
                                    double latency, const double *money, int nmoney,
+                                   bg_error_t *err);
+
+/* One agent a job lost and its replacement, as the coordinator saw them. */
+typedef struct bgb_fault {
+    char service[24];                       /* "rotation-fit", "sparse-solve", ... */
+    char lost[BGB_DIRECTORY_NAME_MAX];         /* the lost agent's name ("" when unknown) */
+    char lost_endpoint[BGB_DIRECTORY_ENDPOINT_MAX];
+    char why[256];                          /* how it was found lost */
+    double seconds;                         /* into the run when it was noticed */
+    double fraction;                        /* the job's progress then, [0, 1] */
+    double settled_quantity, settled_paid;  /* its contract, settled pro rata */
+    char agent[BGB_DIRECTORY_NAME_MAX];        /* the replacement ("" when none was found) */
+    char endpoint[BGB_DIRECTORY_ENDPOINT_MAX];
+    double price, quantity;                 /* the replacement's contract */
+    int retries;                            /* the market's answers before it sold */
+    double bought_after, resumed_after;     /* seconds from noticed to bought, to computing */
+    int64_t late_answers;                   /* the lost agent's, discarded */
+} bgb_fault_t;
+
+/* Adds the "faults" section (an array, empty when nothing was lost) to the
+ * report.json at path. */
+bg_status bgb_jobreport_add_faults(const char *path, const bgb_fault_t *faults, int nfaults,
                                    bg_error_t *err);
 
 /* error-vs-time-and-money.svg at path: the run's error against run time

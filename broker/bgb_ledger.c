@@ -92,6 +92,27 @@ void bgb_ledger_close(bgb_ledger_t *l, uint64_t job, double now)
     }
 }
 
+uint64_t bgb_ledger_settle_lost(bgb_ledger_t *l, uint64_t job, uint32_t seller, int good,
+                                double delivered, double now)
+{
+    uint64_t request = 0;
+    for (size_t i = 0; i < l->count && !request; i++) {
+        bgb_contract_t *r = row_at(l, i);
+        if (r->job == job && r->layer == 0 && r->seller == seller && r->good == good &&
+            r->end > now) {
+            request = r->request;
+            r->quantity = delivered;
+            r->end = now;
+        }
+    }
+    for (size_t i = 0; i < l->count && request; i++) {
+        bgb_contract_t *r = row_at(l, i);
+        if (r->job == job && r->layer == 1 && r->request == request && r->end > now)
+            r->end = now;
+    }
+    return request;
+}
+
 int bgb_ledger_recent_price(const bgb_ledger_t *l, int good, bgb_mechanism mech, int window,
                             double *mean)
 {

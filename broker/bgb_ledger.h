@@ -106,6 +106,13 @@ void bgb_ledger_close(bgb_ledger_t *l, uint64_t job, double now);
 
 /* Mean price of the last `window` rows of a good under a mechanism;
  * returns the number averaged (0: *mean untouched). */
+/* A lost seller's contract settled pro rata: job's open service row sold
+ * by `seller` for `good` keeps `delivered` units and ends now, and the
+ * open resource rows bought for the same request end now too. Returns
+ * that request, or 0 when there is no such open row. */
+uint64_t bgb_ledger_settle_lost(bgb_ledger_t *l, uint64_t job, uint32_t seller, int good,
+                                double delivered, double now);
+
 int bgb_ledger_recent_price(const bgb_ledger_t *l, int good, bgb_mechanism mech, int window,
                             double *mean);
 

@@ -23,6 +23,8 @@
 #define CMD_RELEASE "RELEASE"
 #define CMD_RELEASED "RELEASED"
 #define CMD_FORGET "FORGET"
+#define CMD_SETTLE "SETTLE"
+#define CMD_SETTLED "SETTLED"
 #define CMD_VIEW "VIEW"
 #define CMD_SETTLE "SETTLE"
 #define CMD_SETTLED "SETTLED"
@@ -36,6 +38,14 @@
 /* The live-agent count is refreshed at most this often (it copies the directory). */
 #define COUNT_PERIOD 0.05
 #define IDENTITY_MAX 255
+
+/* SETTLE's argument: a lost seller of a held purchase. */
+typedef struct settle {
+    uint64_t job;
+    uint32_t agent;
+    int good;
+    double delivered;
+} settle_t;
 
 /* A purchase the loop holds for a buyer, from BUY to its release. */
 typedef struct held {
@@ -297,10 +307,18 @@ static void buy(bgb_loop_t *l, const uint8_t *identity, size_t identity_len,
     const int n = rotfit_sellers(l);
     const bgb_need_t needs[3] = {
         {BGB_GOOD_ROTFIT, (double)n, n}, {BGB_GOOD_SOLVE, 1.0, 1}, {BGB_GOOD_INTEG, 1.0, 1}};
+    const bgb_need_t again = {h->p.good, h->p.quantity, 1};
+    const int nexclude = h->p.nexclude < 0                       ? 0
+                         : h->p.nexclude > BGB_LOOP_MAX_EXCLUDE ? BGB_LOOP_MAX_EXCLUDE
+                                                                : h->p.nexclude;
     bg_error_t err = BG_ERROR_INIT;
     /* The outcome may come from inside this call (no seller at all). */
-    const bg_status st = bgb_market_buy(l->market, h->p.job, h->p.mechanism, h->p.budget, needs,
-                                        h->p.integ ? 3 : 2, now, on_bought, h, &err);
+    const bg_status st =
+        h->p.replace ? bgb_market_buy_excluding(l->market, h->p.job, h->p.mechanism, h->p.budget,
+                                                &again, 1, h->p.exclude, nexclude, now, on_bought,
+                                                h, &err)
+                     : bgb_market_buy(l->market, h->p.job, h->p.mechanism, h->p.budget, needs,
+                                      h->p.integ ? 3 : 2, now, on_bought, h, &err);
     if (st != BG_OK) {
         snprintf(h->p.reason, sizeof h->p.reason, "%.63s", err.message);
         h->done = 1;
@@ -418,6 +436,15 @@ static int on_command(bgb_loop_t *l, double now)
                 free(h);
             }
             reply(l, id, idlen, CMD_RELEASED, NULL, 0);
+        } else if (strcmp(cmd, CMD_SETTLE) == 0 && size == sizeof(settle_t)) {
+            settle_t in;
+            memcpy(&in, data, sizeof in);
+            const held_t *h = held_by_job(l, in.job, NULL);
+            const double paid =
+                h && h->done ? bgb_market_settle_lost(l->market, in.job, in.agent, in.good,
+                                                      in.delivered, now)
+                             : -1.0;
+            reply(l, id, idlen, CMD_SETTLED, &paid, sizeof paid);
         } else if (strcmp(cmd, CMD_FORGET) == 0) {
             forget(l, id, idlen, now);
         } else if (strcmp(cmd, CMD_VIEW) == 0 && size == sizeof(int)) {
@@ -848,8 +875,24 @@ int bgb_loop_live_agents(bgb_loop_t *l, double wait_seconds)
 struct bgb_loop_buyer {
     bgb_loop_t *loop;
     void *socket;
-    uint64_t holding; /* a job bought and not released, 0: none */
+    uint64_t holding[BGB_LOOP_MAX_HELD]; /* jobs bought and not released */
+    int nholding;
 };
+
+static void hold(bgb_loop_buyer_t *b, uint64_t job)
+{
+    if (b->nholding < BGB_LOOP_MAX_HELD)
+        b->holding[b->nholding++] = job;
+}
+
+static void unhold(bgb_loop_buyer_t *b, uint64_t job)
+{
+    for (int i = 0; i < b->nholding; i++)
+        if (b->holding[i] == job) {
+            b->holding[i] = b->holding[--b->nholding];
+            return;
+        }
+}
 
 bg_status bgb_loop_buyer_new(bgb_loop_t *l, bgb_loop_buyer_t **out, bg_error_t *err)
 {
@@ -872,8 +915,8 @@ void bgb_loop_buyer_destroy(bgb_loop_buyer_t **bp)
     bgb_loop_buyer_t *b = bp ? *bp : NULL;
     if (!b)
         return;
-    if (b->holding)
-        bgb_loop_release(b, b->holding);
+    while (b->nholding > 0)
+        bgb_loop_release(b, b->holding[b->nholding - 1]);
     zmq_close(b->socket);
     free(b);
     *bp = NULL;
@@ -896,14 +939,14 @@ bg_status bgb_loop_buy(bgb_loop_buyer_t *b, bgb_loop_purchase_t *p, int (*keep_g
             if (!ok)
                 continue; /* an answer to an earlier request (a release) */
             if (!p->reason[0])
-                b->holding = p->job;
+                hold(b, p->job);
             return BG_OK;
         }
         if (keep_going && !keep_going(ctx)) {
             /* The buyer has not heard the purchase's job number yet: the
              * loop forgets by the buyer's socket (everything it holds). */
             (void)send_command(b->socket, CMD_FORGET, NULL, 0);
-            b->holding = 0;
+            b->nholding = 0;
             return bg_error_set(err, BG_ERR_CONFLICT, "the purchase was abandoned");
         }
     }
@@ -924,6 +967,27 @@ void bgb_loop_release(bgb_loop_buyer_t *b, uint64_t job)
                 break;
         }
     }
-    if (b->holding == job)
-        b->holding = 0;
+    unhold(b, job);
+}
+
+double bgb_loop_settle_lost(bgb_loop_buyer_t *b, uint64_t job, uint32_t agent, int good,
+                            double delivered)
+{
+    const settle_t in = {job, agent, good, delivered};
+    if (send_command(b->socket, CMD_SETTLE, &in, sizeof in) != 0)
+        return -1.0;
+    for (;;) {
+        char cmd[CMD_MAX];
+        void *data = NULL;
+        size_t size = 0;
+        if (receive_answer(b->socket, ANSWER_TIMEOUT_MS, cmd, &data, &size) != 0)
+            return -1.0;
+        double paid = -1.0;
+        const int ok = strcmp(cmd, CMD_SETTLED) == 0 && data && size == sizeof paid;
+        if (ok)
+            memcpy(&paid, data, sizeof paid);
+        free(data);
+        if (ok)
+            return paid;
+    }
 }

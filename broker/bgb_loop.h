@@ -36,6 +36,10 @@
 #define BGB_LOOP_MAX_ROTFIT 4
 #define BGB_LOOP_MAX_AWARDS (BGB_LOOP_MAX_ROTFIT + 2)
 #define BGB_LOOP_REASON_MAX 64
+/* Sellers a re-purchase may leave out, and purchases a buyer holds at once
+ * (its job's, and one per service bought again after a loss). */
+#define BGB_LOOP_MAX_EXCLUDE 16
+#define BGB_LOOP_MAX_HELD 32
 
 typedef struct bgb_loop bgb_loop_t;
 
@@ -98,6 +102,13 @@ typedef struct bgb_loop_purchase {
     bgb_mechanism mechanism;
     double budget;
     int integ; /* the plan needs an integration step */
+    /* A re-purchase (replace = 1): one service `good` (BGB_GOOD_ROTFIT ..
+     * INTEG), `quantity` units of it from one seller, none of exclude[0 ..
+     * nexclude) (directory ids: the agents the job lost); integ unused. */
+    int replace, good;
+    double quantity;
+    uint32_t exclude[BGB_LOOP_MAX_EXCLUDE];
+    int nexclude;
     /* out */
     uint64_t job;                     /* the market's job number (for release) */
     char reason[BGB_LOOP_REASON_MAX]; /* "" when bought; else why not */
@@ -138,5 +149,15 @@ void bgb_loop_release(bgb_loop_buyer_t *buyer, uint64_t job);
  * Returns when done, or after a few seconds if the loop does not answer.
  */
 void bgb_loop_settle(bgb_loop_t *loop, const char *label);
+
+/*
+ * Agent `agent` of the buyer's purchase `job` was lost while serving
+ * `good`: its contract is settled for `delivered` units of work
+ * (bgb_market_settle_lost), the rest of the purchase stays. Returns the
+ * money that contract comes to, or −1 when there is no such contract or
+ * the loop does not answer.
+ */
+double bgb_loop_settle_lost(bgb_loop_buyer_t *buyer, uint64_t job, uint32_t agent, int good,
+                            double delivered);
 
 #endif

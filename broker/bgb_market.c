@@ -4,6 +4,9 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/random.h>
+#include <time.h>
+#include <unistd.h>
 
 #include "bga_mmsg.h"
 #include "bgb_auction.h"
@@ -86,6 +89,13 @@ struct job {
     uint32_t touched[MAX_UNITS]; /* agents that may hold a slot for it */
     int ntouched;
     int finished; /* outcome delivered; kept until release */
+    /* Sellers it must not get: a re-purchase leaves out the agents the
+     * job lost (bgb_market_buy_excluding), by directory id and by compute
+     * endpoint (a hash of it: a lost agent that comes back registers
+     * under a new id). */
+    uint32_t excluded[MAX_TRIED];
+    uint64_t excluded_ep[MAX_TRIED];
+    int nexcluded;
     int admitted; /* central: its service units may bid (see admit_fitting) */
     /* The job's buyer: the simulator's purchase machine, one request per
      * unit (request id = unit index + 1), its timers, and the answers the
@@ -149,6 +159,27 @@ void bgb_market_config_default(bgb_market_config_t *c)
     c->max_contracts = 100000;
 }
 
+/* A fresh epoch in [1, 2^53): the kernel's random bytes, or (should
+ * getrandom fail) the clock and the process id mixed. */
+static uint64_t draw_epoch(void)
+{
+    uint64_t v = 0;
+    if (getrandom(&v, sizeof v, 0) != (ssize_t)sizeof v) {
+        struct timespec ts;
+        clock_gettime(CLOCK_REALTIME, &ts);
+        v = ((uint64_t)ts.tv_sec * 1000000007ull) ^ (uint64_t)ts.tv_nsec ^
+            ((uint64_t)getpid() << 32);
+        v *= 0x9e3779b97f4a7c15ull;
+    }
+    v &= ((uint64_t)1 << 53) - 1;
+    return v ? v : 1;
+}
+
+uint64_t bgb_market_epoch(const bgb_market_t *m)
+{
+    return m->c.epoch;
+}
+
 bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_t *io,
                          bgb_market_t **out, bg_error_t *err)
 {
@@ -168,13 +199,19 @@ bg_status bgb_market_new(const bgb_market_config_t *config, const bgb_market_io_
                             BGA_MMSG_MAX_NEIGHBOURS);
     if (!io || !io->send)
         return bg_error_set(err, BG_ERR_INVALID, "market: io.send is required");
+    if (c->epoch > ((uint64_t)1 << 53))
+        return bg_error_set(err, BG_ERR_INVALID, "market: epoch must be at most 2^53");
     bgb_market_t *m = calloc(1, sizeof *m);
     if (!m)
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory creating the market");
     m->c = *c;
     m->c.name = NULL; /* the ledger keeps the name */
+    if (m->c.epoch == 0)
+        m->c.epoch = draw_epoch();
     m->next_sub = SUB_JOB_BASE;
     bg_status st = bgb_directory_new(c->overlay_degree, c->heartbeat_timeout, io, &m->dir, err);
+    if (st == BG_OK)
+        bgb_directory_set_epoch(m->dir, m->c.epoch);
     if (st == BG_OK)
         st = bgb_ledger_new(c->name, c->max_contracts, &m->ledger, err);
     if (st != BG_OK) {
@@ -660,6 +697,31 @@ void bgb_market_release(bgb_market_t *m, uint64_t job, double now)
     forget_job(j);
 }
 
+static void mark_tried(unit_t *u, uint32_t agent);
+
+double bgb_market_settle_lost(bgb_market_t *m, uint64_t job, uint32_t agent, int good,
+                              double delivered, double now)
+{
+    job_t *j = job_by_id(m, job);
+    unit_t *u = NULL;
+    for (int i = 0; j && !j->resource && i < j->nunits && !u; i++)
+        if (j->unit[i].state == U_DONE && j->unit[i].agent == agent && j->unit[i].good == good)
+            u = &j->unit[i];
+    if (!u)
+        return -1.0;
+    delivered = delivered < 0 ? 0 : delivered > u->quantity ? u->quantity : delivered;
+    /* Its service row: the delivered work, ended now; the rows of the
+     * resources bought for it (the same request) end now too. */
+    (void)bgb_ledger_settle_lost(m->ledger, job, agent, good, delivered, now);
+    drop_subjobs(m, job, agent, good);
+    bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, agent);
+    if (a && !a->info.resource)
+        release_on(m, a, job);
+    u->state = U_OPEN;
+    mark_tried(u, agent);
+    return delivered * u->price;
+}
+
 void bgb_market_settle(bgb_market_t *m, uint64_t job, double now)
 {
     if (job_by_id(m, job))
@@ -813,6 +875,9 @@ static int has_room(void *ctx, const bgm_posting_t *p)
  * goes to n distinct agents) first, then those it tried, latest first, up
  * to the message's cap. Whatever the cap leaves out the host still
  * checks when the market agent answers. */
+static int is_excluded(const job_t *j, const bgb_dir_agent_t *a);
+static uint64_t endpoint_hash(const char *ep);
+
 static int exclusions(bgb_market_t *m, const job_t *j, const unit_t *u, int *out)
 {
     uint32_t ids[MAX_UNITS + MAX_TRIED];
@@ -824,6 +889,12 @@ static int exclusions(bgb_market_t *m, const job_t *j, const unit_t *u, int *out
     }
     for (int i = u->ntried - 1; i >= 0; i--)
         ids[n++] = u->tried[i];
+    /* Agents the job must not get, under a new id too. */
+    const bgb_dir_agent_t *rows = bgb_directory_rows_const(m->dir);
+    for (int i = 0; i < BGB_DIRECTORY_MAX_AGENTS && j->nexcluded > 0 && k < BGB_AUCTION_MAX_EXCLUDE;
+         i++)
+        if (rows[i].used && is_excluded(j, &rows[i]))
+            out[k++] = i;
     for (int i = 0; i < n && k < BGB_AUCTION_MAX_EXCLUDE; i++) {
         bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, ids[i]);
         if (!a)
@@ -861,10 +932,31 @@ static int sellers_with_room(const bgb_market_t *m, const job_t *j, const unit_t
  * busy one does not propose). A catallactic resource unit does skip its
  * host's seller while the room it needs is taken by other sub-jobs
  * bargaining for it or holding it: it would only wait for the refusal. */
+/* FNV-1a of an endpoint (0 is never returned: it marks no endpoint). */
+static uint64_t endpoint_hash(const char *ep)
+{
+    uint64_t h = 1469598103934665603ull;
+    for (const char *p = ep; *p; p++)
+        h = (h ^ (uint8_t)*p) * 1099511628211ull;
+    return h ? h : 1;
+}
+
+static int is_excluded(const job_t *j, const bgb_dir_agent_t *a)
+{
+    if (j->nexcluded == 0)
+        return 0;
+    const uint64_t h = endpoint_hash(a->info.endpoint);
+    for (int i = 0; i < j->nexcluded; i++)
+        if (j->excluded[i] == a->info.id || (j->excluded_ep[i] && j->excluded_ep[i] == h))
+            return 1;
+    return 0;
+}
+
 static int may_have(const bgb_market_t *m, const job_t *j, const unit_t *u,
                     const bgb_dir_agent_t *a)
 {
-    if (!a || !a->used || !alive_seller(a, u->good) || !on_host(j, a) || need_has(j, u, a->info.id))
+    if (!a || !a->used || !alive_seller(a, u->good) || !on_host(j, a) ||
+        need_has(j, u, a->info.id) || is_excluded(j, a))
         return 0;
     if (j->mech == BGB_MECH_CATALLACTIC)
         return !j->resource || room_for(m, j, a, u);
@@ -1698,7 +1790,7 @@ static int unbuyable(bgb_market_t *m, const job_t *j, const unit_t *u)
     for (int i = 0; i < BGB_DIRECTORY_MAX_AGENTS; i++) {
         const bgb_dir_agent_t *a = &bgb_directory_rows_const(m->dir)[i];
         if (alive_seller(a, u->good) && on_host(j, a) && !tried(u, a->info.id) &&
-            !need_has(j, u, a->info.id) &&
+            !need_has(j, u, a->info.id) && !is_excluded(j, a) &&
             (!j->resource || (room_for(m, j, a, u) &&
                               (j->mech != BGB_MECH_POSTED || a->info.price[u->good] <= u->limit))))
             return 0;
@@ -1797,7 +1889,7 @@ static void begin(bgb_market_t *m, job_t *j, const bgb_need_t *needs, int nneeds
     for (int ai = 0; ai < BGB_DIRECTORY_MAX_AGENTS; ai++)
         for (int g = 0; g < BGB_GOODS; g++) {
             const bgb_dir_agent_t *a = &bgb_directory_rows_const(m->dir)[ai];
-            if (alive_seller(a, g) && on_host(j, a)) {
+            if (alive_seller(a, g) && on_host(j, a) && !is_excluded(j, a)) {
                 count[g]++;
                 if (a->info.price[g] < ref[g])
                     ref[g] = a->info.price[g];
@@ -1824,6 +1916,10 @@ static void begin(bgb_market_t *m, job_t *j, const bgb_need_t *needs, int nneeds
             u->quantity = needs[i].quantity / needs[i].sellers;
             u->term = weight;
             u->limit = ref[u->good] * j->budget / least;
+            /* Central bids and posted queries carry them to the market
+             * agent, and the host skips them, as sellers already tried. */
+            for (int e = 0; e < j->nexcluded; e++)
+                mark_tried(u, j->excluded[e]);
         }
     if (!start_purchase(m, j, ref)) {
         finish(m, j, "market: out of memory", now);
@@ -1840,6 +1936,17 @@ bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism,
                          const bgb_need_t *needs, int nneeds, double now, bgb_done_fn done,
                          void *ctx, bg_error_t *err)
 {
+    return bgb_market_buy_excluding(m, job, mechanism, budget, needs, nneeds, NULL, 0, now, done,
+                                    ctx, err);
+}
+
+bg_status bgb_market_buy_excluding(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism,
+                                   double budget, const bgb_need_t *needs, int nneeds,
+                                   const uint32_t *exclude, int nexclude, double now,
+                                   bgb_done_fn done, void *ctx, bg_error_t *err)
+{
+    if (nexclude < 0 || nexclude > MAX_TRIED || (nexclude > 0 && !exclude))
+        return bg_error_set(err, BG_ERR_INVALID, "exclude: between 0 and %d sellers", MAX_TRIED);
     if ((int)mechanism < 0 || mechanism > BGB_MECH_POSTED)
         return bg_error_set(err, BG_ERR_INVALID, "mechanism: %d is unknown", (int)mechanism);
     if (!(budget >= 0 && isfinite(budget)))
@@ -1870,6 +1977,17 @@ bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism,
         return st;
     j->done = done;
     j->ctx = ctx;
+    for (int i = 0; i < nexclude; i++) {
+        const bgb_dir_agent_t *a = bgb_directory_by_id(m->dir, exclude[i]);
+        const bgb_agent_info_t *gone = NULL;
+        for (size_t g = 0; !a && !gone && g < bgb_directory_departed_count(m->dir); g++)
+            if (bgb_directory_departed(m->dir, g)->id == exclude[i])
+                gone = bgb_directory_departed(m->dir, g);
+        j->excluded[j->nexcluded] = exclude[i];
+        j->excluded_ep[j->nexcluded++] = a ? endpoint_hash(a->info.endpoint)
+                                         : gone ? endpoint_hash(gone->endpoint)
+                                                : 0;
+    }
     begin(m, j, needs, nneeds, now);
     return BG_OK;
 }

@@ -87,16 +87,19 @@
 typedef bgb_directory_io_t bgb_market_io_t;
 
 typedef struct bgb_market_config {
-    const char *name;         /* the broker's name: `scenario` in the CSVs */
-    double period;            /* central: clearing period, s (> 0) */
-    double k;                 /* central: k-pricing parameter in [0, 1] */
-    double heartbeat_timeout; /* an agent silent this long is dropped, s */
-    double reply_timeout;     /* a seller's answer to an order, s */
-    double buy_timeout;       /* a job not fully bought by then fails "timeout" */
-    int overlay_degree;       /* neighbours given to each agent (≥ 1) */
-    int hops;                 /* catallactic CFP hop limit (≥ 1) */
-    int max_rounds;           /* catallactic bargaining rounds */
-    size_t max_contracts;     /* contract log cap (rows kept; older dropped) */
+    const char *name;          /* the broker's name: `scenario` in the CSVs */
+    double period;             /* central: clearing period, s (> 0) */
+    double k;                  /* central: k-pricing parameter in [0, 1] */
+    double heartbeat_timeout;  /* an agent silent this long is dropped, s */
+    double reply_timeout;      /* a seller's answer to an order, s */
+    double buy_timeout;        /* a job not fully bought by then fails "timeout" */
+    int overlay_degree;        /* neighbours given to each agent (≥ 1) */
+    int hops;                  /* catallactic CFP hop limit (≥ 1) */
+    int max_rounds;            /* catallactic bargaining rounds */
+    size_t max_contracts;      /* contract log cap (rows kept; older dropped) */
+    /* The market's epoch, sent in every REGISTERED (1 .. 2^53; 0: drawn at
+     * random by bgb_market_new, as a broker does at each start). */
+    uint64_t epoch;
 } bgb_market_config_t;
 
 /* Defaults: period 0.2 s, k 0.5, heartbeat timeout 3 s, reply timeout 2 s,
@@ -180,9 +183,39 @@ double bgb_market_tick(bgb_market_t *m, double now);
  * for bad arguments (naming the field), BG_ERR_CONFLICT for a job id
  * already buying.
  */
+/* The epoch this market sends its agents in REGISTERED: an agent that
+ * hears another than before drops what it held for the previous broker
+ * (its contracts, bargains, resources and their leases) at once. */
+uint64_t bgb_market_epoch(const bgb_market_t *m);
+
 bg_status bgb_market_buy(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism, double budget,
                          const bgb_need_t *needs, int nneeds, double now, bgb_done_fn done,
                          void *ctx, bg_error_t *err);
+
+/*
+ * bgb_market_buy for a job that must not get the sellers exclude[0 ..
+ * nexclude) (directory ids, at most 32): a re-purchase of a service
+ * whose agent was lost leaves that agent out under every mechanism, under
+ * its id and its compute endpoint (an agent dropped from the directory
+ * and registered again has a new id). The ids are borrowed for the call.
+ */
+bg_status bgb_market_buy_excluding(bgb_market_t *m, uint64_t job, bgb_mechanism mechanism,
+                                   double budget, const bgb_need_t *needs, int nneeds,
+                                   const uint32_t *exclude, int nexclude, double now,
+                                   bgb_done_fn done, void *ctx, bg_error_t *err);
+
+/*
+ * Agent `agent` of bought job `job` was lost while it served good `good`
+ * (its coordinator stopped hearing it): the contract is settled pro rata,
+ * its service row keeps the work delivered (`delivered`, in the row's
+ * units, clamped to [0, quantity]) and ends now; the rows of the resources
+ * it bought for that service end now and their sellers get them back; the
+ * agent, if still in the directory, is told to release the job. The
+ * job's other contracts stay. Returns the money the settled contract
+ * comes to (delivered × price), or −1 when the job has no such contract.
+ */
+double bgb_market_settle_lost(bgb_market_t *m, uint64_t job, uint32_t agent, int good,
+                              double delivered, double now);
 
 /* The job ended: its contract rows end now (bgb_ledger_close), its sellers
  * free their slots (RELEASE to each), and the resources its sellers bought

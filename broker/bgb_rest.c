@@ -46,6 +46,8 @@
 /* Server-sent events: how long a stream stays silent before sending a
  * keep-alive comment. */
 #define REST_KEEPALIVE_SECONDS 15.0
+/* At stop, seconds the event streams get to send their last events. */
+#define REST_FINAL_WAIT 2.0
 #define REST_PATH_MAX 4096
 
 struct bgb_rest {
@@ -60,6 +62,7 @@ struct bgb_rest {
     void *view_ctx;
     uint16_t port;
     atomic_int stopping;
+    atomic_int draining; /* the broker is stopping: no new job is accepted */
     atomic_llong responses[6]; /* by status class: index 1..5 */
     atomic_llong event_streams; /* event streams open now (for /metrics) */
     pthread_mutex_t streams_lock;
@@ -297,6 +300,10 @@ static cJSON *job_json(bgb_rest_t *rest, const bgb_job_t *job, int with_plan)
     cJSON_AddStringToObject(o, "state", bgb_job_state_name(job->state));
     cJSON_AddStringToObject(o, "mechanism", job->mechanism);
     cJSON_AddNumberToObject(o, "budget", job->budget);
+    if (job->deadline > 0)
+        cJSON_AddNumberToObject(o, "deadline", job->deadline);
+    else
+        cJSON_AddNullToObject(o, "deadline");
     cJSON_AddNumberToObject(o, "created", job->created);
     cJSON_AddNumberToObject(o, "updated", job->updated);
     if (job->reason)
@@ -344,23 +351,27 @@ static void field_of(const char *message, char *field, size_t size)
  * (queued, its plan its only event view), written directly: the job is
  * exactly what was committed, and reading it back and printing it with
  * cJSON cost as much as storing it. mechanism is one of the three names,
- * id hex, plan_text JSON (NULL: none), budget and time finite; a test
- * checks that this text and GET's document are the same JSON.
+ * id hex, plan_text JSON (NULL: none), budget and time finite, deadline
+ * 0 for none; a test checks that this text and GET's document are the
+ * same JSON.
  */
-static char *new_job_text(const char *id, const char *mechanism, double budget, double time,
-                          const char *plan_text)
+static char *new_job_text(const char *id, const char *mechanism, double budget, double deadline,
+                          double time, const char *plan_text)
 {
+    char deadline_text[40] = "null";
+    if (deadline > 0)
+        snprintf(deadline_text, sizeof deadline_text, "%.17g", deadline);
     const size_t n = 512 + 4 * BGB_JOB_ID_SIZE + (plan_text ? strlen(plan_text) : 0);
     char *text = malloc(n);
     if (!text)
         return NULL;
     snprintf(text, n,
              "{\"id\":\"%s\",\"state\":\"queued\",\"mechanism\":\"%s\",\"budget\":%.17g,"
-             "\"created\":%.17g,\"updated\":%.17g,\"reason\":null%s%s,\"contracts\":[],"
+             "\"deadline\":%s,\"created\":%.17g,\"updated\":%.17g,\"reason\":null%s%s,\"contracts\":[],"
              "\"allocation\":null,\"progress\":null,\"trace\":[],\"links\":{\"self\":"
              "\"/v1/jobs/%s\",\"events\":\"/v1/jobs/%s/events\",\"cancel\":"
              "\"/v1/jobs/%s/cancel\",\"result\":\"/v1/jobs/%s/result\"}}",
-             id, mechanism, budget, time, time, plan_text ? ",\"plan\":" : "",
+             id, mechanism, budget, deadline_text, time, time, plan_text ? ",\"plan\":" : "",
              plan_text ? plan_text : "", id, id, id, id);
     return text;
 }
@@ -458,6 +469,7 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
                               .scene_size = strlen(s.scene),
                               .mechanism = s.mechanism,
                               .budget = s.budget,
+                              .deadline = s.deadline,
                               .files = files,
                               .file_count = s.file_count,
                               .plan = plan_text};
@@ -478,7 +490,7 @@ static enum MHD_Result submit_job(bgb_rest_t *rest, struct MHD_Connection *c,
     if (created && rest->config.on_queued)
         rest->config.on_queued(rest->config.queued_ctx);
     if (created) {
-        char *text = new_job_text(id, s.mechanism, s.budget, stored_at, plan_text);
+        char *text = new_job_text(id, s.mechanism, s.budget, s.deadline, stored_at, plan_text);
         sent = text ? send_text(rest, c, MHD_HTTP_ACCEPTED, "application/json", text,
                                 strlen(text), location)
                     : send_problem(rest, c, MHD_HTTP_INTERNAL_SERVER_ERROR, "internal",
@@ -684,6 +696,7 @@ typedef struct stream {
     int suspended;      /* under rest->streams_lock */
     int fd;             /* the client's socket, watched while suspended; -1: unknown */
     int gone;           /* the client hung up (seen by the notifier) */
+    int final_sent;     /* the server stops: its last event queued */
     struct stream *next; /* rest->streams, under rest->streams_lock */
 } stream_t;
 
@@ -767,8 +780,29 @@ static ssize_t read_events(void *cls, uint64_t pos, char *buf, size_t max)
         }
         if (s->gone)
             return MHD_CONTENT_READER_END_WITH_ERROR;
-        if (s->ended || atomic_load(&rest->stopping))
+        if (s->ended)
             return MHD_CONTENT_READER_END_OF_STREAM;
+        if (atomic_load(&rest->stopping)) {
+            /* The server stops with the job still going: the events not
+             * yet sent, then one last event that says so, then the end. */
+            if (s->final_sent)
+                return MHD_CONTENT_READER_END_OF_STREAM;
+            s->final_sent = 1;
+            refill(s);
+            if (s->ended)
+                continue; /* the job ended meanwhile: its own last events */
+            /* No id: it is not one of the job's stored events. */
+            static const char last[] =
+                "event: end\ndata: {\"reason\":\"the broker is stopping; the job goes on "
+                "after its restart\",\"final\":true}\n\n";
+            char *p = realloc(s->pending, s->pending_size + sizeof last);
+            if (!p)
+                return MHD_CONTENT_READER_END_OF_STREAM;
+            memcpy(p + s->pending_size, last, sizeof last - 1);
+            s->pending = p;
+            s->pending_size += sizeof last - 1;
+            continue;
+        }
         const int64_t epoch = bgb_store_wait_events(rest->store, -1, 0);
         if (epoch != s->seen_epoch) {
             s->seen_epoch = epoch;
@@ -1154,6 +1188,11 @@ static enum MHD_Result route(bgb_rest_t *rest, struct MHD_Connection *c, const c
             return get ? get_csv(rest, c, csv) : method_not_allowed(rest, c, method, url, "GET");
     }
     if (strcmp(url, "/v1/jobs") == 0) {
+        if (post && atomic_load(&rest->draining))
+            return send_problem(rest, c, MHD_HTTP_SERVICE_UNAVAILABLE, "stopping",
+                                "The broker is stopping", NULL,
+                                "the broker is stopping and accepts no new job; submit it again "
+                                "once it has restarted");
         if (post)
             return submit_job(rest, c, req, who.user);
         return get ? list_jobs(rest, c, &who)
@@ -1474,16 +1513,30 @@ int bgb_rest_address_is_loopback(const char *address)
     return (ntohl(a.s_addr) >> 24) == 127;
 }
 
+void bgb_rest_drain(bgb_rest_t *rest)
+{
+    if (rest)
+        atomic_store(&rest->draining, 1);
+}
+
 void bgb_rest_stop(bgb_rest_t **restp)
 {
     if (!restp || !*restp)
         return;
     bgb_rest_t *rest = *restp;
+    atomic_store(&rest->draining, 1);
     atomic_store(&rest->stopping, 1);
     /* The notifier resumes every suspended stream before it returns: MHD
      * may not be stopped with a connection suspended. */
     if (rest->notifier_started)
         pthread_join(rest->notifier, NULL);
+    /* Each stream sends what it has left and its last event, then ends
+     * (a client that reads nothing holds it up to REST_FINAL_WAIT s). */
+    const double until = bg_clock_now() + REST_FINAL_WAIT;
+    while (atomic_load(&rest->event_streams) > 0 && bg_clock_now() < until) {
+        struct timespec pause = {0, 20 * 1000 * 1000};
+        nanosleep(&pause, NULL);
+    }
     if (rest->daemon)
         MHD_stop_daemon(rest->daemon);
     pthread_mutex_destroy(&rest->streams_lock);

@@ -102,6 +102,12 @@ int bgb_rest_tls(const bgb_rest_t *rest);
 int bgb_rest_address_is_loopback(const char *address);
 
 /* Stops accepting, waits for the connections in progress, frees; accepts NULL. */
+/* The broker is stopping: POST /v1/jobs answers 503 ("stopping") from
+ * now on; everything else is served as before. */
+void bgb_rest_drain(bgb_rest_t *rest);
+/* Stops serving: every event stream of a job still going gets the events
+ * not yet sent and a last `end` event ({"reason", "final": true}), then
+ * ends (within REST_FINAL_WAIT, 2 s); then the server stops. */
 void bgb_rest_stop(bgb_rest_t **rest);
 
 /* The OpenAPI 3 document served at /openapi.json (static text). */

@@ -14,8 +14,8 @@
 #include <unistd.h>
 
 /* The schema version this code writes and reads (PRAGMA user_version);
- * a version 1 store is migrated on open (MIGRATE_1_2). */
-#define STORE_SCHEMA_VERSION 2
+ * a version 1 or 2 store is migrated on open (MIGRATE_1_2, MIGRATE_2_3). */
+#define STORE_SCHEMA_VERSION 3
 /* Jobs without a user (version 1 stores, and callers that give none). */
 #define STORE_DEFAULT_OWNER "local"
 /* How long a connection waits for another one's lock before failing. */
@@ -44,7 +44,8 @@ static const char SCHEMA[] =
     "  scene BLOB NOT NULL,"
     "  owner TEXT NOT NULL DEFAULT '" STORE_DEFAULT_OWNER "',"
     "  bytes INTEGER NOT NULL DEFAULT 0,"
-    "  fingerprint TEXT);"
+    "  fingerprint TEXT,"
+    "  deadline REAL NOT NULL DEFAULT 0);"
     "CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs(state, seq);"
     "CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs(owner, state);"
     "CREATE TABLE IF NOT EXISTS files("
@@ -106,6 +107,8 @@ static const char USAGE_SCHEMA[] =
 static const char USAGE_FILL[] =
     "INSERT INTO usage(owner, in_flight, bytes) "
     "SELECT owner, SUM(state IN (0, 1, 2)), SUM(bytes) FROM jobs GROUP BY owner;";
+/* Version 2 → 3: jobs get their deadline (0: none). */
+static const char MIGRATE_2_3[] = "ALTER TABLE jobs ADD COLUMN deadline REAL NOT NULL DEFAULT 0;";
 
 static const char *const STATE_NAMES[BGB_JOB_STATE_COUNT] = {
     "queued", "allocating", "running", "succeeded", "failed", "cancelled"};
@@ -255,6 +258,9 @@ static bg_status check_submit(const bgb_submit_t *job, bg_error_t *err)
     if (!(isfinite(job->budget) && job->budget > 0.0))
         return bg_error_set(err, BG_ERR_INVALID, "budget: must be a positive number, got %g",
                             job->budget);
+    if (!(job->deadline >= 0.0 && isfinite(job->deadline)))
+        return bg_error_set(err, BG_ERR_INVALID, "deadline: must be a number >= 0, got %g",
+                            job->deadline);
     if (!job->scene || job->scene_size == 0)
         return bg_error_set(err, BG_ERR_INVALID, "scene: empty");
     if (job->owner && strlen(job->owner) > BGB_STORE_MAX_OWNER)
@@ -429,8 +435,8 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
     const double now = wall_clock();
     if ((st = prepare(db,
                       "INSERT INTO jobs(id, state, mechanism, budget, created, updated, "
-                      "idempotency_key, scene, owner, bytes, fingerprint) "
-                      "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                      "idempotency_key, scene, owner, bytes, fingerprint, deadline) "
+                      "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                       &s, err)) != BG_OK)
         return st;
     sqlite3_bind_text(s, 1, p->id, -1, SQLITE_STATIC);
@@ -446,6 +452,7 @@ static bg_status write_submit(sqlite3 *db, pending_t *p)
     sqlite3_bind_blob64(s, 8, job->scene, job->scene_size, SQLITE_STATIC);
     sqlite3_bind_text(s, 9, owner, -1, SQLITE_STATIC);
     sqlite3_bind_int64(s, 10, bytes);
+    sqlite3_bind_double(s, 12, job->deadline > 0 ? job->deadline : 0.0);
     if (job->fingerprint)
         sqlite3_bind_text(s, 11, job->fingerprint, -1, SQLITE_STATIC);
     else
@@ -668,7 +675,7 @@ bg_status bgb_store_open_with(const char *path, const bgb_store_options_t *optio
         goto out;
     const int version = sqlite3_step(s) == SQLITE_ROW ? sqlite3_column_int(s, 0) : -1;
     finish(s);
-    if (version != 0 && version != 1 && version != STORE_SCHEMA_VERSION) {
+    if (version != 0 && version != 1 && version != 2 && version != STORE_SCHEMA_VERSION) {
         st = bg_error_set(err, BG_ERR_UNSUPPORTED,
                           "job store %s: schema version %d, this broker reads version %d", path,
                           version, STORE_SCHEMA_VERSION);
@@ -676,9 +683,11 @@ bg_status bgb_store_open_with(const char *path, const bgb_store_options_t *optio
     }
     char pragma[64];
     snprintf(pragma, sizeof pragma, "PRAGMA user_version=%d", STORE_SCHEMA_VERSION);
-    if (version == 1 && ((st = exec(store->writer, "BEGIN IMMEDIATE", err)) != BG_OK ||
-                         (st = exec(store->writer, MIGRATE_1_2, err)) != BG_OK ||
-                         (st = exec(store->writer, pragma, err)) != BG_OK ||
+    if ((version == 1 || version == 2) &&
+        ((st = exec(store->writer, "BEGIN IMMEDIATE", err)) != BG_OK ||
+         (version == 1 && (st = exec(store->writer, MIGRATE_1_2, err)) != BG_OK) ||
+         (st = exec(store->writer, MIGRATE_2_3, err)) != BG_OK ||
+         (st = exec(store->writer, pragma, err)) != BG_OK ||
                          (st = exec(store->writer, "COMMIT", err)) != BG_OK)) {
         exec(store->writer, "ROLLBACK", NULL);
         goto out;
@@ -795,7 +804,8 @@ static char *column_copy(sqlite3_stmt *s, int column, size_t *size)
     return copy;
 }
 
-#define JOB_COLUMNS "id, state, mechanism, budget, created, updated, reason, scene, seq, owner"
+#define JOB_COLUMNS                                                                                \
+    "id, state, mechanism, budget, created, updated, reason, scene, seq, owner, deadline"
 
 static bg_status read_job(sqlite3_stmt *s, bgb_job_t *job, bg_error_t *err)
 {
@@ -809,6 +819,7 @@ static bg_status read_job(sqlite3_stmt *s, bgb_job_t *job, bg_error_t *err)
     job->scene = column_copy(s, 7, &job->scene_size);
     job->sequence = sqlite3_column_int64(s, 8);
     snprintf(job->owner, sizeof job->owner, "%s", (const char *)sqlite3_column_text(s, 9));
+    job->deadline = sqlite3_column_double(s, 10);
     if (!job->mechanism || !job->scene || (!job->reason && sqlite3_column_type(s, 6) != SQLITE_NULL)) {
         bgb_job_release(job);
         return bg_error_set(err, BG_ERR_NOMEM, "out of memory reading a job");

@@ -69,6 +69,8 @@ typedef struct bgb_submit {
     size_t scene_size;
     const char *mechanism;       /* "central", "catallactic" or "posted" */
     double budget;               /* money the job may spend, > 0 */
+    double deadline;             /* seconds after submission by which it must have its
+                                    services; 0: none */
     const bgb_file_t *files;     /* the mesh and data files uploaded with the scene */
     int file_count;
     const char *plan;            /* the plan as JSON, stored as the job's "plan" event in the
@@ -96,9 +98,10 @@ typedef struct bgb_job {
     char *scene;      /* the submitted scene JSON (NUL-terminated) */
     size_t scene_size;
     int64_t sequence; /* submission order, the pagination cursor */
+    double deadline;  /* seconds after created by which it must have its services; 0: none */
 } bgb_job_t;
 
-#define BGB_JOB_INIT {{0}, {0}, BGB_JOB_QUEUED, NULL, 0.0, 0.0, 0.0, NULL, NULL, 0, 0}
+#define BGB_JOB_INIT {{0}, {0}, BGB_JOB_QUEUED, NULL, 0.0, 0.0, 0.0, NULL, NULL, 0, 0, 0.0}
 
 void bgb_job_release(bgb_job_t *job);
 

@@ -137,7 +137,8 @@ static int scene_span(const char *body, size_t size, const char **start, size_t 
 /*
  * SHA-256 over what the job is: the scene's bytes, each file's name and
  * bytes (with their lengths, so that no two different submissions feed the
- * hash the same stream), the mechanism and the budget; as hex into
+ * hash the same stream), the mechanism, the budget and the deadline (when
+ * given: a submission without one hashes as before it existed); as hex into
  * s->fingerprint. 0, or -1 when the hash cannot be computed.
  */
 static int fingerprint(bgb_submission_t *s)
@@ -156,7 +157,9 @@ static int fingerprint(bgb_submission_t *s)
         gnutls_hash(h, s->files[i].data, size);
     }
     char tail[64];
-    const int n = snprintf(tail, sizeof tail, "%s %.17g", s->mechanism, s->budget);
+    const int n = s->deadline > 0 ? snprintf(tail, sizeof tail, "%s %.17g %.17g", s->mechanism,
+                                             s->budget, s->deadline)
+                                  : snprintf(tail, sizeof tail, "%s %.17g", s->mechanism, s->budget);
     gnutls_hash(h, tail, (size_t)n);
     unsigned char digest[32];
     gnutls_hash_deinit(h, digest);
@@ -170,7 +173,7 @@ int bgb_submission_parse(const char *body, size_t size, size_t max_file, bgb_sub
 {
     memset(s, 0, sizeof *s);
     const request_view_t view = {body, size}, *req = &view;
-    static const char *const keys[] = {"scene", "files", "mechanism", "budget"};
+    static const char *const keys[] = {"scene", "files", "mechanism", "budget", "deadline"};
     const char *end = NULL;
     cJSON *root = cJSON_ParseWithLengthOpts(req->body ? req->body : "", req->size, &end, 0);
     int ok = 0;
@@ -208,11 +211,12 @@ int bgb_submission_parse(const char *body, size_t size, size_t max_file, bgb_sub
      * other order took minutes of CPU for a 1 MB body of distinct keys). */
     for (const cJSON *m = root->child; m; m = m->next) {
         int known = 0;
-        for (int i = 0; i < 4; i++)
+        for (int i = 0; i < 5; i++)
             known |= strcmp(m->string, keys[i]) == 0;
         if (!known) {
             bgb_problem(problem, 422, "invalid-request", "Invalid request", m->string,
-                        "unknown key '%s' (expected scene, files, mechanism, budget)", m->string);
+                        "unknown key '%s' (expected scene, files, mechanism, budget, deadline)",
+                        m->string);
             goto out;
         }
     }
@@ -264,6 +268,17 @@ int bgb_submission_parse(const char *body, size_t size, size_t max_file, bgb_sub
             goto out;
         }
         s->budget = budget->valuedouble;
+    }
+    const cJSON *deadline = cJSON_GetObjectItemCaseSensitive(root, "deadline");
+    if (deadline) {
+        if (!cJSON_IsNumber(deadline) || !(deadline->valuedouble > 0.0) ||
+            !(deadline->valuedouble <= BGB_SUBMISSION_MAX_DEADLINE)) {
+            bgb_problem(problem, 422, "invalid-request", "Invalid request", "deadline",
+                        "deadline: expected seconds after submission, a number in (0, %g]",
+                        BGB_SUBMISSION_MAX_DEADLINE);
+            goto out;
+        }
+        s->deadline = deadline->valuedouble;
     }
     const cJSON *files = cJSON_GetObjectItemCaseSensitive(root, "files");
     if (files && !cJSON_IsArray(files)) {

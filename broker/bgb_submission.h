@@ -2,9 +2,9 @@
  * bgb_submission — the body of POST /v1/jobs, parsed: a pure function over
  * (const char *, size_t), so that tests and the fuzzer drive it without a
  * server. {"scene": {...}, "files": [{"name", "base64"}], "mechanism",
- * "budget"}: malformed JSON (with its line and column), text after the
+ * "budget", "deadline"}: malformed JSON (with its line and column), text after the
  * document, a repeated or unknown key, a scene that is not an object, a
- * mechanism or budget out of range, too many files, a bad file name or a
+ * mechanism, budget or deadline out of range, too many files, a bad file name or a
  * name given twice, bad base64 — each is a problem with its HTTP status,
  * type, title, field and a detail that says what is wrong.
  *
@@ -21,6 +21,8 @@
 #include "bgb_store.h"
 
 #define BGB_SUBMISSION_DEFAULT_BUDGET 1000.0
+/* A job's deadline at most, seconds after its submission. */
+#define BGB_SUBMISSION_MAX_DEADLINE 1e7
 /* Hex digits of a fingerprint, with its NUL. */
 #define BGB_FINGERPRINT_SIZE 65
 
@@ -47,6 +49,8 @@ typedef struct bgb_submission {
     char *scene;           /* the scene's JSON text as the client wrote it (owned) */
     const char *mechanism; /* "central", "catallactic" or "posted" (static text) */
     double budget;
+    double deadline;       /* seconds after submission by which the job must have its
+                              services (a lost agent's too); 0: none given */
     bgb_upload_t files[BGB_STORE_MAX_FILES];
     int file_count;
     int64_t upload_bytes; /* the files' decoded sizes, summed */

@@ -93,6 +93,14 @@ static void say_standby(void *ctx, const char *why)
                 (const char *)ctx);
 }
 
+static void say_new_epoch(void *ctx, uint64_t previous, uint64_t epoch)
+{
+    fprintf(stderr,
+            "agent %s: the broker restarted (epoch %llu, was %llu): the previous broker's "
+            "contracts and jobs dropped\n",
+            (const char *)ctx, (unsigned long long)epoch, (unsigned long long)previous);
+}
+
 static void usage(FILE *out)
 {
     fputs(bg_cmd_agent_usage, out);
@@ -410,6 +418,8 @@ int bg_cmd_agent(int argc, char **argv)
         mc.standby_ctx = sp->name;
         mc.on_refused = say_refused;
         mc.refused_ctx = sp->name;
+        mc.on_new_epoch = say_new_epoch;
+        mc.epoch_ctx = sp->name;
         cfg.market = &mc;
     }
     bga_agent_t *agent = NULL;

@@ -31,11 +31,15 @@
     "  --json              print the broker's JSON document instead of text\n"
 
 const char bg_cmd_submit_usage[] =
-    "usage: biotgrid submit SCENE.json [--mechanism M] [--budget B] [--wait] [--out DIR] [options]\n"
+    "usage: biotgrid submit SCENE.json [--mechanism M] [--budget B] [--deadline S] [--wait]\n"
+    "                       [--out DIR] [options]\n"
     "Submits the scene and every mesh or data file it names (found as `solve` finds\n"
     "them) to the broker, and prints the new job's id.\n"
     "  --mechanism M       central, catallactic or posted (default: the broker's, central)\n"
     "  --budget B          money the job may spend (default: the broker's, 1000)\n"
+    "  --deadline S        seconds after submission by which the job must have its\n"
+    "                      services, a lost agent's replacement too (default: none: the\n"
+    "                      broker asks the market for 120 s after each loss)\n"
     "  --wait              follow the job's events until it ends (a progress bar on a\n"
     "                      terminal, plain lines otherwise); exit 1 unless it succeeded\n"
     "  --out DIR           with --wait (implied): download the result's files into DIR\n"
@@ -83,6 +87,7 @@ enum {
     OPT_PAGE = 1 << 7,
     OPT_OUT = 1 << 8,
     OPT_OUT_REQUIRED = 1 << 9, /* result needs --out; submit takes it optionally */
+    OPT_DEADLINE = 1 << 10,
 };
 
 typedef struct options {
@@ -91,7 +96,7 @@ typedef struct options {
     const char *broker, *token, *cacert;
     int json, wait;
     const char *mechanism;
-    double budget;
+    double budget, deadline;
     const char *key;
     char mesh_path[CLIENT_MESH_PATH_MAX];
     const char *state;
@@ -149,6 +154,7 @@ static int parse(int argc, char **argv, unsigned allowed, int positional, const 
                       {"--cacert", 0},
                       {"--mechanism", OPT_MECHANISM},
                       {"--budget", OPT_BUDGET},
+                      {"--deadline", OPT_DEADLINE},
                       {"--idempotency-key", OPT_KEY},
                       {"--mesh-path", OPT_MESH_PATH},
                       {"--state", OPT_STATE},
@@ -180,6 +186,9 @@ static int parse(int argc, char **argv, unsigned allowed, int positional, const 
             } else if (bit == OPT_BUDGET) {
                 if (bg_cmd_job_budget(v, &o->budget) != 0)
                     return bad_usage(o, "--budget: '%s' is not a positive number", v);
+            } else if (bit == OPT_DEADLINE) {
+                if (bg_cmd_job_budget(v, &o->deadline) != 0)
+                    return bad_usage(o, "--deadline: '%s' is not a positive number of seconds", v);
             } else if (bit == OPT_KEY) {
                 o->key = v;
             } else if (bit == OPT_MESH_PATH) {
@@ -324,7 +333,9 @@ int bg_cmd_submit(int argc, char **argv)
     options_t o;
     bgb_client_t *client = NULL;
     int rc = start(argc, argv,
-                   OPT_MECHANISM | OPT_BUDGET | OPT_WAIT | OPT_KEY | OPT_MESH_PATH | OPT_OUT, 1,
+                   OPT_MECHANISM | OPT_BUDGET | OPT_DEADLINE | OPT_WAIT | OPT_KEY | OPT_MESH_PATH |
+                       OPT_OUT,
+                   1,
                    "SCENE.json", bg_cmd_submit_usage, &o, &client);
     if (rc >= 0)
         return rc;
@@ -332,6 +343,7 @@ int bg_cmd_submit(int argc, char **argv)
                                         .search_path = o.mesh_path,
                                         .mechanism = o.mechanism,
                                         .budget = o.budget,
+                                        .deadline = o.deadline,
                                         .idempotency_key = o.key};
     cJSON *job = NULL;
     bg_error_t err = BG_ERROR_INIT;

@@ -10,6 +10,10 @@
  *       reply that names the problem, and the agent keeps serving
  *   agent_client sigterm RUNDIR    requests queued when SIGTERM arrives
  *       are all answered, and the agent exits 0
+ *   agent_client busy RUNDIR       an agent with seconds of calls queued
+ *       still answers pings at once (a client that gives an agent up after
+ *       0.5 s of silence gets its call's answer behind them), and refuses
+ *       calls over its queue's cap with BUSY
  * Exit 0 when every check passes, 1 with a message otherwise.
  */
 #include <errno.h>
@@ -229,7 +233,7 @@ static int run_compute(const char *dir)
             return 1;
         const char *eps[2] = {r1.endpoint, r2.endpoint};
         bga_pool_config_t pc = {mesh, mu,   lambda,     0.0,  bg_sparse_scatter(sys), nnz, eps,
-                                2,    3000, TIMEOUT_MS, 60000, NULL, 0,   NULL};
+                                2,    3000, TIMEOUT_MS, 60000, NULL, 0,   NULL, NULL};
         bga_rotfit_pool_t *pool = NULL;
         bg_status st = bga_rotfit_pool_new(&pc, &pool, &err);
         CHECK(st == BG_OK, "pool: %s", err.message);
@@ -526,10 +530,186 @@ static int run_sigterm(const char *dir)
     return failures ? 1 : 0;
 }
 
+/* A pipelined rotation-fit call on a raw DEALER (seq 1000 + i). */
+static void post_raw(void *s, const fx_part *part, unsigned want, uint64_t seq)
+{
+    bga_msg_t m;
+    bga_frames_t fr;
+    bg_error_t err = BG_ERROR_INIT;
+    bga_msg_init(&m, BGA_ROTFIT_CALL, 7, seq);
+    m.field[BGA_RC_WANT].i = want;
+    m.array[BGA_RC_POSITIONS] = (bga_array_t){part->q, (size_t)part->nv * 3};
+    bga_wire_encode(&m, &fr, &err);
+    bga_send(s, NULL, &fr, &err);
+    bga_frames_free(&fr);
+}
+
+/*
+ * The agent answers pings while it computes: about 3 s of rotation-fit
+ * calls are queued on it from a raw DEALER (more than BGA_AGENT_QUEUE_MAX
+ * of them, so the last are refused with BUSY at once), then a client whose
+ * agent is lost after LOST_MS of silence makes one more call, which waits
+ * behind the whole queue: it must get its answer, never give the agent up
+ * (the agent's socket loop answers its pings; a loop that computed itself,
+ * as before, went silent for the whole queue). Every queued call gets a
+ * reply: its result, or BUSY for those over the cap.
+ */
+#define BUSY_LOST_MS 1000
+#define BUSY_QUEUE_SECONDS 4.0
+
+/* Sends `sent` pipelined calls (seq 1000 + i) and counts their replies:
+ * results and BUSY refusals. */
+static void burst(void *s, const fx_part *part, unsigned want, int sent, int *results, int *busy)
+{
+    for (int i = 0; i < sent; i++)
+        post_raw(s, part, want, 1000 + (uint64_t)i);
+    *results = *busy = 0;
+    const double deadline = bg_clock_now() + 120.0;
+    while (*results + *busy < sent && bg_clock_now() < deadline) {
+        zmq_pollitem_t item = {s, 0, ZMQ_POLLIN, 0};
+        if (zmq_poll(&item, 1, 1000) <= 0)
+            continue;
+        bga_received_t rx;
+        bg_error_t err = BG_ERROR_INIT;
+        if (bga_recv(s, 0, &rx, &err) != BG_OK)
+            break;
+        bga_frame_t v[BGA_WIRE_MAX_FRAMES + 1];
+        bga_received_view(&rx, v);
+        bga_msg_t rep;
+        bga_wire_error_t w;
+        if (bga_wire_decode(v, rx.count, NULL, &rep, &w) == BGA_WIRE_OK) {
+            if (rep.header.type == BGA_ROTFIT_RESULT)
+                (*results)++;
+            else if (rep.header.type == BGA_ERROR && rep.field[BGA_ERR_CODE].i == BGA_WIRE_BUSY)
+                (*busy)++;
+        }
+        bga_received_close(&rx);
+    }
+}
+static int run_busy(const char *dir)
+{
+    ready r;
+    bga_client_t *c = connect_to(dir, "rotfit2", "rotation-fit", &r);
+    bg_error_t err = BG_ERROR_INIT;
+    bg_mesh_t *mesh = NULL;
+    double *q = NULL, *gbuf = NULL, *hbuf = NULL;
+    fx_part part;
+    memset(&part, 0, sizeof part);
+    const unsigned want = BGA_WANT_GRADIENT | BGA_WANT_HESSIAN;
+    bga_rotfit_out_t out;
+    size_t nq = 0;
+    double one = 0.0;
+    bg_status st = BG_OK;
+    /* A box big enough that BGA_AGENT_QUEUE_MAX calls take the agent
+     * BUSY_QUEUE_SECONDS: grown until one call computes long enough. */
+    for (int32_t n = 10; st == BG_OK && n <= 40; n = n * 3 / 2) {
+        fx_part_free(&part);
+        free(q);
+        free(gbuf);
+        free(hbuf);
+        bg_mesh_destroy(&mesh);
+        const int32_t cells[3] = {n, n, n};
+        const double origin[3] = {0, 0, 0}, size[3] = {1, 1, 1};
+        bg_mesh_generate_box(cells, origin, size, &mesh, &err);
+        q = malloc((size_t)mesh->nv * 3 * sizeof *q);
+        fx_deform(mesh, 0.4, q);
+        fx_part_make(mesh, q, 0, 1, &part);
+        bga_partition_t bp = fx_partition(&part, mesh, 1.0, 5.0);
+        st = bga_client_rotfit_setup(c, 7, &bp, &err);
+        CHECK(st == BG_OK, "set-up: %s", err.message);
+        nq = (size_t)part.nv * 3;
+        const size_t nh = (size_t)part.ne * 78;
+        gbuf = malloc(nq * sizeof *gbuf);
+        hbuf = malloc(nh * sizeof *hbuf);
+        out = (bga_rotfit_out_t){0, gbuf, hbuf, nq, nh, {0, 0, 0, 0}, 0};
+        if (st == BG_OK)
+            st = bga_client_rotfit(c, 7, part.q, nq, want, &out, &err);
+        CHECK(st == BG_OK, "first call: %s", err.message);
+        one = out.agent_seconds;
+        if (n == 10 && st == BG_OK) {
+            /* Cheap calls, all sent at once: those over the cap are refused. */
+            void *bctx = zmq_ctx_new(), *bs = zmq_socket(bctx, ZMQ_DEALER);
+            const int zero = 0;
+            zmq_setsockopt(bs, ZMQ_LINGER, &zero, sizeof zero);
+            zmq_connect(bs, r.endpoint);
+            const int sent = BGA_AGENT_QUEUE_MAX + 16;
+            int results = 0, busy = 0;
+            burst(bs, &part, want, sent, &results, &busy);
+            printf("%d calls at once: %d results, %d refused BUSY\n", sent, results, busy);
+            CHECK(results + busy == sent && busy >= 1 && results >= BGA_AGENT_QUEUE_MAX,
+                  "%d calls at once: %d results, %d BUSY", sent, results, busy);
+            zmq_close(bs);
+            zmq_ctx_term(bctx);
+        }
+        if (one * BGA_AGENT_QUEUE_MAX >= BUSY_QUEUE_SECONDS)
+            break;
+    }
+    /* Calls for BUSY_QUEUE_SECONDS at least, and 3 over the cap. */
+    int queued = (int)ceil(BUSY_QUEUE_SECONDS / (one > 1e-3 ? one : 1e-3));
+    if (queued > BGA_AGENT_QUEUE_MAX)
+        queued = BGA_AGENT_QUEUE_MAX;
+    const int sent = queued + 3;
+    void *ctx = zmq_ctx_new(), *s = zmq_socket(ctx, ZMQ_DEALER);
+    const int linger = 0;
+    zmq_setsockopt(s, ZMQ_LINGER, &linger, sizeof linger);
+    zmq_connect(s, r.endpoint);
+    for (int i = 0; i < sent; i++)
+        post_raw(s, &part, want, 1000 + (uint64_t)i);
+    /* Let the queue reach the agent before the watched call joins it. */
+    struct timespec pause = {0, 200 * 1000 * 1000};
+    nanosleep(&pause, NULL);
+    bga_client_set_liveness(c, BUSY_LOST_MS / 5, BUSY_LOST_MS);
+    const double t1 = bg_clock_now();
+    bg_error_t cerr = BG_ERROR_INIT;
+    st = bga_client_rotfit(c, 7, part.q, nq, want, &out, &cerr);
+    const double waited = bg_clock_now() - t1;
+    CHECK(st == BG_OK, "the call behind %d queued ones (%.1f s of work): %s", queued,
+          queued * one, cerr.message);
+    CHECK(bga_client_failure(c) == BGA_CLIENT_FINE, "the busy agent was given up (%d, %s)",
+          (int)bga_client_failure(c), cerr.message);
+    printf("one call %.3f s; %d queued (%d sent), the watched call answered after %.3f s with the "
+           "agent lost after %d ms of silence\n",
+           one, queued, sent, waited, BUSY_LOST_MS);
+    int results = 0, busy = 0;
+    const double deadline = bg_clock_now() + 60.0;
+    while (results + busy < sent && bg_clock_now() < deadline) {
+        zmq_pollitem_t item = {s, 0, ZMQ_POLLIN, 0};
+        if (zmq_poll(&item, 1, 1000) <= 0)
+            continue;
+        bga_received_t rx;
+        if (bga_recv(s, 0, &rx, &err) != BG_OK)
+            break;
+        bga_frame_t v[BGA_WIRE_MAX_FRAMES + 1];
+        bga_received_view(&rx, v);
+        bga_msg_t rep;
+        bga_wire_error_t w;
+        if (bga_wire_decode(v, rx.count, NULL, &rep, &w) == BGA_WIRE_OK) {
+            if (rep.header.type == BGA_ROTFIT_RESULT)
+                results++;
+            else if (rep.header.type == BGA_ERROR && rep.field[BGA_ERR_CODE].i == BGA_WIRE_BUSY)
+                busy++;
+        }
+        bga_received_close(&rx);
+    }
+    printf("queued calls: %d results, %d refused BUSY\n", results, busy);
+    CHECK(results + busy == sent, "%d of %d queued calls answered", results + busy, sent);
+
+    zmq_close(s);
+    zmq_ctx_term(ctx);
+    bga_client_release(c, 7, &err);
+    bga_client_destroy(&c);
+    free(gbuf);
+    free(hbuf);
+    fx_part_free(&part);
+    free(q);
+    bg_mesh_destroy(&mesh);
+    return failures ? 1 : 0;
+}
+
 int main(int argc, char **argv)
 {
     if (argc != 3) {
-        fprintf(stderr, "usage: agent_client compute|malformed|sigterm RUNDIR\n");
+        fprintf(stderr, "usage: agent_client compute|malformed|sigterm|busy RUNDIR\n");
         return 2;
     }
     if (strcmp(argv[1], "compute") == 0)
@@ -538,6 +718,8 @@ int main(int argc, char **argv)
         return run_malformed(argv[2]);
     if (strcmp(argv[1], "sigterm") == 0)
         return run_sigterm(argv[2]);
+    if (strcmp(argv[1], "busy") == 0)
+        return run_busy(argv[2]);
     fprintf(stderr, "agent_client: unknown mode '%s'\n", argv[1]);
     return 2;
 }

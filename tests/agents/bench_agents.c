@@ -155,7 +155,7 @@ int main(int argc, char **argv)
     for (int K = 1; K <= 2; K++) {
         bga_pool_config_t pc = {
             mesh,   mu, lambda, 0.0, bg_sparse_scatter(sys), nnz, endpoints, K, 9100 + (uint64_t)K,
-            120000, 0, NULL, 0, NULL};
+            120000, 0, NULL, 0, NULL, NULL};
         bga_rotfit_pool_t *pool = NULL;
         if (bga_rotfit_pool_new(&pc, &pool, &err) != BG_OK)
             die(&err);

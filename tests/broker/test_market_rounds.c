@@ -412,6 +412,137 @@ static void central_refusal_bids_again(void **state)
     bgb_market_destroy(&m);
 }
 
+/* The contract row of job `job` sold by `seller` (NULL: none). */
+typedef struct row_find {
+    uint64_t job;
+    uint32_t seller;
+    bgb_contract_t row;
+    int found;
+} row_find_t;
+
+static void find_row(void *ctx, const bgb_contract_t *row)
+{
+    row_find_t *r = ctx;
+    if (row->job == r->job && row->seller == r->seller && row->layer == 0) {
+        r->row = *row;
+        r->found = 1;
+    }
+}
+
+/* A lost seller: its contract is settled for the work delivered (its row
+ * keeps that quantity and ends at the loss, the rest of the job stays),
+ * and the service is bought again from anyone else, under each mechanism:
+ * the lost agent, though alive and cheapest, is never asked again (posted
+ * and central do not order from it, a catallactic job turns its proposal
+ * down), not even once it has been dropped and registered again under a
+ * new id (its endpoint, from a new socket). */
+static void lost_seller_settled_and_left_out(void **state)
+{
+    (void)state;
+    for (int mech = BGB_MECH_CENTRAL; mech <= BGB_MECH_POSTED; mech++) {
+        fake_t f = {0};
+        bgb_market_config_t mc;
+        bgb_market_t *m = market(&f, &mc);
+        const uint32_t a = seller_of(m, &f, 'a', BGB_GOOD_SOLVE, 1.0, 2),
+                       b = seller_of(m, &f, 'b', BGB_GOOD_SOLVE, 1.5, 2);
+        const bgb_need_t need = {BGB_GOOD_SOLVE, 1.0, 1};
+        bg_error_t err = BG_ERROR_INIT;
+        double t = 0.1;
+        /* The job buys from a (posted: the cheapest; central, catallactic:
+         * a alone answers). */
+        assert_int_equal(bgb_market_buy(m, 1, (bgb_mechanism)mech, 100, &need, 1, t, on_done, &f,
+                                        &err),
+                         BG_OK);
+        if (mech == BGB_MECH_CATALLACTIC) {
+            answer_from(m, 'a', a, 0, 1, BGA_MM_PROPOSE, BGB_GOOD_SOLVE, 1, 1.0, t + 0.05);
+            (void)bgb_market_tick(m, t += mc.reply_timeout / 8 + 0.01);
+            const bga_mmsg_t *o = last_to(&f, BGA_MM_OFFER, a, 0);
+            assert_non_null(o);
+            answer_from(m, 'a', a, 0, 1, BGA_MM_CONFIRM, BGB_GOOD_SOLVE, 1, o->price, t + 0.01);
+        } else {
+            for (int i = 0; i < 10 && !last_to(&f, BGA_MM_ORDER, a, 0); i++)
+                (void)bgb_market_tick(m, t += mc.period);
+            const bga_mmsg_t *o = last_to(&f, BGA_MM_ORDER, a, 0);
+            assert_non_null(o);
+            answer_from(m, 'a', a, 0, 1, BGA_MM_CONFIRM, BGB_GOOD_SOLVE, 1, o->price, t + 0.01);
+        }
+        assert_true(f.done);
+        assert_string_equal(f.reason, "");
+        assert_true(awarded(&f, a));
+        const double price = f.awards[0].price;
+
+        /* a is lost at t + 1 having delivered a quarter of the work. */
+        const int mark = f.nsent;
+        const double paid = bgb_market_settle_lost(m, 1, a, BGB_GOOD_SOLVE, 0.25, t + 1);
+        assert_true(fabs(paid - 0.25 * price) <= 1e-12 * price);
+        assert_non_null(last_to(&f, BGA_MM_RELEASE, a, mark));
+        row_find_t rf = {1, a, {0}, 0};
+        bgb_ledger_each(bgb_market_ledger(m), find_row, &rf);
+        assert_true(rf.found);
+        assert_true(rf.row.quantity == 0.25 && rf.row.end == t + 1);
+        assert_true(bgb_market_settle_lost(m, 1, a, BGB_GOOD_SOLVE, 0.25, t + 1) < 0);
+
+        /* a comes back: dropped (silent past the heartbeat timeout, b
+         * still beating) and registered again from a new socket, at its
+         * endpoint. */
+        bga_mmsg_t hb;
+        bga_mmsg_init(&hb, BGA_MM_HEARTBEAT);
+        hb.agent = b;
+        hb.services = 1u << BGB_GOOD_SOLVE;
+        hb.slots = hb.free_slots = 2;
+        hb.prices[BGB_GOOD_SOLVE] = 1.5;
+        hb.floor[BGB_GOOD_SOLVE] = 1.5 / 1.2;
+        t += mc.heartbeat_timeout + 0.5;
+        deliver_from(m, 'b', &hb, t);
+        (void)bgb_market_tick(m, t);
+        bga_mmsg_t reg;
+        bga_mmsg_init(&reg, BGA_MM_REGISTER);
+        snprintf(reg.name, sizeof reg.name, "sa");
+        snprintf(reg.endpoint, sizeof reg.endpoint, "tcp://127.0.0.1:%d", 9000 + 'a');
+        reg.services = 1u << BGB_GOOD_SOLVE;
+        reg.slots = reg.free_slots = 2;
+        reg.floor[BGB_GOOD_SOLVE] = 1.0 / 1.2;
+        reg.prices[BGB_GOOD_SOLVE] = 1.0;
+        reg.margin = 0.2;
+        const int mark1 = f.nsent;
+        deliver_from(m, 'A', &reg, t);
+        const bga_mmsg_t *back = last_of(&f, BGA_MM_REGISTERED, mark1);
+        assert_non_null(back);
+        const uint32_t a2 = back->agent;
+        assert_int_not_equal(a2, a);
+        /* The rest, bought again without a: from b. */
+        memset(&f.awards, 0, sizeof f.awards);
+        f.done = 0;
+        const bgb_need_t rest = {BGB_GOOD_SOLVE, 0.75, 1};
+        t += 0.1;
+        const int mark2 = f.nsent;
+        assert_int_equal(bgb_market_buy_excluding(m, 2, (bgb_mechanism)mech, 100, &rest, 1, &a, 1,
+                                                  t, on_done, &f, &err),
+                         BG_OK);
+        assert_false(f.done);
+        if (mech == BGB_MECH_CATALLACTIC) {
+            answer_from(m, 'A', a2, 0, 2, BGA_MM_PROPOSE, BGB_GOOD_SOLVE, 0.75, 1.0, t + 0.05);
+            answer_from(m, 'b', b, 0, 2, BGA_MM_PROPOSE, BGB_GOOD_SOLVE, 0.75, 1.5, t + 0.05);
+            (void)bgb_market_tick(m, t += mc.reply_timeout / 8 + 0.01);
+        } else {
+            for (int i = 0; i < 10 && !last_to(&f, BGA_MM_ORDER, b, mark2); i++)
+                (void)bgb_market_tick(m, t += mc.period);
+        }
+        assert_int_equal(count_to(&f, BGA_MM_ORDER, a2, mark2) +
+                             count_to(&f, BGA_MM_OFFER, a2, mark2),
+                         0);
+        const bga_mmsg_t *o = mech == BGB_MECH_CATALLACTIC ? last_to(&f, BGA_MM_OFFER, b, mark2)
+                                                           : last_to(&f, BGA_MM_ORDER, b, mark2);
+        assert_non_null(o);
+        answer_from(m, 'b', b, 0, 2, BGA_MM_CONFIRM, BGB_GOOD_SOLVE, 0.75, o->price, t + 0.01);
+        assert_true(f.done);
+        assert_string_equal(f.reason, "");
+        assert_true(awarded(&f, b) && !awarded(&f, a) && !awarded(&f, a2));
+        assert_true(f.awards[0].quantity == 0.75);
+        bgb_market_destroy(&m);
+    }
+}
+
 /* ------------------------------------------- resource sub-jobs (layer 1) */
 
 /* The resource role of fake daemon `who` on host `host` registers at
@@ -799,6 +930,7 @@ int main(void)
                                        cmocka_unit_test(catallactic_split_need),
                                        cmocka_unit_test(quiet_round_widens_window),
                                        cmocka_unit_test(central_refusal_bids_again),
+                                       cmocka_unit_test(lost_seller_settled_and_left_out),
                                        cmocka_unit_test(posted_subjob),
                                        cmocka_unit_test(catallactic_subjob_bargains_when_heard),
                                        cmocka_unit_test(one_resource_seller_per_host),

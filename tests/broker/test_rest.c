@@ -435,6 +435,7 @@ static void test_submit_and_read(void **state)
     assert_string_equal(cJSON_GetObjectItemCaseSensitive(doc, "mechanism")->valuestring,
                         "posted");
     assert_true(cJSON_GetObjectItemCaseSensitive(doc, "budget")->valuedouble == 12.5);
+    assert_true(cJSON_IsNull(cJSON_GetObjectItemCaseSensitive(doc, "deadline")));
     /* The plan of a static job: no integration step, and it says why. */
     const cJSON *plan = cJSON_GetObjectItemCaseSensitive(doc, "plan");
     assert_non_null(plan);
@@ -472,7 +473,7 @@ static void test_submit_answer_is_the_resource(void **state)
 {
     fixture_t *f = *state;
     const char *body = "{ \"budget\" : 7.25, \"scene\" :\n  " SMALL_BOX " ,\"mechanism\":"
-                       "\"catallactic\" }  \n";
+                       "\"catallactic\", \"deadline\": 90.5 }  \n";
     response_t posted = request(f, "POST", "/v1/jobs", body, NULL);
     assert_int_equal(posted.status, 202);
     conforms(f, "/v1/jobs", "POST", &posted);
@@ -488,6 +489,7 @@ static void test_submit_answer_is_the_resource(void **state)
     if (!cJSON_Compare(a, b, 1))
         fail_msg("POST answered %s\nGET shows %s", posted.body, got.body);
     assert_true(cJSON_GetObjectItemCaseSensitive(a, "budget")->valuedouble == 7.25);
+    assert_true(cJSON_GetObjectItemCaseSensitive(a, "deadline")->valuedouble == 90.5);
     assert_non_null(cJSON_GetObjectItemCaseSensitive(a, "plan"));
     cJSON_Delete(a);
     cJSON_Delete(b);
@@ -496,6 +498,7 @@ static void test_submit_answer_is_the_resource(void **state)
     assert_int_equal(bgb_store_get(f->store, id, &job, &err), BG_OK);
     assert_string_equal(job.scene, SMALL_BOX);
     assert_string_equal(job.mechanism, "catallactic");
+    assert_true(job.deadline == 90.5);
     bgb_job_release(&job);
     release(&posted);
     release(&got);
@@ -585,6 +588,10 @@ static void test_bad_requests(void **state)
         {"{\"scene\":{},\"colour\":1}", 422, "colour", "unknown key 'colour'"},
         {"{\"budget\":1}", 422, "scene", "scene: missing"},
         {"{\"scene\":" SMALL_BOX ",\"budget\":-3}", 422, "budget", "positive number"},
+        {"{\"scene\":" SMALL_BOX ",\"deadline\":0}", 422, "deadline", "seconds after submission"},
+        {"{\"scene\":" SMALL_BOX ",\"deadline\":\"soon\"}", 422, "deadline",
+         "seconds after submission"},
+        {"{\"scene\":" SMALL_BOX ",\"deadline\":1e9}", 422, "deadline", "(0, 1e+07]"},
         {"{\"scene\":" SMALL_BOX ",\"mechanism\":\"auction\"}", 422, "mechanism",
          "mechanism: expected"},
         {"{\"scene\":" SMALL_BOX ",\"budget\":1,\"budget\":2}", 422, "budget",

@@ -476,6 +476,45 @@ static void test_migrates_version_1(void **state)
     assert_string_not_equal(id, "j0000000000000001");
 }
 
+/* A version 2 store (before deadlines) opens: its jobs have none, and a
+ * new job's deadline is kept. */
+static void test_migrates_version_2(void **state)
+{
+    fixture_t *f = *state;
+    bgb_store_destroy(&f->store);
+    char path[160];
+    snprintf(path, sizeof path, "%s/v2.db", f->dir);
+    sqlite3 *db = NULL;
+    assert_int_equal(sqlite3_open(path, &db), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db, V1_SCHEMA, NULL, NULL, NULL), SQLITE_OK);
+    assert_int_equal(sqlite3_exec(db,
+                                  "ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT 'local';"
+                                  "ALTER TABLE jobs ADD COLUMN bytes INTEGER NOT NULL DEFAULT 0;"
+                                  "ALTER TABLE jobs ADD COLUMN fingerprint TEXT;"
+                                  "PRAGMA user_version=2;",
+                                  NULL, NULL, NULL),
+                     SQLITE_OK);
+    sqlite3_close(db);
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgb_store_open(path, &f->store, &err) != BG_OK)
+        fail_msg("%s", err.message);
+    bgb_job_t job = BGB_JOB_INIT;
+    assert_int_equal(bgb_store_get(f->store, "j0000000000000001", &job, &err), BG_OK);
+    assert_true(job.deadline == 0.0);
+    bgb_job_release(&job);
+    const bgb_submit_t timed = {.scene = "{}", .scene_size = 2, .mechanism = "central",
+                                .budget = 10, .deadline = 45};
+    char id[BGB_JOB_ID_SIZE];
+    int created = 0;
+    assert_int_equal(bgb_store_submit(f->store, &timed, id, &created, &err), BG_OK);
+    assert_int_equal(bgb_store_get(f->store, id, &job, &err), BG_OK);
+    assert_true(job.deadline == 45.0);
+    bgb_job_release(&job);
+    const bgb_submit_t bad = {.scene = "{}", .scene_size = 2, .mechanism = "central",
+                              .budget = 10, .deadline = -1};
+    assert_int_equal(bgb_store_submit(f->store, &bad, id, &created, &err), BG_ERR_INVALID);
+}
+
 /* Bytes and jobs in flight per user, result files included; a deleted job
  * frees them; an active job cannot be deleted. */
 static void test_usage_and_delete(void **state)
@@ -586,6 +625,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_concurrent_submits, setup, teardown),
         cmocka_unit_test_setup_teardown(test_options, setup, teardown),
         cmocka_unit_test_setup_teardown(test_migrates_version_1, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_migrates_version_2, setup, teardown),
         cmocka_unit_test_setup_teardown(test_usage_and_delete, setup, teardown),
         cmocka_unit_test_setup_teardown(test_usage_matches_jobs, setup, teardown),
     };

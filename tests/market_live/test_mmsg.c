@@ -61,7 +61,9 @@ static void every_type(void **state)
     for (int t = BGA_MM_FIRST; t <= BGA_MM_LAST; t++) {
         bga_mmsg_t m, d;
         bga_mmsg_init(&m, t);
-        m.job = UINT64_MAX - (uint64_t)t;
+        /* REGISTERED names no job: its header's job carries the epoch. */
+        m.job = t == BGA_MM_REGISTERED ? 0 : UINT64_MAX - (uint64_t)t;
+        m.epoch = t == BGA_MM_REGISTERED ? ((uint64_t)1 << 53) - 1 : 0;
         m.agent = UINT32_MAX;
         m.target = 3;
         m.origin = 4;
@@ -112,6 +114,21 @@ static void every_type(void **state)
     bg_error_t err = BG_ERROR_INIT;
     assert_int_not_equal(bga_mmsg_encode(&m, &f, &err), BG_OK);
     assert_non_null(strstr(err.message, "unknown"));
+    /* An epoch only in REGISTERED, at most 2^53, and REGISTERED no job. */
+    const struct {
+        int type;
+        uint64_t job, epoch;
+    } bad[] = {{BGA_MM_HEARTBEAT, 0, 5},
+               {BGA_MM_REGISTERED, 0, ((uint64_t)1 << 53) + 1},
+               {BGA_MM_REGISTERED, 9, 5}};
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        bga_mmsg_init(&m, bad[i].type);
+        m.job = bad[i].job;
+        m.epoch = bad[i].epoch;
+        bg_error_clear(&err);
+        assert_int_equal(bga_mmsg_encode(&m, &f, &err), BG_ERR_INVALID);
+        assert_non_null(strstr(err.message, "epoch"));
+    }
 }
 
 /* The layer-1 messages keep the role flag, the resource quantities, the
