@@ -233,8 +233,15 @@ check $? "no duplicate contract: the live audit passes ($(cat "$work/audit.txt")
 awk -F, -v j="$id" 'NR > 1 && $4 == "service" && $9 == j && $11 == "sparse-solve" { n++; if ($12 < 1) settled++ }
   END { exit !(n == 2 && settled == 1) }' "$work/contracts.csv"
 check $? "contracts.csv: two sparse-solve contracts for the job, the cut-off one settled pro rata"
-n=$(bcurl -sf "$url/v1/agents" | jq '[.agents[] | select(.name == "cut-1" and .alive)] | length')
-[ "${n:-0}" -ge 1 ]; check $? "cut-1 registered again once its link was up"
+now() { date +%s.%N; }
+i=0 t_up=$(now)
+while [ $i -lt 300 ]; do
+  n=$(bcurl -sf "$url/v1/agents" | jq '[.agents[] | select(.name == "cut-1" and .alive)] | length')
+  [ "${n:-0}" -ge 1 ] && break
+  sleep 0.1
+  i=$((i + 1))
+done
+[ "${n:-0}" -ge 1 ]; check $? "cut-1 registered again once its link was up ($(awk -v a="$t_up" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }') s after the audit)"
 
 stop_broker "$work" broker; check $? "the broker stops"
 teardown "$work"; check $? "the namespace, the veth and every process are gone"
