@@ -22,12 +22,9 @@
 #                                      fail=0, INT/TERM stop the grid and exit 1
 #   grid_test_end SCRIPTS              `grid down` (to WORK/down.txt) and no process of the
 #                                      grid left (SCRIPTS/no_agents_left.sh), both checked
-#   bcurl ARGS...                      the REST API: curl -sf with what every call needs
-#                                      (one place to add a header, e.g. a token)
-bcurl() {
-  curl -sf "$@"
-}
-
+#   bcurl ARGS...                      the REST API: curl with what every call needs (the
+#                                      bearer token $BIOTGRID_TOKEN); callers add -sf
+#   now                                seconds since the epoch, with nanoseconds
 check() {
   if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
 }
@@ -35,6 +32,8 @@ check() {
 bcurl() {
   curl -H "Authorization: Bearer ${BIOTGRID_TOKEN:-}" "$@"
 }
+
+now() { date +%s.%N; }
 
 # An admin token for the broker whose state folder is $2, exported as
 # BIOTGRID_TOKEN for bcurl and the biotgrid client commands.

@@ -16,7 +16,6 @@ bin=$1 scripts=$2 work=$3 config=$4 long=$5 short=$6
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
 grid_test_begin "$bin" "$work"
-now() { date +%s.%N; }
 # The grid's host sells 2 cores: a job of this grid holds both (its widest
 # phase: the rotation fit's two parts, or the sparse solve's two cores), so
 # the second job below waits for the first whatever the machine has.

@@ -23,7 +23,6 @@ here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
 grid_test_begin "$bin" "$work"
 mkdir -p "$work/scenes" "$work/local" "$work/jobs"
-now() { date +%s.%N; }
 since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
 
 # The scenes on the 34,055-tetrahedron bunny and the 22,704-triangle

@@ -33,7 +33,6 @@ post() { # post BODY [HEADER...]: the status into $work/status, the body into $w
   bcurl -s -o "$work/out" -w '%{http_code}' -X POST -H 'Content-Type: application/json' "$@" \
     --data-binary "$_body" "$url/v1/jobs" >"$work/status"
 }
-now() { date +%s.%N; }
 elapsed() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.2f", b - a }'; }
 
 t0=$(now)

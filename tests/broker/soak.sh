@@ -21,7 +21,6 @@ root=$(cd "$here/../.." && pwd)
 grid_test_begin "$bin" "$work"
 chaos_pid=
 trap '[ -n "$chaos_pid" ] && kill "$chaos_pid" 2>/dev/null; "$bin" grid down --state "$state" >/dev/null 2>&1; exit 1' INT TERM
-now() { date +%s.%N; }
 rss() { awk '/^VmRSS/ { print $2 }' "/proc/$1/status" 2>/dev/null || echo 0; }
 memory() { # "broker KB, agents KB" of the processes grid.json records
   _b=$(rss "$(jq -r .broker.pid "$state/grid.json")")
