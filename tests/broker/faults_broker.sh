@@ -25,7 +25,6 @@ here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
 grid_test_begin "$bin" "$work"
 trap '"$bin" grid down --state "$state" >/dev/null 2>&1' EXIT
-now() { date +%s.%N; }
 jobs_states() { bcurl -sf --max-time 5 "$url/v1/jobs?limit=100" | jq -r '[.jobs[].state] | join(",")'; }
 state_of() { bcurl -sf --max-time 5 "$url/v1/jobs/$1" | jq -r .state; }
 submit() { # SCENE → id

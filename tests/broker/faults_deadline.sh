@@ -14,7 +14,6 @@ deadline=25
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
 grid_test_begin "$bin" "$work"
-now() { date +%s.%N; }
 events_of() { awk -v k="$2" '/^event: / { e = $2 } /^data: / && e == k { sub(/^data: /, ""); print }' "$1"; }
 grid_up_market "$bin" "$config" "$state"
 jq '.solver.method = "local-global" | .solver.max_iterations = 400' "$scene" >"$work/scene.json"

@@ -39,7 +39,6 @@ done
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
 grid_test_begin "$bin" "$work"
-now() { date +%s.%N; }
 contracts() { awk '/^event: / { e = $2 } /^data: / && e == "contract" { sub(/^data: /, ""); print }' "$1"; }
 events_of() { awk -v k="$2" '/^event: / { e = $2 } /^data: / && e == k { sub(/^data: /, ""); print }' "$1"; }
 grid_up_market "$bin" "$config" "$state"

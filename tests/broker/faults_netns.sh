@@ -233,7 +233,6 @@ check $? "no duplicate contract: the live audit passes ($(cat "$work/audit.txt")
 awk -F, -v j="$id" 'NR > 1 && $4 == "service" && $9 == j && $11 == "sparse-solve" { n++; if ($12 < 1) settled++ }
   END { exit !(n == 2 && settled == 1) }' "$work/contracts.csv"
 check $? "contracts.csv: two sparse-solve contracts for the job, the cut-off one settled pro rata"
-now() { date +%s.%N; }
 i=0 t_up=$(now)
 while [ $i -lt 300 ]; do
   n=$(bcurl -sf "$url/v1/agents" | jq '[.agents[] | select(.name == "cut-1" and .alive)] | length')
