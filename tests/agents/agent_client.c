@@ -70,16 +70,21 @@ static int read_ready(const char *dir, const char *name, ready *r)
     return 0;
 }
 
-static bga_client_t *connect_to(const char *dir, const char *name, const char *service, ready *r)
+static bga_client_t *connect_within(const char *dir, const char *name, const char *service,
+                                    int timeout_ms, ready *r)
 {
     bga_client_t *c = NULL;
     bg_error_t err = BG_ERROR_INIT;
     if (read_ready(dir, name, r) != 0 ||
-        bga_client_new(r->endpoint, service, TIMEOUT_MS, &c, &err) != BG_OK) {
+        bga_client_new(r->endpoint, service, timeout_ms, &c, &err) != BG_OK) {
         fprintf(stderr, "agent_client: %s\n", err.message);
         exit(1);
     }
     return c;
+}
+static bga_client_t *connect_to(const char *dir, const char *name, const char *service, ready *r)
+{
+    return connect_within(dir, name, service, TIMEOUT_MS, r);
 }
 
 /* The agent holds nothing for job: a call on it is refused as such. */
@@ -556,6 +561,10 @@ static void post_raw(void *s, const fx_part *part, unsigned want, uint64_t seq)
  */
 #define BUSY_LOST_MS 1000
 #define BUSY_QUEUE_SECONDS 4.0
+/* The watched call's own timeout: far beyond the queue's 4 s of work even
+ * on a machine loaded 10-fold, so that only the liveness rule under test
+ * (1 s of silence) could give the agent up. */
+#define BUSY_CALL_TIMEOUT_MS 120000
 
 /* Sends `sent` pipelined calls (seq 1000 + i) and counts their replies:
  * results and BUSY refusals. */
@@ -589,7 +598,7 @@ static void burst(void *s, const fx_part *part, unsigned want, int sent, int *re
 static int run_busy(const char *dir)
 {
     ready r;
-    bga_client_t *c = connect_to(dir, "rotfit2", "rotation-fit", &r);
+    bga_client_t *c = connect_within(dir, "rotfit2", "rotation-fit", BUSY_CALL_TIMEOUT_MS, &r);
     bg_error_t err = BG_ERROR_INIT;
     bg_mesh_t *mesh = NULL;
     double *q = NULL, *gbuf = NULL, *hbuf = NULL;
