@@ -103,12 +103,15 @@ uint64_t bgb_ledger_settle_lost(bgb_ledger_t *l, uint64_t job, uint32_t seller, 
             request = r->request;
             r->quantity = delivered;
             r->end = now;
+            r->lost = 1;
         }
     }
     for (size_t i = 0; i < l->count && request; i++) {
         bgb_contract_t *r = row_at(l, i);
-        if (r->job == job && r->layer == 1 && r->request == request && r->end > now)
+        if (r->job == job && r->layer == 1 && r->request == request && r->end > now) {
             r->end = now;
+            r->lost = 1;
+        }
     }
     return request;
 }
@@ -156,11 +159,11 @@ static void write_row(void *ctx, const bgb_contract_t *r)
     char clearing[24] = "";
     if (r->clearing)
         snprintf(clearing, sizeof clearing, "%llu", (unsigned long long)r->clearing);
-    if (fprintf(c->out, "%s,0,%s,%s,%llu,%.9g,%.9g,%.9g,%s,%u,%s,%.9g,%.9g,%.9g,%.9g,%.9g,%s\n",
+    if (fprintf(c->out, "%s,0,%s,%s,%llu,%.9g,%.9g,%.9g,%s,%u,%s,%.9g,%.9g,%.9g,%.9g,%.9g,%s,%d\n",
                 c->l->name, bgb_mechanism_name((bgb_mechanism)r->mechanism),
                 r->layer ? "resource" : "service", (unsigned long long)r->request, r->time,
                 r->start, end, buyer, r->seller, bgb_good_name(r->good), r->quantity, r->price,
-                r->buyer_limit, r->seller_limit, r->use, clearing) < 0)
+                r->buyer_limit, r->seller_limit, r->use, clearing, r->lost) < 0)
         c->failed = 1;
 }
 
@@ -168,7 +171,7 @@ bg_status bgb_ledger_write_contracts_csv(const bgb_ledger_t *l, FILE *out, bg_er
 {
     csv_ctx c = {l, out, 0};
     if (fputs("scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,good,"
-              "quantity,price,buyer_limit,seller_limit,use,clearing\n",
+              "quantity,price,buyer_limit,seller_limit,use,clearing,lost\n",
               out) < 0)
         c.failed = 1;
     bgb_ledger_each(l, write_row, &c);

@@ -43,7 +43,10 @@
  * `quantity`, what is paid, is only what the phase adds to the job's
  * widest phase there (bgb_market); the job pays for its widest phase
  * once. `clearing` is the central clearing that priced the row (0 for
- * none: posted, catallactic).
+ * none: posted, catallactic). `lost` is 1 on the rows of a request whose
+ * seller was lost and settled pro rata (bgb_ledger_settle_lost): its
+ * service row keeps the work delivered, its resource rows end then; the
+ * seller bears what it paid for resources beyond what it earned.
  */
 typedef struct bgb_contract {
     uint64_t job;     /* the market job id the row belongs to (both layers) */
@@ -59,6 +62,7 @@ typedef struct bgb_contract {
     double quantity, price, buyer_limit, seller_limit;
     double use;        /* units held while the service runs (see above) */
     uint64_t clearing; /* the central clearing that priced it, 0: none */
+    int lost;          /* settled after its seller was lost (see above) */
 } bgb_contract_t;
 
 typedef void (*bgb_contract_fn)(void *ctx, const bgb_contract_t *row);
@@ -104,12 +108,10 @@ uint64_t bgb_ledger_add_clearing(bgb_ledger_t *l, const bgb_clearing_t *c);
  * an open service row, a resource row's unused lease. */
 void bgb_ledger_close(bgb_ledger_t *l, uint64_t job, double now);
 
-/* Mean price of the last `window` rows of a good under a mechanism;
- * returns the number averaged (0: *mean untouched). */
 /* A lost seller's contract settled pro rata: job's open service row sold
  * by `seller` for `good` keeps `delivered` units and ends now, and the
- * open resource rows bought for the same request end now too. Returns
- * that request, or 0 when there is no such open row. */
+ * open resource rows bought for the same request end now too; all are
+ * marked lost. Returns that request, or 0 when there is no such open row. */
 uint64_t bgb_ledger_settle_lost(bgb_ledger_t *l, uint64_t job, uint32_t seller, int good,
                                 double delivered, double now);
 

@@ -1066,7 +1066,7 @@ static enum MHD_Result get_csv(bgb_rest_t *rest, struct MHD_Connection *c, int v
     const char *header =
         view == BGB_REST_VIEW_CONTRACTS
             ? "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,"
-              "good,quantity,price,buyer_limit,seller_limit,use,clearing\n"
+              "good,quantity,price,buyer_limit,seller_limit,use,clearing,lost\n"
         : view == BGB_REST_VIEW_CLEARINGS
             ? "clearing,time,layer,good,volume,k,rule,price,low,low_order,low_owner,high,"
               "high_order,high_owner\n"

@@ -212,6 +212,32 @@ CSV
     "$AUDIT" --live "$WORK/live/two" > "$WORK/live/two.out" 2>&1; rc=$?
     set -e
     [ "$rc" -eq 1 ] && grep -q "over capacity (3 > 2 cores" "$WORK/live/two.out" || { echo "FAIL: two jobs holding three of two cores passed the live audit"; cat "$WORK/live/two.out"; exit 1; }
+    # A seller lost before it delivered anything: its service row settled
+    # at 0 units at t=4, its cores and memory ended then. It paid for four
+    # seconds of resources and earned nothing: marked lost, that is the
+    # loss it bears; unmarked, the same rows are an agent paying more for
+    # resources than it earned. Request 4 is the service bought again.
+    for d in lost unmarked; do
+        mkdir -p "$WORK/live/$d"
+        cp "$WORK/live/one/agents.csv" "$WORK/live/$d/"
+        l=1; [ "$d" = unmarked ] && l=0
+        {
+            echo "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,good,quantity,price,buyer_limit,seller_limit,use,clearing,lost"
+            echo "g,0,posted,service,1,0,0,4,j1,1,rotation-fit,0,1.2,2,1,1,,$l"
+            echo "g,0,posted,resource,1,0,0,4,1,9,cores,1,1e-05,2e-05,1e-05,1,,$l"
+            echo "g,0,posted,resource,1,0,0,4,1,9,memory,1,2e-06,4e-06,2e-06,1,,$l"
+            echo "g,0,posted,service,4,4,4,10,j1,2,rotation-fit,1,1.2,2,1,1,,0"
+            echo "g,0,posted,resource,4,4,4,10,2,9,cores,1,1e-05,2e-05,1e-05,1,,0"
+            echo "g,0,posted,resource,4,4,4,10,2,9,memory,1,2e-06,4e-06,2e-06,1,,0"
+        } > "$WORK/live/$d/contracts.csv"
+    done
+    "$AUDIT" --live "$WORK/live/lost" > "$WORK/live/lost.out" 2>&1 ||
+        { echo "FAIL: a lost seller's settled rows failed the live audit"; cat "$WORK/live/lost.out"; exit 1; }
+    set +e
+    "$AUDIT" --live "$WORK/live/unmarked" > "$WORK/live/unmarked.out" 2>&1; rc=$?
+    set -e
+    [ "$rc" -eq 1 ] && grep -q "basic agent 1 spent .* on resources, earned 0" "$WORK/live/unmarked.out" ||
+        { echo "FAIL: a seller paying resources for nothing passed the live audit unmarked"; cat "$WORK/live/unmarked.out"; exit 1; }
     echo "audit-live: ok"
     ;;
 call-audit)

@@ -62,7 +62,7 @@ typedef struct contract {
     /* The job and service a row serves: a service row's buyer and good;
      * a resource row's are its service row's (link_services). */
     char job[NAME_MAX_LEN], service[NAME_MAX_LEN];
-    int layer, memory;
+    int layer, memory, lost;
     double start, end, quantity, price, blim, slim, use;
     long buyer, seller, request;
 } contract_t;
@@ -366,16 +366,22 @@ int main(int argc, char **argv)
     const char *header = "scenario,replication,mechanism,layer,request,time,start,end,buyer,seller,"
                          "good,quantity,price,buyer_limit,seller_limit";
     const size_t hlen = strlen(header);
-    /* A live log may add its own two columns after the simulator's. */
-    const int extra = strcmp(line + hlen, ",use,clearing\n") == 0;
+    /* A live log adds its own columns after the simulator's: use and
+     * clearing, and lost since the broker settles a lost seller's rows. */
+    const int lost_column = strcmp(line + hlen, ",use,clearing,lost\n") == 0;
+    const int extra = lost_column || strcmp(line + hlen, ",use,clearing\n") == 0;
     if (strncmp(line, header, hlen) != 0 || (!extra && strcmp(line + hlen, "\n") != 0))
         return fail("contracts.csv header differs from the documented one");
-    const int nfields = extra ? 17 : 15;
+    const int nfields = lost_column ? 18 : extra ? 17 : 15;
     while (fgets(line, sizeof line, fp)) {
-        if (split(line, f) != nfields)
-            return fail(extra ? "contracts.csv: row without 17 fields"
-                              : "contracts.csv: row without 15 fields");
+        if (split(line, f) != nfields) {
+            snprintf(msg, sizeof msg, "contracts.csv: row without %d fields", nfields);
+            return fail(msg);
+        }
         const double use = extra ? atof(f[15]) : atof(f[11]);
+        const int lost = lost_column && strcmp(f[17], "1") == 0;
+        if (lost_column && !lost && strcmp(f[17], "0") != 0)
+            return fail("contracts.csv: lost is neither 0 nor 1");
         request_last(f);
         if (n == alloc)
             c = realloc(c, (alloc *= 2) * sizeof *c);
@@ -387,6 +393,7 @@ int main(int argc, char **argv)
         snprintf(x->skey, KEY_MAX, "%s|%s|%s|%s", x->key, f[8],
                  strcmp(f[3], "service") == 0 ? "*" : f[9], f[3]);
         x->layer = strcmp(f[3], "service") == 0 ? 0 : 1;
+        x->lost = lost;
         x->job[0] = x->service[0] = '\0';
         if (x->layer == 0) {
             snprintf(x->job, sizeof x->job, "%s", f[7]);
@@ -495,13 +502,16 @@ int main(int argc, char **argv)
     for (size_t i = 0; i < n; i++) {
         if (c[i].layer != 0)
             continue;
-        /* Basic agent c[i].seller in run c[i].key: earnings vs spending. */
+        /* Basic agent c[i].seller in run c[i].key: earnings vs spending,
+         * over the requests it served. A request whose seller was lost
+         * (the live log's lost rows) is left out of both: the seller was
+         * paid for the work delivered and bears its resources' cost. */
         if (i > 0 && c[i - 1].layer == 0 && c[i - 1].seller == c[i].seller &&
             strcmp(c[i - 1].key, c[i].key) == 0)
             continue;
         double earned = 0, spent = 0;
         for (size_t j = 0; j < n; j++) {
-            if (strcmp(c[j].key, c[i].key) != 0)
+            if (strcmp(c[j].key, c[i].key) != 0 || c[j].lost)
                 continue;
             if (c[j].layer == 0 && c[j].seller == c[i].seller)
                 earned += c[j].price * c[j].quantity;
