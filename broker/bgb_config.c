@@ -238,8 +238,16 @@ bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
 {
     cJSON *root = NULL;
     bg_status st = bg_json_load(path, CONFIG_MAX_BYTES, &root, err);
-    if (st != BG_OK)
-        goto out;
+    if (st == BG_OK)
+        st = bgb_config_read_object(root, path, c, err);
+    cJSON_Delete(root);
+    return st;
+}
+
+bg_status bgb_config_read_object(const cJSON *root, const char *path, bgb_config_t *c,
+                                 bg_error_t *err)
+{
+    bg_status st = BG_OK;
     static const char *const keys[] = {"name",
                                        "address",
                                        "tls_cert",
@@ -271,7 +279,7 @@ bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
                                        NULL};
     if ((st = bg_json_expect_object(root, path, NULL, err)) != BG_OK ||
         (st = bg_json_check_keys(root, path, NULL, keys, err)) != BG_OK)
-        goto out;
+        return st;
     const cJSON *item;
     cJSON_ArrayForEach(item, root)
     {
@@ -322,10 +330,8 @@ bg_status bgb_config_read(const char *path, bgb_config_t *c, bg_error_t *err)
             st = read_limit(item, path, k, &c->limits, err);
         }
         if (st != BG_OK)
-            goto out;
+            return st;
     }
-out:
-    cJSON_Delete(root);
     return st;
 }
 

@@ -76,6 +76,10 @@ bg_status bgb_config_init(bgb_config_t *config, bg_error_t *err);
  * range is BG_ERR_INVALID naming the file and the field ("market.k").
  */
 bg_status bgb_config_read(const char *path, bgb_config_t *config, bg_error_t *err);
+/* The same from a parsed object (borrowed); `path` names its file in
+ * messages. */
+bg_status bgb_config_read_object(const cJSON *obj, const char *path, bgb_config_t *config,
+                                 bg_error_t *err);
 
 /* The "market" object alone, over *market (`path` names the file in
  * errors): what the grid checks before it starts a broker with it. */

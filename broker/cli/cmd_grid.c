@@ -6,8 +6,10 @@
  *
  * FILE (default configs/grids/local.json) is {"name": ..., "agents":
  * [{"name", "services", "slots", "listen"}, ...], "broker": {"port",
- * "endpoint", "market"}, "host": {"cores", "memory"}} (market: the
- * broker's live-market settings, as in its config, bgb_broker.h; host:
+ * "endpoint", "market", ...}, "host": {"cores", "memory"}} (market: the
+ * broker's live-market settings, as in its config, bgb_broker.h; the
+ * broker object's other keys, GRID_BROKER_SETTINGS, go to the broker's
+ * config as they are: how jobs run and recover, and the limits; host:
  * the cores and GiB the grid's machine sells on the live market, given to
  * every agent as --cores and --memory, default what the machine has; its
  * first agent to register sells them, the others stand by). With a
@@ -98,6 +100,7 @@ typedef struct grid {
     int broker_port;
     char broker_url[128];
     char market[2048]; /* the broker's "market" object, compact JSON ("" none) */
+    char settings[1024];        /* GRID_BROKER_SETTINGS given, compact JSON ("" none) */
     char cores[32], memory[32]; /* the "host" object's, as agent options ("" none) */
     int curve;                  /* "security": "curve" */
 } grid;
@@ -144,11 +147,84 @@ static void broker_defaults(grid *g)
         snprintf(g->broker.spec.listen, sizeof g->broker.spec.listen, "tcp://127.0.0.1:5570");
 }
 
-/* The "broker" object: port (0: ephemeral) and endpoint. */
+/* The broker's settings a grid config may give as they are: how jobs run
+ * and recover, and the limits (bgb_config.h has their ranges). The rest
+ * is the grid's to set: name, port, endpoint, the store, the keys. */
+static const char *const GRID_BROKER_SETTINGS[] = {"max_jobs",
+                                                   "agent_timeout_ms",
+                                                   "agent_liveness_ms",
+                                                   "agent_recovery",
+                                                   "stop_grace_ms",
+                                                   "memory_fraction",
+                                                   "max_vertices",
+                                                   "max_elements",
+                                                   "max_work",
+                                                   "max_body",
+                                                   "max_jobs_in_flight",
+                                                   "max_stored_bytes",
+                                                   "max_connections",
+                                                   "max_connections_per_client",
+                                                   "idle_timeout",
+                                                   "request_timeout",
+                                                   NULL};
+
+static int is_broker_setting(const char *key)
+{
+    for (int i = 0; GRID_BROKER_SETTINGS[i]; i++)
+        if (strcmp(key, GRID_BROKER_SETTINGS[i]) == 0)
+            return 1;
+    return 0;
+}
+
+/* The settings of `obj` that pass to the broker as they are: checked as the
+ * broker will read them, so a bad value is this command's error, not a
+ * broker that never starts; kept in g->settings. 0, or 2 with a message. */
+static int read_broker_settings(const cJSON *obj, const char *path, grid *g)
+{
+    cJSON *pass = cJSON_CreateObject();
+    int rc = pass ? 0 : 2;
+    for (const cJSON *k = obj->child; rc == 0 && k; k = k->next)
+        if (is_broker_setting(k->string) &&
+            !cJSON_AddItemToObject(pass, k->string, cJSON_Duplicate(k, 1)))
+            rc = 2;
+    bgb_config_t scratch;
+    bg_error_t err = BG_ERROR_INIT;
+    if (rc == 0 && pass->child) {
+        char where[PATH_MAX + 16];
+        snprintf(where, sizeof where, "%s: broker", path);
+        if (bgb_config_init(&scratch, &err) != BG_OK) {
+            rc = 2;
+        } else {
+            if (bgb_config_read_object(pass, where, &scratch, &err) != BG_OK)
+                rc = 2;
+            bgb_config_release(&scratch);
+        }
+        char *text = rc == 0 ? cJSON_PrintUnformatted(pass) : NULL;
+        if (rc == 0 && (!text || strlen(text) >= sizeof g->settings)) {
+            snprintf(err.message, sizeof err.message, "%s: broker: settings longer than %zu bytes",
+                     path, sizeof g->settings - 1);
+            rc = 2;
+        } else if (rc == 0) {
+            snprintf(g->settings, sizeof g->settings, "%s", text);
+        }
+        free(text);
+    }
+    if (rc != 0)
+        fprintf(stderr, "biotgrid grid: %s\n", err.message[0] ? err.message : "out of memory");
+    cJSON_Delete(pass);
+    return rc;
+}
+
+/* The "broker" object: port (0: ephemeral), endpoint, market and the
+ * settings above. */
 static int read_broker_config(const cJSON *obj, const char *path, grid *g)
 {
     g->broker_port = 8080;
+    if (read_broker_settings(obj, path, g) != 0)
+        return 2;
     for (const cJSON *k = obj->child; k; k = k->next) {
+        if (is_broker_setting(k->string))
+            continue;
         if (strcmp(k->string, "port") == 0 && cJSON_IsNumber(k) && k->valuedouble >= 0 &&
             k->valuedouble <= 65535 && k->valuedouble == (double)(int)k->valuedouble) {
             g->broker_port = (int)k->valuedouble;
@@ -178,7 +254,9 @@ static int read_broker_config(const cJSON *obj, const char *path, grid *g)
         } else {
             fprintf(stderr,
                     "biotgrid grid: %s: broker.%s: unknown key or wrong value (port: integer "
-                    "in [0, 65535], endpoint: tcp://HOST:PORT, market: an object)\n",
+                    "in [0, 65535], endpoint: tcp://HOST:PORT, market: an object, or a setting "
+                    "the broker's config takes: max_jobs, agent_timeout_ms, agent_liveness_ms, "
+                    "agent_recovery, stop_grace_ms, the limits)\n",
                     path, k->string);
             return 2;
         }
@@ -609,6 +687,10 @@ static int write_broker_config(const grid *g, const char *dir, char *path, size_
     cJSON_AddStringToObject(root, "state_dir", store);
     if (g->market[0])
         cJSON_AddItemToObject(root, "market", cJSON_Parse(g->market));
+    cJSON *settings = g->settings[0] ? cJSON_Parse(g->settings) : NULL;
+    for (cJSON *k = settings ? settings->child : NULL; k; k = k->next)
+        cJSON_AddItemToObject(root, k->string, cJSON_Duplicate(k, 1));
+    cJSON_Delete(settings);
     if (g->curve) {
         char key[PATH_MAX], authorized[PATH_MAX];
         snprintf(key, sizeof key, "%s/%s/%s%s", dir, GRID_KEYS, GRID_BROKER_NAME,

@@ -11,6 +11,8 @@
 #             28,800-tet slab through the local grid (submit -> result files)
 #             against solve in process, alternated rounds
 #   curve     tests/broker/bench_curve.sh: the same job with CURVE and without
+#   checkpoint tests/broker/bench_checkpoint.sh: the same job on a grid that
+#             keeps checkpoints to recover lost agents and on one that does not
 #   rest      bench_rest: durable submits through REST, 64 clients
 #   market    tests/market_live/live.sh bench: allocation latency per
 #             mechanism on 8 agents, and jobs per second at saturation
@@ -67,6 +69,7 @@ part solver sh "$here/bench_table.sh" --after "$build" --rounds "$rounds" $tflag
 part grid-bunny sh "$src/tests/broker/bench_grid.sh" "$bin" "$bunny" "$out/grid-bunny" posted "$rounds"
 part grid-slab sh "$src/tests/broker/bench_grid.sh" "$bin" "$slab" "$out/grid-slab" posted "$rounds"
 part curve sh "$src/tests/broker/bench_curve.sh" "$bin" "$bunny" "$mesh" "$out/curve" "$rounds"
+part checkpoint sh "$src/tests/broker/bench_checkpoint.sh" "$bin" "$bunny" "$out/checkpoint" "$((rounds + 1))"
 part rest "$build/tests/broker/bench_rest" $restargs --dir "$out"
 part market sh "$src/tests/market_live/live.sh" "$bin" "$build/tests/market_live/bench_alloc" \
     "$out/market" bench "$mrounds" "$mjobs" 16
@@ -90,6 +93,7 @@ echo "|---|---|---|"
 echo "| $(basename "$bunny" .json) through the local grid (posted), submit -> result files, against solve | \`bench_grid.sh\` | $(cell "$out/grid-bunny.txt" '^round|median') |"
 echo "| $(basename "$slab" .json) the same | \`bench_grid.sh\` | $(cell "$out/grid-slab.txt" '^round|median') |"
 echo "| the same job with CURVE against plaintext | \`bench_curve.sh\` | $(cell "$out/curve.txt" 'mean|CURVE /') |"
+echo "| the same job keeping checkpoints (recovery on) against not | \`bench_checkpoint.sh\` | $(cell "$out/checkpoint.txt" 'median ratio') |"
 echo "| durable submits through REST | \`bench_rest $restargs\` | $(cell "$out/rest.txt" 'REST, |group commit /') |"
 echo "| allocation latency and saturation, 8 agents | \`live.sh bench $mrounds $mjobs\` | $(cell "$out/market.txt" 'median|jobs/s') |"
 echo

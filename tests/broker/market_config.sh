@@ -46,6 +46,21 @@ check $? "grid up with broker.market.reply_timeout -1: exit 2 naming it, nothing
 sh "$scripts/no_agents_left.sh" "$work/bad-state"
 check $? "no process of the refused grid is left"
 
+# The broker's other settings pass through a grid config, checked first as
+# the broker reads them: a wrong one refused by name, nothing started.
+for bad in '{"stop_grace_ms": -5}:stop_grace_ms' '{"agent_recovery": 1}:agent_recovery' \
+  '{"max_elements": "many"}:max_elements'; do
+  obj=${bad%:*} field=${bad##*:}
+  rm -rf "$work/bad-state"
+  jq --argjson o "$obj" '.broker += $o' "$config" >"$work/bad-grid.json"
+  "$bin" grid up "$work/bad-grid.json" --state "$work/bad-state" --broker-port 0 \
+    --broker-endpoint 'tcp://127.0.0.1:*' >"$work/bad-grid.out" 2>&1
+  rc=$?
+  [ "$rc" -eq 2 ] && grep -q "broker: $field\|broker.$field" "$work/bad-grid.out" &&
+    ! [ -e "$work/bad-state/grid.json" ]
+  check $? "grid up with broker $obj: exit 2 naming $field, nothing started (exit $rc: $(head -c 200 "$work/bad-grid.out"))"
+done
+
 # The clearing price. In this grid every service agent has one slot and
 # every service good as many sellers as the job has units of it, so every
 # ask is matched and neither an unsold slot nor a bid left out bounds the
