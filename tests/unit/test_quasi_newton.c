@@ -350,16 +350,34 @@ static const cJSON *get(const cJSON *o, const char *key)
  * time split, its set-up step (the Laplacian, one factorization) and the
  * plan's sparse-solve entry for it (the Laplacian as the L-BFGS initial
  * Hessian). The time split covers the wall time within 10 % (the
- * bookkeeping between timers, at most a few per cent here; a loaded
- * machine's preemptions are the rest).
+ * bookkeeping between timers, at most a few per cent here), less the time
+ * the thread waited for a CPU during the solve: on a machine loaded
+ * beyond its cores that wait falls between timers too (the kernel counts
+ * it: run_delay in /proc/thread-self/schedstat). Code outside every timer
+ * is still caught, since it runs rather than waits.
  */
+static double run_queue_wait(void)
+{
+    FILE *f = fopen("/proc/thread-self/schedstat", "r");
+    unsigned long long on_cpu = 0, waited = 0;
+    if (!f)
+        return 0.0;
+    const int n = fscanf(f, "%llu %llu", &on_cpu, &waited);
+    fclose(f);
+    return n == 2 ? (double)waited * 1e-9 : 0.0;
+}
+
 static void report_is_complete(void **state)
 {
     bg_scene_t *s = test_load_scene(SCENES "bar-twist.json");
     bg_solve_result_t runs[2] = {BG_SOLVE_RESULT_INIT, BG_SOLVE_RESULT_INIT};
     const bg_method methods[2] = {BG_METHOD_NEWTON, BG_METHOD_QUASI_NEWTON};
-    for (int m = 0; m < 2; m++)
+    double waited = 0.0;
+    for (int m = 0; m < 2; m++) {
+        const double before = run_queue_wait();
         solve(s, methods[m], s->tolerance, bg_scene_max_iterations(s, methods[m]), &runs[m]);
+        waited = run_queue_wait() - before;
+    }
     bg_plan_t plan;
     bg_plan_for_scene(s, methods, 2, &plan);
     char *json = NULL;
@@ -376,7 +394,7 @@ static void report_is_complete(void **state)
     const cJSON *split = get(qn, "time_split");
     const double wall = get(qn, "wall_seconds")->valuedouble;
     const double accounted = get(split, "accounted_seconds")->valuedouble;
-    assert_true(accounted <= 1.001 * wall + 1e-4 && accounted >= 0.9 * wall - 2e-3);
+    assert_true(accounted <= 1.001 * wall + 1e-4 && accounted >= 0.9 * wall - 2e-3 - waited);
     assert_true(get(split, "solve_seconds")->valuedouble > 0.0);
     assert_int_equal(get(split, "iteration_factorizations")->valueint, 0);
     int laplacian = 0;
