@@ -47,7 +47,7 @@ check $? "four agents start"
 i=0
 while [ "$(market_sellers "$url" service)" != 4 ] && [ $i -lt 100 ]; do sleep 0.1; i=$((i + 1)); done
 [ "$(market_sellers "$url" service)" = 4 ]; check $? "they sell on the broker's market"
-jq --argjson n "$ITERS" '.solver.method = "local-global" | .solver.tolerance = 1e-14
+jq --argjson n "$ITERS" '.solver.method = "local-global" | .solver.tolerance = 1e-300
     | .solver.max_iterations = $n' "$long" >"$work/long.json"
 # C: a few seconds of local/global, well inside the grace.
 jq '.solver.method = "local-global" | .solver.max_iterations = 300' "$long" >"$work/medium.json"
