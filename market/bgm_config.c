@@ -13,7 +13,7 @@ const char *const bgm_service_names[BGM_SERVICE_TYPES] = {"rotation-fit", "spars
                                                           "integration-step"};
 const char *const bgm_mechanism_names[BGM_MAX_MECHANISMS] = {"central", "catallactic",
                                                              "baseline"};
-static const char *const topology_names[] = {"star", "cluster", "random", "scale-free"};
+const char *const bgm_topology_names[BGM_TOPOLOGIES] = {"star", "cluster", "random", "scale-free"};
 const char *const bgm_resource_market_names[2] = {"exchange", "call"};
 
 typedef enum ftype { F_INT, F_LONG, F_NUM, F_STR, F_U64 } ftype;
@@ -268,6 +268,49 @@ static bg_status parse_plans(const char *nm, const cJSON *arr, bgm_config_t *c, 
     return BG_OK;
 }
 
+/*
+ * factors.topology: a list of distinct topology names, each level a set
+ * of scenarios on that generated platform. It replaces network.topology
+ * (both given is refused: which one holds would be a guess) and cannot go
+ * with network.platform (a user platform is not generated).
+ */
+static bg_status parse_topology_factor(const char *nm, const cJSON *root, const cJSON *fac,
+                                       bgm_config_t *c, bg_error_t *err)
+{
+    const cJSON *arr = cJSON_GetObjectItemCaseSensitive(fac, "topology");
+    c->topology_levels = 0;
+    if (!arr)
+        return BG_OK;
+    if (!cJSON_IsArray(arr) || cJSON_GetArraySize(arr) < 1 ||
+        cJSON_GetArraySize(arr) > BGM_TOPOLOGIES)
+        return bg_json_fail(err, BG_ERR_INVALID, nm, "factors.topology",
+                            "must be an array of 1 to %d topology names", BGM_TOPOLOGIES);
+    const cJSON *net = cJSON_GetObjectItemCaseSensitive(root, "network");
+    if (cJSON_IsObject(net) && cJSON_GetObjectItemCaseSensitive(net, "topology"))
+        return bg_json_fail(err, BG_ERR_INVALID, nm, "factors.topology",
+                            "network.topology is given too: name the topologies in one place");
+    if (cJSON_IsObject(net) && cJSON_GetObjectItemCaseSensitive(net, "platform"))
+        return bg_json_fail(err, BG_ERR_INVALID, nm, "factors.topology",
+                            "cannot go with network.platform (a user platform is not generated)");
+    int i = 0;
+    for (const cJSON *x = arr->child; x; x = x->next, i++) {
+        char tp[BG_JSON_PATH_MAX];
+        bg_json_path_index(tp, "factors.topology", i);
+        const int k =
+            cJSON_IsString(x) ? name_index(x->valuestring, bgm_topology_names, BGM_TOPOLOGIES) : -1;
+        if (k < 0)
+            return bg_json_fail(err, BG_ERR_INVALID, nm, tp,
+                                "must be star, cluster, random or scale-free");
+        for (int j = 0; j < i; j++)
+            if (c->topology[j] == k)
+                return bg_json_fail(err, BG_ERR_INVALID, nm, tp, "repeats '%s'",
+                                    bgm_topology_names[k]);
+        c->topology[i] = k;
+    }
+    c->topology_levels = i;
+    return BG_OK;
+}
+
 static bg_status parse_root(const char *nm, const cJSON *root, bgm_config_t *c, bg_error_t *err)
 {
     bg_status st;
@@ -318,7 +361,7 @@ static bg_status parse_root(const char *nm, const cJSON *root, bgm_config_t *c, 
         return bg_json_fail(err, BG_ERR_INVALID, nm, "factors", "missing (a required field)");
     if ((st = bg_json_expect_object(fac, nm, "factors", err)))
         return st;
-    static const char *const fnames[] = {"nodes", "density", "dynamics", NULL};
+    static const char *const fnames[] = {"nodes", "density", "dynamics", "topology", NULL};
     if ((st = check_keys(nm, fac, "factors", fnames, err)))
         return st;
     if ((st = parse_array(nm, fac, "nodes", "factors.nodes", BGM_MAX_LEVELS, &arr, &c->node_levels, err)))
@@ -367,6 +410,9 @@ static bg_status parse_root(const char *nm, const cJSON *root, bgm_config_t *c, 
         }
     }
 
+    if ((st = parse_topology_factor(nm, root, fac, c, err)))
+        return st;
+
     const cJSON *o;
     if ((o = cJSON_GetObjectItemCaseSensitive(root, "network"))) {
         char topo[16] = "star";
@@ -381,7 +427,7 @@ static bg_status parse_root(const char *nm, const cJSON *root, bgm_config_t *c, 
                        FIELD_END};
         if ((st = parse_fields(nm, o, "network", f, NULL, err)))
             return st;
-        c->network.topology = name_index(topo, topology_names, 4);
+        c->network.topology = name_index(topo, bgm_topology_names, BGM_TOPOLOGIES);
         if (c->network.topology < 0)
             return bg_json_fail(err, BG_ERR_INVALID, nm, "network.topology",
                                 "must be star, cluster, random or scale-free");
@@ -566,9 +612,15 @@ bg_status bgm_config_load(const char *path, bgm_config_t *cfg, bg_error_t *err)
     return st;
 }
 
-int bgm_config_scenario_count(const bgm_config_t *c)
+/* Scenarios on one topology: nodes x density x dynamics. */
+static int per_topology(const bgm_config_t *c)
 {
     return c->node_levels * c->density_levels * c->dynamics_levels;
+}
+
+int bgm_config_scenario_count(const bgm_config_t *c)
+{
+    return per_topology(c) * (c->topology_levels > 0 ? c->topology_levels : 1);
 }
 
 void bgm_config_scenario(const bgm_config_t *c, int s, int *nodes, double *density,
@@ -576,10 +628,29 @@ void bgm_config_scenario(const bgm_config_t *c, int s, int *nodes, double *densi
 {
     int dy = s % c->dynamics_levels;
     int de = (s / c->dynamics_levels) % c->density_levels;
-    int no = s / (c->dynamics_levels * c->density_levels);
+    int no = (s / (c->dynamics_levels * c->density_levels)) % c->node_levels;
     *nodes = c->nodes[no];
     *density = c->density[de];
     *dynamics = &c->dynamics[c->dynamics_index[dy]];
+}
+
+int bgm_config_scenario_topology(const bgm_config_t *c, int s)
+{
+    return c->topology_levels > 0 ? c->topology[s / per_topology(c)] : c->network.topology;
+}
+
+int bgm_config_scenario_stream(const bgm_config_t *c, int s)
+{
+    return s % per_topology(c);
+}
+
+void bgm_config_scenario_label(char *buf, size_t n, const char *topology, int nodes, double density,
+                               const char *dynamics)
+{
+    if (topology)
+        snprintf(buf, n, "%s_n%d_d%g_%s", topology, nodes, density, dynamics);
+    else
+        snprintf(buf, n, "n%d_d%g_%s", nodes, density, dynamics);
 }
 
 int bgm_config_agent_count(const bgm_config_t *c, int nodes, double density)

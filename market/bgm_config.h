@@ -5,8 +5,8 @@
  * key is checked: unknown keys, wrong types, out-of-range values and
  * missing required fields are rejected with a message naming the field by
  * its path ("factors.nodes[2]"). Parsing is a pure function over a buffer.
- * The scenarios are the Cartesian product nodes x density x dynamics, in
- * that nesting order (nodes slowest).
+ * The scenarios are the Cartesian product [topology x] nodes x density x
+ * dynamics, in that nesting order (topology slowest, when it is a factor).
  */
 #ifndef BGM_CONFIG_H
 #define BGM_CONFIG_H
@@ -43,10 +43,12 @@ typedef enum bgm_topology {
     BGM_TOPO_RANDOM = 2,
     BGM_TOPO_SCALEFREE = 3
 } bgm_topology;
+#define BGM_TOPOLOGIES 4
 
 extern const char *const bgm_service_names[BGM_SERVICE_TYPES];
 extern const char *const bgm_mechanism_names[BGM_MAX_MECHANISMS];
 extern const char *const bgm_resource_market_names[2];
+extern const char *const bgm_topology_names[BGM_TOPOLOGIES];
 
 typedef struct bgm_dynamics {
     char name[BGM_NAME_MAX];
@@ -85,9 +87,13 @@ typedef struct bgm_config {
     int dynamics_levels;
     bgm_dynamics_t dynamics[BGM_MAX_DYNAMICS];
     int dynamics_count;
+    /* factors.topology: the levels (bgm_topology), or none (0 levels):
+     * then network.topology serves every scenario and no output names it. */
+    int topology[BGM_TOPOLOGIES];
+    int topology_levels;
 
     struct {
-        int topology;
+        int topology;                /* without factors.topology */
         char platform[BGM_PATH_MAX]; /* user platform XML, or "" (see bgm_config_load) */
         double latency;              /* s */
         double bandwidth;            /* bytes/s */
@@ -175,6 +181,20 @@ int bgm_config_scenario_count(const bgm_config_t *cfg);
 /* Decodes scenario index s into its factor levels. */
 void bgm_config_scenario(const bgm_config_t *cfg, int s, int *nodes, double *density,
                          const bgm_dynamics_t **dynamics);
+/* Scenario s's topology (bgm_topology): its factors.topology level, or
+ * network.topology. */
+int bgm_config_scenario_topology(const bgm_config_t *cfg, int s);
+/* The index scenario s's random streams are derived from (with the seed
+ * and the replication): s without its topology level. Scenarios that
+ * differ only in topology draw the same jobs, agents and host speeds
+ * (common random numbers, as across mechanisms), and each equals the
+ * scenario of the same config given that topology alone. Without a
+ * topology factor it is s. */
+int bgm_config_scenario_stream(const bgm_config_t *cfg, int s);
+/* A scenario's name in the outputs: "n40_d2_static", or with a topology
+ * factor (topology not NULL) "random_n40_d2_static". */
+void bgm_config_scenario_label(char *buf, size_t n, const char *topology, int nodes, double density,
+                               const char *dynamics);
 /* Agents in a scenario: complex + basic-service + resource (+1 market). */
 int bgm_config_agent_count(const bgm_config_t *cfg, int nodes, double density);
 

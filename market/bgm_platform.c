@@ -109,8 +109,8 @@ static bg_status scale_free(FILE *f, FILE *rt, const bgm_config_t *c, int nodes,
     return BG_OK;
 }
 
-bg_status bgm_platform_write(FILE *f, const bgm_config_t *c, int nodes, bgm_rng_t *rng,
-                             double *speed)
+bg_status bgm_platform_write(FILE *f, const bgm_config_t *c, int topology, int nodes,
+                             bgm_rng_t *rng, double *speed)
 {
     /* The DTD wants every link before the first route: routes go to a
      * memory stream first and are appended at the end. */
@@ -133,7 +133,7 @@ bg_status bgm_platform_write(FILE *f, const bgm_config_t *c, int nodes, bgm_rng_
     fprintf(f, "  <host id=\"market\" speed=\"%.9gf\"/>\n", speed[nodes]);
     fprintf(f, "  <router id=\"core\"/>\n");
     char a[64], b[64], l[64];
-    switch (c->network.topology) {
+    switch (topology) {
     case BGM_TOPO_STAR:
         for (int i = 0; i < nodes; i++) {
             snprintf(l, sizeof l, "l%d", i);
@@ -171,7 +171,7 @@ bg_status bgm_platform_write(FILE *f, const bgm_config_t *c, int nodes, bgm_rng_
         fclose(rt);
         goto out;
     }
-    if (c->network.topology == BGM_TOPO_RANDOM || c->network.topology == BGM_TOPO_SCALEFREE) {
+    if (topology == BGM_TOPO_RANDOM || topology == BGM_TOPO_SCALEFREE) {
         /* The core router joins host 0 so the market reaches everyone. */
         link_to(f, "l0", bw * BGM_CORE_BW_FACTOR, lat);
         route(rt, "h0", "core", "l0");

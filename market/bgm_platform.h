@@ -23,11 +23,13 @@
 #define BGM_PLATFORM_STREAM 0xfffffff1ULL
 
 /*
- * Writes the platform for `nodes` hosts to f; speed (caller-allocated,
- * nodes + 1 entries) receives each host's speed in flops, the market host
- * last.
+ * Writes the platform of `topology` (bgm_topology: the scenario's, see
+ * bgm_config_scenario_topology) for `nodes` hosts to f; the rest of the
+ * network comes from cfg. speed (caller-allocated, nodes + 1 entries)
+ * receives each host's speed in flops, the market host last: the speeds
+ * are drawn first, so they do not depend on the topology.
  */
-bg_status bgm_platform_write(FILE *f, const bgm_config_t *cfg, int nodes, bgm_rng_t *rng,
-                             double *speed);
+bg_status bgm_platform_write(FILE *f, const bgm_config_t *cfg, int topology, int nodes,
+                             bgm_rng_t *rng, double *speed);
 
 #endif

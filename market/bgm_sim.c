@@ -77,9 +77,13 @@ static int run_child(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_
         goto out;
     }
     /* The platform depends on (seed, scenario, replication) only, so all
-     * mechanisms of a replication run on the same hosts. */
+     * mechanisms of a replication run on the same hosts; the scenario's
+     * stream index leaves its topology out, so every topology of a
+     * topology factor gets the same host speeds and jobs. */
+    const int stream = bgm_config_scenario_stream(cfg, id->scenario);
+    const int topology = bgm_config_scenario_topology(cfg, id->scenario);
     bgm_rng_t prng;
-    bgm_rng_derive(&prng, cfg->seed, (uint64_t)id->scenario, (uint64_t)id->replication,
+    bgm_rng_derive(&prng, cfg->seed, (uint64_t)stream, (uint64_t)id->replication,
                    BGM_PLATFORM_STREAM);
     part_path(xml, sizeof xml, o->out, id, "xml");
     int user = cfg->network.platform[0] != '\0';
@@ -89,7 +93,7 @@ static int run_child(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_
             st = bg_error_set(&err, BG_ERR_IO, "%s: cannot write platform", xml);
             goto out;
         }
-        st = bgm_platform_write(f, cfg, nodes, &prng, speed);
+        st = bgm_platform_write(f, cfg, topology, nodes, &prng, speed);
         if (fclose(f) != 0 || st) {
             st = bg_error_set(&err, BG_ERR_IO, "%s: cannot write platform", xml);
             goto out;
@@ -106,8 +110,10 @@ static int run_child(const bgm_config_t *cfg, const sim_opts_t *o, const run_id_
     } else if (!o->inprocess) {
         bgm_simdriver_load(xml);
     }
-    bgm_world_params_t wp = {cfg, id->scenario, cfg->mechanisms[id->mechanism], id->replication,
-                             nodes, density, dyn, speed};
+    const char *named = cfg->topology_levels > 0 ? bgm_topology_names[topology] : NULL;
+    bgm_world_params_t wp = {
+        cfg,   stream, cfg->mechanisms[id->mechanism], id->replication, nodes, density, dyn,
+        speed, named};
     w = bgm_world_new(&wp, &err);
     if (!w) {
         st = err.status ? err.status : BG_ERR_NOMEM;
@@ -323,19 +329,24 @@ static bg_status merge_csv(const sim_opts_t *o, const run_id_t *runs, int n, con
     return st;
 }
 
-/* A scenario's factors and its name in the outputs ("n40_d2_static"). */
+/* A scenario's factors and its name in the outputs ("n40_d2_static",
+ * "random_n40_d2_static" with a topology factor). topology is NULL
+ * without a topology factor: the outputs do not name it then. */
 typedef struct scenario {
     int nodes;
     double density;
     const bgm_dynamics_t *dyn;
+    const char *topology;
     char name[BGM_NAME_MAX * 2];
 } scenario_t;
 
 static void scenario_of(const bgm_config_t *cfg, int s, scenario_t *out)
 {
     bgm_config_scenario(cfg, s, &out->nodes, &out->density, &out->dyn);
-    snprintf(out->name, sizeof out->name, "n%d_d%g_%s", out->nodes, out->density,
-             out->dyn->name);
+    out->topology =
+        cfg->topology_levels > 0 ? bgm_topology_names[bgm_config_scenario_topology(cfg, s)] : NULL;
+    bgm_config_scenario_label(out->name, sizeof out->name, out->topology, out->nodes, out->density,
+                              out->dyn->name);
 }
 
 static void fmt_value(char *buf, size_t n, double v)
@@ -389,6 +400,8 @@ static bg_status write_summary(const bgm_config_t *cfg, const sim_opts_t *o, con
             cJSON *e = cJSON_CreateObject();
             cJSON_AddItemToArray(arr, e);
             cJSON_AddStringToObject(e, "scenario", name);
+            if (sc.topology)
+                cJSON_AddStringToObject(e, "topology", sc.topology);
             cJSON_AddNumberToObject(e, "nodes", nodes);
             cJSON_AddItemToObject(e, "density", num_or_null(density));
             cJSON_AddStringToObject(e, "dynamics", dyn->name);
@@ -459,7 +472,10 @@ static bg_status write_replications(const bgm_config_t *cfg, const sim_opts_t *o
     FILE *f = fopen(path, "w");
     if (!f)
         return BG_ERR_IO;
-    fputs("scenario,nodes,density,dynamics,agents,mechanism,replication,seed", f);
+    fputs(cfg->topology_levels > 0
+              ? "scenario,topology,nodes,density,dynamics,agents,mechanism,replication,seed"
+              : "scenario,nodes,density,dynamics,agents,mechanism,replication,seed",
+          f);
     for (int k = 0; k < BGM_M_COUNT; k++)
         fprintf(f, ",%s", bgm_metric_names[k]);
     fputc('\n', f);
@@ -472,10 +488,12 @@ static bg_status write_replications(const bgm_config_t *cfg, const sim_opts_t *o
         const char *name = sc.name;
         for (int m = 0; m < nm; m++)
             for (int r = 0; r < nr; r++) {
-                fprintf(f, "%s,%d,%g,%s,%d,%s,%d,%llu", name, nodes, density, dyn->name,
+                fputs(name, f);
+                if (sc.topology)
+                    fprintf(f, ",%s", sc.topology);
+                fprintf(f, ",%d,%g,%s,%d,%s,%d,%llu", nodes, density, dyn->name,
                         bgm_config_agent_count(cfg, nodes, density) + 1,
-                        bgm_mechanism_names[cfg->mechanisms[m]], r,
-                        (unsigned long long)cfg->seed);
+                        bgm_mechanism_names[cfg->mechanisms[m]], r, (unsigned long long)cfg->seed);
                 const double *v = met + (((size_t)(s * nm + m) * (size_t)nr) + (size_t)r) * BGM_M_COUNT;
                 for (int k = 0; k < BGM_M_COUNT; k++) {
                     char b[64];
@@ -492,7 +510,8 @@ static bg_status write_replications(const bgm_config_t *cfg, const sim_opts_t *o
  * dynamics' index. */
 static int factor_level(const bgm_config_t *cfg, int s, int by_churn)
 {
-    return by_churn ? s % cfg->dynamics_levels : s / (cfg->dynamics_levels * cfg->density_levels);
+    return by_churn ? s % cfg->dynamics_levels
+                    : s / (cfg->dynamics_levels * cfg->density_levels) % cfg->node_levels;
 }
 
 /*

@@ -1087,7 +1087,7 @@ bg_status bgm_world_metrics(bgm_world_t *w, double m[BGM_M_COUNT])
 
 static void scenario_label(const bgm_world_t *w, char *buf, size_t n)
 {
-    snprintf(buf, n, "n%d_d%g_%s", w->p.nodes, w->p.density, w->p.dynamics->name);
+    bgm_config_scenario_label(buf, n, w->p.topology, w->p.nodes, w->p.density, w->p.dynamics->name);
 }
 
 bg_status bgm_world_write_contracts(const bgm_world_t *w, FILE *f)

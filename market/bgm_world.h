@@ -90,13 +90,15 @@ typedef struct bgm_world bgm_world_t;
 
 typedef struct bgm_world_params {
     const bgm_config_t *cfg;
-    int scenario;    /* index, for seeds and output */
+    int scenario;    /* stream index, for seeds (bgm_config_scenario_stream) */
     int mechanism;   /* bgm_mechanism */
     int replication; /* index */
     int nodes;
     double density;
     const bgm_dynamics_t *dynamics;
     const double *node_speed; /* flops per core, per node (borrowed); NULL: cfg speed */
+    const char *topology;     /* named in the scenario label when the topology is a
+                               * factor of the experiment; NULL otherwise */
 } bgm_world_params_t;
 
 /* Builds the agents of one replication. Returns NULL on failure (err set). */

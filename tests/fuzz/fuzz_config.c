@@ -1,7 +1,8 @@
 /*
  * fuzz_config — the market experiment's config (bgm_config_parse): the
  * whole input is the JSON text. A config that parses is walked as the
- * experiment runner walks it (every scenario and its agent count).
+ * experiment runner walks it (every scenario, its agent count, topology
+ * and stream index).
  */
 #include <stdlib.h>
 
@@ -24,6 +25,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                 const bgm_dynamics_t *dynamics = NULL;
                 bgm_config_scenario(cfg, s, &nodes, &density, &dynamics);
                 if (!dynamics || bgm_config_agent_count(cfg, nodes, density) < 1)
+                    abort();
+                const int topology = bgm_config_scenario_topology(cfg, s);
+                const int stream = bgm_config_scenario_stream(cfg, s);
+                if (topology < 0 || topology >= BGM_TOPOLOGIES || stream < 0 || stream > s)
                     abort();
             }
         } else if (!err.message[0]) {

@@ -24,6 +24,14 @@
 #   call-audit:  smoke.json's central market with per-type call markets for
 #                the resources, on SimGrid; the audit (market_audit, AUDIT)
 #                must hold and bundles must have been rented.
+#   topology-factor: factors.topology (random, scale-free) with static and
+#                churn: --jobs 2 and --jobs 1 on SimGrid, and --engine
+#                inprocess and wire, give the same files byte for byte;
+#                summary.json, replications.csv and contracts.csv name each
+#                scenario's topology; each topology's rows equal those of
+#                the same config on that topology alone (the levels share
+#                their random streams) and the two topologies' rows differ
+#                on SimGrid; a config without the factor names no topology.
 set -eu
 BIN=$1
 SRC=$2
@@ -82,6 +90,8 @@ bad-config)
   $FAC,,
 }" "syntax\.json: malformed JSON at line 2, column [0-9]+"
     check duplicate "{$BASE,$FAC,\"seed\":2}" "duplicate\.json: key 'seed' appears twice"
+    check topology-repeat "{$BASE,\"factors\":{\"nodes\":[4],\"density\":[1],\"topology\":[\"random\",\"random\"]}}" "topology-repeat\.json: factors\.topology\[1\]: repeats 'random'"
+    check topology-twice "{$BASE,\"factors\":{\"nodes\":[4],\"density\":[1],\"topology\":[\"random\"]},\"network\":{\"topology\":\"cluster\"}}" "topology-twice\.json: factors\.topology: network\.topology is given too"
     check empty "" "empty\.json: empty file"
     # A missing file: exit 2, the path once, and the reason.
     expect_bad missing "$WORK/no-such-dir/none.json" "none\.json: cannot open: No such file or directory"
@@ -254,6 +264,80 @@ call-audit)
         echo "FAIL: the combinatorial exchange ran in call mode"; exit 1
     fi
     echo "call-audit: ok"
+    ;;
+topology-factor)
+    T=$WORK/topo
+    rm -rf "$T"
+    mkdir -p "$T"
+    # exp NAME TOPOLOGY-JSON: a small experiment, the topology given either
+    # as factors.topology or as network.topology.
+    exp() {
+        case "$2" in
+        '['*) fac=", \"topology\": $2"; net="" ;;
+        *) fac=""; net="\"topology\": \"$2\", " ;;
+        esac
+        cat > "$T/$1.json" <<EOF
+{"name": "$1", "seed": 31, "replications": 2, "duration": 60, "drain": 30,
+ "mechanisms": ["central", "catallactic", "baseline"],
+ "factors": {"nodes": [12], "density": [1], "dynamics": ["static", "churn"]$fac},
+ "dynamics": {"static": {}, "churn": {"node_failure_rate": 0.004, "node_repair_mean": 20,
+              "link_failure_rate": 0.004, "link_repair_mean": 5}},
+ "network": {$net"latency": 0.005, "degree": 4},
+ "demand": {"interarrival_mean": 15, "deadline": 30}}
+EOF
+    }
+    exp both '["random", "scale-free"]'
+    exp random random
+    exp scale-free scale-free
+    # same A B WHAT: every file of A equals B's, and they hold as many.
+    same() {
+        n=0
+        for f in "$1"/*; do
+            cmp "$f" "$2/$(basename "$f")" || { echo "FAIL: $(basename "$f") differs: $3"; exit 1; }
+            n=$((n + 1))
+        done
+        [ "$n" -eq "$(ls "$2" | wc -l)" ] && [ "$n" -ge 5 ] || { echo "FAIL: $3: $n files against $(ls "$2" | wc -l)"; exit 1; }
+    }
+    "$BIN" sim "$T/both.json" --out "$T/j2" --jobs 2 --quiet
+    "$BIN" sim "$T/both.json" --out "$T/j1" --jobs 1 --quiet
+    same "$T/j2" "$T/j1" "--jobs 2 against --jobs 1"
+    "$BIN" sim "$T/both.json" --out "$T/inprocess" --engine inprocess --jobs 2 --quiet
+    "$BIN" sim "$T/both.json" --out "$T/wire" --engine wire --jobs 1 --quiet
+    same "$T/inprocess" "$T/wire" "--engine inprocess against wire"
+    # summary.json: 2 topologies x 2 dynamics x 3 mechanisms results, each
+    # naming its topology, which prefixes its scenario.
+    jq -e '[.results[] | select(.topology as $t | .scenario | startswith($t + "_n12_d1_"))] | length == 12' \
+        "$T/j2/summary.json" > /dev/null || { echo "FAIL: summary.json does not name each scenario's topology"; exit 1; }
+    jq -e '[.results[] | .topology] | (map(select(. == "random")) | length) == 6 and (map(select(. == "scale-free")) | length) == 6' \
+        "$T/j2/summary.json" > /dev/null || { echo "FAIL: summary.json does not hold 6 results per topology"; exit 1; }
+    head -n 1 "$T/j2/replications.csv" | grep -q '^scenario,topology,nodes,density,dynamics,' ||
+        { echo "FAIL: replications.csv has no topology column"; exit 1; }
+    awk -F, 'NR > 1 && index($1, $2 "_") != 1 { bad = 1 } NR > 1 { n++ } END { exit bad || n != 24 }' "$T/j2/replications.csv" ||
+        { echo "FAIL: replications.csv rows do not name their topology"; exit 1; }
+    # Each level equals its topology run alone: the same rows once the
+    # topology's name is taken out.
+    for t in random scale-free; do
+        "$BIN" sim "$T/$t.json" --out "$T/$t" --jobs 2 --quiet
+        head -n 1 "$T/$t/replications.csv" | grep -q '^scenario,nodes,' ||
+            { echo "FAIL: a config without the factor names a topology in replications.csv"; exit 1; }
+        if grep -q '"topology"' "$T/$t/summary.json"; then
+            echo "FAIL: a config without the factor names a topology in summary.json"; exit 1
+        fi
+        awk -F, -v t="$t" 'NR > 1 && $2 == t { sub("^" t "_", "", $1); line = $1; for (i = 3; i <= NF; i++) line = line "," $i; print line }' \
+            "$T/j2/replications.csv" > "$T/$t.factor.csv"
+        tail -n +2 "$T/$t/replications.csv" > "$T/$t.alone.csv"
+        [ -s "$T/$t.alone.csv" ] && cmp "$T/$t.factor.csv" "$T/$t.alone.csv" ||
+            { echo "FAIL: the $t level of the factor differs from $t alone"; exit 1; }
+        grep "^$t""_" "$T/j2/contracts.csv" | sed "s/^$t""_//" > "$T/$t.factor.contracts"
+        tail -n +2 "$T/$t/contracts.csv" > "$T/$t.alone.contracts"
+        [ -s "$T/$t.alone.contracts" ] && cmp "$T/$t.factor.contracts" "$T/$t.alone.contracts" ||
+            { echo "FAIL: the $t level's contracts differ from $t alone"; exit 1; }
+    done
+    # The topology is not ignored: on SimGrid the two levels' rows differ.
+    if cmp -s "$T/random.alone.csv" "$T/scale-free.alone.csv"; then
+        echo "FAIL: random and scale-free gave the same replications"; exit 1
+    fi
+    echo "topology-factor: ok"
     ;;
 wire)
     AUDIT=$5

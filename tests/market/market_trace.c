@@ -459,9 +459,12 @@ int main(int argc, char **argv)
         fprintf(stderr, "market_trace: cannot write the platform\n");
         return 1;
     }
+    /* The same draws as `biotgrid sim` (bgm_sim's run_child). */
+    const int stream = bgm_config_scenario_stream(&cfg, scenario);
+    const int topology = bgm_config_scenario_topology(&cfg, scenario);
     bgm_rng_t prng;
-    bgm_rng_derive(&prng, cfg.seed, (uint64_t)scenario, (uint64_t)replication, BGM_PLATFORM_STREAM);
-    bg_status st = bgm_platform_write(f, &cfg, nodes, &prng, speed);
+    bgm_rng_derive(&prng, cfg.seed, (uint64_t)stream, (uint64_t)replication, BGM_PLATFORM_STREAM);
+    bg_status st = bgm_platform_write(f, &cfg, topology, nodes, &prng, speed);
     fclose(f);
     if (st) {
         fprintf(stderr, "market_trace: cannot write the platform\n");
@@ -483,7 +486,8 @@ int main(int argc, char **argv)
     }
     for (size_t i = 0; i < t.nlinks; i++)
         sg_link_set_data(t.links[i], (void *)(uintptr_t)(i + 1));
-    bgm_world_params_t wp = {&cfg, scenario, mech, replication, nodes, density, dyn, speed};
+    const char *named = cfg.topology_levels > 0 ? bgm_topology_names[topology] : NULL;
+    bgm_world_params_t wp = {&cfg, stream, mech, replication, nodes, density, dyn, speed, named};
     t.w = bgm_world_new(&wp, &err);
     if (!t.w) {
         fprintf(stderr, "market_trace: %s\n", err.message);
@@ -500,8 +504,9 @@ int main(int argc, char **argv)
             snprintf(name, sizeof name, "h%d", i);
         t.host[i] = sg_host_by_name(name);
     }
-    printf("market_trace: %s, scenario %d (%d nodes, density %g, %s), %s, replication %d\n",
-           cfg.name, scenario, nodes, density, dyn->name, bgm_mechanism_names[mech], replication);
+    printf("market_trace: %s, scenario %d (%s, %d nodes, density %g, %s), %s, replication %d\n",
+           cfg.name, scenario, bgm_topology_names[topology], nodes, density, dyn->name,
+           bgm_mechanism_names[mech], replication);
     bgm_sim_trace_t hook = {&t, on_delivered};
     bgm_sim_stats_t ss;
     st = bgm_simdriver_run_traced(t.w, 0, &hook, &ss, &err);

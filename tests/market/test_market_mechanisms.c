@@ -1022,6 +1022,90 @@ static void test_config_validation(void **state)
     assert_non_null(strstr(nerr.message, "exp.json: seed: missing"));
 }
 
+/* factors.topology: topology is the slowest factor, each level's
+ * scenarios share their random streams with the others' (and with the
+ * same config on that topology alone), the outputs' labels name it; bad
+ * levels and clashes with network.topology or network.platform are
+ * refused naming the field. */
+static void test_config_topology_factor(void **state)
+{
+    (void)state;
+    static const char *head = "{\"name\":\"t\",\"seed\":1,\"replications\":1,\"duration\":60,"
+                              "\"mechanisms\":[\"central\"],";
+    char json[1024];
+    snprintf(json, sizeof json,
+             "%s\"factors\":{\"topology\":[\"random\",\"scale-free\",\"cluster\"],"
+             "\"nodes\":[8,16],\"density\":[1],\"dynamics\":[\"static\",\"churn\"]},"
+             "\"dynamics\":{\"static\":{},\"churn\":{\"node_failure_rate\":0.01}}}",
+             head);
+    bgm_config_t cfg;
+    bg_error_t err = BG_ERROR_INIT;
+    if (bgm_config_parse(json, strlen(json), NULL, &cfg, &err))
+        fail_msg("config: %s", err.message);
+    assert_int_equal(cfg.topology_levels, 3);
+    assert_int_equal(bgm_config_scenario_count(&cfg), 3 * 2 * 2);
+    static const int want_topology[3] = {BGM_TOPO_RANDOM, BGM_TOPO_SCALEFREE, BGM_TOPO_CLUSTER};
+    for (int s = 0; s < 12; s++) {
+        int nodes;
+        double density;
+        const bgm_dynamics_t *dy;
+        bgm_config_scenario(&cfg, s, &nodes, &density, &dy);
+        assert_int_equal(bgm_config_scenario_topology(&cfg, s), want_topology[s / 4]);
+        assert_int_equal(bgm_config_scenario_stream(&cfg, s), s % 4);
+        assert_int_equal(nodes, s % 4 < 2 ? 8 : 16);
+        assert_string_equal(dy->name, s % 2 ? "churn" : "static");
+    }
+    char label[128];
+    bgm_config_scenario_label(label, sizeof label,
+                              bgm_topology_names[bgm_config_scenario_topology(&cfg, 5)], 8, 1.0,
+                              "churn");
+    assert_string_equal(label, "scale-free_n8_d1_churn");
+    bgm_config_scenario_label(label, sizeof label, NULL, 8, 1.0, "churn");
+    assert_string_equal(label, "n8_d1_churn");
+
+    /* Without the factor: network.topology for every scenario, streams
+     * are the scenario indices (the outputs before the factor existed). */
+    snprintf(json, sizeof json,
+             "%s\"factors\":{\"nodes\":[8,16],\"density\":[1]},"
+             "\"network\":{\"topology\":\"scale-free\"}}",
+             head);
+    if (bgm_config_parse(json, strlen(json), NULL, &cfg, &err))
+        fail_msg("config: %s", err.message);
+    assert_int_equal(cfg.topology_levels, 0);
+    assert_int_equal(bgm_config_scenario_count(&cfg), 2);
+    for (int s = 0; s < 2; s++) {
+        assert_int_equal(bgm_config_scenario_topology(&cfg, s), BGM_TOPO_SCALEFREE);
+        assert_int_equal(bgm_config_scenario_stream(&cfg, s), s);
+    }
+
+    static const struct {
+        const char *factors, *rest, *message;
+    } bad[] = {
+        {"\"topology\":[\"ring\"]", "",
+         "factors.topology[0]: must be star, cluster, random or scale-free"},
+        {"\"topology\":[\"random\",7]", "",
+         "factors.topology[1]: must be star, cluster, random or scale-free"},
+        {"\"topology\":[\"random\",\"cluster\",\"random\"]", "",
+         "factors.topology[2]: repeats 'random'"},
+        {"\"topology\":[]", "", "factors.topology: must be an array of 1 to 4 topology names"},
+        {"\"topology\":\"random\"", "",
+         "factors.topology: must be an array of 1 to 4 topology names"},
+        {"\"topology\":[\"random\",\"cluster\",\"star\",\"scale-free\",\"random\"]", "",
+         "factors.topology: must be an array of 1 to 4 topology names"},
+        {"\"topology\":[\"random\"]", ",\"network\":{\"topology\":\"random\"}",
+         "factors.topology: network.topology is given too"},
+        {"\"topology\":[\"random\"]", ",\"network\":{\"platform\":\"site.xml\"}",
+         "factors.topology: cannot go with network.platform"},
+        {"\"topologies\":[\"random\"]", "",
+         "factors: unknown key 'topologies' (expected: nodes, density, dynamics, topology)"},
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        snprintf(json, sizeof json, "%s\"factors\":{\"nodes\":[4],\"density\":[1],%s}%s}", head,
+                 bad[i].factors, bad[i].rest);
+        expect_reject(json, bad[i].message);
+    }
+}
+
 /* bg_json, the loader configs share with scenes: repeated keys found at
  * any depth, in small objects (pairwise) and large ones (sorted), with the
  * path; text after the value; a clean document parses. */
@@ -1081,7 +1165,7 @@ static bgm_world_t *run_first_scenario(const bgm_config_t *cfg, int mech, bgm_ev
     double density;
     const bgm_dynamics_t *dy;
     bgm_config_scenario(cfg, 0, &nodes, &density, &dy);
-    bgm_world_params_t p = {cfg, 0, mech, 0, nodes, density, dy, NULL};
+    bgm_world_params_t p = {cfg, 0, mech, 0, nodes, density, dy, NULL, NULL};
     bg_error_t err = BG_ERROR_INIT;
     bgm_world_t *w = bgm_world_new(&p, &err);
     if (!w)
@@ -1221,7 +1305,7 @@ static void test_delivery_handshake(void **state)
     double density;
     const bgm_dynamics_t *dy;
     bgm_config_scenario(&cfg, 0, &nodes, &density, &dy);
-    bgm_world_params_t p = {&cfg, 0, BGM_MECH_CENTRAL, 0, nodes, density, dy, NULL};
+    bgm_world_params_t p = {&cfg, 0, BGM_MECH_CENTRAL, 0, nodes, density, dy, NULL, NULL};
     bg_error_t err = BG_ERROR_INIT;
     bgm_world_t *w = bgm_world_new(&p, &err);
     assert_non_null(w);
@@ -1722,7 +1806,7 @@ static void test_message_budget(void **state)
             if (k == 3 && mech != BGM_MECH_CENTRAL)
                 continue; /* the call markets are central's */
             for (int slow = 0; slow < 2; slow++) {
-                bgm_world_params_t p = {&cfg, 0, mech, 0, nodes, density, dy, NULL};
+                bgm_world_params_t p = {&cfg, 0, mech, 0, nodes, density, dy, NULL, NULL};
                 bg_error_t err = BG_ERROR_INIT;
                 bgm_world_t *w = bgm_world_new(&p, &err);
                 if (!w)
@@ -1776,6 +1860,7 @@ int main(void)
         cmocka_unit_test(test_posted_first_fit),
         cmocka_unit_test(test_rng_streams),
         cmocka_unit_test(test_config_validation),
+        cmocka_unit_test(test_config_topology_factor),
         cmocka_unit_test(test_json_loader),
         cmocka_unit_test(test_invariants_inprocess),
         cmocka_unit_test(test_delivery_handshake),

@@ -48,7 +48,7 @@ static void generate(const char *topology, int degree, graph_t *g)
     bgm_rng_t rng;
     bgm_rng_derive(&rng, 3, 0, 0, BGM_PLATFORM_STREAM);
     double speed[NODES + 1];
-    assert_int_equal(bgm_platform_write(f, &cfg, NODES, &rng, speed), BG_OK);
+    assert_int_equal(bgm_platform_write(f, &cfg, cfg.network.topology, NODES, &rng, speed), BG_OK);
     assert_int_equal(fclose(f), 0);
     memset(g, 0, sizeof *g);
     for (const char *p = text; (p = strstr(p, "<route src=\"h")); p++) {
