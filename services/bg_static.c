@@ -465,6 +465,12 @@ static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method m
     st = bg_sparse_new(p->mesh, p->n, p->free_index, p->nfree, &p->sys, err);
     if (st != BG_OK)
         return st;
+    /* In process, the Hessian is stored in its factor's order (the
+     * factorization then skips CHOLMOD's two permuted transposes, and the
+     * assembly's writes follow the nested-dissection order's locality); an
+     * agent gets the pattern in the unknowns' own numbering. */
+    if (p->backend == bg_backend_local() && (st = bg_sparse_reorder(p->sys, err)) != BG_OK)
+        return st;
     fit.scatter = bg_sparse_scatter(p->sys);
     fit.nval = bg_sparse_nonzeros(p->sys);
     st = p->backend->ops->solve_open(p->session, 0, p->sys, err);
