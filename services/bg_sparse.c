@@ -11,6 +11,8 @@ struct bg_sparse {
     int32_t nfree;
     size_t nnz;
     int32_t *scatter; /* ne * T */
+    size_t nscatter;  /* entries of scatter */
+    int32_t *perm;    /* bg_sparse_reorder: stored unknown k is the caller's perm[k]; or NULL */
     cholmod_common common;
     cholmod_sparse *A;
     cholmod_factor *L;
@@ -182,7 +184,8 @@ bg_status bg_sparse_new(const bg_mesh_t *mesh, int n, const int32_t *free_index,
     if (st != BG_OK)
         goto fail;
     const int k = mesh->nodes_per_element, m = k * n, T = BG_ELASTIC_TRI_SIZE(m);
-    sys->scatter = malloc((size_t)mesh->ne * T * sizeof *sys->scatter + 1);
+    sys->nscatter = (size_t)mesh->ne * T;
+    sys->scatter = malloc(sys->nscatter * sizeof *sys->scatter + 1);
     if (!sys->scatter) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the assembly map");
         goto fail;
@@ -271,6 +274,7 @@ void bg_sparse_destroy(bg_sparse_t **psys)
     cholmod_free_dense(&sys->E, &sys->common);
     cholmod_finish(&sys->common);
     free(sys->scatter);
+    free(sys->perm);
     free(sys);
     *psys = NULL;
 }
@@ -296,6 +300,11 @@ const int32_t *bg_sparse_colptr(const bg_sparse_t *sys)
 const int32_t *bg_sparse_rowidx(const bg_sparse_t *sys)
 {
     return (const int32_t *)sys->A->i;
+}
+
+const int32_t *bg_sparse_permutation(const bg_sparse_t *sys)
+{
+    return sys->perm;
 }
 
 const int32_t *bg_sparse_scatter(const bg_sparse_t *sys)
@@ -334,24 +343,136 @@ void bg_sparse_add_diagonal(bg_sparse_t *sys, const double *d)
     /* Rows are sorted and the lower triangle starts at the diagonal. */
     const int *Ap = sys->A->p;
     double *Ax = sys->A->x;
+    const int32_t *perm = sys->perm;
     for (int32_t col = 0; col < sys->nfree; col++)
-        Ax[Ap[col]] += d[col];
+        Ax[Ap[col]] += d[perm ? perm[col] : col];
+}
+
+/* CHOLMOD's symbolic analysis of the stored pattern (its fill-reducing
+ * ordering and supernodes) into sys->L, with the cost model's counts. */
+static bg_status analyze(bg_sparse_t *sys, bg_error_t *err)
+{
+    cholmod_common *c = &sys->common;
+    const double t0 = bg_clock_now();
+    sys->L = cholmod_analyze(sys->A, c);
+    sys->timing.analyze_seconds += bg_clock_now() - t0;
+    if (!sys->L)
+        return bg_error_set(err, c->status == CHOLMOD_OUT_OF_MEMORY ? BG_ERR_NOMEM
+                                                                    : BG_ERR_NUMERIC,
+                            "CHOLMOD analysis failed (status %d)", c->status);
+    sys->analyzed = 1;
+    sys->factor_flops = c->fl;
+    sys->factor_nonzeros = c->lnz;
+    return BG_OK;
+}
+
+bg_status bg_sparse_reorder(bg_sparse_t *sys, bg_error_t *err)
+{
+    if (sys->perm || sys->analyzed)
+        return BG_OK;
+    bg_status st = analyze(sys, err);
+    if (st != BG_OK)
+        return st;
+    const double t0 = bg_clock_now();
+    cholmod_common *c = &sys->common;
+    const int32_t n = sys->nfree;
+    const size_t nnz = sys->nnz;
+    const int *Ap = sys->A->p, *Ai = sys->A->i, *Perm = sys->L->Perm;
+    int32_t *perm = malloc((size_t)n * sizeof *perm + 1);
+    int32_t *inv = malloc((size_t)n * sizeof *inv + 1);
+    int32_t *count = calloc((size_t)n + 1, sizeof *count);
+    int32_t *byrow = malloc(nnz * sizeof *byrow + 1);  /* entries of A bucketed by new row */
+    int32_t *where = malloc(nnz * sizeof *where + 1);  /* entry of A → entry of P A Pᵀ */
+    cholmod_sparse *B = cholmod_allocate_sparse((size_t)n, (size_t)n, nnz, 1, 1, -1,
+                                                CHOLMOD_REAL, c);
+    if (!perm || !inv || !count || !byrow || !where || !B) {
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory reordering a %d x %d sparse matrix",
+                          (int)n, (int)n);
+        goto out;
+    }
+    for (int32_t k = 0; k < n; k++) {
+        perm[k] = Perm[k];
+        inv[Perm[k]] = k;
+    }
+    /* Entry (i, j), i ≥ j, of A lands at (r, s) = (max, min) of (inv i,
+     * inv j) in the lower triangle of P A Pᵀ. Two stable counting sorts,
+     * by r and then by s, leave each new column's rows increasing. */
+    int *Bp = B->p, *Bi = B->i;
+    for (int32_t j = 0; j < n; j++)
+        for (int p = Ap[j]; p < Ap[j + 1]; p++) {
+            const int32_t a = inv[Ai[p]], b = inv[j];
+            count[(a > b ? a : b) + 1]++;
+            where[p] = j;
+        }
+    for (int32_t k = 0; k < n; k++)
+        count[k + 1] += count[k];
+    for (int32_t j = 0; j < n; j++)
+        for (int p = Ap[j]; p < Ap[j + 1]; p++) {
+            const int32_t a = inv[Ai[p]], b = inv[j];
+            byrow[count[a > b ? a : b]++] = p;
+        }
+    memset(count, 0, ((size_t)n + 1) * sizeof *count);
+    for (int32_t j = 0; j < n; j++)
+        for (int p = Ap[j]; p < Ap[j + 1]; p++) {
+            const int32_t a = inv[Ai[p]], b = inv[j];
+            count[(a < b ? a : b) + 1]++;
+        }
+    for (int32_t k = 0; k < n; k++)
+        count[k + 1] += count[k];
+    for (int32_t k = 0; k <= n; k++)
+        Bp[k] = count[k];
+    /* byrow holds the A entries by increasing new row; where[] still
+     * holds each entry's column in A (filled before the first sort). */
+    for (size_t t = 0; t < nnz; t++) {
+        const int32_t p = byrow[t];
+        const int32_t a = inv[Ai[p]], b = inv[where[p]];
+        const int32_t r = a > b ? a : b, s = a < b ? a : b;
+        const int32_t q = count[s]++;
+        Bi[q] = r;
+        where[p] = q;
+    }
+    for (size_t t = 0; t < sys->nscatter; t++)
+        if (sys->scatter[t] >= 0)
+            sys->scatter[t] = where[sys->scatter[t]];
+    memset(B->x, 0, nnz * sizeof(double));
+    cholmod_free_sparse(&sys->A, c);
+    cholmod_free_factor(&sys->L, c);
+    sys->A = B;
+    B = NULL;
+    sys->perm = perm;
+    perm = NULL;
+    sys->timing.analyze_seconds += bg_clock_now() - t0;
+    /* P A Pᵀ is already in its fill-reducing, postordered order: analysed
+     * in its natural order it has the same supernodes, and CHOLMOD then
+     * factors it as stored, without permuting it. */
+    const int nmethods = c->nmethods, ordering = c->method[0].ordering, post = c->postorder;
+    c->nmethods = 1;
+    c->method[0].ordering = CHOLMOD_NATURAL;
+    c->postorder = 0;
+    sys->analyzed = 0;
+    st = analyze(sys, err);
+    c->nmethods = nmethods;
+    c->method[0].ordering = ordering;
+    c->postorder = post;
+    if (st == BG_OK && sys->L->ordering != CHOLMOD_NATURAL)
+        st = bg_error_set(err, BG_ERR_NUMERIC, "CHOLMOD did not keep the given order");
+out:
+    cholmod_free_sparse(&B, c);
+    free(perm);
+    free(inv);
+    free(count);
+    free(byrow);
+    free(where);
+    return st;
 }
 
 bg_status bg_sparse_factorize(bg_sparse_t *sys, double shift, bg_error_t *err)
 {
     cholmod_common *c = &sys->common;
     if (!sys->analyzed) {
-        const double t0 = bg_clock_now();
-        sys->L = cholmod_analyze(sys->A, c);
-        sys->timing.analyze_seconds += bg_clock_now() - t0;
-        if (!sys->L)
-            return bg_error_set(err, c->status == CHOLMOD_OUT_OF_MEMORY ? BG_ERR_NOMEM
-                                                                        : BG_ERR_NUMERIC,
-                                "CHOLMOD analysis failed (status %d)", c->status);
-        sys->analyzed = 1;
-        sys->factor_flops = c->fl;
-        sys->factor_nonzeros = c->lnz;
+        bg_status st = analyze(sys, err);
+        if (st != BG_OK)
+            return st;
     }
     const double t0 = bg_clock_now();
     double beta[2] = {shift, 0.0};
@@ -394,7 +515,14 @@ bg_status bg_sparse_solve_many(bg_sparse_t *sys, int nrhs, const double *rhs, do
     }
     sys->B->ncol = (size_t)nrhs;
     const double t0 = bg_clock_now();
-    memcpy(sys->B->x, rhs, count * sizeof(double));
+    const int32_t *perm = sys->perm;
+    double *Bx = sys->B->x;
+    if (perm) /* the stored numbering: row k is the caller's perm[k] */
+        for (int c = 0; c < nrhs; c++)
+            for (size_t k = 0; k < n; k++)
+                Bx[c * n + k] = rhs[c * n + (size_t)perm[k]];
+    else
+        memcpy(Bx, rhs, count * sizeof(double));
     int ok = cholmod_solve2(CHOLMOD_A, sys->L, sys->B, NULL, &sys->X, NULL, &sys->Y, &sys->E,
                             &sys->common);
     sys->timing.solve_seconds += bg_clock_now() - t0;
@@ -402,7 +530,13 @@ bg_status bg_sparse_solve_many(bg_sparse_t *sys, int nrhs, const double *rhs, do
     if (!ok)
         return bg_error_set(err, BG_ERR_NUMERIC, "CHOLMOD solve failed (status %d)",
                             sys->common.status);
-    memcpy(x, sys->X->x, count * sizeof(double));
+    const double *Xx = sys->X->x;
+    if (perm)
+        for (int c = 0; c < nrhs; c++)
+            for (size_t k = 0; k < n; k++)
+                x[c * n + (size_t)perm[k]] = Xx[c * n + k];
+    else
+        memcpy(x, Xx, count * sizeof(double));
     return BG_OK;
 }
 
@@ -410,14 +544,17 @@ void bg_sparse_multiply(const bg_sparse_t *sys, const double *x, double *y)
 {
     const int *Ap = sys->A->p, *Ai = sys->A->i;
     const double *Ax = sys->A->x;
+    const int32_t *perm = sys->perm;
     memset(y, 0, (size_t)sys->nfree * sizeof *y);
-    for (int32_t col = 0; col < sys->nfree; col++)
-        for (int p = Ap[col]; p < Ap[col + 1]; p++) {
-            const int row = Ai[p];
+    for (int32_t k = 0; k < sys->nfree; k++) {
+        const int32_t col = perm ? perm[k] : k;
+        for (int p = Ap[k]; p < Ap[k + 1]; p++) {
+            const int32_t row = perm ? perm[Ai[p]] : Ai[p];
             y[row] += Ax[p] * x[col];
             if (row != col)
                 y[col] += Ax[p] * x[row];
         }
+    }
 }
 
 bg_sparse_timing_t bg_sparse_timing(const bg_sparse_t *sys)

@@ -87,7 +87,31 @@ int bg_sparse_prefers_solves(const bg_sparse_t *sys);
 /* 1 when the factor is supernodal, 0 simplicial, −1 before the analysis. */
 int bg_sparse_supernodal(const bg_sparse_t *sys);
 
-/* Adds d[i] to diagonal entry i (d holds size() values). */
+/*
+ * The system will be factored about as often as it is assembled (Newton's
+ * Hessian): runs the symbolic analysis now and renumbers the stored matrix
+ * by its fill-reducing, postordered permutation P, so that from here on
+ * the values, colptr, rowidx and the scatter map are those of the lower
+ * triangle of P A Pᵀ, which CHOLMOD then factors in its natural order as
+ * stored. Without this, every numeric factorization first builds
+ * (P A Pᵀ)ᵀ and its transpose from A (two passes of scattered writes over
+ * the matrix): on the bunny's Hessian (n 15,897, 282,345 nonzeros) a
+ * factorization takes 30.4 ms instead of 35.8 and a solve 3.5 instead of
+ * 4.0 (one thread). solve, solve_many, multiply and add_diagonal keep the
+ * caller's numbering (the vectors are permuted on the way in and out);
+ * bg_sparse_permutation gives P. Call before any value is written (the
+ * values are zeroed) and before the first factorization; a no-op after
+ * it. A system whose pattern is shipped to a sparse-solve agent is not
+ * reordered: the agent solves in the pattern's own numbering.
+ */
+bg_status bg_sparse_reorder(bg_sparse_t *sys, bg_error_t *err);
+/* After bg_sparse_reorder: stored unknown k is the caller's unknown
+ * perm[k] (size() values, borrowed); NULL for a system in the caller's
+ * numbering. */
+const int32_t *bg_sparse_permutation(const bg_sparse_t *sys);
+
+/* Adds d[i] to diagonal entry i (d holds size() values; i in the caller's
+ * numbering). */
 void bg_sparse_add_diagonal(bg_sparse_t *sys, const double *d);
 
 /*
@@ -114,7 +138,8 @@ bg_status bg_sparse_solve(bg_sparse_t *sys, const double *rhs, double *x, bg_err
 bg_status bg_sparse_solve_many(bg_sparse_t *sys, int nrhs, const double *rhs, double *x,
                                bg_error_t *err);
 
-/* y = A x with the current values (symmetric, from the stored lower half). */
+/* y = A x with the current values (symmetric, from the stored lower half;
+ * x and y in the caller's numbering). */
 void bg_sparse_multiply(const bg_sparse_t *sys, const double *x, double *y);
 
 bg_sparse_timing_t bg_sparse_timing(const bg_sparse_t *sys);
