@@ -368,7 +368,7 @@ static void test_market_endpoints(void **state)
     conforms(f, "/v1/market/contracts.csv", "GET", &r);
     assert_string_equal(r.body, "scenario,replication,mechanism,layer,request,time,start,end,"
                                 "buyer,seller,good,quantity,price,buyer_limit,seller_limit,use,"
-                                "clearing\n");
+                                "clearing,lost\n");
     release(&r);
     r = request(f, "GET", "/v1/market/clearings.csv", NULL, NULL);
     assert_int_equal(r.status, 200);
