@@ -607,6 +607,12 @@ static void finish(bgb_market_t *m, job_t *j, const char *reason, double now)
         return;
     j->finished = 1;
     end_purchase(j);
+    /* A seller that left the market (killed, dropped for silence) between
+     * its agreement and the job's last one has no endpoint to compute on:
+     * no deal, the job asks again ("no seller" is a reason to retry). */
+    for (int i = 0; !reason && !j->resource && i < j->nunits; i++)
+        if (!bgb_directory_by_id(m->dir, j->unit[i].agent))
+            reason = "no seller: a seller left the market before the job's last deal";
     /* Bids still in the auctioneer's book are no one's now. */
     bgb_auction_forget_buyer(m->auction, buyer_of(m, j));
     if (reason)

@@ -637,6 +637,79 @@ static void posted_subjob(void **state)
     bgb_market_destroy(&m);
 }
 
+/* A seller that agreed and then left the market (dropped for silence: it
+ * was killed) before the job's last agreement has nothing to compute on:
+ * the job gets no award naming it (the soak saw a contract with an empty
+ * endpoint, and a job failed connecting to it) but "no seller", which the
+ * coordinator takes as a reason to ask again; nothing is logged. */
+static void seller_gone_before_the_last_deal(void **state)
+{
+    (void)state;
+    fake_t f = {0};
+    bgb_market_config_t mc;
+    bgb_market_t *m = market(&f, &mc);
+    const uint32_t a = seller(m, &f, 'a', 1.2, 2), b = seller(m, &f, 'b', 1.3, 2);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 2};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(
+        bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
+    const int mark = f.nsent;
+    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.2, 0.15);
+    answer_as(m, 'b', b, BGA_MM_PROPOSE, 1.3, 0.15);
+    const bga_mmsg_t *oa = last_to(&f, BGA_MM_OFFER, a, mark),
+                     *ob = last_to(&f, BGA_MM_OFFER, b, mark);
+    assert_non_null(oa);
+    assert_non_null(ob);
+    answer_as(m, 'a', a, BGA_MM_CONFIRM, oa->price, 0.5);
+    assert_false(f.done);
+    /* b lets its offer lapse; a falls silent past the heartbeat timeout
+     * while b keeps beating, then b answers the job's next call and
+     * confirms. */
+    bga_mmsg_t hb;
+    bga_mmsg_init(&hb, BGA_MM_HEARTBEAT);
+    hb.agent = b;
+    hb.services = 1u << BGB_GOOD_ROTFIT;
+    hb.slots = hb.free_slots = 2;
+    hb.prices[BGB_GOOD_ROTFIT] = 1.3;
+    hb.floor[BGB_GOOD_ROTFIT] = 1.3 / 1.2;
+    double t = 0.5;
+    int answered = f.nsent;
+    for (int i = 0; i < 200 && !f.done; i++) {
+        t += 0.1;
+        if (i % 10 == 0)
+            deliver_from(m, 'b', &hb, t);
+        (void)bgb_market_tick(m, t);
+        if (t < 0.5 + mc.heartbeat_timeout + 0.5)
+            continue;
+        const int from = answered;
+        answered = f.nsent;
+        const bga_mmsg_t *o = last_to(&f, BGA_MM_OFFER, b, from),
+                         *c = last_to(&f, BGA_MM_CFP, b, from);
+        if (o) {
+            answer_as(m, 'b', b, BGA_MM_CONFIRM, o->price, t + 0.01);
+        } else if (c) { /* a proposal in the call's round */
+            bga_mmsg_t p;
+            bga_mmsg_init(&p, BGA_MM_PROPOSE);
+            p.job = 1;
+            p.agent = b;
+            p.good = BGB_GOOD_ROTFIT;
+            p.quantity = 5;
+            p.price = 1.3;
+            p.floor[BGB_GOOD_ROTFIT] = 1.3 / 1.2;
+            p.attempt = c->attempt;
+            deliver_from(m, 'b', &p, t + 0.01);
+        }
+    }
+    assert_true(f.done);
+    print_message("reason \"%s\", %d awards, %d messages\n", f.reason, f.nawards, f.nsent);
+    assert_non_null(strstr(f.reason, "no seller"));
+    assert_int_equal(f.nawards, 0);
+    row_find_t rf = {.job = 1, .seller = b};
+    bgb_ledger_each(bgb_market_ledger(m), find_row, &rf);
+    assert_false(rf.found);
+    bgb_market_destroy(&m);
+}
+
 /* Catallactic: a basic seller's sub-job calls its host's one resource
  * seller (the call naming the job and service the cores serve), and
  * bargains as soon as that seller has proposed: nobody else can answer, so
@@ -928,6 +1001,7 @@ int main(void)
     const struct CMUnitTest tests[] = {cmocka_unit_test(stale_proposal_is_not_counted),
                                        cmocka_unit_test(posted_split_need_and_refusal),
                                        cmocka_unit_test(catallactic_split_need),
+                                       cmocka_unit_test(seller_gone_before_the_last_deal),
                                        cmocka_unit_test(quiet_round_widens_window),
                                        cmocka_unit_test(central_refusal_bids_again),
                                        cmocka_unit_test(lost_seller_settled_and_left_out),
