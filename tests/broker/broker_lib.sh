@@ -25,6 +25,9 @@
 #   bcurl ARGS...                      the REST API: curl with what every call needs (the
 #                                      bearer token $BIOTGRID_TOKEN); callers add -sf
 #   now                                seconds since the epoch, with nanoseconds
+#   contracts_closed URL FILE          the broker's contract log into FILE once no row is open
+#                                      (a job's rows close a little after it ends), 10 s at most;
+#                                      status 1 when a row is still open then
 check() {
   if [ "$1" -ne 0 ]; then echo "FAIL: $2" >&2; fail=1; else echo "ok: $2"; fi
 }
@@ -34,6 +37,17 @@ bcurl() {
 }
 
 now() { date +%s.%N; }
+
+contracts_closed() {
+  _i=0
+  while :; do
+    bcurl -sf "$1/v1/market/contracts.csv" >"$2"
+    awk -F, 'NR > 1 && $8 - $7 > 1e8 { open++ } END { exit open > 0 }' "$2" && return 0
+    [ $_i -lt 100 ] || return 1
+    sleep 0.1
+    _i=$((_i + 1))
+  done
+}
 
 # An admin token for the broker whose state folder is $2, exported as
 # BIOTGRID_TOKEN for bcurl and the biotgrid client commands.

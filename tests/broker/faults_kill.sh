@@ -137,13 +137,7 @@ jq -e --arg v "$victim" --arg n "$newagent" --arg s "$service" '
 check $? "report.json lists the fault and the replacement's contract, spent within budget"
 
 # The log once every row is closed: the lost row settled, the audit passes.
-i=0
-while [ $i -lt 100 ]; do
-  bcurl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
-  awk -F, 'NR > 1 && $8 - $7 > 1e8 { open++ } END { exit open > 0 }' "$work/contracts.csv" && break
-  sleep 0.1
-  i=$((i + 1))
-done
+contracts_closed "$url" "$work/contracts.csv"
 bcurl -sf "$url/v1/market/agents.csv" >"$work/agents.csv"
 vid=$(echo "$lost" | jq -r .agent)
 vrow=$(contracts "$work/events.txt" | jq -r --arg v "$victim" --arg s "$service" \

@@ -224,13 +224,7 @@ jq -n --slurpfile a "$work/report.json" --slurpfile b "$work/local/report.json" 
 check $? "the energy equals biotgrid solve's to 1e-9"
 jq -e '.faults[0].lost == "cut-1" and .faults[0].late_answers >= 1' "$work/report.json" >/dev/null
 check $? "report.json lists the fault and its late answers"
-i=0
-while [ $i -lt 100 ]; do
-  bcurl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
-  awk -F, 'NR > 1 && $8 - $7 > 1e8 { open++ } END { exit open > 0 }' "$work/contracts.csv" && break
-  sleep 0.1
-  i=$((i + 1))
-done
+contracts_closed "$url" "$work/contracts.csv"
 bcurl -sf "$url/v1/market/agents.csv" >"$work/agents.csv"
 "$audit" --live "$work" >"$work/audit.txt" 2>&1
 check $? "no duplicate contract: the live audit passes ($(cat "$work/audit.txt"))"

@@ -93,14 +93,7 @@ total=$((total + $(wc -l <"$work/contracts-dynamic.txt")))
 # A job's contracts are released a little after it ends: until then a row
 # is open (its end is the lease's, ~1e9 s on). Read the log once every row
 # is closed (10 s at most), so it is final.
-i=0
-while [ $i -lt 100 ]; do
-  bcurl -sf "$url/v1/market/contracts.csv" >"$work/contracts.csv"
-  awk -F, 'NR > 1 && $8 - $7 > 1e8 { open++ } END { exit open > 0 }' "$work/contracts.csv" && break
-  sleep 0.1
-  i=$((i + 1))
-done
-awk -F, 'NR > 1 && $8 - $7 > 1e8 { open++ } END { exit open > 0 }' "$work/contracts.csv"
+contracts_closed "$url" "$work/contracts.csv"
 check $? "every contract is closed once the jobs have ended"
 head -1 "$work/contracts.csv" | grep -q '^scenario,replication,mechanism,layer,request,'
 check $? "contracts.csv has the simulator's header"
