@@ -12,6 +12,32 @@
 /* A configuration file larger than this is refused before it is read. */
 #define CONFIG_MAX_BYTES (1 << 20)
 
+/* The keys of a broker config, in two groups: the broker's own (who it is,
+ * where it listens, its keys, store, fixed pool and market) and how its
+ * jobs run and recover and its limits, which a grid config's broker
+ * object may also give (bgb_config_grid_setting). One list of names each,
+ * so a setting added to the broker passes through a grid config too. */
+#define CONFIG_OWN_KEYS(X)                                                                        \
+    X(name) X(address) X(tls_cert) X(tls_key) X(insecure) X(curve_key) X(authorized_agents)      \
+    X(port) X(endpoint) X(state_dir) X(agents) X(market)
+#define CONFIG_GRID_KEYS(X)                                                                       \
+    X(max_jobs) X(agent_timeout_ms) X(agent_liveness_ms) X(agent_recovery) X(stop_grace_ms)      \
+    X(memory_fraction) X(max_vertices) X(max_elements) X(max_work) X(max_body)                   \
+    X(max_jobs_in_flight) X(max_stored_bytes) X(max_connections) X(max_connections_per_client)   \
+    X(idle_timeout) X(request_timeout)
+#define CONFIG_KEY_NAME(k) #k,
+static const char *const CONFIG_KEYS[] = {
+    CONFIG_OWN_KEYS(CONFIG_KEY_NAME) CONFIG_GRID_KEYS(CONFIG_KEY_NAME) NULL};
+static const char *const CONFIG_GRID_SETTINGS[] = {CONFIG_GRID_KEYS(CONFIG_KEY_NAME) NULL};
+
+int bgb_config_grid_setting(const char *key)
+{
+    for (const char *const *k = CONFIG_GRID_SETTINGS; *k; k++)
+        if (strcmp(*k, key) == 0)
+            return 1;
+    return 0;
+}
+
 static char *dup_or_null(const char *s)
 {
     return s ? strdup(s) : NULL;
@@ -248,37 +274,8 @@ bg_status bgb_config_read_object(const cJSON *root, const char *path, bgb_config
                                  bg_error_t *err)
 {
     bg_status st = BG_OK;
-    static const char *const keys[] = {"name",
-                                       "address",
-                                       "tls_cert",
-                                       "tls_key",
-                                       "insecure",
-                                       "curve_key",
-                                       "authorized_agents",
-                                       "port",
-                                       "endpoint",
-                                       "state_dir",
-                                       "max_jobs",
-                                       "agent_timeout_ms",
-                                       "agent_liveness_ms",
-                                       "agent_recovery",
-                                       "stop_grace_ms",
-                                       "agents",
-                                       "market",
-                                       "memory_fraction",
-                                       "max_vertices",
-                                       "max_elements",
-                                       "max_work",
-                                       "max_body",
-                                       "max_jobs_in_flight",
-                                       "max_stored_bytes",
-                                       "max_connections",
-                                       "max_connections_per_client",
-                                       "idle_timeout",
-                                       "request_timeout",
-                                       NULL};
     if ((st = bg_json_expect_object(root, path, NULL, err)) != BG_OK ||
-        (st = bg_json_check_keys(root, path, NULL, keys, err)) != BG_OK)
+        (st = bg_json_check_keys(root, path, NULL, CONFIG_KEYS, err)) != BG_OK)
         return st;
     const cJSON *item;
     cJSON_ArrayForEach(item, root)

@@ -81,6 +81,12 @@ bg_status bgb_config_read(const char *path, bgb_config_t *config, bg_error_t *er
 bg_status bgb_config_read_object(const cJSON *obj, const char *path, bgb_config_t *config,
                                  bg_error_t *err);
 
+/* 1 if a grid config's broker object may give `key` as it is to the
+ * broker's config: how jobs run and recover (max_jobs, agent_*_ms,
+ * agent_recovery, stop_grace_ms) and the limits; 0 for the rest, which the
+ * grid sets itself (name, port, endpoint, the store, the keys). */
+int bgb_config_grid_setting(const char *key);
+
 /* The "market" object alone, over *market (`path` names the file in
  * errors): what the grid checks before it starts a broker with it. */
 bg_status bgb_config_market_read(const cJSON *obj, const char *path, bgb_market_config_t *market,

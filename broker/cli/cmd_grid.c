@@ -8,7 +8,7 @@
  * [{"name", "services", "slots", "listen"}, ...], "broker": {"port",
  * "endpoint", "market", ...}, "host": {"cores", "memory"}} (market: the
  * broker's live-market settings, as in its config, bgb_broker.h; the
- * broker object's other keys, GRID_BROKER_SETTINGS, go to the broker's
+ * broker object's other keys, those bgb_config_grid_setting names, go to the broker's
  * config as they are: how jobs run and recover, and the limits; host:
  * the cores and GiB the grid's machine sells on the live market, given to
  * every agent as --cores and --memory, default what the machine has; its
@@ -100,7 +100,7 @@ typedef struct grid {
     int broker_port;
     char broker_url[128];
     char market[2048]; /* the broker's "market" object, compact JSON ("" none) */
-    char settings[1024];        /* GRID_BROKER_SETTINGS given, compact JSON ("" none) */
+    char settings[1024];        /* bgb_config_grid_setting keys given, compact JSON ("" none) */
     char cores[32], memory[32]; /* the "host" object's, as agent options ("" none) */
     int curve;                  /* "security": "curve" */
 } grid;
@@ -147,35 +147,6 @@ static void broker_defaults(grid *g)
         snprintf(g->broker.spec.listen, sizeof g->broker.spec.listen, "tcp://127.0.0.1:5570");
 }
 
-/* The broker's settings a grid config may give as they are: how jobs run
- * and recover, and the limits (bgb_config.h has their ranges). The rest
- * is the grid's to set: name, port, endpoint, the store, the keys. */
-static const char *const GRID_BROKER_SETTINGS[] = {"max_jobs",
-                                                   "agent_timeout_ms",
-                                                   "agent_liveness_ms",
-                                                   "agent_recovery",
-                                                   "stop_grace_ms",
-                                                   "memory_fraction",
-                                                   "max_vertices",
-                                                   "max_elements",
-                                                   "max_work",
-                                                   "max_body",
-                                                   "max_jobs_in_flight",
-                                                   "max_stored_bytes",
-                                                   "max_connections",
-                                                   "max_connections_per_client",
-                                                   "idle_timeout",
-                                                   "request_timeout",
-                                                   NULL};
-
-static int is_broker_setting(const char *key)
-{
-    for (int i = 0; GRID_BROKER_SETTINGS[i]; i++)
-        if (strcmp(key, GRID_BROKER_SETTINGS[i]) == 0)
-            return 1;
-    return 0;
-}
-
 /* The settings of `obj` that pass to the broker as they are: checked as the
  * broker will read them, so a bad value is this command's error, not a
  * broker that never starts; kept in g->settings. 0, or 2 with a message. */
@@ -184,7 +155,7 @@ static int read_broker_settings(const cJSON *obj, const char *path, grid *g)
     cJSON *pass = cJSON_CreateObject();
     int rc = pass ? 0 : 2;
     for (const cJSON *k = obj->child; rc == 0 && k; k = k->next)
-        if (is_broker_setting(k->string) &&
+        if (bgb_config_grid_setting(k->string) &&
             !cJSON_AddItemToObject(pass, k->string, cJSON_Duplicate(k, 1)))
             rc = 2;
     bgb_config_t scratch;
@@ -223,7 +194,7 @@ static int read_broker_config(const cJSON *obj, const char *path, grid *g)
     if (read_broker_settings(obj, path, g) != 0)
         return 2;
     for (const cJSON *k = obj->child; k; k = k->next) {
-        if (is_broker_setting(k->string))
+        if (bgb_config_grid_setting(k->string))
             continue;
         if (strcmp(k->string, "port") == 0 && cJSON_IsNumber(k) && k->valuedouble >= 0 &&
             k->valuedouble <= 65535 && k->valuedouble == (double)(int)k->valuedouble) {
