@@ -134,6 +134,20 @@ wait_job() {
   echo timeout
 }
 
+# agents_matching URL FILTER MIN TRIES: polls the broker's agent list every
+# 0.1 s, at most TRIES times, until at least MIN agents match the jq FILTER
+# (e.g. '.name == "cut-1" and .alive'); prints how many matched last.
+agents_matching() {
+  _i=0 _n=0
+  while [ $_i -lt "$4" ]; do
+    _n=$(bcurl -sf "$1/v1/agents" | jq "[.agents[] | select($2)] | length")
+    [ "${_n:-0}" -ge "$3" ] && break
+    sleep 0.1
+    _i=$((_i + 1))
+  done
+  echo "${_n:-0}"
+}
+
 market_sellers() {
   case $2 in
   service) _sel='(.services | length) > 0' ;;

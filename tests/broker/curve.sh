@@ -126,13 +126,7 @@ agent rot1 --broker "$ep" --curve-key "$k/rot1.key" --broker-key "$kb" --service
   --slots 2 --cores 4 --memory 16
 agent rot2 --broker "$ep" --curve-key "$k/rot2.key" --broker-key "$kb" --services rotfit,integ \
   --slots 2 --cores 4 --memory 16
-i=0
-while [ $i -lt 100 ]; do
-  n=$(bcurl -sf "$url/v1/agents" | jq '[.agents[] | select(.alive and (.services | length) > 0)] | length')
-  [ "${n:-0}" -ge 2 ] && break
-  sleep 0.1
-  i=$((i + 1))
-done
+n=$(agents_matching "$url" '.alive and (.services | length) > 0' 2 100)
 bcurl -sf "$url/v1/agents" >"$work/agents.json"
 for n in rot1 rot2; do
   jq -e --arg n $n --arg key "$(cat "$k/$n.pub")" \

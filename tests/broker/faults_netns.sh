@@ -121,13 +121,7 @@ check $? "the loopback agents start"
     --name cut-1 --floor 0.5 --broker "$bep" --insecure --ready-file "$work/cut.ready" \
     >"$work/cut.log" 2>&1 </dev/null
   echo $? >"$work/cut.rc" ) >/dev/null 2>&1 </dev/null &
-i=0
-while [ $i -lt 200 ]; do
-  n=$(bcurl -sf "$url/v1/agents" | jq '[.agents[] | select(.alive and (.services | length) > 0)] | length')
-  [ "${n:-0}" -ge 4 ] && break
-  sleep 0.1
-  i=$((i + 1))
-done
+n=$(agents_matching "$url" '.alive and (.services | length) > 0' 4 200)
 [ "${n:-0}" -eq 4 ]; check $? "4 agents sell on the market, one of them in the namespace, over the veth (got $n)"
 [ $fail -eq 0 ] || exit 1
 cut_pid=$(cut -d' ' -f2 "$work/cut.ready" 2>/dev/null)
@@ -160,13 +154,7 @@ seller=$(echo "$doc" | jq -r '[.contracts[] | select(.service == "sparse-solve")
 BG_AGENT_OPTIONS="--broker $bep --insecure --cores 8" sh "$scripts/start_agents.sh" "$bin" "$work/agents2" \
   solve-1:solve >/dev/null
 check $? "a loopback sparse-solve agent starts"
-i=0
-while [ $i -lt 200 ]; do
-  n=$(bcurl -sf "$url/v1/agents" | jq '[.agents[] | select(.name == "solve-1" and .alive)] | length')
-  [ "${n:-0}" -ge 1 ] && break
-  sleep 0.1
-  i=$((i + 1))
-done
+n=$(agents_matching "$url" '.name == "solve-1" and .alive' 1 200)
 [ "${n:-0}" -eq 1 ]; check $? "it sells on the market"
 
 # A slow link first: DELAY_MS each way, jitter a fifth of it (tc netem);
@@ -231,13 +219,8 @@ check $? "no duplicate contract: the live audit passes ($(cat "$work/audit.txt")
 awk -F, -v j="$id" 'NR > 1 && $4 == "service" && $9 == j && $11 == "sparse-solve" { n++; if ($12 < 1) settled++ }
   END { exit !(n == 2 && settled == 1) }' "$work/contracts.csv"
 check $? "contracts.csv: two sparse-solve contracts for the job, the cut-off one settled pro rata"
-i=0 t_up=$(now)
-while [ $i -lt 300 ]; do
-  n=$(bcurl -sf "$url/v1/agents" | jq '[.agents[] | select(.name == "cut-1" and .alive)] | length')
-  [ "${n:-0}" -ge 1 ] && break
-  sleep 0.1
-  i=$((i + 1))
-done
+t_up=$(now)
+n=$(agents_matching "$url" '.name == "cut-1" and .alive' 1 300)
 [ "${n:-0}" -ge 1 ]; check $? "cut-1 registered again once its link was up ($(awk -v a="$t_up" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }') s after the audit)"
 
 stop_broker "$work" broker; check $? "the broker stops"
