@@ -348,22 +348,36 @@ static void quiet_round_widens_window(void **state)
  * both have proposed (every seller that could), at once rather than at
  * the window's end, they bargain with different sellers (the cheapest
  * first), each opening below the proposal; the deliveries buy the job. */
+/* Job 1 buys two rotation-fit units of need 10 under catallaxy from
+ * sellers a (price 1.2) and b (1.3), two slots each; both are called and
+ * propose at t = 0.15, and nobody is offered anything until the second
+ * proposal. *mark: the message count before the proposals. */
+static bgb_market_t *catallactic_two_proposals(fake_t *f, bgb_market_config_t *mc, uint32_t *a,
+                                               uint32_t *b, int *mark)
+{
+    bgb_market_t *m = market(f, mc);
+    *a = seller(m, f, 'a', 1.2, 2);
+    *b = seller(m, f, 'b', 1.3, 2);
+    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 2};
+    bg_error_t err = BG_ERROR_INIT;
+    assert_int_equal(
+        bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, f, &err), BG_OK);
+    assert_true(count_to(f, BGA_MM_CFP, *a, 0) >= 1 && count_to(f, BGA_MM_CFP, *b, 0) >= 1);
+    *mark = f->nsent;
+    answer_as(m, 'a', *a, BGA_MM_PROPOSE, 1.2, 0.15);
+    assert_int_equal(count_to(f, BGA_MM_OFFER, *a, *mark) + count_to(f, BGA_MM_OFFER, *b, *mark), 0);
+    answer_as(m, 'b', *b, BGA_MM_PROPOSE, 1.3, 0.15);
+    return m;
+}
+
 static void catallactic_split_need(void **state)
 {
     (void)state;
     fake_t f = {0};
     bgb_market_config_t mc;
-    bgb_market_t *m = market(&f, &mc);
-    const uint32_t a = seller(m, &f, 'a', 1.2, 2), b = seller(m, &f, 'b', 1.3, 2);
-    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 2};
-    bg_error_t err = BG_ERROR_INIT;
-    assert_int_equal(
-        bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
-    assert_true(count_to(&f, BGA_MM_CFP, a, 0) >= 1 && count_to(&f, BGA_MM_CFP, b, 0) >= 1);
-    const int mark = f.nsent;
-    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.2, 0.15);
-    assert_int_equal(count_to(&f, BGA_MM_OFFER, a, mark) + count_to(&f, BGA_MM_OFFER, b, mark), 0);
-    answer_as(m, 'b', b, BGA_MM_PROPOSE, 1.3, 0.15);
+    uint32_t a, b;
+    int mark;
+    bgb_market_t *m = catallactic_two_proposals(&f, &mc, &a, &b, &mark);
     assert_true(0.15 < 0.1 + mc.reply_timeout / 8); /* well before the window's end */
     assert_int_equal(count_to(&f, BGA_MM_OFFER, a, mark), 1);
     assert_int_equal(count_to(&f, BGA_MM_OFFER, b, mark), 1);
@@ -647,15 +661,9 @@ static void seller_gone_before_the_last_deal(void **state)
     (void)state;
     fake_t f = {0};
     bgb_market_config_t mc;
-    bgb_market_t *m = market(&f, &mc);
-    const uint32_t a = seller(m, &f, 'a', 1.2, 2), b = seller(m, &f, 'b', 1.3, 2);
-    const bgb_need_t need = {BGB_GOOD_ROTFIT, 10.0, 2};
-    bg_error_t err = BG_ERROR_INIT;
-    assert_int_equal(
-        bgb_market_buy(m, 1, BGB_MECH_CATALLACTIC, 1000, &need, 1, 0.1, on_done, &f, &err), BG_OK);
-    const int mark = f.nsent;
-    answer_as(m, 'a', a, BGA_MM_PROPOSE, 1.2, 0.15);
-    answer_as(m, 'b', b, BGA_MM_PROPOSE, 1.3, 0.15);
+    uint32_t a, b;
+    int mark;
+    bgb_market_t *m = catallactic_two_proposals(&f, &mc, &a, &b, &mark);
     const bga_mmsg_t *oa = last_to(&f, BGA_MM_OFFER, a, mark),
                      *ob = last_to(&f, BGA_MM_OFFER, b, mark);
     assert_non_null(oa);
