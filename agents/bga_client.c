@@ -527,7 +527,7 @@ bg_status bga_client_rotfit(bga_client_t *c, uint64_t job, const double *positio
 }
 
 bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const int32_t *colptr,
-                                 const int32_t *rowidx, int prefer_solves, int64_t lease_ms,
+                                 const int32_t *rowidx, unsigned options, int64_t lease_ms,
                                  bg_error_t *err)
 {
     bga_msg_t m;
@@ -535,7 +535,7 @@ bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const
     m.field[BGA_SS_N].i = n;
     m.field[BGA_SS_NNZ].i = colptr[n];
     m.field[BGA_SS_LEASE_MS].i = lease_ms;
-    m.field[BGA_SS_PREFER_SOLVES].i = prefer_solves != 0;
+    m.field[BGA_SS_OPTIONS].i = options & (BGA_SOLVE_PREFER_SOLVES | BGA_SOLVE_ORDERED);
     m.array[BGA_SS_COLPTR] = (bga_array_t){colptr, (size_t)n + 1};
     m.array[BGA_SS_ROWIDX] = (bga_array_t){rowidx, (size_t)colptr[n]};
     return simple(c, &m, err);

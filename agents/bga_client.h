@@ -187,10 +187,13 @@ bg_status bga_client_rotfit_start(bga_client_t *c, uint64_t job, const double *p
                                   size_t count, unsigned want, bg_error_t *err);
 bg_status bga_client_rotfit_finish(bga_client_t *c, bga_rotfit_out_t *out, bg_error_t *err);
 
-/* prefer_solves: the system will be solved far more often than factored
- * (bg_sparse_prefer_solves). */
+/* options: BGA_SOLVE_PREFER_SOLVES (the system will be solved far more
+ * often than factored: bg_sparse_prefer_solves), BGA_SOLVE_ORDERED (the
+ * pattern is the lower triangle of P A Pᵀ of bg_sparse_reorder: the agent
+ * factors it in that order, and the caller permutes right-hand sides and
+ * solutions), or 0. */
 bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const int32_t *colptr,
-                                 const int32_t *rowidx, int prefer_solves, int64_t lease_ms,
+                                 const int32_t *rowidx, unsigned options, int64_t lease_ms,
                                  bg_error_t *err);
 /* *posdef = 0 when the matrix (plus shift·I) is not positive definite:
  * the caller may retry with a larger shift. */

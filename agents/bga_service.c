@@ -503,8 +503,10 @@ static bga_wire_code solve_setup(bga_service_t *svc, const bga_msg_t *m, double 
         bga_msg_copy_i32(m, BGA_SS_COLPTR, colptr);
         bga_msg_copy_i32(m, BGA_SS_ROWIDX, rowidx);
         st = bg_sparse_new_csc(n, colptr, rowidx, &j->sys, &e);
-        if (st == BG_OK && m->field[BGA_SS_PREFER_SOLVES].i)
+        if (st == BG_OK && (m->field[BGA_SS_OPTIONS].i & BGA_SOLVE_PREFER_SOLVES))
             bg_sparse_prefer_solves(j->sys);
+        if (st == BG_OK && (m->field[BGA_SS_OPTIONS].i & BGA_SOLVE_ORDERED))
+            bg_sparse_keep_order(j->sys);
     }
     free(colptr);
     free(rowidx);
