@@ -152,6 +152,13 @@ typedef struct bga_partition {
 
 bg_status bga_client_rotfit_setup(bga_client_t *c, uint64_t job, const bga_partition_t *p,
                                   bg_error_t *err);
+/* bga_client_rotfit_setup in two halves, as bga_client_rotfit_start and
+ * _finish: the partition's arrays are read (encoded and sent) by _start
+ * only, so they may be freed once it returns, and every agent of a pool
+ * builds its model while the next partition is cut and sent. */
+bg_status bga_client_rotfit_setup_start(bga_client_t *c, uint64_t job, const bga_partition_t *p,
+                                        bg_error_t *err);
+bg_status bga_client_rotfit_setup_finish(bga_client_t *c, bg_error_t *err);
 
 /* A surface partition for the spokes-and-rims rotation fit (arrays
  * borrowed for the call): the triangles of the owned vertices' cells in
