@@ -480,8 +480,7 @@ static bg_status problem_setup(problem_t *p, const bg_scene_t *scene, bg_method 
     const bg_status st = problem_init(p, scene, method, backend, err);
     /* A backend that renumbers the Hessian at solve_open (the agents')
      * counts that analysis in the system's own timing, as analysis. */
-    const double analyzed =
-        st == BG_OK && p->sys ? bg_sparse_timing(p->sys).analyze_seconds : 0.0;
+    const double analyzed = st == BG_OK && p->sys ? bg_sparse_timing(p->sys).analyze_seconds : 0.0;
     bg_setup_add(&p->setup,
                  method == BG_METHOD_NEWTON
                      ? "solver set-up: elastic model, Hessian pattern and scatter map"

@@ -230,8 +230,7 @@ enum { /* ROTFIT_RESULT */
        BGA_RR_NFIELDS
 };
 enum { /* ROTFIT_RESULT arrays */ BGA_RR_GRADIENT, BGA_RR_HESSIAN, BGA_RR_NARRAYS };
-enum { /* SOLVE_SETUP */ BGA_SS_N, BGA_SS_NNZ, BGA_SS_LEASE_MS, BGA_SS_OPTIONS,
-       BGA_SS_NFIELDS };
+enum { /* SOLVE_SETUP */ BGA_SS_N, BGA_SS_NNZ, BGA_SS_LEASE_MS, BGA_SS_OPTIONS, BGA_SS_NFIELDS };
 enum { /* SOLVE_SETUP arrays */ BGA_SS_COLPTR, BGA_SS_ROWIDX, BGA_SS_NARRAYS };
 /* solve-setup's options (bits): the system will be solved far more often
  * than factored (bg_sparse_prefer_solves); the pattern is already in its
