@@ -101,6 +101,11 @@ typedef struct session {
     bg_sparse_t *sys[BG_BACKEND_MAX_SYSTEMS];
     int set_up[BG_BACKEND_MAX_SYSTEMS];
     double flops[BG_BACKEND_MAX_SYSTEMS], nonzeros[BG_BACKEND_MAX_SYSTEMS]; /* the agent's */
+    /* A reordered system's right-hand sides and solutions in its stored
+     * order (bg_sparse_permutation), grown to the widest call: no
+     * allocation per solve once it has been seen. */
+    double *pbuf[BG_BACKEND_MAX_SYSTEMS];
+    size_t pcap[BG_BACKEND_MAX_SYSTEMS];
     /* The checkpoint of each matrix: the values and shift last factored. */
     double *fvalues[BG_BACKEND_MAX_SYSTEMS];
     double fshift[BG_BACKEND_MAX_SYSTEMS];
@@ -321,8 +326,10 @@ static void session_destroy(void *ctx, void *opaque)
         add_traffic(&b->usage[solve_place(b)].traffic, bga_client_traffic(s->solver));
         bga_client_destroy(&s->solver);
     }
-    for (int i = 0; i < BG_BACKEND_MAX_SYSTEMS; i++)
+    for (int i = 0; i < BG_BACKEND_MAX_SYSTEMS; i++) {
         free(s->fvalues[i]);
+        free(s->pbuf[i]);
+    }
     if (s->surface) {
         for (int i = 0; i < b->nrotfit; i++) {
             add_traffic(&b->usage[i].traffic, bga_rotfit_pool_traffic(s->surface, i));
@@ -503,11 +510,24 @@ static bg_status fit_hessian(void *opaque, int id, const double *q, int project,
 
 /* --------------------------------------------------------- sparse solve */
 
+/*
+ * A system that is factored about as often as it is assembled (Newton's
+ * Hessian: not bg_sparse_prefer_solves) is renumbered here, as the solver
+ * renumbers it in process (bg_sparse_reorder: CHOLMOD's analysis, once,
+ * in this process), before its scatter map reaches the rotation-fit
+ * agents (fit_open comes after) and before any value is written. The
+ * agent then gets the pattern in its factor's order and keeps that order
+ * (BGA_SOLVE_ORDERED): its factor is the one the solver's process would
+ * have made, bit for bit, no factorization permutes the matrix, and the
+ * right-hand sides and solutions are permuted here (solve).
+ */
 static bg_status solve_open(void *opaque, int id, bg_sparse_t *sys, bg_error_t *err)
 {
     session *s = opaque;
     bga_backend_t *b = s->b;
     bg_status st = check(s, err);
+    if (st == BG_OK && !bg_sparse_prefers_solves(sys))
+        st = bg_sparse_reorder(sys, err);
     if (st == BG_OK && !s->solver) {
         s->solver_gen = b->place[solve_place(b)].generation;
         st = new_client(b, solve_place(b), "sparse-solve", &s->solver, err);
@@ -527,9 +547,10 @@ static bg_status factor_on_agent(session *s, int id, const double *values, doubl
     const uint64_t job = job_on(s, solve_place(s->b), BACKEND_SYSTEM_JOB + (uint64_t)id);
     bg_status st = BG_OK;
     if (!s->set_up[id]) {
+        const unsigned options = (bg_sparse_prefers_solves(sys) ? BGA_SOLVE_PREFER_SOLVES : 0u) |
+                                 (bg_sparse_permutation(sys) ? BGA_SOLVE_ORDERED : 0u);
         st = bga_client_solve_setup(s->solver, job, bg_sparse_size(sys), bg_sparse_colptr(sys),
-                                    bg_sparse_rowidx(sys), bg_sparse_prefers_solves(sys),
-                                    s->b->lease_ms, err);
+                                    bg_sparse_rowidx(sys), options, s->b->lease_ms, err);
         s->set_up[id] = st == BG_OK;
     }
     if (st == BG_OK)
@@ -630,16 +651,39 @@ static bg_status solve(void *opaque, int id, int nrhs, const double *rhs, double
     session *s = opaque;
     bg_status st = check(s, err);
     const double t0 = bg_clock_now();
+    const int32_t *perm = bg_sparse_permutation(s->sys[id]);
+    const size_t n = (size_t)bg_sparse_size(s->sys[id]);
+    const size_t count = n * (size_t)(nrhs > 0 ? nrhs : 0);
+    if (st == BG_OK && perm && s->pcap[id] < count) {
+        double *grown = realloc(s->pbuf[id], count * sizeof *grown);
+        if (!grown)
+            return fail(s, bg_error_set(err, BG_ERR_NOMEM, "out of memory for %d right-hand "
+                                        "sides", nrhs), err);
+        s->pbuf[id] = grown;
+        s->pcap[id] = count;
+    }
+    double *buf = perm ? s->pbuf[id] : x;
     bg_error_t e = BG_ERROR_INIT;
     drain_given_up(s->b, 0);
     for (int tries = 0; st == BG_OK; tries++) {
         bg_error_clear(&e);
+        /* The stored order, as bg_sparse_solve_many permutes in process:
+         * row k is the caller's perm[k] (again on a retry: a failed call
+         * may have left part of a solution in buf). */
+        if (perm)
+            for (int c = 0; c < nrhs; c++)
+                for (size_t k = 0; k < n; k++)
+                    buf[c * n + k] = rhs[c * n + (size_t)perm[k]];
         st = bga_client_solve(s->solver, job_on(s, solve_place(s->b), BACKEND_SYSTEM_JOB + id),
-                              rhs, bg_sparse_size(s->sys[id]), nrhs, x, &e);
+                              perm ? buf : rhs, (int32_t)n, nrhs, buf, &e);
         if (st == BG_OK || !solver_lost(s, st) || tries == BGA_BACKEND_MAX_RETRIES)
             break;
         st = recover_solver(s, &e);
     }
+    if (st == BG_OK && perm)
+        for (int c = 0; c < nrhs; c++)
+            for (size_t k = 0; k < n; k++)
+                x[c * n + (size_t)perm[k]] = buf[c * n + k];
     st = outcome(st, &e, err);
     const bg_sparse_timing_t spent = {0.0, 0.0, bg_clock_now() - t0, 0, st == BG_OK ? nrhs : 0};
     bg_sparse_add_timing(s->sys[id], &spent);

@@ -434,6 +434,25 @@ static bg_status simple(bga_client_t *c, bga_msg_t *req, bg_error_t *err)
 bg_status bga_client_rotfit_setup(bga_client_t *c, uint64_t job, const bga_partition_t *p,
                                   bg_error_t *err)
 {
+    bg_status st = bga_client_rotfit_setup_start(c, job, p, err);
+    return st == BG_OK ? bga_client_rotfit_setup_finish(c, err) : st;
+}
+
+bg_status bga_client_rotfit_setup_finish(bga_client_t *c, bg_error_t *err)
+{
+    const uint16_t type = c->pending_type;
+    bga_reply_t rep;
+    bg_status st = bga_client_collect(c, &rep, err);
+    if (st != BG_OK)
+        return st;
+    st = expect(c, &rep, type, BGA_ACK, err);
+    bga_reply_close(&rep);
+    return st;
+}
+
+bg_status bga_client_rotfit_setup_start(bga_client_t *c, uint64_t job, const bga_partition_t *p,
+                                        bg_error_t *err)
+{
     bga_msg_t m;
     bga_msg_init(&m, BGA_ROTFIT_SETUP, job, 0);
     const int k = p->dim + 1, local = k * p->dim;
@@ -457,7 +476,7 @@ bg_status bga_client_rotfit_setup(bga_client_t *c, uint64_t job, const bga_parti
     if (p->scatter)
         m.array[BGA_RS_SCATTER] =
             (bga_array_t){p->scatter, (size_t)p->ne * (size_t)m.field[BGA_RS_BLOCK].i};
-    return simple(c, &m, err);
+    return bga_client_post(c, &m, err);
 }
 
 bg_status bga_client_surface_setup(bga_client_t *c, uint64_t job, const bga_surface_part_t *p,
@@ -527,7 +546,7 @@ bg_status bga_client_rotfit(bga_client_t *c, uint64_t job, const double *positio
 }
 
 bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const int32_t *colptr,
-                                 const int32_t *rowidx, int prefer_solves, int64_t lease_ms,
+                                 const int32_t *rowidx, unsigned options, int64_t lease_ms,
                                  bg_error_t *err)
 {
     bga_msg_t m;
@@ -535,7 +554,7 @@ bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const
     m.field[BGA_SS_N].i = n;
     m.field[BGA_SS_NNZ].i = colptr[n];
     m.field[BGA_SS_LEASE_MS].i = lease_ms;
-    m.field[BGA_SS_PREFER_SOLVES].i = prefer_solves != 0;
+    m.field[BGA_SS_OPTIONS].i = options & (BGA_SOLVE_PREFER_SOLVES | BGA_SOLVE_ORDERED);
     m.array[BGA_SS_COLPTR] = (bga_array_t){colptr, (size_t)n + 1};
     m.array[BGA_SS_ROWIDX] = (bga_array_t){rowidx, (size_t)colptr[n]};
     return simple(c, &m, err);

@@ -152,6 +152,13 @@ typedef struct bga_partition {
 
 bg_status bga_client_rotfit_setup(bga_client_t *c, uint64_t job, const bga_partition_t *p,
                                   bg_error_t *err);
+/* bga_client_rotfit_setup in two halves, as bga_client_rotfit_start and
+ * _finish: the partition's arrays are read (encoded and sent) by _start
+ * only, so they may be freed once it returns, and every agent of a pool
+ * builds its model while the next partition is cut and sent. */
+bg_status bga_client_rotfit_setup_start(bga_client_t *c, uint64_t job, const bga_partition_t *p,
+                                        bg_error_t *err);
+bg_status bga_client_rotfit_setup_finish(bga_client_t *c, bg_error_t *err);
 
 /* A surface partition for the spokes-and-rims rotation fit (arrays
  * borrowed for the call): the triangles of the owned vertices' cells in
@@ -187,10 +194,13 @@ bg_status bga_client_rotfit_start(bga_client_t *c, uint64_t job, const double *p
                                   size_t count, unsigned want, bg_error_t *err);
 bg_status bga_client_rotfit_finish(bga_client_t *c, bga_rotfit_out_t *out, bg_error_t *err);
 
-/* prefer_solves: the system will be solved far more often than factored
- * (bg_sparse_prefer_solves). */
+/* options: BGA_SOLVE_PREFER_SOLVES (the system will be solved far more
+ * often than factored: bg_sparse_prefer_solves), BGA_SOLVE_ORDERED (the
+ * pattern is the lower triangle of P A Pᵀ of bg_sparse_reorder: the agent
+ * factors it in that order, and the caller permutes right-hand sides and
+ * solutions), or 0. */
 bg_status bga_client_solve_setup(bga_client_t *c, uint64_t job, int32_t n, const int32_t *colptr,
-                                 const int32_t *rowidx, int prefer_solves, int64_t lease_ms,
+                                 const int32_t *rowidx, unsigned options, int64_t lease_ms,
                                  bg_error_t *err);
 /* *posdef = 0 when the matrix (plus shift·I) is not positive definite:
  * the caller may retry with a larger shift. */

@@ -16,6 +16,7 @@ typedef struct part {
     /* The current call: answered (its results in grad, hess and energy),
      * or failed with status st. */
     int answered;
+    int posted; /* its set-up is sent and its answer not yet read (pool creation) */
     bg_status st;
     bg_error_t e;
     double energy;
@@ -200,9 +201,13 @@ out:
 }
 
 /* Part i's partition set up on its client (the pool's agent i): its
- * element range (or a surface's vertex range) cut from cfg's mesh. */
-static bg_status setup_part(const bga_pool_config_t *cfg, part *p, bg_error_t *err)
+ * element range (or a surface's vertex range) cut from cfg's mesh. With
+ * `wait` 0 a volume part's set-up is only sent (*posted = 1), and its
+ * answer is awaited by bga_client_rotfit_setup_finish. */
+static bg_status setup_part_start(const bga_pool_config_t *cfg, part *p, int wait, int *posted,
+                                  bg_error_t *err)
 {
+    *posted = 0;
     if (cfg->surface)
         return setup_surface_part(cfg, p->r0, p->r1, p, err);
     int32_t *elements = NULL, *scatter = NULL;
@@ -210,11 +215,19 @@ static bg_status setup_part(const bga_pool_config_t *cfg, part *p, bg_error_t *e
     bga_partition_t bp;
     bg_status st = make_part(cfg, p->r0, p->r1, p, &bp, &elements, &scatter, &rest, err);
     if (st == BG_OK)
-        st = bga_client_rotfit_setup(p->client, p->job, &bp, err);
+        st = wait ? bga_client_rotfit_setup(p->client, p->job, &bp, err)
+                  : bga_client_rotfit_setup_start(p->client, p->job, &bp, err);
+    *posted = st == BG_OK && !wait;
     free(elements);
     free(scatter);
     free(rest);
     return st;
+}
+
+static bg_status setup_part(const bga_pool_config_t *cfg, part *p, bg_error_t *err)
+{
+    int posted;
+    return setup_part_start(cfg, p, 1, &posted, err);
 }
 
 bg_status bga_rotfit_pool_new(const bga_pool_config_t *cfg, bga_rotfit_pool_t **out,
@@ -257,22 +270,32 @@ bg_status bga_rotfit_pool_new_live(const bga_pool_config_t *cfg, int ping_ms, in
         p->r1 = (int32_t)((int64_t)count * (i + 1) / pool->n);
     }
     /* Every part is set up even after one failed, so that each has its
-     * own status (a set-up its agent never answered is a lost part). */
-    for (int i = 0; i < pool->n; i++) {
-        part *p = &pool->parts[i];
-        bg_error_t e = BG_ERROR_INIT;
-        p->st = bga_client_new_curve(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms,
-                                     cfg->curve, &p->client, &e);
-        if (p->st == BG_OK) {
-            bga_client_set_liveness(p->client, ping_ms, lost_ms);
-            p->st = setup_part(cfg, p, &e);
+     * own status (a set-up its agent never answered is a lost part). The
+     * set-ups are all sent before any answer is awaited: each agent builds
+     * its model while the next partition is cut and sent. */
+    for (int pass = 0; pass < 2; pass++)
+        for (int i = 0; i < pool->n; i++) {
+            part *p = &pool->parts[i];
+            bg_error_t e = BG_ERROR_INIT;
+            if (pass == 0) {
+                p->st = bga_client_new_curve(cfg->endpoints[i], "rotation-fit", cfg->timeout_ms,
+                                             cfg->curve, &p->client, &e);
+                if (p->st == BG_OK) {
+                    bga_client_set_liveness(p->client, ping_ms, lost_ms);
+                    p->st = setup_part_start(cfg, p, 0, &p->posted, &e);
+                }
+            } else if (p->posted) {
+                p->posted = 0;
+                p->st = bga_client_rotfit_setup_finish(p->client, &e);
+            } else {
+                continue;
+            }
+            if (p->st != BG_OK) {
+                p->e = e;
+                if (st == BG_OK)
+                    st = bg_error_set(err, p->st, "%s", e.message);
+            }
         }
-        if (p->st != BG_OK) {
-            p->e = e;
-            if (st == BG_OK)
-                st = bg_error_set(err, p->st, "%s", e.message);
-        }
-    }
     *out = pool;
     return st;
 }

@@ -24,6 +24,8 @@ typedef struct job {
     int32_t *scatter; /* ne*T into hess, identity when the set-up sent none */
     size_t nhess;
     double *q, *grad, *hess;
+    double energy_fit; /* the energy of the last rotation fit (model partitions) */
+    int fitted;        /* the model has been fitted (energy_fit holds its energy) */
     /* sparse-solve */
     bg_sparse_t *sys;
     int factored; /* the last factorization succeeded */
@@ -53,6 +55,7 @@ static void free_rotfit(job *j)
     j->scatter = NULL;
     j->q = j->grad = j->hess = NULL;
     j->nhess = 0;
+    j->fitted = 0;
 }
 
 static void free_solve(job *j)
@@ -467,8 +470,23 @@ static bga_wire_code rotfit_call(job *j, const bga_msg_t *m, bga_msg_t *rep,
     const int64_t want = m->field[BGA_RC_WANT].i;
     const double t0 = bg_clock_now();
     bg_elastic_reset_stats(j->model);
-    const double energy =
-        bg_elastic_eval(j->model, j->q, (want & BGA_WANT_GRADIENT) ? j->grad : NULL);
+    /* A Hessian alone (Newton's matrix at the iterate the line search has
+     * evaluated) is assembled as the solver's fit_hessian assembles it in
+     * process (bg_backend.h): bg_elastic_assemble_hessian from the
+     * rotations the last fit left, which it takes as they are where they
+     * are settled at q and refits where not (after a rejected chord step
+     * they were fitted elsewhere). Fitting them all again first,
+     * warm-started from themselves, cost a fit per Newton matrix and
+     * rounded otherwise, so the partition's Hessian was not the in-process
+     * one. The reply's energy is then the last fit's. A partition never
+     * fitted is fitted first. */
+    const int fit = (want & BGA_WANT_GRADIENT) || !(want & BGA_WANT_HESSIAN) || !j->fitted;
+    double energy = j->energy_fit;
+    if (fit) {
+        energy = bg_elastic_eval(j->model, j->q, (want & BGA_WANT_GRADIENT) ? j->grad : NULL);
+        j->energy_fit = energy;
+        j->fitted = 1;
+    }
     if (want & BGA_WANT_HESSIAN) {
         memset(j->hess, 0, j->nhess * sizeof *j->hess);
         bg_elastic_assemble_hessian(j->model, j->q, (want & BGA_WANT_PROJECTED) != 0, 1.0,
@@ -503,8 +521,10 @@ static bga_wire_code solve_setup(bga_service_t *svc, const bga_msg_t *m, double 
         bga_msg_copy_i32(m, BGA_SS_COLPTR, colptr);
         bga_msg_copy_i32(m, BGA_SS_ROWIDX, rowidx);
         st = bg_sparse_new_csc(n, colptr, rowidx, &j->sys, &e);
-        if (st == BG_OK && m->field[BGA_SS_PREFER_SOLVES].i)
+        if (st == BG_OK && (m->field[BGA_SS_OPTIONS].i & BGA_SOLVE_PREFER_SOLVES))
             bg_sparse_prefer_solves(j->sys);
+        if (st == BG_OK && (m->field[BGA_SS_OPTIONS].i & BGA_SOLVE_ORDERED))
+            bg_sparse_keep_order(j->sys);
     }
     free(colptr);
     free(rowidx);

@@ -67,7 +67,12 @@ typedef struct bg_backend_ops {
                           bg_error_t *err);
     bg_status (*fit_hessian)(void *session, int id, const double *q, int project, double scale,
                              double *values, bg_error_t *err);
-    /* sys is borrowed for the session's life (its pattern and its values). */
+    /* sys is borrowed for the session's life (its pattern and its values).
+     * A backend may renumber a system not marked bg_sparse_prefer_solves
+     * here (bg_sparse_reorder, which rewrites its scatter map in place and
+     * keeps the caller's numbering in every vector call), so a caller
+     * opens a system before it hands its scatter map to fit_open and
+     * before it writes any value. */
     bg_status (*solve_open)(void *session, int id, bg_sparse_t *sys, bg_error_t *err);
     bg_status (*solve_factor)(void *session, int id, double shift, bg_error_t *err);
     /* nrhs right-hand sides of system id at once (column-major, 1 to

@@ -19,6 +19,7 @@ struct bg_sparse {
     cholmod_dense *B, *X, *Y, *E;
     int analyzed;
     int prefer_solves;                    /* bg_sparse_prefer_solves */
+    int keep_order;                       /* bg_sparse_keep_order */
     double factor_flops, factor_nonzeros; /* from the analysis */
     bg_sparse_timing_t timing;
 };
@@ -354,16 +355,35 @@ static bg_status analyze(bg_sparse_t *sys, bg_error_t *err)
 {
     cholmod_common *c = &sys->common;
     const double t0 = bg_clock_now();
+    const int nmethods = c->nmethods, ordering = c->method[0].ordering, post = c->postorder;
+    if (sys->keep_order) { /* bg_sparse_keep_order: bg_sparse_reorder's second analysis */
+        c->nmethods = 1;
+        c->method[0].ordering = CHOLMOD_NATURAL;
+        c->postorder = 0;
+    }
     sys->L = cholmod_analyze(sys->A, c);
+    c->nmethods = nmethods;
+    c->method[0].ordering = ordering;
+    c->postorder = post;
     sys->timing.analyze_seconds += bg_clock_now() - t0;
     if (!sys->L)
         return bg_error_set(err, c->status == CHOLMOD_OUT_OF_MEMORY ? BG_ERR_NOMEM
                                                                     : BG_ERR_NUMERIC,
                             "CHOLMOD analysis failed (status %d)", c->status);
+    if (sys->keep_order && sys->L->ordering != CHOLMOD_NATURAL) {
+        cholmod_free_factor(&sys->L, c);
+        return bg_error_set(err, BG_ERR_NUMERIC, "CHOLMOD did not keep the given order");
+    }
     sys->analyzed = 1;
     sys->factor_flops = c->fl;
     sys->factor_nonzeros = c->lnz;
     return BG_OK;
+}
+
+void bg_sparse_keep_order(bg_sparse_t *sys)
+{
+    if (!sys->analyzed)
+        sys->keep_order = 1;
 }
 
 bg_status bg_sparse_reorder(bg_sparse_t *sys, bg_error_t *err)

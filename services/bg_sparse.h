@@ -101,14 +101,28 @@ int bg_sparse_supernodal(const bg_sparse_t *sys);
  * caller's numbering (the vectors are permuted on the way in and out);
  * bg_sparse_permutation gives P. Call before any value is written (the
  * values are zeroed) and before the first factorization; a no-op after
- * it. A system whose pattern is shipped to a sparse-solve agent is not
- * reordered: the agent solves in the pattern's own numbering.
+ * it. A system whose pattern is shipped to a sparse-solve agent is
+ * reordered by its sender (the coordinator), and the agent keeps the
+ * order it is sent (bg_sparse_keep_order).
  */
 bg_status bg_sparse_reorder(bg_sparse_t *sys, bg_error_t *err);
 /* After bg_sparse_reorder: stored unknown k is the caller's unknown
  * perm[k] (size() values, borrowed); NULL for a system in the caller's
  * numbering. */
 const int32_t *bg_sparse_permutation(const bg_sparse_t *sys);
+
+/*
+ * The pattern is already in its factor's order: it is the lower triangle
+ * of P A Pᵀ that bg_sparse_reorder made in another process (the
+ * coordinator) and shipped, as a sparse-solve agent receives it. The
+ * analysis then keeps the order as bg_sparse_reorder's own second
+ * analysis does (CHOLMOD's natural ordering, no postordering), so the
+ * factor, and every solve with it, is the one the reordering process
+ * would have computed from the same values, bit for bit, and no
+ * factorization permutes the matrix. Call before the first
+ * factorization; a no-op after it.
+ */
+void bg_sparse_keep_order(bg_sparse_t *sys);
 
 /* Adds d[i] to diagonal entry i (d holds size() values; i in the caller's
  * numbering). */

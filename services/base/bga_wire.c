@@ -122,7 +122,7 @@ static const array_spec rr_arrays[] = {F64FREE("gradient", 0), F64FREE("hessian"
 
 static const field_spec ss_fields[] = {I64F("n", 1, INT32_MAX - 1), I64F("nnz", 1, INT32_MAX),
                                        I64F("lease_ms", 0, LEASE_MAX_MS),
-                                       I64F("prefer_solves", 0, 1)};
+                                       I64F("options", 0, 3)};
 static const array_spec ss_arrays[] = {
     {"colptr", BGA_ELEM_I32, 0, 1, BGA_SS_N, -1, -1, 1, 0, 0, BGA_SS_NNZ, 1},
     {"rowidx", BGA_ELEM_I32, 0, 1, BGA_SS_NNZ, -1, -1, 0, 0, 0, BGA_SS_N, 0}};

@@ -37,9 +37,12 @@
 
 #include "bg_error.h"
 
-/* 2: solve-setup carries prefer_solves (a field added to a type's layout,
+/* 2: solve-setup carries its options (a field added to a type's layout,
  * so a peer of version 1 would misread it; added types alone keep the
- * version). */
+ * version). The options field was prefer_solves, 0 or 1, in the first
+ * version 2 peers; the bit BGA_SOLVE_ORDERED widened its range, which an
+ * older version 2 agent refuses (out of range) rather than misreads, so
+ * the version stayed. */
 #define BGA_WIRE_VERSION 2
 #define BGA_WIRE_HEADER_BYTES 48
 #define BGA_WIRE_MAX_FIELDS 20
@@ -227,9 +230,13 @@ enum { /* ROTFIT_RESULT */
        BGA_RR_NFIELDS
 };
 enum { /* ROTFIT_RESULT arrays */ BGA_RR_GRADIENT, BGA_RR_HESSIAN, BGA_RR_NARRAYS };
-enum { /* SOLVE_SETUP */ BGA_SS_N, BGA_SS_NNZ, BGA_SS_LEASE_MS, BGA_SS_PREFER_SOLVES,
-       BGA_SS_NFIELDS };
+enum { /* SOLVE_SETUP */ BGA_SS_N, BGA_SS_NNZ, BGA_SS_LEASE_MS, BGA_SS_OPTIONS, BGA_SS_NFIELDS };
 enum { /* SOLVE_SETUP arrays */ BGA_SS_COLPTR, BGA_SS_ROWIDX, BGA_SS_NARRAYS };
+/* solve-setup's options (bits): the system will be solved far more often
+ * than factored (bg_sparse_prefer_solves); the pattern is already in its
+ * factor's order (bg_sparse_reorder's, done by the sender: the agent
+ * keeps it, bg_sparse_keep_order). */
+enum { BGA_SOLVE_PREFER_SOLVES = 1, BGA_SOLVE_ORDERED = 2 };
 enum { /* SOLVE_FACTOR */ BGA_SF_SHIFT, BGA_SF_NFIELDS };
 enum { /* SOLVE_FACTOR arrays */ BGA_SF_VALUES, BGA_SF_NARRAYS };
 enum { /* SOLVE_FACTORED */

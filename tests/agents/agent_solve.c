@@ -1,5 +1,5 @@
 /*
- * agent_solve RUNDIR SCENE.json METHOD [--max-iterations N] [--steps N] AGENTS...
+ * agent_solve RUNDIR SCENE.json METHOD [--max-iterations N] [--steps N] [--exact] AGENTS...
  *
  * The same job solved in process and across agents: for each count N in
  * 1..(number of rotation-fit agents given) the scene's solver runs with
@@ -17,6 +17,15 @@
  * (its state, q and p, lives there): the run must show calls to it, and a
  * static one none. --steps N shortens a dynamic run (the same override on
  * both sides; the test that passes it says why).
+ *
+ * --exact: one rotation-fit agent only, and the run must be the in-process
+ * one bit for bit (energy, every position, iteration count). With one
+ * partition the agent sums in element order as the solver does, and the
+ * sparse-solve agent factors the Hessian in the order the coordinator
+ * gave it (bg_sparse_reorder, BGA_SOLVE_ORDERED), as the solver factors
+ * it in process; an agent that chose its own order would round otherwise.
+ * For static Newton scenes without a morph blend or a barrier (whose
+ * scaled sums the coordinator adds, unlike the solver).
  */
 #include <math.h>
 #include <stdio.h>
@@ -135,6 +144,15 @@ static int compare(const bg_scene_t *scene, const bg_solve_result_t *a, const bg
     return bad;
 }
 
+/* a and b are the same run bit for bit: energy, positions, iterations. */
+static int same_bits(const bg_scene_t *scene, const bg_solve_result_t *a,
+                     const bg_solve_result_t *b)
+{
+    const size_t ndof = (size_t)scene->mesh->nv * scene->mesh->dim;
+    return memcmp(&a->energy, &b->energy, sizeof a->energy) == 0 &&
+           a->iterations == b->iterations && memcmp(a->q, b->q, ndof * sizeof *a->q) == 0;
+}
+
 /* The time split of a run must account for its wall time as the report
  * claims (bg_solve_result_t): rotation fit, assembly, analysis, factor,
  * solve, vector work, output and set-up within SPLIT_TOL of wall_seconds
@@ -214,8 +232,13 @@ static int check_integ(const bga_backend_t *remote, int dynamic, int step_count,
 
 int main(int argc, char **argv)
 {
-    int first = 4, cap = -1, steps = -1;
+    int first = 4, cap = -1, steps = -1, exact = 0;
     while (argc > first + 1 && strncmp(argv[first], "--", 2) == 0) {
+        if (strcmp(argv[first], "--exact") == 0) {
+            exact = 1;
+            first++;
+            continue;
+        }
         int *into = strcmp(argv[first], "--max-iterations") == 0 ? &cap
                     : strcmp(argv[first], "--steps") == 0        ? &steps
                                                                  : NULL;
@@ -227,7 +250,7 @@ int main(int argc, char **argv)
     if (argc <= first || argc - first > MAX_AGENTS || strncmp(argv[first], "--", 2) == 0) {
         fprintf(stderr,
                 "usage: agent_solve RUNDIR SCENE.json METHOD [--max-iterations N] [--steps N] "
-                "ROTFIT-AGENT...\n");
+                "[--exact] ROTFIT-AGENT...\n");
         return 2;
     }
     cap = cap < 0 ? 0 : cap;
@@ -240,7 +263,7 @@ int main(int argc, char **argv)
         return 2;
     }
     char eps[MAX_AGENTS][256], solve_ep[256];
-    const int nagents = argc - first;
+    const int nagents = exact ? 1 : argc - first;
     for (int i = 0; i < nagents; i++)
         if (read_endpoint(dir, argv[first + i], eps[i], sizeof eps[i]) != 0)
             return 1;
@@ -285,6 +308,10 @@ int main(int argc, char **argv)
             bad++;
         } else {
             bad += compare(scene, &local, &r, n);
+            if (exact && !same_bits(scene, &local, &r)) {
+                printf("    MISMATCH: not the in-process run bit for bit\n");
+                bad++;
+            }
             bad += check_split("agents'", &r, run_queue_wait() - waited);
             bad +=
                 check_integ(remote, scene->task == BG_TASK_DYNAMIC, r.step_count, r.limited_steps);

@@ -391,6 +391,97 @@ static void test_sparse_solve_matches_cholmod(void **state)
     bg_mesh_destroy(&mesh);
 }
 
+/*
+ * A pattern the coordinator reordered (bg_sparse_reorder) and sent with
+ * BGA_SOLVE_ORDERED: the agent keeps its order, so its factor is the
+ * in-process one (the same cost model) and its solutions, with the
+ * right-hand sides permuted as the agents' backend permutes them, are the
+ * in-process bg_sparse_solve_many's bit for bit. An agent that ignored the
+ * option would analyse the reordered pattern afresh (its own fill-reducing
+ * order of it) and miss both.
+ */
+static void test_sparse_solve_ordered_bit_for_bit(void **state)
+{
+    (void)state;
+    bg_mesh_t *mesh = NULL;
+    bg_error_t err = BG_ERROR_INIT;
+    const int32_t cells[3] = {6, 5, 4};
+    const double origin[3] = {0, 0, 0}, size[3] = {1.2, 1, 0.8};
+    assert_int_equal(bg_mesh_generate_box(cells, origin, size, &mesh, &err), BG_OK);
+    const int dim = 3;
+    const size_t ndof = (size_t)mesh->nv * dim;
+    double *q = malloc(ndof * sizeof *q);
+    fx_deform(mesh, 0.4, q);
+    bg_elastic_t *model = NULL;
+    assert_int_equal(bg_elastic_new(mesh, MU, LAMBDA, &model, &err), BG_OK);
+    bg_elastic_eval(model, q, NULL);
+    int32_t *free_index = fx_all_free(mesh, dim);
+    bg_sparse_t *local = NULL;
+    assert_int_equal(bg_sparse_new(mesh, dim, free_index, (int32_t)ndof, &local, &err), BG_OK);
+    assert_int_equal(bg_sparse_reorder(local, &err), BG_OK);
+    const int32_t *perm = bg_sparse_permutation(local);
+    assert_non_null(perm);
+    int moved = 0;
+    for (int32_t k = 0; k < bg_sparse_size(local); k++)
+        moved += perm[k] != k;
+    assert_true(moved > 0); /* a real renumbering, or the test shows nothing */
+    bg_sparse_zero(local);
+    bg_elastic_assemble_hessian(model, q, 1, 1.0, bg_sparse_scatter(local),
+                                bg_sparse_values(local));
+    const int32_t n = bg_sparse_size(local);
+    const size_t nnz = bg_sparse_nonzeros(local);
+    const double shift = 0.25;
+    double *rhs = malloc(2 * (size_t)n * sizeof *rhs), *ref = malloc(2 * (size_t)n * sizeof *ref);
+    double *stored = malloc(2 * (size_t)n * sizeof *stored), *x = malloc(2 * (size_t)n * sizeof *x);
+    for (int32_t i = 0; i < 2 * n; i++)
+        rhs[i] = cos(0.29 * i) + (i % 7 == 0 ? 0.5 : 0.0);
+    for (int c = 0; c < 2; c++)
+        for (int32_t k = 0; k < n; k++)
+            stored[(size_t)c * n + k] = rhs[(size_t)c * n + perm[k]];
+    bga_service_t *svc = service(1, BGA_SERVICE_SOLVE);
+    bga_msg_t m, rep;
+    bga_frames_t keep;
+    bga_msg_init(&m, BGA_SOLVE_SETUP, 8, 1);
+    m.field[BGA_SS_N].i = n;
+    m.field[BGA_SS_NNZ].i = (int64_t)nnz;
+    m.field[BGA_SS_OPTIONS].i = BGA_SOLVE_ORDERED;
+    m.array[BGA_SS_COLPTR] = (bga_array_t){bg_sparse_colptr(local), (size_t)n + 1};
+    m.array[BGA_SS_ROWIDX] = (bga_array_t){bg_sparse_rowidx(local), nnz};
+    expect_reply(svc, &m, 0.0, BGA_ACK);
+    bga_msg_init(&m, BGA_SOLVE_FACTOR, 8, 2);
+    m.field[BGA_SF_SHIFT].f = shift;
+    m.array[BGA_SF_VALUES] = (bga_array_t){bg_sparse_values(local), nnz};
+    assert_int_equal(call(svc, &m, 0.0, &rep, &keep), BGA_WIRE_OK);
+    assert_int_equal(rep.header.type, BGA_SOLVE_FACTORED);
+    assert_int_equal(rep.field[BGA_SD_POSDEF].i, 1);
+    assert_true(rep.field[BGA_SD_FLOPS].f == bg_sparse_factor_flops(local));
+    assert_true(rep.field[BGA_SD_FACTOR_NONZEROS].f == bg_sparse_factor_nonzeros(local));
+    bga_frames_free(&keep);
+    bga_msg_init(&m, BGA_SOLVE_RHS, 8, 3);
+    m.field[BGA_SR_NRHS].i = 2;
+    m.array[BGA_SR_RHS] = (bga_array_t){stored, 2 * (size_t)n};
+    assert_int_equal(call(svc, &m, 0.0, &rep, &keep), BGA_WIRE_OK);
+    assert_int_equal(rep.array[BGA_SX_X].count, 2 * (size_t)n);
+    bga_msg_copy_f64(&rep, BGA_SX_X, stored);
+    bga_frames_free(&keep);
+    for (int c = 0; c < 2; c++)
+        for (int32_t k = 0; k < n; k++)
+            x[(size_t)c * n + perm[k]] = stored[(size_t)c * n + k];
+    assert_int_equal(bg_sparse_factorize(local, shift, &err), BG_OK);
+    assert_int_equal(bg_sparse_solve_many(local, 2, rhs, ref, &err), BG_OK);
+    assert_memory_equal(x, ref, 2 * (size_t)n * sizeof *x);
+    bga_service_destroy(&svc);
+    free(rhs);
+    free(ref);
+    free(stored);
+    free(x);
+    bg_sparse_destroy(&local);
+    free(free_index);
+    bg_elastic_destroy(&model);
+    free(q);
+    bg_mesh_destroy(&mesh);
+}
+
 static void test_integration_step_closed_form(void **state)
 {
     (void)state;
@@ -545,6 +636,7 @@ int main(void)
         cmocka_unit_test(test_rotfit_partitions_match_whole_mesh),
         cmocka_unit_test(test_rotfit_bad_requests),
         cmocka_unit_test(test_sparse_solve_matches_cholmod),
+        cmocka_unit_test(test_sparse_solve_ordered_bit_for_bit),
         cmocka_unit_test(test_integration_step_closed_form),
         cmocka_unit_test(test_slots_release_and_leases),
     };

@@ -95,7 +95,7 @@ static void sample(uint16_t type, bga_msg_t *m)
     case BGA_SOLVE_SETUP:
         m->field[BGA_SS_N].i = 3;
         m->field[BGA_SS_NNZ].i = 6;
-        m->field[BGA_SS_PREFER_SOLVES].i = 1;
+        m->field[BGA_SS_OPTIONS].i = BGA_SOLVE_PREFER_SOLVES | BGA_SOLVE_ORDERED;
         m->array[BGA_SS_COLPTR] = (bga_array_t){COLPTR, 4};
         m->array[BGA_SS_ROWIDX] = (bga_array_t){ROWIDX, 6};
         break;
