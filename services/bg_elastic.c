@@ -1092,8 +1092,68 @@ static void block3_stiffness(hess3_t *restrict h, const double *restrict Di,
         }
 }
 
+/* The vertex-block path reads a block's map records ELASTIC_PREFETCH
+ * blocks ahead and the values they point at one block ahead: records are
+ * by mesh element, values by the factor's order, neither in curve order,
+ * so both would otherwise be cache misses after each factorization
+ * (bunny-edit, cold projected assembly: 8.9 ms with the entry map, 7.2
+ * with blocks alone, 6.1 reading the values ahead, 5.9 with records four
+ * blocks ahead rather than two). */
+#define ELASTIC_PREFETCH 4
+/* Lane b's K_e (h->K) into values through its vertex-block record bl
+ * (bg_elastic_tet_blocks_t): each block column is three adjacent values
+ * (fewer on a diagonal block). Every entry is added once, so the values
+ * equal the entry scatter's whatever order the entries go in. */
+static inline __attribute__((always_inline)) void
+add_blocks(const hess3_t *restrict h, int b, const bg_elastic_tet_blocks_t *restrict bl,
+           double *restrict values)
+{
+#pragma GCC unroll 4
+    for (int i = 0; i < 4; i++) {
+        const int32_t pd = bl->pos[BG_ELASTIC_BLOCK_INDEX(i, i)];
+        if (pd >= 0) {
+            const int32_t s = bl->stride[i];
+#pragma GCC unroll 3
+            for (int c = 0; c < 3; c++) {
+                double *restrict col = values + pd + c * s - c * (c - 1) / 2;
+                for (int d = c; d < 3; d++)
+                    col[d] += h->K[BG_ELASTIC_TRI_INDEX(12, 3 * i + c, 3 * i + d)][b];
+            }
+        }
+#pragma GCC unroll 3
+        for (int j = i + 1; j < 4; j++) {
+            const int k = BG_ELASTIC_BLOCK_INDEX(i, j);
+            const int32_t p = bl->pos[k];
+            if (p < 0)
+                continue;
+            if ((bl->transposed >> k) & 1u) {
+                /* column vertex j: its column c holds K_e's (i, d), (j, c) */
+                const int32_t s = bl->stride[j];
+    #pragma GCC unroll 3
+            for (int c = 0; c < 3; c++) {
+                    double *restrict col = values + p + c * s - c * (c - 1) / 2;
+                    for (int d = 0; d < 3; d++)
+                        col[d] += h->K[BG_ELASTIC_TRI_INDEX(12, 3 * i + d, 3 * j + c)][b];
+                }
+            } else {
+                const int32_t s = bl->stride[i];
+    #pragma GCC unroll 3
+            for (int c = 0; c < 3; c++) {
+                    double *restrict col = values + p + c * s - c * (c - 1) / 2;
+                    for (int d = 0; d < 3; d++)
+                        col[d] += h->K[BG_ELASTIC_TRI_INDEX(12, 3 * i + c, 3 * j + d)][b];
+                }
+            }
+        }
+    }
+}
+
+/* The 3D assembly; the entries go in through the entry scatter map or,
+ * when blocks is not NULL, through the vertex-block map (the entry map
+ * for the elements it marks). */
 static void assemble3(const bg_elastic_t *md, const double *q, int project, double scale,
-                      const int32_t *restrict scatter, double *restrict values)
+                      const int32_t *restrict scatter, const bg_elastic_tet_blocks_t *blocks,
+                      double *restrict values)
 {
     const bg_mesh_t *mesh = md->mesh;
     block3_t blk;
@@ -1140,22 +1200,46 @@ static void assemble3(const bg_elastic_t *md, const double *q, int project, doub
             rest |= h.ok[b] == 0.0;
         if (rest)
             block3_twist_eigen(&h, md->mu, md->lambda, project);
-        /* The next block's scatter rows: elements in curve order sit at
-         * scattered rows of the map (mesh order), so ask for them early. */
+        /* The next block's map records: elements in curve order sit at
+         * scattered records (mesh order), so ask for them early. */
         for (int b = 0; b < ELASTIC_BLOCK && e0 + ELASTIC_BLOCK + b < mesh->ne; b++) {
-            const char *row = (const char *)(scatter + (size_t)md->order[e0 + ELASTIC_BLOCK + b] *
-                                                           ELASTIC_TRI3);
+            const size_t next = (size_t)md->order[e0 + ELASTIC_BLOCK + b];
+            if (blocks) {
+                if (e0 + ELASTIC_PREFETCH * ELASTIC_BLOCK + b < mesh->ne)
+                    __builtin_prefetch(blocks + md->order[e0 + ELASTIC_PREFETCH * ELASTIC_BLOCK + b]);
+                const bg_elastic_tet_blocks_t *bl = blocks + next;
+                if (!bl->entries) {
+                    for (int k = 0; k < 10; k++)
+                        if (bl->pos[k] >= 0)
+                            __builtin_prefetch(values + bl->pos[k], 1);
+                    continue;
+                }
+            }
+            const char *row = (const char *)(scatter + next * ELASTIC_TRI3);
             for (size_t off = 0; off < ELASTIC_TRI3 * sizeof *scatter; off += 64)
                 __builtin_prefetch(row + off);
         }
         block3_stiffness(&h, Di, md->volume + e0, scale, md->mu, md->lambda);
         for (int b = 0; b < count; b++) {
-            const int32_t *sc = scatter + (size_t)md->order[e0 + b] * ELASTIC_TRI3;
+            const size_t e = (size_t)md->order[e0 + b];
+            if (blocks && !blocks[e].entries) {
+                add_blocks(&h, b, blocks + e, values);
+                continue;
+            }
+            const int32_t *sc = scatter + e * ELASTIC_TRI3;
             for (int t = 0; t < ELASTIC_TRI3; t++)
                 if (sc[t] >= 0)
                     values[sc[t]] += h.K[t][b];
         }
     }
+}
+
+void bg_elastic_assemble_hessian_blocks(const bg_elastic_t *md, const double *q, int project,
+                                        double scale, const bg_elastic_tet_blocks_t *blocks,
+                                        const int32_t *scatter, double *values)
+{
+    if (md->n == 3)
+        assemble3(md, q, project, scale, scatter, blocks, values);
 }
 
 void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int project,
@@ -1165,7 +1249,7 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
     const int n = md->n, k = n + 1, m = md->m, nn = n * n, T = BG_ELASTIC_TRI_SIZE(m);
     const bg_mesh_t *mesh = md->mesh;
     if (n == 3) {
-        assemble3(md, q, project, scale, scatter, values);
+        assemble3(md, q, project, scale, scatter, NULL, values);
         return;
     }
     for (int32_t p = 0; p < mesh->ne; p++) {

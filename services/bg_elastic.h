@@ -78,6 +78,47 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *model, const double *q, int
                                  double scale, const int32_t *scatter, double *values);
 
 /*
+ * Where a tetrahedron's element matrix lands in a 3D Hessian whose
+ * vertices keep their three unknowns adjacent, in component order, in the
+ * stored numbering (bg_sparse_tet_blocks makes the map from the entry
+ * scatter map). The 12×12 K_e is ten 3×3 vertex blocks (i, j), i ≤ j
+ * local vertices, numbered k = BG_ELASTIC_BLOCK_INDEX(i, j) (row by row:
+ * (0,0), (0,1), (0,2), (0,3), (1,1), ...). In the lower-triangle CSC a
+ * block's column vertex is the one stored first and its row vertex the
+ * other; pos[k] is the value index of the entry (row vertex's component
+ * 0, column vertex's component 0), or −1 when a vertex of the block is
+ * held. Column c + 1 holds the same rows stride − c entries further on
+ * than column c (stride: the column vertex's, by local vertex), so entry
+ * (row d, column c) is at pos + d + c·stride − c(c − 1)/2; a diagonal
+ * block has rows d ≥ c only. Bit k of transposed is set when block k's
+ * column vertex is j: its column c then holds K_e's rows (i, d) of
+ * column (j, c). An element with a vertex whose unknowns are not so
+ * stored (CHOLMOD's order splits a few; partly held vertices) has
+ * entries set and takes its row of the entry scatter map instead. One
+ * 64-byte record per element: ten positions instead of 78 entries, each
+ * block column three adjacent values.
+ */
+#define BG_ELASTIC_BLOCK_INDEX(i, j) ((i) * 4 - ((i) * ((i)-1)) / 2 + ((j) - (i)))
+typedef struct bg_elastic_tet_blocks {
+    int32_t pos[10];
+    int32_t stride[4];
+    uint32_t transposed;
+    uint32_t entries;
+} bg_elastic_tet_blocks_t;
+
+/*
+ * bg_elastic_assemble_hessian through the vertex-block map blocks (one
+ * record per element, mesh numbering: bg_sparse_tet_blocks) and, for the
+ * elements marked entries, the entry scatter map it was made from. The
+ * same values to the bit as bg_elastic_assemble_hessian with scatter
+ * (each entry gets the same contributions in the same element order).
+ * Tetrahedral models only (a no-op otherwise).
+ */
+void bg_elastic_assemble_hessian_blocks(const bg_elastic_t *model, const double *q, int project,
+                                        double scale, const bg_elastic_tet_blocks_t *blocks,
+                                        const int32_t *scatter, double *values);
+
+/*
  * The scalar cotan Laplacian scale·V_e G Gᵀ ((n+1)×(n+1) per element),
  * scattered like the Hessian but with local entries numbered by node
  * only: positions scatter[e * T + t], T = BG_ELASTIC_TRI_SIZE(n+1).
