@@ -268,6 +268,11 @@ const bg_mesh_t *bg_elastic_mesh(const bg_elastic_t *model)
     return model->mesh;
 }
 
+const int32_t *bg_elastic_order(const bg_elastic_t *model)
+{
+    return model->order;
+}
+
 double bg_elastic_volume(const bg_elastic_t *model, int32_t e)
 {
     return model->volume[model->slot[e]];
@@ -1092,14 +1097,6 @@ static void block3_stiffness(hess3_t *restrict h, const double *restrict Di,
         }
 }
 
-/* The vertex-block path reads a block's map records ELASTIC_PREFETCH
- * blocks ahead and the values they point at one block ahead: records are
- * by mesh element, values by the factor's order, neither in curve order,
- * so both would otherwise be cache misses after each factorization
- * (bunny-edit, cold projected assembly: 8.9 ms with the entry map, 7.2
- * with blocks alone, 6.1 reading the values ahead, 5.9 with records four
- * blocks ahead rather than two). */
-#define ELASTIC_PREFETCH 4
 /* Lane b's K_e (h->K) into values through its vertex-block record bl
  * (bg_elastic_tet_blocks_t): each block column is three adjacent values
  * (fewer on a diagonal block). Every entry is added once, so the values
@@ -1149,8 +1146,8 @@ add_blocks(const hess3_t *restrict h, int b, const bg_elastic_tet_blocks_t *rest
 }
 
 /* The 3D assembly; the entries go in through the entry scatter map or,
- * when blocks is not NULL, through the vertex-block map (the entry map
- * for the elements it marks). */
+ * when blocks is not NULL, through the vertex-block map in the model's
+ * order (the entry map for the elements it marks). */
 static void assemble3(const bg_elastic_t *md, const double *q, int project, double scale,
                       const int32_t *restrict scatter, const bg_elastic_tet_blocks_t *blocks,
                       double *restrict values)
@@ -1200,20 +1197,17 @@ static void assemble3(const bg_elastic_t *md, const double *q, int project, doub
             rest |= h.ok[b] == 0.0;
         if (rest)
             block3_twist_eigen(&h, md->mu, md->lambda, project);
-        /* The next block's map records: elements in curve order sit at
-         * scattered records (mesh order), so ask for them early. */
+        /* The next block's map rows (entry map: by mesh element, so
+         * scattered in curve order) or the values its block records point
+         * at (in the factor's order): ask for them early. */
         for (int b = 0; b < ELASTIC_BLOCK && e0 + ELASTIC_BLOCK + b < mesh->ne; b++) {
             const size_t next = (size_t)md->order[e0 + ELASTIC_BLOCK + b];
-            if (blocks) {
-                if (e0 + ELASTIC_PREFETCH * ELASTIC_BLOCK + b < mesh->ne)
-                    __builtin_prefetch(blocks + md->order[e0 + ELASTIC_PREFETCH * ELASTIC_BLOCK + b]);
-                const bg_elastic_tet_blocks_t *bl = blocks + next;
-                if (!bl->entries) {
-                    for (int k = 0; k < 10; k++)
-                        if (bl->pos[k] >= 0)
-                            __builtin_prefetch(values + bl->pos[k], 1);
-                    continue;
-                }
+            if (blocks && !blocks[e0 + ELASTIC_BLOCK + b].entries) {
+                const bg_elastic_tet_blocks_t *bl = blocks + e0 + ELASTIC_BLOCK + b;
+                for (int k = 0; k < 10; k++)
+                    if (bl->pos[k] >= 0)
+                        __builtin_prefetch(values + bl->pos[k], 1);
+                continue;
             }
             const char *row = (const char *)(scatter + next * ELASTIC_TRI3);
             for (size_t off = 0; off < ELASTIC_TRI3 * sizeof *scatter; off += 64)
@@ -1222,8 +1216,8 @@ static void assemble3(const bg_elastic_t *md, const double *q, int project, doub
         block3_stiffness(&h, Di, md->volume + e0, scale, md->mu, md->lambda);
         for (int b = 0; b < count; b++) {
             const size_t e = (size_t)md->order[e0 + b];
-            if (blocks && !blocks[e].entries) {
-                add_blocks(&h, b, blocks + e, values);
+            if (blocks && !blocks[e0 + b].entries) {
+                add_blocks(&h, b, blocks + e0 + b, values);
                 continue;
             }
             const int32_t *sc = scatter + e * ELASTIC_TRI3;

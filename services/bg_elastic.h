@@ -53,6 +53,10 @@ bg_status bg_elastic_new_from_rest(const bg_mesh_t *mesh, int dim, const double 
 int bg_elastic_dim(const bg_elastic_t *model);
 int bg_elastic_local_size(const bg_elastic_t *model);
 const bg_mesh_t *bg_elastic_mesh(const bg_elastic_t *model);
+/* The order the model visits its elements in (a Morton curve through the
+ * rest centroids): position p holds element order[p], mesh numbering; ne
+ * values, borrowed, fixed for the model's life. */
+const int32_t *bg_elastic_order(const bg_elastic_t *model);
 /* Rest measure (area/volume) of element e; the sum over all elements. */
 double bg_elastic_volume(const bg_elastic_t *model, int32_t e);
 double bg_elastic_total_volume(const bg_elastic_t *model);
@@ -107,9 +111,11 @@ typedef struct bg_elastic_tet_blocks {
 } bg_elastic_tet_blocks_t;
 
 /*
- * bg_elastic_assemble_hessian through the vertex-block map blocks (one
- * record per element, mesh numbering: bg_sparse_tet_blocks) and, for the
- * elements marked entries, the entry scatter map it was made from. The
+ * bg_elastic_assemble_hessian through the vertex-block map blocks and,
+ * for the elements marked entries, the entry scatter map it was made
+ * from. The records must be in the model's order (record p for element
+ * bg_elastic_order(model)[p]: bg_sparse_order_tet_blocks), so that they
+ * are read as one stream. The
  * same values to the bit as bg_elastic_assemble_hessian with scatter
  * (each entry gets the same contributions in the same element order).
  * Tetrahedral models only (a no-op otherwise).

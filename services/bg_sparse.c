@@ -16,6 +16,7 @@ struct bg_sparse {
     int n;            /* bg_sparse_new: unknowns per vertex (0: bg_sparse_new_csc) */
     int m;            /* bg_sparse_new: unknowns per element (nodes × n) */
     bg_elastic_tet_blocks_t *blocks; /* bg_sparse_tet_blocks, or NULL */
+    const int32_t *blocks_order;     /* bg_sparse_order_tet_blocks (borrowed), or NULL */
     cholmod_common common;
     cholmod_sparse *A;
     cholmod_factor *L;
@@ -316,6 +317,30 @@ const int32_t *bg_sparse_permutation(const bg_sparse_t *sys)
 const bg_elastic_tet_blocks_t *bg_sparse_tet_blocks(const bg_sparse_t *sys)
 {
     return sys->blocks;
+}
+
+bg_status bg_sparse_order_tet_blocks(bg_sparse_t *sys, const int32_t *order, bg_error_t *err)
+{
+    if (!sys->blocks || sys->blocks_order == order)
+        return BG_OK;
+    if (sys->blocks_order)
+        return bg_error_set(err, BG_ERR_INVALID, "the vertex-block map is already in another "
+                            "element order");
+    const size_t ne = sys->nscatter / BG_ELASTIC_TRI_SIZE(12);
+    bg_elastic_tet_blocks_t *by = malloc((ne + 1) * sizeof *by);
+    if (!by)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory ordering the vertex-block map");
+    for (size_t p = 0; p < ne; p++)
+        by[p] = sys->blocks[order[p]];
+    free(sys->blocks);
+    sys->blocks = by;
+    sys->blocks_order = order;
+    return BG_OK;
+}
+
+const int32_t *bg_sparse_tet_blocks_order(const bg_sparse_t *sys)
+{
+    return sys->blocks_order;
 }
 
 const int32_t *bg_sparse_scatter(const bg_sparse_t *sys)

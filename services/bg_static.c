@@ -760,9 +760,12 @@ static bg_status newton_direction(problem_t *p, int try_exact, bg_solve_result_t
     *slope = NAN;
     /* In process, the Hessian is stored in its factor's order, so that no
      * factorization permutes it (bg_sparse_reorder: the symbolic analysis,
-     * once, before the first assembly; counted as analysis time); an agent
-     * gets the pattern in the unknowns' own numbering. */
-    if (p->backend == bg_backend_local() && (st = bg_sparse_reorder(p->sys, err)) != BG_OK)
+     * once, before the first assembly; counted as analysis time), with its
+     * vertex-block map in the model's element order; an agent gets the
+     * pattern in the unknowns' own numbering. */
+    if (p->backend == bg_backend_local() &&
+        ((st = bg_sparse_reorder(p->sys, err)) != BG_OK ||
+         (st = bg_sparse_order_tet_blocks(p->sys, bg_elastic_order(p->model), err)) != BG_OK))
         return st;
     p->factor_ready = 0;
     p->factor_c = p->inertia ? p->inertia->c : 0.0;

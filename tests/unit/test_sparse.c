@@ -328,6 +328,13 @@ static void tet_blocks(void **state)
     assert_null(bg_sparse_tet_blocks(sys));
     assert_int_equal(bg_sparse_reorder(sys, NULL), BG_OK);
     assert_int_equal(bg_sparse_reorder(part, NULL), BG_OK);
+    /* the records in the model's element order, once */
+    assert_null(bg_sparse_tet_blocks_order(sys));
+    assert_int_equal(bg_sparse_order_tet_blocks(sys, bg_elastic_order(md), NULL), BG_OK);
+    assert_int_equal(bg_sparse_order_tet_blocks(part, bg_elastic_order(md), NULL), BG_OK);
+    assert_int_equal(bg_sparse_order_tet_blocks(sys, bg_elastic_order(md), NULL), BG_OK);
+    assert_true(bg_sparse_tet_blocks_order(sys) == bg_elastic_order(md));
+    assert_int_equal(bg_sparse_order_tet_blocks(sys, index, NULL), BG_ERR_INVALID);
     const bg_elastic_tet_blocks_t *blocks = bg_sparse_tet_blocks(sys);
     assert_non_null(blocks);
     assert_non_null(bg_sparse_tet_blocks(part));
