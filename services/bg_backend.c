@@ -55,8 +55,17 @@ static bg_status local_fit_hessian(void *session, int id, const double *q, int p
 {
     (void)err;
     local_session *s = session;
-    bg_elastic_assemble_hessian(s->fit[id], q, project, scale, bg_sparse_scatter(s->sys[0]),
-                                values);
+    /* Newton's reordered Hessian has a vertex-block map in its model's
+     * element order: ten block positions per tetrahedron instead of 78
+     * entries (most elements), the same values. Another model (a morph
+     * target's) visits its elements in another order: the entry map. */
+    const bg_elastic_tet_blocks_t *blocks = bg_sparse_tet_blocks(s->sys[0]);
+    if (blocks && bg_sparse_tet_blocks_order(s->sys[0]) == bg_elastic_order(s->fit[id]))
+        bg_elastic_assemble_hessian_blocks(s->fit[id], q, project, scale, blocks,
+                                           bg_sparse_scatter(s->sys[0]), values);
+    else
+        bg_elastic_assemble_hessian(s->fit[id], q, project, scale, bg_sparse_scatter(s->sys[0]),
+                                    values);
     return BG_OK;
 }
 

@@ -268,6 +268,11 @@ const bg_mesh_t *bg_elastic_mesh(const bg_elastic_t *model)
     return model->mesh;
 }
 
+const int32_t *bg_elastic_order(const bg_elastic_t *model)
+{
+    return model->order;
+}
+
 double bg_elastic_volume(const bg_elastic_t *model, int32_t e)
 {
     return model->volume[model->slot[e]];
@@ -868,10 +873,14 @@ static void barycentric_gradients(int n, const double *Di, double g[4][3])
  * 78 packed entries of every K_e, then the entries are added into the
  * pattern lane by lane. The rotations are the ones the last evaluation
  * fitted at these positions (the contract: assemble after bg_elastic_eval
- * at the same q); a lane whose stored rotation is not settled at q, or
- * whose element is inverted or flat (the SVD's rotation), is fitted again
- * by the scalar bg_rotfit3 from it, which returns exactly the settled
- * rotation in the other case, so the matrix is the same either way. The
+ * at the same q). Lanes whose stored rotation is not settled at q (a
+ * rejected trial point's rotations: after a rejected chord step, most of
+ * the mesh, 20,161 of the bunny's 25,539 tets) are fitted again as
+ * bg_elastic_eval would fit them: the block's vectorised fit, then the
+ * scalar bg_rotfit3 from the stored rotation for the lanes it leaves
+ * (inverted or flat elements: the SVD's rotation). The scalar fit of
+ * every unsettled lane, as this was, cost 20,161 polar iterations in
+ * each such assembly. The
  * twist block's closed form covers every lane whose shifted M is safely
  * positive definite; the others take the scalar eigen-decomposition.
  */
@@ -1088,8 +1097,60 @@ static void block3_stiffness(hess3_t *restrict h, const double *restrict Di,
         }
 }
 
+/* Lane b's K_e (h->K) into values through its vertex-block record bl
+ * (bg_elastic_tet_blocks_t): each block column is three adjacent values
+ * (fewer on a diagonal block). Every entry is added once, so the values
+ * equal the entry scatter's whatever order the entries go in. */
+static inline __attribute__((always_inline)) void
+add_blocks(const hess3_t *restrict h, int b, const bg_elastic_tet_blocks_t *restrict bl,
+           double *restrict values)
+{
+#pragma GCC unroll 4
+    for (int i = 0; i < 4; i++) {
+        const int32_t pd = bl->pos[BG_ELASTIC_BLOCK_INDEX(i, i)];
+        if (pd >= 0) {
+            const int32_t s = bl->stride[i];
+#pragma GCC unroll 3
+            for (int c = 0; c < 3; c++) {
+                double *restrict col = values + pd + c * s - c * (c - 1) / 2;
+                for (int d = c; d < 3; d++)
+                    col[d] += h->K[BG_ELASTIC_TRI_INDEX(12, 3 * i + c, 3 * i + d)][b];
+            }
+        }
+#pragma GCC unroll 3
+        for (int j = i + 1; j < 4; j++) {
+            const int k = BG_ELASTIC_BLOCK_INDEX(i, j);
+            const int32_t p = bl->pos[k];
+            if (p < 0)
+                continue;
+            if ((bl->transposed >> k) & 1u) {
+                /* column vertex j: its column c holds K_e's (i, d), (j, c) */
+                const int32_t s = bl->stride[j];
+    #pragma GCC unroll 3
+            for (int c = 0; c < 3; c++) {
+                    double *restrict col = values + p + c * s - c * (c - 1) / 2;
+                    for (int d = 0; d < 3; d++)
+                        col[d] += h->K[BG_ELASTIC_TRI_INDEX(12, 3 * i + d, 3 * j + c)][b];
+                }
+            } else {
+                const int32_t s = bl->stride[i];
+    #pragma GCC unroll 3
+            for (int c = 0; c < 3; c++) {
+                    double *restrict col = values + p + c * s - c * (c - 1) / 2;
+                    for (int d = 0; d < 3; d++)
+                        col[d] += h->K[BG_ELASTIC_TRI_INDEX(12, 3 * i + c, 3 * j + d)][b];
+                }
+            }
+        }
+    }
+}
+
+/* The 3D assembly; the entries go in through the entry scatter map or,
+ * when blocks is not NULL, through the vertex-block map in the model's
+ * order (the entry map for the elements it marks). */
 static void assemble3(const bg_elastic_t *md, const double *q, int project, double scale,
-                      const int32_t *restrict scatter, double *restrict values)
+                      const int32_t *restrict scatter, const bg_elastic_tet_blocks_t *blocks,
+                      double *restrict values)
 {
     const bg_mesh_t *mesh = md->mesh;
     block3_t blk;
@@ -1102,6 +1163,18 @@ static void assemble3(const bg_elastic_t *md, const double *q, int project, doub
         memcpy(blk.q, quat, sizeof blk.q);
         block3_gradient(&blk, md->nodes + (size_t)e0 * 4, q, Di);
         block3_rotations(&blk, &h);
+        int unsettled = 0;
+        for (int b = 0; b < count; b++)
+            unsettled |= h.ok[b] == 0.0;
+        if (unsettled) {
+            /* Rotations fitted elsewhere (a rejected trial point's, after
+             * a chord step: most of the mesh) are fitted again as
+             * bg_elastic_eval would fit them at q: the vectorised fit
+             * from them, then the scalar fit, from the stored rotation,
+             * for the lanes it leaves. Settled lanes are not stepped. */
+            block3_fit(&blk, md->mu, md->lambda);
+            block3_rotations(&blk, &h);
+        }
         for (int b = 0; b < count; b++) {
             if (h.ok[b] != 0.0)
                 continue;
@@ -1109,7 +1182,7 @@ static void assemble3(const bg_elastic_t *md, const double *q, int project, doub
             for (int i = 0; i < 9; i++)
                 F[i] = blk.F[i][b];
             for (int i = 0; i < 4; i++)
-                qs[i] = blk.q[i][b];
+                qs[i] = quat[i * ELASTIC_BLOCK + b];
             bg_rotfit3(F, qs, R);
             bg_mul_tn3(R, F, S);
             for (int i = 0; i < 9; i++) {
@@ -1124,22 +1197,43 @@ static void assemble3(const bg_elastic_t *md, const double *q, int project, doub
             rest |= h.ok[b] == 0.0;
         if (rest)
             block3_twist_eigen(&h, md->mu, md->lambda, project);
-        /* The next block's scatter rows: elements in curve order sit at
-         * scattered rows of the map (mesh order), so ask for them early. */
+        /* The next block's map rows (entry map: by mesh element, so
+         * scattered in curve order) or the values its block records point
+         * at (in the factor's order): ask for them early. */
         for (int b = 0; b < ELASTIC_BLOCK && e0 + ELASTIC_BLOCK + b < mesh->ne; b++) {
-            const char *row = (const char *)(scatter + (size_t)md->order[e0 + ELASTIC_BLOCK + b] *
-                                                           ELASTIC_TRI3);
+            const size_t next = (size_t)md->order[e0 + ELASTIC_BLOCK + b];
+            if (blocks && !blocks[e0 + ELASTIC_BLOCK + b].entries) {
+                const bg_elastic_tet_blocks_t *bl = blocks + e0 + ELASTIC_BLOCK + b;
+                for (int k = 0; k < 10; k++)
+                    if (bl->pos[k] >= 0)
+                        __builtin_prefetch(values + bl->pos[k], 1);
+                continue;
+            }
+            const char *row = (const char *)(scatter + next * ELASTIC_TRI3);
             for (size_t off = 0; off < ELASTIC_TRI3 * sizeof *scatter; off += 64)
                 __builtin_prefetch(row + off);
         }
         block3_stiffness(&h, Di, md->volume + e0, scale, md->mu, md->lambda);
         for (int b = 0; b < count; b++) {
-            const int32_t *sc = scatter + (size_t)md->order[e0 + b] * ELASTIC_TRI3;
+            const size_t e = (size_t)md->order[e0 + b];
+            if (blocks && !blocks[e0 + b].entries) {
+                add_blocks(&h, b, blocks + e0 + b, values);
+                continue;
+            }
+            const int32_t *sc = scatter + e * ELASTIC_TRI3;
             for (int t = 0; t < ELASTIC_TRI3; t++)
                 if (sc[t] >= 0)
                     values[sc[t]] += h.K[t][b];
         }
     }
+}
+
+void bg_elastic_assemble_hessian_blocks(const bg_elastic_t *md, const double *q, int project,
+                                        double scale, const bg_elastic_tet_blocks_t *blocks,
+                                        const int32_t *scatter, double *values)
+{
+    if (md->n == 3)
+        assemble3(md, q, project, scale, scatter, blocks, values);
 }
 
 void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int project,
@@ -1149,7 +1243,7 @@ void bg_elastic_assemble_hessian(const bg_elastic_t *md, const double *q, int pr
     const int n = md->n, k = n + 1, m = md->m, nn = n * n, T = BG_ELASTIC_TRI_SIZE(m);
     const bg_mesh_t *mesh = md->mesh;
     if (n == 3) {
-        assemble3(md, q, project, scale, scatter, values);
+        assemble3(md, q, project, scale, scatter, NULL, values);
         return;
     }
     for (int32_t p = 0; p < mesh->ne; p++) {

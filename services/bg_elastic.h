@@ -53,6 +53,10 @@ bg_status bg_elastic_new_from_rest(const bg_mesh_t *mesh, int dim, const double 
 int bg_elastic_dim(const bg_elastic_t *model);
 int bg_elastic_local_size(const bg_elastic_t *model);
 const bg_mesh_t *bg_elastic_mesh(const bg_elastic_t *model);
+/* The order the model visits its elements in (a Morton curve through the
+ * rest centroids): position p holds element order[p], mesh numbering; ne
+ * values, borrowed, fixed for the model's life. */
+const int32_t *bg_elastic_order(const bg_elastic_t *model);
 /* Rest measure (area/volume) of element e; the sum over all elements. */
 double bg_elastic_volume(const bg_elastic_t *model, int32_t e);
 double bg_elastic_total_volume(const bg_elastic_t *model);
@@ -76,6 +80,49 @@ double bg_elastic_eval(bg_elastic_t *model, const double *q, double *grad);
  */
 void bg_elastic_assemble_hessian(const bg_elastic_t *model, const double *q, int project,
                                  double scale, const int32_t *scatter, double *values);
+
+/*
+ * Where a tetrahedron's element matrix lands in a 3D Hessian whose
+ * vertices keep their three unknowns adjacent, in component order, in the
+ * stored numbering (bg_sparse_tet_blocks makes the map from the entry
+ * scatter map). The 12×12 K_e is ten 3×3 vertex blocks (i, j), i ≤ j
+ * local vertices, numbered k = BG_ELASTIC_BLOCK_INDEX(i, j) (row by row:
+ * (0,0), (0,1), (0,2), (0,3), (1,1), ...). In the lower-triangle CSC a
+ * block's column vertex is the one stored first and its row vertex the
+ * other; pos[k] is the value index of the entry (row vertex's component
+ * 0, column vertex's component 0), or −1 when a vertex of the block is
+ * held. Column c + 1 holds the same rows stride − c entries further on
+ * than column c (stride: the column vertex's, by local vertex), so entry
+ * (row d, column c) is at pos + d + c·stride − c(c − 1)/2; a diagonal
+ * block has rows d ≥ c only. Bit k of transposed is set when block k's
+ * column vertex is j: its column c then holds K_e's rows (i, d) of
+ * column (j, c). An element with a vertex whose unknowns are not so
+ * stored (CHOLMOD's order splits a few; partly held vertices) has
+ * entries set and takes its row of the entry scatter map instead. One
+ * 64-byte record per element: ten positions instead of 78 entries, each
+ * block column three adjacent values.
+ */
+#define BG_ELASTIC_BLOCK_INDEX(i, j) ((i) * 4 - ((i) * ((i)-1)) / 2 + ((j) - (i)))
+typedef struct bg_elastic_tet_blocks {
+    int32_t pos[10];
+    int32_t stride[4];
+    uint32_t transposed;
+    uint32_t entries;
+} bg_elastic_tet_blocks_t;
+
+/*
+ * bg_elastic_assemble_hessian through the vertex-block map blocks and,
+ * for the elements marked entries, the entry scatter map it was made
+ * from. The records must be in the model's order (record p for element
+ * bg_elastic_order(model)[p]: bg_sparse_order_tet_blocks), so that they
+ * are read as one stream. The
+ * same values to the bit as bg_elastic_assemble_hessian with scatter
+ * (each entry gets the same contributions in the same element order).
+ * Tetrahedral models only (a no-op otherwise).
+ */
+void bg_elastic_assemble_hessian_blocks(const bg_elastic_t *model, const double *q, int project,
+                                        double scale, const bg_elastic_tet_blocks_t *blocks,
+                                        const int32_t *scatter, double *values);
 
 /*
  * The scalar cotan Laplacian scale·V_e G Gᵀ ((n+1)×(n+1) per element),

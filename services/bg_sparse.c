@@ -13,6 +13,10 @@ struct bg_sparse {
     int32_t *scatter; /* ne * T */
     size_t nscatter;  /* entries of scatter */
     int32_t *perm;    /* bg_sparse_reorder: stored unknown k is the caller's perm[k]; or NULL */
+    int n;            /* bg_sparse_new: unknowns per vertex (0: bg_sparse_new_csc) */
+    int m;            /* bg_sparse_new: unknowns per element (nodes × n) */
+    bg_elastic_tet_blocks_t *blocks; /* bg_sparse_tet_blocks, or NULL */
+    const int32_t *blocks_order;     /* bg_sparse_order_tet_blocks (borrowed), or NULL */
     cholmod_common common;
     cholmod_sparse *A;
     cholmod_factor *L;
@@ -184,6 +188,8 @@ bg_status bg_sparse_new(const bg_mesh_t *mesh, int n, const int32_t *free_index,
     st = build_pattern(sys, mesh, n, free_index, err);
     if (st != BG_OK)
         goto fail;
+    sys->n = n;
+    sys->m = mesh->nodes_per_element * n;
     const int k = mesh->nodes_per_element, m = k * n, T = BG_ELASTIC_TRI_SIZE(m);
     sys->nscatter = (size_t)mesh->ne * T;
     sys->scatter = malloc(sys->nscatter * sizeof *sys->scatter + 1);
@@ -276,6 +282,7 @@ void bg_sparse_destroy(bg_sparse_t **psys)
     cholmod_finish(&sys->common);
     free(sys->scatter);
     free(sys->perm);
+    free(sys->blocks);
     free(sys);
     *psys = NULL;
 }
@@ -306,6 +313,35 @@ const int32_t *bg_sparse_rowidx(const bg_sparse_t *sys)
 const int32_t *bg_sparse_permutation(const bg_sparse_t *sys)
 {
     return sys->perm;
+}
+
+const bg_elastic_tet_blocks_t *bg_sparse_tet_blocks(const bg_sparse_t *sys)
+{
+    return sys->blocks;
+}
+
+bg_status bg_sparse_order_tet_blocks(bg_sparse_t *sys, const int32_t *order, bg_error_t *err)
+{
+    if (!sys->blocks || sys->blocks_order == order)
+        return BG_OK;
+    if (sys->blocks_order)
+        return bg_error_set(err, BG_ERR_INVALID, "the vertex-block map is already in another "
+                            "element order");
+    const size_t ne = sys->nscatter / BG_ELASTIC_TRI_SIZE(12);
+    bg_elastic_tet_blocks_t *by = malloc((ne + 1) * sizeof *by);
+    if (!by)
+        return bg_error_set(err, BG_ERR_NOMEM, "out of memory ordering the vertex-block map");
+    for (size_t p = 0; p < ne; p++)
+        by[p] = sys->blocks[order[p]];
+    free(sys->blocks);
+    sys->blocks = by;
+    sys->blocks_order = order;
+    return BG_OK;
+}
+
+const int32_t *bg_sparse_tet_blocks_order(const bg_sparse_t *sys)
+{
+    return sys->blocks_order;
 }
 
 const int32_t *bg_sparse_scatter(const bg_sparse_t *sys)
@@ -386,6 +422,71 @@ void bg_sparse_keep_order(bg_sparse_t *sys)
         sys->keep_order = 1;
 }
 
+/* Entry (row vertex's component d, column vertex's component c) of a
+ * vertex block whose entry (0, 0) is at pos (bg_elastic_tet_blocks_t). */
+static int32_t block_entry(int32_t pos, int32_t stride, int d, int c)
+{
+    return pos + d + c * stride - c * (c - 1) / 2;
+}
+
+/*
+ * The vertex-block map (bg_elastic_tet_blocks_t) of a reordered
+ * tetrahedral system, read off its entry scatter map and checked against
+ * every one of its 78 entries per element: an element for which the
+ * blocks do not give the scatter map's positions (a vertex whose three
+ * unknowns CHOLMOD's order does not keep adjacent in component order)
+ * is marked to take its row of the entry map. BG_ERR_NOMEM only for
+ * memory.
+ */
+static bg_status build_tet_blocks(bg_sparse_t *sys)
+{
+    enum { M = 12, T = BG_ELASTIC_TRI_SIZE(12) };
+    if (sys->n != 3 || sys->m != M)
+        return BG_OK;
+    const size_t ne = sys->nscatter / T;
+    const int *Ai = sys->A->i;
+    bg_elastic_tet_blocks_t *blocks = calloc(ne + 1, sizeof *blocks);
+    if (!blocks)
+        return BG_ERR_NOMEM;
+    for (size_t e = 0; e < ne; e++) {
+        const int32_t *sc = sys->scatter + e * T;
+        bg_elastic_tet_blocks_t *bl = blocks + e;
+        int32_t first[4]; /* each vertex's stored first unknown, or −1 */
+        for (int i = 0; i < 4; i++) {
+            const int32_t d = sc[BG_ELASTIC_TRI_INDEX(M, 3 * i, 3 * i)];
+            first[i] = d >= 0 ? Ai[d] : -1;
+            /* row 1 of the diagonal block: column 1 is stride past column 0 */
+            bl->stride[i] = d >= 0 ? sc[BG_ELASTIC_TRI_INDEX(M, 3 * i + 1, 3 * i + 1)] -
+                                         sc[BG_ELASTIC_TRI_INDEX(M, 3 * i, 3 * i + 1)]
+                                   : 0;
+        }
+        for (int i = 0; i < 4; i++)
+            for (int j = i; j < 4; j++) {
+                const int k = BG_ELASTIC_BLOCK_INDEX(i, j);
+                const int free_ = first[i] >= 0 && first[j] >= 0;
+                bl->pos[k] = free_ ? sc[BG_ELASTIC_TRI_INDEX(M, 3 * i, 3 * j)] : -1;
+                if (free_ && first[j] < first[i])
+                    bl->transposed |= 1u << k;
+            }
+        /* every entry of K_e where the scatter map puts it */
+        for (int a = 0; a < M; a++)
+            for (int b = a; b < M; b++) {
+                const int i = a / 3, j = b / 3, k = BG_ELASTIC_BLOCK_INDEX(i, j);
+                int32_t at = -1;
+                if (bl->pos[k] >= 0) {
+                    const int t = (bl->transposed >> k) & 1;
+                    /* column vertex w, row vertex r: K_e (a, b) is (r's d, w's c) */
+                    const int c = t ? b % 3 : a % 3, d = t ? a % 3 : b % 3;
+                    at = block_entry(bl->pos[k], bl->stride[t ? j : i], d, c);
+                }
+                if (at != sc[BG_ELASTIC_TRI_INDEX(M, a, b)])
+                    bl->entries = 1;
+            }
+    }
+    sys->blocks = blocks;
+    return BG_OK;
+}
+
 bg_status bg_sparse_reorder(bg_sparse_t *sys, bg_error_t *err)
 {
     if (sys->perm || sys->analyzed)
@@ -410,10 +511,10 @@ bg_status bg_sparse_reorder(bg_sparse_t *sys, bg_error_t *err)
                           (int)n, (int)n);
         goto out;
     }
-    for (int32_t k = 0; k < n; k++) {
+    for (int32_t k = 0; k < n; k++)
         perm[k] = Perm[k];
-        inv[Perm[k]] = k;
-    }
+    for (int32_t k = 0; k < n; k++)
+        inv[perm[k]] = k;
     /* Entry (i, j), i ≥ j, of A lands at (r, s) = (max, min) of (inv i,
      * inv j) in the lower triangle of P A Pᵀ. Two stable counting sorts,
      * by r and then by s, leave each new column's rows increasing. */
@@ -476,6 +577,8 @@ bg_status bg_sparse_reorder(bg_sparse_t *sys, bg_error_t *err)
     c->postorder = post;
     if (st == BG_OK && sys->L->ordering != CHOLMOD_NATURAL)
         st = bg_error_set(err, BG_ERR_NUMERIC, "CHOLMOD did not keep the given order");
+    if (st == BG_OK && build_tet_blocks(sys) != BG_OK)
+        st = bg_error_set(err, BG_ERR_NOMEM, "out of memory for the vertex-block map");
 out:
     cholmod_free_sparse(&B, c);
     free(perm);

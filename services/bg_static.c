@@ -767,8 +767,12 @@ static bg_status newton_direction(problem_t *p, int try_exact, bg_solve_result_t
      * backend computes in this process (the local one, or one wrapping it);
      * the agents' backend has done it at solve_open, before the scatter map
      * went to the rotation-fit agents, and ships the reordered pattern:
-     * then this is a no-op. */
-    if ((st = bg_sparse_reorder(p->sys, err)) != BG_OK)
+     * then this is a no-op. The in-process backend also gets the
+     * vertex-block map in the model's element order (its assembly's fast
+     * path); agents assemble through the entry map they were sent. */
+    if ((st = bg_sparse_reorder(p->sys, err)) != BG_OK ||
+        (p->backend == bg_backend_local() &&
+         (st = bg_sparse_order_tet_blocks(p->sys, bg_elastic_order(p->model), err)) != BG_OK))
         return st;
     p->factor_ready = 0;
     p->factor_c = p->inertia ? p->inertia->c : 0.0;
