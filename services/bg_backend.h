@@ -46,7 +46,7 @@
 #include "bg_step.h"
 
 #define BG_BACKEND_MAX_FITS 2
-#define BG_BACKEND_MAX_SYSTEMS 4
+#define BG_BACKEND_MAX_SYSTEMS 7
 
 /* One rest shape for rotation-fit. Borrowed for the session's life. */
 typedef struct bg_backend_fit {
