@@ -10,9 +10,8 @@
  * (id 0: Newton's Hessian, 1..3: local/global's and quasi-newton's
  * per-coordinate Laplacians, 4..6: the same matrices factored with a second
  * inertia coefficient, for a time integration whose quasi-newton steps use
- * two: bg_static's STATIC_LG_SLOTS). The solver keeps owning its bg_elastic models and
- * bg_sparse
- * systems: the values of a system are assembled into the solver's own
+ * two: bg_static's STATIC_LG_SLOTS). The solver keeps owning its bg_elastic
+ * models and bg_sparse systems: the values of a system are assembled into the solver's own
  * bg_sparse_values array and the backend factors those values. The local
  * backend (bg_backend_local) computes with those very objects; a remote
  * one (agents/bga_backend) sends them to agents.
