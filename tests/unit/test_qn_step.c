@@ -42,7 +42,7 @@
 #include "test_scenes.h"
 #include "test_support.h"
 
-/* The beam's quasi-newton steps need about 4,700 iterations each to meet
+/* The beam's quasi-newton steps need about 4,300-4,700 iterations each to meet
  * τ = 1e-8 (λ/μ = 10³: the Laplacian is a poor model of the stiff body);
  * the scene's cap of 200 stops them early. The cap applies to both runs. */
 #define BEAM_STEPS 20
