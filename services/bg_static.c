@@ -166,9 +166,9 @@ struct bg_solver {
     double blend;                  /* W uses (1 − blend) E0 + blend E1 */
     double *grad_target;           /* ndof scratch for ∇E1 */
     bg_sparse_t *sys;              /* Newton: the free×free Hessian system */
-    bg_sparse_t *lg[STATIC_LG_SLOTS][3]; /* local/global, quasi-newton: one scalar matrix
-                                      (2μ + λ)L + lg_c[k]·M per coordinate, one set per slot
-                                      k (backend system ids 1 + 3k + c) */
+    /* local/global, quasi-newton: one scalar matrix (2μ + λ)L + lg_c[k]·M
+     * per coordinate, one set per slot k (backend system ids 1 + 3k + c) */
+    bg_sparse_t *lg[STATIC_LG_SLOTS][3];
     double lg_c[STATIC_LG_SLOTS];  /* the inertia coefficient slot k's factors include */
     int lg_ready[STATIC_LG_SLOTS]; /* slot k's factors are current (blend, lg_c[k]) */
     int64_t lg_used[STATIC_LG_SLOTS]; /* the minimisation that last used slot k */

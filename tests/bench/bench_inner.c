@@ -142,7 +142,8 @@ int main(int argc, char **argv)
     setvbuf(stdout, NULL, _IOLBF, 0); /* a long run's rows as they come */
     bench_header("bench_inner: the time step's inner solve, newton against quasi-newton", smoke);
     const bench_case_t *cases = smoke ? SMOKE : FULL;
-    const int ncases = smoke ? (int)(sizeof SMOKE / sizeof *SMOKE) : (int)(sizeof FULL / sizeof *FULL);
+    const int ncases =
+        smoke ? (int)(sizeof SMOKE / sizeof *SMOKE) : (int)(sizeof FULL / sizeof *FULL);
     static const bg_method inner[2] = {BG_METHOD_NEWTON, BG_METHOD_QUASI_NEWTON};
     printf("| scene | inner | iterations | limited steps | every step converged | thread CPU s "
            "(median [rounds]) | wall s (median [rounds]) | load (1 min) | final states apart |\n");

@@ -53,8 +53,8 @@
  * on each step's force scale F_k. */
 typedef struct run {
     bg_solve_result_t r;
-    double *q;       /* (steps + 1) × ndof */
-    double *grad_w;  /* steps + 1: ‖∇W(q_k)‖ over the free coordinates */
+    double *q;      /* (steps + 1) × ndof */
+    double *grad_w; /* steps + 1: ‖∇W(q_k)‖ over the free coordinates */
     int frames;
 } run_t;
 
@@ -350,13 +350,13 @@ static void report_and_plan(void **state)
             const char *name = cJSON_GetObjectItem(item, "name")->valuestring;
             const char *detail = cJSON_GetObjectItem(item, "detail")->valuestring;
             if (strcmp(name, "sparse-solve") == 0)
-                sparse = strstr(detail, inner ? "the Laplacian plus the inertia term c M factored "
-                                                "once per coefficient c"
-                                              : "the Newton matrix factored when it goes stale") !=
-                         NULL;
+                sparse =
+                    strstr(detail, inner ? "the Laplacian plus the inertia term c M factored "
+                                           "once per coefficient c"
+                                         : "the Newton matrix factored when it goes stale") != NULL;
             if (strcmp(name, "integration-step") == 0)
-                integ = strstr(detail, inner ? "each a quasi-newton solve" : "each a Newton solve") !=
-                        NULL;
+                integ = strstr(detail,
+                               inner ? "each a quasi-newton solve" : "each a Newton solve") != NULL;
         }
         assert_true(sparse);
         assert_true(integ);
@@ -395,8 +395,8 @@ static void beam_stays_in_budget(void **state)
         if (r->limited) /* the budget ratchets down to a dissipative step's energy */
             budget = fmin(budget, r->total_energy);
         if (!(r->total_energy <= budget + 1e-2 * mechanical))
-            fail_msg("step %d: energy %.6e over the budget %.6e + %.3e", k, r->total_energy,
-                     budget, 1e-2 * mechanical);
+            fail_msg("step %d: energy %.6e over the budget %.6e + %.3e", k, r->total_energy, budget,
+                     1e-2 * mechanical);
     }
     /* the beam falls: the energy bound is not met by a body that stays put */
     assert_true(q->r.steps[q->r.step_count - 1].kinetic > 0.0);
@@ -412,20 +412,22 @@ static void inner_setting(void **state)
         "{\"mesh\": {\"generate\": \"box\", \"cells\": [2, 1, 1], \"size\": [2, 1, 1]},"
         " \"material\": {\"E\": 1e6, \"nu\": 0.3}, %s \"solver\": {\"inner\": %s}}";
     static const char *const dyn = "\"task\": {\"kind\": \"dynamic\", \"dt\": 0.01, \"steps\": 2},";
-    static const char *const stat =
-        "\"handles\": [{\"select\": {\"box_fraction\": {\"min\": [0, 0, 0], \"max\": [0, 1, 1]}}}],";
+    static const char *const stat = "\"handles\": [{\"select\": {\"box_fraction\": {\"min\": [0, "
+                                    "0, 0], \"max\": [0, 1, 1]}}}],";
     const struct {
         const char *task, *value, *message;
     } cases[] = {
         {dyn, "\"quasi-newton\"", NULL},
         {dyn, "\"newton\"", NULL},
-        {dyn, "\"local-global\"", "mem.json: solver.inner: unknown inner solve 'local-global' "
-                                  "(expected newton or quasi-newton)"},
+        {dyn, "\"local-global\"",
+         "mem.json: solver.inner: unknown inner solve 'local-global' "
+         "(expected newton or quasi-newton)"},
         {dyn, "\"variational\"", "mem.json: solver.inner: unknown inner solve 'variational'"},
         {dyn, "1", "mem.json: solver.inner: "},
-        {stat, "\"quasi-newton\"", "mem.json: solver.inner: only a dynamic task has an inner "
-                                   "solve (this is a static task: choose its solver with "
-                                   "solver.method)"},
+        {stat, "\"quasi-newton\"",
+         "mem.json: solver.inner: only a dynamic task has an inner "
+         "solve (this is a static task: choose its solver with "
+         "solver.method)"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {
         char json[1024];
@@ -454,9 +456,9 @@ static void inner_setting(void **state)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(spin_same_trajectory),  cmocka_unit_test(beam_same_trajectory),
+        cmocka_unit_test(spin_same_trajectory),          cmocka_unit_test(beam_same_trajectory),
         cmocka_unit_test(factored_once_per_coefficient), cmocka_unit_test(report_and_plan),
-        cmocka_unit_test(beam_stays_in_budget),  cmocka_unit_test(inner_setting),
+        cmocka_unit_test(beam_stays_in_budget),          cmocka_unit_test(inner_setting),
     };
     return cmocka_run_group_tests(tests, group_setup, group_teardown);
 }
