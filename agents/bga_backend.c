@@ -10,11 +10,14 @@
 
 #define BACKEND_ENDPOINT_MAX BGA_BACKEND_ENDPOINT_MAX
 /* Job ids: session s uses (s << 4) + fit id for its rotation-fit pools and
- * (s << 4) + 8 + system id for its matrices, above its place's base. */
+ * (s << 4) + 8 + system id for its matrices (ids below
+ * BG_BACKEND_MAX_SYSTEMS = 7: at most 14), above its place's base. */
 #define BACKEND_JOB_SHIFT 4
 #define BACKEND_SYSTEM_JOB 8
 #define BACKEND_STEP_JOB 2
 #define BACKEND_SURFACE_JOB 3
+_Static_assert(BACKEND_SYSTEM_JOB + BG_BACKEND_MAX_SYSTEMS <= (1 << BACKEND_JOB_SHIFT),
+               "a session's matrices must fit in its job-id block");
 /* A replacement whose recovery names no job base of its own (no market
  * contract) moves the place's base by this much: sessions number below
  * 2^24, so (session << 4) + 15 stays below it, and its ids meet none of

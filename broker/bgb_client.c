@@ -824,7 +824,7 @@ static bg_status set_member(cJSON *object, const char *key, cJSON *item, bg_erro
 /* The submission's solver settings into the scene's "solver" object. */
 static bg_status set_solver(cJSON *scene, const bgb_client_submit_t *s, bg_error_t *err)
 {
-    if (!s->method && !(s->tolerance > 0.0) && s->max_iterations <= 0)
+    if (!s->method && !(s->tolerance > 0.0) && s->max_iterations <= 0 && !s->inner)
         return BG_OK;
     cJSON *solver = cJSON_GetObjectItemCaseSensitive(scene, "solver");
     if (!solver && !(solver = cJSON_AddObjectToObject(scene, "solver")))
@@ -839,6 +839,8 @@ static bg_status set_solver(cJSON *scene, const bgb_client_submit_t *s, bg_error
         st = set_member(solver, "tolerance", cJSON_CreateNumber(s->tolerance), err);
     if (st == BG_OK && s->max_iterations > 0)
         st = set_member(solver, "max_iterations", cJSON_CreateNumber(s->max_iterations), err);
+    if (st == BG_OK && s->inner)
+        st = set_member(solver, "inner", cJSON_CreateString(s->inner), err);
     return st;
 }
 

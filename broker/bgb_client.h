@@ -63,6 +63,7 @@ typedef struct bgb_client_submit {
     const char *method;          /* solver.method; NULL: the scene's */
     double tolerance;            /* solver.tolerance; <= 0: the scene's */
     int max_iterations;          /* solver.max_iterations, one cap; <= 0: the scene's */
+    const char *inner;           /* solver.inner (dynamic scenes); NULL: the scene's */
 } bgb_client_submit_t;
 
 /*

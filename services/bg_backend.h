@@ -7,9 +7,11 @@
  * A backend is a table of functions and a context. The solver opens one
  * session per bg_solver_t and, inside it, one rotation-fit per rest shape
  * (id 0: the scene's, 1: a morph target) and one sparse system per matrix
- * (id 0: Newton's Hessian, 1..3: local/global's per-coordinate
- * Laplacians). The solver keeps owning its bg_elastic models and bg_sparse
- * systems: the values of a system are assembled into the solver's own
+ * (id 0: Newton's Hessian, 1..3: local/global's and quasi-newton's
+ * per-coordinate Laplacians, 4..6: the same matrices factored with a second
+ * inertia coefficient, for a time integration whose quasi-newton steps use
+ * two: bg_static's STATIC_LG_SLOTS). The solver keeps owning its bg_elastic
+ * models and bg_sparse systems: the values of a system are assembled into the solver's own
  * bg_sparse_values array and the backend factors those values. The local
  * backend (bg_backend_local) computes with those very objects; a remote
  * one (agents/bga_backend) sends them to agents.
@@ -46,7 +48,7 @@
 #include "bg_step.h"
 
 #define BG_BACKEND_MAX_FITS 2
-#define BG_BACKEND_MAX_SYSTEMS 4
+#define BG_BACKEND_MAX_SYSTEMS 7
 
 /* One rest shape for rotation-fit. Borrowed for the session's life. */
 typedef struct bg_backend_fit {

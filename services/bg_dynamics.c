@@ -176,7 +176,7 @@ static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scen
      * of the integration independently of how good the start is. */
     const double force_scale = pr.state_scale + free_norm(scene, s->grad, s->ndof, 1.0);
     const bg_solve_options_t so = {
-        .method = BG_METHOD_NEWTON,
+        .method = scene->inner,
         .tolerance = 0.0, /* the absolute, force-scaled test decides */
         .max_iterations =
             opt->max_iterations > 0 ? opt->max_iterations : DYNAMICS_DEFAULT_MAX_ITERATIONS,
@@ -184,7 +184,9 @@ static bg_status advance(state_t *s, bg_solver_t *solver, const bg_scene_t *scen
         .targets = pr.targets,
         .inertia = &inertia,
         .start = start,
-        .reuse_factor = !opt->fresh_factor,
+        /* Newton keeps its factored matrix across steps; quasi-newton keeps
+         * its own (the Laplacian plus cM, one per c) whatever this says. */
+        .reuse_factor = scene->inner == BG_METHOD_NEWTON && !opt->fresh_factor,
     };
     st = bg_solver_minimize(solver, &so, inner, err);
     if (st != BG_OK)
@@ -223,7 +225,10 @@ bg_status bg_dynamic_solve(const bg_scene_t *scene, const bg_dynamic_options_t *
                                                          : 1;
     const int limit = variational && scene->dynamic.energy_limit;
 
-    st = bg_solver_new_on(scene, BG_METHOD_NEWTON, opt->backend, &solver, err);
+    if (scene->inner != BG_METHOD_NEWTON && scene->inner != BG_METHOD_QUASI_NEWTON)
+        return bg_error_set(err, BG_ERR_INVALID, "%s: %s cannot solve a time step (use newton "
+                            "or quasi-newton)", scene->path, bg_method_name(scene->inner));
+    st = bg_solver_new_on(scene, scene->inner, opt->backend, &solver, err);
     if (st != BG_OK)
         goto out;
     s.n = scene->mesh->dim;

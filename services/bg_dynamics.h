@@ -10,8 +10,13 @@
  * for a free body (to the inner solve's tolerance), energy in a bounded
  * band. Backward Euler: q_{k+1} = argmin (1/2h²)|q − q_k − h v_k|²_M + W(q),
  * first order, dissipative.
- * Each step is a static Newton solve with an inertia term (bg_solver_t),
- * so one CHOLMOD analysis serves the whole run. The coordinator runs the
+ * Each step is a static solve with an inertia term (bg_solver_t): Newton,
+ * or quasi-newton when the scene's solver.inner says so — L-BFGS whose
+ * initial Hessian (2μ + λ)L + cM is factored once per inertia coefficient
+ * c (the midpoint rule's 4/h², the limiter's backward-Euler redo's 1/h²)
+ * and kept for the run. Either way one CHOLMOD analysis per matrix serves
+ * the whole run, and both stop at the same force-scaled residual, so they
+ * give the same trajectory to that tolerance. The coordinator runs the
  * inner solve and the energy limiter's decisions; q_k, p_k and the step
  * formulas are the integration-step service's (bg_step, through the
  * backend: in process, or on an agent). Optional damping scales
@@ -37,14 +42,15 @@ typedef struct bg_dynamic_options {
     double dt;                /* 0: the scene's */
     int steps;                /* 0: the scene's */
     double duration;          /* > 0: run this long (steps = duration/dt, rounded) */
-    double tolerance;         /* inner Newton: stop at ‖∇‖ ≤ tolerance × the step's force scale
+    double tolerance;         /* inner solve: stop at ‖∇‖ ≤ tolerance × the step's force scale
                                  ‖Mg‖ + (2/h)‖p‖ + ‖∇W(q_k)‖ (0: the scene's solver.tolerance) */
-    int max_iterations;       /* inner Newton cap per step (0: 200) */
+    int max_iterations;       /* inner solve's cap per step (0: 200) */
     int output_every;         /* frames every this many steps (0: the scene's) */
     bg_predictor predictor;   /* start of each step's solve (0: the best candidate) */
-    int fresh_factor;         /* 1: factor the Newton matrix at every inner iteration;
-                                 0: reuse it across iterations and steps with L-BFGS
-                                 corrections (bg_solve_options_t.reuse_factor) */
+    int fresh_factor;         /* inner newton: 1: factor the Newton matrix at every inner
+                                 iteration; 0: reuse it across iterations and steps with
+                                 L-BFGS corrections (bg_solve_options_t.reuse_factor).
+                                 Inner quasi-newton keeps its own factors either way */
     bg_frame_fn frame;        /* may be NULL */
     void *frame_ctx;
     bg_progress_fn progress;  /* called after each step with the step's trace point */

@@ -21,10 +21,13 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
     const int planar = scene->mesh->dim == 2;
     int newton = 0, local_global = 0, quasi_newton = 0;
     const int dynamic = scene->task == BG_TASK_DYNAMIC;
+    /* A time integrator's services are those of its inner solve. */
+    const int inner_qn = dynamic && scene->inner == BG_METHOD_QUASI_NEWTON;
     for (int i = 0; i < method_count; i++) {
-        newton |= methods[i] == BG_METHOD_NEWTON || bg_method_is_dynamic(methods[i]);
+        const int integrates = bg_method_is_dynamic(methods[i]);
+        newton |= methods[i] == BG_METHOD_NEWTON || (integrates && !inner_qn);
         local_global |= methods[i] == BG_METHOD_LOCAL_GLOBAL;
-        quasi_newton |= methods[i] == BG_METHOD_QUASI_NEWTON;
+        quasi_newton |= methods[i] == BG_METHOD_QUASI_NEWTON || (integrates && inner_qn);
     }
     if (scene->task == BG_TASK_SURFACE_EDIT)
         add(plan->services, &plan->service_count, "rotation-fit",
@@ -35,7 +38,7 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
         planar ? "closed-form 2D rotation per triangle"
                : "polar decomposition per tetrahedron (Newton on SO(3), warm-started), "
                  "rotation-variant SVD where det F <= eps");
-    char detail[384];
+    char detail[512];
     /* Series (time steps, morph frames) keep the factored Newton matrix
      * and take L-BFGS steps on it (bg_dynamics, bg_morph). */
     const int series = dynamic || scene->task == BG_TASK_MORPH;
@@ -57,6 +60,10 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
                             "iteration (exact Hessian first near the solution)",
              newton && laplacian ? "; " : "",
              !laplacian ? ""
+             : dynamic
+                 ? "CHOLMOD: the Laplacian plus the inertia term c M factored once per "
+                   "coefficient c (the midpoint rule's, and backward Euler's for a redone step), "
+                   "one block solve of the coordinates per iteration"
              : scene->task == BG_TASK_MORPH
                  ? "CHOLMOD: the Laplacian factored once per frame, one block solve of the "
                    "coordinates per iteration"
@@ -87,8 +94,9 @@ void bg_plan_for_scene(const bg_scene_t *scene, const bg_method *methods, int me
                     : "lumped masses rho V/(n+1) per vertex: the weight");
 
     if (dynamic) {
-        snprintf(detail, sizeof detail, "%d steps of h = %g s, each a Newton solve with the "
+        snprintf(detail, sizeof detail, "%d steps of h = %g s, each a %s solve with the "
                  "inertia term (%s)", scene->dynamic.steps, scene->dynamic.dt,
+                 inner_qn ? "quasi-newton" : "Newton",
                  method_count > 1 ? "variational midpoint and backward Euler"
                  : methods[0] == BG_METHOD_BACKWARD_EULER ? "backward Euler"
                                                           : "variational midpoint");

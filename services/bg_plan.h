@@ -17,7 +17,7 @@
 
 typedef struct bg_plan_item {
     const char *service; /* "rotation-fit", "sparse-solve", "integration-step", or a part */
-    char detail[384];    /* what it does for this scene, or why it is left out */
+    char detail[512];    /* what it does for this scene, or why it is left out */
 } bg_plan_item_t;
 
 typedef struct bg_plan {

@@ -213,8 +213,14 @@ bg_status bg_report_render_agents(const bg_scene_t *scene, const bg_plan_t *plan
     else
         cJSON_AddNullToObject(root, "reference");
     cJSON *rj = cJSON_AddArrayToObject(root, "runs");
-    for (int i = 0; rj && i < run_count; i++)
-        cJSON_AddItemToArray(rj, run_json(&runs[i], scene->task == BG_TASK_MORPH));
+    for (int i = 0; rj && i < run_count; i++) {
+        cJSON *run = run_json(&runs[i], scene->task == BG_TASK_MORPH);
+        /* A time integrator's run names what minimised each step
+         * (solver.inner): its iterations are that method's. */
+        if (run && scene->task == BG_TASK_DYNAMIC)
+            cJSON_AddStringToObject(run, "inner", bg_method_name(scene->inner));
+        cJSON_AddItemToArray(rj, run);
+    }
     if (agents)
         add_agents(root, agents, agent_count);
     *json = cJSON_Print(root);

@@ -17,6 +17,8 @@
  * "setup": [{"step", "count", "factorizations", "seconds"}],
  * "trace": [{"seconds", "iteration", "energy", "gradient_norm",
  * "relative_gradient", "error"}]} ] }. "error" is null without a reference.
+ * A dynamic scene's runs also carry "inner" (solver.inner: "newton" or
+ * "quasi-newton", what minimised each step) and "steps".
  */
 #ifndef BG_REPORT_H
 #define BG_REPORT_H

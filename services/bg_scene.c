@@ -1713,13 +1713,14 @@ static bg_status parse_velocity(parser_t *p, const cJSON *item)
 
 static bg_status parse_solver(parser_t *p, const cJSON *item)
 {
-    static const char *const keys[] = {"method", "tolerance", "max_iterations", "continuation",
-                                       NULL};
+    static const char *const keys[] = {"method",       "tolerance", "max_iterations",
+                                       "continuation", "inner",     NULL};
     bg_scene_t *s = p->scene;
     const int dynamic = s->task == BG_TASK_DYNAMIC;
     s->method = dynamic                           ? BG_METHOD_VARIATIONAL
                 : s->task == BG_TASK_SURFACE_EDIT ? BG_METHOD_LOCAL_GLOBAL
                                                   : BG_METHOD_NEWTON;
+    s->inner = BG_METHOD_NEWTON;
     s->tolerance = BG_SCENE_DEFAULT_TOLERANCE;
     s->max_iterations = BG_SCENE_DEFAULT_MAX_ITERATIONS;
     if (!item)
@@ -1742,6 +1743,29 @@ static bg_status parse_solver(parser_t *p, const cJSON *item)
                         name, dynamic ? "dynamic" : "static",
                         dynamic ? "variational or backward-euler"
                                 : "newton, local-global or quasi-newton");
+    }
+    if (member(item, "inner")) {
+        /* Only a time step has an inner solve: a static scene chooses its
+         * solver with solver.method, and an inner method there would be a
+         * setting that silently does nothing. */
+        const char *name = NULL;
+        if (!dynamic)
+            return fail(p, BG_ERR_INVALID, "solver.inner",
+                        "only a dynamic task has an inner solve (this is a %s task: choose its "
+                        "solver with solver.method)",
+                        s->task == BG_TASK_MORPH          ? "morph"
+                        : s->task == BG_TASK_PARAMETERIZE ? "parameterize"
+                        : s->task == BG_TASK_SURFACE_EDIT ? "surface-edit"
+                                                          : "static");
+        if ((st = read_string(p, member(item, "inner"), "solver.inner", &name)) != BG_OK)
+            return st;
+        if (strcmp(name, "newton") == 0)
+            s->inner = BG_METHOD_NEWTON;
+        else if (strcmp(name, "quasi-newton") == 0)
+            s->inner = BG_METHOD_QUASI_NEWTON;
+        else
+            return fail(p, BG_ERR_INVALID, "solver.inner",
+                        "unknown inner solve '%s' (expected newton or quasi-newton)", name);
     }
     if (member(item, "continuation")) {
         int on = 1;

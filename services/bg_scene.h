@@ -148,6 +148,9 @@ typedef struct bg_scene {
                                    0: none; see bg_elastic_set_barrier) */
     int prepared;               /* bg_prepare_scene has run: the scene is ready to solve */
     bg_method method;           /* solver.method, default newton */
+    bg_method inner;            /* solver.inner, dynamic scenes: what minimises each time
+                                   step's energy, BG_METHOD_NEWTON (default) or
+                                   BG_METHOD_QUASI_NEWTON (bg_dynamics.h) */
     double tolerance;           /* solver.tolerance on the relative gradient, default 1e-8 */
     int continuation_off;       /* solver.continuation false: Newton and quasi-newton solve a
                                    nearly incompressible scene in one solve

@@ -87,6 +87,13 @@
  * 45, 45; the stiff bar 5,630 to 6,063 for 5 to 30. Beyond 8 the pairs
  * cost more passes than they save iterations. */
 #define STATIC_LBFGS_PAIRS 8
+/* Factors of quasi-newton's initial Hessian kept at once, one per inertia
+ * coefficient c: (2μ + λ)L + cM. A static solve or a morph frame uses one
+ * (c = 0); a time integration two, the midpoint rule's c = 4/h² and the
+ * backward-Euler redo's c = 1/h² (bg_dynamics), which alternate whenever the
+ * energy limiter redoes a step. A third coefficient replaces the factor used
+ * longest ago. */
+#define STATIC_LG_SLOTS 2
 /* Chord steps (Shamanskii's variant of Newton's method): after a full
  * Newton step is accepted, up to this many (bg_solve_options_t.chord_steps)
  * further steps −A⁻¹∇W with the matrix A already factored, each kept only
@@ -159,7 +166,14 @@ struct bg_solver {
     double blend;                  /* W uses (1 − blend) E0 + blend E1 */
     double *grad_target;           /* ndof scratch for ∇E1 */
     bg_sparse_t *sys;              /* Newton: the free×free Hessian system */
-    bg_sparse_t *lg[3];            /* local/global: one scalar Laplacian per coordinate */
+    /* local/global, quasi-newton: one scalar matrix (2μ + λ)L + lg_c[k]·M
+     * per coordinate, one set per slot k (backend system ids 1 + 3k + c) */
+    bg_sparse_t *lg[STATIC_LG_SLOTS][3];
+    double lg_c[STATIC_LG_SLOTS];  /* the inertia coefficient slot k's factors include */
+    int lg_ready[STATIC_LG_SLOTS]; /* slot k's factors are current (blend, lg_c[k]) */
+    int64_t lg_used[STATIC_LG_SLOTS]; /* the minimisation that last used slot k */
+    int64_t lg_uses;               /* minimisations so far (the clock of lg_used) */
+    int lg_slot;                   /* the slot lg_solve solves with */
     int32_t *lg_index[3];          /* per vertex: unknown of coordinate c, or −1 */
     int lg_system[3];              /* which lg[] serves coordinate c (equal free sets share) */
     double *lg_rhs, *lg_x;
@@ -246,7 +260,8 @@ static void problem_release(problem_t *p)
     free(p->grad_target);
     bg_sparse_destroy(&p->sys);
     for (int c = 0; c < 3; c++) {
-        bg_sparse_destroy(&p->lg[c]);
+        for (int k = 0; k < STATIC_LG_SLOTS; k++)
+            bg_sparse_destroy(&p->lg[k][c]);
         free(p->lg_index[c]);
     }
     free(p->lg_rhs);
@@ -306,40 +321,106 @@ static bg_status factor_with_shift(problem_t *p, int id, bg_sparse_t *sys, bg_er
     return bg_error_set(err, BG_ERR_NUMERIC, "%s (even with a diagonal shift)", local.message);
 }
 
-/* Assembles and factors local/global's Laplacians for the current blend
- * of rest shapes: (1 − b) c L0 + b c L1. */
-static bg_status lg_factor(problem_t *p, bg_error_t *err)
+/*
+ * Assembles and factors slot k's matrices for the current blend of rest
+ * shapes and inertia coefficient c: (1 − b)(2μ + λ)L0 + b(2μ + λ)L1 + c·M,
+ * M the lumped masses of the free vertices (c > 0 needs bg_solver_mass).
+ * A set-up step: once per solve or morph frame (c = 0), once per distinct
+ * coefficient of a time integration. The inertia term makes the matrix of
+ * a free body (bar-spin) positive definite: no shift is needed there.
+ */
+static bg_status lg_factor(problem_t *p, int k, double c, bg_error_t *err)
 {
     const double t0 = bg_clock_now();
     int64_t before = 0;
-    for (int c = 0; c < 3; c++)
-        before += p->lg[c] ? bg_sparse_timing(p->lg[c]).factorizations : 0;
+    for (int j = 0; j < 3; j++)
+        before += p->lg[k][j] ? bg_sparse_timing(p->lg[k][j]).factorizations : 0;
     bg_status st = BG_OK;
     const double b = p->target_model ? p->blend : 0.0;
-    for (int c = 0; c < 3; c++) {
-        if (!p->lg[c])
+    p->lg_ready[k] = 0;
+    for (int j = 0; j < 3; j++) {
+        bg_sparse_t *sys = p->lg[k][j];
+        if (!sys)
             continue;
-        bg_sparse_zero(p->lg[c]);
+        bg_sparse_zero(sys);
         bg_elastic_assemble_scalar_laplacian(p->model, (1.0 - b) * p->lg_scale,
-                                             bg_sparse_scatter(p->lg[c]),
-                                             bg_sparse_values(p->lg[c]));
+                                             bg_sparse_scatter(sys), bg_sparse_values(sys));
         if (p->target_model)
             bg_elastic_assemble_scalar_laplacian(p->target_model, b * p->lg_scale,
-                                                 bg_sparse_scatter(p->lg[c]),
-                                                 bg_sparse_values(p->lg[c]));
-        st = factor_with_shift(p, 1 + c, p->lg[c], err);
+                                                 bg_sparse_scatter(sys), bg_sparse_values(sys));
+        if (c > 0.0) {
+            /* lg_x as the diagonal's scratch: it holds nothing between solves */
+            const int32_t *idx = p->lg_index[j];
+            for (int32_t v = 0; v < p->mesh->nv; v++)
+                if (idx[v] >= 0)
+                    p->lg_x[idx[v]] = c * p->mass[v];
+            bg_sparse_add_diagonal(sys, p->lg_x);
+        }
+        st = factor_with_shift(p, 1 + 3 * k + j, sys, err);
         if (st != BG_OK)
             break;
     }
     int64_t after = 0;
-    for (int c = 0; c < 3; c++)
-        after += p->lg[c] ? bg_sparse_timing(p->lg[c]).factorizations : 0;
+    for (int j = 0; j < 3; j++)
+        after += p->lg[k][j] ? bg_sparse_timing(p->lg[k][j]).factorizations : 0;
+    p->lg_ready[k] = st == BG_OK;
+    p->lg_c[k] = c;
     bg_setup_add(&p->setup,
-                 p->method == BG_METHOD_QUASI_NEWTON
+                 c > 0.0 ? "quasi-newton: the Laplacian plus the inertia term c M (its initial "
+                           "Hessian in a time step) assembled and factored, once per c"
+                 : p->method == BG_METHOD_QUASI_NEWTON
                      ? "quasi-newton: the Laplacian (its initial Hessian) assembled and factored"
                      : "local/global: the Laplacian assembled and factored",
                  1, after - before, bg_clock_now() - t0);
     return st;
+}
+
+/* Slot k's systems: the patterns of slot 0's (the coordinates that share
+ * one there share one here), opened with the backend. */
+static bg_status lg_open_slot(problem_t *p, int k, bg_error_t *err)
+{
+    for (int c = 0; c < p->n; c++) {
+        if (!p->lg[0][c] || p->lg[k][c])
+            continue;
+        const int32_t size = bg_sparse_size(p->lg[0][c]);
+        bg_status st = bg_sparse_new(p->mesh, 1, p->lg_index[c], size, &p->lg[k][c], err);
+        if (st == BG_OK) {
+            bg_sparse_prefer_solves(p->lg[k][c]);
+            st = p->backend->ops->solve_open(p->session, 1 + 3 * k + c, p->lg[k][c], err);
+        }
+        if (st != BG_OK)
+            return st;
+    }
+    return BG_OK;
+}
+
+/*
+ * Makes lg_solve use a factor of (2μ + λ)L + c·M: the slot that holds one,
+ * else a slot never used or the one used longest ago, (re)factored. Called
+ * at the start of a minimisation, never inside its iterations: the
+ * factorization is a set-up step, not an iteration's.
+ */
+static bg_status lg_use(problem_t *p, double c, bg_error_t *err)
+{
+    p->lg_uses++;
+    int k = -1;
+    for (int j = 0; j < STATIC_LG_SLOTS && k < 0; j++)
+        if (p->lg_ready[j] && p->lg_c[j] == c)
+            k = j;
+    if (k < 0) {
+        k = 0;
+        for (int j = 1; j < STATIC_LG_SLOTS; j++)
+            if (p->lg_used[j] < p->lg_used[k])
+                k = j;
+        bg_status st = lg_open_slot(p, k, err);
+        if (st == BG_OK)
+            st = lg_factor(p, k, c, err);
+        if (st != BG_OK)
+            return st;
+    }
+    p->lg_slot = k;
+    p->lg_used[k] = p->lg_uses;
+    return BG_OK;
 }
 
 static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
@@ -363,21 +444,23 @@ static bg_status lg_init(problem_t *p, const bg_scene_t *scene, bg_error_t *err)
         if (count == 0)
             continue; /* this coordinate is prescribed everywhere */
         for (int prev = 0; prev < c; prev++)
-            if (p->lg[prev] &&
+            if (p->lg[0][prev] &&
                 memcmp(p->lg_index[prev], p->lg_index[c], (size_t)nv * sizeof(int32_t)) == 0)
                 p->lg_system[c] = prev;
         if (p->lg_system[c] != c)
             continue; /* same free vertices as an earlier coordinate: same matrix */
-        bg_status st = bg_sparse_new(p->mesh, 1, p->lg_index[c], count, &p->lg[c], err);
+        bg_status st = bg_sparse_new(p->mesh, 1, p->lg_index[c], count, &p->lg[0][c], err);
         if (st == BG_OK) {
-            bg_sparse_prefer_solves(p->lg[c]); /* factored once, solved every iteration */
-            st = p->backend->ops->solve_open(p->session, 1 + c, p->lg[c], err);
+            bg_sparse_prefer_solves(p->lg[0][c]); /* factored once, solved every iteration */
+            st = p->backend->ops->solve_open(p->session, 1 + c, p->lg[0][c], err);
         }
         if (st != BG_OK)
             return st;
     }
     p->lg_scale = scale;
-    return lg_factor(p, err);
+    /* A dynamic scene's steps factor the matrix with their inertia term
+     * (lg_use); a static solve's c = 0 factor would go unused. */
+    return scene->task == BG_TASK_DYNAMIC ? BG_OK : lg_factor(p, 0, 0.0, err);
 }
 
 static bg_status problem_init(problem_t *p, const bg_scene_t *scene, bg_method method,
@@ -670,9 +753,10 @@ static bg_status lg_solve(problem_t *p, const double *restrict r, double *restri
 {
     const int32_t nv = p->mesh->nv;
     for (int s = 0; s < p->n; s++) {
-        if (!p->lg[s])
+        bg_sparse_t *sys = p->lg[p->lg_slot][s];
+        if (!sys)
             continue;
-        const size_t size = (size_t)bg_sparse_size(p->lg[s]);
+        const size_t size = (size_t)bg_sparse_size(sys);
         int cols[3], ncols = 0;
         for (int c = 0; c < p->n; c++)
             if (p->lg_system[c] == s)
@@ -687,7 +771,8 @@ static bg_status lg_solve(problem_t *p, const double *restrict r, double *restri
                     col[idx[v]] = r[p->free_index[(size_t)v * p->n + c]];
         }
         p->vector_seconds += bg_clock_now() - tv;
-        bg_status st = p->backend->ops->solve(p->session, 1 + s, ncols, p->lg_rhs, p->lg_x, err);
+        bg_status st = p->backend->ops->solve(p->session, 1 + 3 * p->lg_slot + s, ncols,
+                                              p->lg_rhs, p->lg_x, err);
         if (st != BG_OK)
             return st;
         tv = bg_clock_now();
@@ -1069,7 +1154,13 @@ bg_status bg_solver_set_blend(bg_solver_t *p, const double *target, double blend
      * still right when the blend does not change. */
     const double previous = p->blend;
     p->blend = blend;
-    return !p->sys && blend != previous ? lg_factor(p, err) : BG_OK;
+    if (p->sys || blend == previous)
+        return BG_OK;
+    /* Every factor held is for the old blend; a morph has no inertia term. */
+    for (int k = 0; k < STATIC_LG_SLOTS; k++)
+        p->lg_ready[k] = 0;
+    p->lg_slot = 0;
+    return lg_factor(p, 0, 0.0, err);
 }
 
 const double *bg_solver_energy_density(const bg_solver_t *solver)
@@ -1117,8 +1208,13 @@ double bg_solver_potential(bg_solver_t *p, const double *q, double *grad)
 static bg_sparse_timing_t total_timing(const problem_t *p)
 {
     bg_sparse_timing_t sum = {0};
-    const bg_sparse_t *systems[4] = {p->sys, p->lg[0], p->lg[1], p->lg[2]};
-    for (int i = 0; i < 4; i++)
+    const bg_sparse_t *systems[1 + 3 * STATIC_LG_SLOTS];
+    int count = 0;
+    systems[count++] = p->sys;
+    for (int k = 0; k < STATIC_LG_SLOTS; k++)
+        for (int c = 0; c < 3; c++)
+            systems[count++] = p->lg[k][c];
+    for (int i = 0; i < count; i++)
         if (systems[i]) {
             const bg_sparse_timing_t tm = bg_sparse_timing(systems[i]);
             sum.analyze_seconds += tm.analyze_seconds;
@@ -1152,8 +1248,9 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     int trace_cap = 0;
     bg_status st = BG_OK;
     const size_t ndof = p->ndof;
-    if (opt->inertia && solver->method != BG_METHOD_NEWTON) {
-        st = bg_error_set(err, BG_ERR_UNSUPPORTED, "an inertia term needs the newton method");
+    if (opt->inertia && solver->method == BG_METHOD_LOCAL_GLOBAL) {
+        st = bg_error_set(err, BG_ERR_UNSUPPORTED,
+                          "an inertia term needs the newton or quasi-newton method");
         goto out;
     }
     if (opt->inertia && !bg_solver_mass(p)) {
@@ -1168,6 +1265,10 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
                 if (f >= 0)
                     p->inertia_diag[f] = p->inertia->c * p->mass[v];
             }
+    /* Quasi-newton's initial Hessian includes the inertia term: its factor
+     * for this c, made (a set-up step) only when no slot holds one. */
+    if (!p->sys && (st = lg_use(p, p->inertia ? p->inertia->c : 0.0, err)) != BG_OK)
+        goto out;
     bg_elastic_reset_stats(p->model);
     const bg_sparse_timing_t timing0 = total_timing(p);
     const double *start = opt->start ? opt->start : scene->initial;

@@ -27,7 +27,9 @@
  *                 pairs, under the same line search. Linear convergence,
  *                 at a far better rate than local/global's (bunny-edit
  *                 to 1e-8: 140 iterations; local/global is at 7e-8 after
- *                 2,000).
+ *                 2,000). With an inertia term (a time step's inner solve)
+ *                 the initial Hessian is (2μ + λ)L + cM, factored once per
+ *                 coefficient c and kept by the solver (two at a time).
  * All three stop when ‖∇W‖/s ≤ tolerance (free coordinates; s the start's free
  * gradient, at least the reactions at the handles and the load), at the
  * iteration cap, or when the gradient is at its own round-off (estimated
@@ -79,7 +81,7 @@ typedef struct bg_solve_options {
     int no_force_floor;       /* ignore the scene's absolute floor (1e-13 of its force scale):
                                  run to the gradient's round-off (tests of the round-off stop) */
     const double *targets;    /* nv*n values of the constrained coordinates, or NULL for scene->target */
-    const bg_inertia_t *inertia; /* NULL for a static solve */
+    const bg_inertia_t *inertia; /* NULL for a static solve; newton or quasi-newton only */
     int chord_steps;          /* newton without reuse_factor or inertia: at most this many
                                  chord steps after each full Newton step (0: the default, 8;
                                  negative: none, plain Newton, e.g. to read its quadratic

@@ -64,8 +64,10 @@ void bg_cmd_runs_print_run(const bg_scene_t *scene, const bg_solve_result_t *run
         fprintf(stderr, "%s: %s, %d frames, %d iterations, %.3f s\n", method, run->stop_reason,
                 run->step_count, run->iterations, run->wall_seconds);
     else if (scene->task == BG_TASK_DYNAMIC)
-        fprintf(stderr, "%s: %s, %d steps, %d Newton iterations, %.3f s (energy drift %.3e)\n",
-                method, run->stop_reason, run->step_count - 1, run->iterations, run->wall_seconds,
+        fprintf(stderr, "%s: %s, %d steps, %d %s iterations, %.3f s (energy drift %.3e)\n",
+                method, run->stop_reason, run->step_count - 1, run->iterations,
+                scene->inner == BG_METHOD_QUASI_NEWTON ? "quasi-newton" : "Newton",
+                run->wall_seconds,
                 run->trace_count > 0 ? run->trace[run->trace_count - 1].error : NAN);
     else
         fprintf(stderr, "%s: %s after %d iterations (cap %d), %.3f s (relative gradient %.3e, "

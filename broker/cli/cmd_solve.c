@@ -47,6 +47,7 @@ typedef struct cli_options {
     const char *out_dir;
     bg_method methods[CLI_MAX_METHODS];
     int method_count;
+    const char *inner;         /* --inner: a dynamic scene's solver.inner, or NULL */
     double tolerance;      /* < 0: the scene's */
     int max_iterations;    /* < 0: the scene's */
     int quiet;
@@ -85,6 +86,9 @@ const char bg_cmd_solve_usage[] =
     "                             backward-euler;\n"
     "                             surface-edit scenes: local-global (default: the scene's)\n"
     "  --compare M1,M2            run several methods on the same scene, one curve each\n"
+    "  --inner M                  dynamic scenes: what minimises each time step's energy,\n"
+    "                             newton or quasi-newton (default: the scene's solver.inner,\n"
+    "                             else newton)\n"
     "  --tolerance T              stop at relative gradient T, for every method (default: the\n"
     "                             scene's solver.tolerance, else 1e-8)\n"
     "  --max-iterations N         iteration cap for every method (default: the scene's\n"
@@ -245,6 +249,14 @@ static int parse_args(int argc, char **argv, cli_options_t *o)
                 }
                 o->agent_timeout_ms = (int)ms;
             }
+        } else if (strcmp(a, "--inner") == 0) {
+            if (!value || (strcmp(value, "newton") != 0 && strcmp(value, "quasi-newton") != 0)) {
+                fprintf(stderr, "biotgrid solve: --inner takes newton or quasi-newton%s%s%s\n",
+                        value ? " (got '" : "", value ? value : "", value ? "')" : "");
+                return -1;
+            }
+            o->inner = value;
+            i++;
         } else if (strcmp(a, "--method") == 0 || strcmp(a, "--compare") == 0 ||
                    strcmp(a, "--tolerance") == 0 || strcmp(a, "--max-iterations") == 0 ||
                    strcmp(a, "--out") == 0 || strcmp(a, "--mesh-path") == 0) {
@@ -586,6 +598,15 @@ int bg_cmd_solve(int argc, char **argv)
         o.method_count = 1;
     }
     const int dynamic = scene->task == BG_TASK_DYNAMIC;
+    if (o.inner && !dynamic) {
+        fprintf(stderr, "biotgrid solve: --inner: %s is not a dynamic scene (only a time step has "
+                        "an inner solve; choose a static solver with --method)\n",
+                o.scene_path);
+        goto out;
+    }
+    if (o.inner)
+        scene->inner = strcmp(o.inner, "quasi-newton") == 0 ? BG_METHOD_QUASI_NEWTON
+                                                             : BG_METHOD_NEWTON;
     for (int i = 0; i < o.method_count; i++)
         if (bg_method_is_dynamic(o.methods[i]) != dynamic) {
             fprintf(stderr, "biotgrid solve: %s: method %s does not fit a %s scene (use %s)\n",
@@ -609,6 +630,7 @@ int bg_cmd_solve(int argc, char **argv)
                                            .method_count = o.method_count,
                                            .tolerance = o.tolerance,
                                            .max_iterations = o.max_iterations,
+                                           .inner = o.inner,
                                            .mechanism = o.mechanism ? o.mechanism : "central",
                                            .budget = o.budget,
                                            .out_dir = o.out_dir,

@@ -66,7 +66,8 @@ static int run_method(const bg_cmd_broker_solve_t *r, bgb_client_t *client, bg_m
                                         .budget = r->budget,
                                         .method = name,
                                         .tolerance = r->tolerance,
-                                        .max_iterations = mj->cap};
+                                        .max_iterations = mj->cap,
+                                        .inner = r->inner};
     bg_error_t err = BG_ERROR_INIT;
     cJSON *job = NULL, *files = NULL;
     char *text = NULL;

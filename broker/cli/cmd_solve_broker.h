@@ -20,6 +20,7 @@ typedef struct bg_cmd_broker_solve {
     int method_count;        /* 1..4 */
     double tolerance;        /* <= 0: the scene's solver.tolerance */
     int max_iterations;      /* <= 0: the scene's cap for each method */
+    const char *inner;       /* a dynamic scene's solver.inner; NULL: the scene's */
     const char *mechanism;   /* central, catallactic or posted */
     double budget;           /* <= 0: the broker's */
     const char *out_dir;     /* NULL: out/<scene name> */
