@@ -269,24 +269,56 @@ static void test_rotfit_bad_requests(void **state)
     bg_mesh_destroy(&mesh);
 }
 
+/* A box of the given cells and size, deformed by fx_deform(amount), its
+ * elastic model evaluated there and the (unassembled) Newton system of all
+ * its unknowns: what the sparse-solve tests factor on an agent and in
+ * process. box_system_free releases all of it. */
+typedef struct box_system {
+    bg_mesh_t *mesh;
+    double *q;
+    bg_elastic_t *model;
+    int32_t *free_index;
+    bg_sparse_t *sys;
+} box_system_t;
+
+static void box_system_new(const int32_t cells[3], const double size[3], double amount,
+                           box_system_t *b)
+{
+    bg_error_t err = BG_ERROR_INIT;
+    const double origin[3] = {0, 0, 0};
+    memset(b, 0, sizeof *b);
+    assert_int_equal(bg_mesh_generate_box(cells, origin, size, &b->mesh, &err), BG_OK);
+    const size_t ndof = (size_t)b->mesh->nv * 3;
+    b->q = malloc(ndof * sizeof *b->q);
+    assert_non_null(b->q);
+    fx_deform(b->mesh, amount, b->q);
+    assert_int_equal(bg_elastic_new(b->mesh, MU, LAMBDA, &b->model, &err), BG_OK);
+    bg_elastic_eval(b->model, b->q, NULL);
+    b->free_index = fx_all_free(b->mesh, 3);
+    assert_int_equal(bg_sparse_new(b->mesh, 3, b->free_index, (int32_t)ndof, &b->sys, &err),
+                     BG_OK);
+}
+
+static void box_system_free(box_system_t *b)
+{
+    bg_sparse_destroy(&b->sys);
+    free(b->free_index);
+    bg_elastic_destroy(&b->model);
+    free(b->q);
+    bg_mesh_destroy(&b->mesh);
+}
+
 static void test_sparse_solve_matches_cholmod(void **state)
 {
     (void)state;
-    bg_mesh_t *mesh = NULL;
-    bg_error_t err = BG_ERROR_INIT;
     const int32_t cells[3] = {3, 3, 2};
-    const double origin[3] = {0, 0, 0}, size[3] = {1, 1, 1};
-    assert_int_equal(bg_mesh_generate_box(cells, origin, size, &mesh, &err), BG_OK);
-    const int dim = 3;
-    const size_t ndof = (size_t)mesh->nv * dim;
-    double *q = malloc(ndof * sizeof *q);
-    fx_deform(mesh, 0.3, q);
-    bg_elastic_t *model = NULL;
-    assert_int_equal(bg_elastic_new(mesh, MU, LAMBDA, &model, &err), BG_OK);
-    bg_elastic_eval(model, q, NULL);
-    int32_t *free_index = fx_all_free(mesh, dim);
-    bg_sparse_t *local = NULL;
-    assert_int_equal(bg_sparse_new(mesh, dim, free_index, (int32_t)ndof, &local, &err), BG_OK);
+    const double size[3] = {1, 1, 1};
+    box_system_t box;
+    box_system_new(cells, size, 0.3, &box);
+    bg_error_t err = BG_ERROR_INIT;
+    double *q = box.q;
+    bg_elastic_t *model = box.model;
+    bg_sparse_t *local = box.sys;
     bg_sparse_zero(local);
     bg_elastic_assemble_hessian(model, q, 1, 1.0, bg_sparse_scatter(local),
                                 bg_sparse_values(local));
@@ -384,11 +416,7 @@ static void test_sparse_solve_matches_cholmod(void **state)
     bga_service_destroy(&svc);
     free(rhs);
     free(x);
-    bg_sparse_destroy(&local);
-    free(free_index);
-    bg_elastic_destroy(&model);
-    free(q);
-    bg_mesh_destroy(&mesh);
+    box_system_free(&box);
 }
 
 /*
@@ -403,21 +431,14 @@ static void test_sparse_solve_matches_cholmod(void **state)
 static void test_sparse_solve_ordered_bit_for_bit(void **state)
 {
     (void)state;
-    bg_mesh_t *mesh = NULL;
-    bg_error_t err = BG_ERROR_INIT;
     const int32_t cells[3] = {6, 5, 4};
-    const double origin[3] = {0, 0, 0}, size[3] = {1.2, 1, 0.8};
-    assert_int_equal(bg_mesh_generate_box(cells, origin, size, &mesh, &err), BG_OK);
-    const int dim = 3;
-    const size_t ndof = (size_t)mesh->nv * dim;
-    double *q = malloc(ndof * sizeof *q);
-    fx_deform(mesh, 0.4, q);
-    bg_elastic_t *model = NULL;
-    assert_int_equal(bg_elastic_new(mesh, MU, LAMBDA, &model, &err), BG_OK);
-    bg_elastic_eval(model, q, NULL);
-    int32_t *free_index = fx_all_free(mesh, dim);
-    bg_sparse_t *local = NULL;
-    assert_int_equal(bg_sparse_new(mesh, dim, free_index, (int32_t)ndof, &local, &err), BG_OK);
+    const double size[3] = {1.2, 1, 0.8};
+    box_system_t box;
+    box_system_new(cells, size, 0.4, &box);
+    bg_error_t err = BG_ERROR_INIT;
+    double *q = box.q;
+    bg_elastic_t *model = box.model;
+    bg_sparse_t *local = box.sys;
     assert_int_equal(bg_sparse_reorder(local, &err), BG_OK);
     const int32_t *perm = bg_sparse_permutation(local);
     assert_non_null(perm);
@@ -475,11 +496,7 @@ static void test_sparse_solve_ordered_bit_for_bit(void **state)
     free(ref);
     free(stored);
     free(x);
-    bg_sparse_destroy(&local);
-    free(free_index);
-    bg_elastic_destroy(&model);
-    free(q);
-    bg_mesh_destroy(&mesh);
+    box_system_free(&box);
 }
 
 static void test_integration_step_closed_form(void **state)
