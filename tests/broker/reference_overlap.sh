@@ -9,7 +9,8 @@
 # had ended (its progress event says "error": null and precedes the
 # `reference` event). The error column measured after both ended equals
 # `biotgrid solve`'s (which solves the reference first) point for point,
-# as do the energies. Before the change there was no `reference` event
+# as do the energies. A job cancelled while both go on ends cancelled,
+# the next job succeeds, and the broker exits 0. Before the change there was no `reference` event
 # and iteration 0 had its error. Every process started here is stopped.
 set -u
 bin=$1 scripts=$2 work=$3 scene=$4 mesh_dir=$5
@@ -63,6 +64,29 @@ jq -e --slurpfile l "$work/local/report.json" '
   | [$l[0].runs[0].trace[] | [.iteration, .energy, .error]] as $s
   | ($g | length) > 1 and $g == $s and all($g[]; .[2] != null)' "$work/report.json" >/dev/null
 check $? "the error column and the energies equal solve's, point for point: $(jq -c '[.runs[0].trace[].error]' "$work/report.json") against $(jq -c '[.runs[0].trace[].error]' "$work/local/report.json")"
+
+# A cancel while the reference and the run go on stops both: the job ends
+# cancelled, its coordinator joins the reference thread (the next job
+# runs and succeeds), and the broker exits 0 (under the sanitizers: no
+# leak, no thread left).
+submit() {
+  "$bin" submit "$1" --mesh-path "$mesh_dir" --mechanism posted --budget 100 --broker "$url" \
+    --json 2>>"$work/submit.txt" | jq -r '.id // empty'
+}
+id2=$(submit "$scene")
+i=0
+while [ "$(bcurl -sf "$url/v1/jobs/$id2" | jq -r .state)" != running ] && [ $i -lt 600 ]; do
+  sleep 0.05
+  i=$((i + 1))
+done
+code=$(bcurl -s -o "$work/cancel.json" -w '%{http_code}' -X POST "$url/v1/jobs/$id2/cancel")
+[ "$code" = 200 ]; check $? "job $id2 is cancelled while it runs (answer $code)"
+state=$(wait_job "$url" "$id2" 120)
+[ "$state" = cancelled ]; check $? "job $id2 stays cancelled (got $state)"
+echo "info: job $id2's reference: $(bcurl -sf --max-time 10 "$url/v1/jobs/$id2/events" | grep -A1 '^event: reference' | sed -n 's/^data: //p')"
+id3=$(submit "$work/scene.json")
+state=$(wait_job "$url" "$id3" 300)
+[ "$state" = succeeded ]; check $? "the next job $id3 runs and succeeds (got $state)"
 trap - EXIT
 stop_broker "$work" b || fail=1
 sh "$scripts/stop_agents.sh" "$work/agents" >/dev/null || fail=1
