@@ -200,11 +200,16 @@ out:
     return st;
 }
 
+int bg_run_reference_solves(const bg_scene_t *scene)
+{
+    return scene->reference_kind == BG_REFERENCE_NEWTON && scene->task == BG_TASK_STATIC;
+}
+
 bg_status bg_run_reference(const bg_scene_t *scene, const bg_backend_t *backend,
                             bg_solve_result_t *reference, const double **ref, bg_error_t *err)
 {
     *ref = scene->reference;
-    if (scene->reference_kind != BG_REFERENCE_NEWTON || scene->task != BG_TASK_STATIC)
+    if (!bg_run_reference_solves(scene))
         return BG_OK;
     const bg_solve_options_t ro = {.method = BG_METHOD_NEWTON,
                                    .tolerance = BG_RUN_REFERENCE_TOLERANCE,
@@ -225,6 +230,8 @@ bg_status bg_run_method(const bg_scene_t *scene, const bg_run_options_t *o, cons
                                    .tolerance = o->tolerance,
                                    .max_iterations = o->max_iterations,
                                    .reference = ref,
+                                   .reference_ready = o->reference_ready,
+                                   .reference_ctx = o->reference_ctx,
                                    .progress = o->progress,
                                    .progress_ctx = o->progress_ctx,
                                    .keep_orientation = scene->task == BG_TASK_PARAMETERIZE,

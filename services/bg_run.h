@@ -36,7 +36,15 @@ typedef struct bg_run_options {
     void *progress_ctx;
     const bg_backend_t *backend; /* NULL: in process. surface-edit ignores it: its
                                     per-vertex rotations have no agent service */
+    /* A static solve whose ref is NULL: the reference computed alongside
+     * (bg_solve_options_t.reference_ready); NULL: none. */
+    const double *(*reference_ready)(void *ctx, int wait);
+    void *reference_ctx;
 } bg_run_options_t;
+
+/* 1 when bg_run_reference solves a reference for scene (a static scene
+ * with "reference": "newton"), 0 when it only lends the scene's own. */
+int bg_run_reference_solves(const bg_scene_t *scene);
 
 /*
  * The reference positions a static run measures its error against: a

@@ -726,6 +726,48 @@ static double relative_error(const double *q, const double *ref, size_t ndof)
     return den > 0.0 ? sqrt(num / den) : sqrt(num);
 }
 
+/*
+ * The error of the next trace point, at q: against the reference, or, while
+ * one computed alongside is not ready (options->reference_ready), NaN with
+ * q kept as the next pending row. The rows are a prefix of the trace: a
+ * point after one that was measured is never kept. Past
+ * BG_STATIC_PENDING_BYTES the solve waits for the reference instead.
+ */
+static bg_status trace_error(const bg_solve_options_t *opt, const double *q, size_t ndof,
+                             bg_solve_result_t *res, int *pending_cap, double *error)
+{
+    const double *ref = opt->reference;
+    if (!ref && opt->reference_ready) {
+        ref = opt->reference_ready(opt->reference_ctx, 0);
+        if (!ref && (size_t)(res->pending_count + 1) * ndof * sizeof *q > BG_STATIC_PENDING_BYTES)
+            ref = opt->reference_ready(opt->reference_ctx, 1);
+        if (!ref && res->pending_count == res->trace_count &&
+            (size_t)(res->pending_count + 1) * ndof * sizeof *q <= BG_STATIC_PENDING_BYTES) {
+            if (res->pending_count == *pending_cap) {
+                const int grown = *pending_cap ? 2 * *pending_cap : 8;
+                double *rows = realloc(res->pending, (size_t)grown * ndof * sizeof *rows);
+                if (!rows)
+                    return BG_ERR_NOMEM;
+                res->pending = rows;
+                *pending_cap = grown;
+            }
+            memcpy(res->pending + (size_t)res->pending_count * ndof, q, ndof * sizeof *q);
+            res->pending_count++;
+        }
+    }
+    *error = relative_error(q, ref, ndof);
+    return BG_OK;
+}
+
+void bg_static_fill_errors(bg_solve_result_t *r, const double *ref, size_t ndof)
+{
+    for (int k = 0; k < r->pending_count && k < r->trace_count; k++)
+        r->trace[k].error = relative_error(r->pending + (size_t)k * ndof, ref, ndof);
+    free(r->pending);
+    r->pending = NULL;
+    r->pending_count = 0;
+}
+
 static bg_status push_trace(bg_solve_result_t *r, int *cap, const bg_trace_point_t *pt)
 {
     if (r->trace_count == *cap) {
@@ -1245,7 +1287,7 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     const double t_start = bg_clock_now();
     problem_t *p = solver;
     const bg_scene_t *scene = p->scene;
-    int trace_cap = 0;
+    int trace_cap = 0, pending_cap = 0;
     bg_status st = BG_OK;
     const size_t ndof = p->ndof;
     if (opt->inertia && solver->method == BG_METHOD_LOCAL_GLOBAL) {
@@ -1311,8 +1353,9 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
     }
     res->force_scale = g0;
     bg_trace_point_t pt = {bg_clock_now() - t_start, 0, W, gnorm, g0 > 0.0 ? gnorm / g0 : 0.0,
-                           relative_error(p->q, opt->reference, ndof), 0};
-    if (push_trace(res, &trace_cap, &pt) != BG_OK) {
+                           NAN, 0};
+    if (trace_error(opt, p->q, ndof, res, &pending_cap, &pt.error) != BG_OK ||
+        push_trace(res, &trace_cap, &pt) != BG_OK) {
         st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
         goto out;
     }
@@ -1514,8 +1557,8 @@ bg_status bg_solver_minimize(bg_solver_t *solver, const bg_solve_options_t *opt,
         pt.energy = W;
         pt.gradient_norm = gnorm;
         pt.relative_gradient = g0 > 0.0 ? gnorm / g0 : 0.0;
-        pt.error = relative_error(p->q, opt->reference, ndof);
-        if (push_trace(res, &trace_cap, &pt) != BG_OK) {
+        if (trace_error(opt, p->q, ndof, res, &pending_cap, &pt.error) != BG_OK ||
+            push_trace(res, &trace_cap, &pt) != BG_OK) {
             st = bg_error_set(err, BG_ERR_NOMEM, "out of memory recording the trace");
             goto out;
         }
@@ -1718,8 +1761,13 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
 {
     memset(res, 0, sizeof *res);
     const double t_start = bg_clock_now();
-    const bg_status st = wants_continuation(scene, opt) ? continuation_solve(scene, opt, res, err)
-                                                        : solve_once(scene, opt, res, err);
+    const int staged = wants_continuation(scene, opt);
+    /* A stage's pending rows would not line up with the merged trace. */
+    if (staged && opt->reference_ready && !opt->reference)
+        return bg_error_set(err, BG_ERR_INVALID,
+                            "a reference computed alongside needs a solve without continuation");
+    const bg_status st = staged ? continuation_solve(scene, opt, res, err)
+                                : solve_once(scene, opt, res, err);
     /* Setup (pattern, analysis, factoring local/global's Laplacian) counts,
      * and so does the scene's starting guess. */
     if (st == BG_OK) {
@@ -1754,6 +1802,7 @@ void bg_solve_result_release(bg_solve_result_t *r)
     free(r->q);
     free(r->energy_density);
     free(r->trace);
+    free(r->pending);
     free(r->steps);
     memset(r, 0, sizeof *r);
 }

@@ -94,6 +94,17 @@ typedef struct bg_solve_options {
     int keep_orientation;     /* reject steps that invert an element (from a start
                                  without inverted elements: the result has none) */
     const double *reference;  /* nv*n reference positions for the error column, or NULL */
+    /* A reference still being computed (by another thread) while this
+     * solve runs, asked when reference is NULL: reference_ready(ctx, 0)
+     * returns its nv*n positions once they are final (the same pointer
+     * ever after), else NULL; reference_ready(ctx, 1) waits for them (NULL:
+     * the reference failed). Until they are ready a trace point's error
+     * is NaN and its positions are kept in the result's pending rows, for
+     * bg_static_fill_errors; past BG_STATIC_PENDING_BYTES of rows the
+     * solve waits for the reference. Called from the solving thread only.
+     * Not with continuation (bg_static_continues): BG_ERR_INVALID. */
+    const double *(*reference_ready)(void *ctx, int wait);
+    void *reference_ctx;
     const double *start;      /* nv*n start positions, or NULL for scene->initial */
     int reuse_factor;         /* newton: keep the factored matrix across iterations and calls,
                                  and take L-BFGS steps on it (a few curvature pairs), refactoring
@@ -203,6 +214,9 @@ typedef struct bg_solve_result {
     double *energy_density;   /* final ψ per element, ne; owned */
     bg_trace_point_t *trace;  /* one point per iteration from 0 (dynamic: per step); owned */
     int trace_count;
+    double *pending;          /* reference_ready: nv*n positions of trace points
+                                 0..pending_count-1, whose error awaited the reference; owned */
+    int pending_count;
     bg_map_quality_t map;     /* parameterize runs */
     bg_step_record_t *steps;  /* dynamic runs: steps[0] is the initial state; owned */
     int step_count;
@@ -243,6 +257,18 @@ bg_status bg_static_solve(const bg_scene_t *scene, const bg_solve_options_t *opt
                           bg_solve_result_t *result, bg_error_t *err);
 
 void bg_solve_result_release(bg_solve_result_t *result);
+
+/* What the pending rows of a solve (options->reference_ready) may hold
+ * before it waits for the reference: with a run of fast iterations the
+ * rows would otherwise grow as long as the reference takes. */
+#define BG_STATIC_PENDING_BYTES (256u << 20)
+
+/*
+ * Fills the error of result's pending trace points against ref (nv*n
+ * positions, ndof = nv*n values), with the same arithmetic the solve
+ * uses for the points it could measure, and frees the pending rows.
+ */
+void bg_static_fill_errors(bg_solve_result_t *result, const double *ref, size_t ndof);
 
 /* Adds part's iterations, rotation-fit counts and time split to total: a
  * series of solves (time steps, morph frames) reports their sum. */

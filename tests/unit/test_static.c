@@ -349,6 +349,79 @@ static void nothing_free_is_an_error(void **state)
     bg_scene_destroy(&s);
 }
 
+/* A reference that becomes ready only at the ready_after-th time the solve
+ * asks (the coordinator's reference thread, made deterministic). */
+typedef struct late_reference {
+    const double *q;
+    int asked, ready_after;
+} late_reference_t;
+
+static const double *late_reference(void *ctx, int wait)
+{
+    late_reference_t *l = ctx;
+    return wait || ++l->asked > l->ready_after ? l->q : NULL;
+}
+
+/* The error column of a run whose reference was computed alongside (its
+ * first points kept and measured after the run) is the column of the run
+ * given the reference from the start, to the bit, and the run itself (its
+ * energies, its result) is the same run. */
+static void reference_alongside_same_errors(void **state)
+{
+    bg_scene_t *s = test_load_scene(SCENES "bar-twist.json");
+    const size_t ndof = (size_t)s->mesh->nv * s->mesh->dim;
+    bg_error_t err = BG_ERROR_INIT;
+    bg_solve_result_t ref = BG_SOLVE_RESULT_INIT, seq = BG_SOLVE_RESULT_INIT,
+                      late = BG_SOLVE_RESULT_INIT;
+    const bg_solve_options_t ro = {
+        .method = BG_METHOD_NEWTON, .tolerance = 1e-13, .max_iterations = 200};
+    if (bg_static_solve(s, &ro, &ref, &err) != BG_OK)
+        fail_msg("%s", err.message);
+    bg_solve_options_t o = {
+        .method = BG_METHOD_LOCAL_GLOBAL, .tolerance = 1e-6, .max_iterations = 60,
+        .reference = ref.q};
+    if (bg_static_solve(s, &o, &seq, &err) != BG_OK)
+        fail_msg("%s", err.message);
+    late_reference_t l = {ref.q, 0, 7};
+    o.reference = NULL;
+    o.reference_ready = late_reference;
+    o.reference_ctx = &l;
+    if (bg_static_solve(s, &o, &late, &err) != BG_OK)
+        fail_msg("%s", err.message);
+    assert_true(seq.trace_count > 10);
+    assert_int_equal(late.trace_count, seq.trace_count);
+    assert_int_equal(late.pending_count, 7);
+    assert_true(isnan(late.trace[6].error) && !isnan(late.trace[7].error));
+    bg_static_fill_errors(&late, ref.q, ndof);
+    assert_null(late.pending);
+    for (int k = 0; k < seq.trace_count; k++) {
+        assert_memory_equal(&late.trace[k].error, &seq.trace[k].error, sizeof(double));
+        assert_memory_equal(&late.trace[k].energy, &seq.trace[k].energy, sizeof(double));
+    }
+    assert_memory_equal(late.q, seq.q, ndof * sizeof *seq.q);
+    bg_solve_result_release(&late);
+    bg_solve_result_release(&seq);
+    bg_solve_result_release(&ref);
+    bg_scene_destroy(&s);
+}
+
+/* A staged solve (continuation) refuses a reference computed alongside:
+ * its stages' pending rows would not follow the merged trace. */
+static void reference_alongside_not_staged(void **state)
+{
+    bg_scene_t *s = test_load_scene(SCENES "stiff-bar.json");
+    late_reference_t l = {NULL, 0, 0};
+    bg_solve_result_t r = BG_SOLVE_RESULT_INIT;
+    bg_error_t err = BG_ERROR_INIT;
+    const bg_solve_options_t o = {.method = BG_METHOD_NEWTON, .tolerance = 1e-8,
+                                  .max_iterations = 10, .reference_ready = late_reference,
+                                  .reference_ctx = &l};
+    assert_true(bg_static_continues(s, BG_METHOD_NEWTON));
+    assert_int_equal(bg_static_solve(s, &o, &r, &err), BG_ERR_INVALID);
+    bg_solve_result_release(&r);
+    bg_scene_destroy(&s);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -361,6 +434,8 @@ int main(void)
         cmocka_unit_test(random_start_converges),
         cmocka_unit_test(gravity_reaction_balances_weight),
         cmocka_unit_test(nothing_free_is_an_error),
+        cmocka_unit_test(reference_alongside_same_errors),
+        cmocka_unit_test(reference_alongside_not_staged),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
