@@ -339,16 +339,17 @@ static int pd3_shifted(const double M[9], double theta)
  * 2. The eigenvalue of B farthest from the other two: with p² = tr B²/6
  *    and β = det B/(2p³) ∈ [−1, 1], the eigenvalues are p·x with
  *    x³ − 3x − 2β = 0 (|β| a rounding above 1 needs no clamp: Newton
- *    then finds the root just above 2, there is no acos to fail). For β ≥ 0 the largest root x ∈ [√3, 2] lies at
- *    least 3p/2 from the others (for β < 0, the smallest, by symmetry:
- *    solve for |β| and negate). That root is a smooth function of β on
- *    [0, 1] (roots meet only at β = −1), so Newton's method from a
- *    quadratic fit (error < 2e-3) reaches full precision in three steps
- *    (error squared each step, times x/(x² − 1) ≤ 0.9); the derivative
- *    3(x² − 1) ≥ 6 there, so the root's rounding error is that of
- *    evaluating the cubic, a few ulps. (The trigonometric form
- *    2cos(acos β/3) gives the same root but loses half the digits of the
- *    two near-equal roots when β ≈ ±1; those are not taken from it here.)
+ *    then finds the root just above 2, there is no acos to fail). For
+ *    β ≥ 0 the largest root x ∈ [√3, 2] lies at least 3p/2 from the
+ *    others (for β < 0, the smallest, by symmetry: solve for |β| and
+ *    negate). That root is a smooth function of β on [0, 1] (roots meet
+ *    only at β = −1), so Newton's method from a quadratic fit (error
+ *    < 1.1e-3) reaches full precision in three steps (error squared each
+ *    step, times x/(x² − 1) ≤ 0.9); the derivative 3(x² − 1) ≥ 6 there,
+ *    so the root's rounding error is that of evaluating the cubic, a few
+ *    ulps. (The trigonometric form 2cos(acos β/3) gives the same root but
+ *    loses half the digits of the two near-equal roots when β ≈ ±1;
+ *    those are not taken from it here.)
  * 3. Its eigenvector v₀ spans the null space of C = B − λ₀I, whose other
  *    eigenvalues are at least 3p/2 ≥ 0.6 away: the cross products of C's
  *    rows are the columns of adj C = μ₁μ₂ v₀v₀ᵀ, the largest at least
@@ -356,8 +357,9 @@ static int pd3_shifted(const double M[9], double theta)
  *    size (relative to O(1) quantities; no cancellation to fear).
  * 4. The other two in the plane orthogonal to v₀: an orthonormal pair
  *    u = v₀ × e_j/|·| (e_j the axis least aligned with v₀, |v₀ × e_j|² =
- *    1 − v₀_j² ≥ 2/3, no cancellation), w = v₀ × u, and the 2×2 matrix [uᵀBu uᵀBw; · wᵀBw] diagonalised
- *    by one Jacobi rotation (the root of smaller magnitude, |t| ≤ 1, as in
+ *    1 − v₀_j² ≥ 2/3, no cancellation), w = v₀ × u, and the 2×2 matrix
+ *    [uᵀBu uᵀBw; · wᵀBw] diagonalised by one Jacobi rotation (the root
+ *    of smaller magnitude, |t| ≤ 1, as in
  *    bg_sym3_eigen): exact to rounding however close its two eigenvalues
  *    are, which is where closed forms that take every eigenvector from a
  *    null space fail. v₀'s own eigenvalue is its Rayleigh quotient; the

@@ -661,9 +661,9 @@ static double sym3_errors(const double Y[9], double tau)
 static void sym3_closed_form(void **state)
 {
     uint64_t rng = 29;
-    const char *names[] = {"random", "random + 1e3 I", "repeated pair", "near pair",
-                           "triple",  "near triple",    "near singular", "rank one",
-                           "diagonal", "scale 1e-150",  "scale 1e150"};
+    const char *names[] = {"random",   "random + 1e3 I", "repeated pair", "near pair",
+                           "triple",   "near triple",    "near singular", "rank one",
+                           "diagonal", "scale 1e-150",   "scale 1e150"};
     enum { KINDS = sizeof names / sizeof *names, TRIALS = 2000 };
     static const double gaps[] = {1e-3, 1e-6, 1e-9, 1e-12, 1e-15, 0.0};
     double total = 0.0;
