@@ -324,6 +324,141 @@ static int pd3_shifted(const double M[9], double theta)
 }
 
 /*
+ * Y = V diag(y) Vᵀ for a symmetric 3×3 Y (upper triangle given), V's
+ * columns orthonormal, in closed form with a fixed operation count (no
+ * sweeps), so that it runs across vector lanes without waiting for the
+ * slowest lane. The steps, and why each is stable:
+ *
+ * 1. B = (Y − qI)/m with q the mean diagonal (re-centred once more, so
+ *    tr B is zero to rounding of B's own entries, not of q's) and m the
+ *    largest |entry| (m = 0: Y = qI, B = 0). Then |b_ij| ≤ 1 with one
+ *    equal to 1, so ‖B‖_F ≥ 1 and B's eigenvalues spread by at least
+ *    about one: every later quantity is O(1) and nothing under- or
+ *    overflows. Rounding here is a perturbation of Y of a few ulps of
+ *    max(|q|, m), which is all a backward-stable decomposition may do.
+ * 2. The eigenvalue of B farthest from the other two: with p² = tr B²/6
+ *    and β = det B/(2p³) ∈ [−1, 1], the eigenvalues are p·x with
+ *    x³ − 3x − 2β = 0 (|β| a rounding above 1 needs no clamp: Newton
+ *    then finds the root just above 2, there is no acos to fail). For
+ *    β ≥ 0 the largest root x ∈ [√3, 2] lies at least 3p/2 from the
+ *    others (for β < 0, the smallest, by symmetry: solve for |β| and
+ *    negate). That root is a smooth function of β on [0, 1] (roots meet
+ *    only at β = −1), so Newton's method from a quadratic fit (error
+ *    < 1.1e-3) reaches full precision in three steps (error squared each
+ *    step, times x/(x² − 1) ≤ 0.9); the derivative 3(x² − 1) ≥ 6 there,
+ *    so the root's rounding error is that of evaluating the cubic, a few
+ *    ulps. (The trigonometric form 2cos(acos β/3) gives the same root but
+ *    loses half the digits of the two near-equal roots when β ≈ ±1;
+ *    those are not taken from it here.)
+ * 3. Its eigenvector v₀ spans the null space of C = B − λ₀I, whose other
+ *    eigenvalues are at least 3p/2 ≥ 0.6 away: the cross products of C's
+ *    rows are the columns of adj C = μ₁μ₂ v₀v₀ᵀ, the largest at least
+ *    |μ₁μ₂|/√3 long, so v₀ is taken from it with an error of rounding
+ *    size (relative to O(1) quantities; no cancellation to fear).
+ * 4. The other two in the plane orthogonal to v₀: an orthonormal pair
+ *    u = v₀ × e_j/|·| (e_j the axis least aligned with v₀, |v₀ × e_j|² =
+ *    1 − v₀_j² ≥ 2/3, no cancellation), w = v₀ × u, and the 2×2 matrix
+ *    [uᵀBu uᵀBw; · wᵀBw] diagonalised by one Jacobi rotation (the root
+ *    of smaller magnitude, |t| ≤ 1, as in
+ *    bg_sym3_eigen): exact to rounding however close its two eigenvalues
+ *    are, which is where closed forms that take every eigenvector from a
+ *    null space fail. v₀'s own eigenvalue is its Rayleigh quotient; the
+ *    couplings v₀ᵀBu, v₀ᵀBw left out are the residual of v₀, of rounding
+ *    size.
+ * So V diag(y) Vᵀ = Y + E with ‖E‖ a few ulps of max(|q|, m) and V
+ * orthonormal to a few ulps: the guarantees of the Jacobi method it
+ * replaces, and what keeps A = V diag(a(y)) Vᵀ within rounding of the
+ * exact clamped block (a Lipschitz in y away from the pair-sum floor).
+ *
+ * Every operation runs on every lane, the special cases folded into the
+ * operands (m = 0 adds 1 to m and to p²; a zero coupling uᵀBw gets a
+ * 1e-300 of its sign, so θ is ±∞ or huge and the rotation the identity,
+ * or θ = 0 when the 2×2 block is a multiple of I, where any rotation is
+ * right): a select of a constant that feeds a division or a square root
+ * would leave a branch the vectoriser cannot convert.
+ */
+static inline __attribute__((always_inline)) void
+sym3_eigen_closed(double y00, double y01, double y02, double y11, double y12, double y22,
+                  double y[3], double V[9])
+{
+    const double q = (y00 + y11 + y22) / 3.0;
+    double d0 = y00 - q, d1 = y11 - q, d2 = y22 - q;
+    const double r = (d0 + d1 + d2) / 3.0;
+    d0 -= r, d1 -= r, d2 -= r;
+    const double shift = q + r;
+    double m = fabs(d0);
+    m = fabs(d1) > m ? fabs(d1) : m;
+    m = fabs(d2) > m ? fabs(d2) : m;
+    m = fabs(y01) > m ? fabs(y01) : m;
+    m = fabs(y02) > m ? fabs(y02) : m;
+    m = fabs(y12) > m ? fabs(y12) : m;
+    const double none = m > 0.0 ? 0.0 : 1.0;
+    const double inv = 1.0 / (m + none);
+    const double b00 = d0 * inv, b11 = d1 * inv, b22 = d2 * inv;
+    const double b01 = y01 * inv, b02 = y02 * inv, b12 = y12 * inv;
+    /* Step 2 (B = 0: p taken as 1, β = 0; any orthonormal V will do). */
+    const double p2 =
+        (b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (b01 * b01 + b02 * b02 + b12 * b12)) / 6.0;
+    const double p = sqrt(p2 + none);
+    const double det = b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) +
+                       b02 * (b01 * b12 - b11 * b02);
+    const double beta = fabs(det) / (2.0 * p * p * p);
+    /* x(0) = √3, x(1/2) = 2cos(π/9), x(1) = 2 */
+    double x = 1.7320508075688772 + beta * (0.32138841 - 0.05343921 * beta);
+    for (int it = 0; it < 3; it++)
+        x -= (x * (x * x - 3.0) - 2.0 * beta) / (3.0 * (x * x - 1.0));
+    const double l0 = copysign(p * x, det);
+    /* Step 3 */
+    const double c00 = b00 - l0, c11 = b11 - l0, c22 = b22 - l0;
+    const double xa0 = b01 * b12 - b02 * c11, xa1 = b02 * b01 - c00 * b12,
+                 xa2 = c00 * c11 - b01 * b01; /* row 0 × row 1 */
+    const double xb0 = b01 * c22 - b02 * b12, xb1 = b02 * b02 - c00 * c22,
+                 xb2 = c00 * b12 - b01 * b02; /* row 0 × row 2 */
+    const double xc0 = c11 * c22 - b12 * b12, xc1 = b12 * b02 - b01 * c22,
+                 xc2 = b01 * b12 - c11 * b02; /* row 1 × row 2 */
+    const double na = xa0 * xa0 + xa1 * xa1 + xa2 * xa2, nb = xb0 * xb0 + xb1 * xb1 + xb2 * xb2,
+                 nc = xc0 * xc0 + xc1 * xc1 + xc2 * xc2;
+    const int ab = na >= nb;
+    double n0 = ab ? na : nb, v0 = ab ? xa0 : xb0, v1 = ab ? xa1 : xb1, v2 = ab ? xa2 : xb2;
+    const int cc = nc > n0;
+    n0 = cc ? nc : n0, v0 = cc ? xc0 : v0, v1 = cc ? xc1 : v1, v2 = cc ? xc2 : v2;
+    const double s0 = 1.0 / sqrt(n0);
+    v0 *= s0, v1 *= s0, v2 *= s0;
+    /* Step 4: u = v₀ × e_j, j the axis with the smallest |v₀_j| */
+    const double a0 = fabs(v0), a1 = fabs(v1), a2 = fabs(v2);
+    double amin = a0, u0 = 0.0, u1 = v2, u2 = -v1;
+    const int sy = a1 < amin;
+    amin = sy ? a1 : amin, u0 = sy ? -v2 : u0, u1 = sy ? 0.0 : u1, u2 = sy ? v0 : u2;
+    const int sz = a2 < amin;
+    amin = sz ? a2 : amin, u0 = sz ? v1 : u0, u1 = sz ? -v0 : u1, u2 = sz ? 0.0 : u2;
+    const double su = 1.0 / sqrt(1.0 - amin * amin);
+    u0 *= su, u1 *= su, u2 *= su;
+    const double w0 = v1 * u2 - v2 * u1, w1 = v2 * u0 - v0 * u2, w2 = v0 * u1 - v1 * u0;
+    const double Bu0 = b00 * u0 + b01 * u1 + b02 * u2, Bu1 = b01 * u0 + b11 * u1 + b12 * u2,
+                 Bu2 = b02 * u0 + b12 * u1 + b22 * u2;
+    const double Bw0 = b00 * w0 + b01 * w1 + b02 * w2, Bw1 = b01 * w0 + b11 * w1 + b12 * w2,
+                 Bw2 = b02 * w0 + b12 * w1 + b22 * w2;
+    const double Bv0 = b00 * v0 + b01 * v1 + b02 * v2, Bv1 = b01 * v0 + b11 * v1 + b12 * v2,
+                 Bv2 = b02 * v0 + b12 * v1 + b22 * v2;
+    const double auu = u0 * Bu0 + u1 * Bu1 + u2 * Bu2, auw = u0 * Bw0 + u1 * Bw1 + u2 * Bw2,
+                 aww = w0 * Bw0 + w1 * Bw1 + w2 * Bw2;
+    const double theta = (aww - auu) / (2.0 * auw + copysign(1e-300, auw));
+    const double t = copysign(1.0, theta) / (fabs(theta) + sqrt(theta * theta + 1.0));
+    const double c = 1.0 / sqrt(t * t + 1.0), s = t * c;
+    y[0] = shift + m * (v0 * Bv0 + v1 * Bv1 + v2 * Bv2);
+    y[1] = shift + m * (auu - t * auw);
+    y[2] = shift + m * (aww + t * auw);
+    V[0] = v0, V[3] = v1, V[6] = v2;
+    V[1] = c * u0 - s * w0, V[4] = c * u1 - s * w1, V[7] = c * u2 - s * w2;
+    V[2] = s * u0 + c * w0, V[5] = s * u1 + c * w1, V[8] = s * u2 + c * w2;
+}
+
+void bg_elastic_sym3_eigen(const double Y[9], double y[3], double V[9])
+{
+    sym3_eigen_closed(Y[0], Y[1], Y[2], Y[4], Y[5], Y[8], y, V);
+}
+
+/*
  * The twist block A of ∂P/∂F = 2μ I₉ + G A Gᵀ + λ vec(R) vec(R)ᵀ (see
  * dpdf3): A = c W, c = λ(tr Y − 3) − 2μ, W = M⁻¹, M = tr Y·I − Y. Its
  * eigenvalues in an orthonormal twist basis are t_k = 2μ + 2c/s_k with s_k
@@ -365,12 +500,9 @@ static void twist_block3(double mu, double lambda, const double S[9], double trY
         A[6] = f * c02, A[7] = f * c12, A[8] = f * c22;
         return;
     }
-    double Ysym[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++)
-            Ysym[3 * i + j] = 0.5 * (S[3 * i + j] + S[3 * j + i]);
     double y[3], V[9];
-    bg_sym3_eigen(Ysym, y, V);
+    sym3_eigen_closed(S[0], 0.5 * (S[1] + S[3]), 0.5 * (S[2] + S[6]), S[4], 0.5 * (S[5] + S[7]),
+                      S[8], y, V);
     double a[3];
     for (int k = 0; k < 3; k++)
         a[k] = twist_weight(mu, c, trY - y[k], floor_, project);
@@ -935,8 +1067,11 @@ static void block3_twist(hess3_t *restrict h, double mu, double lambda, int proj
             for (int j = 0; j < 3; j++)
                 M[3 * i + j] = (i == j ? trY : 0.0) - 0.5 * (h->S[3 * i + j][b] + h->S[3 * j + i][b]);
         const double c = lambda * (trY - 3.0) - 2.0 * mu;
-        const double floor_ = ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY));
-        const double theta = project && c < 0.0 ? fmax(floor_, -c / mu) : floor_;
+        const double floor_ = ELASTIC_PAIR_SUM_FLOOR * (fabs(trY) > 1.0 ? fabs(trY) : 1.0);
+        /* fmax(floor_, −c/μ) as a select: fmax is a libm call the vectoriser
+         * does not take (the same value) */
+        const double cm = -c / mu;
+        const double theta = project && c < 0.0 && cm > floor_ ? cm : floor_;
         const int pd = pd3_shifted(M, theta);
         const double c00 = M[4] * M[8] - M[5] * M[7], c01 = M[2] * M[7] - M[1] * M[8],
                      c02 = M[1] * M[5] - M[2] * M[4], c11 = M[0] * M[8] - M[2] * M[6],
@@ -952,87 +1087,33 @@ static void block3_twist(hess3_t *restrict h, double mu, double lambda, int proj
 
 /*
  * twist_block3's other branch, for the lanes block3_twist left (ok = 0):
- * the eigenvectors of sym(S) by the cyclic Jacobi method of
- * bg_sym3_eigen, the pair sums floored and, when projecting, the twist
- * eigenvalues clamped, A = V diag(a) Vᵀ. The lanes run the scalar
- * routine's sweeps in step with the same arithmetic; a lane that has
- * converged (or whose pivot is zero) takes the identity rotation (c = 1,
- * s = 0) while the others go on. In the projected Hessian of a bent or
- * compressed body this is most elements (any pair sum σi + σj below
- * −c/μ ≈ 2 sends a lane here), so it runs vectorised.
+ * the eigen-decomposition of sym(S) in closed form (sym3_eigen_closed,
+ * the same arithmetic as the scalar branch, so the same bits), the pair
+ * sums floored and, when projecting, the twist eigenvalues clamped,
+ * A = V diag(a) Vᵀ. In the projected Hessian of a bent or compressed
+ * body this is most elements (any pair sum σi + σj below −c/μ ≈ 2 sends
+ * a lane here: 18,097 of bunny-edit's 25,539), so it runs on every lane
+ * of the block (the closed form has no data-dependent loop; lanes with
+ * ok set keep their A) and vectorises.
  */
-/* One Jacobi rotation in the (p, q) plane on every live lane (the
- * others rotate by the identity); inline, so that p and q are constants
- * and the lane loop vectorises. */
-static inline __attribute__((always_inline)) void
-jacobi_lanes(double (*restrict a)[ELASTIC_BLOCK], double (*restrict Q)[ELASTIC_BLOCK],
-             const double *restrict live, int p, int q)
-{
-    for (int b = 0; b < ELASTIC_BLOCK; b++) {
-        const double apq = a[3 * p + q][b];
-        const int active = live[b] != 0.0 && apq != 0.0;
-        const double theta = (a[3 * q + q][b] - a[3 * p + p][b]) / (2.0 * (active ? apq : 1.0));
-        const double t = copysign(1.0, theta) / (fabs(theta) + sqrt(theta * theta + 1.0));
-        const double c0 = 1.0 / sqrt(t * t + 1.0);
-        const double c = active ? c0 : 1.0, s = active ? t * c0 : 0.0;
-        for (int i = 0; i < 3; i++) {
-            const double aip = a[3 * i + p][b], aiq = a[3 * i + q][b];
-            a[3 * i + p][b] = c * aip - s * aiq;
-            a[3 * i + q][b] = s * aip + c * aiq;
-        }
-        for (int j = 0; j < 3; j++) {
-            const double apj = a[3 * p + j][b], aqj = a[3 * q + j][b];
-            a[3 * p + j][b] = c * apj - s * aqj;
-            a[3 * q + j][b] = s * apj + c * aqj;
-        }
-        for (int i = 0; i < 3; i++) {
-            const double qip = Q[3 * i + p][b], qiq = Q[3 * i + q][b];
-            Q[3 * i + p][b] = c * qip - s * qiq;
-            Q[3 * i + q][b] = s * qip + c * qiq;
-        }
-    }
-}
-
 ELASTIC_CLONES
 static void block3_twist_eigen(hess3_t *restrict h, double mu, double lambda, int project)
 {
-    enum { B = ELASTIC_BLOCK };
-    double a[9][B], Q[9][B], live[B];
-    for (int b = 0; b < B; b++) {
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++) {
-                a[3 * i + j][b] = 0.5 * (h->S[3 * i + j][b] + h->S[3 * j + i][b]);
-                Q[3 * i + j][b] = i == j ? 1.0 : 0.0;
-            }
-        live[b] = h->ok[b] == 0.0 ? 1.0 : 0.0;
-    }
-    for (int sweep = 0; sweep < BG_ROTFIT_JACOBI_SWEEPS; sweep++) {
-        int any = 0;
-        for (int b = 0; b < B; b++) {
-            const double off = a[1][b] * a[1][b] + a[2][b] * a[2][b] + a[5][b] * a[5][b];
-            const double diag = a[0][b] * a[0][b] + a[4][b] * a[4][b] + a[8][b] * a[8][b];
-            live[b] = live[b] != 0.0 && !(off <= 1e-32 * diag || off == 0.0) ? 1.0 : 0.0;
-        }
-        for (int b = 0; b < B; b++)
-            any |= live[b] != 0.0;
-        if (!any)
-            break;
-        jacobi_lanes(a, Q, live, 0, 1);
-        jacobi_lanes(a, Q, live, 0, 2);
-        jacobi_lanes(a, Q, live, 1, 2);
-    }
-    for (int b = 0; b < B; b++) {
+    for (int b = 0; b < ELASTIC_BLOCK; b++) {
         const double trY = h->S[0][b] + h->S[4][b] + h->S[8][b];
         const double c = lambda * (trY - 3.0) - 2.0 * mu;
-        const double floor_ = ELASTIC_PAIR_SUM_FLOOR * fmax(1.0, fabs(trY));
-        double w[3];
+        /* (fmax is a libm call the vectoriser does not take; the same value) */
+        const double floor_ = ELASTIC_PAIR_SUM_FLOOR * (fabs(trY) > 1.0 ? fabs(trY) : 1.0);
+        double y[3], Q[9], w[3];
+        sym3_eigen_closed(h->S[0][b], 0.5 * (h->S[1][b] + h->S[3][b]),
+                          0.5 * (h->S[2][b] + h->S[6][b]), h->S[4][b],
+                          0.5 * (h->S[5][b] + h->S[7][b]), h->S[8][b], y, Q);
         for (int k = 0; k < 3; k++)
-            w[k] = twist_weight(mu, c, trY - a[4 * k][b], floor_, project);
+            w[k] = twist_weight(mu, c, trY - y[k], floor_, project);
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) {
-                const double v = Q[3 * i][b] * w[0] * Q[3 * j][b] +
-                                 Q[3 * i + 1][b] * w[1] * Q[3 * j + 1][b] +
-                                 Q[3 * i + 2][b] * w[2] * Q[3 * j + 2][b];
+                const double v = Q[3 * i] * w[0] * Q[3 * j] + Q[3 * i + 1] * w[1] * Q[3 * j + 1] +
+                                 Q[3 * i + 2] * w[2] * Q[3 * j + 2];
                 h->A[3 * i + j][b] = h->ok[b] == 0.0 ? v : h->A[3 * i + j][b];
             }
     }

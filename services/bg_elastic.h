@@ -172,6 +172,11 @@ void bg_elastic_set_barrier(bg_elastic_t *model, double weight);
  * negative eigenvalues clamped to zero (cyclic Jacobi). */
 void bg_sym4_project(double A[16]);
 
+/* Y = V diag(y) Vᵀ for a symmetric 3×3 Y (row-major, upper triangle
+ * read), V's columns orthonormal: the closed form the projected twist
+ * blocks use (no iteration; backward stable, see bg_elastic.c). */
+void bg_elastic_sym3_eigen(const double Y[9], double y[3], double V[9]);
+
 /*
  * Single-element kernel, for tests and other services: ψ(F) and, when the
  * pointers are non-NULL, P (n*n) and ∂P/∂F ((n*n)², row-major over
