@@ -1,6 +1,7 @@
 #include "bg_sparse.h"
 
 #include <cholmod.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -26,6 +27,8 @@ struct bg_sparse {
     int keep_order;                       /* bg_sparse_keep_order */
     double factor_flops, factor_nonzeros; /* from the analysis */
     bg_sparse_timing_t timing;
+    double *solve_work;     /* super_solve's scratch: n·nrhs + rows·nrhs doubles */
+    size_t solve_work_size; /* its length; grows to the widest call */
 };
 
 static int cmp_int32(const void *a, const void *b)
@@ -283,6 +286,7 @@ void bg_sparse_destroy(bg_sparse_t **psys)
     free(sys->scatter);
     free(sys->perm);
     free(sys->blocks);
+    free(sys->solve_work);
     free(sys);
     *psys = NULL;
 }
@@ -613,6 +617,325 @@ bg_status bg_sparse_factorize(bg_sparse_t *sys, double shift, bg_error_t *err)
     return BG_OK;
 }
 
+/*
+ * Triangular solves through a supernodal factor of a prefer-solves system
+ * (super_solve below). The kernels work on four rows or four columns at a
+ * time in GCC/Clang vector extensions: a fixed order of operations, so every
+ * clone (and a machine without AVX) gives the same bits, with no reliance on
+ * the vectoriser reassociating a sum. Macros, not functions, move a v4d: a
+ * function passing one by value would change the ABI between the clones.
+ */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) &&                             \
+    !defined(__SANITIZE_ADDRESS__)
+#define SOLVE_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#else
+#define SOLVE_CLONES
+#endif
+
+typedef double v4d __attribute__((vector_size(32)));
+#define LOAD4(dst, p) memcpy(&(dst), (p), sizeof(v4d))
+#define STORE4(p, src) memcpy((p), &(src), sizeof(v4d))
+#define HSUM4(s) (((s)[0] + (s)[2]) + ((s)[1] + (s)[3]))
+
+/* The forward pass: v[i] −= Σₖ cₖ[i]·aₖ over rows [lo, hi), four columns
+ * c0..c3 of a supernode applied to one right-hand side. */
+static inline void update4(const double *restrict c0, const double *restrict c1,
+                           const double *restrict c2, const double *restrict c3, const double a[4],
+                           int lo, int hi, double *restrict v)
+{
+    int i = lo;
+    for (; i + 4 <= hi; i += 4) {
+        v4d l0, l1, l2, l3, w;
+        LOAD4(l0, c0 + i), LOAD4(l1, c1 + i), LOAD4(l2, c2 + i), LOAD4(l3, c3 + i);
+        LOAD4(w, v + i);
+        w -= (l0 * a[0] + l1 * a[1]) + (l2 * a[2] + l3 * a[3]);
+        STORE4(v + i, w);
+    }
+    for (; i < hi; i++)
+        v[i] -= (c0[i] * a[0] + c1[i] * a[1]) + (c2[i] * a[2] + c3[i] * a[3]);
+}
+
+/* update4 for three right-hand sides (a local/global step's coordinates):
+ * each entry of the four columns is loaded once for all three. */
+static inline void update4x3(const double *restrict c0, const double *restrict c1,
+                             const double *restrict c2, const double *restrict c3,
+                             const double a[3][4], int lo, int hi, double *restrict v0,
+                             double *restrict v1, double *restrict v2)
+{
+    int i = lo;
+    for (; i + 4 <= hi; i += 4) {
+        v4d l0, l1, l2, l3, w0, w1, w2;
+        LOAD4(l0, c0 + i), LOAD4(l1, c1 + i), LOAD4(l2, c2 + i), LOAD4(l3, c3 + i);
+        LOAD4(w0, v0 + i), LOAD4(w1, v1 + i), LOAD4(w2, v2 + i);
+        w0 -= (l0 * a[0][0] + l1 * a[0][1]) + (l2 * a[0][2] + l3 * a[0][3]);
+        w1 -= (l0 * a[1][0] + l1 * a[1][1]) + (l2 * a[1][2] + l3 * a[1][3]);
+        w2 -= (l0 * a[2][0] + l1 * a[2][1]) + (l2 * a[2][2] + l3 * a[2][3]);
+        STORE4(v0 + i, w0), STORE4(v1 + i, w1), STORE4(v2 + i, w2);
+    }
+    for (; i < hi; i++) {
+        const double l0 = c0[i], l1 = c1[i], l2 = c2[i], l3 = c3[i];
+        v0[i] -= (l0 * a[0][0] + l1 * a[0][1]) + (l2 * a[0][2] + l3 * a[0][3]);
+        v1[i] -= (l0 * a[1][0] + l1 * a[1][1]) + (l2 * a[1][2] + l3 * a[1][3]);
+        v2[i] -= (l0 * a[2][0] + l1 * a[2][1]) + (l2 * a[2][2] + l3 * a[2][3]);
+    }
+}
+
+/* The backward pass: out[k] = Σᵢ cₖ[i]·v[i] over rows [lo, hi) for four
+ * columns, each sum in four interleaved partial sums. */
+static inline void dot4(const double *restrict c0, const double *restrict c1,
+                        const double *restrict c2, const double *restrict c3,
+                        const double *restrict v, int lo, int hi, double out[4])
+{
+    v4d s0 = {0}, s1 = {0}, s2 = {0}, s3 = {0};
+    int i = lo;
+    for (; i + 4 <= hi; i += 4) {
+        v4d l0, l1, l2, l3, w;
+        LOAD4(l0, c0 + i), LOAD4(l1, c1 + i), LOAD4(l2, c2 + i), LOAD4(l3, c3 + i);
+        LOAD4(w, v + i);
+        s0 += l0 * w, s1 += l1 * w, s2 += l2 * w, s3 += l3 * w;
+    }
+    out[0] = HSUM4(s0), out[1] = HSUM4(s1), out[2] = HSUM4(s2), out[3] = HSUM4(s3);
+    for (; i < hi; i++) {
+        out[0] += c0[i] * v[i], out[1] += c1[i] * v[i];
+        out[2] += c2[i] * v[i], out[3] += c3[i] * v[i];
+    }
+}
+
+/* dot4 for three right-hand sides, sharing the columns' loads. */
+static inline void dot4x3(const double *restrict c0, const double *restrict c1,
+                          const double *restrict c2, const double *restrict c3,
+                          const double *restrict v0, const double *restrict v1,
+                          const double *restrict v2, int lo, int hi, double out[3][4])
+{
+    v4d s00 = {0}, s01 = {0}, s02 = {0}, s03 = {0}, s10 = {0}, s11 = {0}, s12 = {0}, s13 = {0},
+        s20 = {0}, s21 = {0}, s22 = {0}, s23 = {0};
+    int i = lo;
+    for (; i + 4 <= hi; i += 4) {
+        v4d l0, l1, l2, l3, w0, w1, w2;
+        LOAD4(l0, c0 + i), LOAD4(l1, c1 + i), LOAD4(l2, c2 + i), LOAD4(l3, c3 + i);
+        LOAD4(w0, v0 + i), LOAD4(w1, v1 + i), LOAD4(w2, v2 + i);
+        s00 += l0 * w0, s01 += l1 * w0, s02 += l2 * w0, s03 += l3 * w0;
+        s10 += l0 * w1, s11 += l1 * w1, s12 += l2 * w1, s13 += l3 * w1;
+        s20 += l0 * w2, s21 += l1 * w2, s22 += l2 * w2, s23 += l3 * w2;
+    }
+    out[0][0] = HSUM4(s00), out[0][1] = HSUM4(s01), out[0][2] = HSUM4(s02);
+    out[0][3] = HSUM4(s03), out[1][0] = HSUM4(s10), out[1][1] = HSUM4(s11);
+    out[1][2] = HSUM4(s12), out[1][3] = HSUM4(s13), out[2][0] = HSUM4(s20);
+    out[2][1] = HSUM4(s21), out[2][2] = HSUM4(s22), out[2][3] = HSUM4(s23);
+    for (; i < hi; i++) {
+        const double l0 = c0[i], l1 = c1[i], l2 = c2[i], l3 = c3[i];
+        const double w[3] = {v0[i], v1[i], v2[i]};
+        for (int c = 0; c < 3; c++) {
+            out[c][0] += l0 * w[c], out[c][1] += l1 * w[c];
+            out[c][2] += l2 * w[c], out[c][3] += l3 * w[c];
+        }
+    }
+}
+
+static inline double dot1(const double *restrict c0, const double *restrict v, int lo, int hi)
+{
+    v4d s0 = {0};
+    int i = lo;
+    for (; i + 4 <= hi; i += 4) {
+        v4d l0, w;
+        LOAD4(l0, c0 + i), LOAD4(w, v + i);
+        s0 += l0 * w;
+    }
+    double s = HSUM4(s0);
+    for (; i < hi; i++)
+        s += c0[i] * v[i];
+    return s;
+}
+
+/* Prefetch the doubles [p, p + count) clipped to [lo, hi): the next block
+ * of a supernodal factor while this one is being used. Supernodes with tens
+ * of columns and rows (most of a 3D Laplacian's factor) are read as short
+ * column streams the hardware prefetcher does not ramp up on; the factor is
+ * one array in supernode order, so the next block is the next memory. */
+#ifndef PREFETCH_ROWS
+#define PREFETCH_ROWS 400
+#endif
+static inline void prefetch_range(const double *p, ptrdiff_t count, const double *lo,
+                                  const double *hi)
+{
+    const double *a = p < lo ? lo : p, *b = hi - p < count ? hi : p + count;
+    for (; a < b; a += 8)
+        __builtin_prefetch(a, 0, 3);
+}
+
+/* The tallest supernode's row count. */
+static size_t super_rows(const cholmod_factor *L)
+{
+    const int *pi = L->pi;
+    size_t rows = 0;
+    for (size_t s = 0; s < L->nsuper; s++)
+        if ((size_t)(pi[s + 1] - pi[s]) > rows)
+            rows = (size_t)(pi[s + 1] - pi[s]);
+    return rows;
+}
+
+/*
+ * x = A⁻¹ rhs through a supernodal LLᵀ factor, nrhs columns (column-major,
+ * the caller's numbering; perm as in bg_sparse_t): CHOLMOD's solve without
+ * its per-supernode BLAS calls. With a few right-hand sides those calls do
+ * matrix–vector work behind a matrix–matrix interface (OpenBLAS packs every
+ * diagonal block before its triangular solve: 10 % of a local/global run on
+ * the 32³ box). Here a supernode's rows are gathered into one dense vector
+ * per right-hand side (v, rows long, rows the tallest supernode) and
+ * scattered back once, and its columns are applied four at a time, each
+ * entry loaded once for every right-hand side. The factor is read once per
+ * pass; the rest stays in cache. work: (n + rows)·nrhs doubles; x may be
+ * rhs (it is read whole before x is written).
+ *
+ * A column's arithmetic does not depend on how many are solved with it
+ * (the three-column kernels do each column's operations in the one-column
+ * order), so local/global's coordinates solve to the same bits one at a
+ * time or together.
+ */
+SOLVE_CLONES
+static void super_solve(const cholmod_factor *L, const int32_t *perm, int nrhs, size_t rows,
+                        const double *rhs, double *x, double *restrict work)
+{
+    const int *super = L->super, *pi = L->pi, *px = L->px, *Ls = L->s, *Perm = L->Perm;
+    const double *Lx = L->x, *Lend = Lx + L->xsize;
+    const size_t n = L->n;
+    const int nsuper = (int)L->nsuper;
+    double *restrict y = work, *restrict v = work + n * (size_t)nrhs;
+    /* y = P b: row k of the factor's system is the caller's unknown
+     * perm[Perm[k]] (either permutation may be the identity) */
+    for (int c = 0; c < nrhs; c++)
+        for (size_t k = 0; k < n; k++) {
+            const size_t pk = Perm ? (size_t)Perm[k] : k;
+            y[c * n + k] = rhs[c * n + (perm ? (size_t)perm[pk] : pk)];
+        }
+    /* L z = y, supernodes in order */
+    for (int s = 0; s < nsuper; s++) {
+        const int k1 = super[s], ncol = super[s + 1] - k1, nrow = pi[s + 1] - pi[s];
+        const int *ri = Ls + pi[s];
+        const double *Lsn = Lx + px[s];
+        for (int c = 0; c < nrhs; c++) {
+            double *vc = v + (size_t)c * rows, *yc = y + (size_t)c * n;
+            memcpy(vc, yc + k1, (size_t)ncol * sizeof *vc);
+            memset(vc + ncol, 0, (size_t)(nrow - ncol) * sizeof *vc);
+        }
+        int j = 0;
+        for (; j + 4 <= ncol; j += 4) {
+            const double *c0 = Lsn + (size_t)j * nrow, *c1 = c0 + nrow, *c2 = c1 + nrow,
+                         *c3 = c2 + nrow;
+            if (nrow < PREFETCH_ROWS)
+                prefetch_range(c0 + 4 * (ptrdiff_t)nrow, 4 * (ptrdiff_t)nrow, Lx, Lend);
+            double a[BG_SPARSE_MAX_RHS][4];
+            for (int c = 0; c < nrhs; c++) { /* the 4×4 diagonal block */
+                double *vc = v + (size_t)c * rows, *ac = a[c];
+                ac[0] = vc[j] / c0[j];
+                ac[1] = (vc[j + 1] - c0[j + 1] * ac[0]) / c1[j + 1];
+                ac[2] = (vc[j + 2] - c0[j + 2] * ac[0] - c1[j + 2] * ac[1]) / c2[j + 2];
+                ac[3] = (vc[j + 3] - c0[j + 3] * ac[0] - c1[j + 3] * ac[1] - c2[j + 3] * ac[2]) /
+                        c3[j + 3];
+                memcpy(vc + j, ac, sizeof a[c]);
+            }
+            if (nrhs == 3)
+                update4x3(c0, c1, c2, c3, (const double(*)[4])a, j + 4, nrow, v, v + rows,
+                          v + 2 * rows);
+            else
+                for (int c = 0; c < nrhs; c++)
+                    update4(c0, c1, c2, c3, a[c], j + 4, nrow, v + (size_t)c * rows);
+        }
+        for (; j < ncol; j++) {
+            const double *c0 = Lsn + (size_t)j * nrow;
+            for (int c = 0; c < nrhs; c++) {
+                double *restrict vc = v + (size_t)c * rows;
+                const double a0 = vc[j] / c0[j];
+                vc[j] = a0;
+                for (int i = j + 1; i < nrow; i++)
+                    vc[i] -= c0[i] * a0;
+            }
+        }
+        for (int c = 0; c < nrhs; c++) {
+            const double *vc = v + (size_t)c * rows;
+            double *yc = y + (size_t)c * n;
+            memcpy(yc + k1, vc, (size_t)ncol * sizeof *vc);
+            for (int i = ncol; i < nrow; i++)
+                yc[ri[i]] += vc[i];
+        }
+    }
+    /* Lᵀ w = z, supernodes in reverse, a supernode's columns in blocks of
+     * four from its last (the remainder, its first columns, one by one) */
+    for (int s = nsuper - 1; s >= 0; s--) {
+        const int k1 = super[s], ncol = super[s + 1] - k1, nrow = pi[s + 1] - pi[s];
+        const int *ri = Ls + pi[s];
+        const double *Lsn = Lx + px[s];
+        for (int c = 0; c < nrhs; c++) {
+            double *vc = v + (size_t)c * rows;
+            const double *yc = y + (size_t)c * n;
+            memcpy(vc, yc + k1, (size_t)ncol * sizeof *vc);
+            for (int i = ncol; i < nrow; i++)
+                vc[i] = yc[ri[i]];
+        }
+        int j = ncol;
+        for (; j >= 4; j -= 4) {
+            const int j0 = j - 4;
+            const double *c0 = Lsn + (size_t)j0 * nrow, *c1 = c0 + nrow, *c2 = c1 + nrow,
+                         *c3 = c2 + nrow;
+            if (nrow < PREFETCH_ROWS)
+                prefetch_range(c0 - 4 * (ptrdiff_t)nrow, 4 * (ptrdiff_t)nrow, Lx, Lend);
+            double dd[BG_SPARSE_MAX_RHS][4];
+            if (nrhs == 3)
+                dot4x3(c0, c1, c2, c3, v, v + rows, v + 2 * rows, j, nrow, dd);
+            else
+                for (int c = 0; c < nrhs; c++)
+                    dot4(c0, c1, c2, c3, v + (size_t)c * rows, j, nrow, dd[c]);
+            for (int c = 0; c < nrhs; c++) { /* the 4×4 diagonal block, transposed */
+                double *vc = v + (size_t)c * rows;
+                const double *d = dd[c];
+                vc[j0 + 3] = (vc[j0 + 3] - d[3]) / c3[j0 + 3];
+                vc[j0 + 2] = (vc[j0 + 2] - d[2] - c2[j0 + 3] * vc[j0 + 3]) / c2[j0 + 2];
+                vc[j0 + 1] =
+                    (vc[j0 + 1] - d[1] - c1[j0 + 2] * vc[j0 + 2] - c1[j0 + 3] * vc[j0 + 3]) /
+                    c1[j0 + 1];
+                vc[j0] = (vc[j0] - d[0] - c0[j0 + 1] * vc[j0 + 1] - c0[j0 + 2] * vc[j0 + 2] -
+                          c0[j0 + 3] * vc[j0 + 3]) /
+                         c0[j0];
+            }
+        }
+        for (j = j - 1; j >= 0; j--) {
+            const double *c0 = Lsn + (size_t)j * nrow;
+            for (int c = 0; c < nrhs; c++) {
+                double *vc = v + (size_t)c * rows;
+                vc[j] = (vc[j] - dot1(c0, vc, j + 1, nrow)) / c0[j];
+            }
+        }
+        for (int c = 0; c < nrhs; c++)
+            memcpy(y + (size_t)c * n + k1, v + (size_t)c * rows, (size_t)ncol * sizeof *v);
+    }
+
+    for (int c = 0; c < nrhs; c++)
+        for (size_t k = 0; k < n; k++) {
+            const size_t pk = Perm ? (size_t)Perm[k] : k;
+            x[c * n + (perm ? (size_t)perm[pk] : pk)] = y[c * n + k];
+        }
+}
+
+/* x = A⁻¹ rhs by super_solve, its scratch kept across calls (it grows to
+ * the widest call: (n + rows)·BG_SPARSE_MAX_RHS doubles at most). */
+static bg_status solve_super(bg_sparse_t *sys, int nrhs, const double *rhs, double *x,
+                             bg_error_t *err)
+{
+    const size_t rows = super_rows(sys->L), need = (sys->L->n + rows) * (size_t)nrhs;
+    if (need > sys->solve_work_size) {
+        double *w = realloc(sys->solve_work, need * sizeof *w);
+        if (!w)
+            return bg_error_set(err, BG_ERR_NOMEM, "out of memory for %d right-hand sides", nrhs);
+        sys->solve_work = w;
+        sys->solve_work_size = need;
+    }
+    const double t0 = bg_clock_now();
+    super_solve(sys->L, sys->perm, nrhs, rows, rhs, x, sys->solve_work);
+    sys->timing.solve_seconds += bg_clock_now() - t0;
+    sys->timing.solves += nrhs;
+    return BG_OK;
+}
+
 bg_status bg_sparse_solve(bg_sparse_t *sys, const double *rhs, double *x, bg_error_t *err)
 {
     return bg_sparse_solve_many(sys, 1, rhs, x, err);
@@ -627,6 +950,8 @@ bg_status bg_sparse_solve_many(bg_sparse_t *sys, int nrhs, const double *rhs, do
         return bg_error_set(err, BG_ERR_INVALID, "%d right-hand sides (1 to %d)", nrhs,
                             BG_SPARSE_MAX_RHS);
     const size_t n = (size_t)sys->nfree, count = n * (size_t)nrhs;
+    if (sys->L->is_super && sys->prefer_solves)
+        return solve_super(sys, nrhs, rhs, x, err);
     /* B keeps its widest allocation; a narrower call only reshapes it
      * (cholmod_solve2 reshapes X, Y and E the same way). */
     if (!sys->B || sys->B->nzmax < count) {
