@@ -366,7 +366,6 @@ void bg_sparse_zero(bg_sparse_t *sys)
 void bg_sparse_prefer_solves(bg_sparse_t *sys)
 {
     sys->prefer_solves = 1;
-    sys->common.supernodal_switch = BG_SPARSE_SOLVES_SWITCH;
 }
 
 int bg_sparse_prefers_solves(const bg_sparse_t *sys)

@@ -71,18 +71,19 @@ void bg_sparse_zero(bg_sparse_t *sys);
 /*
  * The system will be solved far more often than it is factored (a
  * prefactored method's Laplacian: hundreds of solves per factorization):
- * the factor is made simplicial, not supernodal, unless its flops per
- * nonzero reach BG_SPARSE_SOLVES_SWITCH (CHOLMOD's own switch is 40).
- * A simplicial solve streams the factor with none of the supernodal
- * solve's per-supernode BLAS calls, which dominate on the small
- * supernodes of these matrices: three right-hand sides on the bunny's
- * scalar Laplacian (flops/nnz 85) 0.46 ms against 0.87, the bending
- * slab's (188) 1.26 against 1.81, bar-twist's (66) 0.08 against 0.16;
- * the 32³ box's (722) stays supernodal, where the simplicial solve is
- * slower and its factorization 12 times slower. Call before the first
- * factorization; the sparse-solve agent is told (solve-setup).
+ * when CHOLMOD makes its factor supernodal (flops per nonzero from 40 on),
+ * bg_sparse solves through it with its own kernels instead of CHOLMOD's
+ * solve, whose per-supernode BLAS calls (matrix–matrix kernels on
+ * matrix–vector work, every diagonal block packed first) dominate with a
+ * few right-hand sides. Three right-hand sides, one thread: the 32³ box's
+ * scalar Laplacian (flops/nnz 722) 24–25 ms → 20–21.5 ms a solve; on
+ * smaller ones the kernels also beat the simplicial factor this flag once
+ * asked for (CHOLMOD's simplicial solve had beaten its supernodal one):
+ * the bending slab's (188) 1.06 → 0.84 ms, bar-twist's (66) 0.083 →
+ * 0.072 ms, the bunny's (85) 0.43 ms either way. Call before the first
+ * factorization; the sparse-solve agent is told (solve-setup), so a grid
+ * run solves to the same bits as one in process.
  */
-#define BG_SPARSE_SOLVES_SWITCH 200.0
 void bg_sparse_prefer_solves(bg_sparse_t *sys);
 int bg_sparse_prefers_solves(const bg_sparse_t *sys);
 /* 1 when the factor is supernodal, 0 simplicial, −1 before the analysis. */

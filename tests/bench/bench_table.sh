@@ -7,7 +7,7 @@
 # machine's load (uptime) before, between and after the runs.
 #
 #   sh tests/bench/bench_table.sh [--before BUILD] [--after BUILD] [--rounds N]
-#                                 [--out DIR] [--smoke]
+#                                 [--out DIR] [--smoke] [--libigl DIR]
 #
 # BUILD is a build folder of this project (its bin/biotgrid and
 # tests/bench/bench_rotfit, bench_solve are used); --after defaults to
@@ -39,13 +39,23 @@
 #   local/global   ms per iteration (trace, set-up excluded): bunny-edit
 #                  from the slab/bunny run, tests/bench/scenes/box-196608.json
 #                  from a 20-iteration run
+#   libigl         (--libigl DIR: a libigl source tree, e.g. a clone of
+#                  github.com/libigl/libigl; needs g++ and libeigen3-dev)
+#                  local/global on the ARAP energy (the same scenes with
+#                  λ = 0, no reference: libigl's energy) against libigl's
+#                  arap_solve on the same mesh and handles, one thread, ms per
+#                  iteration: bunny-edit 200 iterations here and 100 there,
+#                  the box 20 here and 10 there (after one untimed
+#                  iteration). tests/bench/libigl/arap_bench.cpp is compiled
+#                  out of the build (libigl is not a dependency) with -O3
+#                  -DNDEBUG, as a user's release build would be.
 # --smoke: one round, tiny sizes (bench_* --smoke, bar-twist for the
 # scenes): checks that every figure is produced and parsed, not speed.
 # Exit status: 0, or 1 when a run failed or a figure is missing.
 set -u
 here=$(cd "$(dirname "$0")" && pwd)
 src=$(cd "$here/../.." && pwd)
-before="" after="$src/build" rounds=2 out="" smoke=0
+before="" after="$src/build" rounds=2 out="" smoke=0 libigl=""
 while [ $# -gt 0 ]; do
     case $1 in
         --before) before=$2; shift 2 ;;
@@ -53,7 +63,8 @@ while [ $# -gt 0 ]; do
         --rounds) rounds=$2; shift 2 ;;
         --out) out=$2; shift 2 ;;
         --smoke) smoke=1; rounds=1; shift ;;
-        *) echo "usage: bench_table.sh [--before BUILD] [--after BUILD] [--rounds N] [--out DIR] [--smoke]" >&2
+        --libigl) libigl=$2; shift 2 ;;
+        *) echo "usage: bench_table.sh [--before BUILD] [--after BUILD] [--rounds N] [--out DIR] [--smoke] [--libigl DIR]" >&2
            exit 2 ;;
     esac
 done
@@ -70,6 +81,13 @@ for b in $before $after; do
         [ -x "$b/$f" ] || { echo "bench_table.sh: $b/$f missing (build it first)" >&2; exit 1; }
     done
 done
+
+if [ -n "$libigl" ]; then
+    [ -f "$libigl/include/igl/arap.h" ] || { echo "bench_table.sh: $libigl/include/igl/arap.h missing (--libigl names a libigl source tree)" >&2; exit 1; }
+    echo "bench_table.sh: compiling tests/bench/libigl/arap_bench.cpp against $libigl (about a minute)" >&2
+    g++ -std=c++17 -O3 -DNDEBUG -I"$libigl/include" -I/usr/include/eigen3 \
+        "$here/libigl/arap_bench.cpp" -o "$out/arap_bench" -lpthread || exit 1
+fi
 
 slab=$src/tests/bench/scenes/bending-slab.json
 bunny=$src/configs/scenes/bunny-edit.json
@@ -114,6 +132,32 @@ measure() {
     "$(cmd "$b")" solve "$(scene_for "$box" "$b" "$d")" --method local-global \
         --tolerance 1e-12 --max-iterations $boxits --quiet --out "$d/box" > "$d/box.txt" 2>&1
     [ $? -le 1 ] || failed=1
+    [ -n "$libigl" ] || return 0
+    for s in bunny box; do
+        eval scene=\$$s
+        its=200
+        [ $s = box ] && its=$boxits
+        jq '.material.lambda = 0 | del(.reference)' "$(scene_for "$scene" "$b" "$d")" \
+            > "$d/$s-arap.json" || failed=1
+        "$(cmd "$b")" solve "$d/$s-arap.json" --method local-global --tolerance 1e-14 \
+            --max-iterations $its --quiet --out "$d/$s-arap" > "$d/$s-arap.txt" 2>&1
+        [ $? -le 1 ] || failed=1
+    done
+}
+
+# libigl's arap_solve on scene $1's mesh and handles (box_fraction handles
+# moved by a translation: the scenes this table uses), $2 iterations.
+measure_libigl() {
+    mesh=$(jq -r 'if (.mesh | type) == "object" and .mesh.generate == "box"
+        then "box:\(.mesh.cells | map(tostring) | join(",")):\((.mesh.size // [1, 1, 1]) | map(tostring) | join(","))"
+        else .mesh end' "$1")
+    case $mesh in
+        box:*) ;;
+        *) mesh=$(dirname "$(cmd "$after")")/../share/biotgrid/meshes/$mesh ;;
+    esac
+    handles=$(jq -r '.handles[] | [.select.box_fraction.min, .select.box_fraction.max,
+        (.transform.translate // [0, 0, 0])] | flatten | map(tostring) | join(",")' "$1")
+    IGL_NUM_THREADS=1 "$out/arap_bench" "$mesh" "$2" $handles
 }
 
 # Round r: before then after on odd rounds, after then before on even ones.
@@ -127,6 +171,12 @@ while [ $r -le "$rounds" ]; do
         measure "$b" "$out/$side-$r"
         note_load "after round $r, $side"
     done
+    if [ -n "$libigl" ]; then
+        mkdir -p "$out/libigl-$r"
+        measure_libigl "$bunny" 100 > "$out/libigl-$r/bunny.txt" 2>&1 || failed=1
+        measure_libigl "$box" 10 > "$out/libigl-$r/box.txt" 2>&1 || failed=1
+        note_load "after round $r, libigl"
+    fi
     r=$((r + 1))
 done
 
@@ -156,6 +206,14 @@ value() { # key side round
         bartwist) v=$(figure "$d/solve.txt" accuracy.bar-twist.newton_over_local_global) ;;
         lg_bunny) v=$(per_it "$d/bunny/report.json" local-global) ;;
         lg_box) v=$(per_it "$d/box/report.json" local-global) ;;
+        arap_bunny | arap_box)
+            v=$(per_it "$d/${1#arap_}-arap/report.json" local-global) ;;
+        igl_bunny | igl_box)
+            v=$(figure "$out/libigl-$3/${1#igl_}.txt" libigl.ms_per_iteration) ;;
+        over_bunny | over_box) # this build's ARAP iteration over libigl's, same round
+            a=$(value "arap_${1#over_}" "$2" "$3") l=$(value "igl_${1#over_}" "$2" "$3")
+            v=""
+            [ -n "$a" ] && [ -n "$l" ] && v=$(awk -v a="$a" -v l="$l" 'BEGIN { printf "%.4f", a / l }') ;;
         *) set -- $(echo "$1" | tr : ' ') "$2" "$3"
            v=$(reach "$d/$1/report.json" "$3" "$2") ;;
     esac
@@ -207,12 +265,18 @@ echo "| the same, CPU time, against CHOLMOD on the matrix stored in its factor's
 echo "| bar-twist, Newton to 1e-8 against local/global to 1e-4 | $(cell bartwist before "%.2fx") | $(cell bartwist after "%.2fx") | < 1 |"
 echo "| rotation fit, bench_rotfit warm (M tets/s) | $(cell rotfit before "%.1f") | $(cell rotfit after "%.1f") | >= 35 |"
 echo "| local/global iteration, $(basename "$bunny" .json) / $(basename "$box" .json) (ms) | $(cell lg_bunny before "%.2f") / $(cell lg_box before "%.1f") | $(cell lg_bunny after "%.2f") / $(cell lg_box after "%.1f") | about half of before |"
+if [ -n "$libigl" ]; then
+    echo "| local/global on the ARAP energy (λ = 0), ms per iteration, $(basename "$bunny" .json) / $(basename "$box" .json); libigl's arap_solve: $(cell igl_bunny after "%.2f") / $(cell igl_box after "%.1f") ms | $(cell arap_bunny before "%.2f") / $(cell arap_box before "%.1f") | $(cell arap_bunny after "%.2f") / $(cell arap_box after "%.1f") | |"
+    echo "| the same over libigl's (each round's own ratio) | $(cell over_bunny before "%.3fx") / $(cell over_box before "%.3fx") | $(cell over_bunny after "%.3fx") / $(cell over_box after "%.3fx") | <= 0.1x on both |"
+fi
 echo
 echo "Medians over $rounds round(s), runs alternated (odd rounds before then after, even rounds"
 echo "after then before); one thread (OPENBLAS_NUM_THREADS, OMP_NUM_THREADS, OMP_THREAD_LIMIT = 1)."
 echo "Every round's value:"
 echo
-for key in rotfit ratio ratio_cpu ratio_stored bartwist lg_bunny lg_box; do
+keys="rotfit ratio ratio_cpu ratio_stored bartwist lg_bunny lg_box"
+[ -n "$libigl" ] && keys="$keys igl_bunny igl_box arap_bunny arap_box over_bunny over_box"
+for key in $keys; do
     echo "- $key: before [$(raw $key before)], after [$(raw $key after)]"
 done
 for s in slab bunny; do

@@ -1,10 +1,9 @@
 /*
  * bg_sparse: several right-hand sides in one solve give what one solve per
  * column gives, on a supernodal and on a simplicial factor, wider and then
- * narrower calls reuse the workspace, and bg_sparse_prefer_solves makes a
- * solve-heavy system's factor simplicial only where its flops per nonzero
- * are moderate. A Hessian stored in its factor's order (bg_sparse_reorder)
- * is the same matrix as one assembled in the unknowns' own order, applies
+ * narrower calls reuse the workspace, and bg_sparse_prefer_solves keeps
+ * CHOLMOD's choice of factor kind. A Hessian stored in its factor's order
+ * (bg_sparse_reorder) is the same matrix as one assembled in the unknowns' own order, applies
  * as the finite differences of the gradient do, and solves, multiplies and
  * takes a diagonal in the caller's numbering. Its vertex-block map gives
  * the entry scatter map's values to the bit. A supernodal solve-heavy
@@ -97,36 +96,41 @@ static void check_columns(bg_sparse_t *sys)
     free(r);
 }
 
-/* A 6×6×6 box: flops per nonzero well under BG_SPARSE_SOLVES_SWITCH and
- * over CHOLMOD's 40, so the default factor is supernodal and the
- * preferred one simplicial; a 16³ box's is over the switch, supernodal
- * either way. */
+/* A 9³ box: flops per nonzero over CHOLMOD's switch of 40, so its factor
+ * is supernodal whether or not the system prefers solves (the flag picks
+ * the solve kernels, not the factor kind), and the columns check holds
+ * through CHOLMOD's solve (default) and bg_sparse's own (prefer); a 16³
+ * box's the same with the flag; a 4³ box's, under the switch, simplicial
+ * with it. */
 static void factor_kinds(void **state)
 {
-    const int32_t small[3] = {9, 9, 9}, large[3] = {16, 16, 16};
+    (void)state;
+    const int32_t tiny[3] = {4, 4, 4}, small[3] = {9, 9, 9}, large[3] = {16, 16, 16};
     for (int prefer = 0; prefer <= 1; prefer++) {
         bg_mesh_t *mesh = NULL;
         bg_sparse_t *sys = laplacian(small, prefer, &mesh);
         const double ratio = bg_sparse_factor_flops(sys) / bg_sparse_factor_nonzeros(sys);
         print_message("  9^3 box, prefer_solves %d: flops/nnz %.1f, %s\n", prefer, ratio,
                       bg_sparse_supernodal(sys) ? "supernodal" : "simplicial");
-        assert_true(ratio > 40.0 && ratio < BG_SPARSE_SOLVES_SWITCH);
+        assert_true(ratio > 40.0);
         assert_int_equal(bg_sparse_prefers_solves(sys), prefer);
-        assert_int_equal(bg_sparse_supernodal(sys), !prefer);
+        assert_int_equal(bg_sparse_supernodal(sys), 1);
         check_columns(sys);
         bg_sparse_destroy(&sys);
         bg_mesh_destroy(&mesh);
     }
-    bg_mesh_t *mesh = NULL;
-    bg_sparse_t *sys = laplacian(large, 1, &mesh);
-    const double ratio = bg_sparse_factor_flops(sys) / bg_sparse_factor_nonzeros(sys);
-    print_message("  16^3 box, prefer_solves 1: flops/nnz %.1f, %s\n", ratio,
-                  bg_sparse_supernodal(sys) ? "supernodal" : "simplicial");
-    assert_true(ratio >= BG_SPARSE_SOLVES_SWITCH);
-    assert_int_equal(bg_sparse_supernodal(sys), 1);
-    check_columns(sys);
-    bg_sparse_destroy(&sys);
-    bg_mesh_destroy(&mesh);
+    for (int big = 0; big <= 1; big++) {
+        bg_mesh_t *mesh = NULL;
+        bg_sparse_t *sys = laplacian(big ? large : tiny, 1, &mesh);
+        const double ratio = bg_sparse_factor_flops(sys) / bg_sparse_factor_nonzeros(sys);
+        print_message("  %s box, prefer_solves 1: flops/nnz %.1f, %s\n", big ? "16^3" : "4^3",
+                      ratio, bg_sparse_supernodal(sys) ? "supernodal" : "simplicial");
+        assert_true(big ? ratio > 40.0 : ratio < 40.0);
+        assert_int_equal(bg_sparse_supernodal(sys), big);
+        check_columns(sys);
+        bg_sparse_destroy(&sys);
+        bg_mesh_destroy(&mesh);
+    }
 }
 
 /* A deformed box's Hessian, assembled twice through the scatter maps of
