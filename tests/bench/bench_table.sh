@@ -48,8 +48,9 @@
 #                  the box 60 here and 10 there (libigl's after one untimed
 #                  iteration; its cost does not change from one to the next,
 #                  while here the first ~20 cost ~7 % more: the warm-started
-#                  rotation fits take more steps while the shape still moves). tests/bench/libigl/arap_bench.cpp is compiled
-#                  out of the build (libigl is not a dependency) with -O3
+#                  rotation fits take more steps while the shape still
+#                  moves). tests/bench/libigl/arap_bench.cpp is compiled out
+#                  of the build (libigl is not a dependency) with -O3
 #                  -DNDEBUG, as a user's release build would be.
 # --smoke: one round, tiny sizes (bench_* --smoke, bar-twist for the
 # scenes): checks that every figure is produced and parsed, not speed.
