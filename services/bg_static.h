@@ -169,6 +169,11 @@ typedef struct bg_setup {
     int64_t factorizations;   /* Σ step[].factorizations */
 } bg_setup_t;
 
+/* The set-up step of Newton's symbolic analysis (the fill-reducing order,
+ * the Hessian stored in it): once per solver, before the iterations. */
+#define BG_SETUP_NEWTON_ANALYSIS                                                                   \
+    "Newton: the Hessian's symbolic analysis, stored in its factor's order"
+
 /* Adds one run of a set-up step (merged with an earlier one of the same
  * name; steps beyond BG_SETUP_MAX_STEPS go into the last one). */
 void bg_setup_add(bg_setup_t *setup, const char *name, int64_t count, int64_t factorizations,
