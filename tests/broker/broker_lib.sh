@@ -17,6 +17,9 @@
 #   market_sellers URL KIND            alive market sellers: KIND service, resource or idle
 #                                      (service sellers with every slot free)
 #   broker_test_begin WORK             WORK emptied, fail=0, INT/TERM stop broker b, exit 1
+#   broker_agents_test_begin WORK SCRIPTS
+#                                      WORK emptied, fail=0; at exit broker b and the agents
+#                                      of WORK/agents are stopped; INT/TERM/HUP exit 1
 #   broker_config WORK NAME [JSON]     WORK/broker.json: ephemeral loopback ports, WORK/state
 #   grid_test_begin BIN WORK           a grid test's start: WORK emptied, state=WORK/grid,
 #                                      fail=0, INT/TERM stop the grid and exit 1
@@ -190,6 +193,20 @@ broker_test_begin() {
   mkdir -p "$_bt_work"
   fail=0
   trap 'stop_broker "$_bt_work" b; exit 1' INT TERM
+}
+
+# broker_agents_test_begin WORK SCRIPTS: WORK emptied, fail=0; whenever the
+# test exits, the broker named b and the agents SCRIPTS/start_agents.sh
+# started in WORK/agents are stopped, unchecked (a test that ends normally
+# stops them itself, checked, after `trap - EXIT`); INT, TERM and HUP exit 1.
+broker_agents_test_begin() {
+  _bat_work=$1 _bat_scripts=$2
+  rm -rf "$_bat_work"
+  mkdir -p "$_bat_work"
+  fail=0
+  trap 'stop_broker "$_bat_work" b >/dev/null 2>&1
+        sh "$_bat_scripts/stop_agents.sh" "$_bat_work/agents" >/dev/null 2>&1' EXIT
+  trap 'exit 1' INT TERM HUP
 }
 
 # broker_config WORK NAME [JSON]: WORK/broker.json for a broker named NAME

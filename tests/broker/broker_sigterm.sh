@@ -25,15 +25,7 @@ GRACE=${BG_SIGTERM_GRACE:-6} SLACK=${BG_SIGTERM_SLACK:-8}
 ITERS=${BG_SIGTERM_ITERS:-6000}
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-fail=0
-rm -rf "$work"
-mkdir -p "$work"
-cleanup() {
-  stop_broker "$work" b >/dev/null 2>&1
-  sh "$scripts/stop_agents.sh" "$work/agents" >/dev/null 2>&1
-}
-trap cleanup EXIT
-trap 'exit 1' INT TERM HUP
+broker_agents_test_begin "$work" "$scripts"
 broker_config "$work" sigterm "{\"max_jobs\": 1, \"stop_grace_ms\": $((GRACE * 1000))}"
 start_broker "$bin" "$work" b "$work/broker.json" || exit 1
 url=$(cut -d' ' -f1 "$work/b.ready")

@@ -16,15 +16,7 @@ set -u
 bin=$1 scripts=$2 work=$3 scene=$4 mesh_dir=$5
 here=$(cd "$(dirname "$0")" && pwd)
 . "$here/broker_lib.sh"
-rm -rf "$work"
-mkdir -p "$work"
-fail=0
-cleanup() {
-  stop_broker "$work" b >/dev/null 2>&1
-  sh "$scripts/stop_agents.sh" "$work/agents" >/dev/null 2>&1
-}
-trap cleanup EXIT
-trap 'exit 1' INT TERM HUP
+broker_agents_test_begin "$work" "$scripts"
 
 sh "$scripts/start_agents.sh" "$bin" "$work/agents" r1:rotfit sv:solve ig:integ \
   >"$work/agents.txt" || exit 1
